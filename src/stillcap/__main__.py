@@ -1,0 +1,3 @@
+from stillcap.cli import main
+
+main()

@@ -1,0 +1,38 @@
+"""Input validation at the package boundary (pytransform3d-style `check_*` helpers).
+
+Every public function converts its array inputs here so that a wrong shape fails with a
+``ValueError`` naming the argument and the shape that came, never with an obscure broadcast error.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def as_array(x, shape: tuple, name: str, dtype=float) -> np.ndarray:
+    """Return ``x`` as an array whose shape matches ``shape`` (``None`` = any length).
+
+    >>> as_array([[1, 2, 3]], (None, 3), "points").shape
+    (1, 3)
+    """
+    a = np.asarray(x, dtype=dtype)
+    ok = a.ndim == len(shape) and all(s is None or s == n for s, n in zip(shape, a.shape))
+    if not ok:
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{name} must have shape {want}, got {a.shape}")
+    return a
+
+
+def as_points(x, dim: int, name: str) -> tuple[np.ndarray, bool]:
+    """Accept one point ``(dim,)`` or many ``(N, dim)``; return ``(N, dim)`` and whether it was one."""
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 1 and a.shape[0] == dim:
+        return a[None, :], True
+    if a.ndim == 2 and a.shape[1] == dim:
+        return a, False
+    raise ValueError(f"{name} must have shape ({dim},) or (N, {dim}), got {a.shape}")
+
+
+def as_rng(rng) -> np.random.Generator:
+    """An ``np.random.Generator`` from a Generator, an int seed or None."""
+    return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)

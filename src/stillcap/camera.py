@@ -1,0 +1,379 @@
+"""Cameras and rigs.
+
+A :class:`Camera` is OpenCV's pinhole model with radial (k1, k2, k3) and tangential (p1, p2)
+distortion (Heikkila & Silven) plus a pose ``world2cam`` (4x4, world -> camera frame; camera
+frame x right, y down, z forward). Pixels are ``(x, y)`` with the origin at the centre of the
+top-left pixel, as in OpenCV. Units are SI (metres) unless a name says otherwise.
+
+A :class:`Rig` is an ordered list of named cameras (order is kept as given: never sorted, so
+"cam_10" does not jump ahead of "cam_2"). Rigs are saved as a documented JSON file
+(``docs/rig-format.md``) and can be imported from OpenCV ``cv2.FileStorage`` YAML/XML files.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from stillcap._checks import as_array, as_points
+from stillcap.io.atomic import write_text
+
+RIG_FORMAT = "stillcap-rig"
+RIG_VERSION = 1
+
+
+def pose_matrix(R, t) -> np.ndarray:
+    """4x4 homogeneous transform from a 3x3 rotation and a translation (3,)."""
+    T = np.eye(4)
+    T[:3, :3] = as_array(R, (3, 3), "R")
+    T[:3, 3] = as_array(np.ravel(t), (3,), "t")
+    return T
+
+
+def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """``world2cam`` of a camera at ``eye`` looking at ``target`` with ``up`` pointing up in the image.
+
+    Camera frame: z forward (towards ``target``), x right, y down.
+    """
+    eye = as_array(eye, (3,), "eye")
+    z = as_array(target, (3,), "target") - eye
+    if np.linalg.norm(z) == 0:
+        raise ValueError("look_at: eye and target are the same point")
+    z = z / np.linalg.norm(z)
+    x = np.cross(z, -as_array(up, (3,), "up"))
+    if np.linalg.norm(x) < 1e-12:
+        raise ValueError("look_at: viewing direction is parallel to 'up'")
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])  # rows: camera axes in world coordinates
+    return pose_matrix(R, -R @ eye)
+
+
+@dataclass
+class Camera:
+    """One calibrated camera.
+
+    Parameters
+    ----------
+    name : str
+    K : array_like, shape (3, 3)
+        Intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in pixels.
+    dist : array_like, shape (5,)
+        OpenCV distortion ``(k1, k2, p1, p2, k3)``.
+    world2cam : array_like, shape (4, 4)
+        Rigid transform from world to camera coordinates.
+    image_size : (width, height) in pixels.
+    """
+
+    name: str
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    world2cam: np.ndarray = field(default_factory=lambda: np.eye(4))
+    image_size: tuple[int, int] = (640, 480)
+
+    def __post_init__(self):
+        self.K = as_array(self.K, (3, 3), f"camera {self.name!r} K").copy()
+        d = np.ravel(np.asarray(self.dist, float))
+        if d.size > 5:
+            if np.any(d[5:] != 0):
+                raise ValueError(
+                    f"camera {self.name!r}: only the 5-parameter distortion (k1, k2, p1, p2, k3) "
+                    f"is supported, got {d.size} non-zero-padded coefficients"
+                )
+            d = d[:5]
+        self.dist = np.pad(d, (0, 5 - d.size))
+        self.world2cam = as_array(self.world2cam, (4, 4), f"camera {self.name!r} world2cam").copy()
+        R = self.world2cam[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+            raise ValueError(f"camera {self.name!r}: world2cam rotation is not a proper rotation")
+        w, h = (int(v) for v in self.image_size)
+        if w <= 0 or h <= 0:
+            raise ValueError(f"camera {self.name!r}: image_size must be positive, got {self.image_size}")
+        self.image_size = (w, h)
+
+    # --- derived quantities -------------------------------------------------------------
+    @classmethod
+    def from_intrinsics(cls, name, fx, fy, cx, cy, image_size, dist=None, world2cam=None) -> Camera:
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        return cls(name, K, np.zeros(5) if dist is None else dist,
+                   np.eye(4) if world2cam is None else world2cam, image_size)
+
+    @property
+    def R(self) -> np.ndarray:
+        """World -> camera rotation (3, 3)."""
+        return self.world2cam[:3, :3]
+
+    @property
+    def t(self) -> np.ndarray:
+        """World -> camera translation (3,)."""
+        return self.world2cam[:3, 3]
+
+    @property
+    def cam2world(self) -> np.ndarray:
+        T = np.eye(4)
+        T[:3, :3] = self.R.T
+        T[:3, 3] = -self.R.T @ self.t
+        return T
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates (3,)."""
+        return -self.R.T @ self.t
+
+    @property
+    def P(self) -> np.ndarray:
+        """3x4 projection matrix ``K [R | t]`` (for undistorted pixels)."""
+        return self.K @ self.world2cam[:3]
+
+    def with_pose(self, world2cam) -> Camera:
+        return Camera(self.name, self.K, self.dist, world2cam, self.image_size)
+
+    # --- projection ---------------------------------------------------------------------
+    def world_to_cam(self, points_world) -> np.ndarray:
+        p, one = as_points(points_world, 3, "points_world")
+        out = p @ self.R.T + self.t
+        return out[0] if one else out
+
+    def project(self, points_world, distort: bool = True) -> np.ndarray:
+        """Pixels ``(N, 2)`` of world points ``(N, 3)``.
+
+        NaN in, NaN out; points on or behind the camera plane (z <= 0) give NaN.
+        Written in NumPy rather than ``cv2.projectPoints`` because it must pass NaN through and
+        runs vectorised over millions of points; ``tests/test_camera.py`` checks both agree.
+        """
+        p, one = as_points(points_world, 3, "points_world")
+        pc = p @ self.R.T + self.t
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(pc[:, 2] > 1e-12, pc[:, 2], np.nan)
+            xn = pc[:, :2] / z[:, None]
+        px = self.normalized_to_pixels(xn, distort=distort)
+        return px[0] if one else px
+
+    def distort_normalized(self, xn) -> np.ndarray:
+        """Apply the lens distortion to normalised image coordinates ``(N, 2)``."""
+        k1, k2, p1, p2, k3 = self.dist
+        x, y = xn[:, 0], xn[:, 1]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return np.stack([xd, yd], axis=1)
+
+    def normalized_to_pixels(self, xn, distort: bool = True) -> np.ndarray:
+        xn = as_array(xn, (None, 2), "normalized points")
+        if distort and np.any(self.dist):
+            xn = self.distort_normalized(xn)
+        K = self.K
+        u = K[0, 0] * xn[:, 0] + K[0, 1] * xn[:, 1] + K[0, 2]
+        v = K[1, 1] * xn[:, 1] + K[1, 2]
+        return np.stack([u, v], axis=1)
+
+    def pixels_to_normalized(self, pixels) -> np.ndarray:
+        """Undistorted normalised coordinates ``(N, 2)`` of distorted pixels ``(N, 2)``; NaN kept.
+
+        Uses OpenCV's iterative undistortion with a tight stopping rule (the default 5 iterations
+        leave errors of 0.1 px and more at the corners of strongly distorted lenses).
+        """
+        px, one = as_points(pixels, 2, "pixels")
+        out = np.full(px.shape, np.nan)
+        ok = np.all(np.isfinite(px), axis=1)
+        if np.any(ok):
+            if np.any(self.dist):
+                crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+                und = cv2.undistortPointsIter(px[ok].reshape(-1, 1, 2), self.K, self.dist, None, None, crit)
+                out[ok] = und.reshape(-1, 2)
+            else:
+                K = self.K
+                y = (px[ok, 1] - K[1, 2]) / K[1, 1]
+                x = (px[ok, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+                out[ok] = np.stack([x, y], axis=1)
+        return out[0] if one else out
+
+    def undistort_points(self, pixels) -> np.ndarray:
+        """Distorted pixels -> ideal (undistorted) pixels of the same camera, ``(N, 2)``."""
+        px, one = as_points(pixels, 2, "pixels")
+        out = self.normalized_to_pixels(self.pixels_to_normalized(px), distort=False)
+        return out[0] if one else out
+
+    def undistort_image(self, image: np.ndarray, interpolation=cv2.INTER_LINEAR) -> np.ndarray:
+        """The image as an ideal pinhole camera with the same ``K`` would have taken it."""
+        image = np.asarray(image)
+        if image.shape[:2] != (self.image_size[1], self.image_size[0]):
+            raise ValueError(
+                f"camera {self.name!r}: image is {image.shape[1]}x{image.shape[0]} px, "
+                f"the camera is {self.image_size[0]}x{self.image_size[1]} px"
+            )
+        if not np.any(self.dist):
+            return image.copy()
+        m1, m2 = cv2.initUndistortRectifyMap(self.K, self.dist, None, self.K, self.image_size, cv2.CV_32FC1)
+        return cv2.remap(image, m1, m2, interpolation)
+
+    def rays(self, pixels) -> tuple[np.ndarray, np.ndarray]:
+        """Back-project pixels to world rays: ``origins (N, 3)`` (the centre) and unit ``directions (N, 3)``."""
+        px, one = as_points(pixels, 2, "pixels")
+        xn = self.pixels_to_normalized(px)
+        d_cam = np.concatenate([xn, np.ones((len(xn), 1))], axis=1)
+        d = d_cam @ self.R  # R^T applied to each row
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        o = np.broadcast_to(self.center, d.shape).copy()
+        return (o[0], d[0]) if one else (o, d)
+
+    # --- serialisation ------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "image_size": list(self.image_size),
+            "K": self.K.tolist(),
+            "dist": self.dist.tolist(),
+            "world2cam": self.world2cam.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "") -> Camera:
+        try:
+            return cls(str(d["name"]), d["K"], d.get("dist", [0] * 5), d.get("world2cam", np.eye(4)),
+                       tuple(d["image_size"]))
+        except KeyError as e:
+            raise ValueError(f"{where}camera entry is missing the key {e}") from None
+
+
+class Rig:
+    """Ordered, named cameras sharing one world frame."""
+
+    def __init__(self, cameras, world: str = "world"):
+        self.cameras: list[Camera] = list(cameras)
+        self.world = world
+        names = [c.name for c in self.cameras]
+        dup = {n for n in names if names.count(n) > 1}
+        if dup:
+            raise ValueError(f"rig has duplicate camera names: {sorted(dup)}")
+
+    def __len__(self):
+        return len(self.cameras)
+
+    def __iter__(self):
+        return iter(self.cameras)
+
+    def __getitem__(self, key) -> Camera:
+        if isinstance(key, str):
+            for c in self.cameras:
+                if c.name == key:
+                    return c
+            raise KeyError(f"no camera named {key!r} in the rig (cameras: {self.names})")
+        return self.cameras[key]
+
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.cameras]
+
+    def subset(self, names) -> Rig:
+        return Rig([self[n] for n in names], self.world)
+
+    def project(self, points_world) -> np.ndarray:
+        """Pixels of world points in every camera, ``(n_cams, N, 2)``."""
+        p, _ = as_points(points_world, 3, "points_world")
+        return np.stack([c.project(p) for c in self.cameras])
+
+    # --- files --------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        return {"format": RIG_FORMAT, "version": RIG_VERSION, "units": "m", "world": self.world,
+                "cameras": [c.to_dict() for c in self.cameras]}
+
+    def save(self, path) -> Path:
+        """Write the rig as JSON (atomically)."""
+        return write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "") -> Rig:
+        if not isinstance(d, dict) or d.get("format") != RIG_FORMAT:
+            raise ValueError(f"{where}not a stillcap rig file (expected \"format\": \"{RIG_FORMAT}\")")
+        if d.get("version", 1) > RIG_VERSION:
+            raise ValueError(f"{where}rig file version {d['version']} is newer than this stillcap reads ({RIG_VERSION})")
+        scale = {"m": 1.0, "mm": 1e-3, "cm": 1e-2}.get(d.get("units", "m"))
+        if scale is None:
+            raise ValueError(f"{where}unknown units {d.get('units')!r} (use m, cm or mm)")
+        cams = []
+        for i, cd in enumerate(d.get("cameras", [])):
+            c = Camera.from_dict(cd, f"{where}camera #{i}: ")
+            if scale != 1.0:
+                c.world2cam[:3, 3] *= scale
+            cams.append(c)
+        if not cams:
+            raise ValueError(f"{where}rig file lists no cameras")
+        return cls(cams, d.get("world", "world"))
+
+    @classmethod
+    def load(cls, path) -> Rig:
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"rig file {path} does not exist") from None
+        except json.JSONDecodeError as e:
+            raise ValueError(f"rig file {path} is not valid JSON: {e}") from None
+        return cls.from_dict(d, f"{path}: ")
+
+    @classmethod
+    def from_opencv(cls, *paths, names=None, image_size=None, square_size: float = 1.0) -> Rig:
+        """Import cameras from ``cv2.FileStorage`` files (YAML or XML).
+
+        Understands the node names OpenCV's samples and tutorials write: a single camera as
+        ``camera_matrix``/``cameraMatrix``/``K`` + ``distortion_coefficients``/``dist_coeffs``/``D``
+        (+ ``image_width``/``image_height``), or a stereo pair as ``M1, D1, M2, D2`` with ``R, T``
+        (possibly split over ``intrinsics.yml`` and ``extrinsics.yml``). The first camera is the
+        world frame; ``T`` is multiplied by ``square_size`` to give metres.
+        """
+        nodes: dict[str, np.ndarray] = {}
+        for p in paths:
+            p = Path(p)
+            if not p.exists():
+                raise ValueError(f"OpenCV calibration file {p} does not exist")
+            fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+            if not fs.isOpened():
+                raise ValueError(f"{p} is not an OpenCV FileStorage file")
+            root = fs.root()
+            for key in root.keys():
+                n = root.getNode(key)
+                if n.isReal() or n.isInt():
+                    nodes[key] = np.array(n.real())
+                elif not n.isNone() and not n.isString():
+                    m = n.mat()
+                    if m is not None:
+                        nodes[key] = np.asarray(m, float)
+            fs.release()
+
+        def pick(*keys):
+            for k in keys:
+                if k in nodes:
+                    return nodes[k]
+            return None
+
+        size = image_size
+        if size is None:
+            w, h = pick("image_width", "imageWidth"), pick("image_height", "imageHeight")
+            size = (int(w), int(h)) if w is not None and h is not None else None
+            if size is None and (s := pick("image_size", "imageSize")) is not None:
+                size = tuple(int(v) for v in np.ravel(s)[:2])
+        if size is None:
+            raise ValueError(f"{', '.join(map(str, paths))}: no image size found; pass image_size=(w, h)")
+        if "M1" in nodes:
+            if "M2" not in nodes:
+                raise ValueError("stereo OpenCV file has M1 but no M2")
+            names = names or ["left", "right"]
+            c1 = Camera(names[0], nodes["M1"], np.ravel(nodes.get("D1", np.zeros(5))), np.eye(4), size)
+            R, T = pick("R"), pick("T")
+            if R is None or T is None:
+                raise ValueError("stereo OpenCV files have intrinsics but no R and T (add extrinsics.yml)")
+            c2 = Camera(names[1], nodes["M2"], np.ravel(nodes.get("D2", np.zeros(5))),
+                        pose_matrix(R, np.ravel(T) * square_size), size)
+            return cls([c1, c2])
+        K = pick("camera_matrix", "cameraMatrix", "K", "intrinsic", "mtx")
+        if K is None:
+            raise ValueError(f"{', '.join(map(str, paths))}: no camera matrix (camera_matrix, cameraMatrix, K or M1)")
+        D = pick("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "dist")
+        name = (names or ["cam0"])[0]
+        return cls([Camera(name, K, np.zeros(5) if D is None else np.ravel(D), np.eye(4), size)])

@@ -1,0 +1,5 @@
+"""`stillcap studio ...` commands."""
+
+import typer
+
+app = typer.Typer(no_args_is_help=True, help="studio commands")
