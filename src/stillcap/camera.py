@@ -184,7 +184,7 @@ class Camera:
         if np.any(ok):
             if np.any(self.dist):
                 crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-                und = cv2.undistortPointsIter(px[ok].reshape(-1, 1, 2), self.K, self.dist, None, None, crit)
+                und = cv2.undistortPoints(px[ok].reshape(-1, 1, 2), self.K, self.dist, None, None, None, crit)
                 out[ok] = und.reshape(-1, 2)
             else:
                 K = self.K

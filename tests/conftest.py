@@ -1,0 +1,11 @@
+"""Shared fixtures."""
+
+import pytest
+
+from support import ring_rig
+
+
+@pytest.fixture
+def rig4():
+    """Four cameras on a 3 m circle around the origin, with lens distortion."""
+    return ring_rig(4, dist=(-0.12, 0.05, 0.001, -0.0005, 0.0))
