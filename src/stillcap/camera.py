@@ -179,18 +179,17 @@ class Camera:
         leave errors of 0.1 px and more at the corners of strongly distorted lenses).
         """
         px, one = as_points(pixels, 2, "pixels")
+        if not np.any(self.dist):
+            K = self.K  # pinhole: closed form, NaN propagates by itself
+            y = (px[:, 1] - K[1, 2]) / K[1, 1]
+            out = np.stack([(px[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0], y], axis=1)
+            return out[0] if one else out
         out = np.full(px.shape, np.nan)
-        ok = np.all(np.isfinite(px), axis=1)
+        ok = np.isfinite(px[:, 0]) & np.isfinite(px[:, 1])
         if np.any(ok):
-            if np.any(self.dist):
-                crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
-                und = cv2.undistortPoints(px[ok].reshape(-1, 1, 2), self.K, self.dist, None, None, None, crit)
-                out[ok] = und.reshape(-1, 2)
-            else:
-                K = self.K
-                y = (px[ok, 1] - K[1, 2]) / K[1, 1]
-                x = (px[ok, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-                out[ok] = np.stack([x, y], axis=1)
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+            und = cv2.undistortPoints(px[ok].reshape(-1, 1, 2), self.K, self.dist, None, None, None, crit)
+            out[ok] = und.reshape(-1, 2)
         return out[0] if one else out
 
     def undistort_points(self, pixels) -> np.ndarray:
