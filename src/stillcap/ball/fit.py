@@ -1,0 +1,436 @@
+"""Reference-trajectory fit (SPEC J1, seed section 4.5).
+
+The flight is sensitive to its initial parameters, so the seed searches for the initial
+position, velocity and spin whose physical trajectory (:mod:`stillcap.ball.physics`) is closest
+to both the measured ball positions and the measured initial parameters. That reference
+trajectory gives the accuracy table (mean / max position error, velocity angle, speed
+difference, spin-axis angle, spin-rate difference).
+
+The objective (both methods) is the sum of squares of
+
+- position residuals ``(p_model(t_i) - p_i) / position_sigma`` for every observed coordinate
+  (NaN = not observed), and
+- prior residuals ``(theta - theta_measured) / prior_sigma`` pulling toward the measured initial
+  position, velocity and spin (:class:`FitPriors`; an infinite sigma drops that prior).
+
+``method="powell"`` minimises it with ``scipy.optimize.minimize(method="Powell")`` as the seed
+did; ``method="least_squares"`` (default) with ``scipy.optimize.least_squares``, whose Jacobian
+is computed by central differences on the vectorised fast integrator (all 2n+1 trajectories in
+one batch). Either way the result carries the covariance ``(J_d^T J_d / s^2 + J_p^T J_p)^-1``
+(``J_d``, ``J_p`` the Jacobians of the position and prior residuals, ``s^2`` the position
+residual variance per degree of freedom) and 1-sigma uncertainties of every parameter.
+
+Spin parameterisation: positions mainly see the spin component transverse to the flight (the
+component along the velocity, gyro spin, produces no Magnus force in the Nathan model and only
+enters the seed model's ``C_L`` through ``|w|``; it becomes weakly visible because gravity turns
+the velocity during the flight). The spin is written in a fixed basis built from the measured
+initial velocity, ``w = s_a e_v + s_1 e_1 + s_2 e_2`` (``e_v`` along the velocity, ``e_1`` the
+horizontal and ``e_2`` the upward normal); with a measured spin the axial part ``s_a`` is held
+near its measured value by its prior, which keeps the problem well posed (its reported
+uncertainty is then essentially the prior's). Without a measured spin all three are free and
+start at zero; the axial uncertainty is then large and says so.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares, minimize
+
+from stillcap._checks import as_array
+from stillcap.ball.physics import FlightModel, simulate, simulate_batch
+
+PARAM_NAMES = ("px", "py", "pz", "vx", "vy", "vz", "spin_axial", "spin_t1", "spin_t2")
+MPH = 0.44704
+RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class FitPriors:
+    """1-sigma uncertainties of the measured initial parameters (weights of the priors).
+
+    Attributes
+    ----------
+    position_sigma : float
+        m, per coordinate.
+    velocity_sigma : float
+        m/s, per coordinate (the seed's speed differences were 0.7-1.9 mph).
+    spin_axial_sigma : float
+        rad/s, spin along the initial velocity (gyro part).
+    spin_transverse_sigma : float
+        rad/s, per transverse coordinate (the seed's rate differences were 7-32 rpm).
+    """
+
+    position_sigma: float = 0.02
+    velocity_sigma: float = 0.5
+    spin_axial_sigma: float = 5.0
+    spin_transverse_sigma: float = 10.0
+
+    def vector(self) -> np.ndarray:
+        return np.array([self.position_sigma] * 3 + [self.velocity_sigma] * 3
+                        + [self.spin_axial_sigma] + [self.spin_transverse_sigma] * 2, float)
+
+
+def spin_basis(velocity) -> np.ndarray:
+    """Orthonormal columns ``(e_v, e_1, e_2)``: along ``velocity``, horizontal normal, upward normal.
+
+    ``e_1 = e_v x z`` (normalised; ``x`` if the velocity is vertical), ``e_2 = e_1 x e_v``.
+
+    Parameters
+    ----------
+    velocity : array_like, shape (3,)
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+    """
+    v = as_array(velocity, (3,), "velocity")
+    n = np.linalg.norm(v)
+    if not n > 0:
+        raise ValueError(f"velocity must be non-zero to build the spin basis, got {v}")
+    ev = v / n
+    e1 = np.cross(ev, [0.0, 0.0, 1.0])
+    if np.linalg.norm(e1) < 1e-9:
+        e1 = np.array([1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(e1, ev)
+    return np.stack([ev, e1, e2], axis=1)
+
+
+@dataclass
+class ReferenceFit:
+    """A fitted reference trajectory and how well it matches the measurements.
+
+    Attributes
+    ----------
+    p0, v0, spin : ndarray, shape (3,)
+        Fitted initial position (m), velocity (m/s) and spin (rad/s) at ``t0``, world frame.
+    p0_sigma, v0_sigma, spin_sigma : ndarray, shape (3,)
+        1-sigma uncertainties of those, world frame.
+    params, param_sigma : ndarray, shape (9,)
+        The fit's parameters :data:`PARAM_NAMES` (spin in ``spin_basis``) and their 1-sigma.
+    covariance : ndarray, shape (9 + G - 1, 9 + G - 1)
+        Covariance of the flight parameters and then the time offsets.
+    spin_basis : ndarray, shape (3, 3)
+        Columns ``e_v, e_1, e_2`` of the spin parameterisation.
+    spin_transverse, spin_transverse_sigma : ndarray, shape (2,)
+        ``(s_1, s_2)`` in rad/s and their 1-sigma.
+    time_offsets, time_offset_sigma : ndarray, shape (G - 1,)
+        Fitted clock offsets of time groups 1.. (s) and their 1-sigma (empty without groups).
+    t0 : float
+        Time of the initial state, s.
+    times : ndarray, shape (N,)
+        Measurement times on the reference clock (offsets applied).
+    positions : ndarray, shape (N, 3)
+        The reference trajectory at ``times`` (reference integrator).
+    residuals : ndarray, shape (N, 3)
+        ``positions - measured`` (NaN where not observed).
+    errors : ndarray, shape (N,)
+        Euclidean error per point, m (NaN where not observed).
+    mean_error, max_error, rms_error : float
+        m, over observed points.
+    velocity_angle_deg, speed_diff, spin_axis_angle_deg, spin_rate_diff : float
+        Fitted versus measured initial parameters (seed Table 1): angle between velocities,
+        ``|v_fit| - |v_meas|`` (m/s), angle between spin vectors, ``|w_fit| - |w_meas|``
+        (rad/s); NaN where no measurement was given.
+    residual_scale : float
+        ``s = sqrt(sum r^2 / (m - n))`` of the whitened position residuals (about 1 when
+        ``position_sigma`` is the true noise; the covariance is rescaled by it).
+    success : bool
+    message, method : str
+    nfev : int
+        Objective evaluations (trajectories).
+    fit_time_s : float
+    """
+
+    p0: np.ndarray
+    v0: np.ndarray
+    spin: np.ndarray
+    p0_sigma: np.ndarray
+    v0_sigma: np.ndarray
+    spin_sigma: np.ndarray
+    params: np.ndarray
+    param_sigma: np.ndarray
+    covariance: np.ndarray
+    spin_basis: np.ndarray
+    spin_transverse: np.ndarray
+    spin_transverse_sigma: np.ndarray
+    time_offsets: np.ndarray
+    time_offset_sigma: np.ndarray
+    t0: float
+    times: np.ndarray
+    positions: np.ndarray
+    residuals: np.ndarray
+    errors: np.ndarray
+    mean_error: float
+    max_error: float
+    rms_error: float
+    velocity_angle_deg: float
+    speed_diff: float
+    spin_axis_angle_deg: float
+    spin_rate_diff: float
+    residual_scale: float
+    success: bool
+    message: str
+    method: str
+    nfev: int
+    fit_time_s: float
+
+    def seed_table_row(self) -> dict:
+        """The seed's Table 1 columns in its units (mm, deg, mph, rpm)."""
+        return {
+            "mean_err_mm": self.mean_error * 1e3,
+            "max_err_mm": self.max_error * 1e3,
+            "velocity_angle_deg": self.velocity_angle_deg,
+            "speed_diff_mph": self.speed_diff / MPH,
+            "spin_axis_angle_deg": self.spin_axis_angle_deg,
+            "spin_rate_diff_rpm": self.spin_rate_diff * RPM_PER_RAD_S,
+            "speed_mph": float(np.linalg.norm(self.v0) / MPH),
+            "spin_rpm": float(np.linalg.norm(self.spin) * RPM_PER_RAD_S),
+        }
+
+
+def _angle_deg(a, b) -> float:
+    na, nb = np.linalg.norm(a), np.linalg.norm(b)
+    if not (na > 0 and nb > 0):
+        return float("nan")
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b))))
+
+
+class _Problem:
+    """Whitened residuals of the fit, vectorised over parameter sets.
+
+    Parameters ``theta`` (P,) = 9 flight parameters, then one time offset per extra time group.
+    """
+
+    def __init__(self, times, positions, group_idx, theta_meas, sigmas, free, basis, model, t0,
+                 position_sigma, integrator, max_step):
+        self.times = times
+        self.group_idx = group_idx  # (N,) 0 = reference clock, g >= 1 -> offset g - 1
+        self.mask = np.isfinite(positions)
+        self.meas = positions[self.mask]
+        self.entry_group = np.broadcast_to(group_idx[:, None], positions.shape)[self.mask]
+        self.theta_meas = theta_meas
+        self.free = free
+        self.has_prior = free & np.isfinite(sigmas)
+        self.prior_sigma = sigmas[self.has_prior]
+        self.basis = basis
+        self.model = model
+        self.t0 = t0
+        self.position_sigma = position_sigma
+        self.integrator = integrator
+        self.max_step = max_step
+        self.nfev = 0
+
+    def full(self, x):
+        """Free parameters (M, n_free) -> full parameter sets (M, P)."""
+        x = np.atleast_2d(x)
+        th = np.broadcast_to(self.theta_meas, (len(x), len(self.theta_meas))).copy()
+        th[:, self.free] = x
+        return th
+
+    def effective_times(self, offsets):
+        return self.times + np.concatenate([[0.0], offsets])[self.group_idx]
+
+    def _simulate(self, th):
+        """Trajectories of parameter sets sharing the same time offsets."""
+        spin = th[:, 6:9] @ self.basis.T
+        self.nfev += len(th)
+        return simulate_batch(th[:, :3], th[:, 3:6], spin, self.effective_times(th[0, 9:]),
+                              self.model, t0=self.t0, method=self.integrator,
+                              max_step=self.max_step)
+
+    def _whiten(self, th, positions):
+        data = (positions[:, self.mask] - self.meas) / self.position_sigma
+        prior = (th[:, self.has_prior] - self.theta_meas[self.has_prior]) / self.prior_sigma
+        return np.concatenate([data, prior], axis=1)
+
+    def residuals(self, x) -> np.ndarray:
+        th = self.full(x)
+        if len(th) > 1 and th.shape[1] > 9 and np.ptp(th[:, 9:], axis=0).max() > 0:
+            return np.concatenate([self.residuals(row) for row in x])
+        return self._whiten(th, self._simulate(th).positions)
+
+    def jacobian(self, x, steps) -> np.ndarray:
+        """Central differences for the flight parameters (all 2n perturbed trajectories and the
+        unperturbed one in one batch); time-offset columns analytically from the velocities."""
+        x = np.asarray(x, float)
+        n = len(x)
+        phys = np.flatnonzero(self.free)[:n] < 9  # free parameters that are flight parameters
+        k = np.flatnonzero(phys)
+        xs = np.repeat(x[None], 2 * len(k) + 1, axis=0)
+        xs[1 + 2 * np.arange(len(k)), k] += steps[k]
+        xs[2 + 2 * np.arange(len(k)), k] -= steps[k]
+        th = self.full(xs)
+        tr = self._simulate(th)
+        r = self._whiten(th, tr.positions)
+        J = np.zeros((r.shape[1], n))
+        J[:, k] = ((r[1::2] - r[2::2]) / (2.0 * steps[k][:, None])).T
+        if not phys.all():
+            vel = tr.velocities[0][self.mask] / self.position_sigma
+            free_idx = np.flatnonzero(self.free)
+            n_data = len(self.meas)
+            for col in np.flatnonzero(~phys):  # offsets have no priors: prior rows stay 0
+                g = free_idx[col] - 9 + 1  # the time group this offset shifts
+                J[:n_data, col] = np.where(self.entry_group == g, vel, 0.0)
+        return J
+
+
+def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightModel | None = None,
+                             *, t0: float | None = None, method: str = "least_squares",
+                             position_sigma: float = 0.002, priors: FitPriors | None = None,
+                             integrator: str = "rk4", max_step: float = 0.02,
+                             time_groups=None, time_offsets=None,
+                             max_nfev: int | None = None) -> ReferenceFit:
+    """Fit the physical reference trajectory to measured ball positions (seed section 4.5).
+
+    Parameters
+    ----------
+    times : array_like, shape (N,)
+        Time of each measured position, s.
+    positions : array_like, shape (N, 3)
+        Measured ball centres, m, in the model's world frame; NaN marks "not observed" (gaps).
+    p0, v0 : array_like, shape (3,)
+        Measured initial position (m) and velocity (m/s) at ``t0``; also the starting guess.
+    spin : array_like, shape (3,), optional
+        Measured spin vector, rad/s. Without it the spin has no prior, starts at 0 and only its
+        transverse part is fitted (the axial part is fixed at 0).
+    model : FlightModel, optional
+        Default: the seed model in the field frame.
+    t0 : float, optional
+        Time of the initial parameters; default the first observed time.
+    method : {"least_squares", "powell"}
+    position_sigma : float
+        Expected measurement noise per coordinate, m (relative weight of data and priors).
+    priors : FitPriors, optional
+    integrator : {"rk4", "dopri5"}
+        Fast fixed-step integrator used inside the fit; the reported trajectory and errors use
+        the reference integrator.
+    max_step : float
+        Step of the fast integrator, s.
+    time_groups : array_like of int, shape (N,), optional
+        Clock of each measurement: 0 = the reference clock of ``times`` and ``t0``, 1, 2, ... =
+        other clocks (e.g. the back stereo pair, whose strobe is not synchronised with the
+        front pair, SPEC J1). One time offset per extra clock is fitted: the true time of a
+        point of group g >= 1 is ``times + time_offsets[g - 1]``.
+    time_offsets : array_like, shape (G - 1,), optional
+        Starting guesses of those offsets, s (default 0).
+    max_nfev : int, optional
+        Limit on residual (least_squares) or objective (Powell) evaluations.
+
+    Returns
+    -------
+    ReferenceFit
+    """
+    t_start = _time.perf_counter()
+    times = as_array(times, (None,), "times")
+    positions = as_array(positions, (len(times), 3), "positions")
+    if not np.all(np.isfinite(times)):
+        raise ValueError("times must be finite (mark missing positions with NaN instead)")
+    observed = np.any(np.isfinite(positions), axis=1)
+    if np.count_nonzero(np.isfinite(positions)) < 9:
+        raise ValueError(f"need at least 9 observed coordinates to fit 9 parameters, got "
+                         f"{np.count_nonzero(np.isfinite(positions))}")
+    p0 = as_array(p0, (3,), "p0")
+    v0 = as_array(v0, (3,), "v0")
+    if method not in ("least_squares", "powell"):
+        raise ValueError(f"method must be 'least_squares' or 'powell', got {method!r}")
+    if not (position_sigma > 0 and np.all(np.isfinite(np.r_[p0, v0]))):
+        raise ValueError(f"need position_sigma > 0 and finite p0, v0; got {position_sigma}, {p0}, {v0}")
+    model = FlightModel() if model is None else model
+    priors = FitPriors() if priors is None else priors
+    if time_groups is None:
+        group_idx = np.zeros(len(times), int)
+    else:
+        group_idx = as_array(time_groups, (len(times),), "time_groups", dtype=int)
+        if group_idx.min(initial=0) < 0:
+            raise ValueError("time_groups must be non-negative integers (0 = reference clock)")
+    n_off = int(group_idx.max(initial=0))
+    off0 = np.zeros(n_off) if time_offsets is None else as_array(time_offsets, (n_off,), "time_offsets")
+    t0 = float(times[observed & (group_idx == 0)].min(initial=np.inf)) if t0 is None else float(t0)
+    if not np.isfinite(t0):
+        t0 = float(times[observed].min())
+    basis = spin_basis(v0)
+    sigmas = np.concatenate([priors.vector(), np.full(n_off, np.inf)])
+    free = np.ones(9 + n_off, bool)
+    if spin is None:
+        # no measured spin: start from none, no spin priors. The axial part stays free: the
+        # velocity turns during the flight (gravity), so spin along the initial velocity is
+        # weakly observable, and fixing it at 0 would bias the transverse part.
+        spin_meas = None
+        s_meas = np.zeros(3)
+        sigmas[6:9] = np.inf
+    else:
+        spin_meas = as_array(spin, (3,), "spin")
+        s_meas = basis.T @ spin_meas
+    theta_meas = np.concatenate([p0, v0, s_meas, off0])
+    prob = _Problem(times, positions, group_idx, theta_meas, sigmas, free, basis, model, t0,
+                    position_sigma, integrator, max_step)
+    # parameter scales (for conditioning and finite-difference steps)
+    default_scale = np.array([0.01] * 3 + [0.5] * 3 + [10.0] * 3 + [1e-3] * n_off)
+    scale = np.where(np.isfinite(sigmas), sigmas, default_scale)[free]
+    steps = 1e-4 * scale
+    x0 = theta_meas[free]
+
+    if method == "least_squares":
+        res = least_squares(lambda x: prob.residuals(x)[0], x0,
+                            jac=lambda x: prob.jacobian(x, steps), method="trf",
+                            x_scale=scale, xtol=1e-10, ftol=1e-10, gtol=1e-10,
+                            max_nfev=max_nfev)
+        x_fit, success, message = res.x, bool(res.success), str(res.message)
+    else:
+        def objective(z):
+            r = prob.residuals(x0 + scale * z)[0]
+            return float(r @ r)
+        opts = {"xtol": 1e-6, "ftol": 1e-12, "maxfev": max_nfev or 20000}
+        res = minimize(objective, np.zeros(len(x0)), method="Powell", options=opts)
+        x_fit, success, message = x0 + scale * res.x, bool(res.success), str(res.message)
+
+    # Covariance from the Jacobian at the solution. The position rows are rescaled by the
+    # residual variance of the data (s^2, so a wrong position_sigma does not matter), the prior
+    # rows keep their stated sigmas (scaling them by s^2 too would shrink the uncertainty of
+    # prior-dominated parameters such as the axial spin whenever the noise is overestimated).
+    r = prob.residuals(x_fit)[0]
+    J = prob.jacobian(x_fit, steps)
+    n_data = len(prob.meas)
+    rd = r[:n_data]
+    s2 = float(rd @ rd) / max(n_data - len(x_fit), 1)
+    Jd, Jp = J[:n_data], J[n_data:]
+    cov_free = np.linalg.pinv(Jd.T @ Jd / max(s2, 1e-300) + Jp.T @ Jp)
+    cov = np.zeros((len(free), len(free)))
+    cov[np.ix_(free, free)] = cov_free
+    theta = prob.full(x_fit)[0]
+    sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    p_fit, v_fit, s_fit = theta[:3], theta[3:6], theta[6:9]
+    w_fit = basis @ s_fit
+    cov_w = basis @ cov[6:9, 6:9] @ basis.T
+
+    # the reference trajectory with the reference integrator, at the corrected times
+    times_eff = prob.effective_times(theta[9:])
+    ref = simulate(p_fit, v_fit, w_fit, times_eff, model, t0=t0)
+    resid = ref.positions - positions
+    errors = np.linalg.norm(resid, axis=1)
+    full_rows = np.all(np.isfinite(resid), axis=1)
+    e = errors[full_rows]
+    nan = float("nan")
+    return ReferenceFit(
+        p0=p_fit, v0=v_fit, spin=w_fit,
+        p0_sigma=sig[:3], v0_sigma=sig[3:6], spin_sigma=np.sqrt(np.clip(np.diag(cov_w), 0, None)),
+        params=theta[:9], param_sigma=sig[:9], covariance=cov, spin_basis=basis,
+        spin_transverse=s_fit[1:], spin_transverse_sigma=sig[7:9],
+        time_offsets=theta[9:], time_offset_sigma=sig[9:],
+        t0=t0, times=times_eff, positions=ref.positions, residuals=resid, errors=errors,
+        mean_error=float(e.mean()) if len(e) else nan,
+        max_error=float(e.max()) if len(e) else nan,
+        rms_error=float(np.sqrt(np.mean(e ** 2))) if len(e) else nan,
+        velocity_angle_deg=_angle_deg(v_fit, v0),
+        speed_diff=float(np.linalg.norm(v_fit) - np.linalg.norm(v0)),
+        spin_axis_angle_deg=_angle_deg(w_fit, spin_meas) if spin_meas is not None else nan,
+        spin_rate_diff=(float(np.linalg.norm(w_fit) - np.linalg.norm(spin_meas))
+                        if spin_meas is not None else nan),
+        residual_scale=float(np.sqrt(s2)),
+        success=success and ref.success, message=message, method=method,
+        nfev=prob.nfev, fit_time_s=_time.perf_counter() - t_start,
+    )

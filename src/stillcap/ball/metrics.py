@@ -1,0 +1,568 @@
+"""Baseball pitch metrics in the field frame (SPEC J1 "Baseball conventions").
+
+Field frame (PITCHf/x, Statcast): origin at the back tip of home plate, **y toward the pitcher**,
+**z up**, **x to the catcher's right** (right-handed). The front edge of the plate is at
+``y = 17/12 ft``, the front of the pitching rubber at ``y = 60.5 ft``. Arrays going in are SI
+(metres, seconds, rad/s) in that frame; results name their unit (``_ft``, ``_in``, ``_mph``,
+``_rpm``, ``_deg``) and follow PITCHf/x / Statcast definitions:
+
+- 9-parameter fit: constant-acceleration model ``r(t) = r0 + v0 t + a t^2 / 2`` with ``t = 0`` at
+  ``y = 50 ft`` (feet, seconds), :class:`NineParameterFit`.
+- plate location ``plate_x_ft, plate_z_ft`` (PITCHf/x ``px, pz``): the 9-parameter model at
+  ``y = 17/12 ft``.
+- movement ``pfx_x_in, pfx_z_in``: the deviation at the front of the plate from a pitch with no
+  spin-induced acceleration, over the flight from ``y = 40 ft``:
+  ``pfx_x = a_x T^2 / 2``, ``pfx_z = (a_z + 32.174) T^2 / 2`` with ``T`` the time from 40 ft to
+  17/12 ft, in inches. Induced vertical / horizontal break are these numbers (Statcast's
+  ``pfx_z``/``pfx_x`` in inches; catcher's view, +x = toward first base).
+- spin axis (Statcast, degrees): the direction of the spin-induced (Magnus) movement seen from
+  the catcher, measured counter-clockwise from +x, plus 90 deg; 180 = pure backspin (movement
+  straight up), 0 = pure topspin. As a clock tilt, 180 deg = "12:00" and every 30 deg is one
+  hour (210 deg = "1:00", a typical right-hander's fastball). The movement-based equivalent from
+  ``pfx`` (PITCHf/x ``spin_dir``) is ``movement_axis_deg``.
+- spin efficiency: ``|w_perp| / |w|``, the share of the spin transverse to the release velocity
+  (only it moves the ball); ``active_spin_rpm = efficiency * spin_rate_rpm``.
+
+``docs/pitch-metrics.md`` documents every field and JSON key.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+
+from stillcap._checks import as_array
+
+FT = 0.3048  #: metres per foot
+INCH = 0.0254  #: metres per inch
+MPH = 0.44704  #: m/s per mph
+FPS_PER_MPH = 5280.0 / 3600.0  #: ft/s per mph
+G_FT = 32.174  #: standard gravity, ft/s^2 (PITCHf/x)
+Y0_FT = 50.0  #: reference plane of the 9-parameter fit, ft
+Y_MOVEMENT_START_FT = 40.0  #: where PITCHf/x movement starts, ft
+PLATE_FRONT_Y_FT = 17.0 / 12.0  #: front edge of home plate, ft
+RUBBER_Y_FT = 60.5  #: front edge of the pitching rubber, ft
+RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+
+NINE_NAMES = ("x0", "y0", "z0", "vx0", "vy0", "vz0", "ax", "ay", "az")
+
+
+# --------------------------------------------------------------------------------------------
+# 9-parameter model (vectorised over pitches: arrays of shape (..., 9), feet and seconds)
+# --------------------------------------------------------------------------------------------
+def _nine(nine) -> np.ndarray:
+    a = np.asarray(nine, float)
+    if a.ndim < 1 or a.shape[-1] != 9:
+        raise ValueError(f"nine-parameter array must have shape (..., 9), got {a.shape}")
+    return a
+
+
+def time_at_y(nine, y_ft):
+    """Time (s, from the 9-parameter reference ``t = 0``) at which the pitch reaches ``y_ft``.
+
+    Parameters
+    ----------
+    nine : array_like, shape (..., 9)
+        ``x0, y0, z0, vx0, vy0, vz0, ax, ay, az`` (ft, ft/s, ft/s^2).
+    y_ft : float or array_like, shape (...)
+
+    Returns
+    -------
+    ndarray, shape (...)
+        The root of ``y0 + vy0 t + ay t^2 / 2 = y`` continuous with ``(y - y0) / vy0`` (NaN if
+        the pitch never gets there).
+    """
+    n = _nine(nine)
+    a = 0.5 * n[..., 7]
+    b = n[..., 4]
+    c = n[..., 1] - np.asarray(y_ft, float)
+    disc = b * b - 4.0 * a * c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = -0.5 * (b + np.copysign(np.sqrt(disc), b))  # numerically stable quadratic root
+        return np.where(disc >= 0, c / q, np.nan)
+
+
+def nine_position_ft(nine, t):
+    """Position (ft), shape (..., 3), of the 9-parameter model at time ``t`` (s, shape (...))."""
+    n = _nine(nine)
+    t = np.asarray(t, float)[..., None]
+    return n[..., 0:3] + n[..., 3:6] * t + 0.5 * n[..., 6:9] * t * t
+
+
+def nine_velocity_fps(nine, t):
+    """Velocity (ft/s), shape (..., 3), of the 9-parameter model at time ``t`` (s)."""
+    n = _nine(nine)
+    return n[..., 3:6] + n[..., 6:9] * np.asarray(t, float)[..., None]
+
+
+def plate_location_ft(nine):
+    """PITCHf/x ``px, pz`` (ft): x and z at the front of the plate (``y = 17/12 ft``).
+
+    Parameters
+    ----------
+    nine : array_like, shape (..., 9)
+
+    Returns
+    -------
+    px, pz : ndarray, shape (...)
+    """
+    p = nine_position_ft(nine, time_at_y(nine, PLATE_FRONT_Y_FT))
+    return p[..., 0], p[..., 2]
+
+
+def movement_in(nine, y_start_ft: float = Y_MOVEMENT_START_FT):
+    """PITCHf/x movement ``pfx_x, pfx_z`` (inches) from ``y_start_ft`` to the front of the plate.
+
+    ``pfx_x = a_x T^2 / 2`` and ``pfx_z = (a_z + 32.174) T^2 / 2`` (gravity removed), ``T`` the
+    flight time from ``y_start_ft`` to ``y = 17/12 ft``.
+
+    Parameters
+    ----------
+    nine : array_like, shape (..., 9)
+
+    Returns
+    -------
+    pfx_x_in, pfx_z_in : ndarray, shape (...)
+    """
+    n = _nine(nine)
+    t = time_at_y(n, PLATE_FRONT_Y_FT) - time_at_y(n, y_start_ft)
+    half_t2_in = 0.5 * t * t * 12.0
+    return n[..., 6] * half_t2_in, (n[..., 8] + G_FT) * half_t2_in
+
+
+def movement_axis_deg(pfx_x, pfx_z):
+    """Movement-based spin axis (PITCHf/x ``spin_dir``): ``atan2(pfx_z, pfx_x) + 90``, 0..360."""
+    return np.mod(np.degrees(np.arctan2(pfx_z, pfx_x)) + 90.0, 360.0)
+
+
+@dataclass(frozen=True)
+class NineParameterFit:
+    """PITCHf/x 9-parameter constant-acceleration model of one pitch (feet, seconds).
+
+    ``r(t) = (x0, y0, z0) + (vx0, vy0, vz0) t + (ax, ay, az) t^2 / 2`` with ``t = 0`` where
+    ``y = y0`` (50 ft by convention).
+
+    Attributes
+    ----------
+    x0, y0, z0 : float
+        ft.
+    vx0, vy0, vz0 : float
+        ft/s.
+    ax, ay, az : float
+        ft/s^2.
+    t_ref : float
+        The caller's time (s) at which ``t = 0`` (for fits to timed data; 0 otherwise).
+    rms_residual_ft : float
+        RMS distance of the fitted points from the model, ft (NaN if not from a fit).
+    n_points : int
+        Points used by the fit.
+    success : bool
+    """
+
+    x0: float
+    y0: float
+    z0: float
+    vx0: float
+    vy0: float
+    vz0: float
+    ax: float
+    ay: float
+    az: float
+    t_ref: float = 0.0
+    rms_residual_ft: float = float("nan")
+    n_points: int = 0
+    success: bool = True
+
+    @classmethod
+    def from_array(cls, a, **kwargs) -> "NineParameterFit":
+        """From ``(x0, y0, z0, vx0, vy0, vz0, ax, ay, az)``, shape (9,)."""
+        a = as_array(a, (9,), "nine")
+        return cls(*map(float, a), **kwargs)
+
+    @classmethod
+    def from_record(cls, rec) -> "NineParameterFit":
+        """From a mapping with PITCHf/x keys ``x0 ... az`` (e.g. a ``csv.DictReader`` row)."""
+        return cls(*(float(rec[k]) for k in NINE_NAMES))
+
+    def as_array(self) -> np.ndarray:
+        """``(x0, y0, z0, vx0, vy0, vz0, ax, ay, az)``, shape (9,)."""
+        return np.array([getattr(self, k) for k in NINE_NAMES])
+
+    def to_dict(self) -> dict:
+        return _jsonable(asdict(self))
+
+    def position_ft(self, t):
+        """Position (ft) at model time ``t`` (s): shape (3,) or (N, 3)."""
+        return nine_position_ft(self.as_array(), t)
+
+    def velocity_fps(self, t):
+        """Velocity (ft/s) at model time ``t`` (s)."""
+        return nine_velocity_fps(self.as_array(), t)
+
+    def time_at_y(self, y_ft):
+        """Model time (s) at which ``y = y_ft``."""
+        return time_at_y(self.as_array(), y_ft)
+
+    def plate_location_ft(self) -> tuple[float, float]:
+        """``(px, pz)`` at the front of the plate, ft."""
+        px, pz = plate_location_ft(self.as_array())
+        return float(px), float(pz)
+
+    def movement_in(self, y_start_ft: float = Y_MOVEMENT_START_FT) -> tuple[float, float]:
+        """``(pfx_x, pfx_z)``, inches."""
+        mx, mz = movement_in(self.as_array(), y_start_ft)
+        return float(mx), float(mz)
+
+    @property
+    def start_speed_mph(self) -> float:
+        """Speed at ``y = y0`` (PITCHf/x ``start_speed``), mph."""
+        return float(np.linalg.norm([self.vx0, self.vy0, self.vz0]) / FPS_PER_MPH)
+
+
+def fit_nine_parameter(times, positions, *, y0_ft: float = Y0_FT) -> NineParameterFit:
+    """Least-squares 9-parameter (constant-acceleration) fit to a measured or simulated pitch.
+
+    Parameters
+    ----------
+    times : array_like, shape (N,)
+        s.
+    positions : array_like, shape (N, 3)
+        Field frame, metres; rows with NaN are skipped (per coordinate).
+    y0_ft : float
+        Reference plane: the result is expressed at the time the fit reaches ``y = y0_ft``
+        (extrapolated when the points do not reach it).
+
+    Returns
+    -------
+    NineParameterFit
+        ``success`` is False (parameters NaN) with fewer than 3 usable points per coordinate or
+        when the fitted ``y(t)`` never reaches ``y0_ft``.
+    """
+    times = as_array(times, (None,), "times")
+    pos = as_array(positions, (len(times), 3), "positions") / FT
+    coef = np.full((3, 3), np.nan)  # per axis: c0 + c1 t + c2 t^2
+    tc = np.nanmean(times) if len(times) else 0.0  # centre times for conditioning
+    res2, n_used = 0.0, 0
+    for axis in range(3):
+        ok = np.isfinite(pos[:, axis]) & np.isfinite(times)
+        if ok.sum() < 3 or np.ptp(times[ok]) <= 0:
+            continue
+        dt = times[ok] - tc
+        A = np.stack([np.ones_like(dt), dt, dt * dt], axis=1)
+        c, *_ = np.linalg.lstsq(A, pos[ok, axis], rcond=None)
+        coef[axis] = c
+        res2 += float(np.sum((A @ c - pos[ok, axis]) ** 2))
+        n_used = max(n_used, int(ok.sum()))
+    nan9 = dict(zip(NINE_NAMES, [float("nan")] * 9))
+    if not np.all(np.isfinite(coef)):
+        return NineParameterFit(**nan9, t_ref=float("nan"), n_points=n_used, success=False)
+    # time (relative to tc) where y = y0_ft, the root nearest the data
+    c0, c1, c2 = coef[1]
+    roots = np.roots([c2, c1, c0 - y0_ft]) if c2 != 0 else np.array([(y0_ft - c0) / c1])
+    roots = roots[np.isreal(roots)].real
+    if not len(roots):
+        return NineParameterFit(**nan9, t_ref=float("nan"), n_points=n_used, success=False)
+    ts = roots[np.argmin(np.abs(roots))]
+    p = coef[:, 0] + coef[:, 1] * ts + coef[:, 2] * ts * ts
+    v = coef[:, 1] + 2.0 * coef[:, 2] * ts
+    a = 2.0 * coef[:, 2]
+    n_pts = int(np.sum(np.all(np.isfinite(pos), axis=1)))
+    rms = math.sqrt(res2 / max(n_pts, 1))
+    return NineParameterFit(*map(float, np.concatenate([p, v, a])), t_ref=float(tc + ts),
+                            rms_residual_ft=rms, n_points=n_pts, success=True)
+
+
+# --------------------------------------------------------------------------------------------
+# Spin
+# --------------------------------------------------------------------------------------------
+def spin_rate_rpm(spin) -> float:
+    """``|w| * 60 / (2 pi)`` for a spin vector in rad/s, shape (3,)."""
+    return float(np.linalg.norm(as_array(spin, (3,), "spin")) * RPM_PER_RAD_S)
+
+
+def _unit(v, name):
+    n = np.linalg.norm(v)
+    if not n > 0:
+        raise ValueError(f"{name} must be non-zero, got {v}")
+    return v / n
+
+
+def spin_efficiency(spin, velocity) -> float:
+    """Share of the spin transverse to ``velocity``: ``|w x v_hat| / |w|`` (0..1; NaN if no spin).
+
+    Parameters
+    ----------
+    spin : array_like, shape (3,)
+        rad/s.
+    velocity : array_like, shape (3,)
+        m/s (any unit; only its direction is used).
+    """
+    w = as_array(spin, (3,), "spin")
+    vh = _unit(as_array(velocity, (3,), "velocity"), "velocity")
+    nw = np.linalg.norm(w)
+    if nw == 0:
+        return float("nan")
+    return float(min(np.linalg.norm(np.cross(w, vh)) / nw, 1.0))
+
+
+def spin_axis_deg(spin, velocity) -> float:
+    """Statcast spin axis (deg, 0..360) from the spin vector and the velocity (field frame).
+
+    The Magnus direction ``w x v`` seen from the catcher (its x and z components), measured
+    counter-clockwise from +x, plus 90 deg: 180 = backspin, 0 = topspin, 90 = movement toward
+    +x (first-base side), 270 = toward -x. NaN for pure gyro spin or no spin.
+
+    Parameters
+    ----------
+    spin : array_like, shape (3,)
+        rad/s.
+    velocity : array_like, shape (3,)
+    """
+    w = as_array(spin, (3,), "spin")
+    vh = _unit(as_array(velocity, (3,), "velocity"), "velocity")
+    m = np.cross(w, vh)
+    if math.hypot(m[0], m[2]) <= 1e-12 * max(np.linalg.norm(w), 1e-300):
+        return float("nan")
+    return float(np.mod(np.degrees(np.arctan2(m[2], m[0])) + 90.0, 360.0))
+
+
+def clock_tilt(axis_deg: float, resolution_min: int = 15) -> str:
+    """Spin axis as a clock tilt: 180 deg -> "12:00", 210 -> "1:00", 0 -> "6:00".
+
+    ``hours = (axis - 180) / 30`` on a 12-hour face, rounded to ``resolution_min`` minutes
+    (Statcast shows 15-minute steps). Empty string for NaN.
+    """
+    if not np.isfinite(axis_deg):
+        return ""
+    if resolution_min <= 0:
+        raise ValueError(f"resolution_min must be positive, got {resolution_min}")
+    minutes = ((float(axis_deg) - 180.0) / 30.0) * 60.0
+    minutes = int(round(minutes / resolution_min) * resolution_min) % 720
+    h, mm = divmod(minutes, 60)
+    return f"{12 if h == 0 else h}:{mm:02d}"
+
+
+def spin_vector(spin_rpm: float, axis_deg: float, velocity, efficiency: float = 1.0,
+                gyro_sign: float = 1.0) -> np.ndarray:
+    """The spin vector (rad/s) with a given rate, Statcast axis and efficiency at ``velocity``.
+
+    Inverse of :func:`spin_rate_rpm`, :func:`spin_axis_deg` and :func:`spin_efficiency`: the
+    transverse part moves the ball in direction ``axis_deg - 90`` (catcher's view), the rest is
+    gyro spin along ``gyro_sign * velocity``.
+
+    Parameters
+    ----------
+    spin_rpm : float
+    axis_deg : float
+        Statcast spin axis (180 = backspin).
+    velocity : array_like, shape (3,)
+        Field frame; must have a y component (a pitch).
+    efficiency : float
+        0..1.
+    gyro_sign : float
+        +1: gyro spin along the velocity (right-hand rule), -1: against it.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+    """
+    vh = _unit(as_array(velocity, (3,), "velocity"), "velocity")
+    if not 0.0 <= efficiency <= 1.0:
+        raise ValueError(f"efficiency must be in [0, 1], got {efficiency}")
+    if abs(vh[1]) < 1e-9:
+        raise ValueError(f"velocity needs a y component (toward the plate), got {velocity}")
+    phi = math.radians(axis_deg - 90.0)
+    # movement direction perpendicular to v whose catcher-view (x, z) part points along phi
+    mx, mz = math.cos(phi), math.sin(phi)
+    m = np.array([mx, -(mx * vh[0] + mz * vh[2]) / vh[1], mz])
+    w_perp = _unit(np.cross(vh, m), "movement")  # (v x m) x v = m for m perpendicular to v
+    rate = spin_rpm / RPM_PER_RAD_S
+    gyro = math.sqrt(max(0.0, 1.0 - efficiency ** 2))
+    return rate * (efficiency * w_perp + math.copysign(gyro, gyro_sign) * vh)
+
+
+# --------------------------------------------------------------------------------------------
+# All metrics of one pitch
+# --------------------------------------------------------------------------------------------
+def _jsonable(d: dict) -> dict:
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out[k] = _jsonable(v)
+        elif isinstance(v, (bool, np.bool_)):
+            out[k] = bool(v)
+        elif isinstance(v, (int, np.integer)):
+            out[k] = int(v)
+        elif isinstance(v, (float, np.floating)):
+            out[k] = float(v) if np.isfinite(v) else None  # JSON has no NaN
+        else:
+            out[k] = v
+    return out
+
+
+_NAN = float("nan")
+
+
+@dataclass
+class PitchMetrics:
+    """Standard metrics of one pitch; field names are the JSON keys (:meth:`to_dict`).
+
+    Attributes
+    ----------
+    release_speed_mph : float
+        Speed at release.
+    release_pos_x_ft, release_pos_y_ft, release_pos_z_ft : float
+        Release point, field frame.
+    release_extension_ft : float
+        ``60.5 ft - release_pos_y_ft`` (distance in front of the rubber).
+    start_speed_mph : float
+        Speed at ``y = 50 ft`` (PITCHf/x ``start_speed``, 9-parameter model).
+    spin_rate_rpm, active_spin_rpm : float
+        Total spin rate and its transverse part.
+    spin_efficiency : float
+        0..1.
+    gyro_angle_deg : float
+        Angle between the spin axis and the velocity's normal plane, ``acos(efficiency)``.
+    spin_axis_deg : float
+        Statcast spin axis from the spin vector (180 = backspin).
+    spin_tilt : str
+        ``spin_axis_deg`` as a clock ("12:00" = backspin).
+    movement_axis_deg : float
+        Movement-based axis from ``pfx`` (PITCHf/x ``spin_dir``).
+    pfx_x_in, pfx_z_in : float
+        PITCHf/x movement, inches (catcher's view).
+    induced_vertical_break_in, horizontal_break_in : float
+        Equal to ``pfx_z_in`` and ``pfx_x_in`` (Statcast naming).
+    plate_x_ft, plate_z_ft : float
+        PITCHf/x ``px, pz`` at the front of the plate.
+    plate_time_s : float
+        Flight time from release to the front of the plate.
+    nine_parameter : NineParameterFit or None
+    success : bool
+    message : str
+    """
+
+    release_speed_mph: float = _NAN
+    release_pos_x_ft: float = _NAN
+    release_pos_y_ft: float = _NAN
+    release_pos_z_ft: float = _NAN
+    release_extension_ft: float = _NAN
+    start_speed_mph: float = _NAN
+    spin_rate_rpm: float = _NAN
+    active_spin_rpm: float = _NAN
+    spin_efficiency: float = _NAN
+    gyro_angle_deg: float = _NAN
+    spin_axis_deg: float = _NAN
+    spin_tilt: str = ""
+    movement_axis_deg: float = _NAN
+    pfx_x_in: float = _NAN
+    pfx_z_in: float = _NAN
+    induced_vertical_break_in: float = _NAN
+    horizontal_break_in: float = _NAN
+    plate_x_ft: float = _NAN
+    plate_z_ft: float = _NAN
+    plate_time_s: float = _NAN
+    nine_parameter: NineParameterFit | None = field(default=None, repr=False)
+    success: bool = True
+    message: str = ""
+
+    def to_dict(self) -> dict:
+        """Plain dict for JSON: field names as keys, NaN as None, ``nine_parameter`` nested."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "nine_parameter"}
+        d = _jsonable(d)
+        d["nine_parameter"] = self.nine_parameter.to_dict() if self.nine_parameter else None
+        return d
+
+    @classmethod
+    def from_nine_parameter(cls, nine: NineParameterFit) -> "PitchMetrics":
+        """The metrics a 9-parameter model alone gives (plate location, movement, start speed)."""
+        px, pz = nine.plate_location_ft()
+        mx, mz = nine.movement_in()
+        return cls(start_speed_mph=nine.start_speed_mph, movement_axis_deg=float(movement_axis_deg(mx, mz)),
+                   pfx_x_in=mx, pfx_z_in=mz, induced_vertical_break_in=mz, horizontal_break_in=mx,
+                   plate_x_ft=px, plate_z_ft=pz, nine_parameter=nine, success=nine.success)
+
+
+def pitch_metrics(times, positions, spin=None, *, velocities=None, release_time=None,
+                  y0_ft: float = Y0_FT) -> PitchMetrics:
+    """All pitch metrics from a measured or simulated flight in the field frame.
+
+    Parameters
+    ----------
+    times : array_like, shape (N,)
+        s.
+    positions : array_like, shape (N, 3)
+        Field frame, metres (NaN rows = not observed).
+    spin : array_like, shape (3,), optional
+        Spin vector at release, rad/s, field frame. Without it the spin fields are NaN.
+    velocities : array_like, shape (N, 3), optional
+        m/s; gives the release velocity exactly (otherwise it comes from the 9-parameter fit).
+    release_time : float, optional
+        Release instant (s). Default: the first observed sample, whose position is the release
+        point; a given time evaluates the 9-parameter model there.
+    y0_ft : float
+        Reference plane of the 9-parameter fit.
+
+    Returns
+    -------
+    PitchMetrics
+    """
+    times = as_array(times, (None,), "times")
+    positions = as_array(positions, (len(times), 3), "positions")
+    if velocities is not None:
+        velocities = as_array(velocities, (len(times), 3), "velocities")
+    nine = fit_nine_parameter(times, positions, y0_ft=y0_ft)
+    out = PitchMetrics.from_nine_parameter(nine)
+    if not nine.success:
+        out.success, out.message = False, "9-parameter fit failed (too few points?)"
+        return out
+    n9 = nine.as_array()
+    seen = np.flatnonzero(np.all(np.isfinite(positions), axis=1))
+    if release_time is None:
+        i = seen[np.argmin(times[seen])]
+        t_rel = float(times[i])
+        p_rel = positions[i]
+        v_rel = velocities[i] if velocities is not None else nine_velocity_fps(n9, t_rel - nine.t_ref) * FT
+    else:
+        t_rel = float(release_time)
+        p_rel = nine_position_ft(n9, t_rel - nine.t_ref) * FT
+        v_rel = nine_velocity_fps(n9, t_rel - nine.t_ref) * FT
+    out.release_speed_mph = float(np.linalg.norm(v_rel) / MPH)
+    out.release_pos_x_ft, out.release_pos_y_ft, out.release_pos_z_ft = map(float, p_rel / FT)
+    out.release_extension_ft = RUBBER_Y_FT - out.release_pos_y_ft
+    out.plate_time_s = float(nine.t_ref + time_at_y(n9, PLATE_FRONT_Y_FT) - t_rel)
+    if spin is not None:
+        w = as_array(spin, (3,), "spin")
+        out.spin_rate_rpm = spin_rate_rpm(w)
+        out.spin_efficiency = spin_efficiency(w, v_rel)
+        out.active_spin_rpm = out.spin_rate_rpm * out.spin_efficiency
+        out.gyro_angle_deg = float(np.degrees(np.arccos(np.clip(out.spin_efficiency, 0.0, 1.0))))
+        out.spin_axis_deg = spin_axis_deg(w, v_rel)
+        out.spin_tilt = clock_tilt(out.spin_axis_deg)
+    return out
+
+
+def pitch_metrics_from_flight(p0, v0, spin, model=None, *, t0: float = 0.0,
+                              sample_rate_hz: float = 500.0) -> PitchMetrics:
+    """Metrics of a simulated pitch released at ``p0`` with ``v0`` and ``spin`` (field frame, SI).
+
+    The flight is integrated (reference integrator) from release to the front of the plate and
+    sampled at ``sample_rate_hz``; the 9-parameter fit uses the whole flight.
+
+    Parameters
+    ----------
+    p0, v0, spin : array_like, shape (3,)
+        Release position (m), velocity (m/s) and spin (rad/s).
+    model : stillcap.ball.physics.FlightModel, optional
+    """
+    from stillcap.ball.physics import cross_plane, simulate
+
+    cross = cross_plane(p0, v0, spin, model, t0=t0)
+    if not cross.success:
+        return PitchMetrics(success=False, message=f"flight did not reach the plate: {cross.message}")
+    n = max(int(np.ceil((cross.time - t0) * sample_rate_hz)) + 1, 4)
+    ts = np.linspace(t0, cross.time, n)
+    tr = simulate(p0, v0, spin, ts, model, t0=t0)
+    return pitch_metrics(ts, tr.positions, spin, velocities=tr.velocities)
