@@ -191,3 +191,13 @@ def test_turntable_rig_matches_thesis_geometry():
         assert cam.project([0, 0.1, 0])[1] < cam.project([0, 0.08, 0])[1]
     with pytest.raises(ValueError, match="n_views"):
         turntable_rig(0)
+
+
+def test_saved_files_get_normal_permissions(tmp_path):
+    import os
+    import stat
+
+    path = ring_rig(1).save(tmp_path / "rig.json")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask

@@ -18,7 +18,8 @@ def as_array(x, shape: tuple, name: str, dtype=float) -> np.ndarray:
     a = np.asarray(x, dtype=dtype)
     ok = a.ndim == len(shape) and all(s is None or s == n for s, n in zip(shape, a.shape))
     if not ok:
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        dims = ["N" if s is None else str(s) for s in shape]
+        want = f"({dims[0]},)" if len(dims) == 1 else "(" + ", ".join(dims) + ")"
         raise ValueError(f"{name} must have shape {want}, got {a.shape}")
     return a
 

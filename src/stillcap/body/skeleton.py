@@ -1,0 +1,548 @@
+"""Skeletons as data, poses and animations (forward kinematics).
+
+A :class:`Skeleton` is an ordered tuple of :class:`Joint` s. Each joint names its parent and
+its *rest offset*: the position of the joint in its parent's frame at rest, in metres. At rest
+every joint frame is parallel to the skeleton's frame (for the puppet: the puppet frame, y up,
+x to the puppet's left, z forward), so a rest offset is also the rest bone vector in that frame.
+
+A bone is named after the joint at its end (the thesis's and jMonkeyEngine's convention): the
+bone ``"l-elbow"`` is the upper arm, from ``l-shoulder`` to ``l-elbow``. It is moved by the
+rotation of the joint at its start (its parent joint).
+
+Forward kinematics (:func:`forward_kinematics`), with ``T(v)`` a translation and ``R_j`` the
+local rotation of joint ``j``::
+
+    joint2world[root] = root2world @ R_root
+    joint2world[j]    = joint2world[parent(j)] @ T(offset_j) @ R_j
+
+``root2world`` is the root joint's frame in the world; the root's rest offset is the root's
+position at rest in the skeleton frame, used by :meth:`Pose.rest`.
+
+File format: see ``docs/skeleton.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from stillcap._checks import as_array
+from stillcap.io.atomic import write_text
+
+__all__ = [
+    "Joint",
+    "Skeleton",
+    "Pose",
+    "Animation",
+    "forward_kinematics",
+    "LENGTH_UNITS",
+    "EULER_LIMIT_SEQUENCE",
+]
+
+#: Length units accepted in files, in metres per unit.
+LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+
+#: Joint limits are ranges of the intrinsic Euler angles of the local rotation in this
+#: sequence (scipy's upper-case = intrinsic): ``R = Rx(a) @ Ry(b) @ Rz(c)``.
+EULER_LIMIT_SEQUENCE = "XYZ"
+
+_FORMAT = "stillcap-skeleton"
+_ROT_TOL = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class Joint:
+    """One joint of a skeleton.
+
+    Parameters
+    ----------
+    name : str
+        Unique joint name; the bone that ends at this joint has the same name.
+    parent : str or None
+        Name of the parent joint, None for the root.
+    offset : array_like, shape (3,)
+        Rest position of the joint in its parent's frame, metres (for the root: its rest
+        position in the skeleton frame).
+    limits_deg : sequence of 3 (min, max) pairs or None, or None
+        Allowed range of the local rotation's intrinsic X, Y, Z Euler angles
+        (:data:`EULER_LIMIT_SEQUENCE`), degrees; None (for one axis or all) means free,
+        ``(0, 0)`` means locked.
+    """
+
+    name: str
+    parent: str | None
+    offset: np.ndarray
+    limits_deg: tuple | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"joint name must be a non-empty string, got {self.name!r}")
+        object.__setattr__(self, "offset", as_array(self.offset, (3,), f"offset of joint {self.name!r}"))
+        if not np.all(np.isfinite(self.offset)):
+            raise ValueError(f"offset of joint {self.name!r} must be finite, got {self.offset}")
+        object.__setattr__(self, "limits_deg", _check_limits(self.limits_deg, self.name))
+
+    @property
+    def is_root(self) -> bool:
+        return self.parent is None
+
+
+def _check_limits(limits, name: str):
+    if limits is None:
+        return None
+    if len(limits) != 3:
+        raise ValueError(f"limits_deg of joint {name!r} must have 3 entries (x, y, z), got {len(limits)}")
+    out = []
+    for axis, lim in zip("xyz", limits):
+        if lim is None:
+            out.append(None)
+            continue
+        lo, hi = (float(v) for v in as_array(lim, (2,), f"limits_deg[{axis}] of joint {name!r}"))
+        if not lo <= hi:
+            raise ValueError(f"limits_deg[{axis}] of joint {name!r} must have min <= max, got {[lo, hi]}")
+        out.append((lo, hi))
+    return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class Skeleton:
+    """An ordered set of joints forming one tree.
+
+    Parameters
+    ----------
+    joints : sequence of Joint
+        Exactly one root; parents may come after their children in the sequence.
+    name : str
+        A name for the skeleton (written to files).
+    source : str
+        Where it came from (a file name), used in error messages.
+
+    Raises
+    ------
+    ValueError
+        On a duplicate name, an unknown parent, a cycle, or not exactly one root.
+    """
+
+    joints: tuple[Joint, ...]
+    name: str = "skeleton"
+    source: str = field(default="<skeleton>", compare=False)
+
+    def __post_init__(self):
+        joints = tuple(self.joints)
+        object.__setattr__(self, "joints", joints)
+        where = f" in {self.source}"
+        if not joints:
+            raise ValueError(f"a skeleton needs at least one joint{where}")
+        index: dict[str, int] = {}
+        for i, j in enumerate(joints):
+            if not isinstance(j, Joint):
+                raise ValueError(f"joints must be Joint objects, got {type(j).__name__} at index {i}{where}")
+            if j.name in index:
+                raise ValueError(f"duplicate joint name {j.name!r}{where}")
+            index[j.name] = i
+        for j in joints:
+            if j.parent is not None and j.parent not in index:
+                raise ValueError(f"joint {j.name!r} has unknown parent {j.parent!r}{where}")
+            if j.parent == j.name:
+                raise ValueError(f"joint {j.name!r} is its own parent (cycle){where}")
+        for j in joints:  # walk up from every joint: more steps than joints means a cycle
+            seen, cur = {j.name}, j.parent
+            while cur is not None:
+                if cur in seen:
+                    raise ValueError(f"joint {j.name!r} is in a cycle of parents (via {cur!r}){where}")
+                seen.add(cur)
+                cur = joints[index[cur]].parent
+        roots = [j.name for j in joints if j.parent is None]
+        if len(roots) != 1:
+            raise ValueError(f"a skeleton needs exactly one root joint, got {roots}{where}")
+        object.__setattr__(self, "_index", index)
+
+    # -- structure -------------------------------------------------------------------------
+    @property
+    def n_joints(self) -> int:
+        return len(self.joints)
+
+    def __len__(self) -> int:
+        return len(self.joints)
+
+    @cached_property
+    def names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    def index(self, name: str) -> int:
+        """Index of the joint ``name``; ValueError naming the known joints if absent."""
+        try:
+            return self._index[name]
+        except KeyError:
+            raise ValueError(f"unknown joint {name!r}; known: {', '.join(self.names)}") from None
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._index
+
+    @cached_property
+    def parents(self) -> np.ndarray:
+        """Parent index per joint, shape (n_joints,), -1 for the root."""
+        return np.array([-1 if j.parent is None else self._index[j.parent] for j in self.joints], dtype=int)
+
+    @cached_property
+    def root(self) -> int:
+        """Index of the root joint."""
+        return int(np.flatnonzero(self.parents < 0)[0])
+
+    @cached_property
+    def offsets(self) -> np.ndarray:
+        """Rest offsets, shape (n_joints, 3), metres."""
+        return np.array([j.offset for j in self.joints])
+
+    def children(self, joint: int | str) -> list[int]:
+        """Indices of the children of a joint (in skeleton order)."""
+        i = joint if isinstance(joint, (int, np.integer)) else self.index(joint)
+        return [int(c) for c in np.flatnonzero(self.parents == i)]
+
+    @cached_property
+    def depth_first(self) -> tuple[int, ...]:
+        """Joint indices in depth-first (pre-)order from the root: every parent before its children."""
+        order: list[int] = []
+        stack = [self.root]
+        while stack:
+            i = stack.pop()
+            order.append(i)
+            stack.extend(reversed(self.children(i)))
+        return tuple(order)
+
+    @cached_property
+    def bone_lengths(self) -> np.ndarray:
+        """Length of the bone ending at each joint, shape (n_joints,), metres (0 for the root)."""
+        lengths = np.linalg.norm(self.offsets, axis=1)
+        lengths[self.root] = 0.0
+        return lengths
+
+    @cached_property
+    def limits_deg(self) -> np.ndarray:
+        """Joint limits, shape (n_joints, 3, 2), degrees; NaN where free."""
+        out = np.full((self.n_joints, 3, 2), np.nan)
+        for i, j in enumerate(self.joints):
+            if j.limits_deg is not None:
+                for a, lim in enumerate(j.limits_deg):
+                    if lim is not None:
+                        out[i, a] = lim
+        return out
+
+    def limit_violations(self, local_rotations, tol_deg: float = 1e-6) -> np.ndarray:
+        """Which joints' local rotations leave their limits.
+
+        Parameters
+        ----------
+        local_rotations : array_like, shape (n_joints, 3, 3)
+        tol_deg : float
+            Tolerance in degrees.
+
+        Returns
+        -------
+        ndarray of bool, shape (n_joints, 3)
+            True where the intrinsic X/Y/Z Euler angle is outside its limit.
+        """
+        rots = as_array(local_rotations, (self.n_joints, 3, 3), "local_rotations")
+        angles = Rotation.from_matrix(rots).as_euler(EULER_LIMIT_SEQUENCE, degrees=True)
+        lim = self.limits_deg
+        with np.errstate(invalid="ignore"):
+            low = angles < lim[..., 0] - tol_deg
+            high = angles > lim[..., 1] + tol_deg
+        return np.where(np.isnan(lim[..., 0]), False, low | high)
+
+    def rest_root2world(self) -> np.ndarray:
+        """The root's rest frame: a translation to the root's rest offset, shape (4, 4)."""
+        m = np.eye(4)
+        m[:3, 3] = self.joints[self.root].offset
+        return m
+
+    def rest_pose(self) -> "Pose":
+        """The rest pose (all local rotations identity, root at its rest offset)."""
+        return Pose.rest(self)
+
+    # -- files -----------------------------------------------------------------------------
+    def to_dict(self, length_unit: str = "m") -> dict:
+        """A JSON-ready dict (see ``docs/skeleton.md``), lengths in ``length_unit``."""
+        scale = _unit_scale(length_unit, "length_unit")
+        joints = []
+        for j in self.joints:
+            d = {"name": j.name, "parent": j.parent, "offset": [_round(v / scale) for v in j.offset]}
+            if j.limits_deg is not None:
+                d["limits_deg"] = [None if lim is None else [lim[0], lim[1]] for lim in j.limits_deg]
+            joints.append(d)
+        return {"format": _FORMAT, "version": 1, "name": self.name, "length_unit": length_unit, "joints": joints}
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "<dict>") -> "Skeleton":
+        """Build a skeleton from :meth:`to_dict` output; ValueError naming ``source`` on bad data."""
+        where = f" in {source}"
+        if not isinstance(data, dict):
+            raise ValueError(f"skeleton data must be a JSON object{where}, got {type(data).__name__}")
+        fmt = data.get("format", _FORMAT)
+        if fmt != _FORMAT:
+            raise ValueError(f"not a skeleton file{where}: format is {fmt!r}, expected {_FORMAT!r}")
+        scale = _unit_scale(data.get("length_unit", "m"), f"length_unit{where}")
+        raw = data.get("joints")
+        if not isinstance(raw, list):
+            raise ValueError(f"skeleton data needs a 'joints' list{where}")
+        joints = []
+        for k, d in enumerate(raw):
+            if not isinstance(d, dict) or "name" not in d:
+                raise ValueError(f"joint {k} needs a 'name'{where}")
+            name = d["name"]
+            try:
+                joints.append(
+                    Joint(
+                        name=name,
+                        parent=d.get("parent"),
+                        offset=np.asarray(d.get("offset", [0, 0, 0]), float) * scale,
+                        limits_deg=d.get("limits_deg"),
+                    )
+                )
+            except (ValueError, TypeError) as e:
+                raise ValueError(f"joint {name!r}{where}: {e}") from e
+        return cls(tuple(joints), name=str(data.get("name", "skeleton")), source=source)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Skeleton":
+        """Read a skeleton JSON file."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path} is not valid JSON: {e}") from e
+        return cls.from_dict(data, source=str(path))
+
+    def save(self, path: str | os.PathLike, length_unit: str = "m") -> Path:
+        """Write the skeleton as JSON (atomically), lengths in ``length_unit``; return the path."""
+        return write_text(path, json.dumps(self.to_dict(length_unit), indent=1) + "\n")
+
+    @classmethod
+    def puppet(cls) -> "Skeleton":
+        """The thesis's 210 mm lay figure (``data/puppet_skeleton.json``), puppet frame, metres."""
+        text = resources.files("stillcap").joinpath("data", "puppet_skeleton.json").read_text(encoding="utf-8")
+        return cls.from_dict(json.loads(text), source="stillcap/data/puppet_skeleton.json")
+
+
+def _unit_scale(unit, what: str) -> float:
+    if unit not in LENGTH_UNITS:
+        raise ValueError(f"{what} must be one of {sorted(LENGTH_UNITS)}, got {unit!r}")
+    return LENGTH_UNITS[unit]
+
+
+def _round(v: float) -> float:
+    return float(f"{v:.10g}")
+
+
+def _check_rotations(rots: np.ndarray, name: str) -> None:
+    """ValueError unless every 3x3 in ``rots`` (shape (..., 3, 3)) is a proper rotation."""
+    eye = np.eye(3)
+    err = np.abs(np.einsum("...ji,...jk->...ik", rots, rots) - eye).max(axis=(-2, -1))
+    det = np.linalg.det(rots)
+    bad = (err > _ROT_TOL) | (np.abs(det - 1.0) > _ROT_TOL) | ~np.isfinite(det)
+    if np.any(bad):
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name} must hold rotation matrices (orthonormal, det +1); entry {idx} is not")
+
+
+def _check_rigid(m: np.ndarray, name: str) -> None:
+    """ValueError unless every 4x4 in ``m`` (shape (..., 4, 4)) is a rigid transform."""
+    if not np.allclose(m[..., 3, :], [0, 0, 0, 1], atol=1e-9) or not np.all(np.isfinite(m)):
+        raise ValueError(f"{name} must be rigid 4x4 transforms with last row (0, 0, 0, 1)")
+    _check_rotations(m[..., :3, :3], name + " (rotation part)")
+
+
+def forward_kinematics(skeleton: Skeleton, root2world, local_rotations) -> np.ndarray:
+    """Joint frames in the world for one or many poses.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    root2world : array_like, shape (..., 4, 4)
+        The root joint's frame in the world (rigid).
+    local_rotations : array_like, shape (..., n_joints, 3, 3)
+        Local rotation of every joint (identity at rest).
+
+    Returns
+    -------
+    joint2world : ndarray, shape (..., n_joints, 4, 4)
+    """
+    root2world = np.asarray(root2world, float)
+    local_rotations = np.asarray(local_rotations, float)
+    n = skeleton.n_joints
+    if root2world.shape[-2:] != (4, 4) or local_rotations.shape[-3:] != (n, 3, 3):
+        raise ValueError(
+            f"root2world must have shape (..., 4, 4) and local_rotations (..., {n}, 3, 3), "
+            f"got {root2world.shape} and {local_rotations.shape}"
+        )
+    batch = np.broadcast_shapes(root2world.shape[:-2], local_rotations.shape[:-3])
+    local = np.zeros(batch + (n, 4, 4))
+    local[..., :3, :3] = local_rotations
+    local[..., :3, 3] = skeleton.offsets
+    local[..., 3, 3] = 1.0
+    out = np.empty_like(local)
+    parents = skeleton.parents
+    for i in skeleton.depth_first:
+        p = parents[i]
+        if p < 0:
+            local_root = local[..., i, :, :].copy()
+            local_root[..., :3, 3] = 0.0  # the root's offset is its rest position, not part of FK
+            out[..., i, :, :] = root2world @ local_root
+        else:
+            out[..., i, :, :] = out[..., p, :, :] @ local[..., i, :, :]
+    return out
+
+
+@dataclass(eq=False)
+class Pose:
+    """A skeleton in one pose.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    root2world : array_like, shape (4, 4)
+        The root joint's frame in the world (rigid).
+    local_rotations : array_like, shape (n_joints, 3, 3)
+        Local rotation of every joint relative to its rest frame (identity at rest).
+    """
+
+    skeleton: Skeleton
+    root2world: np.ndarray
+    local_rotations: np.ndarray
+
+    def __post_init__(self):
+        self.root2world = as_array(self.root2world, (4, 4), "root2world")
+        _check_rigid(self.root2world, "root2world")
+        n = self.skeleton.n_joints
+        self.local_rotations = as_array(self.local_rotations, (n, 3, 3), "local_rotations")
+        _check_rotations(self.local_rotations, "local_rotations")
+
+    @classmethod
+    def rest(cls, skeleton: Skeleton, root2world=None) -> "Pose":
+        """The rest pose; ``root2world`` defaults to :meth:`Skeleton.rest_root2world`."""
+        r2w = skeleton.rest_root2world() if root2world is None else root2world
+        return cls(skeleton, r2w, np.tile(np.eye(3), (skeleton.n_joints, 1, 1)))
+
+    @cached_property
+    def joint2world(self) -> np.ndarray:
+        """Joint frames in the world, shape (n_joints, 4, 4)."""
+        return forward_kinematics(self.skeleton, self.root2world, self.local_rotations)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Joint positions in the world, shape (n_joints, 3), metres."""
+        return self.joint2world[:, :3, 3]
+
+    def position(self, name: str) -> np.ndarray:
+        """World position of one joint, shape (3,), metres."""
+        return self.positions[self.skeleton.index(name)]
+
+    def bone_vectors(self) -> np.ndarray:
+        """World vector of the bone ending at each joint (parent to joint), shape (n_joints, 3); 0 at the root."""
+        pos = self.positions
+        par = self.skeleton.parents
+        return np.where((par >= 0)[:, None], pos - pos[np.maximum(par, 0)], 0.0)
+
+
+@dataclass(eq=False)
+class Animation:
+    """A sequence of poses of one skeleton with times.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    times : array_like, shape (n_frames,)
+        Strictly increasing times, seconds.
+    root2world : array_like, shape (n_frames, 4, 4)
+    local_rotations : array_like, shape (n_frames, n_joints, 3, 3)
+    """
+
+    skeleton: Skeleton
+    times: np.ndarray
+    root2world: np.ndarray
+    local_rotations: np.ndarray
+
+    def __post_init__(self):
+        self.times = as_array(self.times, (None,), "times")
+        f, n = len(self.times), self.skeleton.n_joints
+        if f == 0:
+            raise ValueError("an animation needs at least one frame, got 0 times")
+        if not np.all(np.isfinite(self.times)) or np.any(np.diff(self.times) <= 0):
+            raise ValueError("times must be finite and strictly increasing")
+        self.root2world = as_array(self.root2world, (f, 4, 4), "root2world")
+        _check_rigid(self.root2world, "root2world")
+        self.local_rotations = as_array(self.local_rotations, (f, n, 3, 3), "local_rotations")
+        _check_rotations(self.local_rotations, "local_rotations")
+
+    @classmethod
+    def from_poses(cls, poses: Sequence[Pose], times=None, frame_rate: float | None = None) -> "Animation":
+        """Stack poses of one skeleton into an animation.
+
+        Parameters
+        ----------
+        poses : sequence of Pose
+            All with the same Skeleton object.
+        times : array_like, shape (n_frames,), optional
+            Seconds. Without it the times are ``k / frame_rate``.
+        frame_rate : float, optional
+            Frames per second when ``times`` is not given; default 30.
+        """
+        poses = list(poses)
+        if not poses:
+            raise ValueError("from_poses needs at least one pose")
+        skel = poses[0].skeleton
+        if any(p.skeleton is not skel for p in poses):
+            raise ValueError("all poses of an animation must share one Skeleton object")
+        if times is None:
+            rate = 30.0 if frame_rate is None else float(frame_rate)
+            times = np.arange(len(poses)) / rate
+        return cls(
+            skel,
+            times,
+            np.stack([p.root2world for p in poses]),
+            np.stack([p.local_rotations for p in poses]),
+        )
+
+    @property
+    def n_frames(self) -> int:
+        return len(self.times)
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def __getitem__(self, k: int) -> Pose:
+        return Pose(self.skeleton, self.root2world[k], self.local_rotations[k])
+
+    def __iter__(self) -> Iterator[Pose]:
+        return (self[k] for k in range(self.n_frames))
+
+    @cached_property
+    def joint2world(self) -> np.ndarray:
+        """Joint frames in the world, shape (n_frames, n_joints, 4, 4)."""
+        return forward_kinematics(self.skeleton, self.root2world, self.local_rotations)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Joint positions in the world, shape (n_frames, n_joints, 3), metres."""
+        return self.joint2world[..., :3, 3]
+
+    @property
+    def frame_rate(self) -> float | None:
+        """Frames per second if the times are uniformly spaced (relative 1e-6), else None.
+
+        A single frame has no rate: None.
+        """
+        if self.n_frames < 2:
+            return None
+        dt = np.diff(self.times)
+        if np.ptp(dt) > 1e-6 * dt.mean():
+            return None
+        return float(1.0 / dt.mean())

@@ -1,0 +1,374 @@
+"""Capture folders: the one on-disk form of a capture, shared by real and synthetic ones.
+
+A capture folder holds (see ``docs/capture-folder.md``)::
+
+    capture.json      what was captured and, per image, its file, camera and timing
+    rig.json          the cameras (stillcap rig file, :meth:`stillcap.camera.Rig.save`)
+    images/...        the photos (PNG or JPEG), OpenCV-readable
+    truth.json        ground truth (synthetic captures only; content depends on ``kind``)
+
+:meth:`Capture.load` validates everything a pipeline relies on: the files exist, every image's
+camera is in the rig, paths stay inside the folder; :meth:`Capture.read_image` decodes an image
+and checks its size against its camera. Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+
+import cv2
+import numpy as np
+
+from stillcap.camera import Rig
+from stillcap.io.atomic import atomic_path, write_text
+
+CAPTURE_FORMAT = "stillcap-capture"
+CAPTURE_VERSION = 1
+UNITS = {"length": "m", "time": "s", "frequency": "Hz", "angle": "rad"}
+_TIMING = ("strobe_hz", "shutter_s", "first_flash_s", "n_flashes")
+_RESERVED = {"format", "version", "kind", "units", "rig", "truth", "images"}
+
+
+def _safe_relpath(file: str, where: str) -> str:
+    """``file`` as a normalised relative POSIX path that cannot leave the capture folder."""
+    if not isinstance(file, str) or not file.strip():
+        raise ValueError(f"{where}image file name must be a non-empty string, got {file!r}")
+    p = PurePosixPath(file.replace("\\", "/"))
+    if p.is_absolute() or file.startswith(("/", "\\")) or (len(file) > 1 and file[1] == ":"):
+        raise ValueError(f"{where}image path {file!r} is absolute; paths must be relative to the capture folder")
+    if ".." in p.parts:
+        raise ValueError(f"{where}image path {file!r} leaves the capture folder ('..' is not allowed)")
+    return str(p)
+
+
+def to_jsonable(x):
+    """Arrays -> nested lists with NaN/inf -> None, recursively (strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): to_jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [to_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return to_jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def from_jsonable(x) -> np.ndarray:
+    """Nested lists with None (as :func:`to_jsonable` writes NaN) -> float array with NaN."""
+    def nan(v):
+        return [nan(e) for e in v] if isinstance(v, list) else (np.nan if v is None else v)
+    return np.array(nan(x), dtype=float)
+
+
+@dataclass
+class CaptureImage:
+    """One photo of a capture.
+
+    Parameters
+    ----------
+    file : str
+        Path relative to the capture folder (POSIX separators), e.g. ``"images/cam0.png"``.
+    camera : str
+        Name of the rig camera that took it.
+    strobe_hz, shutter_s, first_flash_s : float, optional
+        Multi-exposure timing: strobe rate (Hz), shutter open time (s), time of the first
+        flash after the shutter opened (s).
+    n_flashes : int, optional
+        Number of flashes during the shutter.
+    meta : dict
+        Anything else per image (view index, turn angle in degrees, ...), JSON-serialisable.
+    """
+
+    file: str
+    camera: str
+    strobe_hz: float | None = None
+    shutter_s: float | None = None
+    first_flash_s: float | None = None
+    n_flashes: int | None = None
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.file = _safe_relpath(self.file, "")
+        for k in ("strobe_hz", "shutter_s", "first_flash_s"):
+            v = getattr(self, k)
+            if v is not None:
+                v = float(v)
+                if not math.isfinite(v) or v < 0 or (k == "strobe_hz" and v == 0):
+                    raise ValueError(f"image {self.file!r}: {k} must be a finite number {'> 0' if k == 'strobe_hz' else '>= 0'}, got {v}")
+                setattr(self, k, v)
+        if self.n_flashes is not None:
+            if int(self.n_flashes) != self.n_flashes or self.n_flashes < 0:
+                raise ValueError(f"image {self.file!r}: n_flashes must be a non-negative integer, got {self.n_flashes}")
+            self.n_flashes = int(self.n_flashes)
+
+    @property
+    def flash_times(self) -> np.ndarray | None:
+        """Flash times in seconds from the shutter opening ``(n_flashes,)``, if the timing is known."""
+        if self.strobe_hz is None or self.n_flashes is None:
+            return None
+        return (self.first_flash_s or 0.0) + np.arange(self.n_flashes) / self.strobe_hz
+
+    def to_dict(self) -> dict:
+        d = {"file": self.file, "camera": self.camera}
+        d.update({k: getattr(self, k) for k in _TIMING if getattr(self, k) is not None})
+        if self.meta:
+            d["meta"] = to_jsonable(self.meta)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "") -> CaptureImage:
+        if not isinstance(d, dict):
+            raise ValueError(f"{where}image entry must be an object, got {type(d).__name__}")
+        for key in ("file", "camera"):
+            if key not in d:
+                raise ValueError(f"{where}image entry is missing the key {key!r}")
+        unknown = set(d) - {"file", "camera", "meta", *_TIMING}
+        if unknown:
+            raise ValueError(f"{where}image entry has unknown keys {sorted(unknown)} "
+                             f"(timing keys carry their unit: {', '.join(_TIMING)})")
+        try:
+            return cls(d["file"], str(d["camera"]), *(d.get(k) for k in _TIMING), dict(d.get("meta", {})))
+        except ValueError as e:
+            raise ValueError(f"{where}{e}") from None
+
+
+@dataclass
+class Capture:
+    """A capture: what was photographed, by which cameras, the photos and (if synthetic) the truth.
+
+    Parameters
+    ----------
+    kind : str
+        What was captured: ``"chessboard"``, ``"charuco"``, ``"calibration-object"``,
+        ``"markers"``, ``"pitch"``, ``"hand"``, ``"puppet"``, ...
+    rig : Rig
+    images : list of CaptureImage
+    truth : dict, optional
+        Ground truth (synthetic captures), written to ``truth.json``.
+    meta : dict
+        Capture-wide description (e.g. ``"target"``: the calibration target, see
+        :func:`target_to_dict`; ``"description"``; ``"synthetic"``).
+    root : Path, optional
+        The folder it was loaded from or saved to (image paths are relative to it).
+    """
+
+    kind: str
+    rig: Rig
+    images: list[CaptureImage] = field(default_factory=list)
+    truth: dict | None = None
+    meta: dict = field(default_factory=dict)
+    root: Path | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.kind, str) or not self.kind:
+            raise ValueError(f"capture kind must be a non-empty string, got {self.kind!r}")
+        self.images = list(self.images)
+        clash = set(self.meta) & _RESERVED
+        if clash:
+            raise ValueError(f"capture meta must not use the reserved keys {sorted(clash)}")
+        names = set(self.rig.names)
+        seen = set()
+        for im in self.images:
+            if im.camera not in names:
+                raise ValueError(f"image {im.file!r}: camera {im.camera!r} is not in the rig (cameras: {self.rig.names})")
+            if im.file in seen:
+                raise ValueError(f"image {im.file!r} is listed twice")
+            seen.add(im.file)
+
+    # --- access ---------------------------------------------------------------------------
+    def images_of(self, camera: str) -> list[CaptureImage]:
+        """The images taken by ``camera``, in file order of the capture."""
+        if camera not in self.rig.names:
+            raise ValueError(f"camera {camera!r} is not in the rig (cameras: {self.rig.names})")
+        return [im for im in self.images if im.camera == camera]
+
+    def path_of(self, image: CaptureImage | str | int) -> Path:
+        """Absolute path of an image (by entry, file name or index)."""
+        if self.root is None:
+            raise ValueError("this capture has no folder yet (load or save it first)")
+        im = self._entry(image)
+        return self.root / im.file
+
+    def _entry(self, image) -> CaptureImage:
+        if isinstance(image, CaptureImage):
+            return image
+        if isinstance(image, (int, np.integer)):
+            return self.images[int(image)]
+        for im in self.images:
+            if im.file == image:
+                return im
+        raise ValueError(f"no image {image!r} in the capture")
+
+    def read_image(self, image: CaptureImage | str | int, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
+        """Decode one image (BGR uint8 by default); ValueError naming the file if it cannot be
+        decoded or its size differs from its camera's ``image_size``."""
+        im = self._entry(image)
+        path = self.path_of(im)
+        if not path.is_file():
+            raise ValueError(f"image file {path} does not exist")
+        img = cv2.imread(str(path), flags)
+        if img is None:
+            raise ValueError(f"image file {path} could not be decoded (not a PNG/JPEG image or corrupt)")
+        w, h = self.rig[im.camera].image_size
+        if img.shape[:2] != (h, w):
+            raise ValueError(f"image file {path} is {img.shape[1]}x{img.shape[0]} px but camera "
+                             f"{im.camera!r} is {w}x{h} px")
+        return img
+
+    def verify(self) -> None:
+        """Decode every image (slow); raises ValueError naming the first bad file."""
+        for im in self.images:
+            self.read_image(im)
+
+    # --- files ----------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {"format": CAPTURE_FORMAT, "version": CAPTURE_VERSION, "kind": self.kind, "units": dict(UNITS),
+             "rig": "rig.json", "truth": "truth.json" if self.truth is not None else None}
+        d.update(to_jsonable(self.meta))
+        d["images"] = [im.to_dict() for im in self.images]
+        return d
+
+    def save(self, path, images: dict | None = None, jpeg_quality: int = 95) -> Path:
+        """Write the capture folder (atomically, file by file).
+
+        Parameters
+        ----------
+        path : folder to write (created if needed).
+        images : dict, optional
+            ``{file: image array}`` to write as well (PNG or JPEG by extension, JPEG at
+            ``jpeg_quality``); every listed image must exist in the folder afterwards.
+        """
+        root = Path(path)
+        root.mkdir(parents=True, exist_ok=True)
+        listed = {im.file for im in self.images}
+        for file, img in (images or {}).items():
+            file = _safe_relpath(file, "")
+            if file not in listed:
+                raise ValueError(f"image {file!r} is not listed in the capture's images")
+            write_image(root / file, img, jpeg_quality)
+        missing = [im.file for im in self.images if not (root / im.file).is_file()]
+        if missing:
+            raise ValueError(f"capture {root}: image files missing: {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+        self.rig.save(root / "rig.json")
+        if self.truth is not None:
+            write_text(root / "truth.json", json.dumps(to_jsonable(self.truth), indent=1, allow_nan=False) + "\n")
+        write_text(root / "capture.json", json.dumps(self.to_dict(), indent=2, allow_nan=False) + "\n")
+        self.root = root
+        return root
+
+    @classmethod
+    def load(cls, path) -> Capture:
+        """Read and validate a capture folder (``path`` is the folder or its ``capture.json``)."""
+        root = Path(path)
+        if root.name == "capture.json":
+            root = root.parent
+        cfile = root / "capture.json"
+        if not root.is_dir():
+            raise ValueError(f"capture folder {root} does not exist")
+        if not cfile.is_file():
+            raise ValueError(f"{cfile} does not exist: {root} is not a capture folder")
+        try:
+            d = json.loads(cfile.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise ValueError(f"{cfile} is not valid JSON: {e}") from None
+        if not isinstance(d, dict) or d.get("format") != CAPTURE_FORMAT:
+            raise ValueError(f"{cfile}: not a stillcap capture (expected \"format\": \"{CAPTURE_FORMAT}\")")
+        if not isinstance(d.get("version"), int) or d["version"] > CAPTURE_VERSION:
+            raise ValueError(f"{cfile}: version {d.get('version')!r} is not one this stillcap reads (<= {CAPTURE_VERSION})")
+        units = d.get("units", UNITS)
+        if any(units.get(k, v) != v for k, v in UNITS.items()):
+            raise ValueError(f"{cfile}: units must be {UNITS}, got {units}")
+        if not isinstance(d.get("kind"), str):
+            raise ValueError(f"{cfile}: missing \"kind\" (what was captured)")
+        rig_file = root / _safe_relpath(d.get("rig", "rig.json"), f"{cfile}: rig: ")
+        if not rig_file.is_file():
+            raise ValueError(f"{cfile}: rig file {rig_file} does not exist")
+        rig = Rig.load(rig_file)
+        if not isinstance(d.get("images"), list):
+            raise ValueError(f"{cfile}: \"images\" must be a list")
+        images = [CaptureImage.from_dict(e, f"{cfile}: image #{i}: ") for i, e in enumerate(d["images"])]
+        for im in images:
+            if im.camera not in rig.names:
+                raise ValueError(f"{cfile}: image {im.file!r}: camera {im.camera!r} is not in the rig "
+                                 f"{rig_file.name} (cameras: {rig.names})")
+            p = root / im.file
+            if not p.resolve().is_relative_to(root.resolve()):
+                raise ValueError(f"{cfile}: image path {im.file!r} leaves the capture folder (symlink)")
+            if not p.is_file():
+                raise ValueError(f"{cfile}: image file {p} does not exist")
+            if not cv2.haveImageReader(str(p)):
+                raise ValueError(f"{cfile}: image file {p} is not an image OpenCV can read")
+        truth = None
+        if d.get("truth"):
+            tfile = root / _safe_relpath(d["truth"], f"{cfile}: truth: ")
+            if not tfile.is_file():
+                raise ValueError(f"{cfile}: truth file {tfile} does not exist")
+            try:
+                truth = json.loads(tfile.read_text())
+            except json.JSONDecodeError as e:
+                raise ValueError(f"{tfile} is not valid JSON: {e}") from None
+        meta = {k: v for k, v in d.items() if k not in _RESERVED}
+        try:
+            return cls(d["kind"], rig, images, truth, meta, root)
+        except ValueError as e:
+            raise ValueError(f"{cfile}: {e}") from None
+
+
+def write_image(path, image: np.ndarray, jpeg_quality: int = 95) -> Path:
+    """Write an image atomically as PNG or JPEG (by the extension of ``path``)."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in (".png", ".jpg", ".jpeg"):
+        raise ValueError(f"image {path}: use a .png, .jpg or .jpeg file name")
+    params = [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)] if ext != ".png" else []
+    ok, buf = cv2.imencode(ext, np.asarray(image), params)
+    if not ok:
+        raise ValueError(f"image {path}: OpenCV could not encode an array of shape {np.shape(image)}")
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.tobytes())
+    return path
+
+
+# --- calibration targets in capture.json ---------------------------------------------------
+def target_to_dict(target) -> dict:
+    """A calibration target as capture metadata (lengths in metres)."""
+    from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
+
+    if isinstance(target, Chessboard):
+        return {"type": "chessboard", "cols": target.cols, "rows": target.rows, "square": target.square,
+                "margin": target.margin}
+    if isinstance(target, CharucoTarget):
+        return {"type": "charuco", "squares_x": target.squares_x, "squares_y": target.squares_y,
+                "square": target.square, "marker": target.marker, "dictionary": int(target.dictionary),
+                "first_id": target.first_id, "margin": target.margin}
+    if isinstance(target, CalibrationObject):
+        return {"type": "calibration-object", "faces": [target_to_dict(f) for f in target.faces],
+                "face2object": [np.asarray(T, float).tolist() for T in target.face2object]}
+    raise ValueError(f"unknown calibration target type {type(target).__name__}")
+
+
+def target_from_dict(d: dict):
+    """Inverse of :func:`target_to_dict`."""
+    from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
+
+    kind = d.get("type") if isinstance(d, dict) else None
+    args = {k: v for k, v in (d or {}).items() if k != "type"}
+    try:
+        if kind == "chessboard":
+            return Chessboard(**args)
+        if kind == "charuco":
+            return CharucoTarget(**args)
+        if kind == "calibration-object":
+            return CalibrationObject(tuple(target_from_dict(f) for f in d["faces"]),
+                                     tuple(np.asarray(T, float) for T in d["face2object"]))
+    except (TypeError, KeyError) as e:
+        raise ValueError(f"bad {kind} target description: {e}") from None
+    raise ValueError(f"unknown calibration target type {kind!r} (chessboard, charuco, calibration-object)")
