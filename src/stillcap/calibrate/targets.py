@@ -122,9 +122,12 @@ class CalibrationObject:
         nx, ny = squares
         per = (nx * ny) // 2
         faces, poses = [], []
-        rots = [np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1]]),    # board x->x, y->y (z=0 face)
-                np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0]]),    # board x->y, y->z (x=0 face)
-                np.array([[0, 1, 0], [0, 0, 1], [1, 0, 0]])]    # board x->z, y->x (y=0 face)
+        # Columns: where the board's x, y and z axes go. The board z axis points into the
+        # object (away from the viewer), as for a board on a wall seen from the front;
+        # otherwise the printed faces would read mirror-imaged and ArUco would find nothing.
+        rots = [np.array([[0, 1, 0], [1, 0, 0], [0, 0, -1]]),   # z = 0 face: x->y, y->x
+                np.array([[0, 0, -1], [0, 1, 0], [1, 0, 0]]),   # x = 0 face: x->z, y->y
+                np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])]   # y = 0 face: x->x, y->z
         for k, R in enumerate(rots):
             faces.append(CharucoTarget(nx, ny, square, 0.75 * square, first_id=k * per, margin=0.0))
             T = np.eye(4)

@@ -1,5 +1,101 @@
-"""`stillcap studio ...` commands."""
+"""`stillcap studio ...`: render synthetic captures (capture folders with truth.json)."""
+
+from __future__ import annotations
+
+from pathlib import Path
 
 import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-app = typer.Typer(no_args_is_help=True, help="studio commands")
+app = typer.Typer(no_args_is_help=True, add_completion=False,
+                  help="Render synthetic captures with ground truth (see docs/studio.md).")
+console = Console()
+
+
+def _check_out(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise ValueError(f"--out {out} exists and is not empty (use --force to write into it)")
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size must look like 1280x960, got {text!r}") from None
+    if w < 16 or h < 16:
+        raise ValueError(f"--size must be at least 16x16 pixels, got {text!r}")
+    return w, h
+
+
+def _progress(label: str):
+    return Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=console, transient=True)
+
+
+def _save(capture, images, out: Path, jpeg: int | None) -> None:
+    capture.save(out, images, jpeg_quality=jpeg or 95)
+    console.print(f"wrote {len(images)} images to [bold]{out}[/] (capture.json, rig.json, truth.json)")
+
+
+@app.command()
+def chessboard(
+    out: Path = typer.Option(..., "--out", help="Capture folder to write."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same capture)."),
+    views: int = typer.Option(15, "--views", min=1, help="Number of photos."),
+    pattern: str = typer.Option(None, "--pattern",
+                                help="Inner corners COLSxROWS (chessboard, default 9x6) or squares (ChArUco, default 7x5)."),
+    charuco: bool = typer.Option(False, "--charuco", help="A ChArUco board instead of a chessboard."),
+    square_mm: float = typer.Option(None, "--square-mm", help="Square size in mm (default 25, ChArUco 40)."),
+    size: str = typer.Option("1280x960", "--size", help="Image size WIDTHxHEIGHT in pixels."),
+    jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
+    force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+):
+    """Photos of a calibration board in random poses; truth = camera and board poses."""
+    from stillcap.calibrate.targets import CharucoTarget, Chessboard, parse_pattern
+    from stillcap.studio.scenes import chessboard_set, default_camera
+
+    _check_out(out, force)
+    camera = default_camera(image_size=_parse_size(size))
+    if charuco:
+        nx, ny = parse_pattern(pattern or "7x5")
+        sq = (square_mm or 40.0) / 1000
+        target = CharucoTarget(nx, ny, sq, 0.75 * sq)
+    else:
+        cols, rows = parse_pattern(pattern or "9x6")
+        target = Chessboard(cols, rows, (square_mm or 25.0) / 1000)
+    with _progress("rendering views") as prog:
+        task = prog.add_task("render", total=views)
+        result = chessboard_set(camera, n_views=views, target=target, rng=seed,
+                                progress=lambda i, n: prog.update(task, completed=i))
+    cap, images = result.to_capture(".jpg" if jpeg else ".png")
+    _save(cap, images, out, jpeg)
+
+
+@app.command()
+def markers(
+    out: Path = typer.Option(..., "--out", help="Capture folder to write."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same capture)."),
+    cameras: int = typer.Option(4, "--cameras", min=1, help="Cameras on the arc."),
+    balls: int = typer.Option(10, "--balls", min=0, help="Number of balls."),
+    marked: int = typer.Option(None, "--marked", min=0, help="How many of them carry painted markers (default a third)."),
+    size: str = typer.Option("1280x960", "--size", help="Image size WIDTHxHEIGHT in pixels."),
+    jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
+    force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+):
+    """Balls with painted markers and single-colour marker balls seen by a camera arc; truth = 3D
+    centres and true 2D projections."""
+    from stillcap.studio.scenes import marker_rig, marker_scene
+
+    _check_out(out, force)
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    rig = marker_rig(cameras, _parse_size(size), rng=rng)
+    with _progress("rendering cameras") as prog:
+        task = prog.add_task("render", total=cameras)
+        result = marker_scene(rig, balls, rng, n_marked=marked, progress=lambda i, n: prog.update(task, completed=i))
+    cap, images = result.to_capture(".jpg" if jpeg else ".png")
+    _save(cap, images, out, jpeg)

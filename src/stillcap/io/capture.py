@@ -35,12 +35,12 @@ _RESERVED = {"format", "version", "kind", "units", "rig", "truth", "images"}
 def _safe_relpath(file: str, where: str) -> str:
     """``file`` as a normalised relative POSIX path that cannot leave the capture folder."""
     if not isinstance(file, str) or not file.strip():
-        raise ValueError(f"{where}image file name must be a non-empty string, got {file!r}")
+        raise ValueError(f"{where}file name must be a non-empty string, got {file!r}")
     p = PurePosixPath(file.replace("\\", "/"))
     if p.is_absolute() or file.startswith(("/", "\\")) or (len(file) > 1 and file[1] == ":"):
-        raise ValueError(f"{where}image path {file!r} is absolute; paths must be relative to the capture folder")
+        raise ValueError(f"{where}path {file!r} is absolute; paths must be relative to the capture folder")
     if ".." in p.parts:
-        raise ValueError(f"{where}image path {file!r} leaves the capture folder ('..' is not allowed)")
+        raise ValueError(f"{where}path {file!r} leaves the capture folder ('..' is not allowed)")
     return str(p)
 
 
@@ -96,7 +96,7 @@ class CaptureImage:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        self.file = _safe_relpath(self.file, "")
+        self.file = _safe_relpath(self.file, "image ")
         for k in ("strobe_hz", "shutter_s", "first_flash_s"):
             v = getattr(self, k)
             if v is not None:
