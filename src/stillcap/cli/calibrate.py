@@ -1,5 +1,230 @@
-"""`stillcap calibrate ...` commands."""
+"""`stillcap calibrate ...` commands: intrinsics, stereo, rig.
 
+Thin: parse arguments, call :mod:`stillcap.calibrate`, print. Lengths (``--square``,
+``--marker``) are in metres; translations and baselines come out in the same unit.
+"""
+
+from __future__ import annotations
+
+import json
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import cv2
+import numpy as np
 import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+from rich.table import Table
 
-app = typer.Typer(no_args_is_help=True, help="calibrate commands")
+from stillcap.calibrate import (CharucoTarget, Chessboard, calibrate_intrinsics, calibrate_rig, calibrate_stereo,
+                                parse_pattern)
+from stillcap.calibrate.extrinsics import rig_images_from_folder, split_stereo_images
+from stillcap.camera import Rig
+
+app = typer.Typer(no_args_is_help=True, help="Calibrate cameras from chessboard or ChArUco photos.")
+out_console = Console(highlight=False)
+err_console = Console(stderr=True, highlight=False)
+
+Pattern = Annotated[str, typer.Option("--pattern", "-p", help="Chessboard inner corners, COLSxROWS (e.g. 9x6).")]
+Square = Annotated[float, typer.Option("--square", "-s",
+                                       help="Square size in metres; translations and baselines come out in this unit.")]
+Charuco = Annotated[bool, typer.Option("--charuco",
+                                       help="The target is a ChArUco board (see --squares, --marker, --dict).")]
+Squares = Annotated[str, typer.Option("--squares", help="ChArUco: squares along x and y, e.g. 7x5.")]
+Marker = Annotated[float | None, typer.Option("--marker",
+                                              help="ChArUco: marker side in metres (default 0.75 x --square).")]
+Dict = Annotated[str, typer.Option("--dict", help="ChArUco: ArUco dictionary name, e.g. DICT_5X5_250.")]
+Out = Annotated[Path | None, typer.Option("--out", "-o", help="Write a stillcap rig JSON file.")]
+AsJson = Annotated[bool, typer.Option("--json", help="Print the result as one JSON object on stdout.")]
+
+
+def _target(pattern: str, square: float, charuco: bool, squares: str, marker: float | None, dictionary: str):
+    if not square > 0:
+        raise ValueError(f"--square must be a positive length in metres, got {square}")
+    if not charuco:
+        cols, rows = parse_pattern(pattern)
+        return Chessboard(cols, rows, square)
+    try:
+        sx, sy = (int(v) for v in squares.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--squares must look like 7x5, got {squares!r}") from None
+    d = getattr(cv2.aruco, dictionary.upper(), None)
+    if not dictionary.upper().startswith("DICT_") or not isinstance(d, int):
+        raise ValueError(f"unknown ArUco dictionary {dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_250, DICT_6X6_1000)")
+    marker = 0.75 * square if marker is None else marker
+    if not 0 < marker < square:
+        raise ValueError(f"--marker must be between 0 and --square ({square}), got {marker}")
+    return CharucoTarget(sx, sy, square, marker, d)
+
+
+@contextmanager
+def _progress(label: str):
+    """A rich progress bar on stderr; yields a ``progress(done, total, name)`` callback."""
+    cols = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+            TextColumn("{task.fields[item]}"))
+    with Progress(*cols, console=err_console, transient=True) as bar:
+        task = bar.add_task(label, total=None, item="")
+        yield lambda done, total, name: bar.update(task, completed=done, total=total, item=name)
+
+
+def _f(x) -> float:
+    return round(float(x), 6)
+
+
+def _intrinsics_table(title: str, res) -> Table:
+    t = Table(title=title)
+    t.add_column("image")
+    t.add_column("reprojection RMS (px)", justify="right")
+    for name, e in res.per_image_rms_px.items():
+        t.add_row(name, f"{e:.3f}")
+    for name, why in res.images_skipped.items():
+        t.add_row(f"[yellow]{name}", f"[yellow]skipped: {why}")
+    return t
+
+
+def _print_camera(res) -> None:
+    s = res.summary()
+    out_console.print(f"camera {res.camera.name}: RMS {s['rms_px']:.3f} px over {len(s['images_used'])} images, "
+                      f"{s['image_size'][0]}x{s['image_size'][1]} px")
+    out_console.print(f"  fx {s['fx']:.2f}  fy {s['fy']:.2f}  cx {s['cx']:.2f}  cy {s['cy']:.2f}  (px)")
+    out_console.print("  dist (k1 k2 p1 p2 k3): " + " ".join(f"{v:.5f}" for v in s["dist"]))
+
+
+def _summary(res) -> dict:
+    s = res.summary()
+    for k in ("rms_px", "fx", "fy", "cx", "cy"):
+        s[k] = _f(s[k])
+    s["dist"] = [_f(v) for v in s["dist"]]
+    s["per_image_rms_px"] = {k: _f(v) for k, v in s["per_image_rms_px"].items()}
+    return s
+
+
+@app.command()
+def intrinsics(
+    images: Annotated[list[Path], typer.Argument(help="Photos of the board from one camera.")],
+    pattern: Pattern = "9x6", square: Square = 0.025, charuco: Charuco = False, squares: Squares = "7x5",
+    marker: Marker = None, dictionary: Dict = "DICT_5X5_250",
+    name: Annotated[str, typer.Option("--name", help="Camera name in the rig file.")] = "cam0",
+    out: Out = None, as_json: AsJson = False,
+):
+    """Intrinsics (K, distortion k1 k2 p1 p2 k3) of one camera from board photos.
+
+    Images where the board is not found are skipped and listed with the reason.
+    """
+    target = _target(pattern, square, charuco, squares, marker, dictionary)
+    with _progress("detecting") as cb:
+        res = calibrate_intrinsics(images, target, camera_name=name, progress=cb)
+    if out is not None:
+        Rig([res.camera]).save(out)
+    if as_json:
+        typer.echo(json.dumps(_summary(res), indent=2))
+        return
+    out_console.print(_intrinsics_table(name, res))
+    _print_camera(res)
+    if out is not None:
+        out_console.print(f"wrote {out}")
+
+
+@app.command()
+def stereo(
+    images: Annotated[list[Path], typer.Argument(
+        help="Photos of both cameras; split by file name: names holding --left-key are left, --right-key right, "
+             "paired by the name with the key removed (left01.jpg ~ right01.jpg).")],
+    pattern: Pattern = "9x6", square: Square = 0.025, charuco: Charuco = False, squares: Squares = "7x5",
+    marker: Marker = None, dictionary: Dict = "DICT_5X5_250",
+    left_key: Annotated[str, typer.Option("--left-key", help="Word marking left-camera file names.")] = "left",
+    right_key: Annotated[str, typer.Option("--right-key", help="Word marking right-camera file names.")] = "right",
+    refine_intrinsics: Annotated[bool, typer.Option(
+        "--refine-intrinsics", help="Refine intrinsics in the stereo fit (default: fixed).")] = False,
+    out: Out = None, as_json: AsJson = False,
+):
+    """Stereo pair: intrinsics of each camera, then R, T of right relative to left (left = world).
+
+    Example: stillcap calibrate stereo data/left*.jpg data/right*.jpg --pattern 9x6 --square 0.025
+    """
+    target = _target(pattern, square, charuco, squares, marker, dictionary)
+    left, right = split_stereo_images(images, (left_key, right_key))
+    with _progress("detecting") as cb:
+        res = calibrate_stereo(left, right, target, names=(left_key, right_key), keys=(left_key, right_key),
+                               fix_intrinsics=not refine_intrinsics, progress=cb)
+    if out is not None:
+        res.rig.save(out)
+    if as_json:
+        d = {"rms_px": _f(res.rms_px), "R": [[_f(v) for v in row] for row in res.R], "T": [_f(v) for v in res.T],
+             "baseline": _f(res.baseline), "left": _summary(res.left), "right": _summary(res.right),
+             "pairs_used": res.pairs_used, "pairs_skipped": res.pairs_skipped,
+             "per_pair_rms_px": {k: [_f(a), _f(b)] for k, (a, b) in res.per_pair_rms_px.items()}}
+        typer.echo(json.dumps(d, indent=2))
+        return
+    for r in (res.left, res.right):
+        out_console.print(_intrinsics_table(r.camera.name, r))
+        _print_camera(r)
+    out_console.print(f"stereo: RMS {res.rms_px:.3f} px over {len(res.pairs_used)} pairs "
+                      f"({'intrinsics refined' if refine_intrinsics else 'intrinsics fixed'})")
+    for k, why in res.pairs_skipped.items():
+        out_console.print(f"  [yellow]pair {k} skipped: {why}")
+    out_console.print("  T = (" + ", ".join(f"{v:.4f}" for v in res.T) + f"), baseline {res.baseline:.4f} "
+                      "(unit of --square)")
+    ang = np.degrees(np.arccos(np.clip((np.trace(res.R) - 1) / 2, -1, 1)))
+    out_console.print(f"  R: rotation of {ang:.3f} deg")
+    if out is not None:
+        out_console.print(f"wrote {out}")
+
+
+@app.command()
+def rig(
+    folder: Annotated[Path, typer.Argument(
+        help="One subfolder per camera (natural order; the first is the world frame), each holding board photos; "
+             "photos of the same instant share a file name across subfolders.")],
+    pattern: Pattern = "9x6", square: Square = 0.025, charuco: Charuco = False, squares: Squares = "7x5",
+    marker: Marker = None, dictionary: Dict = "DICT_5X5_250",
+    intrinsics_files: Annotated[list[Path] | None, typer.Option(
+        "--intrinsics", help="Rig JSON whose cameras (matched by name) give known intrinsics, e.g. from "
+                             "`stillcap calibrate intrinsics --name cam0 --out cam0.json` with close-up photos; "
+                             "repeat for several files.")] = None,
+    refine_intrinsics: Annotated[bool, typer.Option("--refine-intrinsics",
+                                                    help="Refine intrinsics in the bundle adjustment too.")] = False,
+    out: Out = None, as_json: AsJson = False,
+):
+    """N-camera rig: intrinsics per camera, spanning-tree poses, then bundle adjustment.
+
+    Layout: FOLDER/cam0/001.jpg, FOLDER/cam1/001.jpg, ... (same name = same instant).
+    """
+    target = _target(pattern, square, charuco, squares, marker, dictionary)
+    images, instants = rig_images_from_folder(folder)
+    known = {c.name: c for f in intrinsics_files or [] for c in Rig.load(f)} or None
+    with _progress("detecting") as cb:
+        res = calibrate_rig(images, target, cameras=known, instants=instants, refine_intrinsics=refine_intrinsics,
+                            progress=cb)
+    if out is not None:
+        res.rig.save(out)
+    if as_json:
+        cams = []
+        for c in res.rig:
+            cams.append({"name": c.name, "fx": _f(c.K[0, 0]), "fy": _f(c.K[1, 1]), "cx": _f(c.K[0, 2]),
+                         "cy": _f(c.K[1, 2]), "dist": [_f(v) for v in c.dist], "image_size": list(c.image_size),
+                         "center": [_f(v) for v in c.center], "world2cam": [[_f(v) for v in r] for r in c.world2cam],
+                         "rms_px": _f(res.per_camera_rms_px[c.name])})
+        d = {"rms_px": _f(res.rms_px), "initial_rms_px": _f(res.initial_rms_px),
+             "per_camera_rms_px": {k: _f(v) for k, v in res.per_camera_rms_px.items()}, "cameras": cams,
+             "instants_used": res.instants_used, "images_skipped": res.images_skipped, "success": res.success}
+        typer.echo(json.dumps(d, indent=2))
+        return
+    t = Table(title=f"rig: {len(res.rig)} cameras, {len(res.instants_used)} shared instants")
+    for col in ("camera", "RMS (px)", "fx", "fy", "cx", "cy", "centre (unit of --square)", "skipped"):
+        t.add_column(col, justify="left" if col in ("camera", "skipped") else "right")
+    for c in res.rig:
+        sk = res.images_skipped.get(c.name, {})
+        t.add_row(c.name, f"{res.per_camera_rms_px[c.name]:.3f}", f"{c.K[0, 0]:.1f}", f"{c.K[1, 1]:.1f}",
+                  f"{c.K[0, 2]:.1f}", f"{c.K[1, 2]:.1f}", " ".join(f"{v:+.4f}" for v in c.center),
+                  ", ".join(sk) if sk else "")
+    out_console.print(t)
+    out_console.print(f"bundle adjustment: RMS {res.initial_rms_px:.3f} px -> {res.rms_px:.3f} px"
+                      + ("" if res.success else f" [red](not converged: {res.message})"))
+    for cam, sk in res.images_skipped.items():
+        for img, why in sk.items():
+            out_console.print(f"  [yellow]{cam}/{img} skipped: {why}")
+    if out is not None:
+        out_console.print(f"wrote {out}")

@@ -204,6 +204,96 @@ def chessboard_set(camera: Camera | None = None, n_views: int = 15, target=None,
     return ChessboardSet(camera, target, np.array(poses), images, corners)
 
 
+@dataclass
+class RigBoardSet:
+    """Photos of one calibration target taken by every camera of a rig at shared instants.
+
+    Attributes
+    ----------
+    rig : Rig
+        The true rig.
+    target : Chessboard or CharucoTarget
+    board2world : np.ndarray, shape (n_instants, 4, 4)
+    images : dict[str, list]
+        Per camera name, one image per instant, ``None`` where that camera does not see the
+        whole board (it faces away or leaves the image).
+    """
+
+    rig: Rig
+    target: object
+    board2world: np.ndarray
+    images: dict
+
+    def to_capture(self, ext: str = ".png") -> tuple[Capture, dict]:
+        """Capture folder content; files are ``images/<camera>/instant_<k>.png`` so that the
+        folder is also the input of ``stillcap calibrate rig`` (one subfolder per camera)."""
+        imgs, files = [], {}
+        for cam in self.rig:
+            for k, im in enumerate(self.images[cam.name]):
+                if im is not None:
+                    f = f"images/{cam.name}/instant_{k:03d}{ext}"
+                    imgs.append(CaptureImage(f, cam.name, meta={"instant": k}))
+                    files[f] = im
+        truth = {"kind": "rig-boards", "rig": self.rig.to_dict(), "board2world": self.board2world}
+        meta = {"synthetic": True, "rig_calibrated": False, "target": target_to_dict(self.target),
+                "description": f"synthetic rig calibration set, {len(self.board2world)} instants"}
+        rig = Rig([nominal_camera(c) for c in self.rig])
+        return Capture("rig-boards", rig, imgs, truth, meta), files
+
+
+def rig_board_set(rig: Rig, n_instants: int = 12, target=None, rng=None, sensor: Sensor | None = None,
+                  center=(0.0, 0.0, 1.0), spread: float = 0.35, min_cameras: int = 2,
+                  supersample: int = 3, progress: Callable[[int, int], None] | None = None) -> RigBoardSet:
+    """Render a board held in front of a whole rig at ``n_instants`` random poses.
+
+    The board is placed around ``center`` (world, metres, +-``spread``), facing the mean camera
+    direction with a random tilt of up to 35 degrees; a pose is kept when at least
+    ``min_cameras`` cameras see the whole board from its printed side.
+    """
+    rng = as_rng(rng)
+    target = target if target is not None else Chessboard(9, 6, 0.06)
+    if n_instants < 1:
+        raise ValueError(f"n_instants must be >= 1, got {n_instants}")
+    sensor = sensor or Sensor()
+    center = np.asarray(center, float)
+    view = np.mean([c.center for c in rig], axis=0) - center
+    outline = _outline(target)
+    mid = (outline.min(axis=0) + outline.max(axis=0)) / 2
+    poses, images = [], {c.name: [] for c in rig}
+    total = n_instants * len(rig)
+    for k in range(n_instants):
+        for _ in range(500):
+            # board z axis points away from the cameras (printed side towards them)
+            face = Rotation.align_vectors([-view], [[0.0, 0.0, 1.0]])[0]
+            tilt = Rotation.from_rotvec(np.radians(35) * np.sqrt(rng.uniform()) *
+                                        np.array([*rng.normal(size=2), 0]) / np.sqrt(2))
+            spin = Rotation.from_rotvec([0, 0, rng.uniform(-np.pi, np.pi)])
+            R = (face * tilt * spin).as_matrix()
+            T = pose_matrix(R, center + rng.uniform(-spread, spread, 3) - R @ mid)
+            seen = []
+            for cam in rig:
+                corners = outline @ T[:3, :3].T + T[:3, 3]
+                px = cam.project(corners)
+                W, H = cam.image_size
+                facing = np.dot(T[:3, 2], cam.center - T[:3, 3]) < 0
+                seen.append(bool(facing and np.all(np.isfinite(px)) and np.all(px >= 10)
+                                 and np.all(px <= [W - 11, H - 11])))
+            if sum(seen) >= min_cameras:
+                break
+        else:
+            raise ValueError(f"could not place the board where {min_cameras} cameras see it; "
+                             "move 'center' in front of the rig")
+        poses.append(T)
+        for i, cam in enumerate(rig):
+            img = None
+            if seen[i]:
+                board2cam = cam.world2cam @ T
+                img = render(cam, target_scene(cam, target, board2cam, rng, supersample), sensor, rng, supersample)
+            images[cam.name].append(img)
+            _progress(progress, k * len(rig) + i + 1, total)
+    return RigBoardSet(rig, target, np.array(poses), images)
+
+
 # --- marker scenes ---------------------------------------------------------------------------
 def marker_rig(n_cameras: int = 4, image_size=(1280, 960), rng=None, radius: float = 2.5,
                height: float = 1.6, arc_deg: float = 120.0) -> Rig:
