@@ -426,7 +426,8 @@ def initial_rig_poses(names: Sequence[str], board2cam: Sequence[Mapping[int, np.
 
 def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, cameras=None,
                               instants: Sequence[str] | None = None, refine_intrinsics: bool = False,
-                              loss: str = "soft_l1", f_scale: float = 1.0, min_views: int = 3) -> RigResult:
+                              loss: str = "soft_l1", f_scale: float = 1.0, min_views: int = 3,
+                              max_view_rms_px: float = 1.5) -> RigResult:
     """Calibrate N cameras from target correspondences at shared instants.
 
     Parameters
@@ -442,6 +443,9 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
     refine_intrinsics : let the bundle adjustment refine intrinsics too.
     loss, f_scale : robust loss for the bundle adjustment (``least_squares``), scale in pixels.
     min_views : fewest views for an intrinsic calibration.
+    max_view_rms_px : views whose own board pose fits their corners worse than this (a corner
+        detection gone wrong, typically on a board seen at a grazing angle) are left out of the
+        adjustment and listed in ``images_skipped``.
 
     Returns
     -------
@@ -461,7 +465,7 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
     known = {} if cameras is None else {nm: cameras[nm] for nm in names
                                         if nm in (cameras.names if isinstance(cameras, Rig) else cameras)}
 
-    cams, intr, b2c = [], {}, []
+    cams, intr, b2c, rejected = [], {}, [], {nm: {} for nm in names}
     for nm in names:
         seen = {}
         for i, v in enumerate(views[nm]):
@@ -474,7 +478,8 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
         if nm in known:
             cam = known[nm]
             poses = {i: pose_from_points(cam, o, p) for i, (o, p) in seen.items()}
-            b2c.append({i: r.world2cam for i, r in poses.items() if r.success})
+            view_rms = {i: r.rms_px if r.success else np.inf for i, r in poses.items()}
+            b2c.append({i: r.world2cam for i, r in poses.items() if view_rms[i] <= max_view_rms_px})
         else:
             size = image_size.get(nm) if isinstance(image_size, Mapping) else image_size
             if size is None:
@@ -484,7 +489,11 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
                                                    [instants[i] for i in idx], nm, min_views=min_views)
             intr[nm] = res
             cam = res.camera
-            b2c.append({i: res.board2cam[instants[i]] for i in idx})
+            view_rms = {i: res.per_image_rms_px.get(instants[i], np.inf) for i in idx}
+            b2c.append({i: res.board2cam[instants[i]] for i in idx if view_rms[i] <= max_view_rms_px})
+        for i, r in view_rms.items():
+            if r > max_view_rms_px:
+                rejected[nm][instants[i]] = f"board pose fits its corners to {r:.2f} px (> {max_view_rms_px} px)"
         cams.append(cam.with_pose(np.eye(4)))
 
     w2c = initial_rig_poses(names, b2c)
@@ -499,13 +508,13 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
     ba = bundle_adjust(cams0, b2w, obs, refine_intrinsics=refine_intrinsics, loss=loss, f_scale=f_scale)
     return RigResult(Rig(ba.cameras), ba.rms_px, dict(zip(names, map(float, ba.per_camera_rms_px))),
                      ba.initial_rms_px, Rig(cams0), intr, {instants[i]: T for i, T in zip(used, ba.board2world)},
-                     [instants[i] for i in used], {nm: {} for nm in names}, ba.success, ba.message)
+                     [instants[i] for i in used], rejected, ba.success, ba.message)
 
 
 def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=None,
                   instants: Sequence[str] | None = None, refine_intrinsics: bool = False,
                   loss: str = "soft_l1", f_scale: float = 1.0, min_views: int = 3,
-                  progress: Progress | None = None) -> RigResult:
+                  progress: Progress | None = None, max_view_rms_px: float = 1.5) -> RigResult:
     """Calibrate N cameras from photos of a target taken at shared instants.
 
     Parameters
@@ -515,7 +524,8 @@ def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=Non
         instant ``i``. The mapping's order is kept; the first camera is the world frame.
     target : Chessboard (with ``cols + rows`` odd, so its orientation is unambiguous),
         CharucoTarget or CalibrationObject.
-    cameras, refine_intrinsics, loss, f_scale, min_views : see :func:`calibrate_rig_from_points`.
+    cameras, refine_intrinsics, loss, f_scale, min_views, max_view_rms_px : see
+        :func:`calibrate_rig_from_points`.
     instants : instant names (default: the file name of the first camera with a photo, or ``"#i"``).
     progress : ``progress(done, total, name)`` after each image is searched.
 
@@ -566,7 +576,13 @@ def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=Non
         if all(v is None for v in views[nm]):
             raise ValueError(f"camera {nm!r}: target not found in any image: "
                              + "; ".join(f"{k} ({v})" for k, v in skipped[nm].items()))
-    res = calibrate_rig_from_points(views, sizes, cameras, instants, refine_intrinsics, loss, f_scale, min_views)
+    res = calibrate_rig_from_points(views, sizes, cameras, instants, refine_intrinsics, loss, f_scale, min_views,
+                                    max_view_rms_px)
+    label_of = {inst: image_name(lists[nm][i], i) for nm in names for i, inst in enumerate(instants)
+                if lists[nm][i] is not None}
+    for nm, rej in res.images_skipped.items():
+        for inst, why in rej.items():
+            skipped[nm][label_of.get(inst, inst)] = why
     res.images_skipped = skipped
     for nm, ir in res.intrinsics.items():
         ir.images_skipped = skipped[nm]

@@ -12,32 +12,24 @@ import sys
 import typer
 from rich.console import Console
 
-from stillcap.cli import calibrate, demo, studio
+from stillcap.cli import calibrate, demo, markers, studio
 
-app = typer.Typer(no_args_is_help=True, add_completion=False,
+app = typer.Typer(no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   help="stillcap: optical motion capture from still photographs.")
 app.add_typer(calibrate.app, name="calibrate")
 app.add_typer(studio.app, name="studio")
 app.command("demo")(demo.demo)
+app.command("markers")(markers.markers)
 
 err = Console(stderr=True)
 
 
 def main(argv=None) -> None:
+    """Run the CLI. Usage errors are click's (exit 2); a ValueError from the library, i.e. bad
+    input the user can fix, prints one red line and exits 2; anything else is a bug and shows
+    its traceback."""
     try:
-        app(args=argv, prog_name="stillcap", standalone_mode=False)
+        app(args=argv, prog_name="stillcap")
     except (ValueError, FileNotFoundError) as e:
-        err.print(f"[bold red]error:[/] {e}", highlight=False)
+        err.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
         sys.exit(2)
-    except typer.Exit as e:
-        sys.exit(e.exit_code)
-    except typer.Abort:
-        err.print("aborted")
-        sys.exit(130)
-    except Exception as e:  # click usage errors arrive here in non-standalone mode
-        import click
-
-        if isinstance(e, click.ClickException):
-            e.show()
-            sys.exit(e.exit_code)
-        raise

@@ -99,3 +99,29 @@ def markers(
         result = marker_scene(rig, balls, rng, n_marked=marked, progress=lambda i, n: prog.update(task, completed=i))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
+
+
+@app.command()
+def puppet(
+    out: Path = typer.Option(..., "--out", help="Capture folder to write."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same capture)."),
+    pose: str = typer.Option("random", "--pose", help="random[:SEED], tpose or bvh:FILE[:FRAME] (a BVH file, frame 0 by default)."),
+    views: int = typer.Option(12, "--views", min=1, help="Number of turntable photos."),
+    step_deg: float = typer.Option(30.0, "--step-deg", help="Turntable step between photos, degrees."),
+    jpeg: int = typer.Option(85, "--jpeg", min=1, max=100, help="The webcam's JPEG quality (images are written as JPEG)."),
+    force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+):
+    """The thesis's marked puppet on its turntable, photographed by the webcam; truth = pose, 3D
+    beads and per-view bead pixels and visibility."""
+    from stillcap.calibrate.turntable import turntable_rig
+    from stillcap.studio.puppet import puppet_scene, webcam_sensor
+
+    _check_out(out, force)
+    rig = turntable_rig(views, step_deg)
+    with _progress("rendering views") as prog:
+        task = prog.add_task("render", total=views)
+        # the webcam's JPEG compression happens once, when the capture is written
+        result = puppet_scene(rig, pose, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
+                              progress=lambda i, n: prog.update(task, completed=i))
+    cap, images = result.to_capture(".jpg")
+    _save(cap, images, out, jpeg)

@@ -33,7 +33,7 @@ class Blobs:
 
 
 def find_blobs(image, threshold: float | None = None, min_area: int = 4,
-               max_area: int | None = None, background=None) -> Blobs:
+               max_area: int | None = None, background=None, centroid: str = "weighted") -> Blobs:
     """Connected bright regions of ``image``.
 
     Parameters
@@ -46,7 +46,15 @@ def find_blobs(image, threshold: float | None = None, min_area: int = 4,
     min_area, max_area : region size limits in pixels.
     background : ndarray like ``image``, optional
         A photo of the empty scene, subtracted first (colour background subtraction).
+    centroid : {"weighted", "silhouette"}
+        ``"weighted"``: brightness-weighted centre (best for evenly lit, e.g. retro-reflective,
+        markers). ``"silhouette"``: centre of the region's outline, every pixel above the
+        threshold counting fully and edge pixels in proportion to their coverage; it ignores
+        shading, so a ball lit from one side is not pulled toward its bright side (use with a
+        low ``threshold`` that keeps the dim limb).
     """
+    if centroid not in ("weighted", "silhouette"):
+        raise ValueError(f"centroid must be 'weighted' or 'silhouette', got {centroid!r}")
     img = np.asarray(image)
     if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3):
         raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
@@ -78,7 +86,10 @@ def find_blobs(image, threshold: float | None = None, min_area: int = 4,
     grown[labels > 0] = labels[labels > 0]
     ys, xs = np.nonzero(grown)
     lab = grown[ys, xs]
-    w = np.clip(value[ys, xs] - float(np.median(value)), 0, None)
+    bg = float(np.median(value))
+    w = np.clip(value[ys, xs] - bg, 0, None)
+    if centroid == "silhouette":
+        w = np.minimum(w / max(threshold - bg, 1e-6), 1.0)
     sw = np.bincount(lab, w, n)
     cx = np.bincount(lab, w * xs, n) / np.where(sw > 0, sw, 1)
     cy = np.bincount(lab, w * ys, n) / np.where(sw > 0, sw, 1)
@@ -93,11 +104,12 @@ def find_blobs(image, threshold: float | None = None, min_area: int = 4,
 
 
 def classify_colors(colors_bgr, palette_bgr, names=None, max_distance: float = 40.0,
-                    lightness_weight: float = 0.25) -> np.ndarray:
+                    lightness_weight: float = 0.25, min_chroma: float = 0.0) -> np.ndarray:
     """Nearest palette colour of each blob in CIE Lab (perceptual), or ``None`` if too far.
 
     Lightness differences count ``lightness_weight`` times as much as chroma differences: the
     same paint looks darker or brighter with the light, its hue and chroma change much less.
+    Colours with a Lab chroma below ``min_chroma`` (white, grey, black) get ``None``.
 
     Parameters
     ----------
@@ -119,4 +131,6 @@ def classify_colors(colors_bgr, palette_bgr, names=None, max_distance: float = 4
     diff[..., 0] *= lightness_weight
     d = np.linalg.norm(diff, axis=2)
     best = d.argmin(axis=1) if len(d) else np.zeros(0, int)
-    return np.array([names[b] if d[i, b] <= max_distance else None for i, b in enumerate(best)], object)
+    chroma = np.hypot(lab_c[:, 1], lab_c[:, 2])
+    return np.array([names[b] if d[i, b] <= max_distance and chroma[i] >= min_chroma else None
+                     for i, b in enumerate(best)], object)

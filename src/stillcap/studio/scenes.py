@@ -243,12 +243,15 @@ class RigBoardSet:
 
 def rig_board_set(rig: Rig, n_instants: int = 12, target=None, rng=None, sensor: Sensor | None = None,
                   center=(0.0, 0.0, 1.0), spread: float = 0.35, min_cameras: int = 2,
+                  max_view_deg: float = 60.0,
                   supersample: int = 3, progress: Callable[[int, int], None] | None = None) -> RigBoardSet:
     """Render a board held in front of a whole rig at ``n_instants`` random poses.
 
     The board is placed around ``center`` (world, metres, +-``spread``), facing the mean camera
-    direction with a random tilt of up to 35 degrees; a pose is kept when at least
-    ``min_cameras`` cameras see the whole board from its printed side.
+    direction with a random tilt of up to 35 degrees; a camera photographs it when it sees the
+    whole board from its printed side at most ``max_view_deg`` from the board's normal (as a
+    person holding a board turns it towards the cameras); a pose is kept when at least
+    ``min_cameras`` cameras photograph it.
     """
     rng = as_rng(rng)
     target = target if target is not None else Chessboard(9, 6, 0.06)
@@ -275,7 +278,8 @@ def rig_board_set(rig: Rig, n_instants: int = 12, target=None, rng=None, sensor:
                 corners = outline @ T[:3, :3].T + T[:3, 3]
                 px = cam.project(corners)
                 W, H = cam.image_size
-                facing = np.dot(T[:3, 2], cam.center - T[:3, 3]) < 0
+                to_cam = cam.center - T[:3, 3]
+                facing = -np.dot(T[:3, 2], to_cam) > np.cos(np.radians(max_view_deg)) * np.linalg.norm(to_cam)
                 seen.append(bool(facing and np.all(np.isfinite(px)) and np.all(px >= 10)
                                  and np.all(px <= [W - 11, H - 11])))
             if sum(seen) >= min_cameras:

@@ -1,0 +1,69 @@
+"""`stillcap markers CAPTURE`: triangulate coloured marker balls of a capture folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+
+
+def markers(
+    capture: Path = typer.Argument(..., help="Capture folder (capture.json, rig.json, images/)."),
+    palette: Path = typer.Option(None, "--palette", help='JSON {"label": [b, g, r], ...} marker colours (0-255); '
+                                 "default: the studio's marker-ball colours."),
+    max_px: float = typer.Option(2.0, "--max-px", help="Matching and outlier tolerance, pixels."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    out: Path = typer.Option(None, "--out", help="Also write the result as JSON to this file."),
+):
+    """Find coloured marker balls in every photo, match them across cameras, triangulate them.
+
+    One photo per camera of the capture's rig. With a synthetic capture (truth.json) the
+    result is compared with the true ball centres.
+    """
+    from stillcap.io.atomic import write_text
+    from stillcap.io.capture import Capture
+    from stillcap.pipelines.markers import reconstruct_markers
+
+    cap = Capture.load(capture)
+    images = []
+    for cam in cap.rig:
+        shots = cap.images_of(cam.name)
+        if not shots:
+            raise ValueError(f"capture {capture}: camera {cam.name!r} has no photo")
+        images.append(cap.read_image(shots[0]))
+    pal = None
+    if palette is not None:
+        try:
+            pal = {str(k): tuple(float(c) for c in v) for k, v in json.loads(Path(palette).read_text()).items()}
+        except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
+            raise ValueError(f"palette file {palette}: {e}") from None
+    rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px)
+    result = rec.to_dict()
+    truth = cap.truth if cap.truth and cap.truth.get("kind") == "markers" else None
+    if truth is not None:
+        balls = [b for b in truth["balls"] if b["kind"] == "marker"]
+        centres = np.array([b["center"] for b in balls], float).reshape(-1, 3)
+        for m, p in zip(result["markers"], rec.points):
+            d = np.linalg.norm(centres - p, axis=1)
+            m["true_ball"], m["error_mm"] = balls[int(d.argmin())]["name"], float(d.min() * 1e3)
+    if out is not None:
+        write_text(out, json.dumps(result, indent=2) + "\n")
+    if as_json:
+        print(json.dumps(result, indent=2))
+        return
+    t = Table(title=f"{len(rec.labels)} markers triangulated from {len(cap.rig)} cameras ({cap.rig.world} frame)")
+    cols = ["label", "x mm", "y mm", "z mm", "views", "reproj px"] + (["true ball", "err mm"] if truth else [])
+    for c in cols:
+        t.add_column(c, justify="right")
+    for m in result["markers"]:
+        row = [m["label"], *(f"{v * 1e3:.1f}" for v in m["position_m"]), str(m["views"]), f"{m['reproj_error_px']:.3f}"]
+        if truth:
+            row += [m["true_ball"], f"{m['error_mm']:.3f}"]
+        t.add_row(*row)
+    console.print(t)

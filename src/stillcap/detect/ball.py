@@ -1,0 +1,952 @@
+"""Ball images in stroboscopic (multi-exposure) photos: silhouettes, ellipses, known-radius Hough.
+
+The seed's pipeline (SPEC J1 "Ball positions", steps 1-5; seed section 4.3), per stereo pair:
+
+1. **Foreground mask** (:func:`foreground_mask`): colour background subtraction against a photo
+   of the empty scene, or, without one, against a robust dark-room model (per-channel median
+   and MAD of the photo itself: in a dark room almost every pixel is background). The largest
+   channel excess over the background is thresholded and cleaned by a morphological opening.
+2. **Silhouettes** (:func:`detect_balls`): external contours (``cv2.findContours``), their convex
+   hull (painted dark markers cut small notches into the silhouette; the hull removes them) and
+   an ellipse fit (``cv2.fitEllipse``) give a first centre and size. Overlapping consecutive
+   ball images (a slow pitch, a fast strobe) merge into one silhouette; its distance transform
+   still peaks at every ball centre, so it is flagged ``MERGED`` and split: each ball's centre
+   comes from a circle fitted to its own outer arc (flag ``SPLIT``).
+3. **Stereo matching** (:func:`ball_centers_stereo`): ellipse centres are matched by epipolar
+   geometry (:func:`stillcap.geometry.epipolar.match_epipolar`) and triangulated; from the
+   approximate 3D centre and the known ball radius the exact image outline of the ball is
+   projected in each camera (:func:`sphere_outline_px`: the limb circle of the tangent cone,
+   through the lens distortion), so its radius (and slight perspective elongation) is known.
+4. **Refinement** (:func:`refine_centers`): a circular Hough transform of known radius (a 2D
+   search over the centre only) in a neighbourhood of the ellipse centre. It scores every
+   candidate centre by the gradient that crosses the known outline inward (bright ball, dark
+   room), with gradient-direction selectivity, so only the lit limb votes: a half-moon ball
+   (lit from the side) still has its lit half-circle exactly on the known circle, while its
+   ellipse centre lies ~0.4 r towards the light. Sub-pixel peak by a fine grid and a parabola.
+5. The refined centres are triangulated again: final 3D positions.
+
+Pixel convention: detection runs on the **raw (distorted) photo**; every centre returned is a
+raw pixel ``(x, y)`` (origin at the centre of the top-left pixel, OpenCV's convention).
+Undistort with :meth:`stillcap.camera.Camera.undistort_points`; the stereo result carries both.
+Lens distortion is handled exactly where it matters: the known-radius outline of step 3 is
+projected through the distortion model, so the Hough template has the shape the ball really
+has in the raw photo, and matching / triangulation undistort the centres themselves.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from stillcap._checks import as_array
+from stillcap.camera import Camera
+
+__all__ = [
+    "BallFlag", "BallDetections", "RefinedCenters", "StereoBalls",
+    "foreground_mask", "detect_balls", "refine_centers", "sphere_outline_px", "ball_centers_stereo",
+]
+
+
+class BallFlag(enum.IntFlag):
+    """Per-ball quality flags (bit set; ``0`` means nothing to report)."""
+
+    NONE = 0
+    #: the silhouette touches the image border (a cut ball: centre and size unreliable)
+    TOUCHES_BORDER = 1
+    #: the ball came from a silhouette of several overlapping ball images
+    MERGED = 2
+    #: ... and its centre is a circle fitted to its own outer arc (else it is the distance-
+    #: transform maximum, flagged PARTIAL too)
+    SPLIT = 4
+    #: the silhouette is clearly not round (half moon, partly lit): the ellipse centre is biased
+    PARTIAL = 8
+    #: Hough refinement failed (weak peak, or the peak on the search border): centre = ellipse centre
+    REFINE_FAILED = 16
+    #: the ellipse size disagrees with the radius projected from the triangulated centre
+    SIZE_MISMATCH = 32
+
+
+# --------------------------------------------------------------------------------------------
+# results
+# --------------------------------------------------------------------------------------------
+@dataclass
+class BallDetections:
+    """Ball images found in one photo, sorted left to right (by ellipse centre x).
+
+    Attributes
+    ----------
+    centers : ndarray, shape (N, 2)
+        Best centre estimate (raw pixels): the refined centre where refinement ran and
+        succeeded, else the ellipse centre.
+    ellipse_centers : ndarray, shape (N, 2)
+        Centre of the ellipse fitted to the convex hull (first estimate, step 2).
+    radii_px : ndarray, shape (N,)
+        Radius in pixels: the known radius used by the refinement, else the ellipse's
+        semi-major axis (a split ball: its circle's radius). The silhouette includes the
+        blurred rim down to the (low) dark-room threshold, so this is ~1-2 px above the true
+        radius; the refinement uses the radius projected from 3D instead.
+    ellipses : ndarray, shape (N, 5)
+        ``cv2.fitEllipse`` result per ball: centre x, centre y, full width, full height (px),
+        angle (degrees).
+    areas : ndarray, shape (N,)
+        Contour area in px^2 (for split balls: the area of their piece).
+    hull_areas : ndarray, shape (N,)
+        Convex-hull area in px^2.
+    scores : ndarray, shape (N,)
+        Refinement support: the share of the outline with a clear inward edge (about 1 for a
+        fully lit ball, 0.5 for a half moon); NaN where not refined.
+    flags : ndarray of int, shape (N,)
+        :class:`BallFlag` bits.
+    contour_index : ndarray of int, shape (N,)
+        Index of the silhouette each ball came from (balls split from one silhouette share it).
+    """
+
+    centers: np.ndarray
+    ellipse_centers: np.ndarray
+    radii_px: np.ndarray
+    ellipses: np.ndarray
+    areas: np.ndarray
+    hull_areas: np.ndarray
+    scores: np.ndarray
+    flags: np.ndarray
+    contour_index: np.ndarray
+    mask: np.ndarray | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    @classmethod
+    def empty(cls, mask=None) -> BallDetections:
+        z2, z1 = np.zeros((0, 2)), np.zeros(0)
+        return cls(z2, z2.copy(), z1, np.zeros((0, 5)), z1.copy(), z1.copy(), z1.copy(),
+                   np.zeros(0, int), np.zeros(0, int), mask)
+
+    def has(self, flag: BallFlag) -> np.ndarray:
+        """Boolean (N,) array: which balls carry ``flag``."""
+        return (self.flags & int(flag)) != 0
+
+    def with_refined(self, refined: RefinedCenters) -> BallDetections:
+        """A copy whose centres, radii, scores and flags come from :func:`refine_centers`."""
+        if len(refined) != len(self):
+            raise ValueError(f"refined has {len(refined)} centres for {len(self)} detections")
+        return replace(self, centers=refined.centers.copy(), radii_px=refined.radii_px.copy(),
+                       scores=refined.scores.copy(), flags=self.flags | refined.flags)
+
+
+@dataclass
+class RefinedCenters:
+    """Result of :func:`refine_centers`.
+
+    Attributes
+    ----------
+    centers : ndarray, shape (N, 2)
+        Refined centres (raw pixels); the input centre where refinement failed.
+    radii_px : ndarray, shape (N,)
+        The known radius used (mean distance of the outline from its centre).
+    scores : ndarray, shape (N,)
+        Share of the outline with a clear inward edge at the refined centre (0-1).
+    shifts : ndarray, shape (N, 2)
+        ``centers - input centres``.
+    flags : ndarray of int, shape (N,)
+        ``BallFlag.REFINE_FAILED`` where the peak was weak or on the search border.
+    """
+
+    centers: np.ndarray
+    radii_px: np.ndarray
+    scores: np.ndarray
+    shifts: np.ndarray
+    flags: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    @property
+    def ok(self) -> np.ndarray:
+        """Which centres were refined, shape (N,) bool."""
+        return (self.flags & int(BallFlag.REFINE_FAILED)) == 0
+
+
+@dataclass
+class StereoBalls:
+    """Result of :func:`ball_centers_stereo`: matched ball images of a stereo pair.
+
+    Attributes
+    ----------
+    points_3d : ndarray, shape (K, 3)
+        Final 3D ball centres (world frame, metres) from the refined image centres.
+    points_3d_initial : ndarray, shape (K, 3)
+        3D centres triangulated from the ellipse centres (step 3).
+    centers_a, centers_b : ndarray, shape (K, 2)
+        Refined centres in raw (distorted) pixels of camera a and b.
+    centers_a_undistorted, centers_b_undistorted : ndarray, shape (K, 2)
+        The same as ideal pinhole pixels (``Camera.undistort_points``).
+    radius_px : ndarray, shape (K, 2)
+        Projected ball radius in camera a and b (pixels).
+    pairs : ndarray of int, shape (K, 2)
+        Index of each match in ``detections_a`` and ``detections_b``.
+    epipolar_px : ndarray, shape (K,)
+        Epipolar distance of the matched ellipse centres.
+    reproj_error_px : ndarray, shape (K,)
+        RMS reprojection error of the final 3D centres.
+    flags : ndarray of int, shape (K,)
+        :class:`BallFlag` bits of both views, OR-ed.
+    detections_a, detections_b : BallDetections
+        All detections in each photo (with refined centres where matched).
+    """
+
+    points_3d: np.ndarray
+    points_3d_initial: np.ndarray
+    centers_a: np.ndarray
+    centers_b: np.ndarray
+    centers_a_undistorted: np.ndarray
+    centers_b_undistorted: np.ndarray
+    radius_px: np.ndarray
+    pairs: np.ndarray
+    epipolar_px: np.ndarray
+    reproj_error_px: np.ndarray
+    flags: np.ndarray
+    detections_a: BallDetections
+    detections_b: BallDetections
+
+    def __len__(self) -> int:
+        return len(self.points_3d)
+
+    @property
+    def ok(self) -> np.ndarray:
+        """Matches whose centres were refined in both views and triangulated, shape (K,) bool."""
+        return ((self.flags & int(BallFlag.REFINE_FAILED)) == 0) & np.all(np.isfinite(self.points_3d), axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# step 1: foreground
+# --------------------------------------------------------------------------------------------
+def _check_image(image, name: str = "image") -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (1, 3)):
+        raise ValueError(f"{name} must have shape (H, W) or (H, W, 3), got {img.shape}")
+    if not (np.issubdtype(img.dtype, np.integer) or np.issubdtype(img.dtype, np.floating)):
+        raise ValueError(f"{name} must hold numbers (uint8 BGR expected), got dtype {img.dtype}")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    return img
+
+
+def _robust_level(channel: np.ndarray) -> tuple[float, float]:
+    """Median and MAD-based sigma of one channel, from a strided subsample (fast on 5 Mpx).
+
+    A subsample of ~1/16 of the pixels gives the median of a dark-room photo to well under one
+    grey level; for ``uint8`` both statistics come from a histogram (``np.bincount``), which is
+    ~10x faster than ``np.median``.
+    """
+    step = max(1, int(np.sqrt(channel.size / 2.5e5)))
+    s = channel[::step, ::step]
+    if s.dtype == np.uint8:
+        h = np.bincount(s.ravel(), minlength=256).astype(np.float64)
+        c = np.cumsum(h)
+        med = int(np.searchsorted(c, 0.5 * c[-1]))
+        d = np.arange(256)
+        hd = np.zeros(256)
+        np.add.at(hd, np.abs(d - med), h)
+        mad = float(np.searchsorted(np.cumsum(hd), 0.5 * c[-1]))
+        # a MAD of 0 grey levels (quantised, nearly noiseless) still means ~0.5 level of noise
+        return float(med), 1.4826 * max(mad, 0.5)
+    s = s.astype(np.float32).ravel()
+    med = float(np.median(s))
+    return med, 1.4826 * float(np.median(np.abs(s - med)))
+
+
+def _raw_mask(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float) -> np.ndarray:
+    """Foreground mask before clean-up: any channel differs from the background by > threshold."""
+    if background is not None:
+        bg = _check_image(background, "background")
+        if bg.shape != img.shape:
+            raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
+        if img.dtype == np.uint8 and bg.dtype == np.uint8:
+            diff = cv2.absdiff(img, bg)
+        else:
+            diff = np.abs(img.astype(np.float32) - bg.astype(np.float32))
+        chans = [diff] if diff.ndim == 2 else [diff[:, :, k] for k in range(3)]
+        # |difference of two noisy photos| is half-normal: its median is 0.674 sigma
+        sig = [max(_robust_level(c)[0] / 0.674, 0.5) for c in chans]
+        base = [0.0] * len(chans)
+        src = diff
+    else:
+        src = img
+        chans = [img] if img.ndim == 2 else [img[:, :, k] for k in range(3)]
+        stats = [_robust_level(c) for c in chans]
+        base = [m for m, _ in stats]
+        sig = [s for _, s in stats]
+    if threshold is None:
+        thr = [max(k_sigma * s, float(min_contrast)) for s in sig]
+    else:
+        thr = [float(threshold)] * len(chans)
+    hi = [b + t for b, t in zip(base, thr)]
+    if src.dtype == np.uint8:
+        # "any channel above its limit" = not "all channels within": one cv2.inRange pass
+        lim = [min(255, int(np.floor(h))) for h in hi]
+        if src.ndim == 2:
+            return cv2.bitwise_not(cv2.inRange(src, 0, lim[0]))
+        return cv2.bitwise_not(cv2.inRange(src, (0, 0, 0), tuple(lim)))
+    over = np.zeros(src.shape[:2], bool)
+    for k, h in enumerate(hi):
+        over |= (src if src.ndim == 2 else src[:, :, k]) > h
+    return over.astype(np.uint8) * 255
+
+
+def _open(mask: np.ndarray, open_px: int) -> np.ndarray:
+    if open_px <= 0:
+        return mask
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1, 2 * open_px + 1))
+    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, k)
+
+
+def foreground_mask(image, background=None, threshold: float | None = None, k_sigma: float = 6.0,
+                    min_contrast: float = 20.0, open_px: int = 1) -> np.ndarray:
+    """Binary foreground mask of a photo (step 1), ``uint8`` 0/255, shape (H, W).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) or (H, W)
+        BGR photo, 8-bit scale (``uint8``, or float in 0-255).
+    background : ndarray like ``image``, optional
+        Photo of the empty scene: a pixel is foreground where any channel differs from it
+        (absolute difference) by more than the threshold. Without it, the dark-room model: a
+        pixel is foreground where any channel exceeds that channel's median over the photo (in a
+        dark room nearly every pixel is background) by more than the threshold.
+    threshold : float, optional
+        Channel difference (grey levels) above which a pixel is foreground. Default, per
+        channel: ``k_sigma`` times the robust noise sigma (MAD) of the photo (or of the
+        difference), but at least ``min_contrast`` grey levels.
+    open_px : int
+        Radius of the morphological opening that removes noise specks and thin spurs (0: none).
+        (:func:`detect_balls` opens only around candidate silhouettes, which is faster.)
+    """
+    img = _check_image(image)
+    return _open(_raw_mask(img, background, threshold, k_sigma, min_contrast), open_px)
+
+
+# --------------------------------------------------------------------------------------------
+# step 2: silhouettes -> hull -> ellipse, merged silhouettes
+# --------------------------------------------------------------------------------------------
+def _fit_circle(pts: np.ndarray) -> tuple[np.ndarray, float]:
+    """Algebraic (Kasa) circle fit: centre (2,), radius. A 3-unknown least-squares problem."""
+    A = np.column_stack([2 * pts, np.ones(len(pts))])
+    b = (pts ** 2).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c = sol[:2]
+    return c, float(np.sqrt(max(sol[2] + c @ c, 0.0)))
+
+
+def _split_merged(contour: np.ndarray, min_sep: float, min_dip: float = 0.06):
+    """Ball images inside one silhouette, from the maxima of its distance transform.
+
+    The distance transform of one disc peaks at its centre (value r); in the union of
+    overlapping discs (consecutive ball images of a slow pitch) it still peaks at every centre
+    (the notches between two discs are at distance r from both centres) and dips between them.
+    Each maximum's circle is then fitted to the contour points that lie on it (points near the
+    notches, on two circles, are left out).
+
+    Returns a list of (centre (2,), radius, rms residual) per ball image: one entry for a
+    single ball; the entries' centres are circle fits, or the distance maximum where the fit is
+    poor (a partly lit ball).
+    """
+    pts = contour.reshape(-1, 2)
+    x0, y0 = pts.min(axis=0) - 2
+    x1, y1 = pts.max(axis=0) + 3
+    crop = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    cv2.drawContours(crop, [contour.reshape(-1, 1, 2)], -1, 255, -1, offset=(-int(x0), -int(y0)))
+    dt = cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    top = float(dt.max())
+    if top < 2.0:
+        return []
+    rad = max(1, int(round(max(min_sep, 0.35 * top))))
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * rad + 1, 2 * rad + 1))
+    # Candidate centres: local maxima at least half the highest, and at least a quarter of the
+    # radius of a disc as large as the hull (a chain of 10 overlapping balls has ~0.28; the
+    # thin lit rim of a ball lit from behind, a crescent, ~0.1: it is one ball, not several)
+    hull_r = np.sqrt(cv2.contourArea(cv2.convexHull(contour.reshape(-1, 1, 2))) / np.pi)
+    peaks = (dt >= cv2.dilate(dt, k) - 1e-6) & (dt >= max(0.5 * top, 0.25 * hull_r))
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(peaks.astype(np.uint8), connectivity=8)
+    maxima = []
+    for j in range(1, n):  # a plateau of equal maxima counts once: its centroid
+        ys, xs = np.nonzero(lab == j)
+        v = dt[ys, xs].max()
+        maxima.append((cents[j][0] + x0, cents[j][1] + y0, float(v)))
+    # A maximum is a ball of its own only if it is far enough from every higher one and the
+    # distance transform dips between them (a dark marker's notch in one ball makes a second,
+    # shallow maximum; two overlapping balls a clear valley, 0.13 r deep at 1 r apart).
+    maxima.sort(key=lambda m: -m[2])
+    keep = []
+    t = np.linspace(0.0, 1.0, 24)
+    for m in maxima:
+        ok = True
+        for q in keep:
+            if np.hypot(m[0] - q[0], m[1] - q[1]) < max(min_sep, 0.35 * q[2]):
+                ok = False
+                break
+            xs = np.round(q[0] + t * (m[0] - q[0]) - x0).astype(int)
+            ys = np.round(q[1] + t * (m[1] - q[1]) - y0).astype(int)
+            along = dt[ys, xs]
+            # overlapping discs: the segment between centres stays inside the silhouette (the
+            # horns of a crescent are joined through the background instead) and dips
+            if along.min() <= 0.0 or min(m[2], q[2]) - along.min() < max(1.5, min_dip * top):
+                ok = False
+                break
+        if ok:
+            keep.append(m)
+    if len(keep) < 2:
+        return []
+    P = pts.astype(float)
+    cen = np.array([(m[0], m[1]) for m in keep])
+    rr = np.array([m[2] for m in keep])
+    resid = np.abs(np.linalg.norm(P[:, None, :] - cen[None], axis=2) - rr[None])
+    order = np.argsort(resid, axis=1)
+    best = order[:, 0]
+    r1 = np.take_along_axis(resid, order[:, :1], 1)[:, 0]
+    r2 = np.take_along_axis(resid, order[:, 1:2], 1)[:, 0]
+    clear = r2 - r1 > 2.0
+    out = []
+    for j in range(len(keep)):
+        sel = P[(best == j) & clear]
+        if len(sel) >= 8:
+            c, r = _fit_circle(sel)
+            rms = float(np.sqrt(np.mean((np.linalg.norm(sel - c, axis=1) - r) ** 2)))
+            if rms <= max(1.0, 0.05 * r) and np.hypot(*(c - cen[j])) < 0.5 * rr[j]:
+                out.append((c, r, rms))
+                continue
+        out.append((cen[j], rr[j], np.inf))
+    return out
+
+
+def _clean_contours(raw: np.ndarray, open_px: int, min_area: float) -> list:
+    """External contours of the mask after a morphological opening, done per silhouette.
+
+    Opening the whole 5 Mpx frame costs more than the rest of the detection; opening a crop
+    around each candidate silhouette (drawn alone into the crop, so neighbours do not leak in)
+    gives the same contours.
+    """
+    contours, _ = cv2.findContours(raw, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if open_px <= 0:
+        return [c for c in contours if cv2.contourArea(c) >= min_area]
+    H, W = raw.shape
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1, 2 * open_px + 1))
+    out = []
+    for c in contours:
+        if len(c) < 5 or cv2.contourArea(c) < min_area:
+            continue
+        x, y, w, h = cv2.boundingRect(c)
+        x0, y0 = max(x - 2, 0), max(y - 2, 0)
+        x1, y1 = min(x + w + 2, W), min(y + h + 2, H)
+        crop = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.drawContours(crop, [c], -1, 255, -1, offset=(-x0, -y0))
+        crop &= raw[y0:y1, x0:x1]
+        crop = cv2.morphologyEx(crop, cv2.MORPH_OPEN, k)
+        sub, _ = cv2.findContours(crop, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(x0, y0))
+        out.extend(sub)
+    return out
+
+
+def detect_balls(image, background=None, min_area: float = 50.0, max_area: float | None = None,
+                 threshold: float | None = None, k_sigma: float = 6.0, min_contrast: float = 20.0,
+                 open_px: int = 1, partial_ratio: float = 0.8, partial_fill: float = 0.9,
+                 merge_ratio: float = 0.9,
+                 merge_solidity: float = 0.97, merge_min_sep: float = 4.0,
+                 keep_mask: bool = False) -> BallDetections:
+    """Ball silhouettes of one photo: foreground mask, contours, convex hull, ellipse (steps 1-2).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) or (H, W)
+        BGR photo (``uint8``, or float in 0-255), raw (not undistorted).
+    background : ndarray like ``image``, optional
+        Photo of the empty scene; default: dark-room model (see :func:`foreground_mask`).
+    min_area, max_area : float
+        Silhouette area limits in px^2 (contour area; a half moon counts half a disc).
+    threshold, k_sigma, min_contrast, open_px
+        Foreground threshold (see :func:`foreground_mask`).
+    merge_ratio, merge_solidity : float
+        Silhouettes whose ellipse axis ratio is below ``merge_ratio`` or whose area is below
+        ``merge_solidity`` times their hull's are searched for several ball images (maxima of
+        the distance transform at least ``merge_min_sep`` px and 0.35 radius apart). Several
+        found: the silhouette is ``MERGED`` and each ball is returned (``SPLIT``) with the centre
+        of a circle fitted to its own outer arc, or of its distance maximum (``PARTIAL``) where no
+        circle fits (overlapping half moons).
+    partial_ratio, partial_fill : float
+        Silhouettes whose ellipse minor/major axis ratio is below ``partial_ratio``, or whose
+        hull fills less than ``partial_fill`` of the ellipse, are flagged ``PARTIAL`` (half
+        moons and crescents: their ellipse centre is biased towards the light).
+    keep_mask : bool
+        Keep the cleaned foreground mask (filled silhouettes) in the result (``mask``), for
+        display and debugging.
+
+    Returns
+    -------
+    BallDetections
+        ``centers`` are the ellipse centres (the split circle centres for merged silhouettes);
+        run :func:`refine_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
+        refinement.
+    """
+    img = _check_image(image)
+    raw = _raw_mask(img, background, threshold, k_sigma, min_contrast)
+    H, W = raw.shape
+    contours = _clean_contours(raw, open_px, 0.5 * min_area)
+    mask = None
+    if keep_mask:
+        mask = np.zeros_like(raw)
+        cv2.drawContours(mask, contours, -1, 255, -1)
+    rows = []
+    for ci, c in enumerate(contours):
+        area = cv2.contourArea(c)
+        if area < min_area or (max_area is not None and area > max_area) or len(c) < 5:
+            continue
+        hull_idx = cv2.convexHull(c, returnPoints=False)
+        hull = c[hull_idx.ravel()]
+        if len(hull) < 5:
+            continue
+        ell = cv2.fitEllipse(hull)
+        hull_area = cv2.contourArea(hull)
+        x, y, bw, bh = cv2.boundingRect(c)
+        flag = BallFlag.NONE
+        if x <= 0 or y <= 0 or x + bw >= W or y + bh >= H:
+            flag |= BallFlag.TOUCHES_BORDER
+        (ex, ey), (ew, eh), _ = ell
+        semi_major = 0.5 * max(ew, eh)
+        pieces = []
+        if min(ew, eh) < merge_ratio * max(ew, eh) or area < merge_solidity * hull_area:
+            pieces = _split_merged(c, min_sep=merge_min_sep)
+        if pieces:
+            for pc, pr, rms in pieces:
+                f = flag | BallFlag.MERGED | (BallFlag.SPLIT if np.isfinite(rms) else BallFlag.PARTIAL)
+                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci))
+            continue
+        # a half moon's hull fits an ellipse badly: too narrow, or filling too little of it
+        fill = hull_area / max(np.pi / 4 * ew * eh, 1e-9)
+        if min(ew, eh) < partial_ratio * max(ew, eh) or fill < partial_fill:
+            flag |= BallFlag.PARTIAL
+        rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci))
+    if not rows:
+        return BallDetections.empty(mask)
+    rows.sort(key=lambda r: (r[0][0], r[0][1]))
+    centers = np.array([r[0] for r in rows], float)
+    ellipses = np.array([[r[2][0][0], r[2][0][1], r[2][1][0], r[2][1][1], r[2][2]] for r in rows], float)
+    return BallDetections(
+        centers=centers, ellipse_centers=centers.copy(), radii_px=np.array([r[1] for r in rows], float),
+        ellipses=ellipses, areas=np.array([r[3] for r in rows], float),
+        hull_areas=np.array([r[4] for r in rows], float), scores=np.full(len(rows), np.nan),
+        flags=np.array([int(r[5]) for r in rows], int), contour_index=np.array([r[6] for r in rows], int),
+        mask=mask)
+
+
+# --------------------------------------------------------------------------------------------
+# step 3: projected outline of a sphere
+# --------------------------------------------------------------------------------------------
+def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: int = 64):
+    """Exact image outline of spheres in a (distorted) camera.
+
+    The outline of a sphere is the image of its limb: the circle where the tangent cone from
+    the camera centre touches it. It is sampled in 3D and projected through the lens model,
+    so it includes the perspective elongation off-axis (an ellipse, not a circle) and the
+    distortion.
+
+    Parameters
+    ----------
+    camera : Camera
+    centers_world : array_like, shape (N, 3)
+        Sphere centres (world frame, metres).
+    radius_m : float
+        Sphere radius in metres.
+    n_points : int
+        Outline samples per sphere.
+
+    Returns
+    -------
+    centers_px : ndarray, shape (N, 2)
+        Projected sphere centres (raw pixels); NaN if the sphere is behind or around the camera.
+    outlines_px : ndarray, shape (N, n_points, 2)
+        Outline points in raw pixels.
+    radii_px : ndarray, shape (N,)
+        Mean distance of the outline from the projected centre.
+    """
+    C = as_array(centers_world, (None, 3), "centers_world")
+    if not radius_m > 0:
+        raise ValueError(f"radius_m must be positive, got {radius_m}")
+    O = camera.center
+    w = O[None, :] - C
+    d = np.linalg.norm(w, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = w / d[:, None]
+        ok = d > radius_m * 1.0001
+        # limb circle: centre Q on the line to the camera, radius rho
+        Q = C + (radius_m ** 2 / np.where(ok, d, np.nan))[:, None] * w
+        rho = radius_m * np.sqrt(np.clip(1.0 - (radius_m / np.where(ok, d, np.nan)) ** 2, 0, None))
+    ref = np.where(np.abs(w[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    e1 = np.cross(w, ref)
+    e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
+    e2 = np.cross(w, e1)
+    th = np.linspace(0.0, 2 * np.pi, n_points, endpoint=False)
+    pts = (Q[:, None, :] + rho[:, None, None] * (np.cos(th)[None, :, None] * e1[:, None, :]
+                                                 + np.sin(th)[None, :, None] * e2[:, None, :]))
+    outl = camera.project(pts.reshape(-1, 3)).reshape(len(C), n_points, 2)
+    cen = camera.project(C)
+    bad = ~ok | np.any(~np.isfinite(outl), axis=(1, 2)) | np.any(~np.isfinite(cen), axis=1)
+    outl[bad] = np.nan
+    cen[bad] = np.nan
+    radii = np.linalg.norm(outl - cen[:, None, :], axis=2).mean(axis=1)
+    return cen, outl, radii
+
+
+# --------------------------------------------------------------------------------------------
+# step 4: known-radius Hough refinement
+# --------------------------------------------------------------------------------------------
+def _template(offsets: np.ndarray):
+    """Inward unit normals and arc-length weights of a closed outline (M, 2) around 0."""
+    nxt, prv = np.roll(offsets, -1, axis=0), np.roll(offsets, 1, axis=0)
+    tang = nxt - prv
+    length = np.linalg.norm(tang, axis=1)
+    n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-12)[:, None]
+    # inward: towards the centre (the outline surrounds the origin)
+    if np.sum(n * offsets) > 0:
+        n = -n
+    return n, 0.5 * length
+
+
+def _score(gx, gy, ox, oy, px, py, nx, ny, wt, power):
+    """Hough score of candidate centres (T,) for one template (M,).
+
+    Every outline point q = centre + p votes with the gradient component along the inward
+    normal (bright ball on dark), times cos^power of the angle between gradient and normal:
+    an edge votes only for centres that lie along its gradient, so the terminator of a half
+    moon (whose gradient runs across the ball) does not pull the centre.
+    """
+    mx = (ox[:, None] + px[None, :]).astype(np.float32)
+    my = (oy[:, None] + py[None, :]).astype(np.float32)
+    sx = cv2.remap(gx, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    sy = cv2.remap(gy, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    gn = sx * nx[None, :] + sy * ny[None, :]
+    gn = np.maximum(gn, 0.0)
+    if power:
+        mag2 = sx * sx + sy * sy + 1e-12
+        gn = gn * (gn * gn / mag2) ** (0.5 * power)
+    return gn @ wt, gn
+
+
+def _gradient(a: np.ndarray):
+    return (cv2.Sobel(a, cv2.CV_32F, 1, 0, ksize=3, scale=0.125),
+            cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3, scale=0.125))
+
+
+def _grid_peak(gx, gy, x, y, tpl, power, step, k, moves):
+    """Best centre on a (2k+1)^2 grid of ``step`` around (x, y); re-centred up to ``moves``
+    times while the best lies on the grid border. Returns x, y, the grid scores, the index."""
+    d = (np.arange(-k, k + 1) * step).astype(np.float32)
+    DY, DX = np.meshgrid(d, d, indexing="ij")
+    for m in range(moves + 1):
+        sc, _ = _score(gx, gy, x + DX.ravel(), y + DY.ravel(), *tpl, power)
+        sc = sc.reshape(DX.shape)
+        i, j = np.unravel_index(int(np.argmax(sc)), sc.shape)
+        x, y = x + float(d[j]), y + float(d[i])
+        if 0 < i < 2 * k and 0 < j < 2 * k:
+            break
+        if m < moves:
+            continue
+    return x, y, sc, (i, j)
+
+
+def _quad_peak(f: np.ndarray, i: int, j: int) -> tuple[float, float]:
+    """Sub-pixel offset (dy, dx) of the maximum of a grid from separable parabolas at (i, j)."""
+    def para(a, b, c):
+        den = a - 2 * b + c
+        return 0.0 if den >= 0 else float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    dy = para(f[i - 1, j], f[i, j], f[i + 1, j]) if 0 < i < f.shape[0] - 1 else 0.0
+    dx = para(f[i, j - 1], f[i, j], f[i, j + 1]) if 0 < j < f.shape[1] - 1 else 0.0
+    return dy, dx
+
+
+def _linear(a: np.ndarray, gamma: float) -> np.ndarray:
+    """Pixel values (8-bit scale) -> linear radiance 0-1, float32."""
+    if gamma == 1.0:
+        return a.astype(np.float32) / 255.0
+    if a.dtype == np.uint8:
+        lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
+        return lut[a]
+    return (np.clip(a.astype(np.float32), 0, 255) / 255.0) ** gamma
+
+
+def refine_centers(image, centers, radius_px, search_px=None, outlines=None, background=None,
+                   gamma: float = 2.2, sigma: float = 0.7, power: float = 0.0, fine_step: float = 0.1,
+                   min_score: float = 0.2, min_edge: float = 0.004) -> RefinedCenters:
+    """Refine ball centres by a circular Hough transform of known radius (step 4).
+
+    The radius is known, so the Hough space is 2D: the centre. Every candidate centre within
+    ``search_px`` of the start is scored by the brightness gradient (linearised, smoothed by
+    ``sigma``) that crosses the known outline *inward*: ``sum_k w_k max(0, n_k . g(c + p_k))``
+    over outline points ``p_k`` with inward normals ``n_k`` and arc-length weights ``w_k``
+    (gradient-direction voting: an edge votes for the centres that lie along its gradient; an
+    outward gradient, e.g. the rim of a bright neighbour, votes for none). Only the lit limb of
+    a half moon has such edges and it lies exactly on the known circle, so its centre comes out
+    right while its ellipse centre is pulled towards the light. Search: a 2 px grid over the
+    window (on a gradient smoothed to 2 px), 0.5 px and ``fine_step`` grids that follow the
+    peak, then a parabola through the peak for the sub-pixel centre.
+
+    Written by hand rather than with ``skimage.transform.hough_circle``: that votes with a
+    binary edge map into integer centres, while here the vote is gradient-weighted and
+    direction-aware (what makes half moons work), the template may be the exact projected
+    outline (an ellipse through the lens distortion, not only a circle), and only a small
+    window is evaluated (``cv2.remap`` samples the gradient at all candidate outlines at once).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3) or (H, W)
+        The photo the centres were found in (BGR, 8-bit scale).
+    centers : array_like, shape (N, 2)
+        Start centres (e.g. ellipse centres), raw pixels.
+    radius_px : array_like, shape (N,) or scalar
+        Known radius of each ball image in pixels (ignored where ``outlines`` is given).
+    search_px : array_like, shape (N,) or scalar, optional
+        Half size of the square search window. Default ``0.6 * radius`` (at least 3 px): a half
+        moon's ellipse centre is ~0.4 r off.
+    outlines : array_like, shape (N, M, 2), optional
+        Exact outline offsets relative to the centre (e.g. from :func:`sphere_outline_px`,
+        ``outlines_px - centers_px[:, None]``), used instead of circles.
+    background : ndarray like ``image``, optional
+        Photo of the empty scene, subtracted first.
+    gamma : float
+        The photo's encoding gamma: pixel values are linearised (``(v / 255) ** gamma``) before
+        the gradient. In gamma-encoded values a blurred edge is asymmetric and its gradient
+        peak lies outside the true limb (by ~0.3-0.6 px for a 0.6 px blur), which the lit half
+        of a half moon turns into a centre bias of the same size; in linear values it does not.
+        Use 1.0 for linear (raw) data.
+    sigma : float
+        Gaussian smoothing (px) before the gradient.
+    power : float
+        Extra direction selectivity: each vote is multiplied by ``cos(angle)^power`` between
+        gradient and normal (0: the plain inward component; on drawn balls 0 was best).
+    fine_step : float
+        Step of the sub-pixel grid (px).
+    min_score : float
+        Minimum share of the outline with a clear inward edge; below it the refinement fails.
+    min_edge : float
+        An edge is clear if its inward gradient (linear radiance, full scale 1, per pixel) is at
+        least a quarter of the outline's 90th percentile and at least ``min_edge``: a ball's limb
+        has ~0.05-0.5, the linearised noise of a dark room ~0.001.
+
+    Returns
+    -------
+    RefinedCenters
+    """
+    img = _check_image(image)
+    c0 = as_array(centers, (None, 2), "centers")
+    n = len(c0)
+    if outlines is not None:
+        outl = np.asarray(outlines, float)
+        if outl.ndim != 3 or outl.shape[0] != n or outl.shape[2] != 2 or outl.shape[1] < 8:
+            raise ValueError(f"outlines must have shape ({n}, M, 2) with M >= 8, got {outl.shape}")
+        radii = np.linalg.norm(outl, axis=2).mean(axis=1)
+    else:
+        r = np.asarray(radius_px, float)
+        radii = np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else as_array(r, (n,), "radius_px")
+        outl = None
+    if search_px is None:
+        search = np.maximum(3.0, 0.6 * radii)
+    else:
+        s = np.asarray(search_px, float)
+        search = np.broadcast_to(s, (n,)).astype(float) if s.ndim == 0 else as_array(s, (n,), "search_px")
+    if background is not None:
+        bg = _check_image(background, "background")
+        if bg.shape != img.shape:
+            raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
+    out_c = c0.copy()
+    scores = np.zeros(n)
+    flags = np.zeros(n, int)
+    H, W = img.shape[:2]
+    for i in range(n):
+        r = radii[i]
+        if not (np.all(np.isfinite(c0[i])) and np.isfinite(r) and r > 1.0 and np.isfinite(search[i])):
+            flags[i] = BallFlag.REFINE_FAILED
+            scores[i] = np.nan
+            continue
+        if outl is None:
+            m = max(24, int(np.ceil(2 * np.pi * r)))
+            th = np.linspace(0, 2 * np.pi, m, endpoint=False)
+            off = r * np.stack([np.cos(th), np.sin(th)], axis=1)
+        else:
+            off = outl[i]
+            if not np.all(np.isfinite(off)):
+                flags[i] = BallFlag.REFINE_FAILED
+                scores[i] = np.nan
+                continue
+            # resample to ~1 point per pixel of outline
+            m = max(24, int(np.ceil(np.sum(np.linalg.norm(np.diff(np.vstack([off, off[:1]]), axis=0), axis=1)))))
+            if m != len(off):
+                t_old = np.linspace(0, 1, len(off) + 1)
+                t_new = np.linspace(0, 1, m, endpoint=False)
+                closed = np.vstack([off, off[:1]])
+                off = np.stack([np.interp(t_new, t_old, closed[:, 0]), np.interp(t_new, t_old, closed[:, 1])], 1)
+        nrm, wt = _template(off)
+        wt = (wt / wt.sum()).astype(np.float32)
+        s = float(search[i])
+        ext = float(np.abs(off).max()) + s + 3.0 * sigma + 3.0
+        x0, y0 = int(np.floor(c0[i, 0] - ext)), int(np.floor(c0[i, 1] - ext))
+        x1, y1 = int(np.ceil(c0[i, 0] + ext)) + 1, int(np.ceil(c0[i, 1] + ext)) + 1
+        xa, ya, xb, yb = max(x0, 0), max(y0, 0), min(x1, W), min(y1, H)
+        if xb - xa < 3 or yb - ya < 3:
+            flags[i] = BallFlag.REFINE_FAILED
+            scores[i] = np.nan
+            continue
+        crop = _linear(img[ya:yb, xa:xb], gamma)
+        if background is not None:
+            crop = np.abs(crop - _linear(bg[ya:yb, xa:xb], gamma))
+        if crop.ndim == 3:
+            crop = crop.max(axis=2)
+        if sigma > 0:
+            crop = cv2.GaussianBlur(crop, (0, 0), sigma)
+        gx, gy = _gradient(crop)
+        tpl = (off[:, 0].astype(np.float32), off[:, 1].astype(np.float32),
+               nrm[:, 0].astype(np.float32), nrm[:, 1].astype(np.float32), wt)
+        cx, cy = c0[i, 0] - xa, c0[i, 1] - ya
+        # Coarse to fine: a 2 px grid over the search window on a more smoothed gradient with
+        # every 2nd outline point (its peak is wide enough not to fall between grid points),
+        # then 0.5 px and ``fine_step`` grids that move with the peak, then a parabola.
+        k = int(np.ceil(s / 2.0))
+        if k >= 2:
+            extra = np.sqrt(max(2.0 ** 2 - sigma ** 2, 0.0))
+            gxc, gyc = _gradient(cv2.GaussianBlur(crop, (0, 0), extra)) if extra > 0.1 else (gx, gy)
+            wc = tpl[4][::2] / tpl[4][::2].sum()
+            coarse = (tpl[0][::2], tpl[1][::2], tpl[2][::2], tpl[3][::2], wc.astype(np.float32))
+            bx, by, _, _ = _grid_peak(gxc, gyc, cx, cy, coarse, power, 2.0, k, moves=0)
+            bx, by, _, _ = _grid_peak(gx, gy, bx, by, tpl, power, 0.5, 3, moves=3)
+        else:
+            bx, by, _, _ = _grid_peak(gx, gy, cx, cy, tpl, power, 0.5, max(2, int(np.ceil(2 * s))), moves=1)
+        kf = max(2, int(round(0.3 / fine_step)))
+        bx, by, fs, (fi, fj) = _grid_peak(gx, gy, bx, by, tpl, power, fine_step, kf, moves=3)
+        ddy, ddx = _quad_peak(fs, fi, fj)
+        best = np.array([bx + ddx * fine_step, by + ddy * fine_step])
+        # support: share of the outline (by length) with a clear inward edge at the best centre
+        _, gn = _score(gx, gy, np.array([best[0]], np.float32), np.array([best[1]], np.float32),
+                       *tpl, power)
+        gmax = float(np.percentile(gn, 90))
+        support = float(wt @ (gn[0] > max(0.25 * gmax, min_edge)))
+        scores[i] = support
+        outside = np.hypot(best[0] - cx, best[1] - cy) > s * np.sqrt(2) + 1.0
+        if outside or support < min_score or fs.max() <= 0:
+            flags[i] = BallFlag.REFINE_FAILED
+            continue
+        out_c[i] = best + (xa, ya)
+    return RefinedCenters(out_c, radii.copy(), scores, out_c - c0, flags)
+
+
+# --------------------------------------------------------------------------------------------
+# steps 3-5 for a stereo pair
+# --------------------------------------------------------------------------------------------
+def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_m: float,
+                        background_a=None, background_b=None, max_epipolar_px: float | None = None,
+                        iterations: int = 2, size_tolerance: float = 0.35, **detect_kwargs) -> StereoBalls:
+    """Ball centres of a stereo pair of multi-exposure photos (steps 1-5 of SPEC J1).
+
+    Parameters
+    ----------
+    cam_a, cam_b : Camera
+        Calibrated cameras (with distortion) of the pair.
+    img_a, img_b : ndarray, shape (H, W, 3)
+        Their raw photos (BGR ``uint8``).
+    ball_radius_m : float
+        Ball radius in metres (baseball: 0.0737 / 2).
+    background_a, background_b : ndarray, optional
+        Photos of the empty scene (default: dark-room model).
+    max_epipolar_px : float, optional
+        Largest epipolar distance of matched ellipse centres. Default: half the median ellipse
+        radius, at least 3 px (the ellipse centre of a half moon is off by up to ~0.4 r towards
+        the light, differently in the two views).
+    iterations : int
+        Refinement rounds: each projects the outlines from the latest 3D centres, refines the
+        image centres and triangulates them again (1 is the seed's procedure; a 2nd round
+        starts from the refined centres with a small search window).
+    size_tolerance : float
+        Relative difference between the ellipse's semi-major axis and the projected radius above
+        which a match is flagged ``SIZE_MISMATCH`` (a wrong match triangulates at a wrong depth).
+    **detect_kwargs
+        Passed to :func:`detect_balls` (``min_area``, ``threshold``, ...).
+
+    Returns
+    -------
+    StereoBalls
+    """
+    from stillcap.geometry.epipolar import match_epipolar
+    from stillcap.geometry.triangulate import triangulate
+
+    if not isinstance(cam_a, Camera) or not isinstance(cam_b, Camera):
+        raise ValueError("cam_a and cam_b must be stillcap Camera objects")
+    if not (np.isfinite(ball_radius_m) and ball_radius_m > 0):
+        raise ValueError(f"ball_radius_m must be a positive number of metres, got {ball_radius_m}")
+    if iterations < 1:
+        raise ValueError(f"iterations must be at least 1, got {iterations}")
+    for cam, img, nm in ((cam_a, img_a, "img_a"), (cam_b, img_b, "img_b")):
+        im = _check_image(img, nm)
+        if im.shape[:2] != (cam.image_size[1], cam.image_size[0]):
+            raise ValueError(f"{nm} is {im.shape[1]}x{im.shape[0]} px, camera {cam.name!r} is "
+                             f"{cam.image_size[0]}x{cam.image_size[1]} px")
+    det_a = detect_balls(img_a, background_a, **detect_kwargs)
+    det_b = detect_balls(img_b, background_b, **detect_kwargs)
+    if max_epipolar_px is None:
+        rr = np.concatenate([det_a.radii_px, det_b.radii_px])
+        max_epipolar_px = max(3.0, 0.5 * float(np.median(rr))) if len(rr) else 3.0
+    m = match_epipolar(cam_a, cam_b, det_a.ellipse_centers, det_b.ellipse_centers, max_px=max_epipolar_px)
+    K = len(m.pairs)
+    if K == 0:
+        z3, z2 = np.zeros((0, 3)), np.zeros((0, 2))
+        return StereoBalls(z3, z3.copy(), z2, z2.copy(), z2.copy(), z2.copy(), z2.copy(),
+                           np.zeros((0, 2), int), np.zeros(0), np.zeros(0), np.zeros(0, int), det_a, det_b)
+    ia, ib = m.pairs[:, 0], m.pairs[:, 1]
+    xa, xb = det_a.ellipse_centers[ia], det_b.ellipse_centers[ib]
+    X0 = triangulate([cam_a, cam_b], np.stack([xa, xb])).points
+    X = X0
+    ca, cb = xa.copy(), xb.copy()
+    search_a = search_b = None
+    ref_a = ref_b = None
+    for it in range(iterations):
+        pa, oa, ra = sphere_outline_px(cam_a, X, ball_radius_m)
+        pb, ob, rb = sphere_outline_px(cam_b, X, ball_radius_m)
+        # the Hough template is the outline relative to the projected sphere centre, so the
+        # refined point is the image of the sphere centre (not the centre of its ellipse)
+        ref_a = refine_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a)
+        ref_b = refine_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b)
+        ca, cb = ref_a.centers, ref_b.centers
+        X = triangulate([cam_a, cam_b], np.stack([ca, cb])).points
+        search_a = np.maximum(2.0, 0.1 * ra)
+        search_b = np.maximum(2.0, 0.1 * rb)
+        if not np.all(np.isfinite(X)):
+            X = np.where(np.isfinite(X), X, X0)
+    tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))
+    size_bad = ((np.abs(_ellipse_radius(det_a, ia) - ref_a.radii_px) > size_tolerance * ref_a.radii_px)
+                | (np.abs(_ellipse_radius(det_b, ib) - ref_b.radii_px) > size_tolerance * ref_b.radii_px))
+    # write the refined centres back into the per-view detections
+    det_a = _merge_refined(det_a, ia, ref_a)
+    det_b = _merge_refined(det_b, ib, ref_b)
+    flags = det_a.flags[ia] | det_b.flags[ib]
+    flags = np.where(size_bad, flags | int(BallFlag.SIZE_MISMATCH), flags)
+    return StereoBalls(
+        points_3d=tri.points, points_3d_initial=X0, centers_a=ca.copy(), centers_b=cb.copy(),
+        centers_a_undistorted=cam_a.undistort_points(ca), centers_b_undistorted=cam_b.undistort_points(cb),
+        radius_px=np.stack([ref_a.radii_px, ref_b.radii_px], axis=1), pairs=m.pairs.copy(),
+        epipolar_px=m.distance_px.copy(), reproj_error_px=tri.reproj_error_px, flags=flags.astype(int),
+        detections_a=det_a, detections_b=det_b)
+
+
+def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:
+    """Semi-major axis of the detections' ellipses (split balls: their circle radius)."""
+    e = det.ellipses[idx]
+    r = 0.5 * np.maximum(e[:, 2], e[:, 3])
+    split = det.has(BallFlag.SPLIT)[idx]
+    return np.where(split, det.radii_px[idx], r)
+
+
+def _merge_refined(det: BallDetections, idx: np.ndarray, ref: RefinedCenters) -> BallDetections:
+    centers, radii, scores, flags = det.centers.copy(), det.radii_px.copy(), det.scores.copy(), det.flags.copy()
+    centers[idx] = ref.centers
+    radii[idx] = ref.radii_px
+    scores[idx] = ref.scores
+    flags[idx] |= ref.flags
+    return replace(det, centers=centers, radii_px=radii, scores=scores, flags=flags)

@@ -1,0 +1,448 @@
+"""Markers painted on the ball, found inside each ball image (seed section 4.1 and 4.4).
+
+The seed's ball carries 12 markers of 4 types told apart by colour and shape: red square, blue
+ring, green triangle, black circle (a disc). Inside each ball image (a disc of known centre and
+radius, from :mod:`stillcap.detect.ball`) this module
+
+1. classifies every pixel by colour against a configurable palette: chromatic types by hue and
+   saturation (HSV), which do not change with the shading across the ball; achromatic dark
+   types (black) by darkness relative to the local ball brightness (a morphological closing of
+   the brightness that fills the markers in), and only where the ball is lit, so the dark side
+   of a half moon is not one big black marker;
+2. keeps connected regions above a minimum size (``cv2.connectedComponentsWithStats``);
+3. measures each region's shape with affine-invariant features, since a marker away from the
+   ball's centre is foreshortened (seen obliquely, a square becomes a parallelogram, a disc an
+   ellipse): a hole makes a ring; otherwise the region is whitened by its second moments (which
+   maps any parallelogram to a square and any ellipse to a circle) and the spread of its
+   whitened outline radii tells disc (1.0), square (1.41) and triangle (2.0) apart;
+4. returns each marker's centroid (soft-membership weighted, sub-pixel), type, area, measured
+   shape and a confidence, with flags for markers near the limb or too foreshortened to trust.
+
+The type comes from the colour; the shape confirms it (or decides between palette entries of
+the same colour). Centroids are raw pixels ``(x, y)`` of the photo (OpenCV convention); the
+centroid of a foreshortened marker is the centre of its image area, which lies slightly off the
+projection of the marker's centre on the sphere (a fraction of a pixel for the seed's marker
+size except right at the limb).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from stillcap._checks import as_array
+
+__all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
+           "detect_ball_markers", "classify_shape"]
+
+SHAPES = ("disc", "ring", "square", "triangle")
+
+
+@dataclass(frozen=True)
+class MarkerType:
+    """One marker type of the palette.
+
+    Parameters
+    ----------
+    name : str
+    color_bgr : tuple of 3 floats
+        Colour of the paint as it looks fully lit in the photo, BGR 0-255.
+    shape : {"disc", "ring", "square", "triangle"}
+    """
+
+    name: str
+    color_bgr: tuple
+    shape: str
+
+    def __post_init__(self):
+        c = np.asarray(self.color_bgr, float)
+        if c.shape != (3,):
+            raise ValueError(f"marker type {self.name!r}: color_bgr must have shape (3,), got {c.shape}")
+        if self.shape not in SHAPES:
+            raise ValueError(f"marker type {self.name!r}: shape must be one of {SHAPES}, got {self.shape!r}")
+        object.__setattr__(self, "color_bgr", tuple(float(v) for v in c))
+
+
+#: The seed's four types. Colours are the studio's baseball paint albedos (linear RGB red
+#: 0.80/0.04/0.03, blue 0.03/0.10/0.80, green 0.05/0.60/0.06, black 0.02) through a 2.2 gamma.
+BASEBALL_MARKER_TYPES = (
+    MarkerType("red", (52, 59, 231), "square"),
+    MarkerType("blue", (231, 89, 52), "ring"),
+    MarkerType("green", (71, 202, 65), "triangle"),
+    MarkerType("black", (43, 43, 43), "disc"),
+)
+
+
+class MarkerFlag(enum.IntFlag):
+    """Per-marker quality flags (bit set)."""
+
+    NONE = 0
+    #: centroid further than ``limb_fraction`` x radius from the ball centre (seen obliquely)
+    NEAR_LIMB = 1
+    #: the region is a thin ellipse (minor/major axis below ``min_aspect``): shape unreliable
+    FORESHORTENED = 2
+    #: the measured shape is not the type's shape
+    SHAPE_MISMATCH = 4
+    #: too small to measure a shape (``shape`` is "unknown")
+    SMALL = 8
+    #: the region touches the edge of the ball disc searched (possibly cut)
+    AT_EDGE = 16
+
+
+@dataclass
+class BallMarkers:
+    """Markers found in one photo.
+
+    Attributes
+    ----------
+    centers : ndarray, shape (N, 2)
+        Marker centroids, raw pixels ``(x, y)``.
+    types : ndarray of str (object), shape (N,)
+        Palette type names.
+    shapes : ndarray of str (object), shape (N,)
+        Measured shapes ("disc", "ring", "square", "triangle" or "unknown").
+    areas : ndarray, shape (N,)
+        Region areas in px^2.
+    confidences : ndarray, shape (N,)
+        0-1: colour match x shape agreement x foreshortening.
+    aspects : ndarray, shape (N,)
+        Minor/major axis ratio of the region (1 = seen face on).
+    ball_index : ndarray of int, shape (N,)
+        Index of the ball (in the ``centers`` given) each marker belongs to.
+    flags : ndarray of int, shape (N,)
+        :class:`MarkerFlag` bits.
+    """
+
+    centers: np.ndarray
+    types: np.ndarray
+    shapes: np.ndarray
+    areas: np.ndarray
+    confidences: np.ndarray
+    aspects: np.ndarray
+    ball_index: np.ndarray
+    flags: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+    @classmethod
+    def empty(cls) -> BallMarkers:
+        return cls(np.zeros((0, 2)), np.zeros(0, object), np.zeros(0, object), np.zeros(0), np.zeros(0),
+                   np.zeros(0), np.zeros(0, int), np.zeros(0, int))
+
+    def select(self, keep) -> BallMarkers:
+        """The markers where ``keep`` (bool (N,) or indices) holds."""
+        k = np.asarray(keep)
+        return BallMarkers(self.centers[k], self.types[k], self.shapes[k], self.areas[k], self.confidences[k],
+                           self.aspects[k], self.ball_index[k], self.flags[k])
+
+    def of_ball(self, i: int) -> BallMarkers:
+        """The markers of ball ``i``."""
+        return self.select(self.ball_index == i)
+
+
+# --------------------------------------------------------------------------------------------
+# shape
+# --------------------------------------------------------------------------------------------
+def _shape_features(region: np.ndarray):
+    """Hole share and whitened radius spread of a binary region (uint8 0/255, upsampled)."""
+    cs, hier = cv2.findContours(region, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
+    if not cs:
+        return 0.0, np.nan
+    outer = [i for i in range(len(cs)) if hier[0][i][3] < 0]
+    main = max(outer, key=lambda i: cv2.contourArea(cs[i]))
+    a_out = cv2.contourArea(cs[main])
+    if a_out <= 0:
+        return 0.0, np.nan
+    holes = sum(cv2.contourArea(cs[i]) for i in range(len(cs)) if hier[0][i][3] == main)
+    m = cv2.moments(cs[main])
+    if m["m00"] <= 0:
+        return holes / a_out, np.nan
+    cov = np.array([[m["mu20"], m["mu11"]], [m["mu11"], m["mu02"]]]) / m["m00"]
+    w, v = np.linalg.eigh(cov)
+    if w[0] <= 1e-9:
+        return holes / a_out, np.nan
+    white = v @ np.diag(1 / np.sqrt(w)) @ v.T
+    p = cs[main].reshape(-1, 2).astype(float) - (m["m10"] / m["m00"], m["m01"] / m["m00"])
+    rad = np.linalg.norm(p @ white.T, axis=1)
+    spread = float(np.percentile(rad, 98) / max(np.percentile(rad, 2), 1e-9))
+    return holes / a_out, spread
+
+
+def classify_shape(region, min_area: float = 20.0, hole_share: float = 0.06) -> str:
+    """Shape of a binary region: "ring", "disc", "square", "triangle" or "unknown".
+
+    Affine-invariant, so a foreshortened marker keeps its shape: a hole of at least
+    ``hole_share`` of the region makes a ring; otherwise the outline, whitened by the region's
+    second moments, has radii spreading (98th / 2nd percentile) about 1.0 for a disc, 1.41 for a
+    square and 2.0 for a triangle; the thresholds are the geometric means 1.19 and 1.68.
+
+    Parameters
+    ----------
+    region : ndarray, shape (H, W)
+        Binary mask (nonzero = region).
+    min_area : float
+        Smaller regions give "unknown".
+    """
+    r = np.asarray(region)
+    if r.ndim != 2:
+        raise ValueError(f"region must have shape (H, W), got {r.shape}")
+    r = (r > 0).astype(np.uint8) * 255
+    if np.count_nonzero(r) < min_area:
+        return "unknown"
+    # upsample so that the outline of a 5 px marker is not a staircase
+    big = cv2.resize(r, None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)
+    big = cv2.copyMakeBorder(big, 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
+    _, big = cv2.threshold(big, 127, 255, cv2.THRESH_BINARY)
+    return _shape_name(*_shape_features(big), hole_share)
+
+
+def _shape_name(holes: float, spread: float, hole_share: float) -> str:
+    if holes >= hole_share:
+        return "ring"
+    if not np.isfinite(spread):
+        return "unknown"
+    if spread < 1.19:
+        return "disc"
+    if spread < 1.68:
+        return "square"
+    return "triangle"
+
+
+# --------------------------------------------------------------------------------------------
+# detection
+# --------------------------------------------------------------------------------------------
+def _types(types) -> list[MarkerType]:
+    if isinstance(types, Mapping):
+        out = []
+        for name, v in types.items():
+            if isinstance(v, MarkerType):
+                out.append(v)
+            else:
+                try:
+                    color, shape = v
+                except (TypeError, ValueError):
+                    raise ValueError(f"palette entry {name!r} must be (color_bgr, shape), got {v!r}") from None
+                out.append(MarkerType(str(name), color, shape))
+        types = out
+    types = list(types)
+    if not types or not all(isinstance(t, MarkerType) for t in types):
+        raise ValueError("types must be a non-empty sequence of MarkerType or a dict name -> (color_bgr, shape)")
+    return types
+
+
+def _hsv(bgr) -> tuple[float, float, float]:
+    c = np.asarray(bgr, np.float32).reshape(1, 1, 3) / 255.0
+    h, s, v = cv2.cvtColor(c, cv2.COLOR_BGR2HSV).reshape(3)
+    return float(h), float(s), float(v)
+
+
+def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | Mapping = BASEBALL_MARKER_TYPES,
+                        min_area_px: float | None = None, hue_tol_deg: float = 30.0,
+                        min_saturation: float = 0.2, min_value: float = 0.12, dark_ratio: float = 0.5,
+                        weak_membership: float = 0.2,
+                        lit_fraction: float = 0.2, disc_fraction: float = 0.97, limb_fraction: float = 0.8,
+                        min_aspect: float = 0.4, reject_foreshortened: bool = False) -> BallMarkers:
+    """Painted markers inside ball images (seed section 4.1: coloured regions inside each ball).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3)
+        BGR photo (``uint8``, or float in 0-255), the one the balls were found in.
+    centers : array_like, shape (N, 2)
+        Ball image centres (raw pixels), e.g. ``BallDetections.centers``.
+    radii_px : array_like, shape (N,) or scalar
+        Ball image radii in pixels.
+    types : sequence of MarkerType, or dict name -> (color_bgr, shape)
+        The palette. Types whose colour has saturation >= 0.3 are told apart by hue; darker
+        achromatic ones (value < 0.35) are dark regions; others (white, grey) cannot be told
+        from the ball and raise ``ValueError``.
+    min_area_px : float, optional
+        Smallest marker region; default ``max(5, 0.003 * pi r^2)`` per ball.
+    hue_tol_deg : float
+        Largest hue difference (degrees, 0-360 scale) from a palette colour.
+    min_saturation, min_value : float
+        A pixel is clearly of a colour if its HSV saturation and value (0-1) reach these.
+    dark_ratio : float
+        A pixel is clearly dark (black marker) if its value is below this share of the local
+        ball brightness (a morphological closing of the value that fills the markers in).
+    weak_membership : float
+        Regions grow from the clear pixels over pixels whose membership (saturation relative to
+        the palette colour's, or darkness relative to the palette's) reaches this: blur and JPEG
+        spread a small marker's colour over more pixels at lower saturation.
+    lit_fraction : float
+        Dark regions count only where the local ball brightness is at least this share of the
+        ball's brightest: the unlit side of a half moon is not a marker.
+    disc_fraction : float
+        Markers are searched within this share of the radius (the outermost ring of pixels
+        mixes ball and background).
+    limb_fraction : float
+        Markers whose centroid is further out than this share of the radius get ``NEAR_LIMB``.
+    min_aspect : float
+        Regions thinner than this minor/major ratio get ``FORESHORTENED`` (and are dropped with
+        ``reject_foreshortened``).
+
+    Returns
+    -------
+    BallMarkers
+        Sorted by ball, then by x.
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"image must have shape (H, W, 3) (BGR), got {img.shape}")
+    c = as_array(centers, (None, 2), "centers")
+    r_in = np.asarray(radii_px, float)
+    radii = np.broadcast_to(r_in, (len(c),)).astype(float) if r_in.ndim == 0 else as_array(r_in, (len(c),), "radii_px")
+    tlist = _types(types)
+    chroma, dark = [], []
+    for t in tlist:
+        h, s, v = _hsv(t.color_bgr)
+        if s >= 0.3:
+            chroma.append((t, h, s))
+        elif v < 0.35:
+            dark.append(t)
+        else:
+            raise ValueError(f"marker type {t.name!r}: colour {t.color_bgr} is neither saturated nor dark; "
+                             "it cannot be told from a white ball")
+    H, W = img.shape[:2]
+    rows = []
+    for bi in range(len(c)):
+        cx, cy, r = c[bi, 0], c[bi, 1], radii[bi]
+        if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r >= 3):
+            continue
+        x0, y0 = max(int(np.floor(cx - r)) - 1, 0), max(int(np.floor(cy - r)) - 1, 0)
+        x1, y1 = min(int(np.ceil(cx + r)) + 2, W), min(int(np.ceil(cy + r)) + 2, H)
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            continue
+        crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
+        hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
+        hue, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
+        X, Y = np.meshgrid(np.arange(x0, x1, dtype=np.float32), np.arange(y0, y1, dtype=np.float32))
+        dist = np.hypot(X - cx, Y - cy)
+        disc = dist <= disc_fraction * r
+        # pixels nearer (relative to radius) to another ball belong to that ball
+        for bj in range(len(c)):
+            if bj != bi and np.all(np.isfinite(c[bj])) and np.hypot(*(c[bj] - c[bi])) < radii[bj] + r:
+                disc &= dist / r <= np.hypot(X - c[bj, 0], Y - c[bj, 1]) / radii[bj]
+        # Only the ball itself: the convex hull of its bright pixels inside the disc, one pixel in
+        # (a radius a little too large, e.g. a silhouette's, would otherwise put the dark
+        # background rim inside the disc, and dark rim = "black marker"). The hull fills the
+        # notches that dark markers cut into the lit silhouette.
+        fg = (disc & (val >= min_value)).astype(np.uint8)
+        pts = cv2.findNonZero(fg)
+        if pts is None or len(pts) < 3:
+            continue
+        support = np.zeros_like(fg)
+        cv2.fillConvexPoly(support, cv2.convexHull(pts), 1)
+        disc &= cv2.erode(support, np.ones((3, 3), np.uint8)).astype(bool)
+        if not np.any(disc):
+            continue
+        min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
+        # local ball brightness: closing fills markers up to ~0.35 r across
+        k = max(3, int(round(0.35 * r)) | 1)
+        ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+        vclose = cv2.morphologyEx(np.where(disc, val, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
+        top = float(np.percentile(vclose[disc], 99))
+        # luma darkness relative to the local white: every palette colour is much darker than
+        # white paper in luma, and JPEG keeps luma at full resolution (chroma at half), so
+        # centroids and shapes are measured on it; colour only says which region is which
+        luma = cv2.cvtColor(crop, cv2.COLOR_BGR2GRAY)
+        lclose = cv2.morphologyEx(np.where(disc, luma, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
+        dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32)
+        lit = disc & (vclose >= max(lit_fraction * top, min_value))
+        # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
+        # of paint and white has about half the paint's saturation), regions of weak
+        # membership that hold at least one clearly coloured pixel (hysteresis: a small or
+        # foreshortened marker is blurred below the core threshold at its rim).
+        cand = []  # (types, weak mask, core mask, soft)
+        any_chroma = np.zeros_like(disc)
+        for t, h, s_pal in chroma:
+            dh = np.abs((hue - h + 180.0) % 360.0 - 180.0)
+            hue_ok = disc & (dh <= hue_tol_deg) & (val >= min_value)
+            soft = np.where(hue_ok, np.clip(sat / s_pal, 0, 1), 0.0).astype(np.float32)
+            weak = soft >= weak_membership
+            any_chroma |= weak
+            cand.append(([tc for tc, hc, _ in chroma if tc is t], weak, hue_ok & (sat >= min_saturation), soft))
+        if dark:
+            ratio = val / np.maximum(vclose, 1e-6)
+            v_pal = min(_hsv(t.color_bgr)[2] for t in dark)
+            soft = np.where(lit & ~any_chroma, np.clip((1.0 - ratio) / max(1.0 - v_pal, 0.1), 0, 1), 0.0)
+            soft = soft.astype(np.float32)
+            cand.append((dark, soft >= weak_membership, lit & ~any_chroma & (ratio < dark_ratio), soft))
+        for tl, weak, core, soft in cand:
+            if not np.any(core):
+                continue
+            n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.astype(np.uint8), connectivity=8)
+            has_core = np.bincount(lab[core], minlength=n) > 0
+            for j in range(1, n):
+                area = float(stats[j, cv2.CC_STAT_AREA])
+                if area < min_area or not has_core[j]:
+                    continue
+                rows.append(_measure(lab == j, soft, dark_luma, X, Y, stats[j], tl, area, bi, cx, cy, r,
+                                     disc, limb_fraction, min_aspect))
+    rows = [rw for rw in rows if rw is not None]
+    if reject_foreshortened:
+        rows = [rw for rw in rows if not rw[7] & MarkerFlag.FORESHORTENED]
+    if not rows:
+        return BallMarkers.empty()
+    rows.sort(key=lambda rw: (rw[6], rw[0][0], rw[0][1]))
+    return BallMarkers(
+        centers=np.array([rw[0] for rw in rows], float), types=np.array([rw[1] for rw in rows], object),
+        shapes=np.array([rw[2] for rw in rows], object), areas=np.array([rw[3] for rw in rows], float),
+        confidences=np.array([rw[4] for rw in rows], float), aspects=np.array([rw[5] for rw in rows], float),
+        ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int))
+
+
+def _measure(comp, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, limb_fraction, min_aspect):
+    """Centroid, shape, confidence and flags of one colour region."""
+    # luma-darkness weighted centroid over the region grown by one pixel: partly covered edge
+    # pixels count in proportion, which makes the centroid sub-pixel (cf. detect/blobs.py)
+    grown = cv2.dilate(comp.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & disc
+    w = np.where(grown, dark_luma, 0.0)
+    sw = float(w.sum())
+    if sw <= 0:
+        return None
+    cen = np.array([float((w * X).sum() / sw), float((w * Y).sum() / sw)])
+    # second moments of the membership: aspect (foreshortening)
+    dx, dy = X - cen[0], Y - cen[1]
+    cov = np.array([[(w * dx * dx).sum(), (w * dx * dy).sum()], [(w * dx * dy).sum(), (w * dy * dy).sum()]]) / sw
+    ev = np.linalg.eigvalsh(cov)
+    aspect = float(np.sqrt(max(ev[0], 0) / ev[1])) if ev[1] > 0 else 1.0
+    flags = MarkerFlag.NONE
+    if np.hypot(cen[0] - cx, cen[1] - cy) > limb_fraction * r:
+        flags |= MarkerFlag.NEAR_LIMB
+    if aspect < min_aspect:
+        flags |= MarkerFlag.FORESHORTENED
+    ring_edge = disc & ~cv2.erode(disc.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    if np.any(comp & ring_edge):
+        flags |= MarkerFlag.AT_EDGE
+    # shape from the membership map upsampled x4 and cut at half its peak: a smooth outline
+    # even for a 5 px marker (a binary mask's staircase would pass for a square)
+    shape = "unknown"
+    if area >= 20 and aspect >= min_aspect:
+        bx, by, bw, bh = st[0], st[1], st[2], st[3]
+        y0, x0 = max(by - 1, 0), max(bx - 1, 0)
+        sub = w[y0:by + bh + 1, x0:bx + bw + 1].astype(np.float32)
+        big = cv2.resize(sub, None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)
+        big = cv2.copyMakeBorder(big, 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
+        cut = (big >= 0.5 * float(np.percentile(sub[sub > 0], 90))).astype(np.uint8) * 255
+        shape = _shape_name(*_shape_features(cut), 0.06)
+    elif area < 20:
+        flags |= MarkerFlag.SMALL
+    col = float(np.clip(soft[comp].mean(), 0, 1))
+    match = [t for t in tlist if t.shape == shape]
+    if match:
+        t, shape_conf = match[0], 1.0
+    else:
+        t = tlist[0]
+        if shape == "unknown":
+            shape_conf = 0.7
+        else:
+            shape_conf = 0.5
+            flags |= MarkerFlag.SHAPE_MISMATCH
+    conf = col * shape_conf * min(1.0, aspect / 0.6)
+    return cen, t.name, shape, area, conf, aspect, bi, flags

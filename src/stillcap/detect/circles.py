@@ -1,0 +1,726 @@
+"""Circular bead markers in a photo: the thesis's Hough detector and better ones.
+
+The puppet (SPEC J3) carries painted 6 mm beads, 5-7 px in radius in a 640x480 webcam photo,
+on a black figure in front of a black background, lit by the webcam's LEDs. Methods, chosen
+by name in :func:`find_circles`:
+
+``"thesis"``
+    Exactly the thesis's chain (section 3.3): grey image (ImageJ's unweighted mean of R, G,
+    B); automatic IsoData threshold (ImageJ "Default" = :func:`skimage.filters.threshold_isodata`);
+    outline (a foreground pixel stays only if not all 8 neighbours are foreground); circular
+    Hough transform (:func:`skimage.transform.hough_circle`) for the ``n`` best circles with
+    radii ``r_min..r_max`` in 1 px steps. Whole-pixel centres.
+``"hough"``
+    The thesis's chain, then each centre refined on the original grey image (intensity-weighted
+    centroid of the disc around the Hough centre, iterated; see :func:`refine_centers`).
+``"blobs"``
+    Bright regions of the IsoData mask (connected components), kept if their area fits the
+    radius range and they are round; regions that are not round (touching beads) are handed
+    to the Hough transform restricted to that region; centres refined as for ``"hough"``.
+``"template"`` (default)
+    A matched filter: disc-minus-ring contrast (:func:`contrast_map`) for each radius, local
+    maxima (:func:`skimage.feature.peak_local_max`) above an automatic contrast threshold,
+    centres refined as for ``"hough"``. It needs no global threshold, so limbs brighter than
+    the IsoData threshold do not merge with the beads on them, and it returns only what is
+    there instead of always ``n`` circles.
+``"cv2"``
+    OpenCV's gradient Hough transform (:func:`cv2.HoughCircles`, ``HOUGH_GRADIENT``), then
+    refined as for ``"hough"``.
+
+``docs/puppet-detection.md`` has the measured centre errors and detection rates.
+
+The module also draws synthetic bead photos with known sub-pixel centres
+(:func:`draw_beads`, :func:`random_bead_scene`) for tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+from skimage.filters import threshold_isodata
+from skimage.transform import hough_circle, hough_circle_peaks
+
+from stillcap._checks import as_array, as_rng
+
+__all__ = [
+    "METHODS",
+    "BeadScene",
+    "Circles",
+    "draw_beads",
+    "contrast_map",
+    "find_circles",
+    "grey_image",
+    "isodata_threshold",
+    "outline",
+    "random_bead_scene",
+    "refine_centers",
+]
+
+#: Detector names :func:`find_circles` accepts.
+METHODS = ("thesis", "hough", "blobs", "template", "cv2")
+
+
+@dataclass(eq=False)
+class Circles:
+    """Circles found in one image.
+
+    Attributes
+    ----------
+    centers : ndarray, shape (N, 2)
+        Pixel centres (x, y), origin at the centre of the top-left pixel.
+    radii : ndarray, shape (N,)
+        Pixels.
+    scores : ndarray, shape (N,)
+        Strength, higher is better: the Hough accumulator (fraction of the circle's outline
+        found) for ``thesis``/``hough``; for ``blobs`` the region's circularity
+        ``4 pi area / perimeter^2`` (or the Hough score of a split region); for ``template``
+        the disc-minus-ring contrast in grey levels; for ``cv2`` a rank (OpenCV returns no votes).
+    method : str
+    threshold : float
+        The IsoData grey threshold used (NaN for ``template`` and ``cv2``).
+    """
+
+    centers: np.ndarray
+    radii: np.ndarray
+    scores: np.ndarray
+    method: str
+    threshold: float = np.nan
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+
+# -- the thesis's steps ------------------------------------------------------------------------
+def _as_image(image) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] != 3) or min(img.shape[:2], default=0) < 1:
+        raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
+    return img
+
+
+def grey_image(image) -> np.ndarray:
+    """Grey version of a BGR (or grey) image as float32 in image units.
+
+    ImageJ's default RGB -> 8-bit conversion, which the thesis used: the unweighted mean
+    ``(R + G + B) / 3`` (it keeps blue beads brighter than a luminance conversion would).
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3) or (H, W)
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+    """
+    img = _as_image(image)
+    f = img.astype(np.float32)
+    return f.mean(axis=2) if f.ndim == 3 else f
+
+
+def isodata_threshold(grey) -> float:
+    """The thesis's automatic threshold (IsoData), via :func:`skimage.filters.threshold_isodata`.
+
+    Foreground is ``grey > threshold``. A flat image gives ``inf`` (no foreground).
+    IsoData can have several fixed points; scikit-image returns the lowest, as ImageJ's
+    iteration from the darkest grey does. ImageJ's "Default" also ignores the bins 0 and 255
+    and clips the histogram's mode; on the drawn photos of ``docs/puppet-detection.md`` that
+    gives even lower thresholds (5-16 grey levels where scikit-image gives 16-78), so the
+    plain scikit-image variant is used.
+    """
+    g = np.asarray(grey)
+    if g.ndim != 2:
+        raise ValueError(f"grey must have shape (H, W), got {g.shape}")
+    if not g.size or g.max() <= g.min():
+        return np.inf
+    return float(threshold_isodata(g))
+
+
+def outline(mask) -> np.ndarray:
+    """The thesis's edge map: a foreground pixel stays only if not all its 8 neighbours are foreground.
+
+    That is ``mask & ~erosion(mask, 3x3)`` (:func:`scipy.ndimage.binary_erosion`); pixels outside
+    the image count as background, so foreground at the border stays.
+
+    Parameters
+    ----------
+    mask : array_like of bool, shape (H, W)
+
+    Returns
+    -------
+    ndarray of bool, shape (H, W)
+    """
+    m = np.asarray(mask, bool)
+    if m.ndim != 2:
+        raise ValueError(f"mask must have shape (H, W), got {m.shape}")
+    return m & ~ndimage.binary_erosion(m, np.ones((3, 3), bool), border_value=0)
+
+
+def _radii(radius_range, step: float = 1.0) -> np.ndarray:
+    r0, r1 = (float(v) for v in radius_range)
+    if not (0 < r0 <= r1):
+        raise ValueError(f"radius_range must be (r_min, r_max) with 0 < r_min <= r_max, got {radius_range}")
+    return np.arange(r0, r1 + 1e-9, step)
+
+
+def _hough(edges: np.ndarray, radii: np.ndarray, n: int, min_distance: int):
+    """The ``n`` best circles of an edge map: scores, x, y, r (integer centres)."""
+    if not edges.any() or n < 1:
+        return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
+    # normalize=True divides the votes by the number of outline pixels of each radius: the
+    # score is the fraction of a circle found, so radii compete fairly.
+    H = hough_circle(edges, radii, normalize=True)
+    acc, cx, cy, rr = hough_circle_peaks(H, radii, min_xdistance=min_distance, min_ydistance=min_distance,
+                                         threshold=0.0, total_num_peaks=n, normalize=False)
+    keep = acc > 0
+    return acc[keep], cx[keep].astype(float), cy[keep].astype(float), rr[keep].astype(float)
+
+
+# -- refinement --------------------------------------------------------------------------------
+def refine_centers(image, centers, radii, iterations: int = 3, background=None,
+                   local_bg: bool = True) -> np.ndarray:
+    """Sub-pixel centres: intensity-weighted centroid of each disc on the grey image, iterated.
+
+    Weights are ``grey - background`` (clipped at 0) over the pixels within ``radius + 1.5``
+    of the current centre; the window then moves to the new centroid. For a symmetric bead
+    that is unbiased (partly covered rim pixels weigh in proportion). Pixels nearer (relative
+    to the radii) to a neighbouring circle are left out, so touching beads do not pull each
+    other. Hand-written (a loop over small windows): scikit-image's and OpenCV's moments need
+    a label image, which touching beads on a limb do not have.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3) or (H, W)
+    centers : array_like, shape (N, 2)
+        Start centres (x, y).
+    radii : array_like, shape (N,)
+        Pixels.
+    iterations : int
+    background : float, optional
+        Grey level of the background; default the median of the image.
+    local_bg : bool
+        Subtract, per circle, the median grey of the ring from ``radius + 1`` to
+        ``radius + 3.5`` (if brighter than ``background``): a limb under the bead then does not
+        pull the centre towards the limb.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        A centre that would move by more than its radius (a false circle) keeps its start value.
+    """
+    grey = grey_image(image)
+    c = as_array(centers, (None, 2), "centers").copy()
+    r = as_array(radii, (len(c),), "radii")
+    if len(c) == 0:
+        return c
+    bg = float(np.median(grey)) if background is None else float(background)
+    h, w = grey.shape
+    for _ in range(max(1, iterations)):
+        new = c.copy()
+        for i in range(len(c)):
+            R = r[i] + 1.5
+            B = R + 2.0
+            x0, x1 = int(max(0, np.floor(c[i, 0] - B))), int(min(w - 1, np.ceil(c[i, 0] + B)))
+            y0, y1 = int(max(0, np.floor(c[i, 1] - B))), int(min(h - 1, np.ceil(c[i, 1] + B)))
+            if x1 < x0 or y1 < y0:
+                continue
+            ys, xs = np.mgrid[y0:y1 + 1, x0:x1 + 1]
+            d_own = np.hypot(xs - c[i, 0], ys - c[i, 1])
+            inside = d_own <= R
+            # Power-diagram split between neighbouring circles (touching beads).
+            near = np.flatnonzero(np.hypot(*(c - c[i]).T) < (r + r[i] + 3.0))
+            for j in near:
+                if j != i:
+                    d_j = np.hypot(xs - c[j, 0], ys - c[j, 1])
+                    inside &= d_own / r[i] <= d_j / r[j]
+            patch = grey[y0:y1 + 1, x0:x1 + 1]
+            if local_bg:
+                # Local background: median of the ring just outside the bead (a limb under it
+                # then weighs nothing), never below the global background.
+                ring = (d_own > r[i] + 1.0) & (d_own <= R + 2.0)
+                for j in near:
+                    if j != i:
+                        ring &= np.hypot(xs - c[j, 0], ys - c[j, 1]) > r[j] + 1.0
+                b = max(bg, float(np.median(patch[ring]))) if ring.any() else bg
+            else:
+                b = bg
+            wgt = np.clip(patch - b, 0, None) * inside
+            s = wgt.sum()
+            if s > 0:
+                new[i] = ((wgt * xs).sum() / s, (wgt * ys).sum() / s)
+        moved = np.hypot(*(new - c).T)
+        # A refinement that walks away (a false circle on a limb) is undone.
+        bad = moved > r
+        new[bad] = c[bad]
+        c = new
+        if moved.max(initial=0) < 1e-3:
+            break
+    return c
+
+
+# -- the detector ------------------------------------------------------------------------------
+def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "template",
+                 threshold: float | None = None, min_distance: int | None = None,
+                 refine: bool | None = None, min_circularity: float = 0.7,
+                 min_contrast: float = 15.0) -> Circles:
+    """Find bead markers (bright discs on a dark scene).
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3) or (H, W)
+        BGR uint8 photo (or grey).
+    n : int
+        Number of circles the Hough methods return (the thesis's N = 16); ``blobs``,
+        ``template`` and ``cv2`` return at most ``n`` (the best).
+    radius_range : (float, float)
+        Smallest and largest bead radius, pixels (thesis: 5 and 7 px at 640x480).
+    method : {"thesis", "hough", "blobs", "template", "cv2"}
+        See the module docstring.
+    threshold : float, optional
+        Grey threshold (image units); default IsoData (:func:`isodata_threshold`).
+    min_distance : int, optional
+        Smallest distance between two centres along x and along y (Hough peak suppression),
+        default ``r_min`` (touching beads stay apart).
+    refine : bool, optional
+        Sub-pixel refinement (:func:`refine_centers`); default off for ``thesis``, on otherwise.
+    min_circularity : float
+        ``blobs``: regions less round than this (``4 pi area / perimeter^2``) are split by the
+        Hough transform.
+    min_contrast : float
+        ``template``: smallest disc-minus-ring contrast of a bead, grey levels (0-255); the
+        threshold used is the larger of this and 30 % of the median contrast of the ``n``
+        strongest peaks.
+
+    Returns
+    -------
+    Circles
+        Sorted by score, best first.
+    """
+    img = _as_image(image)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if int(n) != n or n < 0:
+        raise ValueError(f"n must be a non-negative integer, got {n}")
+    n = int(n)
+    radii = _radii(radius_range)
+    r_min, r_max = float(radius_range[0]), float(radius_range[1])
+    md = max(1, int(round(r_min))) if min_distance is None else int(min_distance)
+    refine = (method != "thesis") if refine is None else bool(refine)
+    grey = grey_image(img)
+    t = isodata_threshold(grey) if threshold is None else float(threshold)
+    if n == 0:
+        return Circles(np.zeros((0, 2)), np.zeros(0), np.zeros(0), method, t)
+    if method == "cv2":
+        acc, cx, cy, rr = _cv2_hough(grey, r_min, r_max, n, md)
+        t = np.nan
+    elif method in ("thesis", "hough"):
+        acc, cx, cy, rr = _hough(outline(grey > t), radii, n, md)
+    elif method == "template":
+        acc, cx, cy, rr = _template(grey, radii, n, md, min_contrast)
+        t = np.nan
+    else:
+        acc, cx, cy, rr = _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity)
+    centers = np.stack([cx, cy], axis=1) if len(cx) else np.zeros((0, 2))
+    if refine and len(centers):
+        centers = refine_centers(grey, centers, rr)
+    order = np.argsort(-acc, kind="stable")
+    return Circles(centers[order], np.asarray(rr, float)[order], np.asarray(acc, float)[order], method, t)
+
+
+def _cv2_hough(grey, r_min, r_max, n, md):
+    g8 = cv2.GaussianBlur(np.clip(grey, 0, 255).astype(np.uint8), (0, 0), 1.0)
+    # The classic gradient method: HOUGH_GRADIENT_ALT misses circles this small (measured:
+    # ~12 % found). param1 = Canny high threshold, param2 = accumulator threshold.
+    found = cv2.HoughCircles(g8, cv2.HOUGH_GRADIENT, dp=1.0, minDist=float(md), param1=100, param2=8,
+                             minRadius=max(1, int(np.floor(r_min)) - 1), maxRadius=int(np.ceil(r_max)) + 1)
+    if found is None:
+        return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
+    f = found.reshape(-1, found.shape[-1])[:n]
+    # OpenCV returns circles sorted by accumulator votes but not the votes: a decreasing score.
+    score = np.linspace(1.0, 0.5, len(f)) if len(f) > 1 else np.ones(len(f))
+    return score, f[:, 0].astype(float), f[:, 1].astype(float), f[:, 2].astype(float)
+
+
+def _disc_kernel(r: float, inner_gap: float = 1.0, ring: float = 2.0) -> np.ndarray:
+    """Zero-mean matched filter: mean over a disc of radius r minus mean over the ring
+    r + inner_gap .. r + inner_gap + ring (anti-aliased at 8x)."""
+    R = int(np.ceil(r + inner_gap + ring))
+    g = (np.arange((2 * R + 1) * _SS) + 0.5) / _SS - 0.5 - R
+    d = np.hypot(g[None, :], g[:, None])
+    disc = _down((d <= r).astype(np.float64), 2 * R + 1, 2 * R + 1)
+    ann = _down(((d > r + inner_gap) & (d <= r + inner_gap + ring)).astype(np.float64), 2 * R + 1, 2 * R + 1)
+    return (disc / disc.sum() - ann / ann.sum()).astype(np.float32)
+
+
+def contrast_map(grey, radii) -> tuple[np.ndarray, np.ndarray]:
+    """Disc-minus-ring contrast of every pixel for each radius, and the best radius.
+
+    ``contrast[y, x]`` is the mean grey over a disc of radius r at (x, y) minus the mean over
+    the ring from r + 1 to r + 3 around it (a matched filter for a bright disc; zero on flat
+    ground and inside wide limbs), maximised over ``radii`` (:func:`cv2.filter2D`).
+
+    Parameters
+    ----------
+    grey : array_like, shape (H, W)
+    radii : array_like, shape (R,)
+
+    Returns
+    -------
+    contrast : ndarray, shape (H, W), float32, grey units
+    best_radius : ndarray, shape (H, W)
+    """
+    g = np.asarray(grey, np.float32)
+    if g.ndim != 2:
+        raise ValueError(f"grey must have shape (H, W), got {g.shape}")
+    rs = np.atleast_1d(np.asarray(radii, float))
+    stack = np.stack([cv2.filter2D(g, -1, _disc_kernel(r), borderType=cv2.BORDER_REPLICATE) for r in rs])
+    k = stack.argmax(axis=0)
+    return np.take_along_axis(stack, k[None], 0)[0], rs[k]
+
+
+def _template(grey, radii, n, md, min_contrast):
+    from skimage.feature import peak_local_max
+
+    C, best_r = contrast_map(grey, radii)
+    peaks = peak_local_max(C, min_distance=md, threshold_abs=max(float(min_contrast) / 3, 1e-6),
+                           exclude_border=False, num_peaks=np.inf)
+    if len(peaks) == 0:
+        return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
+    val = C[peaks[:, 0], peaks[:, 1]].astype(float)
+    # Automatic acceptance: at least min_contrast and 30 % of the typical strong bead (the
+    # median of the n best peaks), so a bright scene does not drown in limb-edge peaks.
+    top = np.sort(val)[::-1][:n]
+    thr = max(float(min_contrast), 0.3 * float(np.median(top)))
+    keep = np.flatnonzero(val >= thr)
+    keep = keep[np.argsort(-val[keep], kind="stable")][:n]
+    y, x = peaks[keep, 0], peaks[keep, 1]
+    return val[keep], x.astype(float), y.astype(float), best_r[y, x].astype(float)
+
+
+def _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity):
+    mask = (grey > t).astype(np.uint8)
+    n_lab, labels, stats, cents = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    a_min = 0.35 * np.pi * r_min**2  # the shaded rim can fall below the threshold
+    a_max = 1.6 * np.pi * r_max**2
+    acc, cx, cy, rr = [], [], [], []
+    for lab in range(1, n_lab):
+        area = stats[lab, cv2.CC_STAT_AREA]
+        if area < a_min:
+            continue
+        x, y, w, h = stats[lab, :4]
+        sub = (labels[y:y + h, x:x + w] == lab).astype(np.uint8)
+        contours, _ = cv2.findContours(np.pad(sub, 1), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        per = max(cv2.arcLength(contours[0], True), 1e-9)
+        # Area of the contour polygon + half the boundary pixels: ~ the pixel count.
+        circ = 4 * np.pi * (cv2.contourArea(contours[0]) + per / 2) / (per + np.pi) ** 2
+        if area <= a_max and circ >= min_circularity and max(w, h) <= 2 * r_max + 3:
+            req = np.sqrt(area / np.pi)
+            acc.append(min(circ, 1.0))
+            cx.append(cents[lab, 0])
+            cy.append(cents[lab, 1])
+            rr.append(float(np.clip(req, r_min, r_max)))
+        elif max(w, h) >= 2 * r_min - 2:
+            # Touching or overlapping beads, a bead on a bright limb edge: Hough inside the region.
+            pad = int(np.ceil(r_max)) + 2
+            x0, y0 = max(0, x - pad), max(0, y - pad)
+            x1, y1 = min(grey.shape[1], x + w + pad), min(grey.shape[0], y + h + pad)
+            region = labels[y0:y1, x0:x1] == lab
+            k = max(1, int(np.ceil(area / (np.pi * r_min**2))))
+            a, hx, hy, hr = _hough(outline(region), radii, k, md)
+            good = a >= 0.45
+            for ai, xi, yi, ri in zip(a[good], hx[good], hy[good], hr[good]):
+                if region[int(yi), int(xi)]:
+                    acc.append(float(ai))
+                    cx.append(xi + x0)
+                    cy.append(yi + y0)
+                    rr.append(float(ri))
+    acc, cx, cy, rr = (np.asarray(v, float) for v in (acc, cx, cy, rr))
+    order = np.argsort(-acc, kind="stable")[:n]
+    return acc[order], cx[order], cy[order], rr[order]
+
+
+# -- synthetic bead photos ---------------------------------------------------------------------
+@dataclass(eq=False)
+class BeadScene:
+    """A drawn bead photo with its ground truth (:func:`random_bead_scene`).
+
+    Attributes
+    ----------
+    image : ndarray, shape (H, W, 3), uint8
+        BGR photo.
+    centers : ndarray, shape (K, 2)
+        True bead centres (x, y), pixels.
+    radii : ndarray, shape (K,)
+        True bead radii, pixels.
+    labels : ndarray of int, shape (K,)
+        Index of each bead's colour in the ``colors_rgb`` that drew it.
+    colors_rgb : ndarray, shape (K, 3)
+        Colour each bead was drawn with (after the lighting change), sRGB [0, 1].
+    occluded : ndarray of float, shape (K,)
+        Fraction of each bead's disc hidden by a limb in front of it.
+    gain, white_balance : float, ndarray shape (3,)
+        Lighting change applied (brightness factor, RGB channel factors).
+    """
+
+    image: np.ndarray
+    centers: np.ndarray
+    radii: np.ndarray
+    labels: np.ndarray
+    colors_rgb: np.ndarray
+    occluded: np.ndarray
+    gain: float = 1.0
+    white_balance: np.ndarray = field(default_factory=lambda: np.ones(3))
+
+
+_SS = 8  # supersampling factor of the drawings
+
+
+def _patch_grid(cx, cy, R, shape):
+    """Supersampled sample positions (1x pixel units) of a pixel-aligned box around a disc."""
+    h, w = shape
+    x0, x1 = max(0, int(np.floor(cx - R)) - 1), min(w, int(np.ceil(cx + R)) + 2)
+    y0, y1 = max(0, int(np.floor(cy - R)) - 1), min(h, int(np.ceil(cy + R)) + 2)
+    if x1 <= x0 or y1 <= y0:
+        return None
+    # Sample u of the 8x grid sits at (u + 0.5) / 8 - 0.5 in 1x pixel coordinates.
+    xs = x0 + (np.arange((x1 - x0) * _SS) + 0.5) / _SS - 0.5
+    ys = y0 + (np.arange((y1 - y0) * _SS) + 0.5) / _SS - 0.5
+    return x0, x1, y0, y1, xs[None, :], ys[:, None]
+
+
+def _down(a, ny, nx):
+    """Block mean of a supersampled array down to (ny, nx[, C])."""
+    return a.reshape(ny, _SS, nx, _SS, *a.shape[2:]).mean(axis=(1, 3))
+
+
+def _over(canvas, y0, y1, x0, x1, alpha, color_premult):
+    canvas[y0:y1, x0:x1] = canvas[y0:y1, x0:x1] * (1 - alpha[..., None]) + color_premult
+
+
+def _shade(d, R, ambient, specular):
+    """Brightness factor of a matte sphere lit from the camera, sRGB-encoded, at distance d."""
+    cos = np.sqrt(np.clip(1 - (d / R) ** 2, 0, 1))
+    lin = ambient + (1 - ambient) * cos
+    return lin ** (1 / 2.2), specular * np.exp(-((d / (0.3 * R)) ** 2))
+
+
+def _patch_norm(R, ambient):
+    """Mean shading over the central 5x5 pixels: bead colours are scaled by its inverse, so
+    that the thesis's 5x5 patch measures the colour asked for."""
+    g = (np.arange(5 * _SS) + 0.5) / _SS - 2.5
+    d = np.hypot(g[None, :], g[:, None])
+    return float(_shade(d, R, ambient, 0.0)[0].mean())
+
+
+def _draw_limb(canvas, p0, p1, width, grey):
+    """A flat dark-grey thick segment (a limb of the black puppet), anti-aliased at 8x."""
+    h, w = canvas.shape[:2]
+    lo = np.floor(np.minimum(p0, p1) - width).astype(int)
+    hi = np.ceil(np.maximum(p0, p1) + width).astype(int) + 1
+    x0, y0 = max(0, lo[0]), max(0, lo[1])
+    x1, y1 = min(w, hi[0]), min(h, hi[1])
+    if x1 <= x0 or y1 <= y0:
+        return
+    big = np.zeros(((y1 - y0) * _SS, (x1 - x0) * _SS), np.uint8)
+    # cv2.line with 3 fractional bits, in 8x pixel units: ((p - origin + 0.5) * 8 - 0.5) * 8.
+    q = [tuple(int(round(((v - o + 0.5) * _SS - 0.5) * 8)) for v, o in zip(p, (x0, y0))) for p in (p0, p1)]
+    cv2.line(big, q[0], q[1], 255, thickness=max(1, int(round(width * _SS))), lineType=cv2.LINE_8, shift=3)
+    a = _down(big.astype(np.float32) / 255.0, y1 - y0, x1 - x0)
+    _over(canvas, y0, y1, x0, x1, a, a[..., None] * np.asarray(grey, np.float32))
+
+
+def draw_beads(centers, radii, colors_rgb, size=(480, 640), limbs_behind=(), limbs_front=(),
+               background: float = 0.05, ambient: float = 0.15, specular: float = 0.0) -> np.ndarray:
+    """Draw shaded beads (matte spheres lit from the camera) and limbs, anti-aliased at 8x.
+
+    Each bead's colour is scaled so that the mean over its central 5x5 pixels equals the
+    colour given (how the thesis measured its reference colours). Later beads cover earlier
+    ones.
+
+    Parameters
+    ----------
+    centers : array_like, shape (K, 2)
+        Sub-pixel centres (x, y).
+    radii : array_like, shape (K,)
+        Pixels.
+    colors_rgb : array_like, shape (K, 3)
+        sRGB in [0, 1].
+    size : (int, int)
+        Image height and width.
+    limbs_behind, limbs_front : sequence of (p0, p1, width, grey)
+        Thick segments drawn before / after the beads: end points (x, y), width in pixels, grey
+        level in [0, 1].
+    background : float
+        Grey level of the background, [0, 1].
+    ambient, specular : float
+        Shading: ambient share of the lighting, strength of a white highlight at the centre.
+
+    Returns
+    -------
+    ndarray, shape (H, W, 3), float32
+        Noise-free BGR image in [0, 1].
+    """
+    c = as_array(centers, (None, 2), "centers")
+    r = as_array(radii, (len(c),), "radii")
+    col = as_array(colors_rgb, (len(c), 3), "colors_rgb")
+    h, w = int(size[0]), int(size[1])
+    canvas = np.full((h, w, 3), background, np.float32)
+    for p0, p1, width, grey in limbs_behind:
+        _draw_limb(canvas, np.asarray(p0, float), np.asarray(p1, float), float(width), grey)
+    for (cx, cy), R, rgb in zip(c, r, col):
+        g = _patch_grid(cx, cy, R, (h, w))
+        if g is None:
+            continue
+        x0, x1, y0, y1, xs, ys = g
+        d = np.hypot(xs - cx, ys - cy)
+        inside = (d <= R).astype(np.float32)
+        shade, spec = _shade(d, R, ambient, specular)
+        albedo = np.asarray(rgb, np.float32)[::-1] / _patch_norm(R, ambient)
+        colour = np.clip(shade[..., None] * albedo + spec[..., None], 0, 1) * inside[..., None]
+        ny, nx = y1 - y0, x1 - x0
+        _over(canvas, y0, y1, x0, x1, _down(inside, ny, nx), _down(colour.astype(np.float32), ny, nx))
+    for p0, p1, width, grey in limbs_front:
+        _draw_limb(canvas, np.asarray(p0, float), np.asarray(p1, float), float(width), grey)
+    return canvas
+
+
+def _sensor(canvas, rng, blur, noise, jpeg):
+    img = canvas
+    if blur > 0:
+        img = cv2.GaussianBlur(img, (0, 0), blur)
+    img = img * 255.0 + rng.normal(0.0, noise, img.shape)
+    img = np.clip(np.round(img), 0, 255).astype(np.uint8)
+    if jpeg:
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg)])
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR)
+    return img
+
+
+def random_bead_scene(colors_rgb, rng=None, size=(480, 640), radius_range=(5.0, 7.0), n_limbs: int = 8,
+                      n_touching: int = 2, n_occluded: int = 1, brightness=(0.8, 1.2),
+                      white_balance: float = 0.05, noise: float = 3.0, jpeg: int | None = 80,
+                      blur: float = 0.5, specular: float = 0.05, limb_grey=(0.05, 0.14),
+                      n_beads: int | None = None, margin: float = 20.0) -> BeadScene:
+    """A random puppet-like photo: one bead per colour on dark limbs, with known truth.
+
+    With ``n_beads`` only a random subset of the colours is drawn (markers hidden behind the
+    puppet in a turntable view); ``labels`` says which.
+
+    Dark grey limbs (thick segments, grey ``limb_grey``) criss-cross the frame; each bead sits on a
+    limb; ``n_touching`` beads are placed touching (or overlapping by up to 1 px) another one;
+    ``n_occluded`` beads are partly covered (10-35 % of the disc) by a limb in front. The
+    light changes by a random brightness factor and a random per-channel white-balance factor
+    (1 +- ``white_balance``); the sensor blurs, adds Gaussian noise and saves a JPEG.
+
+    Parameters
+    ----------
+    colors_rgb : array_like, shape (K, 3)
+        Bead colours at nominal light, sRGB [0, 1] (e.g. ``Palette.thesis().rgb``).
+    rng : numpy.random.Generator or int, optional
+    size : (int, int)
+        Height, width.
+    radius_range : (float, float)
+        Bead radii are drawn uniformly from it, pixels.
+    n_limbs, n_touching, n_occluded : int
+    brightness : (float, float)
+        Range of the brightness factor.
+    white_balance : float
+        Largest relative change of the red and blue channels.
+    noise : float
+        Standard deviation of the sensor noise, 8-bit units.
+    jpeg : int or None
+        JPEG quality, or None for no compression.
+    blur : float
+        Optical blur, Gaussian sigma in pixels.
+    specular : float
+        White highlight at the bead centre (flat paint: small).
+    limb_grey : (float, float)
+        Range of the limbs' grey level, [0, 1] (flat black paint under the LEDs: dark grey).
+    n_beads : int, optional
+        Number of beads drawn (a random subset of the colours); default all.
+    margin : float
+        Smallest distance of a bead centre from the image border, pixels.
+
+    Returns
+    -------
+    BeadScene
+    """
+    rng = as_rng(rng)
+    palette = as_array(colors_rgb, (None, 3), "colors_rgb")
+    if n_beads is None:
+        labels = np.arange(len(palette))
+    else:
+        if not 0 <= n_beads <= len(palette):
+            raise ValueError(f"n_beads must lie in [0, {len(palette)}], got {n_beads}")
+        labels = np.sort(rng.choice(len(palette), size=int(n_beads), replace=False))
+    base = palette[labels]
+    k = len(base)
+    h, w = int(size[0]), int(size[1])
+    r = rng.uniform(radius_range[0], radius_range[1], k)
+    limbs = []
+    for _ in range(max(1, n_limbs)):
+        p0 = rng.uniform([margin, margin], [w - margin, h - margin])
+        ang = rng.uniform(0, np.pi)
+        length = rng.uniform(60, 220)
+        p1 = np.clip(p0 + length * np.array([np.cos(ang), np.sin(ang)]), 0, [w - 1, h - 1])
+        limbs.append((p0, p1, rng.uniform(8, 18), rng.uniform(*limb_grey)))
+    centers = np.zeros((k, 2))
+    touching = set(rng.choice(np.arange(1, k), size=min(n_touching, max(k - 1, 0)), replace=False).tolist()) if k > 1 else set()
+    for i in range(k):
+        for _attempt in range(500):
+            if i in touching:
+                j = int(rng.integers(i))
+                a = rng.uniform(0, 2 * np.pi)
+                p = centers[j] + (r[i] + r[j] + rng.uniform(-1.0, 0.5)) * np.array([np.cos(a), np.sin(a)])
+                others = np.delete(np.arange(i), j)
+            else:
+                p0, p1, width, _ = limbs[int(rng.integers(len(limbs)))]
+                t = rng.uniform(0, 1)
+                dvec = (p1 - p0) / max(np.linalg.norm(p1 - p0), 1e-9)
+                p = p0 + t * (p1 - p0) + rng.uniform(-0.3, 0.3) * width * np.array([-dvec[1], dvec[0]])
+                others = np.arange(i)
+            if not (margin <= p[0] <= w - 1 - margin and margin <= p[1] <= h - 1 - margin):
+                continue
+            if len(others) and np.min(np.hypot(*(centers[others] - p).T) - r[others] - r[i]) < 4.0:
+                continue
+            centers[i] = p
+            break
+        else:
+            centers[i] = rng.uniform([margin, margin], [w - 1 - margin, h - 1 - margin])
+    gain = float(rng.uniform(*brightness))
+    wb = np.array([1 + rng.uniform(-white_balance, white_balance), 1.0, 1 + rng.uniform(-white_balance, white_balance)])
+    colors = np.clip(base * gain * wb, 0, 1)
+    front = []
+    occluded = np.zeros(k)
+    candidates = [i for i in range(k) if i not in touching]
+    for i in rng.permutation(candidates)[:n_occluded]:
+        a = rng.uniform(0, 2 * np.pi)
+        n_vec = np.array([np.cos(a), np.sin(a)])
+        width = rng.uniform(8, 14)
+        frac = rng.uniform(0.1, 0.35)
+        # Distance from the centre to the limb's edge that covers ``frac`` of the disc.
+        u = np.linspace(-1, 1, 2001)
+        seg = np.cumsum(np.sqrt(1 - u**2))[::-1] / np.sqrt(1 - u**2).sum()
+        hdist = u[np.argmin(np.abs(seg - frac))] * r[i]
+        mid = centers[i] + (hdist + width / 2) * n_vec
+        t_vec = np.array([-n_vec[1], n_vec[0]])
+        front.append((mid - 40 * t_vec, mid + 40 * t_vec, width, rng.uniform(*limb_grey)))
+    if front:
+        # Hidden share of every disc (a front limb may cover more than the bead it was made for).
+        g = (np.arange(16) + 0.5) / 16 * 2 - 1
+        gx, gy = np.meshgrid(g, g)
+        disc = np.stack([gx[gx**2 + gy**2 <= 1], gy[gx**2 + gy**2 <= 1]], axis=1)
+        for i in range(k):
+            pts = centers[i] + r[i] * disc
+            hidden = np.zeros(len(pts), bool)
+            for p0, p1, width, _ in front:
+                v = p1 - p0
+                t = np.clip((pts - p0) @ v / (v @ v), 0, 1)
+                hidden |= np.hypot(*(pts - p0 - t[:, None] * v).T) <= width / 2
+            occluded[i] = hidden.mean()
+    canvas = draw_beads(centers, r, colors, (h, w), limbs, front, background=float(rng.uniform(0.02, 0.07)),
+                        specular=specular)
+    img = _sensor(canvas, rng, blur, noise, jpeg)
+    return BeadScene(img, centers, r, labels, colors, occluded, gain, wb)

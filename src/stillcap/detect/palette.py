@@ -1,0 +1,394 @@
+"""Marker colour palettes: reference colours, colour distances and maximally distinct palettes.
+
+A :class:`Palette` is an ordered list of named reference colours (sRGB in [0, 1]). It converts
+to the spaces the identification works in (HSB as in the thesis, CIE Lab) and measures how far
+apart its colours are (:meth:`Palette.distances`).
+
+:func:`propose_palette` answers the thesis's own "future work" item (SPEC J3: "colours chosen
+to maximise their distances"): N saturated, bright colours, as far apart as possible in
+CIEDE2000 (or Lab) and far from the black background, by farthest-point sampling over a dense
+candidate set followed by swap improvement of the closest pair.
+
+Colour spaces (all from scikit-image, D65 white):
+
+- ``rgb``: sRGB in [0, 1] (gamma-encoded, what a JPEG stores);
+- ``hsb``: hue in turns [0, 1), saturation and brightness in [0, 1] (HSV);
+- ``lab``: CIE L*a*b*, L in [0, 100].
+"""
+
+from __future__ import annotations
+
+import colorsys
+from dataclasses import dataclass, replace
+
+import numpy as np
+from skimage.color import deltaE_ciede2000, hsv2rgb, rgb2hsv, rgb2lab
+
+from stillcap._checks import as_array, as_rng
+
+__all__ = [
+    "METRICS",
+    "Palette",
+    "PaletteProposal",
+    "color_distance",
+    "hsb_distance",
+    "propose_palette",
+    "rgb_to_hsb",
+    "rgb_to_lab",
+]
+
+#: Colour distances :func:`color_distance` knows.
+METRICS = ("hsb", "lab", "ciede2000")
+
+
+def rgb_to_lab(rgb) -> np.ndarray:
+    """sRGB in [0, 1], shape (N, 3) -> CIE Lab, shape (N, 3) (scikit-image, D65)."""
+    a = as_array(rgb, (None, 3), "rgb")
+    if len(a) == 0:
+        return np.zeros((0, 3))
+    return rgb2lab(np.clip(a, 0.0, 1.0)[None])[0]
+
+
+def rgb_to_hsb(rgb) -> np.ndarray:
+    """sRGB in [0, 1], shape (N, 3) -> HSB (hue in turns, saturation, brightness), shape (N, 3)."""
+    a = as_array(rgb, (None, 3), "rgb")
+    if len(a) == 0:
+        return np.zeros((0, 3))
+    return rgb2hsv(np.clip(a, 0.0, 1.0)[None])[0]
+
+
+def hsb_distance(a_hsb, b_hsb) -> np.ndarray:
+    """The thesis's colour distance ``sqrt(dh^2 + ds^2 + db^2)`` with periodic hue.
+
+    ``dh = min(|h1 - h2|, 1 - |h1 - h2|)`` (hue in turns: 0.999 is next to 0.001).
+
+    Parameters
+    ----------
+    a_hsb : array_like, shape (N, 3)
+    b_hsb : array_like, shape (K, 3)
+
+    Returns
+    -------
+    ndarray, shape (N, K)
+    """
+    a = as_array(a_hsb, (None, 3), "a_hsb")
+    b = as_array(b_hsb, (None, 3), "b_hsb")
+    d = np.abs(a[:, None, :] - b[None, :, :])
+    d[..., 0] = np.minimum(d[..., 0] % 1.0, 1.0 - d[..., 0] % 1.0)
+    return np.sqrt((d**2).sum(axis=2))
+
+
+def _lab_pairwise(a_lab, b_lab, metric: str, lightness_weight: float) -> np.ndarray:
+    """(N, K) distances between Lab colours; ``lightness_weight`` scales the L term."""
+    if metric == "lab":
+        d = a_lab[:, None, :] - b_lab[None, :, :]
+        d[..., 0] *= lightness_weight
+        return np.sqrt((d**2).sum(axis=2))
+    # CIEDE2000's kL divides the lightness term: weight w <=> kL = 1 / w.
+    n, k = len(a_lab), len(b_lab)
+    aa = np.broadcast_to(a_lab[:, None, :], (n, k, 3))
+    bb = np.broadcast_to(b_lab[None, :, :], (n, k, 3))
+    return deltaE_ciede2000(aa, bb, kL=1.0 / lightness_weight)
+
+
+def color_distance(a_rgb, b_rgb, metric: str = "ciede2000", lightness_weight: float = 1.0) -> np.ndarray:
+    """Pairwise colour distances between two sets of sRGB colours.
+
+    Parameters
+    ----------
+    a_rgb : array_like, shape (N, 3)
+        sRGB in [0, 1].
+    b_rgb : array_like, shape (K, 3)
+    metric : {"hsb", "lab", "ciede2000"}
+        ``hsb``: the thesis's HSB distance (:func:`hsb_distance`, units of [0, 1]);
+        ``lab``: Euclidean CIE Lab distance (delta E 1976); ``ciede2000``: CIEDE2000.
+    lightness_weight : float
+        Weight of the lightness difference (``lab``: factor on dL; ``ciede2000``: 1 / kL).
+        Below 1 it makes the distance tolerant of brighter or dimmer light. Ignored for ``hsb``.
+
+    Returns
+    -------
+    ndarray, shape (N, K)
+    """
+    a = as_array(a_rgb, (None, 3), "a_rgb")
+    b = as_array(b_rgb, (None, 3), "b_rgb")
+    if metric not in METRICS:
+        raise ValueError(f"metric must be one of {METRICS}, got {metric!r}")
+    if not lightness_weight > 0:
+        raise ValueError(f"lightness_weight must be > 0, got {lightness_weight}")
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((len(a), len(b)))
+    if metric == "hsb":
+        return hsb_distance(rgb_to_hsb(a), rgb_to_hsb(b))
+    return _lab_pairwise(rgb_to_lab(a), rgb_to_lab(b), metric, lightness_weight)
+
+
+@dataclass(frozen=True, eq=False)
+class Palette:
+    """Named reference colours.
+
+    Parameters
+    ----------
+    names : sequence of str, length K
+    rgb : array_like, shape (K, 3)
+        sRGB in [0, 1].
+    """
+
+    names: tuple[str, ...]
+    rgb: np.ndarray
+
+    def __post_init__(self):
+        names = tuple(str(n) for n in self.names)
+        if len(set(names)) != len(names):
+            raise ValueError(f"palette names must be unique, got {list(names)}")
+        rgb = as_array(self.rgb, (len(names), 3), "rgb")
+        if not np.all(np.isfinite(rgb)) or rgb.min(initial=0) < 0 or rgb.max(initial=0) > 1:
+            raise ValueError("rgb must be finite and lie in [0, 1]")
+        rgb = rgb.copy()
+        rgb.setflags(write=False)
+        object.__setattr__(self, "names", names)
+        object.__setattr__(self, "rgb", rgb)
+
+    # -- constructors ------------------------------------------------------------------------
+    @classmethod
+    def from_hsb(cls, names, hsb) -> "Palette":
+        """From HSB colours, shape (K, 3), hue in turns."""
+        h = as_array(hsb, (len(names), 3), "hsb")
+        return cls(names, hsv2rgb(np.clip(h, 0, 1)[None])[0] if len(h) else np.zeros((0, 3)))
+
+    @classmethod
+    def from_bgr8(cls, names, bgr) -> "Palette":
+        """From OpenCV-order 8-bit colours, shape (K, 3), 0-255."""
+        b = as_array(bgr, (len(names), 3), "bgr")
+        return cls(names, np.clip(b[:, ::-1] / 255.0, 0, 1))
+
+    @classmethod
+    def from_markerset(cls, markerset) -> "Palette":
+        """The reference colours of a :class:`~stillcap.body.markerset.MarkerSet` (e.g. ``MarkerSet.puppet()``)."""
+        return cls(markerset.names, markerset.rgb)
+
+    @classmethod
+    def thesis(cls) -> "Palette":
+        """The thesis's 16 puppet bead colours (SPEC J3), from ``MarkerSet.puppet()``."""
+        from stillcap.body.markerset import MarkerSet
+
+        return cls.from_markerset(MarkerSet.puppet())
+
+    # -- views -------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ValueError(f"unknown colour {name!r}; known: {', '.join(self.names)}") from None
+
+    @property
+    def hsb(self) -> np.ndarray:
+        """HSB, shape (K, 3), hue in turns."""
+        return rgb_to_hsb(self.rgb)
+
+    @property
+    def lab(self) -> np.ndarray:
+        """CIE Lab, shape (K, 3)."""
+        return rgb_to_lab(self.rgb)
+
+    @property
+    def bgr8(self) -> np.ndarray:
+        """OpenCV-order 8-bit colours, shape (K, 3), uint8."""
+        return np.round(self.rgb[:, ::-1] * 255).astype(np.uint8)
+
+    @property
+    def hex(self) -> tuple[str, ...]:
+        """``#rrggbb`` strings."""
+        return tuple("#" + "".join(f"{int(round(v * 255)):02x}" for v in c) for c in self.rgb)
+
+    def distances(self, metric: str = "ciede2000", lightness_weight: float = 1.0) -> np.ndarray:
+        """Pairwise distances between the palette's colours, shape (K, K) (see :func:`color_distance`)."""
+        return color_distance(self.rgb, self.rgb, metric, lightness_weight)
+
+    def min_distance(self, metric: str = "ciede2000", lightness_weight: float = 1.0) -> tuple[float, tuple[str, str]]:
+        """The smallest pairwise distance and the pair of names that has it."""
+        if len(self) < 2:
+            return np.inf, ("", "")
+        d = self.distances(metric, lightness_weight)
+        d[np.diag_indices_from(d)] = np.inf
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        return float(d[i, j]), (self.names[i], self.names[j])
+
+    def with_colors(self, rgb) -> "Palette":
+        """The same names with new colours, shape (K, 3)."""
+        return Palette(self.names, rgb)
+
+    def apply_to(self, markerset):
+        """A copy of ``markerset`` whose markers carry this palette's colours (matched by name).
+
+        Markers whose name the palette lacks keep their colour.
+        """
+        markers = []
+        for m in markerset.markers:
+            if m.name in self.names:
+                hsb = colorsys.rgb_to_hsv(*self.rgb[self.index(m.name)])
+                m = replace(m, hsb=tuple(float(v) for v in np.clip(hsb, 0, 1)))
+            markers.append(m)
+        return replace(markerset, markers=tuple(markers))
+
+    def to_dict(self) -> dict:
+        """JSON-ready ``{"colors": [{"name", "hex", "rgb", "hsb"}, ...]}``."""
+        return {
+            "colors": [
+                {"name": n, "hex": h, "rgb": [round(float(v), 4) for v in c], "hsb": [round(float(v), 4) for v in s]}
+                for n, h, c, s in zip(self.names, self.hex, self.rgb, self.hsb)
+            ]
+        }
+
+
+# -- palette design ----------------------------------------------------------------------------
+@dataclass(eq=False)
+class PaletteProposal:
+    """Result of :func:`propose_palette`.
+
+    Attributes
+    ----------
+    palette : Palette
+    min_distance : float
+        Smallest pairwise distance among the proposed colours (``metric``).
+    closest_pair : tuple of str
+    metric : str
+    lightness_weight : float
+    min_distance_to_excluded : float
+        Smallest distance from a proposed colour to an excluded (background) colour.
+    n_candidates : int
+        Size of the candidate set searched.
+    """
+
+    palette: Palette
+    min_distance: float
+    closest_pair: tuple[str, str]
+    metric: str
+    lightness_weight: float
+    min_distance_to_excluded: float
+    n_candidates: int
+
+
+def _candidates(min_saturation, min_brightness, max_brightness, hue_steps, sv_steps) -> np.ndarray:
+    """A dense grid of sRGB colours with HSB saturation and brightness in the limits, (M, 3)."""
+    h = np.arange(hue_steps) / hue_steps
+    s = np.linspace(min_saturation, 1.0, sv_steps)
+    v = np.linspace(min_brightness, max_brightness, sv_steps)
+    hsv = np.stack(np.meshgrid(h, s, v, indexing="ij"), axis=-1).reshape(-1, 3)
+    return hsv2rgb(hsv[None])[0]
+
+
+def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weight: float = 1.0,
+                    min_saturation: float = 0.45, min_brightness: float = 0.6, max_brightness: float = 0.8,
+                    min_lightness: float = 40.0,
+                    exclude=((0.0, 0.0, 0.0), (0.15, 0.15, 0.15)), names=None,
+                    restarts: int = 8, hue_steps: int = 120, sv_steps: int = 8) -> PaletteProposal:
+    """``n`` maximally distinct marker colours.
+
+    Maximises the smallest pairwise distance (a max-min or "dispersion" problem) over a dense
+    grid of saturated, bright sRGB colours: farthest-point sampling from a random start, then
+    swap improvement (replace one colour of the closest pair by the candidate that raises the
+    minimum most, until no swap helps), best of ``restarts`` random starts. Written by hand:
+    neither SciPy nor scikit-image offers max-min dispersion; it is a few vectorised lines
+    over the candidate set.
+
+    Parameters
+    ----------
+    n : int
+        Number of colours (>= 1).
+    rng : numpy.random.Generator or int, optional
+    metric : {"ciede2000", "lab", "hsb"}
+    lightness_weight : float
+        Weight of lightness differences (see :func:`color_distance`). Below 1 favours colours
+        that differ in hue and chroma, which survive brighter or dimmer light better.
+    min_saturation, min_brightness, max_brightness : float
+        HSB limits of the candidates, [0, 1]: saturated colours that stand out under the
+        LEDs, with headroom below 1 so that brighter light does not clip a channel (a clipped
+        channel shifts the hue). These are colours as the camera should see them at nominal
+        exposure, like the thesis's reference colours (brightness 0.52-0.83).
+    min_lightness : float
+        Smallest CIE L* (0-100) of a candidate: deep blues and violets have full HSB brightness
+        but look dark in a grey image, where the thesis's threshold must find them.
+    exclude : array_like, shape (E, 3)
+        sRGB colours the markers must stay away from (the black background, dark grey limbs).
+        They take part in the farthest-point sampling as already chosen colours.
+    names : sequence of str, optional
+        Default ``c00, c01, ...``.
+    restarts : int
+    hue_steps, sv_steps : int
+        Candidate grid resolution (hue x saturation x brightness).
+
+    Returns
+    -------
+    PaletteProposal
+    """
+    if int(n) != n or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n}")
+    n = int(n)
+    if metric not in METRICS:
+        raise ValueError(f"metric must be one of {METRICS}, got {metric!r}")
+    if not (0 <= min_saturation <= 1 and 0 <= min_brightness <= max_brightness <= 1):
+        raise ValueError("need 0 <= min_saturation <= 1 and 0 <= min_brightness <= max_brightness <= 1, got "
+                         f"{min_saturation}, {min_brightness}, {max_brightness}")
+    names = tuple(f"c{i:02d}" for i in range(n)) if names is None else tuple(names)
+    if len(names) != n:
+        raise ValueError(f"{len(names)} names for {n} colours")
+    rng = as_rng(rng)
+    exc = as_array(exclude, (None, 3), "exclude") if len(exclude) else np.zeros((0, 3))
+    cand = _candidates(min_saturation, min_brightness, max_brightness, hue_steps, sv_steps)
+    cand = cand[rgb_to_lab(cand)[:, 0] >= min_lightness]
+    m = len(cand)
+    if n > m:
+        raise ValueError(f"n = {n} exceeds the {m} candidate colours")
+
+    def dist(a_idx_or_rgb, b_rgb):
+        return color_distance(a_idx_or_rgb, b_rgb, metric, lightness_weight)
+
+    # Distances of every candidate to the excluded colours; candidates too close to them are
+    # kept but start with that distance as their "nearest chosen" distance.
+    d_exc = dist(cand, exc).min(axis=1) if len(exc) else np.full(m, np.inf)
+
+    best_sel, best_val = None, -np.inf
+    for _ in range(max(1, restarts)):
+        sel = [int(rng.integers(m))]
+        nearest = np.minimum(d_exc, dist(cand, cand[sel[0]][None])[:, 0])
+        while len(sel) < n:
+            k = int(np.argmax(nearest))
+            sel.append(k)
+            nearest = np.minimum(nearest, dist(cand, cand[k][None])[:, 0])
+        # Swap improvement: D holds candidate-to-selected distances, (m, n).
+        D = dist(cand, cand[sel])
+        for _ in range(20 * n):
+            S = D[sel].copy()
+            S[np.diag_indices(n)] = np.inf
+            cur = S.min()
+            i, j = np.unravel_index(np.argmin(S), S.shape)
+            improved = False
+            for drop in (i, j):
+                others = np.delete(np.arange(n), drop)
+                inner = np.delete(np.delete(S, drop, 0), drop, 1).min(initial=np.inf)
+                gain = np.minimum(D[:, others].min(axis=1), d_exc)
+                gain[sel] = -np.inf
+                k = int(np.argmax(gain))
+                if min(gain[k], inner) > cur + 1e-9:
+                    sel[drop] = k
+                    D[:, drop] = dist(cand, cand[k][None])[:, 0]
+                    improved = True
+                    break
+            if not improved:
+                break
+        S = D[sel]
+        S[np.diag_indices(n)] = np.inf
+        val = S.min() if n > 1 else np.inf
+        if val > best_val:
+            best_sel, best_val = list(sel), val
+    # Order by hue for a readable palette.
+    rgb = cand[best_sel]
+    rgb = rgb[np.argsort(rgb_to_hsb(rgb)[:, 0], kind="stable")]
+    pal = Palette(names, rgb)
+    md, pair = pal.min_distance(metric, lightness_weight)
+    dexc = float(dist(rgb, exc).min()) if len(exc) else np.inf
+    return PaletteProposal(pal, md, pair, metric, float(lightness_weight), dexc, m)

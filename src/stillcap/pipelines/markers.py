@@ -1,0 +1,91 @@
+"""Coloured marker balls seen by a calibrated rig -> labelled 3D points (wiring only).
+
+photos -> bright blobs per image -> colour labels -> N-view correspondence -> triangulation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stillcap.camera import Rig
+from stillcap.detect.blobs import Blobs, classify_colors, find_blobs
+from stillcap.geometry.correspond import correspond
+from stillcap.geometry.triangulate import Triangulation, triangulate
+from stillcap.studio.scenes import MARKER_BALL_COLORS
+
+
+def default_palette() -> dict[str, tuple[float, float, float]]:
+    """The studio's marker-ball colours as they photograph (sRGB, BGR order, 0-255).
+
+    Only the hue and chroma matter much to :func:`classify_colors`, so the albedo is encoded
+    with the sRGB curve as if lit to full scale.
+    """
+    def srgb8(lin):
+        lin = np.clip(np.asarray(lin, float), 0, 1)
+        return 255 * np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+    return {name: tuple(float(v) for v in srgb8(rgb)[::-1]) for name, rgb in MARKER_BALL_COLORS.items()}
+
+
+@dataclass
+class MarkerReconstruction:
+    """Result of :func:`reconstruct_markers`.
+
+    labels : list of length M (colour names); points : (M, 3) metres, rig world frame;
+    triangulation : the full :class:`Triangulation` (errors, views used); blobs : per camera.
+    """
+
+    labels: list
+    points: np.ndarray
+    triangulation: Triangulation
+    points_2d: np.ndarray
+    blobs: list = field(repr=False)
+
+    def to_dict(self) -> dict:
+        t = self.triangulation
+        return {"units": {"position": "m", "reproj_error": "px"},
+                "markers": [{"label": lab, "position_m": p.tolist(), "views": int(n),
+                             "reproj_error_px": float(e)}
+                            for lab, p, n, e in zip(self.labels, self.points, t.n_views, t.reproj_error_px)]}
+
+
+def reconstruct_markers(rig: Rig, images, palette: dict | None = None, max_px: float = 2.0,
+                        min_area: int = 12, max_color_distance: float = 40.0, min_chroma: float = 20.0,
+                        threshold_above_background: float = 12.0) -> MarkerReconstruction:
+    """Find, label, match and triangulate coloured marker balls.
+
+    Parameters
+    ----------
+    rig : Rig with n_cams cameras
+    images : sequence of n_cams BGR images, one per camera in rig order
+    palette : {label: (b, g, r)} reference colours, 0-255 (default :func:`default_palette`)
+    max_px : epipolar / reprojection tolerance for matching and outlier rejection, pixels
+    min_chroma : blobs less colourful than this (Lab chroma; white or grey balls) are ignored
+    threshold_above_background : foreground = brighter than the median by this (0-255 units)
+    """
+    if len(images) != len(rig):
+        raise ValueError(f"need one image per camera ({len(rig)}), got {len(images)}")
+    palette = palette or default_palette()
+    blobs: list[Blobs] = []
+    pts, labs = [], []
+    for cam, img in zip(rig, images):
+        h, w = np.asarray(img).shape[:2]
+        if (w, h) != cam.image_size:
+            raise ValueError(f"camera {cam.name!r}: image is {w}x{h} px, the rig says "
+                             f"{cam.image_size[0]}x{cam.image_size[1]}")
+        # a low threshold keeps the dim limb of the balls, and the silhouette centre ignores
+        # which side the lights make bright (see find_blobs)
+        value = np.asarray(img).max(axis=2) if np.asarray(img).ndim == 3 else np.asarray(img)
+        b = find_blobs(img, threshold=float(np.median(value)) + threshold_above_background,
+                       min_area=min_area, centroid="silhouette")
+        lab = classify_colors(b.colors_bgr, list(palette.values()), list(palette), max_color_distance,
+                              min_chroma=min_chroma)
+        keep = np.array([x is not None for x in lab], bool)
+        blobs.append(b)
+        pts.append(b.centers[keep])
+        labs.append(lab[keep])
+    x, _, labels = correspond(rig, pts, labs, max_px=max_px)
+    tri = triangulate(rig, x, outlier_px=max_px)
+    return MarkerReconstruction(list(labels), tri.points, tri, x, blobs)
