@@ -134,7 +134,8 @@ def main(argv=None):
     for cond, kw in CONDITIONS.items():
         scs = scenes(thesis.rgb, args.images, args.seed, **kw)
         det = Table(title=f"Detection, {cond}, {args.images} images, {sum(len(s.labels) for s in scs)} beads")
-        for col in ("method", "found %", "false/img", "err mean px", "median", "max", "unoccl. mean", "unoccl. max", "ms/img"):
+        for col in ("method", "found %", "false/img", "err mean px", "median", "max", "unoccl. mean", "unoccl. max",
+                    "ms/img"):
             det.add_column(col, justify="right")
         circles = {}
         for method in METHODS:
@@ -177,7 +178,8 @@ def main(argv=None):
         circ = [find_circles(s.image) for s in scs]
         for chain, kw in (("greedy HSB (thesis)", THESIS), ("recommended", RECOMMENDED)):
             row = identification_row(scs, circ, pal, kw)
-            it.add_row(name, chain, f"{100 * row['right']:.1f}", f"{100 * row['wrong']:.1f}", f"{100 * row['missed']:.1f}")
+            it.add_row(name, chain, f"{100 * row['right']:.1f}", f"{100 * row['wrong']:.1f}",
+                       f"{100 * row['missed']:.1f}")
     con.print(it)
 
 

@@ -10,10 +10,13 @@ from stillcap.cli import main
 
 
 def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
+    try:
         main(args)
+        code = 0
+    except SystemExit as e:
+        code = e.code
     out = capsys.readouterr()
-    return e.value.code, out.out, out.err
+    return code, out.out, out.err
 
 
 def test_studio_markers_then_markers_json(tmp_path, capsys):

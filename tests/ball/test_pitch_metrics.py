@@ -202,7 +202,7 @@ def test_movement_axis_matches_pitchfx_definition():
 def test_bad_input_names_shape():
     with pytest.raises(ValueError, match=r"positions must have shape \(3, 3\), got \(3, 2\)"):
         pitch_metrics([0, 0.1, 0.2], np.zeros((3, 2)))
-    with pytest.raises(ValueError, match=r"spin must have shape \(3\)"):
+    with pytest.raises(ValueError, match=r"spin must have shape \(3,\)"):
         spin_axis_deg([1, 2], V0)
     with pytest.raises(ValueError, match=r"\(\.\.\., 9\)"):
         plate_location_ft(np.zeros(8))

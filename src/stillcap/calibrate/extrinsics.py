@@ -427,7 +427,7 @@ def initial_rig_poses(names: Sequence[str], board2cam: Sequence[Mapping[int, np.
 def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, cameras=None,
                               instants: Sequence[str] | None = None, refine_intrinsics: bool = False,
                               loss: str = "soft_l1", f_scale: float = 1.0, min_views: int = 3,
-                              max_view_rms_px: float = 1.5) -> RigResult:
+                              max_corner_px: float = 2.0, min_inlier_fraction: float = 0.8) -> RigResult:
     """Calibrate N cameras from target correspondences at shared instants.
 
     Parameters
@@ -443,9 +443,10 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
     refine_intrinsics : let the bundle adjustment refine intrinsics too.
     loss, f_scale : robust loss for the bundle adjustment (``least_squares``), scale in pixels.
     min_views : fewest views for an intrinsic calibration.
-    max_view_rms_px : views whose own board pose fits their corners worse than this (a corner
-        detection gone wrong, typically on a board seen at a grazing angle) are left out of the
-        adjustment and listed in ``images_skipped``.
+    max_corner_px, min_inlier_fraction : corners farther than ``max_corner_px`` from where their
+        own view's board pose puts them are detection errors and left out; a view keeping fewer
+        than ``min_inlier_fraction`` of its corners (a detection gone wrong, typically a board
+        seen at a grazing angle) is left out whole and listed in ``images_skipped``.
 
     Returns
     -------
@@ -465,7 +466,7 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
     known = {} if cameras is None else {nm: cameras[nm] for nm in names
                                         if nm in (cameras.names if isinstance(cameras, Rig) else cameras)}
 
-    cams, intr, b2c, rejected = [], {}, [], {nm: {} for nm in names}
+    cams, intr, b2c, rejected, inliers = [], {}, [], {nm: {} for nm in names}, {}
     for nm in names:
         seen = {}
         for i, v in enumerate(views[nm]):
@@ -477,9 +478,8 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
                 seen[i] = (o, p)
         if nm in known:
             cam = known[nm]
-            poses = {i: pose_from_points(cam, o, p) for i, (o, p) in seen.items()}
-            view_rms = {i: r.rms_px if r.success else np.inf for i, r in poses.items()}
-            b2c.append({i: r.world2cam for i, r in poses.items() if view_rms[i] <= max_view_rms_px})
+            b2c.append({i: r.world2cam for i, r in
+                        ((i, pose_from_points(cam, o, p)) for i, (o, p) in seen.items()) if r.success})
         else:
             size = image_size.get(nm) if isinstance(image_size, Mapping) else image_size
             if size is None:
@@ -489,11 +489,17 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
                                                    [instants[i] for i in idx], nm, min_views=min_views)
             intr[nm] = res
             cam = res.camera
-            view_rms = {i: res.per_image_rms_px.get(instants[i], np.inf) for i in idx}
-            b2c.append({i: res.board2cam[instants[i]] for i in idx if view_rms[i] <= max_view_rms_px})
-        for i, r in view_rms.items():
-            if r > max_view_rms_px:
-                rejected[nm][instants[i]] = f"board pose fits its corners to {r:.2f} px (> {max_view_rms_px} px)"
+            b2c.append({i: res.board2cam[instants[i]] for i in idx})
+        for i, T in list(b2c[-1].items()):
+            o, p = seen[i]
+            inl = np.linalg.norm(cam.with_pose(T).project(o) - p, axis=1) <= max_corner_px
+            if inl.mean() < min_inlier_fraction:
+                del b2c[-1][i]
+                rejected[nm][instants[i]] = (f"only {inl.sum()} of {len(inl)} corners within {max_corner_px} px "
+                                             "of the board pose (detection gone wrong)")
+            elif not inl.all():
+                seen[i] = (o[inl], p[inl])
+        inliers[nm] = seen
         cams.append(cam.with_pose(np.eye(4)))
 
     w2c = initial_rig_poses(names, b2c)
@@ -503,7 +509,7 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
         raise ValueError("no instant shows the target to two or more cameras")
     b2w = np.stack([_mean_pose([_inv(w2c[c]) @ b2c[c][i] for c in range(len(names)) if i in b2c[c]])
                     for i in used])
-    obs = [Observation(c, k, *views[nm][i]) for k, i in enumerate(used)
+    obs = [Observation(c, k, *inliers[nm][i]) for k, i in enumerate(used)
            for c, nm in enumerate(names) if i in b2c[c]]
     ba = bundle_adjust(cams0, b2w, obs, refine_intrinsics=refine_intrinsics, loss=loss, f_scale=f_scale)
     return RigResult(Rig(ba.cameras), ba.rms_px, dict(zip(names, map(float, ba.per_camera_rms_px))),
@@ -514,7 +520,8 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
 def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=None,
                   instants: Sequence[str] | None = None, refine_intrinsics: bool = False,
                   loss: str = "soft_l1", f_scale: float = 1.0, min_views: int = 3,
-                  progress: Progress | None = None, max_view_rms_px: float = 1.5) -> RigResult:
+                  progress: Progress | None = None, max_corner_px: float = 2.0,
+                  min_inlier_fraction: float = 0.8) -> RigResult:
     """Calibrate N cameras from photos of a target taken at shared instants.
 
     Parameters
@@ -524,7 +531,7 @@ def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=Non
         instant ``i``. The mapping's order is kept; the first camera is the world frame.
     target : Chessboard (with ``cols + rows`` odd, so its orientation is unambiguous),
         CharucoTarget or CalibrationObject.
-    cameras, refine_intrinsics, loss, f_scale, min_views, max_view_rms_px : see
+    cameras, refine_intrinsics, loss, f_scale, min_views, max_corner_px, min_inlier_fraction : see
         :func:`calibrate_rig_from_points`.
     instants : instant names (default: the file name of the first camera with a photo, or ``"#i"``).
     progress : ``progress(done, total, name)`` after each image is searched.
@@ -577,7 +584,7 @@ def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=Non
             raise ValueError(f"camera {nm!r}: target not found in any image: "
                              + "; ".join(f"{k} ({v})" for k, v in skipped[nm].items()))
     res = calibrate_rig_from_points(views, sizes, cameras, instants, refine_intrinsics, loss, f_scale, min_views,
-                                    max_view_rms_px)
+                                    max_corner_px, min_inlier_fraction)
     label_of = {inst: image_name(lists[nm][i], i) for nm in names for i, inst in enumerate(instants)
                 if lists[nm][i] is not None}
     for nm, rej in res.images_skipped.items():

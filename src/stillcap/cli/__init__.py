@@ -27,9 +27,12 @@ err = Console(stderr=True)
 def main(argv=None) -> None:
     """Run the CLI. Usage errors are click's (exit 2); a ValueError from the library, i.e. bad
     input the user can fix, prints one red line and exits 2; anything else is a bug and shows
-    its traceback."""
+    its traceback. Returns normally on success (so that it can be called from Python)."""
     try:
         app(args=argv, prog_name="stillcap")
+    except SystemExit as e:
+        if e.code not in (0, None):
+            raise
     except (ValueError, FileNotFoundError) as e:
         err.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
         sys.exit(2)

@@ -667,7 +667,9 @@ def random_bead_scene(colors_rgb, rng=None, size=(480, 640), radius_range=(5.0, 
         p1 = np.clip(p0 + length * np.array([np.cos(ang), np.sin(ang)]), 0, [w - 1, h - 1])
         limbs.append((p0, p1, rng.uniform(8, 18), rng.uniform(*limb_grey)))
     centers = np.zeros((k, 2))
-    touching = set(rng.choice(np.arange(1, k), size=min(n_touching, max(k - 1, 0)), replace=False).tolist()) if k > 1 else set()
+    touching = set()
+    if k > 1:
+        touching = set(rng.choice(np.arange(1, k), size=min(n_touching, k - 1), replace=False).tolist())
     for i in range(k):
         for _attempt in range(500):
             if i in touching:

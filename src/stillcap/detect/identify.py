@@ -8,8 +8,9 @@ that with ``method="greedy", metric="hsb", sampler="patch"`` (:data:`THESIS`).
 
 Greedy acceptance is not optimal: the closest pair can take a candidate that a second marker
 needed more, leaving that marker unidentified or wrong. ``method="assignment"`` instead solves
-the assignment problem (:func:`scipy.optimize.linear_sum_assignment`) for the most accepted
-pairs of the least total distance, in a perceptual colour space (CIEDE2000 with lightness
+the assignment problem (:func:`scipy.optimize.linear_sum_assignment`): the least total distance
+of the accepted pairs plus ``max_distance`` for every marker left unidentified (:func:`optimal_match`),
+in a perceptual colour space (CIEDE2000 with lightness
 down-weighted, since the light changes brightness more than hue), with the colour measured over
 the bead's inner disc, and, with ``adapt=True``, corrects the photo's white balance and
 exposure from a first assignment before the final one (:data:`RECOMMENDED`).
@@ -48,7 +49,7 @@ SAMPLERS = ("patch", "disc")
 #: The thesis's identification.
 THESIS = dict(method="greedy", metric="hsb", sampler="patch", max_distance=0.15, adapt=False)
 
-#: The measured best (see ``docs/puppet-detection.md``).
+#: The measured best (see ``docs/puppet-detection.md``); also the defaults of ``method="assignment"``.
 RECOMMENDED = dict(method="assignment", metric="ciede2000", sampler="disc", lightness_weight=0.5,
                    max_distance=15.0, adapt=True)
 
@@ -291,7 +292,7 @@ def _gains(measured, reference):
 
 def identify_colors(colors_rgb, palette: Palette, centers=None, method: str = "assignment",
                     metric: str | None = None, max_distance: float | None = None,
-                    lightness_weight: float = 1.0, adapt: bool = False, sampler: str = "given",
+                    lightness_weight: float | None = None, adapt: bool | None = None, sampler: str = "given",
                     radii=None) -> Identification:
     """Identify candidates from their measured colours.
 
@@ -310,11 +311,13 @@ def identify_colors(colors_rgb, palette: Palette, centers=None, method: str = "a
         Default ``hsb`` for greedy, ``ciede2000`` for assignment.
     max_distance : float, optional
         Rejection threshold in ``metric`` units; default 0.15 (hsb), 25 (lab), 15 (ciede2000).
-    lightness_weight : float
-        Weight of lightness differences for ``lab`` / ``ciede2000``.
-    adapt : bool
+    lightness_weight : float, optional
+        Weight of lightness differences for ``lab`` / ``ciede2000``; default 1 for greedy,
+        0.5 for assignment.
+    adapt : bool, optional
         Estimate per-channel gains (exposure and white balance) from a first matching, divide
-        them out of the measured colours and match again.
+        them out of the measured colours and match again (twice); default off for greedy, on
+        for assignment.
     sampler : str
         Recorded in the result.
     radii : array_like, shape (N,), optional
@@ -330,7 +333,10 @@ def identify_colors(colors_rgb, palette: Palette, centers=None, method: str = "a
     rad = np.full(n, np.nan) if radii is None else as_array(radii, (n,), "radii")
     if method not in ("greedy", "assignment"):
         raise ValueError(f"method must be 'greedy' or 'assignment', got {method!r}")
-    metric = ("hsb" if method == "greedy" else "ciede2000") if metric is None else metric
+    greedy = method == "greedy"
+    metric = ("hsb" if greedy else "ciede2000") if metric is None else metric
+    lightness_weight = (1.0 if greedy else 0.5) if lightness_weight is None else float(lightness_weight)
+    adapt = (not greedy) if adapt is None else bool(adapt)
     if metric not in METRICS:
         raise ValueError(f"metric must be one of {METRICS}, got {metric!r}")
     max_d = _DEFAULT_MAX[metric] if max_distance is None else float(max_distance)
@@ -413,13 +419,10 @@ def identify_markers(image, centers, palette: Palette, radii=None, method: str =
     if hasattr(centers, "centers") and hasattr(centers, "radii"):
         radii = centers.radii if radii is None else radii
         centers = centers.centers
-    greedy = method == "greedy"
-    sampler = ("patch" if greedy else "disc") if sampler is None else sampler
-    lw = (1.0 if greedy else 0.5) if lightness_weight is None else float(lightness_weight)
-    adapt = (not greedy) if adapt is None else bool(adapt)
+    sampler = ("patch" if method == "greedy" else "disc") if sampler is None else sampler
     colors = sample_colors(image, centers, radii, sampler=sampler, radius=radius)
     return identify_colors(colors, palette, centers, method=method, metric=metric, max_distance=max_distance,
-                           lightness_weight=lw, adapt=adapt, sampler=sampler, radii=radii)
+                           lightness_weight=lightness_weight, adapt=adapt, sampler=sampler, radii=radii)
 
 
 # -- colour calibration ------------------------------------------------------------------------
