@@ -16,7 +16,7 @@ from support import shared_data
 @pytest.fixture(scope="module")
 def tpose():
     """The T-pose from the 12 default turntable views (the thesis's setup), webcam sensor."""
-    return puppet_scene(pose="tpose", rng=0)
+    return puppet_scene(pose="tpose", rng=0, supersample=1)
 
 
 def _blob_centroid(radiance, xy, r=9, level=0.06):

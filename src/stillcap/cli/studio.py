@@ -105,10 +105,12 @@ def markers(
 def puppet(
     out: Path = typer.Option(..., "--out", help="Capture folder to write."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same capture)."),
-    pose: str = typer.Option("random", "--pose", help="random[:SEED], tpose or bvh:FILE[:FRAME] (a BVH file, frame 0 by default)."),
+    pose: str = typer.Option("random", "--pose",
+                             help="random[:SEED], tpose or bvh:FILE[:FRAME] (a BVH file, frame 0 by default)."),
     views: int = typer.Option(12, "--views", min=1, help="Number of turntable photos."),
     step_deg: float = typer.Option(30.0, "--step-deg", help="Turntable step between photos, degrees."),
-    jpeg: int = typer.Option(85, "--jpeg", min=1, max=100, help="The webcam's JPEG quality (images are written as JPEG)."),
+    jpeg: int = typer.Option(85, "--jpeg", min=1, max=100,
+                             help="The webcam's JPEG quality (images are written as JPEG)."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
 ):
     """The thesis's marked puppet on its turntable, photographed by the webcam; truth = pose, 3D

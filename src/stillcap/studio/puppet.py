@@ -47,7 +47,8 @@ from stillcap.studio.scene import Backdrop, Capsule, PointLight, Scene, Sphere, 
 from stillcap.studio.sensor import Sensor, srgb_to_linear
 
 __all__ = ["BLACK", "PUPPET_LIMBS", "PuppetScene", "PuppetTruth", "marker_visibility", "pose_from_spec",
-           "puppet_bodies", "puppet_collisions", "puppet_scene", "random_pose", "view_scene", "webcam_sensor"]
+           "puppet_bodies", "puppet_collisions", "puppet_scene", "random_pose", "turn_angle_deg", "view_scene",
+           "webcam_sensor"]
 
 #: Albedo of the flat-black paint on the puppet and the panels.
 BLACK = 0.035
@@ -74,10 +75,10 @@ def _limbs() -> tuple:
            ("torso", "lower-back", (0, 0, 0), (0, 40, 0), 8.0),
            ("neck", "upper-back", (0, 0, 0), (0, 15, 0), 3.5),
            ("head", "upper-back", (0, 15, 0), (0, 30, 0), 9.0)]
+    flip = np.array([-1.0, 1.0, 1.0])  # left -> right: mirror x
     for name, joint, a, b, r in left:
         out.append((f"{name}.l", joint, a, b, r))
-        mirror = lambda v: (-v[0], v[1], v[2])  # noqa: E731
-        out.append((f"{name}.r", joint.replace("l-", "r-"), mirror(a), mirror(b), r))
+        out.append((f"{name}.r", joint.replace("l-", "r-"), flip * a, flip * b, r))
     return tuple((n, j, np.array(a, float) / 1000, np.array(b, float) / 1000, r / 1000) for n, j, a, b, r in out)
 
 
@@ -122,7 +123,7 @@ def puppet_bodies(pose: Pose, markerset: MarkerSet | None = None) -> list[tuple]
         linear albedos.
     """
     markerset = markerset or MarkerSet.puppet()
-    a, b, r = _segments(pose, markerset)
+    a, b, _ = _segments(pose, markerset)
     placed = []
     for (name, _, _, _, rad), p0, p1 in zip(PUPPET_LIMBS, a, b):
         v = p1 - p0
@@ -276,17 +277,6 @@ def pose_from_spec(spec: str, rng=None, skeleton: Skeleton | None = None) -> tup
 
 
 # --- visibility ------------------------------------------------------------------------------
-def _first_hit(placed: list, origin, dirs, skip: int) -> np.ndarray:
-    """Distance along unit world rays ``dirs`` (N, 3) from ``origin`` to the nearest body but ``skip``."""
-    t = np.full(len(dirs), np.inf)
-    for k, (body, T) in enumerate(placed):
-        if k == skip:
-            continue
-        R, p = T[:3, :3], T[:3, 3]
-        t = np.minimum(t, _hit(body, R.T @ (origin - p), dirs @ R))
-    return t
-
-
 _GOLDEN = np.pi * (3 - np.sqrt(5))
 
 
@@ -306,35 +296,39 @@ def marker_visibility(camera: Camera, placed: list, bead_index, n_rays: int = 48
     Returns
     -------
     visible : np.ndarray of bool, shape (n_beads,)
-        The line of sight to the bead centre reaches the bead before any other body (and the
-        centre projects inside the image).
+        The line of sight to the bead centre reaches the bead before any other body, and the
+        centre projects inside the image.
     coverage : np.ndarray, shape (n_beads,)
         Fraction of the bead's silhouette where the bead is the nearest body.
     """
     o = camera.center
     W, H = camera.image_size
+    bead_index = np.asarray(bead_index, int)
     k = np.arange(n_rays)
     rho, phi = 0.95 * np.sqrt((k + 0.5) / n_rays), k * _GOLDEN  # sunflower: area-uniform on the disc
-    visible = np.zeros(len(bead_index), bool)
-    coverage = np.zeros(len(bead_index))
-    for i, bi in enumerate(bead_index):
+    disc = np.concatenate([[[0.0, 0.0]], np.stack([rho * np.cos(phi), rho * np.sin(phi)], 1)])  # centre first
+    dirs, t_bead = [], []
+    for bi in bead_index:  # rays from the camera through each bead's silhouette disc
         body, T = placed[bi]
         c, r = T[:3, 3], body.radius
         u = (c - o) / np.linalg.norm(c - o)
         e1 = np.cross(u, [0.0, 1.0, 0.0] if abs(u[1]) < 0.9 else [1.0, 0.0, 0.0])
         e1 /= np.linalg.norm(e1)
-        e2 = np.cross(u, e1)
-        pts = c + r * (rho * np.cos(phi))[:, None] * e1 + r * (rho * np.sin(phi))[:, None] * e2
-        d = np.vstack([u, pts - o])
+        d = c + r * (disc[:, :1] * e1 + disc[:, 1:] * np.cross(u, e1)) - o
         d /= np.linalg.norm(d, axis=1, keepdims=True)
-        t_bead = _hit(body, o - c, d)  # sphere frame: a translation
-        t_other = _first_hit(placed, o, d, bi)
-        clear = t_bead < t_other
-        coverage[i] = clear[1:].mean()
-        px = camera.project(c)
-        inside = bool(np.all(np.isfinite(px)) and np.all(px >= -0.5) and px[0] <= W - 0.5 and px[1] <= H - 0.5)
-        visible[i] = bool(clear[0]) and inside
-    return visible, coverage
+        dirs.append(d)
+        t_bead.append(_hit(body, o - c, d))  # sphere frame = a translation
+    d, t_bead = np.concatenate(dirs), np.concatenate(t_bead)
+    owner = np.repeat(bead_index, n_rays + 1)
+    t_other = np.full(len(d), np.inf)
+    for j, (body, T) in enumerate(placed):
+        R, p = T[:3, :3], T[:3, 3]
+        t = _hit(body, R.T @ (o - p), d @ R)
+        t_other = np.minimum(t_other, np.where(owner == j, np.inf, t))
+    clear = (t_bead < t_other).reshape(len(bead_index), n_rays + 1)
+    px = camera.project(np.array([placed[bi][1][:3, 3] for bi in bead_index]).reshape(-1, 3))
+    inside = np.all(np.isfinite(px), axis=1) & np.all((px >= -0.5) & (px <= [W - 0.5, H - 0.5]), axis=1)
+    return clear[:, 0] & inside, clear[:, 1:].mean(axis=1)
 
 
 # --- truth and scenario -----------------------------------------------------------------------
@@ -370,7 +364,7 @@ class PuppetTruth:
     visible : np.ndarray of bool, shape (n_views, n_markers)
     coverage : np.ndarray, shape (n_views, n_markers)
         Fraction of each bead's silhouette where the bead is the nearest body (1 = unobstructed;
-        a bead whose centre is hidden may still show an edge; 0 behind the camera).
+        a bead whose centre is hidden may still show an edge).
     source : dict
         Where the pose came from (:func:`pose_from_spec`): random seed, T-pose or BVH file + frame.
     """
@@ -496,6 +490,7 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
     markerset.check_skeleton(pose.skeleton)
     placed = puppet_bodies(pose, markerset)
     beads = list(range(len(PUPPET_LIMBS), len(PUPPET_LIMBS) + len(markerset)))
+    truth_pos = markerset.positions(pose)
     n, nm = len(rig), len(markerset)
     px = np.full((n, nm, 2), np.nan)
     vis = np.zeros((n, nm), bool)
@@ -503,14 +498,12 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
     images = []
     for i, cam in enumerate(rig):
         scene = view_scene(placed, cam)
-        v, c = marker_visibility(cam, list(scene.static), beads)
-        centres = np.array([placed[b][1][:3, 3] for b in beads])
-        px[i, v] = cam.project(centres)[v]
-        vis[i], cov[i] = v, np.where(np.isfinite(cam.project(centres)).all(axis=1), c, 0.0)
+        vis[i], cov[i] = marker_visibility(cam, list(scene.static), beads)
+        px[i, vis[i]] = cam.project(truth_pos[vis[i]])
         images.append(render(cam, scene, sensor, rng, supersample))
         if progress is not None:
             progress(i + 1, n)
-    truth = PuppetTruth(list(markerset.names), markerset.positions(pose),
+    truth = PuppetTruth(list(markerset.names), truth_pos,
                         np.array([placed[b][0].albedo for b in beads]),
                         np.array([m.diameter for m in markerset.markers]),
                         list(pose.skeleton.names), pose.positions.copy(), pose.local_rotations.copy(),
