@@ -1,0 +1,163 @@
+"""Ball detection in strobe photos: centre accuracy (ellipse vs known-radius Hough), detection
+rate, markers, stereo 3D error and time per photo.
+
+    python benchmarks/bench_ball_detect.py [--photos 30] [--pairs 6] [--seed 0]
+
+Photos are drawn by the exact sphere drawing of ``tests/detect/test_ball.py``: 2560x1920 px,
+8 ball images of radius 20-32 px along a line (the seed's front pair: a 73.7 mm ball at 3.5 m
+with a 2560 px sensor), each with the seed's 12 painted markers in a random orientation, a
+0.6 px optical blur, gamma 2.2, noise sigma 2 grey levels, JPEG quality 92 (4:2:0 chroma).
+Conditions: lit from the camera (full disc), from the side (half moon), from the side and
+front (gibbous), from a little behind (crescent), and overlapping images (spacing 1.3-1.6
+radii, one silhouette). The Hough refinement gets the true radius, as the stereo pipeline
+provides it from the triangulated centre (its radius error there is ~0.1 px).
+The stereo rows run the whole pipeline (``ball_centers_stereo``) on the seed's front pair
+(0.8 m vertical baseline, 3.5 m away, lens distortion on one camera).
+Goal: a 2560x1920 photo well under 0.3 s, within 3x of decoding it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from detect.test_ball import (FLIGHT, R_BALL, baseball_markers, draw_balls,  # noqa: E402
+                              draw_balls_camera, flight_balls, front_pair)
+
+from stillcap.detect.ball import ball_centers_stereo, detect_balls, refine_centers  # noqa: E402
+from stillcap.detect.ball_markers import detect_ball_markers  # noqa: E402
+
+SIZE = (1920, 2560)
+CONDITIONS = [
+    ("full disc", (0.0, 0.0, -1.0), (2.4, 3.2)),
+    ("half moon", (1.0, 0.0, 0.0), (2.4, 3.2)),
+    ("gibbous", (0.8, 0.2, -0.55), (2.4, 3.2)),
+    ("crescent", (0.9, 0.0, 0.3), (2.4, 3.2)),
+    ("overlapping", (0.0, 0.0, -1.0), (1.3, 1.6)),
+]
+
+
+def match(found, truth, max_px=3.0):
+    """Greedy one-to-one match of found centres to truth centres within max_px."""
+    if len(found) == 0:
+        return np.full(len(truth), -1)
+    d = np.linalg.norm(found[None] - truth[:, None], axis=2)
+    out = np.full(len(truth), -1)
+    for flat in np.argsort(d, axis=None):
+        i, j = np.unravel_index(flat, d.shape)
+        if d[i, j] > max_px:
+            break
+        if out[i] < 0 and j not in out:
+            out[i] = j
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--photos", type=int, default=30, help="photos per condition")
+    ap.add_argument("--pairs", type=int, default=6, help="stereo pairs per lighting")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    con = Console(width=230)
+
+    tab = Table(title=f"Ball centres, {args.photos} photos x 8 balls per condition, 2560x1920, r 20-32 px")
+    for col in ("condition", "detected", "flags", "ellipse mean px", "ellipse max px", "Hough mean px",
+                "Hough max px", "markers found", "marker type ok", "marker err px", "detect ms",
+                "refine ms", "markers ms"):
+        tab.add_column(col, justify="right")
+    decode = []
+    for name, light, spacing in CONDITIONS:
+        n_true = n_det = n_mk = n_mk_found = n_type = 0
+        e_ell, e_h, e_mk, t_det, t_ref, t_mk, flags = [], [], [], [], [], [], []
+        for p in range(args.photos):
+            seed = 1000 * args.seed + p
+            balls = flight_balls(seed, n=8, size=SIZE, r_range=(20, 32), spacing=spacing)
+            mk = [baseball_markers(100 * seed + b) for b in range(8)]
+            img, truth = draw_balls(SIZE, balls, light=light, markers=mk, rng=seed)
+            if name == "full disc" and p < 5:
+                ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 92])
+                t = time.perf_counter()
+                cv2.imdecode(buf, cv2.IMREAD_COLOR)
+                decode.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            det = detect_balls(img)
+            t_det.append(time.perf_counter() - t)
+            m = match(det.centers, balls[:, :2], max_px=0.6 * balls[:, 2].mean())
+            ok = m >= 0
+            n_true += len(balls)
+            n_det += int(ok.sum())
+            flags.extend(det.flags)
+            e_ell.append(np.linalg.norm(det.centers[m[ok]] - balls[ok, :2], axis=1))
+            t = time.perf_counter()
+            ref = refine_centers(img, det.centers[m[ok]], balls[ok, 2])
+            t_ref.append(time.perf_counter() - t)
+            e_h.append(np.linalg.norm(ref.centers - balls[ok, :2], axis=1))
+            t = time.perf_counter()
+            mm = detect_ball_markers(img, ref.centers, balls[ok, 2])
+            t_mk.append(time.perf_counter() - t)
+            ball_of = np.flatnonzero(ok)
+            lit = np.asarray(light, float)
+            for tr in truth:  # markers within 60 deg of the view and lit
+                if not (tr["direction"][2] < -0.5 and tr["direction"] @ lit > 0.35) or tr["ball"] not in ball_of:
+                    continue
+                n_mk += 1
+                bi = int(np.flatnonzero(ball_of == tr["ball"])[0])
+                cand = np.flatnonzero(mm.ball_index == bi)
+                if len(cand) == 0:
+                    continue
+                d = np.linalg.norm(mm.centers[cand] - tr["xy"], axis=1)
+                if d.min() < 3:
+                    n_mk_found += 1
+                    n_type += mm.types[cand[np.argmin(d)]] == tr["type"]
+                    e_mk.append(d.min())
+        e_ell, e_h = np.concatenate(e_ell), np.concatenate(e_h)
+        bits = np.bitwise_or.reduce(np.array(flags, int)) if flags else 0
+        names = [f for f, b in (("MERGED", 2), ("SPLIT", 4), ("PARTIAL", 8)) if bits & b]
+        tab.add_row(name, f"{n_det}/{n_true}", ",".join(names) or "-", f"{e_ell.mean():.2f}", f"{e_ell.max():.2f}",
+                    f"{e_h.mean():.3f}", f"{e_h.max():.3f}", f"{n_mk_found}/{n_mk}", f"{n_type}/{n_mk_found}",
+                    f"{np.mean(e_mk):.2f}" if e_mk else "-", f"{1e3 * np.mean(t_det):.0f}",
+                    f"{1e3 * np.mean(t_ref):.0f}", f"{1e3 * np.mean(t_mk):.0f}")
+        con.print(f"[dim]{name} done[/dim]")
+    con.print(tab)
+    con.print(f"JPEG decode of a 2560x1920 photo: {1e3 * np.mean(decode):.0f} ms (cv2.imdecode)")
+
+    st = Table(title=f"Stereo pipeline (ball_centers_stereo), seed front pair, {args.pairs} pairs x 8 balls")
+    for col in ("lighting", "matched", "ellipse 3D mean mm", "ellipse 3D max mm", "Hough 3D mean mm",
+                "Hough 3D max mm", "reproj rms px", "ms per pair"):
+        st.add_column(col, justify="right")
+    a, b = front_pair()
+    for name, lw in (("full disc", None), ("half moon", (1.0, 0.0, 0.0))):
+        e0, e1, rp, tt, nm = [], [], [], [], 0
+        for p in range(args.pairs):
+            rng = np.random.default_rng(1000 * args.seed + p)
+            X = FLIGHT + rng.uniform(-0.2, 0.2, 3)
+            ia = draw_balls_camera(a, X, R_BALL, light_world=lw, rng=2 * p)
+            ib = draw_balls_camera(b, X, R_BALL, light_world=lw, rng=2 * p + 1)
+            t = time.perf_counter()
+            res = ball_centers_stereo(a, ia, b, ib, R_BALL)
+            tt.append(time.perf_counter() - t)
+            nm += len(res)
+            if len(res) == 0:
+                continue
+            d = np.linalg.norm(res.points_3d[:, None] - X[None], axis=2)
+            j = d.argmin(axis=1)
+            e1.append(d.min(axis=1))
+            e0.append(np.linalg.norm(res.points_3d_initial - X[j], axis=1))
+            rp.append(res.reproj_error_px)
+        e0, e1, rp = np.concatenate(e0), np.concatenate(e1), np.concatenate(rp)
+        st.add_row(name, f"{nm}/{8 * args.pairs}", f"{1e3 * e0.mean():.2f}", f"{1e3 * e0.max():.2f}",
+                   f"{1e3 * e1.mean():.2f}", f"{1e3 * e1.max():.2f}", f"{np.sqrt(np.mean(rp ** 2)):.3f}",
+                   f"{1e3 * np.mean(tt[1:] if len(tt) > 1 else tt):.0f}")
+    con.print(st)
+
+
+if __name__ == "__main__":
+    main()
