@@ -180,7 +180,7 @@ def test_cross_plane_reaches_front_of_plate():
 def test_bad_input_names_shape():
     with pytest.raises(ValueError, match=r"p0 must have shape \(3,\), got \(2,\)"):
         simulate([0, 1], V0, BACKSPIN, [0.1])
-    with pytest.raises(ValueError, match=r"times must have shape \(N\), got \(2, 2\)"):
+    with pytest.raises(ValueError, match=r"times must have shape \(N,\), got \(2, 2\)"):
         simulate(P0, V0, BACKSPIN, np.zeros((2, 2)))
     with pytest.raises(ValueError, match=r"v0 must have shape"):
         simulate_batch(P0, np.zeros((2, 4)), BACKSPIN, [0.1])
