@@ -172,7 +172,8 @@ def test_classify_shape_is_affine_invariant(shape):
         elif shape == "square":
             pts = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
         else:
-            pts = np.stack([np.cos(np.pi / 2 + 2 * np.pi * np.arange(3) / 3), np.sin(np.pi / 2 + 2 * np.pi * np.arange(3) / 3)], 1)
+            a3 = np.pi / 2 + 2 * np.pi * np.arange(3) / 3
+            pts = np.stack([np.cos(a3), np.sin(a3)], 1)
         # random rotation, squash to 0.5-1 (foreshortening), 9-13 px radius, drawn at 8x
         a = rng.uniform(0, np.pi)
         Rm = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])

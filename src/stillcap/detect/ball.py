@@ -349,9 +349,9 @@ def _split_merged(contour: np.ndarray, min_sep: float, min_dip: float = 0.06):
     Each maximum's circle is then fitted to the contour points that lie on it (points near the
     notches, on two circles, are left out).
 
-    Returns a list of (centre (2,), radius, rms residual) per ball image: one entry for a
-    single ball; the entries' centres are circle fits, or the distance maximum where the fit is
-    poor (a partly lit ball).
+    Returns a list of (centre (2,), radius, rms residual) per ball image, empty when the
+    silhouette holds one ball; centres are circle fits, or the distance maximum (rms ``inf``)
+    where no circle fits (a partly lit ball).
     """
     pts = contour.reshape(-1, 2)
     x0, y0 = pts.min(axis=0) - 2
@@ -473,7 +473,8 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         the distance transform at least ``merge_min_sep`` px and 0.35 radius apart). Several
         found: the silhouette is ``MERGED`` and each ball is returned (``SPLIT``) with the centre
         of a circle fitted to its own outer arc, or of its distance maximum (``PARTIAL``) where no
-        circle fits (overlapping half moons).
+        circle fits (overlapping half moons; accepted only for a silhouette at least 1.35 times
+        the photo's median silhouette area, since a marker's notch can pinch one half moon).
     partial_ratio, partial_fill : float
         Silhouettes whose ellipse minor/major axis ratio is below ``partial_ratio``, or whose
         hull fills less than ``partial_fill`` of the ellipse, are flagged ``PARTIAL`` (half
@@ -497,7 +498,7 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     if keep_mask:
         mask = np.zeros_like(raw)
         cv2.drawContours(mask, contours, -1, 255, -1)
-    rows = []
+    sil = []
     for ci, c in enumerate(contours):
         area = cv2.contourArea(c)
         if area < min_area or (max_area is not None and area > max_area) or len(c) < 5:
@@ -506,8 +507,11 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         hull = c[hull_idx.ravel()]
         if len(hull) < 5:
             continue
-        ell = cv2.fitEllipse(hull)
-        hull_area = cv2.contourArea(hull)
+        sil.append((ci, c, area, cv2.fitEllipse(hull), cv2.contourArea(hull)))
+    # the typical silhouette of this photo: ball images of one pitch differ little in size
+    typical = float(np.median([s_[2] for s_ in sil])) if len(sil) >= 3 else np.inf
+    rows = []
+    for ci, c, area, ell, hull_area in sil:
         x, y, bw, bh = cv2.boundingRect(c)
         flag = BallFlag.NONE
         if x <= 0 or y <= 0 or x + bw >= W or y + bh >= H:
@@ -517,6 +521,11 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         pieces = []
         if min(ew, eh) < merge_ratio * max(ew, eh) or area < merge_solidity * hull_area:
             pieces = _split_merged(c, min_sep=merge_min_sep)
+            # Pieces that are not discs (partly lit balls) are several balls only if the
+            # silhouette is clearly larger than this photo's typical one: a dark marker's notch
+            # can pinch a single half moon or crescent into two lobes.
+            if pieces and not all(np.isfinite(p_[2]) for p_ in pieces) and area < 1.35 * typical:
+                pieces = []
         if pieces:
             for pc, pr, rms in pieces:
                 f = flag | BallFlag.MERGED | (BallFlag.SPLIT if np.isfinite(rms) else BallFlag.PARTIAL)

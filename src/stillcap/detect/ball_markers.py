@@ -168,8 +168,8 @@ def _shape_features(region: np.ndarray):
         return holes / a_out, np.nan
     white = v @ np.diag(1 / np.sqrt(w)) @ v.T
     p = cs[main].reshape(-1, 2).astype(float) - (m["m10"] / m["m00"], m["m01"] / m["m00"])
-    rad = np.linalg.norm(p @ white.T, axis=1)
-    spread = float(np.percentile(rad, 98) / max(np.percentile(rad, 2), 1e-9))
+    rad = np.sort(np.linalg.norm(p @ white.T, axis=1))
+    spread = float(rad[int(0.98 * (len(rad) - 1))] / max(rad[int(0.02 * (len(rad) - 1))], 1e-9))
     return holes / a_out, spread
 
 
@@ -398,7 +398,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
 
 
 def _measure(comp, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, limb_fraction, min_aspect):
-    """Centroid, shape, confidence and flags of one colour region."""
+    """Centroid, shape, confidence and flags of one colour region (bounding box + 2 px only)."""
+    bx, by, bw, bh = (int(v) for v in st[:4])
+    y0, x0 = max(by - 2, 0), max(bx - 2, 0)
+    y1, x1 = min(by + bh + 2, comp.shape[0]), min(bx + bw + 2, comp.shape[1])
+    sl = (slice(y0, y1), slice(x0, x1))
+    comp, soft, dark_luma, X, Y, disc = comp[sl], soft[sl], dark_luma[sl], X[sl], Y[sl], disc[sl]
     # luma-darkness weighted centroid over the region grown by one pixel: partly covered edge
     # pixels count in proportion, which makes the centroid sub-pixel (cf. detect/blobs.py)
     grown = cv2.dilate(comp.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & disc
@@ -407,30 +412,27 @@ def _measure(comp, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, 
     if sw <= 0:
         return None
     cen = np.array([float((w * X).sum() / sw), float((w * Y).sum() / sw)])
-    # second moments of the membership: aspect (foreshortening)
+    # second moments of the weights: aspect (foreshortening)
     dx, dy = X - cen[0], Y - cen[1]
-    cov = np.array([[(w * dx * dx).sum(), (w * dx * dy).sum()], [(w * dx * dy).sum(), (w * dy * dy).sum()]]) / sw
-    ev = np.linalg.eigvalsh(cov)
+    cxx, cxy, cyy = (w * dx * dx).sum() / sw, (w * dx * dy).sum() / sw, (w * dy * dy).sum() / sw
+    ev = np.linalg.eigvalsh(np.array([[cxx, cxy], [cxy, cyy]]))
     aspect = float(np.sqrt(max(ev[0], 0) / ev[1])) if ev[1] > 0 else 1.0
     flags = MarkerFlag.NONE
     if np.hypot(cen[0] - cx, cen[1] - cy) > limb_fraction * r:
         flags |= MarkerFlag.NEAR_LIMB
     if aspect < min_aspect:
         flags |= MarkerFlag.FORESHORTENED
-    ring_edge = disc & ~cv2.erode(disc.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    if np.any(comp & ring_edge):
+    inner = cv2.erode(np.pad(disc, 1).astype(np.uint8), np.ones((3, 3), np.uint8))[1:-1, 1:-1].astype(bool)
+    if np.any(comp & ~inner):
         flags |= MarkerFlag.AT_EDGE
-    # shape from the membership map upsampled x4 and cut at half its peak: a smooth outline
-    # even for a 5 px marker (a binary mask's staircase would pass for a square)
+    # shape from the weights upsampled x4 and cut at half their peak: a smooth outline even
+    # for a 5 px marker (a binary mask's staircase would pass for a square)
     shape = "unknown"
     if area >= 20 and aspect >= min_aspect:
-        bx, by, bw, bh = st[0], st[1], st[2], st[3]
-        y0, x0 = max(by - 1, 0), max(bx - 1, 0)
-        sub = w[y0:by + bh + 1, x0:bx + bw + 1].astype(np.float32)
-        big = cv2.resize(sub, None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)
+        big = cv2.resize(w.astype(np.float32), None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)
         big = cv2.copyMakeBorder(big, 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
-        cut = (big >= 0.5 * float(np.percentile(sub[sub > 0], 90))).astype(np.uint8) * 255
-        shape = _shape_name(*_shape_features(cut), 0.06)
+        peak = float(np.partition(w[w > 0], int(0.9 * (np.count_nonzero(w) - 1)))[int(0.9 * (np.count_nonzero(w) - 1))])
+        shape = _shape_name(*_shape_features((big >= 0.5 * peak).astype(np.uint8) * 255), 0.06)
     elif area < 20:
         flags |= MarkerFlag.SMALL
     col = float(np.clip(soft[comp].mean(), 0, 1))
