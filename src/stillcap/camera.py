@@ -44,7 +44,7 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     if np.linalg.norm(z) == 0:
         raise ValueError("look_at: eye and target are the same point")
     z = z / np.linalg.norm(z)
-    x = np.cross(z, -as_array(up, (3,), "up"))
+    x = np.cross(z, as_array(up, (3,), "up"))  # right = forward x up
     if np.linalg.norm(x) < 1e-12:
         raise ValueError("look_at: viewing direction is parallel to 'up'")
     x /= np.linalg.norm(x)

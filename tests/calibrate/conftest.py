@@ -83,7 +83,9 @@ def synthetic_rig(n_cams=4, n_instants=14, noise_px=0.3, rng=0, square=0.06, nam
     for i, a in enumerate(np.radians(np.linspace(-50, 50, n_cams))):
         eye = np.array([2.2 * np.sin(a), -2.2 * np.cos(a), 1.0 + 0.3 * (i % 2)])
         cams.append(make_camera(names[i], fx=820 + 15 * i, fy=820 + 15 * i, cx=320 + 3 * i, cy=240 - 2 * i,
-                                dist=(-0.1, 0.02, 0, 0, 0), world2cam=look_at(eye, (0, 0, 1.0))))
+                                dist=(-0.1, 0.02, 0, 0, 0),
+                                # rolled 180 deg (up = -z): the scenario these tests were written for
+                                world2cam=look_at(eye, (0, 0, 1.0), up=(0, 0, -1))))
     R0 = np.column_stack([[1, 0, 0], [0, 0, -1], [0, 1, 0]]).astype(float)  # board facing -y, rows down
     views = {c.name: [] for c in cams}
     b2w_true = []
