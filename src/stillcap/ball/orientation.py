@@ -43,7 +43,7 @@ from scipy.optimize import least_squares, minimize
 from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array, as_rng
-from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
+from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout, _triad
 
 RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
 
@@ -58,6 +58,73 @@ def _unit_rows(a, name):
         bad = np.flatnonzero(~(n > 0))
         raise ValueError(f"{name} must be non-zero and finite, rows {bad.tolist()} are not")
     return a / n[:, None]
+
+
+def _expmap(rotvecs) -> np.ndarray:
+    """Rotation matrices of rotation vectors, shape (..., 3) -> (..., 3, 3) (Rodrigues).
+
+    Hand-written because it runs inside the least-squares residuals, where building scipy
+    ``Rotation`` objects costs more than the rest of the residual.
+    """
+    v = np.asarray(rotvecs, float)
+    th2 = np.einsum("...i,...i->...", v, v)
+    th = np.sqrt(th2)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    c = 1.0 - b * th2  # cos(theta)
+    R = (b[..., None, None] * v[..., :, None]) * v[..., None, :]
+    av = a[..., None] * v
+    R[..., 0, 0] += c
+    R[..., 1, 1] += c
+    R[..., 2, 2] += c
+    R[..., 0, 1] -= av[..., 2]
+    R[..., 1, 0] += av[..., 2]
+    R[..., 0, 2] += av[..., 1]
+    R[..., 2, 0] -= av[..., 1]
+    R[..., 1, 2] -= av[..., 0]
+    R[..., 2, 1] += av[..., 0]
+    return R
+
+
+def _skew(v) -> np.ndarray:
+    """Cross-product matrices ``[v]x``, shape (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, float)
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
+
+
+def _left_jacobian(rotvecs) -> np.ndarray:
+    """Left Jacobian of SO(3), ``d exp(phi + e) = exp(J_l(phi) e) exp(phi)``: (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(rotvecs, float)
+    th2 = np.einsum("...i,...i->...", v, v)
+    th = np.sqrt(th2)
+    small = th < 1e-4
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths ** 3))
+    K = _skew(v)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def _phi_over_sin(c):
+    """``arccos(c) / sqrt(1 - c^2)`` (1 at c = 1), for the log-map residual."""
+    s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
+    small = s < 1e-6
+    return np.where(small, 1.0 + (1.0 - c) / 3.0, np.arctan2(s, c) / np.where(small, 1.0, s))
+
+
+def _dphi_over_sin(c):
+    """Derivative of :func:`_phi_over_sin` with respect to c (-1/3 at c = 1)."""
+    s2 = np.maximum(1.0 - c * c, 0.0)
+    s = np.sqrt(s2)
+    small = s < 1e-4
+    ss = np.where(small, 1.0, s)
+    return np.where(small, -1.0 / 3.0, (-1.0 + np.arctan2(s, c) * c / ss) / np.where(small, 1.0, s2))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -259,15 +326,6 @@ def strobe_period(times) -> float:
 # ----------------------------------------------------------------------------------------------
 # Per-flash orientation from marker types (no temporal information)
 # ----------------------------------------------------------------------------------------------
-def _triads(p, q):
-    """Orthonormal frames (H, 3, 3), columns, from unit vectors p, q (H, 3), symmetric in p, q."""
-    e1 = p + q
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = p - q
-    e2 /= np.linalg.norm(e2, axis=1, keepdims=True)
-    return np.stack([e1, e2, np.cross(e1, e2)], axis=-1)
-
-
 def _nearest_same_type(R, u, t, layout):
     """For rotations R (H,3,3): angle (rad) from each observation u (n,3) of type t (n,) to the
     nearest rotated model marker of its type, and that marker's index: (H, n), (H, n)."""
@@ -384,7 +442,7 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     if not hyp_a:
         return FlashOrientation(nan3, np.inf, 0, np.nan, np.full(len(u), -1), np.inf, [], False)
     ha, hb, hi, hj = (np.array(x) for x in (hyp_a, hyp_b, hyp_i, hyp_j))
-    R = _triads(u[ha], u[hb]) @ np.transpose(_triads(m[hi], m[hj]), (0, 2, 1))
+    R = _triad(u[ha], u[hb]) @ np.transpose(_triad(m[hi], m[hj]), (0, 2, 1))
     d, _ = _nearest_same_type(R, u, t, layout)
     cost = np.sum(np.minimum(d, cap) ** 2, axis=1)
     order = np.argsort(cost)
@@ -420,17 +478,823 @@ def _rot_angle(Ra, Rb) -> float:
 
 
 def _refine(R, u, t, layout, cap, iters: int = 5):
-    """Re-assign nearest same-type markers and realign the inliers (Kabsch)."""
-    cost = np.inf
+    """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best."""
+    d, j = _nearest_same_type(R[None], u, t, layout)
+    best = (R, float(np.sum(np.minimum(d[0], cap) ** 2)))
     for _ in range(iters):
-        d, j = _nearest_same_type(R[None], u, t, layout)
-        d, j = d[0], j[0]
-        cost_new = float(np.sum(np.minimum(d, cap) ** 2))
-        inl = d < cap
-        if inl.sum() < 2 or cost_new >= cost - 1e-12:
-            cost = min(cost, cost_new)
+        inl = d[0] < cap
+        if inl.sum() < 2:
             break
-        cost = cost_new
-        R = _kabsch(layout.directions[j[inl]], u[inl])
-    d, _ = _nearest_same_type(R[None], u, t, layout)
-    return R, float(np.sum(np.minimum(d[0], cap) ** 2))
+        R = _kabsch(layout.directions[j[0][inl]], u[inl])
+        d, j = _nearest_same_type(R[None], u, t, layout)
+        cost = float(np.sum(np.minimum(d[0], cap) ** 2))
+        if cost >= best[1] - 1e-12:
+            break
+        best = (R, cost)
+    return best
+
+
+# ----------------------------------------------------------------------------------------------
+# Results
+# ----------------------------------------------------------------------------------------------
+@dataclass
+class SpinResult:
+    """Spin of a ball from its markers over several flashes.
+
+    Attributes
+    ----------
+    spin : ndarray, shape (3,)
+        Spin vector, rad/s, world frame (right-hand rule). The principal alias unless the fit
+        was started at another one (module docstring).
+    spin_rpm : float
+        ``|spin|`` in revolutions per minute.
+    axis : ndarray, shape (3,)
+        ``spin / |spin|`` (NaN without spin).
+    sigma_rpm : float
+        1-sigma of the spin rate, rpm.
+    sigma_axis_deg : float
+        1-sigma of the axis direction per component (RMS over the two directions
+        perpendicular to the axis), deg. The 95 % cone half-angle is about 2.45 times this.
+    spin_covariance : ndarray, shape (3, 3)
+        Covariance of ``spin``, (rad/s)^2.
+    ball2world_t0 : ndarray, shape (3, 3)
+        Orientation at ``t0`` (global fit; for the seed method the first determined flash
+        rotated back with the spin).
+    t0 : float
+        Reference time, s.
+    times : ndarray, shape (K,)
+        Flash times, s.
+    strobe_hz : float
+        Flash frequency used for rates and aliasing.
+    orientations : ndarray, shape (K, 3, 3)
+        ``ball2world`` at each flash (NaN where the seed method could not determine it).
+    residuals_deg : ndarray, shape (M,)
+        Angle from each observation to the rotated model marker it was assigned to (NaN if
+        its flash has no orientation).
+    assigned : ndarray of int, shape (M,)
+        Model marker of each observation (-1 if none).
+    inliers : ndarray of bool, shape (M,)
+        Observations used by the final fit.
+    rms_deg : float
+        RMS residual angle of the inliers.
+    n_observations, n_inliers : int
+    success : bool
+    message : str
+    method : str
+        ``"global"`` or ``"seed"``.
+    fit_time_s : float
+    """
+
+    spin: np.ndarray
+    spin_rpm: float
+    axis: np.ndarray
+    sigma_rpm: float
+    sigma_axis_deg: float
+    spin_covariance: np.ndarray
+    ball2world_t0: np.ndarray
+    t0: float
+    times: np.ndarray
+    strobe_hz: float
+    orientations: np.ndarray
+    residuals_deg: np.ndarray
+    assigned: np.ndarray
+    inliers: np.ndarray
+    rms_deg: float
+    n_observations: int
+    n_inliers: int
+    success: bool
+    message: str
+    method: str
+    fit_time_s: float = 0.0
+
+    @property
+    def rotation_per_interval_deg(self) -> float:
+        """Rotation between consecutive flashes, deg (above 180: not the principal alias)."""
+        return float(np.degrees(np.linalg.norm(self.spin) / self.strobe_hz))
+
+    def orientation_at(self, t) -> Rotation:
+        """``ball2world`` at time(s) ``t`` under constant spin: ``exp([w](t - t0)) R0``."""
+        t = np.asarray(t, float)
+        rv = np.multiply.outer(t - self.t0, self.spin)
+        return Rotation.from_rotvec(rv) * Rotation.from_matrix(self.ball2world_t0)
+
+    def angle_errors_deg(self, spin_true) -> tuple[float, float]:
+        """``(rate error rpm, axis angle deg)`` against a known spin vector (tests, benchmarks)."""
+        w = as_array(spin_true, (3,), "spin_true")
+        rate = (np.linalg.norm(self.spin) - np.linalg.norm(w)) * RPM_PER_RAD_S
+        ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(self.spin, w)), self.spin @ w))
+        return float(rate), float(ang)
+
+    def to_dict(self) -> dict:
+        """Summary for JSON (units in the keys; NaN as None)."""
+        def f(x):
+            return float(x) if np.isfinite(x) else None
+        return {"spin_rad_s": [f(x) for x in self.spin], "spin_rpm": f(self.spin_rpm),
+                "axis": [f(x) for x in self.axis], "sigma_rpm": f(self.sigma_rpm),
+                "sigma_axis_deg": f(self.sigma_axis_deg), "strobe_hz": f(self.strobe_hz),
+                "rms_deg": f(self.rms_deg), "n_observations": int(self.n_observations),
+                "n_inliers": int(self.n_inliers), "success": bool(self.success),
+                "message": self.message, "method": self.method}
+
+
+def _spin_summary(w, cov):
+    """rate (rpm), axis, sigma_rpm, sigma_axis_deg from a spin vector and its covariance."""
+    n = float(np.linalg.norm(w))
+    if not n > 0:
+        return 0.0, np.full(3, np.nan), float(np.sqrt(np.trace(cov) / 3) * RPM_PER_RAD_S), np.nan
+    a = w / n
+    var_rate = float(a @ cov @ a)
+    P = np.eye(3) - np.outer(a, a)
+    var_perp = float(np.trace(P @ cov @ P)) / 2.0
+    return (n * RPM_PER_RAD_S, a, float(np.sqrt(max(var_rate, 0.0)) * RPM_PER_RAD_S),
+            float(np.degrees(np.sqrt(max(var_perp, 0.0)) / n)))
+
+
+def _failed(method, times, obs, message, t_start, strobe_hz):
+    k = len(times)
+    nan = np.nan
+    m = len(obs)
+    return SpinResult(np.full(3, nan), nan, np.full(3, nan), nan, nan, np.full((3, 3), nan),
+                      np.full((3, 3), nan), float(times[0]), times, strobe_hz,
+                      np.full((k, 3, 3), nan), np.full(m, nan), np.full(m, -1), np.zeros(m, bool),
+                      nan, m, 0, False, message, method, _time.perf_counter() - t_start)
+
+
+# ----------------------------------------------------------------------------------------------
+# Global fit of one constant spin
+# ----------------------------------------------------------------------------------------------
+def _tangent_bases(u):
+    """Two unit vectors (M, 3) each, perpendicular to the unit rows of u and to each other."""
+    ref = np.where(np.abs(u[:, [0]]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.cross(u, ref)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(u, t1)
+
+
+class _GlobalProblem:
+    """Residuals of the constant-spin model for fixed marker assignments."""
+
+    def __init__(self, times, obs, layout, t0):
+        self.dt = times - t0
+        self.obs = obs
+        self.u = obs.directions
+        self.t1, self.t2 = _tangent_bases(self.u)
+        self.layout = layout
+        self.flash = obs.flash
+
+    def rotations(self, R0, w):
+        """ball2world per flash, (K, 3, 3)."""
+        return _expmap(np.outer(self.dt, w)) @ R0
+
+    def assign(self, R0, w):
+        """Nearest same-type model marker and its angle for every observation."""
+        Rk = self.rotations(R0, w)[self.flash]  # (M, 3, 3)
+        model = np.einsum("mab,jb->mja", Rk, self.layout.directions)  # (M, 12, 3)
+        cos = np.einsum("ma,mja->mj", self.u, model)
+        same = self.layout.types[None, :] == self.obs.types[:, None]
+        cos = np.where(same, cos, -2.0)
+        j = cos.argmax(1)
+        return j, np.arccos(np.clip(cos[np.arange(len(j)), j], -1, 1))
+
+    def _predict(self, x, R0_ref, j, sel):
+        """Predicted marker directions p (m, 3), and the pieces the Jacobian needs."""
+        E0 = _expmap(x[:3])
+        v = (E0 @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
+        A = _expmap(np.outer(self.dt, x[3:]))[self.flash[sel]]  # (m, 3, 3)
+        p = np.einsum("mab,bm->ma", A, v)
+        return p, v.T, A
+
+    def residuals(self, x, R0_ref, j, sel):
+        """Log-map residuals (2 per observation, rad) at parameters x = (delta (3), w (3)):
+        the angle between observation u and prediction p as a vector in u's tangent plane."""
+        p, _, _ = self._predict(x, R0_ref, j, sel)
+        u = self.u[sel]
+        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
+        g = _phi_over_sin(c)
+        r1 = g * np.einsum("ma,ma->m", self.t1[sel], p)
+        r2 = g * np.einsum("ma,ma->m", self.t2[sel], p)
+        return np.concatenate([r1, r2])
+
+    def jacobian(self, x, R0_ref, j, sel):
+        """Analytic Jacobian of :meth:`residuals`, shape (2 m, 6)."""
+        p, v, A = self._predict(x, R0_ref, j, sel)
+        u, t1, t2 = self.u[sel], self.t1[sel], self.t2[sel]
+        dt = self.dt[self.flash[sel]]
+        # dp/d(delta) = -A [v]x J_l(delta);  dp/dw = -[p]x J_l(w dt) dt
+        dp_dd = -np.einsum("mab,mbc->mac", A, _skew(v)) @ _left_jacobian(x[:3])
+        dp_dw = -_skew(p) @ _left_jacobian(np.outer(dt, x[3:])) * dt[:, None, None]
+        dp = np.concatenate([dp_dd, dp_dw], axis=2)  # (m, 3, 6)
+        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
+        g = _phi_over_sin(c)
+        dg = _dphi_over_sin(c)
+        dc = np.einsum("ma,mak->mk", u, dp)
+        J1 = g[:, None] * np.einsum("ma,mak->mk", t1, dp) + (dg * (t1 * p).sum(1))[:, None] * dc
+        J2 = g[:, None] * np.einsum("ma,mak->mk", t2, dp) + (dg * (t2 * p).sum(1))[:, None] * dc
+        return np.concatenate([J1, J2], axis=0)
+
+
+def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None):
+    """Outer loop: assign nearest same-type markers, robust least squares, repeat."""
+    m = len(prob.u)
+    sel = np.ones(m, bool) if sel is None else sel
+    j_prev = None
+    res = None
+    for _ in range(max_outer):
+        j, _ = prob.assign(R0, w)
+        if j_prev is not None and np.array_equal(j[sel], j_prev[sel]):
+            break
+        j_prev = j
+        res = least_squares(prob.residuals, np.concatenate([np.zeros(3), w]), jac=prob.jacobian,
+                            args=(R0, j, sel), loss=loss, f_scale=f_scale, x_scale=x_scale,
+                            xtol=1e-9, ftol=1e-9, gtol=1e-9, max_nfev=100)
+        R0 = _expmap(res.x[:3]) @ R0
+        w = res.x[3:].copy()
+    j, d = prob.assign(R0, w)
+    return R0, w, j, d, res
+
+
+def _consensus_rotations(Rs, tol):
+    """Index set of the largest group of rotations within ``tol`` (rad) of one of them."""
+    n = len(Rs)
+    if n == 0:
+        return np.zeros(0, int)
+    ang = np.array([[_rot_angle(Rs[i], Rs[k]) for k in range(n)] for i in range(n)])
+    support = (ang < tol).sum(1)
+    best = int(np.argmax(support))
+    return np.flatnonzero(ang[best] < tol)
+
+
+def _mean_rotation(Rs):
+    return Rotation.from_matrix(np.asarray(Rs)).mean().as_matrix()
+
+
+def _per_flash_inits(times, flash_fit, period, t0, n_hyp: int = 3):
+    """Constant-spin starting points from per-flash type alignments (principal alias).
+
+    The relative rotations of flashes one interval apart, over the two best hypotheses of
+    each flash (a flash showing few markers can be ambiguous), are grouped; the best-supported
+    groups give spins, and the flash orientations rotated back to ``t0`` give ``R0``.
+    """
+    keys = sorted(flash_fit)
+    rel, who = [], []
+    for a, b in zip(keys[:-1], keys[1:]):
+        if times[b] - times[a] < 1.5 * period:  # one interval: the principal rotation is meaningful
+            for Rb in flash_fit[b].candidates[:2]:
+                for Ra in flash_fit[a].candidates[:2]:
+                    rel.append(Rb @ Ra.T)
+                    who.append(a)
+    if not rel:
+        return []
+    tol = np.radians(15.0)
+    ang = np.array([[_rot_angle(x, y) for y in rel] for x in rel])
+    who = np.array(who)
+    support = np.array([len(set(who[ang[i] < tol])) for i in range(len(rel))])
+    out, used = [], np.zeros(len(rel), bool)
+    for i in np.argsort(-support, kind="stable"):
+        if used[i]:
+            continue
+        grp = ang[i] < tol
+        used |= grp
+        w0 = Rotation.from_matrix(_mean_rotation([rel[g] for g in np.flatnonzero(grp)])).as_rotvec() / period
+        R0s = [_expmap(-w0 * (times[k] - t0)) @ R for k in keys for R in flash_fit[k].candidates[:2]]
+        idx = _consensus_rotations(R0s, np.radians(20.0))
+        out.append((_mean_rotation([R0s[g] for g in idx]), w0))
+        if len(out) >= n_hyp:
+            break
+    return out
+
+
+def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
+    """Best constant spins from a grid over the rotation per interval ``rho`` (|rho| <= pi).
+
+    For each anchor (a flash k_a and an orientation R_a of it) the orientation at flash k is
+    ``exp(rho (t_k - t_a) / T) R_a``; the capped cost over all observations is scanned on a
+    coarse grid, the best cells are refined on a finer local grid.
+    """
+    lay = prob.layout
+    same = [np.flatnonzero(lay.types == t) for t in range(lay.n_types)]
+    width = max(len(s) for s in same)
+    cand = np.full((lay.n_types, width), -1)
+    for t, s in enumerate(same):
+        cand[t, :len(s)] = s
+    cand = cand[prob.obs.types]  # (M, c): model markers of each observation's type, -1 = padding
+    pad = cand < 0
+    mdl = lay.directions[np.maximum(cand, 0)]  # (M, c, 3)
+    u, fl = prob.u, prob.flash
+
+    def costs(rho, k_a, R_a):
+        steps = (times - times[k_a]) / period
+        body = np.swapaxes(mdl @ R_a.T, 1, 2)  # (M, 3, c): R_a m_j as columns
+        out = np.empty(len(rho))
+        for s in range(0, len(rho), 1024):
+            E = _expmap(rho[s:s + 1024, None, :] * steps[None, :, None])[:, fl]  # (G, M, 3, 3)
+            v = np.einsum("gmba,mb->gma", E, u)  # E^T u: observation in the anchor's frame
+            cos = np.where(pad[None], -1.0, (v[:, :, None, :] @ body[None])[:, :, 0, :]).max(-1)
+            out[s:s + 1024] = np.sum(np.minimum(np.arccos(np.clip(cos, -1, 1)), cap) ** 2, axis=1)
+        return out
+
+    h = np.radians(step_deg)
+    n = int(np.ceil(np.pi / h))
+    g = np.arange(-n, n + 1) * h
+    coarse = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    coarse = coarse[np.linalg.norm(coarse, axis=1) <= np.pi + 0.5 * h]
+    f = np.arange(-2, 3) * (h / 4)
+    local = np.stack(np.meshgrid(f, f, f, indexing="ij"), -1).reshape(-1, 3)
+    found = []
+    for k_a, R_a in anchors:
+        c = costs(coarse, k_a, R_a)
+        best = coarse[np.argsort(c)[:20]]
+        fine = (best[:, None, :] + local[None]).reshape(-1, 3)
+        cf = costs(fine, k_a, R_a)
+        for i in np.argsort(cf)[:40]:
+            found.append((cf[i], fine[i], (k_a, R_a)))
+    found.sort(key=lambda x: x[0])
+    out, kept = [], []
+    for c, rho, (k_a, R_a) in found:
+        if any(np.linalg.norm(rho - r) < h for r in kept):
+            continue
+        kept.append(rho)
+        w = rho / period
+        out.append((_expmap(-w * (times[k_a] - t0)) @ R_a, w))
+        if len(out) >= n_keep:
+            break
+    return out
+
+
+def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float | None = None,
+             strobe_hz: float | None = None, spin_init=None, ball2world_init=None,
+             init: str = "auto", loss: str = "soft_l1", f_scale_deg: float = 3.0,
+             outlier_deg: float | None = None, cap_deg: float = 8.0, max_outer: int = 10,
+             grid_step_deg: float = 15.0) -> SpinResult:
+    """Fit one constant spin to all flashes' markers (robust least squares, SPEC "beyond").
+
+    Model: ``R(t) = exp([w] (t - t0)) R0`` (``ball2world``); residuals: the angle (as a 2-D
+    log-map vector in the tangent plane of the observation) between each observed marker
+    direction and the rotated model marker of its type it is assigned to (the nearest;
+    assignments are renewed until they stop changing). ``scipy.optimize.least_squares`` with a
+    robust ``loss`` downweights mis-typed or misplaced markers; observations further than
+    ``outlier_deg`` from their marker are then dropped and a plain least-squares polish gives
+    the covariance ``s^2 (J^T J)^-1`` (``s^2`` the residual variance per degree of freedom).
+
+    Starting points (``init``): ``"per_flash"`` aligns each flash's markers by type
+    (:func:`orient_flash`) and groups the relative rotations of consecutive flashes (over the
+    two best alignments of each flash) into up to three spin hypotheses, each with the consensus
+    of the implied initial orientations; ``"grid"`` anchors on the flash with the most markers
+    and scans the rotation per interval over a grid (``grid_step_deg``, refined locally) for the
+    lowest capped cost; ``"auto"`` uses ``per_flash`` and adds the grid when that fails, leaves
+    more than 10 % outliers or fewer than 3 flashes identify the ball unambiguously on their
+    own. The start with the lowest capped cost after fitting wins. ``spin_init`` (e.g. an alias
+    candidate) overrides both.
+
+    Parameters
+    ----------
+    times : array_like, shape (K,)
+        Flash times, s, strictly increasing (a missed flash leaves a gap).
+    observations : MarkerObservations or sequence of (directions (n_k, 3), types (n_k,))
+        Marker directions from the ball centre, world frame, with their types.
+    layout : BallLayout, optional
+        Default the seed's 12-marker ball.
+    t0 : float, optional
+        Reference time of ``ball2world_t0`` (default ``times[0]``).
+    strobe_hz : float, optional
+        Default ``1 / min(diff(times))``.
+    spin_init : array_like, shape (3,), optional
+        Start at this spin vector (rad/s): the fit stays at its alias.
+    ball2world_init : array_like, shape (3, 3), optional
+        Start at this orientation at ``t0`` (with ``spin_init``).
+    init : {"auto", "per_flash", "grid"}
+    loss : str
+        ``least_squares`` loss of the robust stage (``"soft_l1"``, ``"cauchy"``, ``"huber"``,
+        ``"linear"``).
+    f_scale_deg : float
+        Residual size where the robust loss starts to flatten, deg.
+    outlier_deg : float, optional
+        Observations further than this from their marker are outliers; default
+        ``max(4 sigma, 1 deg)`` with ``sigma`` the robust (MAD) residual scale.
+    cap_deg : float
+        Cost cap of the per-flash alignment and of the grid scan, deg.
+    max_outer : int
+        Assignment / fit rounds.
+    grid_step_deg : float
+        Grid spacing of the rotation per interval, deg.
+
+    Returns
+    -------
+    SpinResult
+        ``method="global"``; ``success`` False with a message when there are too few markers.
+    """
+    t_start = _time.perf_counter()
+    layout = _default_layout(layout)
+    times, obs = _check_inputs(times, observations, layout)
+    if init not in ("auto", "per_flash", "grid"):
+        raise ValueError(f"init must be 'auto', 'per_flash' or 'grid', got {init!r}")
+    period = strobe_period(times) if strobe_hz is None else 1.0 / float(strobe_hz)
+    if not period > 0:
+        raise ValueError(f"strobe_hz must be positive, got {strobe_hz}")
+    f = 1.0 / period
+    t0 = float(times[0]) if t0 is None else float(t0)
+    counts = obs.counts(len(times))
+    if len(obs) < 4 or np.count_nonzero(counts) < 2:
+        return _failed("global", times, obs, f"too few markers: {len(obs)} observations on "
+                       f"{np.count_nonzero(counts)} flashes (need >= 4 on >= 2)", t_start, f)
+    cap = np.radians(cap_deg)
+    prob = _GlobalProblem(times, obs, layout, t0)
+    span = max(float(np.max(np.abs(times - t0))), period)
+    x_scale = np.array([1.0, 1.0, 1.0] + [1.0 / span] * 3)
+    f_scale = np.radians(f_scale_deg)
+
+    flash_fit = {}
+    for k in np.flatnonzero(counts >= 2):
+        fo = orient_flash(*obs.of_flash(k), layout, cap_deg=cap_deg)
+        if fo.determined:
+            flash_fit[int(k)] = fo
+    anchors_order = sorted(flash_fit, key=lambda k: (-flash_fit[k].n_inliers, flash_fit[k].cost))
+
+    starts = []
+    if spin_init is not None:
+        w_init = as_array(spin_init, (3,), "spin_init")
+        if ball2world_init is not None:
+            starts.append((as_array(ball2world_init, (3, 3), "ball2world_init"), w_init))
+        for k in anchors_order[:2]:
+            for Rk in flash_fit[k].candidates[:2]:
+                starts.append((Rotation.from_rotvec(-w_init * (times[k] - t0)).as_matrix() @ Rk, w_init))
+        if not starts:
+            return _failed("global", times, obs, "no flash with 2 identifiable markers to anchor "
+                           "spin_init", t_start, f)
+    elif init in ("auto", "per_flash"):
+        starts += _per_flash_inits(times, flash_fit, period, t0)
+
+    def run(start_list):
+        best = None
+        for R0, w in start_list:
+            R0f, wf, j, d, res = _solve_global(prob, R0, w, loss=loss, f_scale=f_scale,
+                                               x_scale=x_scale, max_outer=max_outer)
+            c = float(np.sum(np.minimum(d, cap) ** 2))
+            if best is None or c < best[0]:
+                best = (c, R0f, wf, j, d)
+        return best
+
+    best = run(starts) if starts else None
+    # a flash is unambiguous when its runner-up alignment is clearly worse
+    n_clear = sum(fo.runner_up_cost - fo.cost > 0.25 * cap ** 2 for fo in flash_fit.values())
+    need_grid = spin_init is None and (init == "grid" or (init == "auto" and (
+        best is None or np.mean(best[4] < cap) < 0.9 or n_clear < 3)))
+    if need_grid and anchors_order:
+        anchors = [(anchors_order[0], Rk) for Rk in flash_fit[anchors_order[0]].candidates[:2]]
+        grid = _grid_inits(prob, times, period, anchors, t0, cap, grid_step_deg, n_keep=3)
+        gbest = run(grid)
+        if gbest is not None and (best is None or gbest[0] < best[0]):
+            best = gbest
+    if best is None:
+        return _failed("global", times, obs, "no flash with 2 identifiable markers: cannot start "
+                       "the fit (pass spin_init and ball2world_init)", t_start, f)
+    _, R0, w, j, d = best
+    if spin_init is None and np.linalg.norm(w) * period > np.pi:
+        # the same rotation per interval the short way round: report the principal alias
+        w = Rotation.from_rotvec(w * period).as_rotvec() / period
+
+    # outliers, then a plain least-squares polish on the inliers for the covariance
+    r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, np.ones(len(obs), bool))
+    sigma_robust = float(np.median(np.abs(r)) / 0.6745)
+    thr = np.radians(outlier_deg) if outlier_deg is not None else max(4.0 * sigma_robust, np.radians(1.0))
+    inl = d < thr
+    message = "ok"
+    if inl.sum() < 4:
+        inl = d <= np.sort(d)[min(3, len(d) - 1)]
+        message = "few inliers"
+    R0, w, j, d, res = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
+                                     max_outer=max_outer, sel=inl)
+    x = np.concatenate([np.zeros(3), w])
+    r = prob.residuals(x, R0, j, inl)
+    J = prob.jacobian(x, R0, j, inl)
+    dof = max(len(r) - 6, 1)
+    s2 = float(r @ r) / dof
+    cov = s2 * np.linalg.pinv(J.T @ J)
+    cov_w = cov[3:, 3:]
+    rate, axis, sig_r, sig_a = _spin_summary(w, cov_w)
+    success = bool(res is None or res.status > 0) and int(inl.sum()) >= 4 and np.all(np.isfinite(w))
+    if len(r) - 6 < 2:
+        message = "as many parameters as residuals: no uncertainty"
+        sig_r = sig_a = np.nan
+    return SpinResult(
+        spin=w, spin_rpm=rate, axis=axis, sigma_rpm=sig_r, sigma_axis_deg=sig_a,
+        spin_covariance=cov_w, ball2world_t0=R0, t0=t0, times=times, strobe_hz=f,
+        orientations=prob.rotations(R0, w), residuals_deg=np.degrees(d), assigned=j, inliers=inl,
+        rms_deg=float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))), n_observations=len(obs),
+        n_inliers=int(inl.sum()), success=success, message=message, method="global",
+        fit_time_s=_time.perf_counter() - t_start)
+
+
+def _central_jacobian(fun, x, steps):
+    cols = []
+    for i in range(len(x)):
+        e = np.zeros_like(x)
+        e[i] = steps[i]
+        cols.append((fun(x + e) - fun(x - e)) / (2 * steps[i]))
+    return np.stack(cols, axis=1)
+
+
+# ----------------------------------------------------------------------------------------------
+# The seed's per-flash method
+# ----------------------------------------------------------------------------------------------
+def _euler_xyz(x):
+    """Rotation matrix of intrinsic-free 'xyz' Euler angles (the order Rotation.from_euler('xyz'))."""
+    cx, cy, cz = np.cos(x)
+    sx, sy, sz = np.sin(x)
+    # R = Rz @ Ry @ Rx  (extrinsic x, then y, then z)
+    return np.array([
+        [cy * cz, sx * sy * cz - cx * sz, cx * sy * cz + sx * sz],
+        [cy * sz, sx * sy * sz + cx * cz, cx * sy * sz - sx * cz],
+        [-sy, sx * cy, cx * cy],
+    ])
+
+
+def _seed_energy(R, u, t, layout, a1, a2, R_pred, cap):
+    """a1 sum D_M^2 + a2 sum D_A^2 (angles in rad)."""
+    e = 0.0
+    if len(u):
+        model = layout.directions @ R.T
+        cos = np.where(layout.types[None, :] == t[:, None], u @ model.T, -2.0).max(1)
+        d = np.arccos(np.clip(cos, -1.0, 1.0))
+        if cap is not None:
+            d = np.minimum(d, cap)
+        e += a1 * float(d @ d)
+    if a2 > 0 and R_pred is not None:
+        ca = np.clip(np.einsum("ij,ij->j", R, R_pred), -1.0, 1.0)
+        da = np.arccos(ca)
+        e += a2 * float(da @ da)
+    return e
+
+
+def _powell_orientation(R_start, u, t, layout, a1, a2, R_pred, cap, xtol):
+    """Powell over Euler angles (relative to the start, away from gimbal lock)."""
+    def fun(x):
+        return _seed_energy(_euler_xyz(x) @ R_start, u, t, layout, a1, a2, R_pred, cap)
+    res = minimize(fun, np.zeros(3), method="Powell",
+                   options={"xtol": xtol, "ftol": 1e-10, "maxfev": 4000})
+    return _euler_xyz(res.x) @ R_start, float(res.fun)
+
+
+def fit_spin_seed(times, observations, layout: BallLayout | None = None, *, a1: float = 1.0,
+                  a2: float = 1.0, strobe_hz: float | None = None, cap_deg: float | None = None,
+                  n_starts: int = 2, xtol: float = 1e-4) -> SpinResult:
+    """The seed's spin estimate (section 4.4): per-flash orientations, then averaged rotations.
+
+    Flashes are processed in time order. For flash ``k`` the orientation minimises
+    ``E = a1 sum_i D_M(i)^2 + a2 sum_{j in x,y,z} D_A(j)^2`` (angles in rad): ``D_M(i)`` the
+    angle from observed marker ``i`` to the nearest model marker of its type, ``D_A(j)`` the
+    angle between ball axis ``j`` of ``R_k`` and of the prediction (the last determined
+    orientation turned once more by the last relative rotation of two determined flashes one
+    interval apart, scaled to the time step). ``a2 = 0`` until two orientations one interval
+    apart are known (the seed's "first two"; over a gap the relative rotation could exceed half
+    a turn and mislead). Those first two are the first consecutive flashes whose markers each
+    identify the ball unambiguously (at least 3 inliers, no second alignment nearly as good),
+    else with one such flash, else the first consecutive pair with an alignment: a wrong
+    orientation there would mislead
+    every later prediction. The flashes before them are then processed backwards.
+    ``scipy.optimize.minimize(method="Powell")``
+    runs over Euler angles (``xyz``, relative to each start, so away from gimbal lock) from the
+    prediction and from the best type alignments of the flash's own markers
+    (:func:`orient_flash`); the lowest ``E`` wins. A flash without markers takes the prediction;
+    one whose orientation cannot be determined (fewer than 2 markers before a prediction
+    exists) is left out (NaN).
+
+    The relative rotations ``R_k R_{k-1}^T`` of consecutive determined flashes one strobe
+    interval apart (each with at least one marker) give axis-angle pairs; axes are aligned to
+    their principal direction (an axis flipped near half a turn becomes ``2 pi - angle`` about
+    the opposite axis), the spin axis is their mean and the rate their mean angle times the
+    strobe frequency. The 1-sigma values are the standard errors of those means.
+
+    Parameters
+    ----------
+    times : array_like, shape (K,)
+    observations : MarkerObservations or sequence of (directions, types)
+    layout : BallLayout, optional
+    a1, a2 : float
+        Weights of the marker and prediction terms.
+    strobe_hz : float, optional
+        Default ``1 / min(diff(times))``.
+    cap_deg : float, optional
+        Cap ``D_M`` at this angle (a robust variant; the seed does not cap: ``None``).
+    n_starts : int
+        Type-alignment starts per flash besides the prediction.
+    xtol : float
+        Powell's tolerance on the Euler angles, rad.
+
+    Returns
+    -------
+    SpinResult
+        ``method="seed"``; ``orientations`` NaN where undetermined.
+    """
+    t_start = _time.perf_counter()
+    layout = _default_layout(layout)
+    times, obs = _check_inputs(times, observations, layout)
+    if a1 <= 0 or a2 < 0:
+        raise ValueError(f"need a1 > 0 and a2 >= 0, got a1={a1}, a2={a2}")
+    period = strobe_period(times) if strobe_hz is None else 1.0 / float(strobe_hz)
+    if not period > 0:
+        raise ValueError(f"strobe_hz must be positive, got {strobe_hz}")
+    f = 1.0 / period
+    cap = None if cap_deg is None else np.radians(cap_deg)
+    K = len(times)
+    Rs = np.full((K, 3, 3), np.nan)
+    measured = np.zeros(K, bool)
+    align_cap = np.radians(8.0 if cap_deg is None else cap_deg)
+    aligned = {}
+    for k in np.flatnonzero(obs.counts(K) >= 2):
+        aligned[int(k)] = orient_flash(*obs.of_flash(k), layout, cap_deg=np.degrees(align_cap))
+
+    def clear(k):
+        fo = aligned.get(k)
+        return (fo is not None and fo.determined and fo.n_inliers >= 3
+                and fo.runner_up_cost - fo.cost > 0.25 * align_cap ** 2)
+
+    def solve(k, R_pred):
+        """R_k minimising E from the prediction and the flash's own type alignments."""
+        u, t = obs.of_flash(k)
+        starts = [] if R_pred is None else [R_pred]
+        if k in aligned:
+            for R_c in aligned[k].candidates[:n_starts]:  # skip starts the prediction covers
+                if all(_rot_angle(R_c, R_s) > np.radians(5.0) for R_s in starts):
+                    starts.append(R_c)
+        if R_pred is None and (len(u) < 2 or not starts):
+            return None  # a2 = 0 and too few markers: undetermined
+        if len(u) == 0:
+            return R_pred  # no markers: the prediction
+        a2k = a2 if R_pred is not None else 0.0
+        best = None
+        for R_s in starts:
+            R_k, e = _powell_orientation(R_s, u, t, layout, a1, a2k, R_pred, cap, xtol)
+            if best is None or e < best[1]:
+                best = (R_k, e)
+        return best[0]
+
+    def run(seq, omega, last):
+        """Process flashes in order ``seq``; ``omega`` the last relative rotation (rad/s) of
+        two determined flashes one interval apart, ``last`` the last determined flash."""
+        for k in seq:
+            R_pred = None
+            if omega is not None and last is not None:
+                R_pred = _expmap(omega * (times[k] - times[last])) @ Rs[last]
+            R_k = solve(k, R_pred)
+            if R_k is None:
+                continue
+            Rs[k] = R_k
+            measured[k] = len(obs.of_flash(k)[1]) >= 1
+            if last is not None and abs(times[k] - times[last]) < 1.5 * period:
+                omega = Rotation.from_matrix(R_k @ Rs[last].T).as_rotvec() / (times[k] - times[last])
+            last = k
+
+    # The seed starts with the first two flashes (a2 = 0). A wrong orientation there (a flash
+    # whose few markers fit two frames) misleads every prediction after it, so start at the
+    # first two consecutive flashes that each identify the ball on their own, go forward, then
+    # back to the flashes before them.
+    one = [k for k in range(K - 1) if times[k + 1] - times[k] < 1.5 * period
+           and k in aligned and k + 1 in aligned]
+    k0 = max(one, key=lambda k: (clear(k) + clear(k + 1), -k)) if one else 0
+    run(range(k0, K), None, None)
+    if k0 > 0 and np.isfinite(Rs[k0, 0, 0]):
+        omega0 = None
+        if k0 + 1 < K and np.isfinite(Rs[k0 + 1, 0, 0]) and times[k0 + 1] - times[k0] < 1.5 * period:
+            omega0 = Rotation.from_matrix(Rs[k0 + 1] @ Rs[k0].T).as_rotvec() / (times[k0 + 1] - times[k0])
+        run(range(k0 - 1, -1, -1), omega0, k0)
+    det = [k for k in range(K) if np.isfinite(Rs[k, 0, 0])]
+
+    # relative rotations of consecutive determined flashes one interval apart (a flash without
+    # markers only repeats the prediction and adds nothing)
+    pairs = [(a, b) for a, b in zip(det[:-1], det[1:])
+             if times[b] - times[a] < 1.5 * period and measured[a] and measured[b]]
+    if not pairs:
+        pairs = [(a, b) for a, b in zip(det[:-1], det[1:]) if times[b] - times[a] < 1.5 * period]
+    # residuals per observation at the per-flash orientations
+    res_deg = np.full(len(obs), np.nan)
+    assigned = np.full(len(obs), -1)
+    for k in det:
+        sel = obs.flash == k
+        if sel.any():
+            d, j = _nearest_same_type(Rs[k][None], obs.directions[sel], obs.types[sel], layout)
+            res_deg[sel] = np.degrees(d[0])
+            assigned[sel] = j[0]
+    if not pairs:
+        out = _failed("seed", times, obs, f"fewer than 2 consecutive flashes with an orientation "
+                      f"({len(det)} determined)", t_start, f)
+        out.orientations, out.residuals_deg, out.assigned = Rs, res_deg, assigned
+        return out
+    axes, angles, dts = [], [], []
+    for a, b in pairs:
+        rv = Rotation.from_matrix(Rs[b] @ Rs[a].T).as_rotvec()
+        th = float(np.linalg.norm(rv))
+        axes.append(rv / th if th > 0 else np.array([0.0, 0.0, 1.0]))
+        angles.append(th)
+        dts.append(times[b] - times[a])
+    axes, angles, dts = np.array(axes), np.array(angles), np.array(dts)
+    # principal direction of the axes (sign-free), then flip to agree with it
+    _, _, vt = np.linalg.svd(axes * np.maximum(angles, 1e-9)[:, None])
+    ref = vt[0]
+    if np.sum(np.sign(axes @ ref) * angles) < 0:
+        ref = -ref
+    flip = axes @ ref < 0
+    axes[flip] *= -1
+    angles[flip] = 2 * np.pi - angles[flip]
+    rates = angles / dts
+    axis = axes.mean(0)
+    axis /= np.linalg.norm(axis)
+    rate = float(rates.mean())
+    w = rate * axis
+    n = len(rates)
+    if n >= 2:
+        sig_rate = float(rates.std(ddof=1) / np.sqrt(n))
+        ang = np.arccos(np.clip(axes @ axis, -1, 1))
+        sig_axis = float(np.sqrt(np.sum(ang ** 2) / (2 * (n - 1)) / n))
+    else:
+        sig_rate = sig_axis = np.nan
+    cov = sig_rate ** 2 * np.outer(axis, axis) + (rate * sig_axis) ** 2 * (np.eye(3) - np.outer(axis, axis))
+    k_first = det[0]
+    R0 = Rotation.from_rotvec(-w * (times[k_first] - times[0])).as_matrix() @ Rs[k_first]
+    inl = np.isfinite(res_deg) & (res_deg < (10.0 if cap_deg is None else cap_deg))
+    return SpinResult(
+        spin=w, spin_rpm=rate * RPM_PER_RAD_S, axis=axis, sigma_rpm=sig_rate * RPM_PER_RAD_S,
+        sigma_axis_deg=float(np.degrees(sig_axis)), spin_covariance=cov, ball2world_t0=R0,
+        t0=float(times[0]), times=times, strobe_hz=f, orientations=Rs, residuals_deg=res_deg,
+        assigned=assigned, inliers=inl,
+        rms_deg=float(np.sqrt(np.mean(res_deg[inl] ** 2))) if inl.any() else np.nan,
+        n_observations=len(obs), n_inliers=int(inl.sum()), success=True,
+        message="ok" if n >= 2 else "one interval only: no uncertainty", method="seed",
+        fit_time_s=_time.perf_counter() - t_start)
+
+
+# ----------------------------------------------------------------------------------------------
+# Synthetic observations (tests, benchmarks, demos)
+# ----------------------------------------------------------------------------------------------
+def simulate_observations(times, ball2world_t0, spin, view_dirs, layout: BallLayout | None = None,
+                          *, t0: float | None = None, noise_deg: float = 1.0,
+                          margin_deg: float = 10.0, miss_rate: float = 0.0,
+                          mistype_rate: float = 0.0, max_per_flash=None,
+                          rng=None) -> MarkerObservations:
+    """Marker observations of a ball spinning at constant ``spin`` seen from ``view_dirs``.
+
+    Parameters
+    ----------
+    times : array_like, shape (K,)
+        Flash times, s.
+    ball2world_t0 : array_like, shape (3, 3)
+        Orientation at ``t0``.
+    spin : array_like, shape (3,)
+        rad/s, world frame.
+    view_dirs : array_like, shape (3,) or (C, 3)
+        Directions from the ball toward each camera (or stereo pair), world frame: a marker
+        is seen when it is within ``90 - margin_deg`` deg of one of them.
+    layout : BallLayout, optional
+    t0 : float, optional
+        Default ``times[0]``.
+    noise_deg : float
+        1-sigma of each of the two tangent components of the direction error, deg (the RMS
+        angular error is ``sqrt(2)`` times this).
+    margin_deg : float
+    miss_rate : float
+        Probability that a visible marker is not detected.
+    mistype_rate : float
+        Probability that a detected marker gets a wrong (random other) type: an outlier.
+    max_per_flash : array_like of int, shape (K,), optional
+        At most this many markers on each flash (randomly kept), e.g. 0 or 1 for some flashes.
+    rng : np.random.Generator or int, optional
+
+    Returns
+    -------
+    MarkerObservations
+    """
+    rng = as_rng(rng)
+    layout = _default_layout(layout)
+    times = as_array(times, (None,), "times")
+    R0 = as_array(ball2world_t0, (3, 3), "ball2world_t0")
+    w = as_array(spin, (3,), "spin")
+    v = np.atleast_2d(np.asarray(view_dirs, float))
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"view_dirs must have shape (3,) or (C, 3), got {np.shape(view_dirs)}")
+    v = _unit_rows(v, "view_dirs")
+    t0 = float(times[0]) if t0 is None else float(t0)
+    caps = None if max_per_flash is None else as_array(max_per_flash, (len(times),), "max_per_flash", dtype=int)
+    Rk = (Rotation.from_rotvec(np.outer(times - t0, w)) * Rotation.from_matrix(R0)).as_matrix()
+    sig = np.radians(noise_deg)
+    fl, ty, di = [], [], []
+    for k in range(len(times)):
+        world = layout.directions @ Rk[k].T
+        vis = np.any(world @ v.T > np.cos(np.radians(90.0 - margin_deg)), axis=1)
+        vis &= rng.random(len(world)) >= miss_rate
+        idx = np.flatnonzero(vis)
+        if caps is not None and len(idx) > caps[k]:
+            idx = np.sort(rng.choice(idx, size=max(int(caps[k]), 0), replace=False))
+        u = world[idx]
+        if len(u):
+            t1, t2 = _tangent_bases(u)
+            e = rng.normal(size=(len(u), 2)) * sig
+            u = u * np.cos(np.linalg.norm(e, axis=1))[:, None] + (
+                np.sinc(np.linalg.norm(e, axis=1) / np.pi)[:, None] * (e[:, :1] * t1 + e[:, 1:] * t2))
+        t = layout.types[idx].copy()
+        bad = rng.random(len(t)) < mistype_rate
+        for i in np.flatnonzero(bad):
+            t[i] = rng.choice([x for x in range(layout.n_types) if x != t[i]])
+        fl.append(np.full(len(idx), k))
+        ty.append(t)
+        di.append(u.reshape(-1, 3))
+    return MarkerObservations(np.concatenate(fl), np.concatenate(ty), np.concatenate(di))

@@ -1,0 +1,382 @@
+"""Spin-rate aliasing of stroboscopic captures and how to resolve it (SPEC J1, "beyond").
+
+With flashes every ``1/f`` s a ball spinning at ``w`` (rad/s) turns by ``theta = |w| / f`` between
+flashes, but the photos only show the rotation modulo a full turn: the rotation ``theta`` about
+``a`` looks exactly like ``theta + 2 pi n`` about ``a`` for every integer ``n`` (negative ``n``:
+``2 pi |n| - theta`` about ``-a``; near half a turn the axis sign itself is in doubt). The
+orientation fits (:mod:`stillcap.ball.orientation`) return the *principal* spin (at most half a
+turn per interval: ``f / 2`` revolutions per second, 2400 rpm at 80 Hz, 1500 rpm at 50 Hz), so
+a 3000 rpm pitch filmed at 80 Hz comes out as 1800 rpm about the opposite axis.
+
+:func:`alias_candidates` lists every spin ``(theta + 2 pi n) f a`` within a plausible range
+(default 0-4000 rpm). :func:`resolve_aliases` scores each candidate ``c`` by a chi-square of
+its consistency with the independent evidence and ranks them by ``exp(-chi2 / 2)``:
+
+- every strobe measurement ``m`` (a stereo pair at its own frequency, e.g. the front pair at
+  80 Hz and the back pair at 50 Hz): the rotation per interval the candidate predicts at
+  ``f_m``, ``exp(c / f_m)``, against the measured one ``exp(w_m / f_m)``; the geodesic
+  difference is weighed with the measurement's covariance plus a tolerance for the spin
+  changing between the pairs (``rate_tolerance_rpm``, ``axis_tolerance_deg``). Both pairs are
+  calibrated in one world frame, so axes compare directly; their clocks need not be synchronised
+  (only the rotation per interval is used);
+- the curvature of the flight (:class:`CurvatureMeasurement`, from
+  :func:`stillcap.ball.fit.fit_reference_trajectory` without a spin prior): the Magnus force
+  sees the spin transverse to the flight, so each candidate's transverse part (or, for the
+  seed's lift law ``C_L = 1.5 r |w| / |v|``, ``|c|`` along the transverse direction) is compared
+  with the fitted one, with the fit's covariance plus a relative model tolerance.
+
+The result says ``ambiguous`` when the runner-up's likelihood is within ``ambiguity_ratio`` of
+the best (e.g. one strobe rate and a mostly gyro spin, which bends the flight too little).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from stillcap._checks import as_array
+
+RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class StrobeMeasurement:
+    """A spin measured from one strobe sequence (any alias of it).
+
+    Attributes
+    ----------
+    spin : ndarray, shape (3,)
+        rad/s, world frame.
+    strobe_hz : float
+    covariance : ndarray, shape (3, 3)
+        Covariance of ``spin``, (rad/s)^2.
+    name : str
+    """
+
+    spin: np.ndarray
+    strobe_hz: float
+    covariance: np.ndarray
+    name: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "spin", as_array(self.spin, (3,), "spin"))
+        object.__setattr__(self, "covariance", as_array(self.covariance, (3, 3), "covariance"))
+        if not (self.strobe_hz > 0 and np.isfinite(self.strobe_hz)):
+            raise ValueError(f"strobe_hz must be positive, got {self.strobe_hz}")
+        if not (np.all(np.isfinite(self.spin)) and np.all(np.isfinite(self.covariance))):
+            raise ValueError("spin and covariance must be finite (did the spin fit fail?)")
+
+    @classmethod
+    def from_result(cls, result, name: str = "") -> "StrobeMeasurement":
+        """From a :class:`stillcap.ball.orientation.SpinResult`."""
+        return cls(result.spin, float(result.strobe_hz), result.spin_covariance,
+                   name or f"{result.method} {result.strobe_hz:g} Hz")
+
+    @property
+    def axis_determined(self) -> bool:
+        """False when the rotation per interval is within 3 sigma of none (the alias axes of
+        ``n != 0`` are then unknown: e.g. 3000 rpm at 50 Hz is a full turn per flash)."""
+        return bool(np.linalg.norm(self.spin) > 3.0 * np.sqrt(max(np.trace(self.covariance), 0) / 3.0))
+
+
+@dataclass(frozen=True)
+class CurvatureMeasurement:
+    """The spin the flight's curvature implies (Magnus force), from a reference-trajectory fit.
+
+    Attributes
+    ----------
+    basis : ndarray, shape (3, 2)
+        Columns ``e_1, e_2``: two unit vectors perpendicular to the initial velocity (world).
+    transverse : ndarray, shape (2,)
+        Effective transverse spin in that basis, rad/s.
+    covariance : ndarray, shape (2, 2)
+        Its covariance, (rad/s)^2.
+    lift : {"transverse", "total"}
+        ``"transverse"`` (Nathan's model: lift from the transverse spin ``w_perp``) or
+        ``"total"`` (the seed's ``C_L = 1.5 r |w| / |v|``: lift ``|w|`` along ``w_perp``).
+    """
+
+    basis: np.ndarray
+    transverse: np.ndarray
+    covariance: np.ndarray
+    lift: str = "transverse"
+
+    def __post_init__(self):
+        object.__setattr__(self, "basis", as_array(self.basis, (3, 2), "basis"))
+        object.__setattr__(self, "transverse", as_array(self.transverse, (2,), "transverse"))
+        object.__setattr__(self, "covariance", as_array(self.covariance, (2, 2), "covariance"))
+        if self.lift not in ("transverse", "total"):
+            raise ValueError(f"lift must be 'transverse' or 'total', got {self.lift!r}")
+
+    def effective(self, spin) -> np.ndarray:
+        """What the curvature sees of a spin vector (rad/s, world): shape (2,)."""
+        w = as_array(spin, (3,), "spin")
+        t = self.basis.T @ w
+        if self.lift == "transverse":
+            return t
+        nt = np.linalg.norm(t)
+        return t * (np.linalg.norm(w) / nt) if nt > 0 else t
+
+    @classmethod
+    def from_reference_fit(cls, fit, model=None, lift: str | None = None) -> "CurvatureMeasurement":
+        """From a :class:`stillcap.ball.fit.ReferenceFit` (best fitted without a spin prior).
+
+        Parameters
+        ----------
+        fit : ReferenceFit
+        model : FlightModel, optional
+            The model the fit used; chooses ``lift`` (``"total"`` for the seed model, the
+            default model, ``"transverse"`` for Nathan's).
+        lift : {"transverse", "total"}, optional
+            Overrides the choice from ``model``.
+        """
+        if lift is None:
+            lift = "transverse" if (model is not None and getattr(model, "kind", "seed") == "nathan") else "total"
+        basis = np.asarray(fit.spin_basis, float)
+        s = np.asarray(fit.params[6:9], float)
+        C = np.asarray(fit.covariance[6:9, 6:9], float)
+        if lift == "transverse":
+            return cls(basis[:, 1:], s[1:], C[1:, 1:], "transverse")
+        out = cls(basis[:, 1:], s[1:], C[1:, 1:], "total")
+
+        def eff(sv):
+            return out.effective(basis @ sv)
+        e0 = eff(s)
+        J = np.zeros((2, 3))
+        for i in range(3):
+            h = 1e-4 * max(1.0, abs(s[i]))
+            d = np.zeros(3)
+            d[i] = h
+            J[:, i] = (eff(s + d) - eff(s - d)) / (2 * h)
+        return cls(basis[:, 1:], e0, J @ C @ J.T, "total")
+
+
+@dataclass
+class AliasCandidate:
+    """One possible true spin.
+
+    Attributes
+    ----------
+    spin : ndarray, shape (3,)
+        rad/s, world frame.
+    spin_rpm : float
+    axis : ndarray, shape (3,)
+    n : int
+        Alias index: rotation per interval = principal angle + 2 pi n about the principal axis
+        of the source measurement (n < 0: about the opposite axis).
+    source : int
+        Index of the measurement that generated it.
+    axis_determined : bool
+        False when the source measurement cannot tell this alias's axis (see
+        :attr:`StrobeMeasurement.axis_determined`).
+    chi2_strobes : ndarray, shape (n_measurements,)
+        Consistency with each strobe measurement (0 for the source).
+    chi2_curvature : float
+        Consistency with the flight curvature (0 without it).
+    chi2 : float
+        Total.
+    probability : float
+        ``exp(-chi2 / 2)`` normalised over the (merged) candidates.
+    """
+
+    spin: np.ndarray
+    spin_rpm: float
+    axis: np.ndarray
+    n: int
+    source: int
+    axis_determined: bool = True
+    chi2_strobes: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    chi2_curvature: float = 0.0
+    chi2: float = 0.0
+    probability: float = float("nan")
+
+
+@dataclass
+class AliasResolution:
+    """Ranked alias candidates (:func:`resolve_aliases`).
+
+    Attributes
+    ----------
+    candidates : list of AliasCandidate
+        Best first.
+    best : AliasCandidate
+    ambiguous : bool
+        The runner-up's likelihood is at least ``ambiguity_ratio`` times the best's.
+    likelihood_ratio : float
+        Runner-up / best (0 with a single candidate).
+    evidence : list of str
+        What was used ("80 Hz", "50 Hz", "curvature").
+    message : str
+    """
+
+    candidates: list
+    best: AliasCandidate
+    ambiguous: bool
+    likelihood_ratio: float
+    evidence: list
+    message: str = ""
+
+
+def alias_candidates(spin, strobe_hz: float, *, min_rpm: float = 0.0,
+                     max_rpm: float = 4000.0) -> list[AliasCandidate]:
+    """All spins that look the same as ``spin`` at ``strobe_hz``, within a rate range.
+
+    Parameters
+    ----------
+    spin : array_like, shape (3,)
+        Any alias, rad/s (typically the principal one from a fit).
+    strobe_hz : float
+    min_rpm, max_rpm : float
+        Plausible range of the spin rate.
+
+    Returns
+    -------
+    list of AliasCandidate
+        Ordered by rate; ``n`` counts extra turns per interval about the principal axis.
+    """
+    w = as_array(spin, (3,), "spin")
+    if not strobe_hz > 0:
+        raise ValueError(f"strobe_hz must be positive, got {strobe_hz}")
+    if not 0 <= min_rpm <= max_rpm:
+        raise ValueError(f"need 0 <= min_rpm <= max_rpm, got {min_rpm}, {max_rpm}")
+    rho = Rotation.from_rotvec(w / strobe_hz).as_rotvec()  # principal, |rho| <= pi
+    theta = float(np.linalg.norm(rho))
+    a = rho / theta if theta > 1e-12 else (w / np.linalg.norm(w) if np.linalg.norm(w) > 0
+                                           else np.array([0.0, 0.0, 1.0]))
+    lo = min_rpm / RPM_PER_RAD_S / strobe_hz
+    hi = max_rpm / RPM_PER_RAD_S / strobe_hz
+    out = []
+    n_max = int(np.ceil(hi / (2 * np.pi))) + 1
+    for n in range(-n_max, n_max + 1):
+        ang = theta + 2 * np.pi * n  # signed rotation per interval about a
+        if lo - 1e-12 <= abs(ang) <= hi + 1e-12:
+            c = ang * strobe_hz * a
+            rate = abs(ang) * strobe_hz
+            out.append(AliasCandidate(c, rate * RPM_PER_RAD_S, c / rate if rate > 0 else a.copy(), n, 0))
+    out.sort(key=lambda c: c.spin_rpm)
+    return out
+
+
+def _strobe_chi2(c, m: StrobeMeasurement, rate_tol, axis_tol):
+    """Chi-square of the per-interval rotation of candidate c against measurement m."""
+    f = m.strobe_hz
+    Rm_inv = Rotation.from_rotvec(m.spin / f).inv()
+    Rc = Rotation.from_rotvec(c / f)
+    delta = (Rc * Rm_inv).as_rotvec()
+
+    def d_of(w):
+        return (Rc * Rotation.from_rotvec(w / f).inv()).as_rotvec()
+    G = np.zeros((3, 3))
+    for i in range(3):
+        h = 1e-6 * max(1.0, np.linalg.norm(m.spin))
+        e = np.zeros(3)
+        e[i] = h
+        G[:, i] = (d_of(m.spin + e) - d_of(m.spin - e)) / (2 * h)
+    S = G @ m.covariance @ G.T
+    # tolerance for the spin changing between measurements, in per-interval rotation: a rate
+    # change moves the angle by rate_tol / f, an axis tilt eps moves the rotation by
+    # 2 |sin(theta / 2)| eps
+    nc = np.linalg.norm(c)
+    if nc > 0:
+        ch = c / nc
+        tilt = 2.0 * abs(np.sin(nc / f / 2.0)) * axis_tol
+        T = (rate_tol / f) ** 2 * np.outer(ch, ch) + tilt ** 2 * (np.eye(3) - np.outer(ch, ch))
+    else:
+        T = (rate_tol / f) ** 2 * np.eye(3)
+    S = S + T + 1e-12 * np.eye(3)
+    return float(delta @ np.linalg.solve(S, delta))
+
+
+def resolve_aliases(measurements, curvature: CurvatureMeasurement | None = None, *,
+                    min_rpm: float = 0.0, max_rpm: float = 4000.0,
+                    rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
+                    curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
+                    ambiguity_ratio: float = 0.05, merge_rpm: float = 60.0,
+                    merge_deg: float = 10.0) -> AliasResolution:
+    """Rank the alias candidates of one or more strobe measurements (module docstring).
+
+    Parameters
+    ----------
+    measurements : StrobeMeasurement, SpinResult, or a sequence of them
+        Spins of the same pitch from strobes at their own frequencies (e.g. the front pair at
+        80 Hz and the back pair at 50 Hz). Candidates come from each of them.
+    curvature : CurvatureMeasurement, optional
+        What the flight's curvature says about the transverse spin.
+    min_rpm, max_rpm : float
+        Plausible spin rates.
+    rate_tolerance_rpm, axis_tolerance_deg : float
+        How much the spin may differ between measurements beyond their covariances (spin
+        decay over the flight, model error).
+    curvature_rel_sigma, curvature_floor : float
+        Model tolerance of the curvature comparison: ``rel * |measured| (+) floor`` (rad/s)
+        added in quadrature to each component's sigma (the lift law is uncertain).
+    ambiguity_ratio : float
+        Flag ``ambiguous`` when runner-up / best likelihood >= this.
+    merge_rpm, merge_deg : float
+        Candidates from different measurements closer than both are the same spin (the
+        better-scoring one is kept).
+
+    Returns
+    -------
+    AliasResolution
+    """
+    if isinstance(measurements, (StrobeMeasurement,)) or hasattr(measurements, "spin_covariance"):
+        measurements = [measurements]
+    meas = [m if isinstance(m, StrobeMeasurement) else StrobeMeasurement.from_result(m)
+            for m in measurements]
+    if not meas:
+        raise ValueError("need at least one strobe measurement, got 0")
+    if not 0 < ambiguity_ratio < 1:
+        raise ValueError(f"ambiguity_ratio must be in (0, 1), got {ambiguity_ratio}")
+    rate_tol = rate_tolerance_rpm / RPM_PER_RAD_S
+    axis_tol = np.radians(axis_tolerance_deg)
+    cands = []
+    for i, m in enumerate(meas):
+        for c in alias_candidates(m.spin, m.strobe_hz, min_rpm=min_rpm, max_rpm=max_rpm):
+            c.source = i
+            c.axis_determined = m.axis_determined or c.n == 0
+            cands.append(c)
+    if not cands:
+        raise ValueError(f"no alias candidate within {min_rpm}-{max_rpm} rpm")
+    evidence = [m.name or f"{m.strobe_hz:g} Hz" for m in meas]
+    if curvature is not None:
+        evidence.append("curvature")
+        e_meas = curvature.transverse
+        tol2 = (curvature_rel_sigma * np.linalg.norm(e_meas)) ** 2 + curvature_floor ** 2
+        Sc = curvature.covariance + tol2 * np.eye(2)
+    for c in cands:
+        c.chi2_strobes = np.array([0.0 if j == c.source else
+                                   _strobe_chi2(c.spin, m, rate_tol, axis_tol)
+                                   for j, m in enumerate(meas)])
+        if curvature is not None:
+            d = curvature.effective(c.spin) - e_meas
+            c.chi2_curvature = float(d @ np.linalg.solve(Sc, d))
+        c.chi2 = float(c.chi2_strobes.sum() + c.chi2_curvature)
+    cands.sort(key=lambda c: c.chi2)
+    merged = []
+    for c in cands:
+        dup = False
+        for k in merged:
+            ang = np.degrees(np.arccos(np.clip(c.axis @ k.axis, -1, 1)))
+            if abs(c.spin_rpm - k.spin_rpm) < merge_rpm and (ang < merge_deg or c.spin_rpm < merge_rpm):
+                dup = True
+                break
+        if not dup:
+            merged.append(c)
+    chi = np.array([c.chi2 for c in merged])
+    like = np.exp(-0.5 * (chi - chi.min()))
+    for c, p in zip(merged, like / like.sum()):
+        c.probability = float(p)
+    ratio = float(like[1] / like[0]) if len(merged) > 1 else 0.0
+    ambiguous = ratio >= ambiguity_ratio
+    best = merged[0]
+    msg = f"best {best.spin_rpm:.0f} rpm (p = {best.probability:.3f})"
+    if len(merged) > 1:
+        msg += f", runner-up {merged[1].spin_rpm:.0f} rpm (likelihood ratio {ratio:.3g})"
+    if ambiguous:
+        msg += ": ambiguous, add a second strobe rate or the flight curvature"
+    if not best.axis_determined:
+        msg += "; the best candidate's axis is not determined by its measurement"
+    return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg)

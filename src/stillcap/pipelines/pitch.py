@@ -1,0 +1,1296 @@
+"""The pitch pipeline (SPEC J1): strobe photos of a pitched, marked baseball -> flight, spin, metrics.
+
+Wiring only; every step is a stage of its own module (``docs/pitch.md`` tells the whole story):
+
+1. **Stereo pairs** (:func:`stereo_pairs`): the capture's photos grouped into strobed pairs (by
+   ``images[].meta.pair``, the capture's ``pairs`` map, or the strobe rate), each with its rate.
+2. **Ball positions** per pair (:func:`stillcap.detect.ball.ball_centers_stereo`, the seed's steps
+   1-5): colour background subtraction, contours, convex hull, ellipse, epipolar matching,
+   approximate triangulation, projected radius, known-radius Hough refinement (half moons
+   included), final triangulation. Off-path detections are dropped.
+3. **Order and timing** (:func:`order_flashes`): the 3D positions of a pair are ordered along the
+   flight; the flash index ``k`` of each comes from the spacing (``round(spacing / base
+   spacing)``, a missed flash leaves a gap); the pair's own clock is ``k / strobe_hz`` from its
+   first ball image. The first pair along the flight (the front pair) is the reference clock
+   (``t = 0`` at its first ball image); the other pairs' clock offsets are unknown (free-running
+   strobes) and fitted with the flight (``time_groups`` of the reference fit).
+4. **Markers** (:func:`pair_marker_observations`): coloured regions inside every ball image
+   (:func:`stillcap.detect.ball_markers.detect_ball_markers`), matched across the pair by type and
+   epipolar distance and triangulated (direction from the ball centre); markers seen by one
+   camera only become pixel rays intersected with the ball sphere.
+5. **Spin**: ``"global"`` (default) fits one constant spin to all flashes of a pair
+   (:func:`stillcap.ball.orientation.fit_spin`), ``"seed"`` is the seed's per-flash Powell method
+   (:func:`~stillcap.ball.orientation.fit_spin_seed`). The alias above the strobe's Nyquist limit
+   is chosen with both strobe rates and the Magnus curvature of the flight
+   (:mod:`stillcap.ball.alias`); the global method then refits all pairs' markers together on the
+   reference clock at that alias.
+6. **Release velocity**: the seed's two-point estimate and the fitted one.
+7. **Reference trajectory** (:func:`stillcap.ball.fit.fit_reference_trajectory`): the seed's
+   objective (positions + measured initial parameters), least squares or Powell, seed or Nathan
+   physics; clock offsets of the other pairs fitted jointly.
+8. **Metrics** in the field frame (:mod:`stillcap.ball.metrics`) with 1-sigma uncertainties from the
+   fits' covariances (Monte Carlo through the flight model).
+
+Everything is SI inside; the result's :meth:`PitchResult.to_dict` names units in its keys and
+shares its key names with the studio's ``truth.json`` (``metrics``, ``release``, ``spin``, ...).
+"""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from stillcap._checks import as_rng
+from stillcap.ball.fit import FitPriors, ReferenceFit, fit_reference_trajectory
+from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
+from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_tilt, pitch_metrics,
+                                   spin_axis_deg, spin_efficiency)
+from stillcap.ball.orientation import MarkerObservations, SpinResult, fit_spin, fit_spin_seed, rays_to_directions
+from stillcap.ball.physics import FlightModel, cross_plane, simulate, simulate_batch
+from stillcap.camera import Camera
+from stillcap.detect.ball import BallFlag, StereoBalls, ball_centers_stereo
+from stillcap.detect.ball_markers import BallMarkers, MarkerType, detect_ball_markers
+from stillcap.geometry.epipolar import match_epipolar
+from stillcap.geometry.triangulate import triangulate
+from stillcap.io.capture import Capture, CaptureImage
+
+__all__ = ["PitchOptions", "StereoPairSpec", "PairResult", "PitchResult", "SPIN_METHODS", "PHYSICS", "FIT_METHODS",
+           "analyse_pitch", "stereo_pairs", "order_flashes", "pair_marker_observations", "flight_model",
+           "marker_types", "compare_with_truth", "TABLE1_COLUMNS"]
+
+SPIN_METHODS = ("global", "seed")
+PHYSICS = ("seed", "nathan")
+FIT_METHODS = ("least_squares", "powell")
+#: The seed's Table 1 columns (in order) and their units.
+TABLE1_COLUMNS = (("mean_err_mm", "mm"), ("max_err_mm", "mm"), ("velocity_angle_deg", "deg"),
+                  ("speed_diff_mph", "mph"), ("spin_axis_angle_deg", "deg"), ("spin_rate_diff_rpm", "rpm"),
+                  ("speed_mph", "mph"), ("spin_rpm", "rpm"))
+#: Metric keys that are angles (their spread is taken on the circle).
+_ANGLE_KEYS = ("spin_axis_deg", "movement_axis_deg")
+#: Matched ball images not used: refinement failed, size disagrees with the projected radius, or
+#: cut by the image border (its centre is off by millimetres: ``docs/pitch.md``).
+_DROP_FLAGS = int(BallFlag.REFINE_FAILED | BallFlag.SIZE_MISMATCH | BallFlag.TOUCHES_BORDER)
+
+
+# --------------------------------------------------------------------------------------------
+# Options and results
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PitchOptions:
+    """How :func:`analyse_pitch` runs.
+
+    Attributes
+    ----------
+    spin_method : {"global", "seed"}
+        One constant spin fitted to all flashes (default), or the seed's per-flash method.
+    physics : {"seed", "nathan"}
+        Flight model of the reference fit and the metrics.
+    fit_method : {"least_squares", "powell"}
+        Optimiser of the reference fit (Powell is the seed's).
+    ball_radius_m : float
+    layout : BallLayout or None
+        The painted markers (default: the seed's 12-marker ball).
+    release_y_ft : float or None
+        Where "release" is evaluated: None = at the first ball image of the front pair (the
+        photos do not show the hand); a value evaluates the fitted flight at that plane
+        (field frame ``y``, feet), e.g. the pitcher's known release extension.
+    expected_speed_mph : float or None
+        Anchors the flash spacing (``speed / strobe_hz``) when a pair may have missed flashes
+        between every pair of ball images; default: from the smallest spacing.
+    position_sigma_m : float
+        Expected position noise (relative weight of positions and measured initial parameters in
+        the reference fit; the reported covariance is rescaled by the actual residuals).
+    marker_epipolar_px : float
+        Largest epipolar distance of a marker matched across a pair.
+    n_samples : int
+        Monte Carlo samples for the metrics' uncertainties (0: none).
+    rng : int or Generator
+        For the Monte Carlo samples.
+    """
+
+    spin_method: str = "global"
+    physics: str = "seed"
+    fit_method: str = "least_squares"
+    ball_radius_m: float = BASEBALL_RADIUS
+    layout: BallLayout | None = None
+    release_y_ft: float | None = None
+    expected_speed_mph: float | None = None
+    position_sigma_m: float = 0.002
+    marker_epipolar_px: float = 2.0
+    n_samples: int = 200
+    rng: object = 0
+
+    def __post_init__(self):
+        fm = self.fit_method.replace("-", "_") if isinstance(self.fit_method, str) else self.fit_method
+        object.__setattr__(self, "fit_method", fm)
+        for name, allowed in (("spin_method", SPIN_METHODS), ("physics", PHYSICS), ("fit_method", FIT_METHODS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        if not (np.isfinite(self.ball_radius_m) and self.ball_radius_m > 0):
+            raise ValueError(f"ball_radius_m must be a positive number of metres, got {self.ball_radius_m}")
+        if self.expected_speed_mph is not None and not self.expected_speed_mph > 0:
+            raise ValueError(f"expected_speed_mph must be positive, got {self.expected_speed_mph}")
+        if self.release_y_ft is not None and not np.isfinite(self.release_y_ft):
+            raise ValueError(f"release_y_ft must be a finite number of feet, got {self.release_y_ft}")
+        if not self.position_sigma_m > 0:
+            raise ValueError(f"position_sigma_m must be positive, got {self.position_sigma_m}")
+        if int(self.n_samples) < 0:
+            raise ValueError(f"n_samples must be >= 0, got {self.n_samples}")
+
+    def to_dict(self) -> dict:
+        return {"spin_method": self.spin_method, "physics": self.physics, "fit_method": self.fit_method,
+                "ball_radius_m": self.ball_radius_m, "release_y_ft": self.release_y_ft,
+                "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
+                "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples)}
+
+
+@dataclass
+class StereoPairSpec:
+    """Two photos of one strobed stereo pair."""
+
+    name: str
+    images: tuple  # (CaptureImage, CaptureImage)
+    strobe_hz: float
+
+    @property
+    def cameras(self) -> tuple:
+        return tuple(im.camera for im in self.images)
+
+
+@dataclass
+class PairResult:
+    """What one stereo pair gave (positions in flight order).
+
+    Attributes
+    ----------
+    name : str
+    cameras : tuple of 2 str
+    strobe_hz : float
+    flash_index : ndarray of int, shape (K,)
+        Flash of each ball image counted from the pair's first ball image (gaps = missed flashes).
+    positions : ndarray, shape (K, 3)
+        Triangulated ball centres, world frame, m.
+    centers_px : ndarray, shape (2, K, 2)
+        Refined ball centres in the raw photos of both cameras.
+    radius_px : ndarray, shape (2, K)
+        Projected ball radius in each camera.
+    reproj_error_px : ndarray, shape (K,)
+    flags : ndarray of int, shape (K,)
+        :class:`stillcap.detect.ball.BallFlag` bits of both views.
+    n_detected : tuple of 2 int
+        Ball silhouettes found in each photo.
+    n_dropped : int
+        Matched ball images dropped (refinement failed, size mismatch, off the flight path, duplicate).
+    spacing_m : float
+        Distance between consecutive flashes (base spacing), m.
+    group : int
+        Clock of the reference fit (0 = reference pair).
+    time_offset_s, time_offset_sigma_s : float
+        Clock offset: flash ``k`` happened at ``time_offset_s + k / strobe_hz`` on the reference
+        clock (0 for the reference pair).
+    markers : list of BallMarkers
+        Markers found in each camera's photo (``ball_index`` = position index).
+    observations : MarkerObservations
+        Marker directions (``flash`` = position index).
+    n_markers_3d, n_markers_ray : int
+        Markers triangulated across the pair / seen by one camera only.
+    marker_reproj_px : float
+        Median epipolar distance of the matched markers.
+    spin : SpinResult or None
+        The pair's own spin fit (principal alias, on its own clock).
+    position_sigma_m : float
+        1-sigma per coordinate of the positions: RMS residual to the reference trajectory.
+    """
+
+    name: str
+    cameras: tuple
+    strobe_hz: float
+    flash_index: np.ndarray
+    positions: np.ndarray
+    centers_px: np.ndarray
+    radius_px: np.ndarray
+    reproj_error_px: np.ndarray
+    flags: np.ndarray
+    n_detected: tuple
+    n_dropped: int
+    spacing_m: float
+    group: int = 0
+    time_offset_s: float = 0.0
+    time_offset_sigma_s: float = 0.0
+    markers: list = field(default_factory=list, repr=False)
+    observations: MarkerObservations | None = field(default=None, repr=False)
+    n_markers_3d: int = 0
+    n_markers_ray: int = 0
+    marker_reproj_px: float = float("nan")
+    spin: SpinResult | None = field(default=None, repr=False)
+    position_sigma_m: float = float("nan")
+    stereo: StereoBalls | None = field(default=None, repr=False)
+
+    @property
+    def local_times(self) -> np.ndarray:
+        """``flash_index / strobe_hz``, s (the pair's own clock)."""
+        return self.flash_index / self.strobe_hz
+
+    @property
+    def times(self) -> np.ndarray:
+        """Times on the reference clock, s."""
+        return self.time_offset_s + self.local_times
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def to_dict(self) -> dict:
+        n_mk = (self.observations.counts(len(self)) if self.observations is not None and len(self)
+                else np.zeros(len(self), int))
+        return {
+            "name": self.name, "cameras": list(self.cameras), "strobe_hz": self.strobe_hz,
+            "flash_index": self.flash_index, "times_s": self.times, "positions": self.positions,
+            "position_sigma_mm": self.position_sigma_m * 1e3, "centers_px": self.centers_px,
+            "radius_px": self.radius_px, "reproj_error_px": self.reproj_error_px, "flags": self.flags,
+            "n_detected": list(self.n_detected), "n_dropped": self.n_dropped, "spacing_m": self.spacing_m,
+            "time_offset_s": self.time_offset_s, "time_offset_sigma_s": self.time_offset_sigma_s,
+            "markers_per_flash": n_mk, "n_markers_3d": self.n_markers_3d, "n_markers_ray": self.n_markers_ray,
+            "spin": None if self.spin is None else self.spin.to_dict(),
+        }
+
+
+@dataclass
+class PitchResult:
+    """Everything :func:`analyse_pitch` measured (SI, world frame of the rig).
+
+    Attributes
+    ----------
+    frame : str
+        The rig's world frame (``"field"`` for metrics in baseball conventions).
+    options : PitchOptions
+    pairs : list of PairResult
+        In flight order; ``pairs[0]`` is the reference clock.
+    times : ndarray, shape (N,)
+        All ball images on the reference clock (0 = first ball image of the front pair), s.
+    positions : ndarray, shape (N, 3)
+    pair_index : ndarray of int, shape (N,)
+        Pair of each position.
+    velocity_two_point, velocity_two_point_sigma : ndarray, shape (3,)
+        The seed's estimate at ``t = 0`` (line through the first two positions, m/s) and its 1-sigma.
+    fit : ReferenceFit
+        The reference trajectory (positions + measured initial parameters).
+    fit_positions_only : ReferenceFit
+        The fit without a measured spin (curvature only: the spin transverse to the flight).
+    spin : SpinResult or None
+        The spin measured from the markers (chosen alias), None when unavailable.
+    alias : object or None
+        The alias ranking (:mod:`stillcap.ball.alias`) when the rate was checked.
+    metrics : PitchMetrics
+    metrics_sigma : dict
+        1-sigma of every numeric metric (same keys).
+    release : dict
+        Release state where the metrics are evaluated: ``t0_s``, ``p0``, ``v0``, ``spin`` (+ ``_sigma``).
+    table1 : dict
+        The seed's Table 1 columns (reference fit against the measured initial parameters).
+    messages : list of str
+        Everything the user should know (skipped pairs, missing markers, ambiguous aliases, ...).
+    timings_s : dict
+    truth : dict or None
+        :func:`compare_with_truth` for synthetic captures.
+    spin_obs_times : ndarray, shape (M,) or None
+        Reference-clock time of each marker observation of ``spin`` (plots).
+    """
+
+    frame: str
+    options: PitchOptions
+    pairs: list
+    times: np.ndarray
+    positions: np.ndarray
+    pair_index: np.ndarray
+    velocity_two_point: np.ndarray
+    velocity_two_point_sigma: np.ndarray
+    fit: ReferenceFit
+    fit_positions_only: ReferenceFit
+    spin: SpinResult | None
+    alias: object
+    metrics: PitchMetrics
+    metrics_sigma: dict
+    release: dict
+    table1: dict
+    messages: list
+    timings_s: dict = field(default_factory=dict)
+    capture_root: str | None = None
+    truth: dict | None = None
+    spin_obs_times: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def spin_available(self) -> bool:
+        return self.spin is not None and bool(self.spin.success)
+
+    @property
+    def release_speed_mph(self) -> float:
+        return float(self.metrics.release_speed_mph)
+
+    def to_dict(self) -> dict:
+        """Strict-JSON-ready summary; key names shared with the studio's ``truth.json``."""
+        from stillcap.io.capture import to_jsonable
+
+        fit = self.fit
+        w = self.release.get("spin") if self.spin_available else None
+        d = {
+            "format": "stillcap-pitch", "version": 1, "kind": "pitch", "frame": self.frame,
+            "units": {"length": "m", "time": "s (0 = first ball image of the front pair)", "spin": "rad/s",
+                      "pixels": "px (x, y), origin top-left pixel centre"},
+            "capture": self.capture_root, "options": self.options.to_dict(), "model": self.options.physics,
+            "cameras": [c for p in self.pairs for c in p.cameras],
+            "strobe_hz": {p.name: p.strobe_hz for p in self.pairs},
+            "metrics": self.metrics.to_dict(),
+            "metrics_sigma": self.metrics_sigma,
+            "release": self.release,
+            "spin": w, "spin_rpm": self.release.get("spin_rpm") if self.spin_available else None,
+            "spin_sigma_rpm": self.spin.sigma_rpm if self.spin_available else None,
+            "spin_axis_sigma_deg": self.spin.sigma_axis_deg if self.spin_available else None,
+            "spin_fit": None if self.spin is None else self.spin.to_dict(),
+            "alias": _alias_dict(self.alias),
+            "plate_time_s": self.metrics.plate_time_s,
+            "time_offsets_s": {p.name: p.time_offset_s for p in self.pairs},
+            "time_offsets_sigma_s": {p.name: p.time_offset_sigma_s for p in self.pairs},
+            "velocity": {
+                "two_point": self.velocity_two_point, "two_point_sigma": self.velocity_two_point_sigma,
+                "two_point_speed_mph": float(np.linalg.norm(self.velocity_two_point) / MPH),
+                "two_point_speed_sigma_mph": _speed_sigma(self.velocity_two_point,
+                                                          np.diag(self.velocity_two_point_sigma ** 2)) / MPH,
+                "fitted": fit.v0, "fitted_sigma": fit.v0_sigma,
+                "fitted_speed_mph": float(np.linalg.norm(fit.v0) / MPH),
+                "fitted_speed_sigma_mph": _speed_sigma(fit.v0, fit.covariance[3:6, 3:6]) / MPH,
+            },
+            "reference_fit": _fit_dict(fit),
+            "reference_fit_positions_only": _fit_dict(self.fit_positions_only),
+            "table1": self.table1,
+            "pairs": [p.to_dict() for p in self.pairs],
+            "messages": list(self.messages),
+            "timings_s": self.timings_s,
+        }
+        if self.truth is not None:
+            d["truth_comparison"] = self.truth
+        return to_jsonable(d)
+
+
+def _speed_sigma(v, cov) -> float:
+    v = np.asarray(v, float)
+    n = np.linalg.norm(v)
+    if not n > 0:
+        return float("nan")
+    u = v / n
+    return float(np.sqrt(max(u @ np.asarray(cov) @ u, 0.0)))
+
+
+def _fit_dict(fit: ReferenceFit) -> dict:
+    return {
+        "method": fit.method, "success": fit.success, "message": fit.message, "t0_s": fit.t0,
+        "p0": fit.p0, "p0_sigma": fit.p0_sigma, "v0": fit.v0, "v0_sigma": fit.v0_sigma,
+        "spin": fit.spin, "spin_sigma": fit.spin_sigma, "spin_rpm": float(np.linalg.norm(fit.spin) * RPM_PER_RAD_S),
+        "spin_transverse": fit.spin_transverse, "spin_transverse_sigma": fit.spin_transverse_sigma,
+        "spin_transverse_rpm": float(np.linalg.norm(fit.spin_transverse) * RPM_PER_RAD_S),
+        "time_offsets_s": fit.time_offsets, "time_offset_sigma_s": fit.time_offset_sigma,
+        "mean_error_mm": fit.mean_error * 1e3, "max_error_mm": fit.max_error * 1e3,
+        "rms_error_mm": fit.rms_error * 1e3, "residual_scale": fit.residual_scale,
+        "times_s": fit.times, "positions": fit.positions, "errors_mm": fit.errors * 1e3,
+        "nfev": fit.nfev, "fit_time_s": fit.fit_time_s,
+    }
+
+
+def _alias_dict(alias) -> dict | None:
+    if alias is None:
+        return None
+    cands = [{"spin": c.spin, "spin_rpm": c.spin_rpm, "axis": c.axis, "n": int(c.n), "source": int(c.source),
+              "axis_determined": bool(c.axis_determined), "chi2_strobes": c.chi2_strobes,
+              "chi2_curvature": c.chi2_curvature, "chi2": c.chi2, "probability": c.probability}
+             for c in alias.candidates[:6]]
+    return {"best_rpm": alias.best.spin_rpm, "ambiguous": bool(alias.ambiguous),
+            "likelihood_ratio": alias.likelihood_ratio, "evidence": list(alias.evidence),
+            "message": alias.message, "candidates": cands}
+
+
+# --------------------------------------------------------------------------------------------
+# Stages
+# --------------------------------------------------------------------------------------------
+def flight_model(physics: str | FlightModel) -> FlightModel:
+    """``"seed"`` or ``"nathan"`` -> :class:`FlightModel` (field-frame gravity, standard air)."""
+    if isinstance(physics, FlightModel):
+        return physics
+    if physics == "seed":
+        return FlightModel.seed_model()
+    if physics == "nathan":
+        return FlightModel.nathan_model()
+    raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
+
+
+def marker_types(layout: BallLayout | None = None) -> tuple:
+    """The detector's palette for a ball layout: each type's linear-RGB colour through a 2.2 gamma
+    (as a fully lit marker looks in a photo), BGR 0-255, with the type's shape."""
+    layout = BallLayout.seed() if layout is None else layout
+    out = []
+    for name, shape in zip(layout.type_names, layout.type_shapes):
+        rgb = np.clip(np.asarray(layout.palette[name], float), 0.0, 1.0)
+        bgr = 255.0 * rgb[::-1] ** (1.0 / 2.2)
+        out.append(MarkerType(name, tuple(np.round(bgr, 1)), shape))
+    return tuple(out)
+
+
+def stereo_pairs(capture: Capture) -> tuple[list[StereoPairSpec], list[str]]:
+    """Group a capture's photos into strobed stereo pairs.
+
+    A photo's pair is ``images[].meta.pair``, else the pair of the capture's ``pairs`` map
+    (``{"front": ["front_top", "front_bottom"], ...}``) holding its camera, else photos are
+    grouped by strobe rate and paired in the order given. A group that is not exactly two photos
+    of two cameras at one strobe rate is skipped with a message.
+
+    Returns
+    -------
+    pairs : list of StereoPairSpec
+        In the capture's order.
+    messages : list of str
+
+    Raises
+    ------
+    ValueError
+        When no complete pair is left.
+    """
+    messages: list[str] = []
+    cmap = capture.meta.get("pairs") if isinstance(capture.meta.get("pairs"), dict) else {}
+    cam_pair = {str(c): str(name) for name, cams in cmap.items() for c in (cams or [])}
+    groups: dict[str, list[CaptureImage]] = {}
+    unnamed: list[CaptureImage] = []
+    for im in capture.images:
+        name = im.meta.get("pair") if isinstance(im.meta, dict) else None
+        name = name if name is not None else cam_pair.get(im.camera)
+        if name is None:
+            unnamed.append(im)
+        else:
+            groups.setdefault(str(name), []).append(im)
+    # photos without a pair name: by strobe rate, two by two in the order given
+    by_rate: dict = {}
+    for im in unnamed:
+        by_rate.setdefault(None if im.strobe_hz is None else round(im.strobe_hz, 6), []).append(im)
+    for rate, ims in by_rate.items():
+        for i in range(0, len(ims), 2):
+            groups.setdefault(f"pair{len(groups)}", []).extend(ims[i:i + 2])
+    for name, cams in cmap.items():
+        if name not in groups:
+            messages.append(f"pair {name!r}: no photo in the capture (cameras {list(cams or [])}): skipped")
+    out = []
+    for name, ims in groups.items():
+        files = ", ".join(im.file for im in ims)
+        if len(ims) != 2:
+            want = cmap.get(name)
+            have = {im.camera for im in ims}
+            missing = [c for c in (want or []) if c not in have]
+            why = f"camera {', '.join(missing)} has no photo" if missing else f"{len(ims)} photo(s) ({files})"
+            messages.append(f"pair {name!r}: {why}; a stereo pair needs one photo from each of two cameras: skipped")
+            continue
+        if ims[0].camera == ims[1].camera:
+            messages.append(f"pair {name!r}: both photos are from camera {ims[0].camera!r}: skipped")
+            continue
+        rates = [im.strobe_hz for im in ims]
+        if any(r is None for r in rates):
+            messages.append(f"pair {name!r}: no strobe_hz for {files} (flash times unknown): skipped")
+            continue
+        if abs(rates[0] - rates[1]) > 1e-6 * max(rates):
+            messages.append(f"pair {name!r}: the two photos have different strobe rates {rates} Hz: skipped")
+            continue
+        out.append(StereoPairSpec(name, (ims[0], ims[1]), float(rates[0])))
+    if not out:
+        detail = "; ".join(messages) if messages else "no photos"
+        raise ValueError(f"capture {capture.root or ''}: no complete stereo pair ({detail})")
+    return out, messages
+
+
+def _flight_axis(points: np.ndarray) -> np.ndarray:
+    c = points - points.mean(axis=0)
+    return np.linalg.svd(c, full_matrices=False)[2][0]
+
+
+def _off_path(points: np.ndarray, direction: np.ndarray, tol_m: float = 0.03) -> np.ndarray:
+    """Points further than ``tol_m`` (or 6 robust sigmas) from a quadratic fitted to the lateral
+    coordinates along ``direction``: stray detections, wrong matches (bool mask)."""
+    n = len(points)
+    bad = np.zeros(n, bool)
+    if n < 5:
+        return bad
+    s = points @ direction
+    lat = points - np.outer(s, direction)
+    A = np.stack([np.ones(n), s - s.mean(), (s - s.mean()) ** 2], axis=1)
+    for _ in range(2):
+        keep = ~bad
+        if keep.sum() < 4:
+            break
+        coef, *_ = np.linalg.lstsq(A[keep], lat[keep], rcond=None)
+        r = np.linalg.norm(lat - A @ coef, axis=1)
+        mad = 1.4826 * np.median(r[keep])
+        bad = r > max(tol_m, 6.0 * mad)
+    return bad
+
+
+def order_flashes(points, direction, strobe_hz: float, expected_spacing_m: float | None = None):
+    """Order a pair's 3D ball positions along the flight and give each its flash index.
+
+    Parameters
+    ----------
+    points : array_like, shape (K, 3)
+    direction : array_like, shape (3,)
+        Flight direction (any length).
+    strobe_hz : float
+    expected_spacing_m : float, optional
+        Distance between consecutive flashes (``speed / strobe_hz``); default: the smallest
+        spacing refined by the spacing ratios (each rounded to a whole number of flashes).
+
+    Returns
+    -------
+    order : ndarray of int, shape (K',)
+        Indices into ``points`` in flight order (duplicates, spacing ~0, dropped).
+    flash_index : ndarray of int, shape (K',)
+        Flash counted from the first, gaps for missed flashes.
+    spacing_m : float
+        Base spacing, m.
+    """
+    P = np.asarray(points, float)
+    d = np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    order = np.argsort(P @ d)
+    if len(order) < 2:
+        return order, np.zeros(len(order), int), float("nan")
+    # drop duplicates (two detections of one ball image)
+    keep = [order[0]]
+    for i in order[1:]:
+        if np.linalg.norm(P[i] - P[keep[-1]]) > 0.3 * (expected_spacing_m or 0.0) + 0.02:
+            keep.append(i)
+    order = np.array(keep)
+    gaps = np.linalg.norm(np.diff(P[order], axis=0), axis=1)
+    if len(gaps) == 0:
+        return order, np.zeros(1, int), float("nan")
+    s = float(expected_spacing_m) if expected_spacing_m else float(gaps.min())
+    for _ in range(3):
+        k = np.maximum(np.rint(gaps / s), 1)
+        s = float(gaps.sum() / k.sum())
+    k = np.maximum(np.rint(gaps / s), 1).astype(int)
+    return order, np.concatenate([[0], np.cumsum(k)]).astype(int), s
+
+
+def _triangulated_direction(cam_a, cam_b, xa, xb, center, radius):
+    X = triangulate([cam_a, cam_b], np.stack([xa, xb])).points
+    v = X - center
+    r = np.linalg.norm(v, axis=1)
+    ok = np.isfinite(r) & (r > 0.8 * radius) & (r < 1.15 * radius)
+    return v / np.where(r > 0, r, 1.0)[:, None], ok
+
+
+def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers_a, centers_b, radius_a, radius_b,
+                             positions, types=None, layout: BallLayout | None = None, radius_m: float = BASEBALL_RADIUS,
+                             max_px: float = 2.0):
+    """Painted markers of a pair's ball images as directions from the ball centres.
+
+    Per photo the markers are found inside each ball image (colour and shape); per ball the two
+    photos' markers are matched (same type, epipolar distance below ``max_px``, optimal
+    assignment) and triangulated, and the direction from the ball centre is kept when the
+    marker lies on the sphere (0.8-1.15 radii: a wrong match does not). Markers seen by one
+    camera (or badly triangulated) become pixel rays meeting the ball sphere.
+
+    Returns
+    -------
+    obs : MarkerObservations
+        ``flash`` = index of the ball position.
+    markers : list of 2 BallMarkers
+    stats : dict
+        ``n_3d``, ``n_ray``, ``epipolar_px`` (median of the matches).
+    """
+    layout = BallLayout.seed() if layout is None else layout
+    types = marker_types(layout) if types is None else types
+    P = np.asarray(positions, float)
+    K = len(P)
+    if K == 0:
+        empty = MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
+        return empty, [BallMarkers.empty(), BallMarkers.empty()], {"n_3d": 0, "n_ray": 0, "epipolar_px": np.nan}
+    ma = detect_ball_markers(img_a, centers_a, radius_a, types)
+    mb = detect_ball_markers(img_b, centers_b, radius_b, types)
+    parts, n3, nray, epi = [], 0, 0, []
+    for k in range(K):
+        A, B = ma.of_ball(k), mb.of_ball(k)
+        m = match_epipolar(cam_a, cam_b, A.centers, B.centers, max_px=max_px,
+                           labels_a=list(A.types), labels_b=list(B.types))
+        ray_a, ray_b = list(m.unmatched_a), list(m.unmatched_b)
+        if len(m.pairs):
+            u, ok = _triangulated_direction(cam_a, cam_b, A.centers[m.pairs[:, 0]], B.centers[m.pairs[:, 1]],
+                                            P[k], radius_m)
+            if ok.any():
+                parts.append(MarkerObservations.from_directions(np.full(int(ok.sum()), k),
+                                                                list(A.types[m.pairs[ok, 0]]), u[ok], layout))
+                n3 += int(ok.sum())
+                epi += list(m.distance_px[ok])
+            ray_a += list(m.pairs[~ok, 0])
+            ray_b += list(m.pairs[~ok, 1])
+        for M, cam, idx in ((A, cam_a, ray_a), (B, cam_b, ray_b)):
+            if not idx:
+                continue
+            idx = np.asarray(idx, int)
+            o, dirs = cam.rays(M.centers[idx])
+            u, hit = rays_to_directions(o, dirs, np.repeat(P[k:k + 1], len(idx), axis=0), radius_m)
+            if hit.any():
+                ob = MarkerObservations(np.full(int(hit.sum()), k), layout.type_index(list(M.types[idx[hit]])),
+                                        u[hit], np.ones(int(hit.sum()), bool))
+                parts.append(ob)
+                nray += int(hit.sum())
+    obs = (MarkerObservations.concatenate(parts) if parts
+           else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))
+    return obs, [ma, mb], {"n_3d": n3, "n_ray": nray, "epipolar_px": float(np.median(epi)) if epi else np.nan}
+
+
+def _release_state(p0, v0, spin, model, t0, release_y_m):
+    """Position, velocity and time where the flight crosses ``y = release_y_m`` (Newton on the
+    reference integrator, before or after ``t0``)."""
+    t = t0
+    p, v = np.asarray(p0, float), np.asarray(v0, float)
+    for _ in range(6):
+        if abs(v[1]) < 1e-6:
+            raise ValueError("the flight does not move along y: cannot evaluate a release plane")
+        dt = (release_y_m - p[1]) / v[1]
+        if abs(dt) < 1e-9:
+            break
+        t = t + dt
+        tr = simulate(p0, v0, spin, [t], model, t0=t0)
+        p, v = tr.positions[0], tr.velocities[0]
+    return t, p, v
+
+
+# --------------------------------------------------------------------------------------------
+# Spin and aliases
+# --------------------------------------------------------------------------------------------
+def _fit_pair_spin(pair: PairResult, method: str, layout, spin_init=None) -> SpinResult | None:
+    obs = pair.observations
+    if obs is None or len(obs) == 0 or len(pair) < 2:
+        return None
+    t = pair.local_times
+    if method == "seed":
+        return fit_spin_seed(t, obs, layout, strobe_hz=pair.strobe_hz)
+    return fit_spin(t, obs, layout, strobe_hz=pair.strobe_hz, spin_init=spin_init)
+
+
+def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, messages: list):
+    """Choose the spin alias with both strobe rates and the flight's Magnus curvature
+    (:func:`stillcap.ball.alias.resolve_aliases`).
+
+    Returns ``(spin vector (3,) or None, AliasResolution or None)``."""
+    from stillcap.ball.alias import CurvatureMeasurement, StrobeMeasurement, resolve_aliases
+
+    meas = []
+    for p in pairs:
+        s = p.spin
+        if s is None or not s.success or not np.all(np.isfinite(s.spin)):
+            continue
+        cov = s.spin_covariance
+        if not np.all(np.isfinite(cov)):  # e.g. the seed method with one interval: no spread
+            cov = np.eye(3) * (20.0 / RPM_PER_RAD_S) ** 2
+        meas.append(StrobeMeasurement(s.spin, p.strobe_hz, cov, f"pair {p.name} ({p.strobe_hz:g} Hz)"))
+    if not meas:
+        return None, None
+    curv = None
+    if fit_curv is not None and np.all(np.isfinite(fit_curv.covariance[6:9, 6:9])):
+        try:
+            curv = CurvatureMeasurement.from_reference_fit(fit_curv, model)
+        except ValueError:
+            curv = None
+    res = resolve_aliases(meas, curv)
+    if res.ambiguous:
+        messages.append(f"spin rate ambiguous (aliasing above the strobe's Nyquist limit): {res.message}")
+    elif len(meas) == 1 and curv is None:
+        messages.append("spin alias checked with one strobe rate only")
+    return res.best.spin.copy(), res
+
+
+def _combined_spin(pairs: list, spin_init, layout, messages) -> SpinResult | None:
+    """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``.
+
+    Returns ``(SpinResult or None, reference-clock time of each observation)``."""
+    parts, times = [], []
+    for p in pairs:
+        if p.observations is None or len(p.observations) == 0:
+            continue
+        parts.append(p)
+        times.append(p.times)
+    if not parts:
+        return None, None
+    if len(parts) == 1:
+        p = parts[0]
+        return (fit_spin(p.local_times, p.observations, layout, strobe_hz=p.strobe_hz, spin_init=spin_init),
+                p.times[p.observations.flash])
+    t_all = np.concatenate(times)
+    order = np.argsort(t_all, kind="stable")
+    if np.any(np.diff(t_all[order]) <= 0):
+        messages.append("flashes of different pairs coincide in time: spin from the pairs separately")
+        return None, None
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    obs_parts, start = [], 0
+    for p in parts:
+        o = p.observations
+        obs_parts.append(MarkerObservations(rank[start + o.flash], o.types, o.directions, o.from_ray))
+        start += len(p)
+    obs = MarkerObservations.concatenate(obs_parts)
+    ref = parts[0]
+    t_sorted = t_all[order]
+    return (fit_spin(t_sorted, obs, layout, t0=0.0, strobe_hz=ref.strobe_hz, spin_init=spin_init),
+            t_sorted[obs.flash])
+
+
+def _spin_stage(pairs, fit_pos, model, layout, method, messages):
+    """Per-pair spin fits, the alias choice and the final spin: ``(SpinResult or None, alias
+    resolution or None, reference-clock time of each observation of the final fit)``."""
+    from stillcap.ball.alias import alias_candidates
+
+    for p in pairs:
+        p.spin = _fit_pair_spin(p, method, layout)
+        if p.spin is not None and not p.spin.success:
+            messages.append(f"pair {p.name!r}: spin not determined ({p.spin.message})")
+    w_alias, alias = _resolve_alias(pairs, fit_pos, model, messages)
+    if w_alias is None:
+        messages.append("too few markers for a spin (need markers on 2+ flashes with 2+ types): spin unavailable")
+        return None, alias, None
+    best = max((p for p in pairs if p.spin is not None and p.spin.success), key=lambda p: p.spin.n_inliers)
+    if method == "global":
+        spin, obs_times = _combined_spin(pairs, w_alias, layout, messages)
+        if spin is None or not spin.success:
+            spin = _fit_pair_spin(best, "global", layout, spin_init=w_alias)
+            obs_times = best.times[best.observations.flash]
+    else:
+        spin = best.spin
+        obs_times = best.times[best.observations.flash]
+        # the seed method's rate is the principal alias of its strobe: move it to the chosen alias
+        cands = alias_candidates(spin.spin, best.strobe_hz, max_rpm=max(4000.0, 1.5 * np.linalg.norm(w_alias)
+                                                                        * RPM_PER_RAD_S))
+        w = min((c.spin for c in cands), key=lambda c: float(np.linalg.norm(c - w_alias)))
+        if np.linalg.norm(w - spin.spin) > 1e-9:
+            spin = _with_spin(spin, w)
+    if spin is not None and not spin.success:
+        messages.append(f"spin fit failed: {spin.message}")
+    return spin, alias, obs_times
+
+
+def _decay_slope(fit: ReferenceFit, model: FlightModel, t_obs, t_ref: float) -> float:
+    """How much slower a constant-spin fit over ``t_obs`` turns than the spin at ``t_ref`` under
+    the Nathan model's decay ``exp(-(t - t_ref) |v(t)| / (tau0 v_ref))``: the least-squares slope
+    of the turned angle (unit rate at ``t_ref``) against time over the observation times."""
+    t_obs = np.asarray(t_obs, float)
+    if len(t_obs) < 2 or np.ptp(t_obs) <= 0:
+        return 1.0
+    grid = np.linspace(min(t_ref, t_obs.min()), t_obs.max(), 400)
+    tr = simulate(fit.p0, fit.v0, fit.spin, grid, model, t0=fit.t0)
+    n = model.nathan
+    rate = np.exp(-(grid - t_ref) * np.linalg.norm(tr.velocities, axis=1) / (n.tau0 * n.v_ref))
+    phi = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(grid))])
+    slope = float(np.polyfit(t_obs, np.interp(t_obs, grid, phi), 1)[0])
+    return slope if slope > 0.5 else 1.0
+
+
+# --------------------------------------------------------------------------------------------
+# Uncertainty of the metrics
+# --------------------------------------------------------------------------------------------
+def _metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release_y_m, nominal: PitchMetrics,
+                   n_samples: int, rng) -> dict:
+    """1-sigma of every numeric metric: Monte Carlo over the reference fit's covariance (release
+    state and the spin of the trajectory) and the marker spin's covariance (spin metrics)."""
+    nom = nominal.to_dict()
+    keys = [k for k in nom if k not in ("nine_parameter", "success", "message", "spin_tilt")]
+    nine_keys = list((nom.get("nine_parameter") or {}).keys())
+    nine_keys = [k for k in nine_keys if k not in ("success", "n_points")]
+    empty = {k: None for k in keys} | {"nine_parameter": None}
+    if n_samples < 2 or not np.all(np.isfinite(fit.covariance[:9, :9])):
+        return empty
+    rng = as_rng(rng)
+    cov = fit.covariance[:9, :9]
+    cov = 0.5 * (cov + cov.T)
+    try:
+        th = rng.multivariate_normal(fit.params, cov, size=n_samples, method="eigh")
+    except (np.linalg.LinAlgError, ValueError):
+        return empty
+    w_traj = th[:, 6:9] @ fit.spin_basis.T
+    t_end = t_rel + max(nominal.plate_time_s if np.isfinite(nominal.plate_time_s) else 0.6, 0.1) * 1.1 + 0.02
+    t_lo = min(t_rel, fit.t0) - 0.03
+    ts = np.arange(t_lo, t_end, 0.002)
+    tr = simulate_batch(th[:, :3], th[:, 3:6], w_traj, ts, model, t0=fit.t0, method="rk4", max_step=0.01)
+    spins = None
+    if spin_meas is not None:
+        c = np.asarray(spin_cov, float)
+        c = 0.5 * (c + c.T) if np.all(np.isfinite(c)) else np.zeros((3, 3))
+        spins = rng.multivariate_normal(spin_meas, c, size=n_samples, method="eigh")
+    vals = {k: [] for k in keys}
+    nine_vals = {k: [] for k in nine_keys}
+    for m in range(n_samples):
+        pos, vel = tr.positions[m], tr.velocities[m]
+        if release_y_m is None:
+            i0 = int(np.searchsorted(ts, t_rel))
+            t_m, p_m, v_m = ts[i0:], pos[i0:], vel[i0:]
+        else:
+            y = pos[:, 1] - release_y_m
+            cross = np.flatnonzero(np.sign(y[:-1]) != np.sign(y[1:]))
+            if not len(cross):
+                continue
+            i = cross[0]
+            a = y[i] / (y[i] - y[i + 1])
+            t_m = np.concatenate([[ts[i] + a * (ts[i + 1] - ts[i])], ts[i + 1:]])
+            p_m = np.concatenate([[pos[i] + a * (pos[i + 1] - pos[i])], pos[i + 1:]])
+            v_m = np.concatenate([[vel[i] + a * (vel[i + 1] - vel[i])], vel[i + 1:]])
+        try:
+            pm = pitch_metrics(t_m, p_m, None if spins is None else spins[m], velocities=v_m)
+        except ValueError:
+            continue
+        dm = pm.to_dict()
+        for k in keys:
+            v = dm.get(k)
+            vals[k].append(float(v) if isinstance(v, (int, float)) else np.nan)
+        for k in nine_keys:
+            v = (dm.get("nine_parameter") or {}).get(k)
+            nine_vals[k].append(np.nan if v is None else float(v))
+
+    def spread(k, arr, centre):
+        a = np.asarray(arr, float)
+        a = a[np.isfinite(a)]
+        if len(a) < 2 or centre is None:
+            return None
+        if k in _ANGLE_KEYS:
+            a = (a - centre + 180.0) % 360.0 - 180.0
+            return float(np.std(a, ddof=1))
+        return float(np.std(a, ddof=1))
+
+    out = {k: spread(k, vals[k], nom.get(k)) for k in keys}
+    nn = nom.get("nine_parameter") or {}
+    out["nine_parameter"] = {k: spread(k, nine_vals[k], nn.get(k)) for k in nine_keys} if nine_keys else None
+    if spin_meas is None:
+        for k in ("spin_rate_rpm", "active_spin_rpm", "spin_efficiency", "gyro_angle_deg", "spin_axis_deg"):
+            if k in out:
+                out[k] = None
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The pipeline
+# --------------------------------------------------------------------------------------------
+def _progress(cb, done, total, label):
+    if cb is not None:
+        cb(done, total, label)
+
+
+def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = None, *,
+                  progress: Callable[[int, int, str], None] | None = None, **kwargs) -> PitchResult:
+    """Analyse one pitch capture (SPEC J1): positions, timing, markers, spin, flight, metrics.
+
+    Parameters
+    ----------
+    capture : Capture or path
+        A capture folder (``kind: pitch``) with one photo per camera of 1+ strobed stereo pairs,
+        each photo with its ``strobe_hz``; the rig's world should be the baseball field frame
+        for the metrics.
+    options : PitchOptions, optional
+        Or pass its fields as keyword arguments (``spin_method="seed"``, ``physics="nathan"``).
+    progress : callable(done, total, label), optional
+
+    Returns
+    -------
+    PitchResult
+
+    Raises
+    ------
+    ValueError
+        A capture that cannot give a flight: not a pitch capture, no complete stereo pair, an
+        unreadable photo, no ball found, fewer than 3 ball positions or fewer than 2 in the front
+        pair. Missing markers (no spin) are not errors: the result says so in ``messages``.
+    """
+    t_all = _time.perf_counter()
+    if options is None:
+        options = PitchOptions(**kwargs)
+    elif kwargs:
+        raise ValueError("give either options or keyword arguments, not both")
+    cap = capture if isinstance(capture, Capture) else Capture.load(capture)
+    where = f"capture {cap.root}" if cap.root is not None else "capture"
+    if cap.kind != "pitch":
+        raise ValueError(f"{where} is a {cap.kind!r} capture, not a pitch capture (capture.json \"kind\")")
+    layout = options.layout or BallLayout.seed(radius=options.ball_radius_m)
+    types = marker_types(layout)
+    model = flight_model(options.physics)
+    R = options.ball_radius_m
+    timings: dict = {}
+    specs, messages = stereo_pairs(cap)
+    total = 2 * len(specs) + 3
+
+    # -- 1-2. ball positions per pair -----------------------------------------------------------
+    t = _time.perf_counter()
+    raw = []
+    for i, sp in enumerate(specs):
+        cams = [cap.rig[c] for c in sp.cameras]
+        imgs = [cap.read_image(im) for im in sp.images]
+        _progress(progress, 2 * i + 1, total, f"pair {sp.name}: ball images")
+        st = ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], R)
+        ok = st.ok & ((st.flags & _DROP_FLAGS) == 0)
+        nd = (len(st.detections_a), len(st.detections_b))
+        if nd[0] == 0 or nd[1] == 0:
+            none = [c for c, n in zip(sp.cameras, nd) if n == 0]
+            messages.append(f"pair {sp.name!r}: no ball in the photo of {', '.join(none)}")
+        elif not ok.any():
+            messages.append(f"pair {sp.name!r}: {nd[0]} and {nd[1]} ball images, none matched across the pair")
+        raw.append((sp, cams, imgs, st, ok, nd))
+        _progress(progress, 2 * i + 2, total, f"pair {sp.name}: {int(ok.sum())} ball positions")
+    timings["positions"] = _time.perf_counter() - t
+    pts_all = np.concatenate([st.points_3d[ok] for *_, st, ok, _ in raw]) if raw else np.zeros((0, 3))
+    if len(pts_all) == 0:
+        raise ValueError(f"{where}: no ball found in any stereo pair ({'; '.join(messages)})")
+
+    # -- 3. flight direction, order, flash indices -------------------------------------------------
+    if len(pts_all) >= 2:
+        axis = _flight_axis(pts_all)
+    else:
+        axis = np.array([0.0, -1.0, 0.0])
+    with_pts = [j for j, r in enumerate(raw) if r[4].any()]
+    if cap.rig.world == "field":
+        sign = -1.0 if axis[1] > 0 else 1.0  # the ball flies toward home plate (-y)
+    elif len(with_pts) >= 2:
+        a = raw[with_pts[0]][3].points_3d[raw[with_pts[0]][4]].mean(0)
+        b = raw[with_pts[-1]][3].points_3d[raw[with_pts[-1]][4]].mean(0)
+        sign = 1.0 if (b - a) @ axis > 0 else -1.0
+        messages.append(f"rig world {cap.rig.world!r} is not the field frame: flight direction from pair "
+                        f"{raw[with_pts[0]][0].name!r} toward {raw[with_pts[-1]][0].name!r}; metrics assume field axes")
+    else:
+        sign = 1.0
+        messages.append(f"rig world {cap.rig.world!r} is not the field frame and only one pair saw the ball: "
+                        "the flight direction is a guess; metrics assume field axes")
+    direction = sign * axis
+    pairs: list[PairResult] = []
+    for sp, cams, imgs, st, ok, nd in raw:
+        idx = np.flatnonzero(ok)
+        n_drop = int(len(st) - len(idx))
+        P = st.points_3d[idx]
+        off = _off_path(P, direction)
+        if off.any():
+            messages.append(f"pair {sp.name!r}: {int(off.sum())} ball position(s) off the flight path dropped")
+            idx, P = idx[~off], P[~off]
+            n_drop += int(off.sum())
+        exp_s = None if options.expected_speed_mph is None else options.expected_speed_mph * MPH / sp.strobe_hz
+        order, k, spacing = order_flashes(P, direction, sp.strobe_hz, exp_s)
+        n_drop += len(idx) - len(order)
+        sel = idx[order]
+        pr = PairResult(sp.name, sp.cameras, sp.strobe_hz, k, st.points_3d[sel],
+                        np.stack([st.centers_a[sel], st.centers_b[sel]]), st.radius_px[sel].T.copy(),
+                        st.reproj_error_px[sel], st.flags[sel], nd, n_drop, spacing, stereo=st)
+        pr._imgs = imgs  # kept for the marker step, dropped afterwards
+        pr._cams = cams
+        pairs.append(pr)
+    # flight order of the pairs: by the position of their first ball image along the flight
+    pairs.sort(key=lambda p: (len(p) == 0, p.positions[0] @ direction if len(p) else 0.0))
+    # cross-check the base spacings (speeds) of the pairs: a pair that missed every other flash
+    # looks twice as fast as the others (drag makes later pairs ~10 % slower, never 2x)
+    speeds = [p.spacing_m * p.strobe_hz for p in pairs if len(p) >= 2 and np.isfinite(p.spacing_m)]
+    if len(speeds) >= 2 and options.expected_speed_mph is None:
+        v_ref = min(speeds)
+        for p in pairs:
+            if len(p) >= 2 and np.isfinite(p.spacing_m):
+                ratio = p.spacing_m * p.strobe_hz / v_ref
+                m = int(round(ratio))
+                if m >= 2 and abs(ratio - m) < 0.25 * m:
+                    p.flash_index = p.flash_index * m
+                    p.spacing_m /= m
+                    messages.append(f"pair {p.name!r}: spacing {m}x the other pairs' speed: every ball image "
+                                    f"counted {m} flashes apart")
+    usable = [p for p in pairs if len(p) >= 1]
+    n_pos = sum(len(p) for p in usable)
+    if n_pos < 3:
+        raise ValueError(f"{where}: too few ball images for a flight: {n_pos} position(s) "
+                         f"({', '.join(f'{p.name}: {len(p)}' for p in pairs)}); need at least 3"
+                         + (f" ({'; '.join(messages)})" if messages else ""))
+    ref = next((p for p in usable if len(p) >= 2), None)
+    if ref is None:
+        raise ValueError(f"{where}: too few flashes: no pair has 2 ball images (the release velocity needs two)")
+    if ref is not usable[0]:
+        messages.append(f"pair {usable[0].name!r} has one ball image only: pair {ref.name!r} is the reference clock")
+    pairs = [ref] + [p for p in pairs if p is not ref]
+    for p in pairs:
+        if len(p) == 1:
+            messages.append(f"pair {p.name!r}: one ball image only (its clock offset rests on it alone)")
+
+    # -- 6. release velocity (seed's two points) -----------------------------------------------------
+    p0 = ref.positions[0]
+    dk = int(ref.flash_index[1] - ref.flash_index[0])
+    v_two = (ref.positions[1] - ref.positions[0]) * ref.strobe_hz / dk
+
+    # -- 7a. positions-only reference fit: clock offsets, curvature -----------------------------------
+    t = _time.perf_counter()
+    groups, times_l, pos_l, pidx = [], [], [], []
+    g = 0
+    for i, p in enumerate(pairs):
+        if len(p) == 0:
+            continue
+        if p is not ref:
+            g += 1
+        p.group = 0 if p is ref else g
+        groups.append(np.full(len(p), p.group))
+        times_l.append(p.local_times)
+        pos_l.append(p.positions)
+        pidx.append(np.full(len(p), i))
+    groups_a, times_a, pos_a, pidx_a = (np.concatenate(x) for x in (groups, times_l, pos_l, pidx))
+    off0 = []
+    for p in pairs:
+        if len(p) == 0 or p is ref:
+            continue
+        cr = cross_plane(p0, v_two, np.zeros(3), model, t0=0.0, plane_point=p.positions[0],
+                         plane_normal=v_two, t_max=5.0)
+        off0.append(cr.time if cr.success else float((p.positions[0] - p0) @ v_two / (v_two @ v_two)))
+    fit_kw = dict(model=model, t0=0.0, method=options.fit_method, position_sigma=options.position_sigma_m,
+                  time_groups=groups_a if g else None, time_offsets=np.array(off0) if g else None)
+    # the positions-only fit (clock offsets, curvature for the alias check) always uses least
+    # squares: it is a step of the pipeline, the selectable optimiser is the final fit's
+    fit_pos = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **{**fit_kw, "method": "least_squares"})
+    timings["fit_positions"] = _time.perf_counter() - t
+    for p in pairs:
+        if p.group > 0:
+            p.time_offset_s = float(fit_pos.time_offsets[p.group - 1])
+            p.time_offset_sigma_s = float(fit_pos.time_offset_sigma[p.group - 1])
+    _progress(progress, total - 2, total, "flight fitted; markers")
+
+    # -- 4-5. markers and spin ----------------------------------------------------------------------
+    t = _time.perf_counter()
+    for p in pairs:
+        if len(p):
+            obs, mk, stats = pair_marker_observations(
+                p._cams[0], p._imgs[0], p._cams[1], p._imgs[1], p.centers_px[0], p.centers_px[1], p.radius_px[0],
+                p.radius_px[1], p.positions, types, layout, R, options.marker_epipolar_px)
+            p.observations, p.markers = obs, mk
+            p.n_markers_3d, p.n_markers_ray, p.marker_reproj_px = stats["n_3d"], stats["n_ray"], stats["epipolar_px"]
+        del p._imgs, p._cams
+    timings["markers"] = _time.perf_counter() - t
+    t = _time.perf_counter()
+    n_obs = sum(len(p.observations) for p in pairs if p.observations is not None)
+    spin, alias, obs_times = None, None, None
+    if n_obs == 0:
+        messages.append("no markers found on the ball: spin unavailable (positions and velocity are reported)")
+    else:
+        try:
+            spin, alias, obs_times = _spin_stage(pairs, fit_pos, model, layout, options.spin_method, messages)
+        except (ValueError, np.linalg.LinAlgError) as e:  # a spin that cannot be had must not cost the flight
+            spin, alias, obs_times = None, None, None
+            messages.append(f"spin fit failed ({e}): spin unavailable")
+    timings["spin"] = _time.perf_counter() - t
+    spin_ok = spin is not None and spin.success
+    w0 = cov0 = None  # measured spin at t = 0 of the reference clock
+    if spin_ok:
+        w0 = spin.spin.copy()
+        cov0 = spin.spin_covariance if np.all(np.isfinite(spin.spin_covariance)) else np.eye(3) * 25.0
+        if model.kind == "nathan" and obs_times is not None and len(obs_times) == len(spin.inliers):
+            slope = _decay_slope(fit_pos, model, obs_times[spin.inliers], 0.0)
+            w0, cov0 = w0 / slope, cov0 / slope ** 2
+            messages.append(f"spin decay (Nathan model) taken into account: {spin.spin_rpm:.0f} rpm on average over "
+                            f"the flashes, {np.linalg.norm(w0) * RPM_PER_RAD_S:.0f} rpm at the first ball image")
+
+    # -- 7b. reference fit with the measured spin ---------------------------------------------------
+    t = _time.perf_counter()
+    if spin_ok:
+        # the spin priors' sigmas from the marker fit's covariance (at least 0.5 rad/s, ~5 rpm)
+        e_v = v_two / np.linalg.norm(v_two)
+        var_axial = max(float(e_v @ cov0 @ e_v), 0.0)
+        var_transverse = max(float(np.trace(cov0)) - var_axial, 0.0) / 2.0
+        priors = FitPriors(spin_axial_sigma=max(np.sqrt(var_axial), 0.5),
+                           spin_transverse_sigma=max(np.sqrt(var_transverse), 0.5))
+        fit_kw["time_offsets"] = fit_pos.time_offsets if g else None
+        fit = fit_reference_trajectory(times_a, pos_a, p0, v_two, w0, priors=priors, **fit_kw)
+    elif options.fit_method != "least_squares":
+        fit = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **fit_kw)
+    else:
+        fit = fit_pos
+    timings["fit"] = _time.perf_counter() - t
+    for p in pairs:
+        if p.group > 0:
+            p.time_offset_s = float(fit.time_offsets[p.group - 1])
+            p.time_offset_sigma_s = float(fit.time_offset_sigma[p.group - 1])
+        sel = pidx_a == pairs.index(p)
+        r = fit.residuals[sel]
+        r = r[np.all(np.isfinite(r), axis=1)]
+        p.position_sigma_m = (float(np.sqrt(np.mean(r ** 2))) if len(r) >= 2
+                              else float(fit.residual_scale * options.position_sigma_m))
+    if not fit.success:
+        messages.append(f"reference fit did not converge: {fit.message}")
+    if fit.rms_error > 0.05:
+        messages.append(f"reference trajectory misses the positions by {fit.rms_error * 1e3:.0f} mm RMS: "
+                        "check the calibration and the flash order")
+    sig_pos = ref.position_sigma_m if np.isfinite(ref.position_sigma_m) else options.position_sigma_m
+    v_two_sigma = np.full(3, np.sqrt(2.0) * sig_pos * ref.strobe_hz / dk)
+
+    # -- 8. metrics ------------------------------------------------------------------------------------
+    t = _time.perf_counter()
+    if cap.rig.world != "field":
+        messages.append(f"rig world is {cap.rig.world!r}, not the baseball field frame: metrics use its axes as if "
+                        "they were field axes (y toward the pitcher, z up)")
+    release_y_m = None if options.release_y_ft is None else options.release_y_ft * FT
+    if release_y_m is None:
+        t_rel, p_rel, v_rel = fit.t0, fit.p0, fit.v0
+        if cap.rig.world == "field" and p_rel[1] < 50.0 * FT:
+            messages.append(f"the first ball image is at y = {p_rel[1] / FT:.1f} ft, far from the pitcher: the release "
+                            "metrics are evaluated there (give --release-y-ft / release_y_ft for the real release)")
+    else:
+        t_rel, p_rel, v_rel = _release_state(fit.p0, fit.v0, fit.spin, model, fit.t0, release_y_m)
+    from stillcap.ball.metrics import pitch_metrics_from_flight
+
+    metrics = pitch_metrics_from_flight(p_rel, v_rel, fit.spin, model, t0=t_rel)
+    w_meas = cov_rel = None
+    if spin_ok:
+        f_rel = 1.0
+        if model.kind == "nathan":  # the spin at release (before the first ball image: a little faster)
+            n = model.nathan
+            f_rel = float(np.exp(-(t_rel - fit.t0) * np.linalg.norm(v_rel) / (n.tau0 * n.v_ref)))
+        w_meas, cov_rel = w0 * f_rel, cov0 * f_rel ** 2
+    _set_spin_metrics(metrics, w_meas, v_rel)
+    if not spin_ok:
+        metrics.message = "; ".join(filter(None, [metrics.message, "spin unavailable (no usable markers)"]))
+    sigma = _metrics_sigma(fit, w_meas, cov_rel, model, t_rel, release_y_m, metrics, int(options.n_samples),
+                           options.rng)
+    timings["metrics"] = _time.perf_counter() - t
+    release = {"t0_s": float(t_rel), "p0": p_rel, "v0": v_rel, "spin": w_meas,
+               "speed_mph": float(np.linalg.norm(v_rel) / MPH),
+               "spin_rpm": float(np.linalg.norm(w_meas) * RPM_PER_RAD_S) if spin_ok else None,
+               "p0_sigma": fit.p0_sigma, "v0_sigma": fit.v0_sigma,
+               "spin_sigma": np.sqrt(np.clip(np.diag(cov_rel), 0, None)) if spin_ok else None,
+               "where": "at the front pair's first ball image" if release_y_m is None
+               else f"at y = {options.release_y_ft:.2f} ft (release_y_ft)"}
+    table1 = {k: float(v) for k, v in fit.seed_table_row().items()}
+    table1["spin_rpm"] = float(np.linalg.norm(w0) * RPM_PER_RAD_S) if spin_ok else float("nan")
+    table1["speed_sigma_mph"] = _speed_sigma(fit.v0, fit.covariance[3:6, 3:6]) / MPH
+    table1["spin_sigma_rpm"] = float(spin.sigma_rpm) if spin_ok else float("nan")
+    timings["total"] = _time.perf_counter() - t_all
+    _progress(progress, total, total, "done")
+    res = PitchResult(cap.rig.world, options, pairs, fit.times, pos_a, pidx_a, v_two, v_two_sigma, fit, fit_pos,
+                      spin, alias, metrics, sigma, release, table1, messages, timings,
+                      None if cap.root is None else str(cap.root), spin_obs_times=obs_times)
+    if isinstance(cap.truth, dict) and cap.truth.get("kind") == "pitch":
+        try:
+            res.truth = compare_with_truth(res, cap.truth)
+        except (KeyError, ValueError, TypeError, IndexError) as e:  # a truth file of another version
+            messages.append(f"truth.json could not be compared: {e}")
+    return res
+
+
+def _set_spin_metrics(metrics: PitchMetrics, w, v_rel) -> None:
+    nan = float("nan")
+    if w is None:
+        metrics.spin_rate_rpm = metrics.active_spin_rpm = metrics.spin_efficiency = nan
+        metrics.gyro_angle_deg = metrics.spin_axis_deg = nan
+        metrics.spin_tilt = ""
+        return
+    w = np.asarray(w, float)
+    metrics.spin_rate_rpm = float(np.linalg.norm(w) * RPM_PER_RAD_S)
+    metrics.spin_efficiency = float(spin_efficiency(w, v_rel))
+    metrics.active_spin_rpm = metrics.spin_rate_rpm * metrics.spin_efficiency
+    metrics.gyro_angle_deg = float(np.degrees(np.arccos(np.clip(metrics.spin_efficiency, 0.0, 1.0))))
+    metrics.spin_axis_deg = float(spin_axis_deg(w, v_rel))
+    metrics.spin_tilt = clock_tilt(metrics.spin_axis_deg) if np.isfinite(metrics.spin_axis_deg) else ""
+
+
+def _with_spin(res: SpinResult, w) -> SpinResult:
+    """A copy of a spin result moved to another alias ``w`` (same axis line, rate from the alias)."""
+    from dataclasses import replace as _replace
+
+    w = np.asarray(w, float)
+    n = float(np.linalg.norm(w))
+    return _replace(res, spin=w.copy(), spin_rpm=n * RPM_PER_RAD_S, axis=w / n if n > 0 else np.full(3, np.nan),
+                    message=f"{res.message}; alias chosen with both strobe rates and the flight curvature")
+
+
+# --------------------------------------------------------------------------------------------
+# Comparison with the truth (synthetic captures)
+# --------------------------------------------------------------------------------------------
+def _angle(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if not (np.linalg.norm(a) > 0 and np.linalg.norm(b) > 0):
+        return float("nan")
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
+
+
+def compare_with_truth(result: PitchResult, truth: dict) -> dict:
+    """Errors of a result against a studio ``truth.json`` (dict), in the seed's Table 1 units.
+
+    Positions are compared with the true ball centre at the nearest true flash of the same pair;
+    the release velocity with the true velocity at the instant of the front pair's first ball
+    image; spin with the true spin vector; metrics key by key (``ours - truth``).
+    """
+    from stillcap.io.capture import from_jsonable
+
+    tmodel = flight_model(truth.get("model", "seed"))
+    rel = truth["release"]
+    tp0, tv0, tw = (np.asarray(rel[k], float) for k in ("p0", "v0", "spin"))
+    t_rel = float(rel["t0_s"])
+    tpairs = {p["name"]: p for p in truth["pairs"]}
+    errs, per_pair, true_t = [], {}, {}
+    for p in result.pairs:
+        tp = tpairs.get(p.name)
+        if tp is None or len(p) == 0:
+            continue
+        P = from_jsonable(tp["positions"]).reshape(-1, 3)
+        T = np.asarray(tp["times_s"], float)
+        d = np.linalg.norm(P[None] - p.positions[:, None], axis=2)
+        j = np.nanargmin(d, axis=1)
+        e = d[np.arange(len(p)), j]
+        errs.append(e)
+        true_t[p.name] = T[j]
+        k_true = np.asarray(tp["flash_index"], int)[j]
+        per_pair[p.name] = {"mean_err_mm": float(e.mean() * 1e3), "max_err_mm": float(e.max() * 1e3),
+                            "n": len(p), "n_true": int(np.sum(tp.get("rendered", [True] * len(T)))),
+                            "flash_index_ok": bool(np.all(np.diff(k_true) == np.diff(p.flash_index)))}
+    e = np.concatenate(errs) if errs else np.zeros(0)
+    ref = result.pairs[0]
+    T0 = float(true_t[ref.name][0]) if ref.name in true_t else float("nan")
+    out = {"positions": per_pair, "mean_err_mm": float(e.mean() * 1e3) if len(e) else None,
+           "max_err_mm": float(e.max() * 1e3) if len(e) else None}
+    if np.isfinite(T0):
+        st = simulate(tp0, tv0, tw, [T0], tmodel, t0=t_rel)
+        v_true = st.velocities[0]
+        for name, v in (("fitted", result.fit.v0), ("two_point", result.velocity_two_point)):
+            out[f"velocity_angle_deg_{name}"] = _angle(v, v_true)
+            out[f"speed_diff_mph_{name}"] = float((np.linalg.norm(v) - np.linalg.norm(v_true)) / MPH)
+        out["true_speed_mph_at_t0"] = float(np.linalg.norm(v_true) / MPH)
+        out["true_time_of_t0_s"] = T0
+        offs = {}
+        for p in result.pairs[1:]:
+            if p.name in true_t and len(p):
+                # true time of this pair's flash 0 on the reference clock
+                true_off = float(true_t[p.name][0] - p.flash_index[0] / p.strobe_hz - T0)
+                offs[p.name] = {"fitted_s": p.time_offset_s, "true_s": true_off,
+                                "error_ms": (p.time_offset_s - true_off) * 1e3,
+                                "sigma_ms": p.time_offset_sigma_s * 1e3}
+        out["time_offsets"] = offs
+    if result.spin_available:
+        w = np.asarray(result.release["spin"], float)
+        out["spin_axis_angle_deg"] = _angle(w, tw)
+        out["spin_rate_diff_rpm"] = float((np.linalg.norm(w) - np.linalg.norm(tw)) * RPM_PER_RAD_S)
+        out["spin_axis_sigma_deg"] = float(result.spin.sigma_axis_deg)
+        out["spin_rate_sigma_rpm"] = float(result.spin.sigma_rpm)
+    else:
+        out["spin_axis_angle_deg"] = out["spin_rate_diff_rpm"] = None
+    out["fit_spin_axis_angle_deg"] = _angle(result.fit.spin, tw)
+    out["fit_spin_rate_diff_rpm"] = float((np.linalg.norm(result.fit.spin) - np.linalg.norm(tw)) * RPM_PER_RAD_S)
+    out["true_speed_mph"] = float(np.linalg.norm(tv0) / MPH)
+    out["true_spin_rpm"] = float(np.linalg.norm(tw) * RPM_PER_RAD_S)
+    tm = truth.get("metrics") or {}
+    ours = result.metrics.to_dict()
+    diffs = {}
+    for k, tv in tm.items():
+        ov = ours.get(k)
+        if isinstance(tv, (int, float)) and not isinstance(tv, bool) and isinstance(ov, (int, float)) \
+                and not isinstance(ov, bool):
+            dv = float(ov) - float(tv)
+            if k in _ANGLE_KEYS:
+                dv = (dv + 180.0) % 360.0 - 180.0
+            diffs[k] = {"ours": float(ov), "truth": float(tv), "diff": dv,
+                        "sigma": result.metrics_sigma.get(k)}
+    out["metrics"] = diffs
+    out["table1"] = {
+        "mean_err_mm": out["mean_err_mm"], "max_err_mm": out["max_err_mm"],
+        "velocity_angle_deg": out.get("velocity_angle_deg_fitted"), "speed_diff_mph": out.get("speed_diff_mph_fitted"),
+        "spin_axis_angle_deg": out["spin_axis_angle_deg"], "spin_rate_diff_rpm": out["spin_rate_diff_rpm"],
+        "speed_mph": float(np.linalg.norm(result.fit.v0) / MPH),
+        "spin_rpm": float(np.linalg.norm(w) * RPM_PER_RAD_S) if result.spin_available else None,
+    }
+    return out
+

@@ -1,0 +1,97 @@
+"""`stillcap pitch` and the pitch demo: outputs written, options honoured, bad captures exit 2."""
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from stillcap.cli import main
+from stillcap.studio.pitch import pitch_capture
+
+SIZE = (1280, 960)
+
+
+def studio_pitch(factory, name, **kw):
+    """Render a studio pitch into a session folder once (shared with the pipeline tests)."""
+    root = factory.getbasetemp() / f"pitch-{name}"
+    if not (root / "capture.json").is_file():
+        pc = pitch_capture(kw.pop("preset", "seed-4seam"), kw.pop("seed", 1), calibrate=False, image_size=SIZE, **kw)
+        cap, images = pc.to_capture()
+        cap.save(root, images)
+    return root
+
+
+@pytest.fixture(scope="module")
+def fastball(tmp_path_factory):
+    return studio_pitch(tmp_path_factory, "fastball")
+
+
+def run(args, capsys):
+    try:
+        main(args)
+        code = 0
+    except SystemExit as e:
+        code = e.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_pitch_json_report_csv(fastball, tmp_path, capsys):
+    code, out, err = run(["pitch", str(fastball), "--json", "--report", str(tmp_path / "rep"),
+                          "--csv", str(tmp_path / "pos.csv")], capsys)
+    assert code == 0, err
+    d = json.loads(out)
+    truth = json.loads((fastball / "truth.json").read_text())
+    assert set(d["metrics"]) == set(truth["metrics"])
+    assert d["spin_fit"]["method"] == "global" and d["reference_fit"]["method"] == "least_squares"
+    assert abs(d["spin_rpm"] - truth["spin_rpm"]) < 10
+    assert d["truth_comparison"]["mean_err_mm"] < 3
+    for f in ("report.html", "pitch.json", "positions.csv", "metrics.csv", "side.png", "top.png", "spin.png",
+              "residuals.png"):
+        assert (tmp_path / "rep" / f).stat().st_size > 100, f
+    assert (tmp_path / "pos.csv").read_text().startswith("pair,camera_a,camera_b,strobe_hz,flash_index,time_s,x_m")
+
+
+def test_pitch_table_output_and_options(fastball, capsys, monkeypatch):
+    import stillcap.pipelines.pitch as pipeline
+
+    methods, real_fit = [], pipeline.fit_reference_trajectory
+
+    def fit(*args, **kw):  # record the optimiser asked for; run the fast one (Powell is tested in tests/ball)
+        methods.append(kw["method"])
+        return real_fit(*args, **{**kw, "method": "least_squares"})
+
+    monkeypatch.setattr(pipeline, "fit_reference_trajectory", fit)
+    code, out, err = run(["pitch", str(fastball), "--spin", "seed", "--fit", "powell", "--physics", "nathan"], capsys)
+    assert code == 0, err
+    assert methods == ["least_squares", "powell"]  # positions-only fit, then the selected optimiser
+    assert "Pitch metrics" in out and "Table 1" in out and "spin (seed)" in out and "release_speed_mph" in out
+
+
+def test_pitch_bad_input_exits_2(fastball, tmp_path, capsys):
+    code, _, err = run(["pitch", str(tmp_path / "nowhere")], capsys)
+    assert code == 2 and "does not exist" in err
+    code, _, err = run(["pitch", str(fastball), "--spin", "magic"], capsys)
+    assert code == 2 and "magic" in err
+    cap = tmp_path / "black"
+    shutil.copytree(fastball, cap)
+    for f in (cap / "images").glob("*.png"):
+        cv2.imwrite(str(f), np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
+    code, _, err = run(["pitch", str(cap)], capsys)
+    assert code == 2 and "no ball found" in err
+    (cap / "images" / "front_top.png").write_bytes(b"not an image at all")
+    code, _, err = run(["pitch", str(cap)], capsys)
+    assert code == 2 and "front_top.png" in err
+
+
+def test_pitch_demo(tmp_path, capsys):
+    from stillcap.cli.demo_pitch import pitch_demo
+
+    res = pitch_demo(tmp_path / "demo", 5, calibrate=False, image_size=SIZE)
+    out = capsys.readouterr().out
+    assert "vs truth" in out and "seed paper" in out and "release_speed_mph" in out
+    assert (tmp_path / "demo" / "report" / "report.html").is_file()
+    assert (tmp_path / "demo" / "capture" / "truth.json").is_file()
+    assert res.truth["mean_err_mm"] < 3 and abs(res.truth["metrics"]["release_speed_mph"]["diff"]) < 0.3
