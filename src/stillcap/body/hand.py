@@ -1,0 +1,356 @@
+"""The hand model (SPEC J2, seed section 5): a right hand as data, its 18 glove markers in 4
+colours, scaling to a person, and fitting the hand to measured markers.
+
+Hand frame (``data/hand_skeleton.json``): **x distal** (along the fingers), **y radial**
+(toward the thumb), **z dorsal** (out of the back of the hand), metres. The root joint
+``wrist`` is the back of the hand (the carpus); its pose in the world is ``root2world``.
+Digits: ``thumb-cmc, thumb-mcp, thumb-ip, thumb-tip`` and ``F-mcp, F-pip, F-dip, F-tip`` for
+``F`` in index, middle, ring, little. A bone is named after the joint at its end (the bone
+``index-pip`` is the proximal phalanx, moved by ``index-mcp``).
+
+Degrees of freedom are the joint-limit axes that are not locked (intrinsic XYZ Euler angles:
+X twist, Y flexion toward the palm, Z abduction toward the thumb): finger MCPs flex and
+abduct, PIPs, DIPs, thumb MCP and IP are hinges (flexion only), the thumb CMC has all three;
+21 in all (:func:`hand_dofs`).
+
+Markers (``data/hand_markers.json``): 3 on the back of the hand (carried by the root), per
+digit one over each of its two distal joints and one on the nail; 4 colours
+(:data:`HAND_COLOURS`), assigned so that same-colour markers are as far apart as possible
+(:func:`same_colour_min_distance`).
+
+Fitting (:func:`fit_hand`) is a least-squares fit of the root pose and the 21 joint angles
+(and, for :func:`personalise_hand`, six scale factors: palm and each digit) to measured
+markers, started from a rigid alignment of the back-of-hand markers: the seed's procedure
+(align the back of the hand, then choose each joint's rotation to bring the next marker to its
+measurement) done for all joints at once.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from typing import Mapping
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from stillcap._checks import as_array
+from stillcap.body.kinematics import _marker_array, rigid_alignment
+from stillcap.body.markerset import Marker, MarkerSet
+from stillcap.body.skeleton import Joint, Pose, Skeleton
+
+__all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLOURS", "SCALE_GROUPS", "HandFit", "fit_hand", "hand_dofs",
+           "hand_markerset", "hand_pose", "hand_skeleton", "marker_colours", "personalise_hand", "scale_groups",
+           "scale_hand", "same_colour_min_distance"]
+
+#: Digits, thumb first.
+DIGITS = ("thumb", "index", "middle", "ring", "little")
+#: Scale groups of :func:`personalise_hand`: the palm (metacarpals of the fingers, the thumb's
+#: CMC position, the back-of-hand markers) and each digit (its bones and markers).
+SCALE_GROUPS = ("palm",) + DIGITS
+#: The three back-of-hand markers (they fix the root's pose).
+BACK_MARKERS = ("back.1", "back.2", "back.3")
+#: The glove's marker colours: name -> HSB in [0, 1] (hue in turns); luminous, hues far apart.
+HAND_COLOURS = {"red": (0.0, 0.85, 1.0), "yellow": (0.15, 0.85, 1.0), "green": (0.38, 0.85, 1.0),
+                "blue": (0.62, 0.85, 1.0)}
+
+
+def _read(name: str) -> dict:
+    return json.loads(resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8"))
+
+
+@lru_cache(maxsize=1)
+def hand_skeleton() -> Skeleton:
+    """The adult right hand (``data/hand_skeleton.json``), hand frame, metres, 21 joints."""
+    return Skeleton.from_dict(_read("hand_skeleton.json"), source="stillcap/data/hand_skeleton.json")
+
+
+@lru_cache(maxsize=1)
+def hand_markerset() -> MarkerSet:
+    """The 18 glove markers (``data/hand_markers.json``) on :func:`hand_skeleton`."""
+    return MarkerSet.from_dict(_read("hand_markers.json"), source="stillcap/data/hand_markers.json")
+
+
+def marker_colours(markerset: MarkerSet) -> list[str]:
+    """The colour name (:data:`HAND_COLOURS`) of each marker: the one with the nearest HSB
+    (hue periodic)."""
+    names = list(HAND_COLOURS)
+    ref = np.array([HAND_COLOURS[n] for n in names])
+    out = []
+    for m in markerset.markers:
+        d = np.abs(ref - np.array(m.hsb))
+        d[:, 0] = np.minimum(d[:, 0], 1 - d[:, 0])
+        out.append(names[int(np.argmin(np.linalg.norm(d, axis=1)))])
+    return out
+
+
+def same_colour_min_distance(markerset: MarkerSet, pose: Pose | None = None, colours=None) -> float:
+    """Smallest distance (m) between two markers of the same colour, in ``pose`` (default rest).
+
+    ``colours`` (a colour name per marker) replaces the marker set's own colours, to compare
+    assignments.
+    """
+    pose = pose or Pose.rest(hand_skeleton())
+    pts = markerset.positions(pose)
+    cols = np.asarray(marker_colours(markerset) if colours is None else list(colours))
+    if len(cols) != len(pts):
+        raise ValueError(f"colours must have {len(pts)} entries, got {len(cols)}")
+    best = np.inf
+    for c in np.unique(cols):
+        idx = np.flatnonzero(cols == c)
+        if len(idx) > 1:
+            d = np.linalg.norm(pts[idx, None] - pts[None, idx], axis=-1)
+            best = min(best, float(d[np.triu_indices(len(idx), 1)].min()))
+    return best
+
+
+def scale_groups(skeleton: Skeleton) -> list[str]:
+    """Scale group of each joint's bone: ``palm`` for the root and the bones starting at it
+    (metacarpals, the thumb's CMC position), else the digit named by the joint's prefix."""
+    out = []
+    for j in skeleton.joints:
+        if j.parent is None or j.parent == skeleton.names[skeleton.root]:
+            out.append("palm")
+        else:
+            digit = j.name.split("-")[0]
+            if digit not in DIGITS:
+                raise ValueError(f"joint {j.name!r} belongs to no digit (expected a prefix in {DIGITS})")
+            out.append(digit)
+    return out
+
+
+def _scale_vector(scales) -> dict[str, float]:
+    if np.isscalar(scales):
+        s = float(scales)
+        out = {g: s for g in SCALE_GROUPS}
+    else:
+        unknown = set(scales) - set(SCALE_GROUPS)
+        if unknown:
+            raise ValueError(f"unknown scale groups {sorted(unknown)}; groups: {list(SCALE_GROUPS)}")
+        out = {g: float(scales.get(g, 1.0)) for g in SCALE_GROUPS}
+    bad = {g: v for g, v in out.items() if not (np.isfinite(v) and v > 0)}
+    if bad:
+        raise ValueError(f"scale factors must be finite and > 0, got {bad}")
+    return out
+
+
+def scale_hand(skeleton: Skeleton, markerset: MarkerSet, scales) -> tuple[Skeleton, MarkerSet]:
+    """A hand scaled to a person: bone lengths and marker offsets times a factor per group.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        A hand skeleton (:func:`hand_skeleton`).
+    markerset : MarkerSet
+    scales : float or mapping group -> float
+        One factor for everything or factors per :data:`SCALE_GROUPS` (missing groups: 1).
+        A marker scales with its bone's group (so it stays on the scaled skin).
+
+    Returns
+    -------
+    (Skeleton, MarkerSet)
+    """
+    s = _scale_vector(scales)
+    groups = scale_groups(skeleton)
+    joints = tuple(Joint(j.name, j.parent, j.offset * s[g], j.limits_deg) for j, g in zip(skeleton.joints, groups))
+    sk = Skeleton(joints, name=skeleton.name, source=skeleton.source)
+    mgroup = [groups[skeleton.index(m.bone)] for m in markerset.markers]
+    markers = tuple(Marker(m.name, m.bone, m.offset * s[g], m.hsb, m.diameter) for m, g in zip(markerset.markers, mgroup))
+    ms = MarkerSet(markers, markerset.rules, markerset.name, markerset.skeleton_name, markerset.source)
+    return sk, ms
+
+
+def hand_dofs(skeleton: Skeleton) -> list[tuple[int, int]]:
+    """The hand's degrees of freedom: ``(joint index, axis)`` for every joint-limit axis that is
+    not locked (axis 0, 1, 2 = the X, Y, Z intrinsic Euler angle)."""
+    lim = skeleton.limits_deg
+    out = []
+    for i in range(skeleton.n_joints):
+        for a in range(3):
+            lo, hi = lim[i, a]
+            if np.isnan(lo) or hi > lo:
+                out.append((i, a))
+    return out
+
+
+def hand_pose(skeleton: Skeleton, root2world=None, angles_deg=None) -> Pose:
+    """A hand pose from joint angles.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    root2world : array_like, shape (4, 4), optional
+        Default identity.
+    angles_deg : mapping joint -> (3,) or array_like, shape (n_joints, 3), optional
+        Intrinsic XYZ Euler angles (twist, flexion, abduction) in degrees; missing joints 0.
+
+    Returns
+    -------
+    Pose
+    """
+    n = skeleton.n_joints
+    ang = np.zeros((n, 3))
+    if isinstance(angles_deg, Mapping):
+        for k, v in angles_deg.items():
+            ang[skeleton.index(k)] = as_array(v, (3,), f"angles of joint {k!r}")
+    elif angles_deg is not None:
+        ang = as_array(angles_deg, (n, 3), "angles_deg")
+    r2w = np.eye(4) if root2world is None else root2world
+    return Pose(skeleton, r2w, Rotation.from_euler("XYZ", ang, degrees=True).as_matrix())
+
+
+# --------------------------------------------------------------------------------------------
+# Fitting
+# --------------------------------------------------------------------------------------------
+@dataclass
+class HandFit:
+    """Result of :func:`fit_hand` / :func:`personalise_hand`.
+
+    Attributes
+    ----------
+    pose : Pose
+        The fitted pose (of :attr:`skeleton`).
+    skeleton, markerset : Skeleton, MarkerSet
+        The (scaled, for a personalisation) hand the pose belongs to.
+    scales : dict
+        Factor per :data:`SCALE_GROUPS` (all 1 unless scales were fitted).
+    angles_deg : ndarray, shape (n_joints, 3)
+        Fitted intrinsic XYZ Euler angles, degrees.
+    residuals : ndarray, shape (n_markers,)
+        Distance between fitted and measured markers, m; NaN for unseen markers.
+    rms : float
+        RMS of the residuals, m.
+    n_markers : int
+        Markers used.
+    success : bool
+        The optimiser converged, the back of the hand was seen and the RMS is below 5 mm.
+    message : str
+    """
+
+    pose: Pose
+    skeleton: Skeleton
+    markerset: MarkerSet
+    scales: dict
+    angles_deg: np.ndarray
+    residuals: np.ndarray
+    rms: float
+    n_markers: int
+    success: bool
+    message: str = ""
+
+
+def _fk_markers(parents, order, offsets, moffsets, mframes, r2w, local):
+    """Marker world positions for joint offsets (n, 3), marker offsets (m, 3), rotations (n, 3, 3)."""
+    n = len(parents)
+    R = np.empty((n, 3, 3))
+    t = np.empty((n, 3))
+    for i in order:
+        p = parents[i]
+        if p < 0:
+            R[i] = r2w[:3, :3] @ local[i]
+            t[i] = r2w[:3, 3]
+        else:
+            t[i] = R[p] @ offsets[i] + t[p]
+            R[i] = R[p] @ local[i]
+    return np.einsum("mij,mj->mi", R[mframes], moffsets) + t[mframes]
+
+
+def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_scale: bool = False,
+             initial: Pose | None = None, regularise: float = 1e-4) -> HandFit:
+    """Fit the hand's root pose and joint angles (and optionally its scale) to measured markers.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+        A hand (:func:`hand_skeleton`, possibly scaled).
+    markerset : MarkerSet
+    marker_positions : array_like, shape (n_markers, 3), or mapping name -> (3,)
+        World positions, metres; NaN (or a missing name) for unseen markers. The back-of-hand
+        markers (:data:`BACK_MARKERS`) must be seen (as in the seed).
+    fit_scale : bool
+        Also fit a scale factor per :data:`SCALE_GROUPS` (see :func:`personalise_hand`).
+    initial : Pose, optional
+        Start for the joint angles (default: the rest pose); the root always starts from the
+        rigid alignment of the back-of-hand markers.
+    regularise : float
+        Weight (m per radian) pulling each angle toward its start, so that joints no seen
+        marker constrains stay put.
+
+    Returns
+    -------
+    HandFit
+    """
+    pts = _marker_array(markerset, marker_positions)
+    seen = np.all(np.isfinite(pts), axis=1)
+    back = [markerset.index(n) for n in BACK_MARKERS]
+    if not seen[back].all():
+        raise ValueError(f"fitting a hand needs the back-of-hand markers {list(BACK_MARKERS)} seen, "
+                         f"missing: {[BACK_MARKERS[k] for k in np.flatnonzero(~seen[back])]}")
+    frames = markerset.bone_frames(skeleton)
+    dofs = hand_dofs(skeleton)
+    groups = scale_groups(skeleton)
+    gidx = np.array([SCALE_GROUPS.index(g) for g in groups])
+    mg = np.array([gidx[skeleton.index(m.bone)] for m in markerset.markers])
+    offsets, moffsets = skeleton.offsets, markerset.offsets
+    parents, order = skeleton.parents, skeleton.depth_first
+    lim = np.radians(skeleton.limits_deg)
+
+    ang0 = np.zeros((skeleton.n_joints, 3))
+    if initial is not None:
+        ang0 = np.radians(skeleton.limit_angles_deg(initial.local_rotations))
+    a0 = np.array([ang0[i, a] for i, a in dofs])
+    lo = np.array([lim[i, a, 0] if np.isfinite(lim[i, a, 0]) else -np.pi for i, a in dofs])
+    hi = np.array([lim[i, a, 1] if np.isfinite(lim[i, a, 1]) else np.pi for i, a in dofs])
+    a0 = np.clip(a0, lo, hi)
+
+    # root from the back of the hand (scale-free start: the rotation is right, the translation nearly)
+    fit0 = rigid_alignment(moffsets[back], pts[back])  # the back markers ride on the root frame
+    rv0, t0 = fit0.rotation.as_rotvec(), fit0.translation
+    n_s = len(SCALE_GROUPS) if fit_scale else 0
+    x0 = np.concatenate([rv0, t0, a0, np.zeros(n_s)])
+
+    def unpack(x):
+        r2w = np.eye(4)
+        r2w[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+        r2w[:3, 3] = x[3:6]
+        ang = np.zeros((skeleton.n_joints, 3))
+        for (i, a), v in zip(dofs, x[6:6 + len(dofs)]):
+            ang[i, a] = v
+        s = np.exp(x[6 + len(dofs):]) if fit_scale else np.ones(len(SCALE_GROUPS))
+        return r2w, ang, s
+
+    def residual(x):
+        r2w, ang, s = unpack(x)
+        local = Rotation.from_euler("XYZ", ang).as_matrix()
+        p = _fk_markers(parents, order, offsets * s[gidx][:, None], moffsets * s[mg][:, None], frames, r2w, local)
+        res = (p - pts)[seen].ravel()
+        return np.concatenate([res, regularise * (x[6:6 + len(dofs)] - a0)])
+
+    lb = np.concatenate([np.full(6, -np.inf), lo, np.full(n_s, np.log(0.5))])
+    ub = np.concatenate([np.full(6, np.inf), hi, np.full(n_s, np.log(2.0))])
+    x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
+    sol = least_squares(residual, x0, bounds=(lb, ub), x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                        max_nfev=400)
+    r2w, ang, s = unpack(sol.x)
+    scales = dict(zip(SCALE_GROUPS, (float(v) for v in s)))
+    sk, ms = scale_hand(skeleton, markerset, scales) if fit_scale else (skeleton, markerset)
+    pose = Pose(sk, r2w, Rotation.from_euler("XYZ", ang).as_matrix())
+    d = np.linalg.norm(ms.positions(pose) - pts, axis=1)
+    d[~seen] = np.nan
+    rms = float(np.sqrt(np.nanmean(d ** 2)))
+    ok = bool(sol.success) and rms < 0.005
+    return HandFit(pose, sk, ms, scales, np.degrees(ang), d, rms, int(seen.sum()), ok, str(sol.message))
+
+
+def personalise_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, **kw) -> HandFit:
+    """Scale the hand model to a person from measured markers (any pose, all 18 seen best).
+
+    Fits the pose together with a scale factor per :data:`SCALE_GROUPS` (palm and each digit):
+    the marker distances fix the bone lengths. The result's ``skeleton`` and ``markerset`` are
+    the personalised hand (:func:`scale_hand` with ``scales``); ``pose`` is the fitted pose of it.
+    Keyword arguments go to :func:`fit_hand`.
+    """
+    return fit_hand(skeleton, markerset, marker_positions, fit_scale=True, **kw)
