@@ -197,3 +197,31 @@ def pitch(
                       "of the true rig")
         if not result.calibration.success:
             console.print("[yellow]warning:[/] a camera's board residuals exceed 1 px; see capture.json calibration")
+
+
+@app.command()
+def hand(
+    out: Path = typer.Option(..., "--out", help="Capture folder to write."),
+    seed: int = typer.Option(0, "--seed", help="Random seed (same seed, same capture)."),
+    preset: str = typer.Option("seed-4seam", "--preset", help="Pitch preset of the ball (see studio pitch --list-presets)."),
+    size: str = typer.Option("2560x1920", "--size",
+                             help="Image size WIDTHxHEIGHT (4:3; smaller keeps the field of view)."),
+    jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
+    force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+):
+    """The pitcher's gloved hand with its 18 markers around release, photographed by 4 cameras
+    behind the pitcher in a 75 Hz strobe's light; truth = marker positions, joint angles and the
+    ball per flash (see docs/hand.md)."""
+    from stillcap.studio.hand import hand_capture
+
+    _check_out(out, force)
+    with _progress("rendering cameras") as prog:
+        task = prog.add_task("render", total=4)
+        result = hand_capture(seed, preset=preset, image_size=_parse_size(size),
+                              progress=lambda i, n, label: prog.update(task, completed=i, total=n))
+    cap, images = result.to_capture(".jpg" if jpeg else ".png")
+    _save(cap, images, out, jpeg)
+    tr = result.truth
+    back = int((tr.markers_visible[:, :, :3].all(axis=2).sum(axis=0) >= 2).sum())
+    console.print(f"{tr.n} flashes at {tr.strobe_hz:g} Hz around release ({tr.release.speed_mph:.1f} mph); "
+                  f"back of the hand seen by 2+ cameras in {back}; rig: the true cameras (not calibrated)")
