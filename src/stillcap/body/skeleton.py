@@ -45,13 +45,16 @@ __all__ = [
     "forward_kinematics",
     "LENGTH_UNITS",
     "EULER_LIMIT_SEQUENCE",
+    "euler_within_limits",
 ]
 
 #: Length units accepted in files, in metres per unit.
 LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 #: Joint limits are ranges of the intrinsic Euler angles of the local rotation in this
-#: sequence (scipy's upper-case = intrinsic): ``R = Rx(a) @ Ry(b) @ Rz(c)``.
+#: sequence (scipy's upper-case = intrinsic): ``R = Rx(a) @ Ry(b) @ Rz(c)``. A rotation is
+#: within the limits when some Euler triple producing it lies within them
+#: (:meth:`Skeleton.limit_angles_deg`), so the middle angle may exceed +-90 degrees.
 EULER_LIMIT_SEQUENCE = "XYZ"
 
 _FORMAT = "stillcap-skeleton"
@@ -236,8 +239,36 @@ class Skeleton:
                         out[i, a] = lim
         return out
 
+    def limit_angles_deg(self, local_rotations) -> np.ndarray:
+        """Euler angles of local rotations as the limits read them, shape (n_joints, 3), degrees.
+
+        Every rotation has two intrinsic XYZ Euler triples, ``(a, b, c)`` and
+        ``(a + 180, 180 - b, c + 180)`` (each angle also modulo 360), and a whole line of them
+        at gimbal lock (``b = +-90``: only ``a + c`` or ``a - c`` is fixed). scipy's
+        ``as_euler`` always returns the one with ``-90 <= b <= 90``, so a limit such as the
+        elbow's ``[-150, 0]`` on Y could never be met beyond 90 degrees of bend. This returns,
+        per joint, the representation that lies within the joint's limits if one does, else
+        the one with the smallest total violation (degrees outside the limits, summed over the
+        axes). Free axes take any value.
+
+        Parameters
+        ----------
+        local_rotations : array_like, shape (n_joints, 3, 3)
+
+        Returns
+        -------
+        ndarray, shape (n_joints, 3)
+            X, Y, Z angles in degrees (:data:`EULER_LIMIT_SEQUENCE`).
+        """
+        rots = as_array(local_rotations, (self.n_joints, 3, 3), "local_rotations")
+        return _angles_within(rots, self.limits_deg)[0]
+
     def limit_violations(self, local_rotations, tol_deg: float = 1e-6) -> np.ndarray:
         """Which joints' local rotations leave their limits.
+
+        A rotation is within the limits when *some* intrinsic XYZ Euler triple that produces it
+        lies within them (see :meth:`limit_angles_deg`); so limits beyond +-90 degrees on the
+        middle (Y) axis, like the elbows' ``[-150, 0]``, work as written.
 
         Parameters
         ----------
@@ -248,10 +279,11 @@ class Skeleton:
         Returns
         -------
         ndarray of bool, shape (n_joints, 3)
-            True where the intrinsic X/Y/Z Euler angle is outside its limit.
+            True where the X/Y/Z angle of the best representation (:meth:`limit_angles_deg`)
+            is outside its limit.
         """
         rots = as_array(local_rotations, (self.n_joints, 3, 3), "local_rotations")
-        angles = Rotation.from_matrix(rots).as_euler(EULER_LIMIT_SEQUENCE, degrees=True)
+        angles, _ = _angles_within(rots, self.limits_deg)
         lim = self.limits_deg
         with np.errstate(invalid="ignore"):
             low = angles < lim[..., 0] - tol_deg
@@ -330,6 +362,84 @@ class Skeleton:
         """The thesis's 210 mm lay figure (``data/puppet_skeleton.json``), puppet frame, metres."""
         text = resources.files("stillcap").joinpath("data", "puppet_skeleton.json").read_text(encoding="utf-8")
         return cls.from_dict(json.loads(text), source="stillcap/data/puppet_skeleton.json")
+
+
+def _wrap_into(angle: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``angle`` plus the multiple of 360 degrees that brings it nearest to the middle of
+    ``[lo, hi]`` (so into the range whenever some shift does, for ranges up to 360 wide);
+    free axes (NaN limits) go to [-180, 180]."""
+    lo_, hi_ = np.where(np.isnan(lo), -180.0, lo), np.where(np.isnan(hi), 180.0, hi)
+    mid = 0.5 * (lo_ + hi_)
+    return angle + 360.0 * np.round((mid - angle) / 360.0)
+
+
+def _violation(angles: np.ndarray, lim: np.ndarray) -> np.ndarray:
+    """Degrees outside the limits, summed over the axes (free axes count 0), shape (...,)."""
+    with np.errstate(invalid="ignore"):
+        out = np.maximum(lim[..., 0] - angles, 0.0) + np.maximum(angles - lim[..., 1], 0.0)
+    return np.where(np.isnan(out), 0.0, out).sum(axis=-1)
+
+
+_GIMBAL_DEG = 1e-4
+
+
+def euler_within_limits(rotations, limits_deg) -> tuple[np.ndarray, np.ndarray]:
+    """Intrinsic XYZ Euler angles of rotations, choosing the representation that meets limits.
+
+    Parameters
+    ----------
+    rotations : array_like, shape (n, 3, 3)
+    limits_deg : array_like, shape (n, 3, 2) or (3, 2)
+        ``[min, max]`` per axis in degrees, NaN = free (as :attr:`Skeleton.limits_deg`).
+
+    Returns
+    -------
+    angles : ndarray, shape (n, 3)
+        Degrees; within the limits whenever some representation is (see
+        :meth:`Skeleton.limit_angles_deg`).
+    violation : ndarray, shape (n,)
+        Degrees outside the limits, summed over the axes (0 = within).
+    """
+    rots = np.asarray(rotations, float).reshape(-1, 3, 3)
+    lim = np.broadcast_to(np.asarray(limits_deg, float), (len(rots), 3, 2))
+    return _angles_within(rots, lim)
+
+
+def _angles_within(rots: np.ndarray, lim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per rotation the intrinsic XYZ Euler triple (degrees) that best meets ``lim`` (n, 3, 2),
+    and its violation in degrees (0 = within the limits). See :meth:`Skeleton.limit_angles_deg`."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # gimbal lock: handled below
+        a = Rotation.from_matrix(rots).as_euler(EULER_LIMIT_SEQUENCE, degrees=True)
+    lo, hi = lim[..., 0], lim[..., 1]
+    # the two representations, each angle shifted by 360 degrees toward its range
+    first = _wrap_into(a, lo, hi)
+    second = _wrap_into(np.stack([a[:, 0] + 180.0, 180.0 - a[:, 1], a[:, 2] + 180.0], axis=1), lo, hi)
+    cands = [first, second]
+    # gimbal lock (b = +-90): only a + c (b = +90) or a - c (b = -90) is fixed; slide a within
+    # its range and let c follow, for both signs of the lock
+    lock = np.abs(np.abs(a[:, 1]) - 90.0) < _GIMBAL_DEG
+    if lock.any():
+        sign = np.where(a[:, 1] > 0, 1.0, -1.0)  # c = s - a (b = +90) or c = a - s (b = -90)
+        s = a[:, 0] + sign * a[:, 2]
+        alo, ahi = np.where(np.isnan(lo[:, 0]), -180.0, lo[:, 0]), np.where(np.isnan(hi[:, 0]), 180.0, hi[:, 0])
+        clo, chi = np.where(np.isnan(lo[:, 2]), -180.0, lo[:, 2]), np.where(np.isnan(hi[:, 2]), 180.0, hi[:, 2])
+        for k in (-1.0, 0.0, 1.0):
+            t = s + 360.0 * k
+            # the a for which c lands in its range: b = +90: c = t - a; b = -90: c = a - t
+            a_lo = np.where(sign > 0, t - chi, t + clo)
+            a_hi = np.where(sign > 0, t - clo, t + chi)
+            ai = np.clip(np.clip(a[:, 0], np.maximum(alo, a_lo), np.minimum(ahi, a_hi)), alo, ahi)
+            ci = np.where(sign > 0, t - ai, ai - t)
+            cand = np.stack([ai, a[:, 1], ci], axis=1)
+            cands.append(np.where(lock[:, None], cand, first))
+    cands = np.stack(cands)  # (n_cands, n, 3)
+    viol = _violation(cands, lim[None])
+    best = np.argmin(viol, axis=0)
+    idx = np.arange(len(rots))
+    return cands[best, idx], viol[best, idx]
 
 
 def _unit_scale(unit, what: str) -> float:

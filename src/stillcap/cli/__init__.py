@@ -13,6 +13,8 @@ import typer
 from rich.console import Console
 
 from stillcap.cli import calibrate, demo, markers, studio
+from stillcap.cli import export as export_cli, palette as palette_cli, puppet as puppet_cli
+from stillcap.cli import pitch as pitch_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   help="stillcap: optical motion capture from still photographs.")
@@ -20,6 +22,10 @@ app.add_typer(calibrate.app, name="calibrate")
 app.add_typer(studio.app, name="studio")
 app.command("demo")(demo.demo)
 app.command("markers")(markers.markers)
+app.add_typer(puppet_cli.app, name="puppet")
+app.command("export")(export_cli.export)
+app.command("palette")(palette_cli.palette)
+app.command("pitch")(pitch_cli.pitch)
 
 err = Console(stderr=True)
 

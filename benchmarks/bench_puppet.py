@@ -1,0 +1,220 @@
+"""Puppet capture end to end: rendered turntable photos -> identified markers -> 3D -> pose.
+
+    python benchmarks/bench_puppet.py [--random 40] [--bvh 12] [--seed 0] [--cache DIR]
+
+Every pose is rendered by the studio (``stillcap.studio.puppet``: the thesis's 12 turntable
+views of the 210 mm puppet, 640x480 webcam with noise and JPEG at quality 85) and written as a
+capture folder into ``--cache`` (kept, so a second run only analyses). Poses: ``random:SEED``
+(every joint uniformly within its limits, no self-intersection) and frames of the BVH files in
+``../shared/data/bvh`` retargeted onto the puppet (``bvh:FILE:FRAME``).
+
+Chains (``stillcap.pipelines.puppet``):
+
+- thesis: IsoData + outline + Hough (``find_circles(method="thesis")``), greedy HSB
+  identification, midpoint triangulation of every identified view, bone directions;
+- thesis + template: the same with the template detector (what the detector alone buys);
+- default: template detector on the bright region of the photo, assignment in CIEDE2000 with
+  white-balance adaptation, DLT with refinement, partly hidden beads left out (fill test), 1 px
+  outlier rejection, pose fit; "default (whole photo)" detects on the whole photo.
+
+Results and their discussion: docs/puppet.md.
+
+Measures, against each capture's truth.json: identifications right (% of visible beads) and
+wrong (% of identifications; "wrong used" = wrong ones the triangulation still used); markers
+the truth shows in 2+ views that were recovered; 3D marker error; bone direction error
+(grouped by what the markers measure: "full" bones start at a joint frame whose orientation
+the beads fix, "partial" at a frame with one bead (forearms, shins), "none" at one without
+(hands, feet)); joint position error; time for the 12 views (decode + pipeline) as a ratio to
+decoding the 12 JPEGs, both measured in this run, per pose.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from stillcap.pipelines.puppet import DEFAULT, THESIS_CHAIN, PuppetSettings, run_capture
+
+REPO = Path(__file__).resolve().parents[1]
+BVH_DIR = REPO.parent / "shared" / "data" / "bvh"
+console = Console(width=150)
+
+CHAINS = {
+    "thesis": THESIS_CHAIN,
+    "thesis + template": PuppetSettings(detector="template", identify="thesis", triangulation="midpoint",
+                                        outlier_px=None, use_fill=False, pose="thesis"),
+    "default (whole photo)": PuppetSettings(roi=False),
+    "default": DEFAULT,
+}
+
+
+def pose_specs(n_random: int, n_bvh: int, seed: int) -> list[str]:
+    specs = [f"random:{seed * 1000 + i}" for i in range(n_random)]
+    files = sorted(BVH_DIR.glob("*.bvh")) if BVH_DIR.is_dir() else []
+    if n_bvh and not files:
+        console.print(f"[yellow]{BVH_DIR} is absent: no BVH poses")
+    if files and n_bvh:
+        from stillcap.io.bvh_read import read_bvh
+
+        per = [n_bvh // len(files) + (1 if i < n_bvh % len(files) else 0) for i in range(len(files))]
+        for f, k in zip(files, per):
+            n_frames = read_bvh(f).n_frames
+            for fr in np.linspace(0, n_frames - 1, k, dtype=int) if k else []:
+                specs.append(f"bvh:{f}:{int(fr)}")
+    return specs
+
+
+def folder_of(cache: Path, spec: str) -> Path:
+    if spec.startswith("bvh:"):
+        f, fr = spec.split(":", 1)[1].rsplit(":", 1)
+        return cache / f"bvh_{Path(f).stem}_{int(fr):04d}"
+    return cache / spec.replace(":", "_")
+
+
+def render(cache: Path, specs: list[str], seed: int) -> list[Path]:
+    from stillcap.studio.puppet import puppet_scene, webcam_sensor
+
+    folders = [folder_of(cache, s) for s in specs]
+    todo = [(s, f) for s, f in zip(specs, folders) if not (f / "capture.json").is_file()]
+    if todo:
+        with Progress(TextColumn("[bold]rendering poses"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=console, transient=True) as bar:
+            task = bar.add_task("render", total=len(todo))
+            for i, (s, f) in enumerate(todo):
+                rng = np.random.default_rng([seed, i, len(s)])
+                sc = puppet_scene(pose=s, rng=rng, sensor=webcam_sensor(jpeg_quality=None))
+                cap, images = sc.to_capture(".jpg")
+                cap.save(f, images, jpeg_quality=85)
+                bar.update(task, completed=i + 1)
+    return folders
+
+
+def decode_time(folder: Path) -> float:
+    files = sorted((folder / "images").glob("*.jpg"))
+    t0 = time.perf_counter()
+    for f in files:
+        cv2.imread(str(f))
+    return time.perf_counter() - t0
+
+
+def fmt(v, d=2):
+    return "-" if v is None or not np.isfinite(v) else f"{v:.{d}f}"
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--random", type=int, default=40, help="random poses")
+    ap.add_argument("--bvh", type=int, default=12, help="BVH poses (split over the files in ../shared/data/bvh)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-puppet"), help="capture folders")
+    ap.add_argument("--chains", default=",".join(CHAINS), help="comma-separated chains to run")
+    args = ap.parse_args(argv)
+    specs = pose_specs(args.random, args.bvh, args.seed)
+    folders = render(args.cache, specs, args.seed)
+    chains = [c.strip() for c in args.chains.split(",") if c.strip()]
+    rows = {c: [] for c in chains}
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as bar:
+        task = bar.add_task("analysing", total=len(folders) * len(chains))
+        for spec, folder in zip(specs, folders):
+            for c in chains:
+                bar.update(task, description=f"{c}: {folder.name}")
+                dec = min(decode_time(folder), decode_time(folder))  # warm file cache, best of two
+                t0 = time.perf_counter()
+                res, _ = run_capture(folder, CHAINS[c])
+                total = time.perf_counter() - t0
+                rows[c].append(dict(spec=spec, cmp=res.comparison, total=total, decode=dec, t=res.timings_s))
+                bar.advance(task)
+    report(rows, specs)
+
+
+def _agg(rows, kind=None):
+    return [r for r in rows if kind is None or r["spec"].startswith(kind)]
+
+
+def report(rows: dict, specs: list[str]) -> None:
+    n_rand = sum(s.startswith("random") for s in specs)
+    n_bvh = len(specs) - n_rand
+    console.print(f"\n{len(specs)} poses ({n_rand} random, {n_bvh} BVH-retargeted), 12 turntable views each\n")
+    t = Table(title="Identification and 3D markers (all poses)")
+    for col in ("chain", "right % of visible", "wrong % of ident.", "wrong used", "seen 2+ views", "recovered",
+                "3D RMS mm", "3D max mm", "poses with a wrong 3D marker (> 2 mm)"):
+        t.add_column(col, justify="right")
+    for c, rs in rows.items():
+        cm = [r["cmp"] for r in rs]
+        vis, ide = sum(x.visible for x in cm), sum(x.identified for x in cm)
+        right_vis = sum(x.right_visible for x in cm)
+        wrong = sum(x.wrong for x in cm)
+        e = np.concatenate([x.marker_errors_m for x in cm])
+        e = e[np.isfinite(e)] * 1e3
+        bad = sum(bool(np.nanmax(np.append(x.marker_errors_m, 0)) > 2e-3) for x in cm)
+        t.add_row(c, fmt(100 * right_vis / max(vis, 1), 1), fmt(100 * wrong / max(ide, 1), 2),
+                  str(sum(x.wrong_used for x in cm)), str(sum(x.seen_twice for x in cm)),
+                  str(sum(x.recovered_seen_twice for x in cm)),
+                  fmt(np.sqrt(np.mean(e ** 2)) if len(e) else np.nan, 3), fmt(e.max() if len(e) else np.nan, 3),
+                  str(bad))
+    console.print(t)
+
+    groups = ("full", "partial", "none")
+    for kind, label in ((None, "all poses"), ("random", "random poses"), ("bvh", "BVH poses")):
+        b = Table(title=f"Bone direction error, degrees, RMS / max ({label})")
+        b.add_column("chain", justify="left")
+        for g in groups:
+            b.add_column(g, justify="right")
+        for c, rs in rows.items():
+            rs = _agg(rs, kind)
+            if not rs:
+                continue
+            # the result's pose: fitted for the default chains, bone directions for the thesis chains;
+            # for the default chain also the thesis's bone directions from the same 3D markers
+            for thesis in (False, True) if c == "default" else (False,):
+                cells = []
+                for g in groups:
+                    vals = np.array([(r["cmp"].thesis_bone_errors_deg if thesis else r["cmp"].bone_errors_deg)[bn]
+                                     for r in rs for bn in r["cmp"].bone_groups.get(g, [])])
+                    vals = vals[np.isfinite(vals)]
+                    cells.append(f"{fmt(np.sqrt(np.mean(vals ** 2)))} / {fmt(vals.max())}" if len(vals) else "-")
+                b.add_row(c + (" (thesis bone directions)" if thesis else f" ({CHAINS[c].pose})"), *cells)
+        console.print(b)
+
+    j = Table(title="Joint position error, mm, RMS / max (all poses)")
+    j.add_column("chain")
+    for g in ("all", "full", "partial", "none"):
+        j.add_column(g, justify="right")
+    for c, rs in rows.items():
+        for thesis in (False, True) if c == "default" else (False,):
+            cells = []
+            for g in ("all", "full", "partial", "none"):
+                vals = []
+                for r in rs:
+                    cm = r["cmp"]
+                    errs = cm.thesis_joint_errors_m if thesis else cm.joint_errors_m
+                    idx = range(len(errs)) if g == "all" else cm.joint_groups.get(g, [])
+                    vals += [errs[i] * 1e3 for i in idx]
+                vals = np.array(vals)
+                vals = vals[np.isfinite(vals)]
+                cells.append(f"{fmt(np.sqrt(np.mean(vals ** 2)))} / {fmt(vals.max())}" if len(vals) else "-")
+            j.add_row(c + (" (thesis bone directions)" if thesis else f" ({CHAINS[c].pose})"), *cells)
+    console.print(j)
+
+    s = Table(title="Time for the 12 views (median over poses)")
+    for col in ("chain", "decode 12 JPEGs ms", "detect + identify ms", "triangulate ms", "pose ms",
+                "end to end ms", "end to end / decode"):
+        s.add_column(col, justify="right")
+    for c, rs in rows.items():
+        med = lambda k: float(np.median([r["t"].get(k, 0.0) for r in rs])) * 1e3  # noqa: E731
+        s.add_row(c, fmt(np.median([r["decode"] for r in rs]) * 1e3, 1), fmt(med("detect_identify"), 0),
+                  fmt(med("triangulate"), 0), fmt(med("pose"), 0), fmt(np.median([r["total"] for r in rs]) * 1e3, 0),
+                  fmt(np.median([r["total"] / r["decode"] for r in rs]), 1))
+    console.print(s)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,72 @@
+"""`stillcap demo puppet`: render a puppet pose on the turntable, reconstruct it, compare, export.
+
+:func:`puppet_demo` is what ``stillcap demo`` calls for ``puppet``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+console = Console()
+
+#: Files the demo exports (docs/exports.md).
+EXPORTS = ("pose.dae", "pose.bvh", "pose.glb", "markers.c3d")
+
+
+def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
+    """Render the thesis's turntable photos of a random puppet pose, reconstruct, compare, export.
+
+    Writes ``out/capture`` (the 12 rendered JPEG photos, rig and truth), ``out/result.json``,
+    ``out/overlays/*.png``, ``out/markers_3d.png``, ``out/skeleton_3d.png`` and the exports
+    ``pose.dae``, ``pose.bvh``, ``pose.glb``, ``markers.c3d``.
+
+    Parameters
+    ----------
+    out : Path
+        Output folder (created; files in it are replaced).
+    seed : int
+        Random pose and sensor noise.
+    pose : str, optional
+        A pose spec instead of ``random:SEED`` (``tpose``, ``bvh:FILE[:FRAME]``).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    from stillcap.cli.puppet import _print_result
+    from stillcap.io.atomic import write_text
+    from stillcap.io.project import dumps_json
+    from stillcap.io.export import export
+    from stillcap.pipelines.puppet import run_capture
+    from stillcap.report.puppet import write_report
+    from stillcap.studio.puppet import puppet_scene, webcam_sensor
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    spec = pose or f"random:{seed}"
+    console.rule(f"[bold]stillcap demo: puppet on a turntable ({spec}), 12 webcam photos -> 3D markers -> pose")
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as bar:
+        task = bar.add_task("rendering views", total=12)
+        scene = puppet_scene(pose=spec, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
+                             progress=lambda i, n: bar.update(task, completed=i, total=n))
+        cap, images = scene.to_capture(".jpg")
+        cap.save(out / "capture", images, jpeg_quality=85)
+        task2 = bar.add_task("detecting beads", total=len(images))
+        res, photos = run_capture(out / "capture", progress=lambda i, n: bar.update(task2, completed=i, total=n))
+    _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} rendered photos "
+                       "(puppet frame)")
+    t = res.timings_s
+    console.print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))
+    write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
+    write_report(res, photos, out, scene.truth)
+    for name in EXPORTS:
+        export(out / name, res)
+    console.print(f"capture, result.json, overlays, 3D plots and {', '.join(EXPORTS)} written to [bold]{out}[/]")
+    return out

@@ -1,0 +1,472 @@
+"""`stillcap puppet ...`: the puppet stop-motion capture (SPEC J3) and its project files.
+
+``stillcap puppet run FOLDER`` runs the pipeline on a capture folder (``stillcap studio puppet``)
+or a project; the other commands manage a project (``docs/project-format.md``): ``new``,
+``add``, ``edit``, ``show``, ``reconstruct``, ``capture`` (from a camera or a video file),
+``import-jj`` / ``export-jj`` (the thesis's JumpingJack files), ``calibrate-palette``.
+
+A click group cannot take a folder argument and also have subcommands (``stillcap puppet new
+X`` would read ``new`` as the folder), so the pipeline is the subcommand ``run``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional, Tuple
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+app = typer.Typer(no_args_is_help=True, add_completion=False,
+                  help="Puppet capture: turntable photos of a marked puppet -> 3D markers and a posed skeleton "
+                       "(see docs/puppet.md), and puppet projects.")
+console = Console()
+
+
+def _progress(label: str):
+    return Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=console, transient=True)
+
+
+def _settings(detector: str, identify: str):
+    from stillcap.pipelines.puppet import DEFAULT, DETECTORS, IDENTIFIERS, with_settings
+
+    if detector not in DETECTORS:
+        raise ValueError(f"unknown detector {detector!r}; choose one of {', '.join(DETECTORS)}")
+    if identify not in IDENTIFIERS:
+        raise ValueError(f"unknown identification {identify!r}; choose one of {', '.join(IDENTIFIERS)}")
+    return with_settings(DEFAULT, detector=detector, identify=identify)
+
+
+def load_palette(path: Path | None, markerset=None):
+    """A palette file (``stillcap palette --json`` or ``puppet calibrate-palette``) by marker name."""
+    if path is None:
+        return None
+    from stillcap.body.markerset import MarkerSet
+    from stillcap.detect.palette import Palette
+
+    markerset = markerset or MarkerSet.puppet()
+    try:
+        d = json.loads(Path(path).read_text(encoding="utf-8"))
+        colours = {c["name"]: c["rgb"] for c in d["colors"]}
+    except FileNotFoundError:
+        raise ValueError(f"palette file {path} does not exist") from None
+    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
+        raise ValueError(f"palette file {path}: not a palette ({{\"colors\": [{{\"name\", \"rgb\"}}]}}): {e}") from None
+    missing = [n for n in markerset.names if n not in colours]
+    if missing:
+        raise ValueError(f"palette file {path} lacks the markers {missing}")
+    return Palette(markerset.names, np.array([colours[n] for n in markerset.names], float))
+
+
+def _print_result(res, title: str) -> None:
+    m, cmp = res.markers, res.comparison
+    t = Table(title=title)
+    cols = ["marker", "x mm", "y mm", "z mm", "views used", "identified in", "reproj px"]
+    if cmp is not None:
+        cols.append("error mm")
+    for c in cols:
+        t.add_column(c, justify="right")
+    for k, n in enumerate(m.names):
+        if m.ok[k]:
+            flag = " *" if m.whole_views[k] < 2 else ""
+            row = [n + flag, *(f"{v * 1e3:.2f}" for v in m.points[k]), str(int(m.n_views[k])),
+                   str(int(m.identified_views[k])),
+                   f"{m.reproj_error_px[k]:.2f}" if np.isfinite(m.reproj_error_px[k]) else "-"]
+            if cmp is not None:
+                row.append(f"{cmp.marker_errors_m[k] * 1e3:.3f}")
+        else:
+            row = [f"[red]{n}[/]", "[red]missing[/]", "", "", str(int(m.n_views[k])), str(int(m.identified_views[k])), "-"]
+            if cmp is not None:
+                row.append("-")
+        t.add_row(*row)
+    console.print(t)
+    if m.missing:
+        console.print(f"[red]seen in fewer than two views (no 3D position):[/] {', '.join(m.missing)}")
+    weak = [n for n, ok, w in zip(m.names, m.ok, m.whole_views) if ok and w < 2]
+    if weak:
+        console.print(f"* fewer than two views show the whole bead (partly hidden or at the image border): "
+                      f"{', '.join(weak)}")
+    left = int(m.partial.sum()), int(m.outlier.sum())
+    console.print(f"views left out: {left[0]} partly hidden beads, {left[1]} disagreeing views (outliers)")
+    fit = res.fit
+    console.print(f"pose ({res.settings.pose}): markers fitted with RMS {fit.rms_m * 1e3:.3f} mm "
+                  f"(thesis bone directions: {np.sqrt(np.nanmean(fit.thesis_residuals_m ** 2)) * 1e3:.2f} mm)")
+    if cmp is not None:
+        print_comparison(cmp)
+
+
+def print_comparison(cmp) -> None:
+    """The comparison with the truth, as a table."""
+    t = Table(title="Compared with the truth (truth.json)")
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    t.add_row("identified right (% of visible beads)", f"{cmp.right_pct:.1f} %  ({cmp.right_visible} of {cmp.visible})")
+    t.add_row("identified wrong (% of identifications)",
+              f"{cmp.wrong_pct:.2f} %  ({cmp.wrong}; used in 3D: {cmp.wrong_used})")
+    t.add_row("markers seen in 2+ views, recovered", f"{cmp.recovered_seen_twice} of {cmp.seen_twice}")
+    t.add_row("3D marker error RMS / max", f"{cmp.marker_rms_mm():.3f} / {cmp.marker_max_mm():.3f} mm")
+    for g in cmp.bone_groups:
+        rms, mx = cmp.bone_stats(g)
+        trms, tmx = cmp.bone_stats(g, thesis=True)
+        t.add_row(f"bone direction, {g} ({', '.join(cmp.bone_groups[g])})",
+                  f"{rms:.2f} / {mx:.2f} deg (thesis {trms:.2f} / {tmx:.2f})")
+    rms, mx = cmp.joint_stats()
+    trms, tmx = cmp.joint_stats(thesis=True)
+    t.add_row("joint position, all joints", f"{rms:.2f} / {mx:.2f} mm (thesis {trms:.2f} / {tmx:.2f})")
+    for g in cmp.joint_groups:
+        rms, mx = cmp.joint_stats(g)
+        t.add_row(f"joint position, {g}", f"{rms:.2f} / {mx:.2f} mm")
+    console.print(t)
+
+
+def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = True) -> None:
+    if out is None:
+        return
+    from stillcap.io.atomic import write_text
+    from stillcap.io.project import dumps_json
+    from stillcap.report.puppet import write_report
+
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
+    files = write_report(res, images, out, truth, overlays=overlays)
+    console.print(f"wrote result.json, {len(files) - 2} overlays, markers_3d.png and skeleton_3d.png to [bold]{out}[/]")
+
+
+def _truth_of(folder: Path):
+    from stillcap.io.capture import Capture
+    from stillcap.studio.puppet import PuppetTruth
+
+    if not (folder / "capture.json").is_file():
+        return None
+    cap = Capture.load(folder)
+    return PuppetTruth.from_dict(cap.truth) if cap.truth and cap.truth.get("kind") == "puppet" else None
+
+
+@app.command()
+def run(
+    folder: Path = typer.Argument(..., help="A puppet capture folder (stillcap studio puppet) or a puppet project."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (keys shared with truth.json)."),
+    out: Path = typer.Option(None, "--out", help="Write result.json, overlays of every view and 3D plots here."),
+    detector: str = typer.Option("template", "--detector", help="Bead detector: template (default) or thesis "
+                                 "(IsoData + outline + Hough); also hough, blobs, cv2."),
+    identify: str = typer.Option("recommended", "--identify", help="recommended (assignment, CIEDE2000, "
+                                 "white-balance adaptation) or thesis (greedy HSB)."),
+    palette: Path = typer.Option(None, "--palette", help="Reference colours (a palette JSON, e.g. from "
+                                 "stillcap puppet calibrate-palette)."),
+    redetect: bool = typer.Option(False, "--redetect", help="Projects: detect again in every view (the stored "
+                                  "edits still apply); by default only views without detections are detected."),
+):
+    """Find, name and triangulate the beads in every photo and pose the skeleton.
+
+    With a synthetic capture (truth.json) the result is compared with the truth. Markers
+    identified in fewer than two views are flagged as missing.
+    """
+    from stillcap.io.project import dumps_json
+    from stillcap.pipelines.puppet import run_folder
+
+    settings = _settings(detector, identify)
+    if not folder.exists():
+        raise ValueError(f"folder {folder} does not exist")
+    markerset = None
+    if (folder / "project.json").is_file():
+        from stillcap.io.project import Project
+
+        markerset = Project.load(folder).markerset
+    pal = load_palette(palette, markerset)
+    with _progress("detecting beads") as prog:
+        task = prog.add_task("views", total=None)
+        res, images = run_folder(folder, settings, pal, redetect,
+                                 progress=lambda i, n: prog.update(task, completed=i, total=n))
+    _write_outputs(res, images, out, _truth_of(folder) if out is not None else None)
+    if as_json:
+        print(dumps_json(res.to_dict()))
+        return
+    _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} views "
+                       f"({settings.detector} + {settings.identify}; puppet frame)")
+
+
+# --- projects ---------------------------------------------------------------------------------
+@app.command()
+def new(
+    project: Path = typer.Argument(..., help="New project folder."),
+    distance_mm: float = typer.Option(400.0, "--distance-mm", help="Turntable: camera centre to the turn axis, mm."),
+    height_mm: float = typer.Option(80.0, "--height-mm", help="Turntable: lens centre above the platform, mm."),
+    rig: Path = typer.Option(None, "--rig", help="A rig file (several calibrated cameras) instead of a turntable."),
+    name: str = typer.Option(None, "--name", help="Project name (default: the folder name)."),
+):
+    """Make an empty puppet project (the thesis's turntable and webcam by default)."""
+    from stillcap.camera import Rig
+    from stillcap.io.project import Project, TurntableSetup
+
+    if rig is not None:
+        p = Project.create(project, rig=Rig.load(rig), name=name)
+        what = f"rig project with cameras {', '.join(p.rig.names)}"
+    else:
+        p = Project.create(project, turntable=TurntableSetup(distance=distance_mm / 1000, height=height_mm / 1000),
+                           name=name)
+        what = f"turntable project (camera {distance_mm:g} mm from the axis, {height_mm:g} mm up)"
+    console.print(f"created {what} in [bold]{p.root}[/]")
+
+
+def _view_key(project, view: str):
+    """A view by name, turn angle in degrees (turntable projects) or #index."""
+    if view.startswith("#"):
+        try:
+            return project.view(int(view[1:]))
+        except ValueError:
+            raise ValueError(f"bad view index {view!r} (use #0, #1, ...)") from None
+    if any(v.name == view for v in project.views):
+        return project.view(view)
+    try:
+        angle = float(view.removesuffix("deg"))
+    except ValueError:
+        angle = None
+    if angle is not None and project.is_turntable:
+        v = project.view_at(angle)
+        if v is not None:
+            return v
+        raise ValueError(f"project has no view at {angle:g} deg (angles: {', '.join(f'{a:g}' for a in project.angles_deg)})")
+    raise ValueError(f"no view {view!r} in the project (views: {', '.join(v.name for v in project.views) or 'none'}; "
+                     "give a name, a turn angle in degrees or #index)")
+
+
+def _detector_fn(project, settings, palette=None):
+    from stillcap.detect.palette import Palette
+    from stillcap.pipelines.puppet import detect_view
+
+    pal = palette or Palette.from_markerset(project.markerset)
+    return lambda image: detect_view(image, pal, settings).identification.as_dict()
+
+
+@app.command()
+def add(
+    project: Path = typer.Argument(..., help="Project folder."),
+    photo: Path = typer.Argument(..., help="Photo file (PNG or JPEG)."),
+    angle: float = typer.Option(None, "--angle", help="Turn angle of the photo, degrees (turntable projects)."),
+    camera: str = typer.Option(None, "--camera", help="Rig camera that took it (rig projects)."),
+    detect: bool = typer.Option(True, "--detect/--no-detect", help="Detect and identify the beads now."),
+    replace: bool = typer.Option(False, "--replace", help="Retake a view at the same angle or camera."),
+    detector: str = typer.Option("template", "--detector", help="Bead detector (see puppet run)."),
+    identify: str = typer.Option("recommended", "--identify", help="Identification (see puppet run)."),
+):
+    """Add a photo to a project (copied into photos/); its beads are detected and identified."""
+    import cv2
+
+    from stillcap.io.project import Project
+
+    p = Project.load(project)
+    detections = None
+    if detect:
+        img = cv2.imread(str(photo)) if photo.is_file() else None
+        if img is None:
+            raise ValueError(f"photo {photo} does not exist or is not an image")
+        detections = _detector_fn(p, _settings(detector, identify))(img)
+    v = p.add_view(photo, angle_deg=angle, camera=camera, detections=detections, replace=replace)
+    p.save()
+    console.print(f"added view [bold]{v.name}[/] ({v.image})"
+                  + (f": {len(v.detected)} markers identified" if detect else ""))
+
+
+@app.command()
+def edit(
+    project: Path = typer.Argument(..., help="Project folder."),
+    view: str = typer.Argument(..., help="View: its name (turn_030.0deg), turn angle in degrees (30) or #index."),
+    delete: str = typer.Option(None, "--delete", help="Delete this (wrongly identified) marker."),
+    relabel: Optional[Tuple[str, str]] = typer.Option(None, "--relabel", help="OLD NEW: the point called OLD is NEW."),
+    move: Optional[Tuple[str, float, float]] = typer.Option(None, "--move", help="NAME X Y: put a marker at "
+                                                            "pixel (x, y), adding it if absent."),
+    clear: bool = typer.Option(False, "--clear", help="Drop the view's edits (back to the automatic detections)."),
+):
+    """Correct a view's markers (kept when detection runs again)."""
+    from stillcap.io.project import Project
+
+    p = Project.load(project)
+    v = _view_key(p, view)
+    given = [k for k, a in (("--delete", delete), ("--relabel", relabel), ("--move", move), ("--clear", clear)) if a]
+    if len(given) != 1:
+        raise ValueError(f"edit takes exactly one of --delete, --relabel, --move, --clear; got {given or 'none'}")
+    if clear:
+        p.clear_edits(v)
+    elif delete:
+        p.edit(v, delete=delete)
+    elif relabel:
+        p.edit(v, relabel=relabel)
+    else:
+        p.edit(v, move=move)
+    p.save()
+    console.print(f"view [bold]{v.name}[/]: {len(v.markers)} markers, {len(v.edits)} edits")
+
+
+@app.command()
+def show(
+    project: Path = typer.Argument(..., help="Project folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print views and marker coverage as JSON."),
+):
+    """List a project's views and how many views identified each marker."""
+    from stillcap.io.project import Project
+
+    p = Project.load(project)
+    names = list(p.markerset.names)
+    count = {n: 0 for n in names}
+    for v in p.views:
+        for n in v.markers:
+            count[n] = count.get(n, 0) + 1
+    missing = [n for n in names if count[n] < 2]
+    if as_json:
+        print(json.dumps({"name": p.name, "kind": "turntable" if p.is_turntable else "rig",
+                          "views": [{"name": v.name, "image": v.image, "angle_deg": v.angle_deg, "camera": v.camera,
+                                     "detected": len(v.detected), "edits": len(v.edits), "markers": len(v.markers)}
+                                    for v in p.views],
+                          "views_per_marker": count, "seen_fewer_than_twice": missing}, indent=1))
+        return
+    t = Table(title=f"project {p.name!r} ({'turntable' if p.is_turntable else 'rig'}, {len(p.views)} views)")
+    for c in ("view", "angle deg" if p.is_turntable else "camera", "photo", "detected", "edits", "markers"):
+        t.add_column(c, justify="right")
+    for v in p.views:
+        t.add_row(v.name, f"{v.angle_deg:g}" if p.is_turntable else str(v.camera), v.image, str(len(v.detected)),
+                  str(len(v.edits)), str(len(v.markers)))
+    console.print(t)
+    m = Table(title="views per marker (2+ needed for 3D)")
+    for n in names:
+        m.add_column(n, justify="right")
+    m.add_row(*[f"[red]{count[n]}[/]" if count[n] < 2 else str(count[n]) for n in names])
+    console.print(m)
+    if missing:
+        console.print(f"[red]seen in fewer than two views:[/] {', '.join(missing)}")
+
+
+@app.command()
+def reconstruct(
+    project: Path = typer.Argument(..., help="Project folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    out: Path = typer.Option(None, "--out", help="Write result.json, overlays and 3D plots here."),
+):
+    """3D markers and the pose from the project's stored markers (detections with edits)."""
+    from stillcap.io.project import dumps_json
+    from stillcap.pipelines.puppet import reconstruct_project
+
+    res = reconstruct_project(project)
+    if out is not None:
+        from stillcap.io.project import Project
+
+        p = Project.load(project)
+        _write_outputs(res, [p.read_image(v) for v in p.views], out)
+    if as_json:
+        print(dumps_json(res.to_dict()))
+        return
+    _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} views")
+
+
+@app.command()
+def capture(
+    project: Path = typer.Argument(..., help="Turntable project folder (stillcap puppet new)."),
+    source: str = typer.Option("0", "--source", help="Camera index (0, 1, ...) or a video file."),
+    angles: str = typer.Option("12x30", "--angles", help="Turn angles: NxSTEP (12x30), NxSTEP@START or a list "
+                               "(0,30,90), degrees."),
+    average: int = typer.Option(1, "--average", min=1, help="Frames averaged per photo."),
+    replace: bool = typer.Option(False, "--replace", help="Retake angles the project already has."),
+    detect: bool = typer.Option(True, "--detect/--no-detect", help="Detect and identify the beads in each photo."),
+):
+    """Take one photo per turn angle from a camera or a video file into a project.
+
+    Before each angle it asks you to turn the table: Enter takes the photo, s skips the angle,
+    q stops (photos taken so far stay saved).
+    """
+    from stillcap.io.camera_capture import ABORT, SKIP, capture_turntable, parse_angles
+    from stillcap.io.project import Project
+
+    p = Project.load(project)
+    angle_list = parse_angles(angles)
+    taken = [a for a in angle_list if p.view_at(a) is not None]
+    if taken and not replace:
+        raise ValueError(f"project {p.root} already has photos at {', '.join(f'{a:g}' for a in taken)} deg; "
+                         "pass --replace to retake them")
+    src: int | str = int(source) if source.strip().isdigit() and not Path(source).exists() else source
+
+    def prompt(a: float):
+        try:
+            answer = typer.prompt(f"turn the table to {a:g} deg; Enter = take, s = skip, q = quit", default="",
+                                  show_default=False)
+        except typer.Abort:
+            return ABORT
+        answer = answer.strip().lower()
+        if answer in ("q", "quit"):
+            return ABORT
+        if answer in ("s", "skip"):
+            return SKIP
+        return None
+
+    det = _detector_fn(p, _settings("template", "recommended")) if detect else None
+    res = capture_turntable(p, src, angle_list, prompt=prompt, frames_to_average=average, replace=replace, detect=det)
+    for v in res.views:
+        console.print(f"  {v.name}: {v.image}" + (f", {len(v.detected)} markers" if detect else ""))
+    msg = f"took {len(res.views)} photos"
+    if res.skipped_deg:
+        msg += f", skipped {', '.join(f'{a:g}' for a in res.skipped_deg)} deg"
+    if res.aborted:
+        msg += " (stopped)"
+    console.print(msg + f"; project saved in [bold]{p.root}[/]")
+
+
+@app.command("import-jj")
+def import_jj(
+    juja: Path = typer.Argument(..., help="A JumpingJack .juja file (its photos beside it)."),
+    project: Path = typer.Argument(..., help="New project folder."),
+):
+    """Make a project from the thesis's JumpingJack file (photos and identified markers)."""
+    from stillcap.io.jumpingjack import import_jumpingjack
+
+    p = import_jumpingjack(juja, project)
+    console.print(f"imported {len(p.views)} views into [bold]{p.root}[/]")
+
+
+@app.command("export-jj")
+def export_jj(
+    project: Path = typer.Argument(..., help="Project folder."),
+    juja: Path = typer.Argument(..., help="The .juja file to write (photos are copied beside it)."),
+    round_pixels: bool = typer.Option(False, "--round", help="Whole-pixel positions, as the thesis's program wrote."),
+):
+    """Write a project as a JumpingJack .juja file (the thesis's format)."""
+    from stillcap.io.jumpingjack import export_jumpingjack
+    from stillcap.io.project import Project
+
+    path = export_jumpingjack(Project.load(project), juja, round_pixels=round_pixels)
+    console.print(f"wrote [bold]{path}[/]")
+
+
+@app.command("calibrate-palette")
+def calibrate_palette_cmd(
+    folder: Path = typer.Argument(..., help="T-pose photos: a capture folder or a project."),
+    out: Path = typer.Option(..., "--out", help="Palette JSON to write (use it with puppet run --palette)."),
+):
+    """Measure the beads' reference colours from T-pose photos (the thesis's calibration).
+
+    The beads are found and identified with the current colours, then each marker's colour is
+    the mean of its patches over all photos.
+    """
+    from stillcap.detect.identify import calibrate_palette
+    from stillcap.io.atomic import write_text
+    from stillcap.pipelines.puppet import DEFAULT, run_folder
+
+    res, images = run_folder(folder, DEFAULT)
+    pts = [np.where(res.markers.used[k][:, None], res.markers.observations[k], np.nan) for k in range(len(images))]
+    from stillcap.detect.palette import Palette
+
+    cal = calibrate_palette(images, pts, Palette.from_markerset(res.markerset), sampler="disc")
+    write_text(out, json.dumps(cal.palette.to_dict(), indent=1) + "\n")
+    t = Table(title=f"colours measured in {len(images)} photos")
+    for c in ("marker", "reference", "measured", "photos", "spread dE00"):
+        t.add_column(c, justify="right")
+    ref = Palette.from_markerset(res.markerset)
+    for k, n in enumerate(ref.names):
+        t.add_row(n, ref.hex[k], cal.palette.hex[k], str(int(cal.n_samples[k])),
+                  f"{cal.spread[k]:.2f}" if np.isfinite(cal.spread[k]) else "-")
+    console.print(t)
+    console.print(f"wrote [bold]{out}[/]")

@@ -1,0 +1,1248 @@
+"""Puppet stop-motion capture (SPEC J3): photos of a marked puppet -> named 2D markers -> 3D
+markers -> posed skeleton. Wiring of existing stages, plus the two small steps no stage had.
+
+::
+
+    photo of every view
+      -> find_circles                bead candidates            (detect.circles: template | thesis)
+      -> identify_markers            names by colour            (detect.identify: recommended | thesis)
+      -> observations (n_views, n_markers, 2), NaN = not identified
+      -> bead_fill                   how whole each bead looks  (below: partly hidden beads are off-centre)
+      -> triangulate                 3D markers                 (geometry.triangulate, outlier rejection)
+                                     markers seen in fewer than 2 views: NaN, listed in ``missing``
+      -> bone_directions +           the thesis's pose          (body.kinematics)
+         pose_from_markers
+      -> fit_pose                    joint rotations within the limits, twist where a joint frame
+                                     has 3+ points (its markers and the joint itself)
+      -> PuppetResult                to_dict() keys shared with the studio's truth.json
+
+Two steps are written here because no stage did them:
+
+- :func:`bead_fill` measures, for an identified bead, the share of its expected disc (radius
+  from the first triangulation: ``f * bead radius / depth``) brighter than half its contrast. A
+  bead partly hidden behind a limb is centred on its visible part, 1-3 px off its true centre,
+  and several such views agree with each other, so the triangulation's pair consensus can pick
+  them over the whole views. Views whose fill is below ``min_fill`` and below ``fill_ratio`` of
+  the marker's best view are left out while two or more good views remain.
+- :func:`fit_pose` fits every free joint's intrinsic XYZ Euler angles (the limits' own
+  parameters, so the limits are hard bounds) to the 3D markers by least squares with an analytic
+  Jacobian, starting from the thesis's pose. A joint frame that carries two beads not in line
+  with the joint (both arm, leg, torso and head beads sit beside their bone) has three points:
+  its full orientation, twist included, is measured. Where the markers leave a rotation open
+  (forearms and shins carry one bead each: the rotation about the elbow-to-bead line; hands and
+  feet carry none) a weak prior pulls each Euler angle toward 0 (clipped into its limits) with a
+  standard deviation of half its range, so near-hinge joints stay near their hinge.
+
+Units: metres and radians inside; pixels ``(x, y)`` (``docs/conventions.md``); the result's
+``to_dict`` says its units. See ``docs/puppet.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Sequence
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from stillcap.body.kinematics import bone_directions, normalised, pose_from_markers
+from stillcap.body.markerset import MarkerSet, MarkerTrajectories
+from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
+from stillcap.camera import Rig
+from stillcap.detect.circles import Circles, find_circles
+from stillcap.detect.identify import RECOMMENDED, THESIS, Identification, identify_markers
+from stillcap.detect.palette import Palette
+from stillcap.geometry.triangulate import Triangulation, triangulate
+
+__all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSettings", "ViewResult", "MarkerSolve",
+           "PoseFit", "PuppetComparison", "PuppetResult", "LoadedResult", "detect_view", "bead_fill",
+           "solve_markers", "fit_pose", "frame_status", "compare_with_truth", "reconstruct_puppet",
+           "run_capture", "run_project", "reconstruct_project", "run_folder", "load_result", "RESULT_FORMAT",
+           "bright_region", "with_settings"]
+
+RESULT_FORMAT = "stillcap-puppet-result"
+
+#: Bead detectors (:func:`stillcap.detect.circles.find_circles` methods) the pipeline offers.
+DETECTORS = ("template", "thesis", "hough", "blobs", "cv2")
+#: Identification presets (:mod:`stillcap.detect.identify`).
+IDENTIFIERS = {"recommended": RECOMMENDED, "thesis": THESIS}
+
+
+@dataclass(frozen=True)
+class PuppetSettings:
+    """How the pipeline runs. :data:`DEFAULT` is the measured best, :data:`THESIS_CHAIN` the
+    thesis's own chain (see ``docs/puppet.md``).
+
+    Attributes
+    ----------
+    detector : str
+        :func:`~stillcap.detect.circles.find_circles` method (:data:`DETECTORS`).
+    identify : str
+        ``"recommended"`` (assignment, CIEDE2000, white-balance adaptation) or ``"thesis"``
+        (greedy HSB).
+    radius_range : (float, float)
+        Bead radius in the photos, pixels (thesis: 5-7 px at 640x480).
+    n_circles : int
+        Candidates per photo (thesis: N = 16).
+    triangulation : str
+        ``"dlt"`` (with reprojection refinement) or ``"midpoint"`` (the thesis's least-squares
+        point nearest to the back-projection lines, no refinement).
+    outlier_px : float or None
+        Views that disagree with a marker's point by more than this are not used (None: keep all).
+    use_fill : bool
+        Leave out views where a bead looks partly hidden (:func:`bead_fill`) while 2+ whole
+        views remain.
+    min_fill, fill_ratio : float
+        A view is whole when its fill is at least ``min_fill``, or at least ``fill_ratio`` x the
+        marker's best fill when that best view is whole.
+    pose : str
+        The result's pose: ``"fit"`` (:func:`fit_pose`) or ``"thesis"`` (bone directions).
+    marker_sigma_m : float
+        Expected 3D marker error, metres: weight of the markers against the prior in :func:`fit_pose`.
+    roi : bool
+        Detect only inside the box around the bright pixels (:func:`bright_region`): faster, the
+        same beads.
+    """
+
+    detector: str = "template"
+    identify: str = "recommended"
+    radius_range: tuple = (5.0, 7.0)
+    n_circles: int = 16
+    triangulation: str = "dlt"
+    outlier_px: float | None = 1.0
+    use_fill: bool = True
+    min_fill: float = 0.65
+    fill_ratio: float = 0.85
+    pose: str = "fit"
+    marker_sigma_m: float = 0.2e-3
+    roi: bool = True
+
+    def __post_init__(self):
+        if self.detector not in DETECTORS:
+            raise ValueError(f"unknown detector {self.detector!r}; choose one of {', '.join(DETECTORS)}")
+        if self.identify not in IDENTIFIERS:
+            raise ValueError(f"unknown identification {self.identify!r}; choose one of {', '.join(IDENTIFIERS)}")
+        if self.triangulation not in ("dlt", "midpoint"):
+            raise ValueError(f"unknown triangulation {self.triangulation!r}; choose dlt or midpoint")
+        if self.pose not in ("fit", "thesis"):
+            raise ValueError(f"unknown pose method {self.pose!r}; choose fit or thesis")
+        lo, hi = (float(v) for v in self.radius_range)
+        if not 0 < lo <= hi:
+            raise ValueError(f"radius_range must be 0 < min <= max pixels, got {self.radius_range}")
+        if self.outlier_px is not None and not self.outlier_px > 0:
+            raise ValueError(f"outlier_px must be > 0 pixels or None, got {self.outlier_px}")
+
+    def to_dict(self) -> dict:
+        return {"detector": self.detector, "identify": self.identify, "radius_range_px": list(self.radius_range),
+                "n_circles": self.n_circles, "triangulation": self.triangulation, "outlier_px": self.outlier_px,
+                "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
+                "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi}
+
+
+#: The measured best chain (``benchmarks/bench_puppet.py``).
+DEFAULT = PuppetSettings()
+#: The thesis's chain: IsoData + outline + Hough, greedy HSB, midpoint triangulation of every
+#: identified view, bone directions.
+THESIS_CHAIN = PuppetSettings(detector="thesis", identify="thesis", triangulation="midpoint", outlier_px=None, roi=False,
+                              use_fill=False, pose="thesis")
+
+
+# --- stage 1: detection and identification per photo -------------------------------------------
+@dataclass(eq=False)
+class ViewResult:
+    """Detection and identification in one photo.
+
+    Attributes
+    ----------
+    circles : Circles
+        Bead candidates.
+    identification : Identification
+        Which candidate is which marker (palette order).
+    time_s : float
+        Detection + identification time.
+    """
+
+    circles: Circles
+    identification: Identification
+    time_s: float = 0.0
+
+
+def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT) -> ViewResult:
+    """Find the bead candidates in one photo and name them by colour.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3)
+        BGR photo.
+    palette : Palette
+        Reference colours, in marker-set order.
+    settings : PuppetSettings
+        ``detector``, ``identify``, ``radius_range``, ``n_circles``.
+    """
+    t0 = time.perf_counter()
+    img = np.asarray(image)
+    x0 = y0 = 0
+    if settings.roi:
+        x0, y0, x1, y1 = bright_region(img, margin=int(np.ceil(settings.radius_range[1])) + 6)
+        img = img[y0:y1, x0:x1]
+    circles = find_circles(img, n=settings.n_circles, radius_range=settings.radius_range, method=settings.detector)
+    if x0 or y0:
+        circles = Circles(circles.centers + [x0, y0], circles.radii, circles.scores, circles.method, circles.threshold)
+    ident = identify_markers(image, circles, palette, **IDENTIFIERS[settings.identify])
+    return ViewResult(circles, ident, time.perf_counter() - t0)
+
+
+def bright_region(image, margin: int = 13, contrast: float = 15.0) -> tuple[int, int, int, int]:
+    """Bounding box ``(x0, y0, x1, y1)`` (pixels, end exclusive) of everything brighter than the
+    photo's median grey by ``contrast`` levels (after a 3x3 erosion against noise), grown by
+    ``margin``; the whole photo when nothing is. The beads are the brightest things in the dark
+    scene, and the template detector's own contrast floor is 15 grey levels, so no bead it could
+    find lies outside."""
+    img = np.asarray(image)
+    g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    h, w = g.shape
+    med = float(np.median(g[::4, ::4]))
+    mask = cv2.erode((g > med + contrast).astype(np.uint8), np.ones((3, 3), np.uint8))
+    pts = cv2.findNonZero(mask)
+    if pts is None:
+        return 0, 0, w, h
+    x, y, bw, bh = cv2.boundingRect(pts)
+    return max(0, x - margin), max(0, y - margin), min(w, x + bw + margin), min(h, y + bh + margin)
+
+
+# --- stage 2: how whole each bead looks --------------------------------------------------------
+def bead_fill(image, centers, radii_px) -> np.ndarray:
+    """Share of each bead's expected disc that looks like bead, in [0, 1] (NaN where unknown).
+
+    For each centre: the background is the median grey of the ring ``r + 1.5 .. r + 3.5`` px,
+    the bead level the 90th percentile within ``r / 2``; the fill is the share of pixels within
+    ``r`` brighter than halfway between them. A whole bead gives about 0.75-0.9 (its shaded rim
+    is darker), one half hidden behind a limb about 0.4.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3) or (H, W)
+        The photo (BGR or grey).
+    centers : array_like, shape (N, 2)
+        Bead centres (x, y), pixels; NaN rows give NaN.
+    radii_px : array_like, shape (N,)
+        Expected bead radius in this photo, pixels.
+    """
+    img = np.asarray(image)
+    if img.ndim not in (2, 3):
+        raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
+    c = np.asarray(centers, float).reshape(-1, 2)
+    r_all = np.broadcast_to(np.asarray(radii_px, float), (len(c),))
+    out = np.full(len(c), np.nan)
+    h, w = img.shape[:2]
+    for i, ((x, y), r) in enumerate(zip(c, r_all)):
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(r) and r > 0):
+            continue
+        R = int(math.ceil(r + 4))
+        xi, yi = int(round(x)), int(round(y))
+        y0, y1, x0, x1 = max(0, yi - R), min(h, yi + R + 1), max(0, xi - R), min(w, xi + R + 1)
+        if y1 <= y0 or x1 <= x0:
+            continue
+        patch = img[y0:y1, x0:x1].astype(float)
+        if patch.ndim == 3:
+            patch = patch.mean(axis=2)  # (R + G + B) / 3, as the thesis's grey image
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        rr = np.hypot(xs - x, ys - y)
+        ring, core, disc = patch[(rr > r + 1.5) & (rr < r + 3.5)], patch[rr < 0.5 * r], patch[rr <= r]
+        if not (ring.size and core.size and disc.size):
+            continue
+        bg, peak = float(np.median(ring)), float(np.percentile(core, 90))
+        if peak <= bg:
+            out[i] = 0.0
+            continue
+        out[i] = float(np.mean(disc > bg + 0.5 * (peak - bg)))
+    return out
+
+
+# --- stage 3: triangulation --------------------------------------------------------------------
+@dataclass(eq=False)
+class MarkerSolve:
+    """3D markers from the identified 2D markers of every view.
+
+    Attributes
+    ----------
+    names : tuple of str, length n_markers
+    points : ndarray, shape (n_markers, 3)
+        Metres, rig world (puppet frame); NaN for markers identified in fewer than two usable views.
+    observations : ndarray, shape (n_views, n_markers, 2)
+        Identified pixels (NaN = not identified).
+    used : ndarray of bool, shape (n_views, n_markers)
+        Observations the final point rests on.
+    fill : ndarray, shape (n_views, n_markers)
+        :func:`bead_fill` of every observation (NaN without images).
+    partial : ndarray of bool, shape (n_views, n_markers)
+        Observations left out as partly hidden beads.
+    outlier : ndarray of bool, shape (n_views, n_markers)
+        Observations left out because they disagree with the other views (> ``outlier_px``):
+        a wrong identification, or a bead so hidden that its centre is off.
+    whole : ndarray of bool, shape (n_views, n_markers)
+        Observations whose bead looks whole (the fill test; all identified ones without it).
+    reproj_error_px : ndarray, shape (n_markers,)
+        RMS reprojection error over the used views, pixels.
+    triangulation : Triangulation
+        The final triangulation.
+    """
+
+    names: tuple
+    points: np.ndarray
+    observations: np.ndarray
+    used: np.ndarray
+    fill: np.ndarray
+    partial: np.ndarray
+    outlier: np.ndarray
+    reproj_error_px: np.ndarray
+    triangulation: Triangulation
+    whole: np.ndarray | None = None
+
+    @property
+    def n_views(self) -> np.ndarray:
+        """Views used per marker, shape (n_markers,)."""
+        return self.used.sum(axis=0)
+
+    @property
+    def identified_views(self) -> np.ndarray:
+        """Views that identified each marker, shape (n_markers,)."""
+        return np.isfinite(self.observations[..., 0]).sum(axis=0)
+
+    @property
+    def ok(self) -> np.ndarray:
+        return np.all(np.isfinite(self.points), axis=1)
+
+    @property
+    def whole_views(self) -> np.ndarray:
+        """Used views per marker whose bead looked whole, shape (n_markers,): a marker with
+        fewer than 2 rests on partly hidden (or image-border) views and may be off by a few
+        tenths of a millimetre to 2 mm."""
+        w = self.used if self.whole is None else self.used & self.whole
+        return w.sum(axis=0)
+
+    @property
+    def missing(self) -> tuple:
+        """Markers without a 3D position (identified in fewer than two usable views): the
+        thesis's red entries."""
+        return tuple(n for n, good in zip(self.names, self.ok) if not good)
+
+
+def _expected_radius_px(rig: Rig, points: np.ndarray, bead_radius_m: float) -> np.ndarray:
+    """Projected bead radius per view and marker, ``f * R / depth`` pixels, shape (n_views, n_markers)."""
+    out = np.full((len(rig), len(points)), np.nan)
+    for v, cam in enumerate(rig):
+        z = (points @ cam.R.T + cam.t)[:, 2]
+        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[v] = np.where(z > 0, f * bead_radius_m / z, np.nan)
+    return out
+
+
+def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settings: PuppetSettings = DEFAULT,
+                  bead_radius_m: float = 0.003, radii_px=None) -> MarkerSolve:
+    """Triangulate identified markers, leaving out partly hidden beads and disagreeing views.
+
+    1. A first triangulation (``outlier_px`` = 2 px consensus) gives each marker's depth, so
+       its expected radius in every photo.
+    2. With ``images`` and ``settings.use_fill``: :func:`bead_fill` of every observation;
+       where a marker has two or more whole views (see :class:`PuppetSettings`), only those are
+       used.
+    3. The final triangulation (``settings.triangulation``, ``settings.outlier_px``); markers
+       with fewer than two agreeing views are NaN. A marker the final step loses but the first
+       had (its whole views disagree) keeps the first estimate.
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+        The camera of every view (a turntable's virtual cameras).
+    points_2d : array_like, shape (n_views, n_markers, 2)
+        Identified pixels, NaN where a view did not identify a marker.
+    names : sequence of str, length n_markers
+    images : sequence of n_views images, optional
+        The photos, for the fill test.
+    settings : PuppetSettings
+    bead_radius_m : float
+        Bead radius, metres (the thesis's beads: 3 mm).
+    radii_px : array_like, shape (n_views, n_markers), optional
+        Detected radii, used where a marker has no first 3D point.
+    """
+    x = np.asarray(points_2d, float)
+    if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2 or x.shape[1] != len(names):
+        raise ValueError(f"points_2d must have shape ({len(rig)}, {len(names)}, 2), got {x.shape}")
+    method = settings.triangulation
+    refine = method == "dlt"
+    seen = np.isfinite(x[..., 0]) & np.isfinite(x[..., 1])
+    fill = np.full(seen.shape, np.nan)
+    partial = np.zeros(seen.shape, bool)
+    good = seen.copy()
+    x_used = x
+    first = None
+    if images is not None and settings.use_fill:
+        images = list(images)
+        if len(images) != len(rig):
+            raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
+        first = triangulate(rig, x, method=method, refine=refine, outlier_px=2.0)
+        r_exp = _expected_radius_px(rig, first.points, bead_radius_m)
+        if radii_px is not None:
+            r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
+        r_exp = np.where(np.isfinite(r_exp), r_exp, 0.5 * sum(settings.radius_range) + 0.7)
+        for v, img in enumerate(images):
+            if seen[v].any():
+                fill[v, seen[v]] = bead_fill(img, x[v, seen[v]], r_exp[v, seen[v]])
+        with np.errstate(invalid="ignore"):
+            best = np.nanmax(np.where(seen, fill, -np.inf), axis=0)
+            # whole: fill above min_fill, or (when the marker has a whole view at all) close to
+            # its best view's fill (beads that look smaller or dimmer in every view)
+            good = seen & ((fill >= settings.min_fill)
+                           | ((fill >= settings.fill_ratio * best[None]) & (best[None] >= settings.min_fill)))
+        enough = good.sum(axis=0) >= 2
+        partial = seen & ~good & enough[None]
+        x_used = np.where(partial[..., None], np.nan, x)
+    tri = triangulate(rig, x_used, method=method, refine=refine, outlier_px=settings.outlier_px)
+    points, used = tri.points.copy(), tri.used.copy()
+    lost = ~np.all(np.isfinite(points), axis=1)
+    if first is not None and lost.any():
+        back = lost & np.all(np.isfinite(first.points), axis=1)
+        points[back] = first.points[back]
+        used[:, back] = first.used[:, back]
+        partial[:, back] = False
+    err = np.where(used, tri.errors_px, np.nan)
+    if first is not None:
+        err = np.where(used & ~np.isfinite(err), first.errors_px, err)
+    sq = np.where(used, err, 0.0) ** 2
+    k = used.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.where(k >= 2, np.sqrt(np.nansum(sq, axis=0) / k), np.nan)
+    outlier = seen & ~used & ~partial
+    return MarkerSolve(tuple(names), points, x, used, fill, partial, outlier, rms, tri, good)
+
+
+# --- stage 4: pose -----------------------------------------------------------------------------
+def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
+    """What the markers measure of each joint's frame (its local rotation).
+
+    ``"full"``: the frame carries 2+ markers not in one line with the joint (or 3+ markers), so
+    its whole orientation, twist included, follows from them; ``"partial"``: one marker (or
+    markers in line with the joint): a rotation about that line stays open; ``"none"``: no
+    marker; ``"locked"``: the joint cannot rotate (all limits ``[0, 0]``).
+    """
+    frames = markerset.bone_frames(skeleton)
+    lim = skeleton.limits_deg
+    out = {}
+    for j, name in enumerate(skeleton.names):
+        if np.all(lim[j, :, 0] == lim[j, :, 1]):
+            out[name] = "locked"
+            continue
+        pts = markerset.offsets[frames == j]
+        if len(pts) == 0:
+            out[name] = "none"
+            continue
+        cloud = np.vstack([pts, np.zeros((1, 3))])
+        s = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
+        out[name] = "full" if len(pts) >= 1 and s[1] > 1e-3 * max(s[0], 1e-12) and len(cloud) >= 3 else "partial"
+    return out
+
+
+@dataclass(eq=False)
+class PoseFit:
+    """Result of :func:`fit_pose`.
+
+    Attributes
+    ----------
+    pose : Pose
+        The fitted pose (every local rotation within the joint limits).
+    thesis_pose : Pose
+        The thesis's pose from bone directions (:func:`~stillcap.body.kinematics.pose_from_markers`).
+    directions : dict
+        The thesis's bone directions from the markers (bone -> unit vector, NaN if unmeasured).
+    residuals_m : ndarray, shape (n_markers,)
+        Distance of each fitted model marker from its measurement, metres (NaN if unseen).
+    thesis_residuals_m : ndarray, shape (n_markers,)
+        The same for the thesis's pose.
+    success : bool
+        The optimiser converged.
+    n_markers : int
+        Markers used.
+    time_s : float
+    """
+
+    pose: Pose
+    thesis_pose: Pose
+    directions: dict
+    residuals_m: np.ndarray
+    thesis_residuals_m: np.ndarray
+    success: bool
+    n_markers: int
+    time_s: float = 0.0
+
+    @property
+    def rms_m(self) -> float:
+        r = self.residuals_m[np.isfinite(self.residuals_m)]
+        return float(np.sqrt(np.mean(r ** 2))) if len(r) else float("nan")
+
+
+def _euler_matrices(angles_deg: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Rx(a), Ry(b), Rz(c) for rows (a, b, c) in degrees, each (n, 3, 3)."""
+    return tuple(Rotation.from_euler(ax, angles_deg[:, k:k + 1], degrees=True).as_matrix() for k, ax in enumerate("xyz"))
+
+
+def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
+    """Rotations about one unit axis by each angle, shape (n, 3, 3)."""
+    return Rotation.from_rotvec(np.outer(angles_rad, axis)).as_matrix()
+
+
+def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, centre,
+                  sd) -> np.ndarray:
+    """A start for :func:`fit_pose`, joint by joint from the root (degrees, (n_joints, 3)).
+
+    Each joint's parent frame is known by then, so the joint's world position is too. A frame
+    with 2+ seen markers not in line with the joint: the rotation about the joint that best
+    maps the markers' offsets onto the measured markers (Wahba / Kabsch). One seen marker: the
+    rotations that put it exactly on its measurement form a one-parameter family (turning about
+    the joint-to-marker line); the one whose Euler angles the prior likes best, within the
+    limits, is taken. No marker: the prior's centre.
+    """
+    n = skeleton.n_joints
+    lim = np.stack([lo, hi], axis=-1)
+    frames = markerset.bone_frames(skeleton)
+    seen = np.all(np.isfinite(pts), axis=1)
+    offs = markerset.offsets
+    ang = np.zeros((n, 3))
+    world = np.zeros((n, 3, 3))
+    origin = np.zeros((n, 3))
+    parents = skeleton.parents
+    phis = np.radians(np.arange(0.0, 360.0, 3.0))
+    for j in skeleton.depth_first:
+        p = parents[j]
+        Wp = r2w[:3, :3] if p < 0 else world[p]
+        origin[j] = r2w[:3, 3] if p < 0 else origin[p] + world[p] @ skeleton.offsets[j]
+        locked = np.all(hi[j] <= lo[j])
+        sel = np.flatnonzero((frames == j) & seen)
+        cands = None
+        if not locked and len(sel):
+            meas = (pts[sel] - origin[j]) @ Wp  # measured offsets in the parent's frame (rows: Wp.T @ v)
+            model = offs[sel]
+            cloud = np.vstack([model, np.zeros((1, 3))])
+            sv = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
+            if len(sel) >= 2 and sv[1] > 1e-3 * sv[0]:
+                cands = Rotation.align_vectors(meas, model)[0].as_matrix()[None]
+            else:
+                a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
+                if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+                    R0 = Rotation.align_vectors(a[None], b[None])[0].as_matrix()
+                    cands = _rotations_about(a, phis) @ R0
+        if cands is None:
+            ang[j] = np.where(locked, lo[j], centre[j])
+        else:
+            e, viol = euler_within_limits(cands, np.where(np.isfinite(lim[j]), lim[j], np.nan))
+            cost = 100.0 * viol + np.sum(((e - centre[j]) / sd[j]) ** 2, axis=1)
+            ang[j] = np.clip(e[int(np.argmin(cost))], lo[j], hi[j])
+        world[j] = Wp @ Rotation.from_euler(EULER_LIMIT_SEQUENCE, ang[j], degrees=True).as_matrix()
+    return ang
+
+
+def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
+             initial: Pose | None = None, marker_sigma_m: float = 0.2e-3, robust: bool = True) -> PoseFit:
+    """Joint rotations that put the marker set's beads on the measured markers.
+
+    The free joints' intrinsic XYZ Euler angles (:data:`~stillcap.body.skeleton.EULER_LIMIT_SEQUENCE`,
+    the angles ``limits_deg`` bounds) are fitted by least squares (``scipy.optimize.least_squares``,
+    trust region with the limits as bounds, analytic Jacobian: turning joint ``j`` about the
+    world axis ``u`` moves every point beyond it by ``u x (p - o_j)``) to
+
+    - every seen marker: ``(model - measured) / marker_sigma_m``;
+    - a weak prior per angle: ``(angle - clip(0, limits)) / (half the range, >= 5 deg)``, which
+      only matters for what the markers leave open (see the module docstring).
+
+    The start is built joint by joint from the root (:func:`_start_angles`: Kabsch where a
+    frame has 2+ markers, the prior's favourite of the exact one-marker solutions otherwise);
+    if some marker then still misses by more than 5 sigma, ``initial`` and the thesis's pose
+    are tried as starts too and the best fit is kept. With ``robust`` a soft-L1 loss (scale
+    5 sigma) keeps one wrong marker from bending the whole skeleton.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+    markerset : MarkerSet
+    marker_positions : array_like, shape (n_markers, 3)
+        Measured markers, metres, marker-set order; NaN for missing ones.
+    root2world : array_like, shape (4, 4), optional
+        The root's frame (puppet: the pelvis, fixed on the turntable axis); default rest.
+    initial : Pose, optional
+        Start instead of the thesis's pose.
+    marker_sigma_m : float
+        Expected marker error, metres.
+
+    Returns
+    -------
+    PoseFit
+    """
+    t0 = time.perf_counter()
+    pts = np.asarray(marker_positions, float)
+    if pts.shape != (len(markerset), 3):
+        raise ValueError(f"marker_positions must have shape ({len(markerset)}, 3), got {pts.shape}")
+    r2w = skeleton.rest_root2world() if root2world is None else np.asarray(root2world, float)
+    thesis = pose_from_markers(skeleton, markerset, pts, r2w)
+    dirs = bone_directions(markerset, pts, r2w)
+    n = skeleton.n_joints
+    lim = skeleton.limits_deg
+    lo = np.where(np.isnan(lim[..., 0]), -np.inf, lim[..., 0])
+    hi = np.where(np.isnan(lim[..., 1]), np.inf, lim[..., 1])
+    free = hi > lo  # (n, 3)
+    centre = np.clip(0.0, lo, hi)
+    width = np.where(np.isfinite(hi - lo), 0.5 * (hi - lo), 180.0)
+    sd = np.maximum(width, 5.0)
+    starts = [_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd)]
+    for other in ((initial,) if initial is not None else ()) + (thesis,):
+        a0 = np.clip(skeleton.limit_angles_deg(other.local_rotations), lo, hi)
+        starts.append(np.where(np.isfinite(lo) & ~free, lo, a0))
+    ang = starts[0]
+    frames = markerset.bone_frames(skeleton)
+    offs = markerset.offsets
+    seen = np.all(np.isfinite(pts), axis=1)
+    parents = skeleton.parents
+    # chain[j]: joints whose rotation moves points of frame j (j and its ancestors)
+    chain = np.zeros((n, n), bool)
+    for j in range(n):
+        k = j
+        while k >= 0:
+            chain[j, k] = True
+            k = parents[k]
+    pidx = np.argwhere(free)  # (n_params, 2): joint, axis
+    mf = frames[seen]
+    meas = pts[seen]
+    k2 = math.pi / 180.0
+
+    def unpack(x):
+        a = ang.copy()
+        a[free] = x
+        return a
+
+    def model(x):
+        a = unpack(x)
+        Rx, Ry, Rz = _euler_matrices(a)
+        local = Rx @ Ry @ Rz  # intrinsic XYZ
+        j2w = forward_kinematics(skeleton, r2w, local)
+        return a, Rx, Ry, j2w
+
+    def residuals(x):
+        a, _, _, j2w = model(x)
+        m = np.einsum("nij,nj->ni", j2w[mf, :3, :3], offs[seen]) + j2w[mf, :3, 3]
+        return np.concatenate([((m - meas) / marker_sigma_m).ravel(), ((a - centre) / sd)[free]])
+
+    pj, pax = pidx[:, 0], pidx[:, 1]
+    n_res = 3 * len(mf)
+    prior_rows = n_res + np.arange(len(pidx))
+    moves = chain[mf][:, pj].T  # (n_params, n_seen): parameter moves the marker
+    k_scale = math.pi / 180.0 / marker_sigma_m
+
+    def jacobian(x):
+        a, Rx, Ry, j2w = model(x)
+        m = np.einsum("nij,nj->ni", j2w[mf, :3, :3], offs[seen]) + j2w[mf, :3, 3]
+        W = np.concatenate([r2w[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
+        # world axis of each Euler angle: x, then Rx y, then Rx Ry z (intrinsic XYZ)
+        axes = np.where((pax == 0)[:, None], [1.0, 0.0, 0.0],
+                        np.where((pax == 1)[:, None], Rx[pj][:, :, 1], (Rx[pj] @ Ry[pj])[:, :, 2]))
+        u = np.einsum("pij,pj->pi", W, axes)
+        d = np.cross(u[:, None, :], m[None] - j2w[pj, None, :3, 3]) * k_scale  # (n_params, n_seen, 3)
+        J = np.zeros((n_res + len(pidx), len(pidx)))
+        J[:n_res] = (d * moves[..., None]).reshape(len(pidx), n_res).T
+        J[prior_rows, np.arange(len(pidx))] = 1.0 / sd[pj, pax]
+        return J
+
+    lb, ub = lo[free], hi[free]
+    inner = (np.where(np.isfinite(lb), lb + 1e-9, lb), np.where(np.isfinite(ub), ub - 1e-9, ub))
+    kw = dict(loss="soft_l1", f_scale=5.0) if robust else {}
+    # tr_solver="lsmr": the dense solver's SVD of this small matrix spins multi-threaded BLAS on a
+    # busy machine (70 ms per call measured on 2 shared cores); LSMR is a few matrix products.
+    opts = dict(jac=jacobian, bounds=(lb, ub), x_scale=10.0, method="trf", tr_solver="lsmr", **kw)
+    best = None
+    for a0 in starts:  # the joint-by-joint start; the others only when it ends in a poor fit
+        r = least_squares(residuals, np.clip(a0[free], *inner), **opts)
+        if best is None or r.cost < best.cost:
+            best = r
+        if np.max(np.abs(best.fun[:3 * len(mf)]), initial=0.0) < 5.0:  # every marker within 5 sigma
+            break
+    a = unpack(best.x)
+    local = Rotation.from_euler(EULER_LIMIT_SEQUENCE, a, degrees=True).as_matrix()
+    pose = Pose(skeleton, r2w, local)
+    res = np.full(len(markerset), np.nan)
+    res[seen] = np.linalg.norm(markerset.positions(pose)[seen] - meas, axis=1)
+    tres = np.full(len(markerset), np.nan)
+    tres[seen] = np.linalg.norm(markerset.positions(thesis)[seen] - meas, axis=1)
+    return PoseFit(pose, thesis, dirs, res, tres, bool(best.success), int(seen.sum()), time.perf_counter() - t0)
+
+
+# --- comparison with the truth ------------------------------------------------------------------
+@dataclass
+class PuppetComparison:
+    """A result against the studio's truth (``truth.json``).
+
+    Identification counts are over (view, marker) pairs: ``right`` = the marker was put within
+    one bead radius of its own bead's true pixel (the bead at least partly visible), ``wrong`` =
+    anywhere else; ``visible`` = beads whose centre the truth marks visible, ``right_visible``
+    = those identified right. ``wrong_used`` =
+    wrong identifications the triangulation still used. 3D errors are over the recovered
+    markers; ``seen_twice`` = markers the truth shows in 2+ views. Bone directions and joint
+    positions are grouped by what the markers measure (:func:`frame_status`): ``full`` bones
+    start at a fully measured joint frame, ``partial`` at one with a single bead (forearms,
+    shins), ``none`` at one without (hands, feet); joints likewise by the least measured frame
+    on their way from the root.
+    """
+
+    visible: int
+    identified: int
+    right: int
+    right_visible: int
+    wrong: int
+    wrong_used: int
+    seen_twice: int
+    recovered: int
+    recovered_seen_twice: int
+    missing_seen_twice: tuple
+    marker_errors_m: np.ndarray
+    bone_errors_deg: dict
+    thesis_bone_errors_deg: dict
+    joint_errors_m: np.ndarray
+    thesis_joint_errors_m: np.ndarray
+    bone_groups: dict
+    joint_groups: dict
+
+    @property
+    def right_pct(self) -> float:
+        """Visible beads identified right, % of the visible beads."""
+        return 100.0 * self.right_visible / max(self.visible, 1)
+
+    @property
+    def wrong_pct(self) -> float:
+        """Wrong identifications, % of all identifications."""
+        return 100.0 * self.wrong / max(self.identified, 1)
+
+    def marker_rms_mm(self) -> float:
+        e = self.marker_errors_m[np.isfinite(self.marker_errors_m)]
+        return float(np.sqrt(np.mean(e ** 2)) * 1e3) if len(e) else float("nan")
+
+    def marker_max_mm(self) -> float:
+        e = self.marker_errors_m[np.isfinite(self.marker_errors_m)]
+        return float(e.max() * 1e3) if len(e) else float("nan")
+
+    def bone_stats(self, group: str = "full", thesis: bool = False) -> tuple[float, float]:
+        """(RMS, max) bone direction error in degrees over a group of bones."""
+        errs = self.thesis_bone_errors_deg if thesis else self.bone_errors_deg
+        e = np.array([errs[b] for b in self.bone_groups.get(group, []) if np.isfinite(errs.get(b, np.nan))])
+        return (float(np.sqrt(np.mean(e ** 2))), float(e.max())) if len(e) else (float("nan"), float("nan"))
+
+    def joint_stats(self, group: str | None = None, thesis: bool = False) -> tuple[float, float]:
+        """(RMS, max) joint position error in mm, over all joints or a group."""
+        errs = self.thesis_joint_errors_m if thesis else self.joint_errors_m
+        idx = self.joint_groups.get(group, []) if group else list(range(len(errs)))
+        e = errs[idx]
+        e = e[np.isfinite(e)]
+        return (float(np.sqrt(np.mean(e ** 2)) * 1e3), float(e.max() * 1e3)) if len(e) else (float("nan"), float("nan"))
+
+    def to_dict(self) -> dict:
+        def stats(pair):
+            return {"rms": _num(pair[0]), "max": _num(pair[1])}
+
+        return {
+            "identification": {"visible": self.visible, "identified": self.identified, "right": self.right,
+                               "right_visible": self.right_visible, "wrong": self.wrong, "wrong_used": self.wrong_used,
+                               "right_pct_of_visible": _num(self.right_pct), "wrong_pct_of_identified": _num(self.wrong_pct)},
+            "markers": {"seen_twice": self.seen_twice, "recovered": self.recovered,
+                        "recovered_seen_twice": self.recovered_seen_twice,
+                        "missing_seen_twice": list(self.missing_seen_twice),
+                        "error_mm": {"rms": _num(self.marker_rms_mm()), "max": _num(self.marker_max_mm())},
+                        "errors_mm": [_num(e * 1e3) for e in self.marker_errors_m]},
+            "bone_direction_error_deg": {
+                "fit": {g: stats(self.bone_stats(g)) for g in self.bone_groups},
+                "thesis": {g: stats(self.bone_stats(g, True)) for g in self.bone_groups},
+                "per_bone_fit": {b: _num(v) for b, v in self.bone_errors_deg.items()},
+                "per_bone_thesis": {b: _num(v) for b, v in self.thesis_bone_errors_deg.items()},
+                "groups": {g: list(v) for g, v in self.bone_groups.items()}},
+            "joint_position_error_mm": {
+                "fit": {"all": stats(self.joint_stats())} | {g: stats(self.joint_stats(g)) for g in self.joint_groups},
+                "thesis": {"all": stats(self.joint_stats(thesis=True))}
+                | {g: stats(self.joint_stats(g, True)) for g in self.joint_groups}},
+        }
+
+
+def _num(v):
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+_ORDER = {"locked": 0, "full": 1, "partial": 2, "none": 3}
+
+
+def _groups(skeleton: Skeleton, markerset: MarkerSet) -> tuple[dict, dict]:
+    """Bones and joints grouped by what the markers measure (see :class:`PuppetComparison`)."""
+    status = frame_status(skeleton, markerset)
+    bones: dict[str, list] = {"full": [], "partial": [], "none": []}
+    for j, name in enumerate(skeleton.names):
+        p = skeleton.parents[j]
+        if p < 0 or skeleton.bone_lengths[j] <= 0:
+            continue
+        s = status[skeleton.names[p]]
+        if s != "locked":  # bones of a locked joint (the pelvis) never move
+            bones[s].append(name)
+    joints: dict[str, list] = {"full": [], "partial": [], "none": []}
+    for j in range(skeleton.n_joints):
+        worst, k = "full", skeleton.parents[j]
+        while k >= 0:
+            s = status[skeleton.names[k]]
+            if _ORDER[s] > _ORDER[worst]:
+                worst = s
+            k = skeleton.parents[k]
+        joints[worst].append(j)
+    return {k: v for k, v in bones.items() if v}, {k: v for k, v in joints.items() if v}
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = normalised(a), normalised(b)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return float("nan")
+    return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+
+
+def compare_with_truth(result: PuppetResult, truth) -> PuppetComparison:
+    """Compare a result with the truth of a synthetic capture.
+
+    Parameters
+    ----------
+    result : PuppetResult
+    truth : stillcap.studio.puppet.PuppetTruth
+        Same views in the same order, same marker names.
+    """
+    if list(truth.marker_names) != list(result.names):
+        raise ValueError("truth and result list different markers")
+    obs = result.markers.observations
+    nv = obs.shape[0]
+    if truth.markers_px.shape[0] != nv:
+        raise ValueError(f"truth has {truth.markers_px.shape[0]} views, the result {nv}")
+    true_px = np.stack([cam.project(truth.marker_positions) for cam in result.rig])
+    r_true = _expected_radius_px(result.rig, truth.marker_positions, 0.5 * float(np.mean(truth.marker_diameter)))
+    found = np.isfinite(obs[..., 0])
+    d = np.linalg.norm(obs - true_px, axis=2)
+    with np.errstate(invalid="ignore"):
+        right = found & (d <= np.maximum(r_true, 2.0)) & (truth.coverage > 0)
+    wrong = found & ~right
+    seen2 = truth.visible.sum(axis=0) >= 2
+    ok = result.markers.ok
+    err = np.linalg.norm(result.markers.points - truth.marker_positions, axis=1)
+    sk = result.pose.skeleton
+    tpose = truth.pose(sk)
+    tb = tpose.bone_vectors()
+    fb, thb = result.pose.bone_vectors(), result.thesis_pose.bone_vectors()
+    bone_groups, joint_groups = _groups(sk, result.markerset)
+    names = [b for g in bone_groups.values() for b in g]
+    fit_e = {b: _angle_deg(fb[sk.index(b)], tb[sk.index(b)]) for b in names}
+    th_e = {b: _angle_deg(thb[sk.index(b)], tb[sk.index(b)]) for b in names}
+    je = np.linalg.norm(result.pose.positions - tpose.positions, axis=1)
+    tje = np.linalg.norm(result.thesis_pose.positions - tpose.positions, axis=1)
+    return PuppetComparison(int(truth.visible.sum()), int(found.sum()), int(right.sum()),
+                            int((right & truth.visible).sum()), int(wrong.sum()),
+                            int((wrong & result.markers.used).sum()), int(seen2.sum()), int(ok.sum()),
+                            int((ok & seen2).sum()), tuple(n for n, s, o in zip(result.names, seen2, ok) if s and not o),
+                            np.where(ok, err, np.nan), fit_e, th_e, je, tje, bone_groups, joint_groups)
+
+
+# --- the result -------------------------------------------------------------------------------
+@dataclass(eq=False)
+class PuppetResult:
+    """Everything the puppet pipeline found (see :meth:`to_dict` for the JSON form).
+
+    Attributes
+    ----------
+    rig : Rig
+        The camera of every view, in view order.
+    view_names : list of str
+    angles_deg : list of float or None
+        Turn angle of every view, degrees (None for rig views).
+    markerset : MarkerSet
+    markers : MarkerSolve
+        2D observations, 3D markers, which views were used.
+    fit : PoseFit
+        Fitted and thesis poses.
+    settings : PuppetSettings
+    views : list of ViewResult or None
+        Detection per view (None when the markers came from a project's stored detections).
+    source : dict
+        Where the photos came from (``{"type": "capture"|"project", "path": ...}``).
+    timings_s : dict
+        Seconds per stage.
+    comparison : PuppetComparison or None
+        Against the truth, for synthetic captures.
+    files : list of str or None
+        The photo of every view.
+    """
+
+    rig: Rig
+    view_names: list
+    angles_deg: list
+    markerset: MarkerSet
+    markers: MarkerSolve
+    fit: PoseFit
+    settings: PuppetSettings = DEFAULT
+    views: list | None = None
+    source: dict = field(default_factory=dict)
+    timings_s: dict = field(default_factory=dict)
+    comparison: PuppetComparison | None = None
+    files: list | None = None
+
+    @property
+    def names(self) -> tuple:
+        return self.markers.names
+
+    @property
+    def pose(self) -> Pose:
+        """The result's pose: the fitted one, or the thesis's with ``settings.pose="thesis"``."""
+        return self.fit.pose if self.settings.pose == "fit" else self.fit.thesis_pose
+
+    @property
+    def thesis_pose(self) -> Pose:
+        return self.fit.thesis_pose
+
+    @property
+    def trajectories(self) -> MarkerTrajectories:
+        """The 3D markers as one frame of :class:`MarkerTrajectories` (for :func:`stillcap.io.export.export`)."""
+        return MarkerTrajectories.single(self.names, self.markers.points)
+
+    @property
+    def missing(self) -> tuple:
+        return self.markers.missing
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict; keys shared with ``truth.json`` (``markers[].name/position``,
+        ``joints[].name/position/local_rotation``, ``root2world``, ``cameras``, ``angles_deg``,
+        ``markers_px``) mean the same, in the same units (metres, pixels). See ``docs/puppet.md``."""
+        m, pose = self.markers, self.pose
+        sk = pose.skeleton
+
+        def pts(a):
+            return [None if not np.all(np.isfinite(p)) else [float(v) for v in p] for p in a]
+
+        def joints(p: Pose):
+            return [{"name": n, "position": [float(v) for v in x], "local_rotation": R.tolist()}
+                    for n, x, R in zip(sk.names, p.positions, p.local_rotations)]
+
+        vecs = normalised(pose.bone_vectors())
+        d = {
+            "format": RESULT_FORMAT, "version": 1, "kind": "puppet", "frame": self.rig.world,
+            "units": {"length": "m", "pixels": "px (x, y), origin top-left pixel centre", "angle": "deg"},
+            "source": dict(self.source),
+            "settings": self.settings.to_dict(),
+            "markers": [{"name": n, "position": p, "n_views": int(k), "whole_views": int(wv),
+                         "identified_views": int(iv), "reproj_error_px": _num(e), "missing": p is None,
+                         "fit_residual_m": _num(r)}
+                        for n, p, k, wv, iv, e, r in zip(m.names, pts(m.points), m.n_views, m.whole_views,
+                                                         m.identified_views, m.reproj_error_px, self.fit.residuals_m)],
+            "missing": list(m.missing),
+            "joints": joints(pose),
+            "root2world": pose.root2world.tolist(),
+            "bone_directions": {n: pts(vecs[j:j + 1])[0] for j, n in enumerate(sk.names) if sk.parents[j] >= 0
+                                and sk.bone_lengths[j] > 0},
+            "cameras": list(self.view_names),
+            "angles_deg": [None if a is None else float(a) for a in self.angles_deg],
+            "markers_px": [[[_num(c) for c in p] for p in v] for v in m.observations],  # as truth.json: [null, null]
+            "used": m.used.astype(bool).tolist(),
+            "partial": m.partial.astype(bool).tolist(),
+            "outlier": m.outlier.astype(bool).tolist(),
+            "fill": [[_num(f) for f in row] for row in m.fill],
+            "views": [{"name": n, "file": f, "angle_deg": None if a is None else float(a),
+                       "identified": int(np.isfinite(m.observations[v, :, 0]).sum()), "used": int(m.used[v].sum()),
+                       **({"candidates": len(self.views[v].circles)} if self.views else {})}
+                      for v, (n, f, a) in enumerate(zip(self.view_names, self.files or [None] * len(self.view_names),
+                                                        self.angles_deg))],
+            "pose_fit": {"method": self.settings.pose, "success": self.fit.success, "n_markers": self.fit.n_markers,
+                         "rms_m": _num(self.fit.rms_m),
+                         "frames": frame_status(sk, self.markerset)},
+            "thesis": {"bone_directions": {b: pts(np.asarray(v)[None])[0] for b, v in self.fit.directions.items()},
+                       "joints": joints(self.thesis_pose)},
+            "skeleton": sk.to_dict("m"),
+            "markerset": self.markerset.name,
+            "camera_rig": self.rig.to_dict(),
+            "timings_s": {k: float(v) for k, v in self.timings_s.items()},
+        }
+        if self.comparison is not None:
+            d["comparison"] = self.comparison.to_dict()
+        return d
+
+
+# --- wiring -------------------------------------------------------------------------------------
+def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = None, palette: Palette | None = None,
+                       observations=None, settings: PuppetSettings = DEFAULT, view_names=None, angles_deg=None,
+                       root2world=None, progress: Callable[[int, int], None] | None = None, truth=None,
+                       source: dict | None = None, files=None, skeleton: Skeleton | None = None) -> PuppetResult:
+    """The whole pipeline on photos (or on already identified 2D markers).
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+        The camera of every view (puppet frame).
+    images : sequence of n_views BGR images, optional
+        The photos. Without ``observations`` they are detected and identified; with them only
+        the fill test reads them.
+    markerset : MarkerSet, optional
+        Default :meth:`MarkerSet.puppet`.
+    palette : Palette, optional
+        Reference colours in marker-set order; default the marker set's colours.
+    observations : array_like, shape (n_views, n_markers, 2), optional
+        Identified pixels (e.g. a project's markers with the user's edits); skips detection.
+    settings : PuppetSettings
+    view_names, angles_deg : sequences, optional
+        Per view; default the camera names and None.
+    root2world : array_like, shape (4, 4), optional
+        Pelvis frame; default the skeleton's rest frame (the puppet on the turntable axis).
+    progress : callable(done, total), optional
+        Called after each detected view.
+    truth : PuppetTruth, optional
+        Compare with it (:func:`compare_with_truth`).
+    source : dict, optional
+        Where the photos came from (kept in the result).
+    files : sequence of str, optional
+        The photo of every view (kept in the result).
+    skeleton : Skeleton, optional
+        Default :meth:`Skeleton.puppet`; the marker set's bones must be in it.
+    """
+    markerset = markerset or MarkerSet.puppet()
+    skeleton = skeleton or Skeleton.puppet()
+    markerset.check_skeleton(skeleton)
+    if palette is None:
+        palette = Palette.from_markerset(markerset)
+    elif tuple(palette.names) != tuple(markerset.names):
+        raise ValueError(f"palette names {list(palette.names)} differ from the marker set's {list(markerset.names)}")
+    n = len(rig)
+    if images is not None:
+        images = list(images)
+        if len(images) != n:
+            raise ValueError(f"need one image per view ({n}), got {len(images)}")
+        for cam, img in zip(rig, images):
+            h, w = np.asarray(img).shape[:2]
+            if (w, h) != tuple(cam.image_size):
+                raise ValueError(f"view {cam.name!r}: image is {w}x{h} px, its camera is "
+                                 f"{cam.image_size[0]}x{cam.image_size[1]} px")
+    timings = {}
+    views = None
+    radii = None
+    if observations is None:
+        if images is None:
+            raise ValueError("give images (to detect markers in) or observations")
+        t0 = time.perf_counter()
+        views = []
+        for k, img in enumerate(images):
+            views.append(detect_view(img, palette, settings))
+            if progress is not None:
+                progress(k + 1, n)
+        obs = np.stack([v.identification.points for v in views]) if views else np.zeros((0, len(markerset), 2))
+        radii = np.stack([v.identification.radii for v in views]) if views else None
+        timings["detect_identify"] = time.perf_counter() - t0
+    else:
+        obs = np.asarray(observations, float)
+    t0 = time.perf_counter()
+    solve = solve_markers(rig, obs, markerset.names, images, settings,
+                          bead_radius_m=0.5 * float(np.mean([m.diameter for m in markerset.markers])), radii_px=radii)
+    timings["triangulate"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fit = fit_pose(skeleton, markerset, solve.points, root2world, marker_sigma_m=settings.marker_sigma_m)
+    timings["pose"] = time.perf_counter() - t0
+    result = PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
+                          list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
+                          settings, views, dict(source or {}), timings, None, list(files) if files else None)
+    if truth is not None:
+        result.comparison = compare_with_truth(result, truth)
+    return result
+
+
+def _capture_inputs(folder: Path):
+    from stillcap.io.capture import Capture
+    from stillcap.studio.puppet import PuppetTruth
+
+    cap = Capture.load(folder)
+    if cap.kind != "puppet":
+        raise ValueError(f"capture {folder} is of kind {cap.kind!r}, not 'puppet' (make one with stillcap studio puppet)")
+    if not cap.images:
+        raise ValueError(f"capture {folder} has no images")
+    cams, names, angles, files = [], [], [], []
+    for im in cap.images:
+        c = cap.rig[im.camera]
+        cams.append(c)
+        names.append(c.name)
+        a = (im.meta or {}).get("angle_deg")
+        angles.append(None if a is None else float(a))
+        files.append(im.file)
+    rig = Rig(cams, cap.rig.world)
+    truth = None
+    if cap.truth and cap.truth.get("kind") == "puppet":
+        truth = PuppetTruth.from_dict(cap.truth)
+        if list(truth.cameras) != names:
+            truth = None  # views differ from the truth's: no comparison
+    return cap, rig, names, angles, files, truth
+
+
+def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | None = None,
+                progress: Callable[[int, int], None] | None = None, compare: bool = True) -> tuple[PuppetResult, list]:
+    """Run the pipeline on a capture folder of kind ``puppet`` (``stillcap studio puppet``).
+
+    Returns
+    -------
+    result : PuppetResult
+        Compared with ``truth.json`` when the folder has one (and ``compare``).
+    images : list of ndarray
+        The decoded photos (for overlays).
+    """
+    folder = Path(folder)
+    t0 = time.perf_counter()
+    cap, rig, names, angles, files, truth = _capture_inputs(folder)
+    images = [cap.read_image(im) for im in cap.images]
+    t_read = time.perf_counter() - t0
+    res = reconstruct_puppet(rig, images, palette=palette, settings=settings, view_names=names, angles_deg=angles,
+                             progress=progress, truth=truth if compare else None,
+                             source={"type": "capture", "path": str(folder)}, files=files)
+    res.timings_s = {"read": t_read, **res.timings_s}
+    return res, images
+
+
+def run_project(project, settings: PuppetSettings = DEFAULT, palette: Palette | None = None, redetect: bool = False,
+                progress: Callable[[int, int], None] | None = None, save: bool = True) -> tuple[PuppetResult, list]:
+    """Detect markers in a project's photos, store them, and reconstruct.
+
+    Views without detections (all views with ``redetect``) are detected and identified; their
+    detections replace the stored ones (the user's edits stay and still apply) and the project
+    is saved (``save``). The 3D markers come from every view's effective markers (detections
+    with edits), as :meth:`Project.reconstruct` would, plus the fill test.
+
+    Parameters
+    ----------
+    project : Project or path
+    """
+    from stillcap.io.project import Project
+
+    if not isinstance(project, Project):
+        project = Project.load(project)
+    if not project.views:
+        raise ValueError(f"project {project.root} has no views yet (add photos with stillcap puppet add)")
+    pal = palette or Palette.from_markerset(project.markerset)
+    t0 = time.perf_counter()
+    images = [project.read_image(v) for v in project.views]
+    t_read = time.perf_counter() - t0
+    rig = project.views_rig()
+    todo = [k for k, v in enumerate(project.views) if redetect or not v.detected]
+    t0 = time.perf_counter()
+    views: list = [None] * len(images)
+    for i, k in enumerate(todo):
+        vr = detect_view(images[k], pal, settings)
+        views[k] = vr
+        project.set_detections(k, vr.identification.as_dict())
+        if progress is not None:
+            progress(i + 1, len(todo))
+    t_det = time.perf_counter() - t0
+    if todo and save:
+        project.save()
+    res = reconstruct_project(project, settings, images=images)
+    res.views = views if all(v is not None for v in views) else None
+    res.timings_s = {"read": t_read, "detect_identify": t_det, **{k: v for k, v in res.timings_s.items()}}
+    return res, images
+
+
+def reconstruct_project(project, settings: PuppetSettings = DEFAULT, images=None) -> PuppetResult:
+    """3D markers and pose from a project's stored markers (detections with the user's edits).
+
+    ``images`` (the decoded photos, view order) enable the fill test; default: read them.
+    """
+    from stillcap.io.project import Project
+
+    if not isinstance(project, Project):
+        project = Project.load(project)
+    names, pts, rig = project.observations()
+    if images is None:
+        images = [project.read_image(v) for v in project.views]
+    return reconstruct_puppet(rig, images, markerset=project.markerset, observations=pts, settings=settings,
+                              view_names=[v.name for v in project.views],
+                              angles_deg=[v.angle_deg for v in project.views],
+                              source={"type": "project", "path": str(project.root)},
+                              files=[v.image for v in project.views])
+
+
+def run_folder(folder, settings: PuppetSettings = DEFAULT, palette: Palette | None = None, redetect: bool = False,
+               progress: Callable[[int, int], None] | None = None) -> tuple[PuppetResult, list]:
+    """:func:`run_capture` or :func:`run_project`, whichever ``folder`` is."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise ValueError(f"folder {folder} does not exist")
+    if not folder.is_dir():
+        raise ValueError(f"{folder} is not a folder (give a capture folder or a stillcap project)")
+    if (folder / "project.json").is_file():
+        return run_project(folder, settings, palette, redetect, progress)
+    if (folder / "capture.json").is_file():
+        return run_capture(folder, settings, palette, progress)
+    raise ValueError(f"{folder} is neither a capture folder (capture.json) nor a stillcap project (project.json)")
+
+
+# --- reading a result back ---------------------------------------------------------------------
+@dataclass(eq=False)
+class LoadedResult:
+    """A pipeline result read back from its JSON (:func:`load_result`): what exports need.
+
+    Attributes
+    ----------
+    pose : Pose
+    markers : MarkerTrajectories
+        One frame of 3D markers (NaN = missing).
+    data : dict
+        The whole JSON.
+    """
+
+    pose: Pose
+    markers: MarkerTrajectories
+    data: dict
+
+
+def load_result(path_or_dict) -> LoadedResult:
+    """Read a result written by ``stillcap puppet run --out`` (``result.json``) or ``--json``.
+
+    Raises
+    ------
+    ValueError
+        Naming the file when it is not a puppet result or lacks the skeleton or pose.
+    """
+    from stillcap.io.capture import from_jsonable
+
+    if isinstance(path_or_dict, dict):
+        d, where = path_or_dict, "<result>"
+    else:
+        import json
+
+        p = Path(path_or_dict)
+        if not p.is_file():
+            raise ValueError(f"result file {p} does not exist")
+        try:
+            d = json.loads(p.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise ValueError(f"{p} is not valid JSON: {e}") from None
+        where = str(p)
+    if not isinstance(d, dict) or d.get("format") != RESULT_FORMAT:
+        raise ValueError(f"{where} is not a stillcap puppet result (expected \"format\": \"{RESULT_FORMAT}\")")
+    if d.get("version", 0) > 1:
+        raise ValueError(f"{where}: result version {d.get('version')} is newer than this stillcap reads (1)")
+    try:
+        sk = Skeleton.from_dict(d["skeleton"], source=where)
+        by = {j["name"]: np.asarray(j["local_rotation"], float) for j in d["joints"]}
+        local = np.stack([by[n] for n in sk.names])
+        pose = Pose(sk, np.asarray(d["root2world"], float), local)
+        names = [m["name"] for m in d["markers"]]
+        pts = from_jsonable([m["position"] if m["position"] is not None else [None] * 3 for m in d["markers"]])
+        markers = MarkerTrajectories.single(names, np.asarray(pts, float).reshape(len(names), 3))
+    except (KeyError, TypeError) as e:
+        raise ValueError(f"{where}: incomplete puppet result (missing {e})") from None
+    return LoadedResult(pose, markers, d)
+
+
+def with_settings(settings: PuppetSettings = DEFAULT, **changes) -> PuppetSettings:
+    """A copy of ``settings`` with some fields changed (validated)."""
+    return replace(settings, **changes)

@@ -1,0 +1,192 @@
+"""The puppet pipeline on rendered turntable photos: markers named, triangulated, skeleton posed."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from stillcap.body import MarkerSet, Pose, Skeleton
+from stillcap.camera import Rig
+from stillcap.io.project import Project
+from stillcap.pipelines.puppet import (DEFAULT, THESIS_CHAIN, PuppetSettings, bead_fill, bright_region, fit_pose,
+                                       frame_status, load_result, reconstruct_puppet, run_capture, run_folder,
+                                       run_project, solve_markers)
+from stillcap.studio.puppet import puppet_scene
+
+
+# supersample=1 (edge rays not re-traced) halves the render time; the numbers below were
+# measured on exactly these renders (fixed seeds).
+@pytest.fixture(scope="module")
+def tpose():
+    return puppet_scene(pose="tpose", rng=1, supersample=1)
+
+
+@pytest.fixture(scope="module")
+def random3():
+    return puppet_scene(pose="random:3", rng=3, supersample=1)
+
+
+def _run(scene, settings=DEFAULT):
+    return reconstruct_puppet(scene.rig, scene.images, settings=settings, truth=scene.truth,
+                              angles_deg=list(scene.truth.angles_deg))
+
+
+def test_tpose_every_marker_recovered_without_a_wrong_identification(tpose):
+    res = _run(tpose)
+    c = res.comparison
+    assert c.recovered_seen_twice == c.seen_twice == 16 and not res.missing
+    assert c.wrong == 0 and c.right_visible == c.visible  # measured: 150 of 150 visible beads, none wrong
+    assert c.marker_rms_mm() < 0.15 and c.marker_max_mm() < 0.3  # measured 0.09 / 0.14 mm
+    assert c.bone_stats("full")[1] < 0.5  # measured 0.17 deg
+    assert c.bone_stats("partial")[1] < 0.5  # the prior's centre is the rest pose
+    assert c.joint_stats("full")[1] < 0.3  # mm; measured 0.17
+    # the reprojection of every used view is sub-pixel
+    assert np.nanmax(res.markers.reproj_error_px) < 0.6  # px RMS; measured 0.41
+
+
+def test_random_pose_recovers_every_marker_seen_twice(random3):
+    res = _run(random3)
+    c = res.comparison
+    assert c.recovered_seen_twice == c.seen_twice
+    assert c.wrong_used == 0  # wrong 2D identifications (a few partly hidden beads) never reach 3D
+    assert c.wrong <= 6  # measured 4, all left out of 3D
+    assert c.marker_rms_mm() < 0.3 and c.marker_max_mm() < 1.0  # measured 0.09 / 0.21 mm
+    assert c.bone_stats("full")[0] < 0.5 and c.bone_stats("full")[1] < 1.0  # measured 0.16 / 0.32 deg
+    assert c.joint_stats("full")[1] < 0.6  # mm; measured 0.15
+    assert c.bone_stats("partial")[1] < 5.0  # one bead per forearm / shin; measured 1.4 deg
+    # the fit beats the thesis's bone directions on every measured bone group
+    assert c.bone_stats("full")[0] < c.bone_stats("full", thesis=True)[0]
+    # the result dict shares its keys with the truth and is strict JSON
+    d = res.to_dict()
+    truth = random3.truth.to_dict()
+    for key in ("markers", "joints", "root2world", "cameras", "angles_deg", "markers_px"):
+        assert key in d and key in truth
+    assert [m["name"] for m in d["markers"]] == [m["name"] for m in truth["markers"]]
+    assert [j["name"] for j in d["joints"]] == [j["name"] for j in truth["joints"]]
+    np.testing.assert_allclose(np.array([m["position"] for m in d["markers"]], float),
+                               np.array([m["position"] for m in truth["markers"]], float), atol=1e-3)
+    text = json.dumps(d, allow_nan=False)
+    back = load_result(json.loads(text))
+    np.testing.assert_allclose(back.pose.positions, res.pose.positions, atol=1e-12)
+    np.testing.assert_allclose(back.markers.points[0], res.markers.points, atol=1e-12)
+
+
+def test_thesis_chain_runs(random3):
+    # the thesis's detector finds few beads on these renders (IsoData picks a threshold in the
+    # background noise, see docs/puppet.md) and is slow; two views show that the chain runs
+    rig = Rig(list(random3.rig)[:2], random3.rig.world)
+    res = reconstruct_puppet(rig, random3.images[:2], settings=THESIS_CHAIN)
+    assert res.settings.pose == "thesis" and res.pose is res.thesis_pose
+    assert res.views[0].circles.method == "thesis" and res.views[0].identification.method == "greedy"
+    assert res.markers.observations.shape == (2, 16, 2)
+
+
+def test_fit_pose_recovers_twist_the_thesis_cannot_see():
+    sk, ms = Skeleton.puppet(), MarkerSet.puppet()
+    local = np.tile(np.eye(3), (sk.n_joints, 1, 1))
+    twist = {"l-shoulder": [50, -20, -30], "upper-back": [0, 35, 0], "l-hip": [-40, 25, 0], "lower-back": [10, 0, 5]}
+    for j, a in twist.items():
+        local[sk.index(j)] = Rotation.from_euler("XYZ", a, degrees=True).as_matrix()
+    truth = Pose(sk, sk.rest_root2world(), local)
+    fit = fit_pose(sk, ms, ms.positions(truth))
+    for j in twist:  # within 0.2 deg: the weak prior (sd = half the range) pulls a little even here
+        d = Rotation.from_matrix(fit.pose.local_rotations[sk.index(j)] @ local[sk.index(j)].T).magnitude()
+        assert np.degrees(d) < 0.2, j
+    assert np.nanmax(fit.residuals_m) < 0.02e-3
+    # the thesis's rules see the torso's bone but not its twist about it: the shoulders are off
+    th = fit.thesis_pose.bone_vectors()[sk.index("l-shoulder")]
+    tv = truth.bone_vectors()[sk.index("l-shoulder")]
+    assert np.degrees(np.arccos(th @ tv / np.linalg.norm(th) / np.linalg.norm(tv))) > 20
+    assert not sk.limit_violations(fit.pose.local_rotations).any()
+
+
+def test_frame_status_of_the_puppet():
+    s = frame_status(Skeleton.puppet(), MarkerSet.puppet())
+    assert s["root"] == "locked" and s["head"] == "locked"
+    assert all(s[j] == "full" for j in ("lower-back", "upper-back", "l-shoulder", "r-shoulder", "l-hip", "r-hip"))
+    assert all(s[j] == "partial" for j in ("l-elbow", "r-elbow", "l-knee", "r-knee"))
+    assert all(s[j] == "none" for j in ("l-hand", "r-hand", "l-foot", "r-foot"))
+
+
+def test_elbow_bent_150_degrees_is_within_its_limits():
+    # named test for the fixed bug: limits read as XYZ Euler angles capped elbow bends at 90 deg
+    sk = Skeleton.puppet()
+    local = np.tile(np.eye(3), (sk.n_joints, 1, 1))
+    e = sk.index("l-elbow")
+    for bend, ok in ((-150, True), (-120, True), (-91, True), (-160, False), (10, False)):
+        local[e] = Rotation.from_euler("y", bend, degrees=True).as_matrix()
+        assert sk.limit_violations(local).any() != ok, bend
+        assert sk.limit_angles_deg(local)[e, 1] == pytest.approx(bend)
+    local[e] = Rotation.from_euler("XYZ", [60, -140, 5], degrees=True).as_matrix()
+    np.testing.assert_allclose(sk.limit_angles_deg(local)[e], [60, -140, 5], atol=1e-9)
+    assert not sk.limit_violations(local).any()
+
+
+def test_bead_fill_tells_whole_from_half_hidden_beads():
+    img = np.full((60, 60, 3), 20, np.uint8)
+    cv2.circle(img, (15, 30), 6, (200, 180, 160), -1)
+    cv2.circle(img, (45, 30), 6, (200, 180, 160), -1)
+    img[:, 45:52] = 20  # a dark limb hides the right half of the second bead
+    f = bead_fill(img, [[15, 30], [45, 30], [np.nan, 1]], [6.4, 6.4, 6.4])
+    assert f[0] > 0.8 and 0.3 < f[1] < 0.6 and np.isnan(f[2])
+
+
+def test_bright_region_holds_every_bead(tpose):
+    for img, px in zip(tpose.images, tpose.truth.markers_px):
+        x0, y0, x1, y1 = bright_region(img)
+        p = px[np.isfinite(px[:, 0])]
+        assert np.all((p[:, 0] >= x0 + 5) & (p[:, 0] < x1 - 5) & (p[:, 1] >= y0 + 5) & (p[:, 1] < y1 - 5))
+    assert bright_region(np.zeros((40, 50, 3), np.uint8)) == (0, 0, 50, 40)
+
+
+def test_markers_seen_once_are_missing(tpose):
+    names = MarkerSet.puppet().names
+    obs = np.full((len(tpose.rig), 16, 2), np.nan)
+    obs[:] = tpose.truth.markers_px
+    obs[1:, 0] = np.nan  # head.1 only in view 0
+    s = solve_markers(tpose.rig, obs, names, settings=PuppetSettings(use_fill=False))
+    assert s.missing == ("head.1",) and np.all(np.isnan(s.points[0]))
+    assert s.ok[1:].all() and np.nanmax(s.reproj_error_px) < 0.05
+    with pytest.raises(ValueError, match=r"points_2d must have shape \(12, 16, 2\)"):
+        solve_markers(tpose.rig, obs[:3], names)
+
+
+def test_capture_folder_and_project(tmp_path, tpose):
+    cap, images = tpose.to_capture(".png")
+    cap.save(tmp_path / "cap", images)
+    images = list(images.values())
+    res, imgs = run_capture(tmp_path / "cap")
+    assert len(imgs) == 12 and res.comparison is not None and res.comparison.recovered == 16
+    # the same photos in a project: detected, stored, reconstructed
+    p = Project.create(tmp_path / "proj")
+    for img, a in zip(images[:6], tpose.truth.angles_deg[:6]):
+        p.add_view(img, angle_deg=float(a))
+    p.save()
+    res2, _ = run_folder(tmp_path / "proj")
+    p = Project.load(tmp_path / "proj")
+    assert all(v.detected for v in p.views)
+    assert res2.markers.ok.sum() == 16 and res2.source["type"] == "project"
+    np.testing.assert_allclose(res2.markers.points, tpose.truth.marker_positions, atol=5e-4)
+    # an edit (delete a marker in all but one view) makes it missing
+    for v in p.views[1:]:
+        if "head.1" in v.markers:
+            p.edit(v, delete="head.1")
+    p.save()
+    res3, _ = run_project(tmp_path / "proj")
+    assert "head.1" in res3.missing
+
+
+def test_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="does not exist"):
+        run_folder(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="neither a capture folder"):
+        run_folder(tmp_path / "empty")
+    with pytest.raises(ValueError, match="unknown detector 'sift'"):
+        PuppetSettings(detector="sift")
+    with pytest.raises(ValueError, match="unknown identification 'magic'"):
+        PuppetSettings(identify="magic")
+    with pytest.raises(ValueError, match="not a stillcap puppet result"):
+        load_result({"format": "something"})
