@@ -41,7 +41,7 @@ from stillcap._checks import as_array
 RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class StrobeMeasurement:
     """A spin measured from one strobe sequence (any alias of it).
 
@@ -81,7 +81,7 @@ class StrobeMeasurement:
         return bool(np.linalg.norm(self.spin) > 3.0 * np.sqrt(max(np.trace(self.covariance), 0) / 3.0))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CurvatureMeasurement:
     """The spin the flight's curvature implies (Magnus force), from a reference-trajectory fit.
 
@@ -133,7 +133,8 @@ class CurvatureMeasurement:
             Overrides the choice from ``model``.
         """
         if lift is None:
-            lift = "transverse" if (model is not None and getattr(model, "kind", "seed") == "nathan") else "total"
+            nathan = model is not None and getattr(model, "kind", "seed") == "nathan"
+            lift = "transverse" if nathan else "total"
         basis = np.asarray(fit.spin_basis, float)
         s = np.asarray(fit.params[6:9], float)
         C = np.asarray(fit.covariance[6:9, 6:9], float)

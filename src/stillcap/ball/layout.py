@@ -91,7 +91,7 @@ def sphere_direction(azimuth_deg, polar_deg) -> np.ndarray:
     return np.stack([np.sin(p) * np.cos(a), np.sin(p) * np.sin(a), np.cos(p)], axis=-1)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BallLayout:
     """Markers painted on a ball, in the ball frame.
 
@@ -297,7 +297,7 @@ class BallLayout:
         return np.where(vis.sum(-1) >= 2, np.maximum(sep, 0.0), 0.0)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LayoutCheck:
     """What a layout shows from sampled view directions (:func:`check_layout`).
 

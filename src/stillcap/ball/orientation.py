@@ -243,7 +243,8 @@ class MarkerObservations:
         ray_origins, ray_directions : array_like, shape (M, 3)
             Camera centre and ray direction through the marker pixel, world frame.
         ball_centers : array_like, shape (M, 3) or (K, 3)
-            Ball centre per observation, or per flash (indexed by ``flash``), m.
+            Ball centre per observation, or per flash (indexed by ``flash``), m; with as many
+            rows as observations it is taken per observation.
         radius : float, optional
             Ball radius (default ``layout.radius``).
         """
@@ -936,7 +937,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
 
     best = run(starts) if starts else None
     # a flash is unambiguous when its runner-up alignment is clearly worse
-    n_clear = sum(fo.runner_up_cost - fo.cost > 0.25 * cap ** 2 for fo in flash_fit.values())
+    n_clear = sum(int(fo.runner_up_cost - fo.cost > 0.25 * cap ** 2) for fo in flash_fit.values())
     need_grid = spin_init is None and (init == "grid" or (init == "auto" and (
         best is None or np.mean(best[4] < cap) < 0.9 or n_clear < 3)))
     if need_grid and anchors_order:
@@ -985,20 +986,11 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         fit_time_s=_time.perf_counter() - t_start)
 
 
-def _central_jacobian(fun, x, steps):
-    cols = []
-    for i in range(len(x)):
-        e = np.zeros_like(x)
-        e[i] = steps[i]
-        cols.append((fun(x + e) - fun(x - e)) / (2 * steps[i]))
-    return np.stack(cols, axis=1)
-
-
 # ----------------------------------------------------------------------------------------------
 # The seed's per-flash method
 # ----------------------------------------------------------------------------------------------
 def _euler_xyz(x):
-    """Rotation matrix of intrinsic-free 'xyz' Euler angles (the order Rotation.from_euler('xyz'))."""
+    """Rotation matrix of extrinsic 'xyz' Euler angles, as ``Rotation.from_euler("xyz", x)``."""
     cx, cy, cz = np.cos(x)
     sx, sy, sz = np.sin(x)
     # R = Rz @ Ry @ Rx  (extrinsic x, then y, then z)
@@ -1106,8 +1098,8 @@ def fit_spin_seed(times, observations, layout: BallLayout | None = None, *, a1: 
 
     def clear(k):
         fo = aligned.get(k)
-        return (fo is not None and fo.determined and fo.n_inliers >= 3
-                and fo.runner_up_cost - fo.cost > 0.25 * align_cap ** 2)
+        return int(fo is not None and fo.determined and fo.n_inliers >= 3
+                   and fo.runner_up_cost - fo.cost > 0.25 * align_cap ** 2)
 
     def solve(k, R_pred):
         """R_k minimising E from the prediction and the flash's own type alignments."""
@@ -1273,7 +1265,8 @@ def simulate_observations(times, ball2world_t0, spin, view_dirs, layout: BallLay
         raise ValueError(f"view_dirs must have shape (3,) or (C, 3), got {np.shape(view_dirs)}")
     v = _unit_rows(v, "view_dirs")
     t0 = float(times[0]) if t0 is None else float(t0)
-    caps = None if max_per_flash is None else as_array(max_per_flash, (len(times),), "max_per_flash", dtype=int)
+    caps = (None if max_per_flash is None
+            else as_array(max_per_flash, (len(times),), "max_per_flash", dtype=int))
     Rk = (Rotation.from_rotvec(np.outer(times - t0, w)) * Rotation.from_matrix(R0)).as_matrix()
     sig = np.radians(noise_deg)
     fl, ty, di = [], [], []
