@@ -93,9 +93,9 @@ def test_baseball_markers_layout():
     az = sorted(round(np.degrees(np.arctan2(m.direction[1], m.direction[0])) % 360) for m in eq)
     assert az == [0, 30, 90, 120, 180, 210, 270, 300]
     rng = np.random.default_rng(0)
-    for v in rng.normal(size=(200, 3)):  # all four types on every visible hemisphere
+    for v in rng.normal(size=(200, 3)):  # at least three types on every visible hemisphere (seed 4.1)
         seen = {k for k, m in zip(kinds, ms) if m.direction @ v > 0}
-        assert len(seen) == 4
+        assert len(seen) >= 3
 
 
 def test_chessboard_set_truth_and_capture(tmp_path):
