@@ -28,3 +28,32 @@ def shared_data(sub: str) -> Path:
     if not p.exists():
         pytest.skip(f"real data folder {p} is absent (see shared/data/README.md)")
     return p
+
+
+def run_cli(args, capsys):
+    """Run ``stillcap ARGS`` in-process: ``(exit code, stdout, stderr)``."""
+    from stillcap.cli import main
+
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as e:
+        code = e.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+PITCH_SIZE = (1280, 960)  # half the seed's resolution keeps the field of view; 4x cheaper to render and detect
+
+
+def studio_pitch(factory, name, **kw):
+    """Render a studio pitch (true rig) into the session's temp folder once; its folder."""
+    from stillcap.studio.pitch import pitch_capture
+
+    root = factory.getbasetemp() / f"pitch-{name}"
+    if not (root / "capture.json").is_file():
+        pc = pitch_capture(kw.pop("preset", "seed-4seam"), kw.pop("seed", 1), calibrate=False,
+                           image_size=PITCH_SIZE, **kw)
+        cap, images = pc.to_capture()
+        cap.save(root, images)
+    return root

@@ -4,19 +4,8 @@ import json
 import subprocess
 import sys
 
-import pytest
 
-from stillcap.cli import main
-
-
-def run(args, capsys):
-    try:
-        main(args)
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
+from support import run_cli as run
 
 
 def test_studio_markers_then_markers_json(tmp_path, capsys):

@@ -7,35 +7,12 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.cli import main
-from stillcap.studio.pitch import pitch_capture
-
-SIZE = (1280, 960)
-
-
-def studio_pitch(factory, name, **kw):
-    """Render a studio pitch into a session folder once (shared with the pipeline tests)."""
-    root = factory.getbasetemp() / f"pitch-{name}"
-    if not (root / "capture.json").is_file():
-        pc = pitch_capture(kw.pop("preset", "seed-4seam"), kw.pop("seed", 1), calibrate=False, image_size=SIZE, **kw)
-        cap, images = pc.to_capture()
-        cap.save(root, images)
-    return root
+from support import PITCH_SIZE as SIZE, run_cli as run, studio_pitch
 
 
 @pytest.fixture(scope="module")
 def fastball(tmp_path_factory):
     return studio_pitch(tmp_path_factory, "fastball")
-
-
-def run(args, capsys):
-    try:
-        main(args)
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 def test_pitch_json_report_csv(fastball, tmp_path, capsys):

@@ -10,19 +10,11 @@ import pytest
 from typer.testing import CliRunner
 
 from stillcap.cli import app, main
+
+from support import run_cli as run
 from stillcap.io.capture import Capture, from_jsonable
 from stillcap.io.project import Project
 from stillcap.studio.puppet import PuppetTruth
-
-
-def run(args, capsys):
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ import numpy as np
 
 from stillcap._checks import as_array, as_points
 from stillcap.io.atomic import write_text
+from stillcap.io.jsonfile import read_json
 
 RIG_FORMAT = "stillcap-rig"
 RIG_VERSION = 1
@@ -307,14 +308,7 @@ class Rig:
 
     @classmethod
     def load(cls, path) -> Rig:
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"rig file {path} does not exist") from None
-        except json.JSONDecodeError as e:
-            raise ValueError(f"rig file {path} is not valid JSON: {e}") from None
-        return cls.from_dict(d, f"{path}: ")
+        return cls.from_dict(read_json(path, "rig file"), f"{path}: ")
 
     @classmethod
     def from_opencv(cls, *paths, names=None, image_size=None, square_size: float = 1.0) -> Rig:

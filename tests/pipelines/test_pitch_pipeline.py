@@ -11,20 +11,10 @@ import pytest
 from stillcap.io.capture import Capture
 from stillcap.pipelines.pitch import PitchOptions, analyse_pitch, order_flashes, stereo_pairs
 from stillcap.report.pitch import POSITION_COLUMNS, write_report
-from stillcap.studio.pitch import pitch_capture
 
-SIZE = (1280, 960)  # half the seed's resolution keeps the field of view; 4x cheaper to render and detect
+from support import PITCH_SIZE as SIZE, studio_pitch
+
 WHITE = (0.75, 0.75, 0.72)  # the ball's leather: markers painted in it are invisible
-
-
-def studio_pitch(factory, name, **kw):
-    """Render a studio pitch into a session folder once (shared with tests/test_cli_pitch.py)."""
-    root = factory.getbasetemp() / f"pitch-{name}"
-    if not (root / "capture.json").is_file():
-        pc = pitch_capture(kw.pop("preset", "seed-4seam"), kw.pop("seed", 1), calibrate=False, image_size=SIZE, **kw)
-        cap, images = pc.to_capture()
-        cap.save(root, images)
-    return root
 
 
 @pytest.fixture(scope="module")

@@ -30,6 +30,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.body.skeleton import LENGTH_UNITS, Animation, Pose, Skeleton
 from stillcap.io.atomic import write_text
+from stillcap.io.jsonfile import read_json
 
 __all__ = ["Marker", "BoneRule", "MarkerSet", "MarkerTrajectories"]
 
@@ -290,12 +291,7 @@ class MarkerSet:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MarkerSet":
         """Read a marker-set JSON file."""
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path} is not valid JSON: {e}") from e
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_json(path), source=str(path))
 
     def save(self, path: str | os.PathLike, length_unit: str = "m") -> Path:
         """Write the marker set as JSON (atomically); return the path."""

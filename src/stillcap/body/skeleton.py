@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array
 from stillcap.io.atomic import write_text
+from stillcap.io.jsonfile import read_json
 
 __all__ = [
     "Joint",
@@ -346,12 +347,7 @@ class Skeleton:
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Skeleton":
         """Read a skeleton JSON file."""
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path} is not valid JSON: {e}") from e
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_json(path), source=str(path))
 
     def save(self, path: str | os.PathLike, length_unit: str = "m") -> Path:
         """Write the skeleton as JSON (atomically), lengths in ``length_unit``; return the path."""

@@ -13,7 +13,7 @@ covers the board-plane rectangle ``extent = (xmin, ymin, xmax, ymax)``: texture 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np

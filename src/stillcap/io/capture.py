@@ -24,6 +24,7 @@ import numpy as np
 
 from stillcap.camera import Rig
 from stillcap.io.atomic import atomic_path, write_text
+from stillcap.io.jsonfile import read_json
 
 CAPTURE_FORMAT = "stillcap-capture"
 CAPTURE_VERSION = 1
@@ -275,10 +276,7 @@ class Capture:
             raise ValueError(f"capture folder {root} does not exist")
         if not cfile.is_file():
             raise ValueError(f"{cfile} does not exist: {root} is not a capture folder")
-        try:
-            d = json.loads(cfile.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise ValueError(f"{cfile} is not valid JSON: {e}") from None
+        d = read_json(cfile)
         if not isinstance(d, dict) or d.get("format") != CAPTURE_FORMAT:
             raise ValueError(f"{cfile}: not a stillcap capture (expected \"format\": \"{CAPTURE_FORMAT}\")")
         if not isinstance(d.get("version"), int) or d["version"] > CAPTURE_VERSION:
@@ -311,10 +309,7 @@ class Capture:
             tfile = root / _safe_relpath(d["truth"], f"{cfile}: truth: ")
             if not tfile.is_file():
                 raise ValueError(f"{cfile}: truth file {tfile} does not exist")
-            try:
-                truth = json.loads(tfile.read_text())
-            except json.JSONDecodeError as e:
-                raise ValueError(f"{tfile} is not valid JSON: {e}") from None
+            truth = read_json(tfile)
         meta = {k: v for k, v in d.items() if k not in _RESERVED}
         try:
             return cls(d["kind"], rig, images, truth, meta, root)

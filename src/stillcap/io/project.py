@@ -35,6 +35,7 @@ from stillcap.calibrate.turntable import THESIS_CX, THESIS_CY, THESIS_FX, THESIS
 from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import Triangulation, triangulate
 from stillcap.io.atomic import write_bytes, write_text
+from stillcap.io.jsonfile import read_json
 
 __all__ = ["PROJECT_FORMAT", "PROJECT_VERSION", "PROJECT_FILE", "PHOTOS_DIR", "dumps_json", "TurntableSetup", "Edit",
            "View", "Markers3D", "Project", "safe_relpath", "resolve_inside", "BUILTIN_MARKERSETS"]
@@ -852,10 +853,7 @@ class Project:
             raise ValueError(f"project folder {root} does not exist")
         if not pfile.is_file():
             raise ValueError(f"{pfile} does not exist: {root} is not a stillcap project")
-        try:
-            d = json.loads(pfile.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise ValueError(f"{pfile} is not valid JSON: {e}") from None
+        d = read_json(pfile)
         where = f"{pfile}: "
         if not isinstance(d, dict) or d.get("format") != PROJECT_FORMAT:
             raise ValueError(f"{where}not a stillcap puppet project (expected \"format\": \"{PROJECT_FORMAT}\")")

@@ -58,6 +58,7 @@ from stillcap.detect.circles import Circles, find_circles
 from stillcap.detect.identify import RECOMMENDED, THESIS, Identification, identify_markers
 from stillcap.detect.palette import Palette
 from stillcap.geometry.triangulate import Triangulation, triangulate
+from stillcap.io.jsonfile import read_json
 
 __all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSettings", "ViewResult", "MarkerSolve",
            "PoseFit", "PuppetComparison", "PuppetResult", "LoadedResult", "detect_view", "bead_fill",
@@ -617,7 +618,6 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     pidx = np.argwhere(free)  # (n_params, 2): joint, axis
     mf = frames[seen]
     meas = pts[seen]
-    k2 = math.pi / 180.0
 
     def unpack(x):
         a = ang.copy()
@@ -1131,7 +1131,6 @@ def run_project(project, settings: PuppetSettings = DEFAULT, palette: Palette | 
     t0 = time.perf_counter()
     images = [project.read_image(v) for v in project.views]
     t_read = time.perf_counter() - t0
-    rig = project.views_rig()
     todo = [k for k, v in enumerate(project.views) if redetect or not v.detected]
     t0 = time.perf_counter()
     views: list = [None] * len(images)
@@ -1216,15 +1215,10 @@ def load_result(path_or_dict) -> LoadedResult:
     if isinstance(path_or_dict, dict):
         d, where = path_or_dict, "<result>"
     else:
-        import json
-
         p = Path(path_or_dict)
         if not p.is_file():
             raise ValueError(f"result file {p} does not exist")
-        try:
-            d = json.loads(p.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise ValueError(f"{p} is not valid JSON: {e}") from None
+        d = read_json(p)
         where = str(p)
     if not isinstance(d, dict) or d.get("format") != RESULT_FORMAT:
         raise ValueError(f"{where} is not a stillcap puppet result (expected \"format\": \"{RESULT_FORMAT}\")")

@@ -1,0 +1,22 @@
+"""Reading the JSON files stillcap and its users write (rigs, skeletons, captures, projects)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def read_json(path, what: str = ""):
+    """Parsed content of a UTF-8 JSON file.
+
+    A missing file or invalid JSON raises ``ValueError`` naming the file (prefixed by ``what``,
+    e.g. ``"rig file"``), so that the CLI reports it in one line.
+    """
+    path = Path(path)
+    name = f"{what} {path}" if what else str(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{name} does not exist") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{name} is not valid JSON: {e}") from None
