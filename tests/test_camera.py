@@ -210,3 +210,17 @@ def test_saved_files_get_normal_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+
+
+def test_project_does_not_fold_far_points_back_into_the_image():
+    """Barrel distortion r(1 + k1 r^2) peaks at r^2 = -1/(3 k1): a point far outside the view
+    used to land back inside the image; now it has no pixel (NaN)."""
+    K = np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]])
+    cam = Camera("c", K, [-0.3, 0, 0, 0, 0], np.eye(4), (640, 480))
+    assert cam.max_distortion_r2 == pytest.approx(1 / 0.9)
+    far = np.array([[3.0, 0.0, 1.0]])  # r = 3: folded to x_d = 3 (1 - 2.7) = -5.1 before
+    near = np.array([[0.2, 0.1, 1.0]])
+    assert np.all(np.isnan(cam.project(far)))
+    r2 = 0.05
+    assert cam.project(near)[0] == pytest.approx([320 + 800 * 0.2 * (1 - 0.3 * r2), 240 + 800 * 0.1 * (1 - 0.3 * r2)])
+    assert Camera("p", K, np.zeros(5), np.eye(4), (640, 480)).max_distortion_r2 == np.inf

@@ -151,8 +151,26 @@ class Camera:
         with np.errstate(invalid="ignore", divide="ignore"):
             z = np.where(pc[:, 2] > 1e-12, pc[:, 2], np.nan)
             xn = pc[:, :2] / z[:, None]
+        if distort and np.any(self.dist[[0, 1, 4]]):
+            # Beyond the radius where r * (1 + k1 r^2 + k2 r^4 + k3 r^6) stops growing, the
+            # polynomial folds far-off points back into the image: they have no valid pixel.
+            with np.errstate(invalid="ignore"):
+                xn[np.sum(xn * xn, axis=1) > self.max_distortion_r2] = np.nan
         px = self.normalized_to_pixels(xn, distort=distort)
         return px[0] if one else px
+
+    @property
+    def max_distortion_r2(self) -> float:
+        """Squared normalised radius up to which the radial distortion is monotonic (inf if always).
+
+        The derivative of ``r * (1 + k1 r^2 + k2 r^4 + k3 r^6)`` is the cubic
+        ``1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3`` in ``s = r^2``; its smallest positive root is the limit.
+        """
+        k1, k2, _, _, k3 = self.dist
+        roots = np.roots([7 * k3, 5 * k2, 3 * k1, 1.0]) if (k1 or k2 or k3) else np.array([])
+        real = roots[np.abs(roots.imag) < 1e-12].real
+        real = real[real > 0]
+        return float(real.min()) if len(real) else np.inf
 
     def distort_normalized(self, xn) -> np.ndarray:
         """Apply the lens distortion to normalised image coordinates ``(N, 2)``."""

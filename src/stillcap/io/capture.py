@@ -17,7 +17,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -25,6 +25,7 @@ import numpy as np
 from stillcap.camera import Rig
 from stillcap.io.atomic import atomic_path, write_text
 from stillcap.io.jsonfile import read_json
+from stillcap.io.paths import resolve_inside, safe_relpath
 
 CAPTURE_FORMAT = "stillcap-capture"
 CAPTURE_VERSION = 1
@@ -35,14 +36,7 @@ _RESERVED = {"format", "version", "kind", "units", "rig", "truth", "images"}
 
 def _safe_relpath(file: str, where: str) -> str:
     """``file`` as a normalised relative POSIX path that cannot leave the capture folder."""
-    if not isinstance(file, str) or not file.strip():
-        raise ValueError(f"{where}file name must be a non-empty string, got {file!r}")
-    p = PurePosixPath(file.replace("\\", "/"))
-    if p.is_absolute() or file.startswith(("/", "\\")) or (len(file) > 1 and file[1] == ":"):
-        raise ValueError(f"{where}path {file!r} is absolute; paths must be relative to the capture folder")
-    if ".." in p.parts:
-        raise ValueError(f"{where}path {file!r} leaves the capture folder ('..' is not allowed)")
-    return str(p)
+    return safe_relpath(file, where.rstrip(": ").strip(), "capture folder")
 
 
 def to_jsonable(x):
@@ -297,9 +291,7 @@ class Capture:
             if im.camera not in rig.names:
                 raise ValueError(f"{cfile}: image {im.file!r}: camera {im.camera!r} is not in the rig "
                                  f"{rig_file.name} (cameras: {rig.names})")
-            p = root / im.file
-            if not p.resolve().is_relative_to(root.resolve()):
-                raise ValueError(f"{cfile}: image path {im.file!r} leaves the capture folder (symlink)")
+            p = resolve_inside(root, im.file, f"{cfile}: image", "capture folder")
             if not p.is_file():
                 raise ValueError(f"{cfile}: image file {p} does not exist")
             if not cv2.haveImageReader(str(p)):

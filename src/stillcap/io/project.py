@@ -24,7 +24,7 @@ import json
 import math
 import re
 from dataclasses import dataclass, field
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 from typing import Mapping
 
 import cv2
@@ -36,6 +36,7 @@ from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import Triangulation, triangulate
 from stillcap.io.atomic import write_bytes, write_text
 from stillcap.io.jsonfile import read_json
+from stillcap.io.paths import resolve_inside, safe_relpath
 
 __all__ = ["PROJECT_FORMAT", "PROJECT_VERSION", "PROJECT_FILE", "PHOTOS_DIR", "dumps_json", "TurntableSetup", "Edit",
            "View", "Markers3D", "Project", "safe_relpath", "resolve_inside", "BUILTIN_MARKERSETS"]
@@ -53,42 +54,7 @@ _VIEW_KEYS = {"name", "image", "processed", "angle_deg", "camera", "detected", "
 BUILTIN_MARKERSETS = {"puppet-16": MarkerSet.puppet}
 
 
-# --- paths --------------------------------------------------------------------------------
-def safe_relpath(path, what: str) -> str:
-    """``path`` as a normalised relative POSIX path that cannot leave its folder.
-
-    Parameters
-    ----------
-    path : str
-        A path relative to a project folder (``\\`` is read as ``/``).
-    what : str
-        Names the entry in error messages (e.g. ``"view 'turn_030.0deg': image"``).
-
-    Raises
-    ------
-    ValueError
-        Not a non-empty string, absolute (``/x``, ``C:\\x``, ``\\\\server``), or containing ``..``.
-    """
-    if not isinstance(path, str) or not path.strip() or "\x00" in path:
-        raise ValueError(f"{what}: file name must be a non-empty string, got {path!r}")
-    s = path.replace("\\", "/")
-    p = PurePosixPath(s)
-    if p.is_absolute() or s.startswith("/") or re.match(r"^[A-Za-z]:", s):
-        raise ValueError(f"{what}: path {path!r} is absolute; paths must be relative to the project folder")
-    if ".." in p.parts:
-        raise ValueError(f"{what}: path {path!r} leaves the project folder ('..' is not allowed)")
-    if str(p) in ("", "."):
-        raise ValueError(f"{what}: path {path!r} names no file")
-    return str(p)
-
-
-def resolve_inside(root, path, what: str) -> Path:
-    """``root / path`` after checking that ``path`` is safe and, symlinks resolved, stays in ``root``."""
-    rel = safe_relpath(path, what)
-    full = Path(root) / rel
-    if not full.resolve().is_relative_to(Path(root).resolve()):
-        raise ValueError(f"{what}: path {path!r} leads outside the project folder (symlink)")
-    return full
+# --- paths: stillcap.io.paths (re-exported here) ------------------------------------------
 
 
 def dumps_json(obj, indent: int = 0, step: int = 1) -> str:

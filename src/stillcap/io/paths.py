@@ -1,0 +1,56 @@
+"""Paths stored inside stillcap files (capture folders, projects, JumpingJack projects).
+
+Every such path is relative to its folder and must stay inside it: no absolute paths, no ``..``,
+and no symlink that leads out (checked after resolving). ``\\`` is read as ``/``.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path, PurePosixPath
+
+__all__ = ["safe_relpath", "resolve_inside"]
+
+
+def _prefix(what: str) -> str:
+    return f"{what}: " if what else ""
+
+
+def safe_relpath(path, what: str, folder: str = "project folder") -> str:
+    """``path`` as a normalised relative POSIX path that cannot leave its folder.
+
+    Parameters
+    ----------
+    path : str
+        A path relative to a folder (``\\`` is read as ``/``).
+    what : str
+        Names the entry in error messages (e.g. ``"view 'turn_030.0deg': image"``); may be empty.
+    folder : str
+        Names the folder in error messages (``"project folder"``, ``"capture folder"``).
+
+    Raises
+    ------
+    ValueError
+        Not a non-empty string, absolute (``/x``, ``C:\\x``, ``\\\\server``), or containing ``..``.
+    """
+    pre = _prefix(what)
+    if not isinstance(path, str) or not path.strip() or "\x00" in path:
+        raise ValueError(f"{pre}file name must be a non-empty string, got {path!r}")
+    s = path.replace("\\", "/")
+    p = PurePosixPath(s)
+    if p.is_absolute() or s.startswith("/") or re.match(r"^[A-Za-z]:", s):
+        raise ValueError(f"{pre}path {path!r} is absolute; paths must be relative to the {folder}")
+    if ".." in p.parts:
+        raise ValueError(f"{pre}path {path!r} leaves the {folder} ('..' is not allowed)")
+    if str(p) in ("", "."):
+        raise ValueError(f"{pre}path {path!r} names no file")
+    return str(p)
+
+
+def resolve_inside(root, path, what: str, folder: str = "project folder") -> Path:
+    """``root / path`` after checking that ``path`` is safe and, symlinks resolved, stays in ``root``."""
+    rel = safe_relpath(path, what, folder)
+    full = Path(root) / rel
+    if not full.resolve().is_relative_to(Path(root).resolve()):
+        raise ValueError(f"{_prefix(what)}path {path!r} leads outside the {folder} (symlink)")
+    return full
