@@ -154,6 +154,8 @@ def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict
     cap, files = pc.to_capture("." + args.format)
     cap.meta["rig_calibrated"] = True
     cap.meta["rig_source"] = "calibrated once per benchmark run from rendered photos (calibrate_pitch_rig)"
+    if args.calibration_record is not None:  # as `stillcap studio pitch` writes it
+        cap.meta["calibration"] = args.calibration_record
     folder = tmp / f"{preset}_{seed}"
     cap.save(folder, files, jpeg_quality=args.quality)
     paths = [folder / f for f in files]
@@ -170,6 +172,10 @@ def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict
     row = {"preset": preset, "seed": seed, "size": f"{size[0]}x{size[1]}", "spin_method": args.spin,
            "format": args.format, **evaluate(res, loaded.truth),
            "t_decode_s": t_dec, "t_e2e_s": t_e2e, "t_render_s": t_render,
+           "timings_s": {k: float(v) for k, v in res.timings_s.items()},
+           "alias_chi2": float(res.alias.best.chi2) if res.alias is not None else None,
+           "alias_dof": int(getattr(res.alias, "dof", 0)) if res.alias is not None else None,
+           "alias_ratio": float(res.alias.likelihood_ratio) if res.alias is not None else None,
            "file_mb": sum(f.stat().st_size for f in paths) / 1e6, "messages": list(res.messages)}
     for f in paths:
         f.unlink()
@@ -260,6 +266,34 @@ def report(rows: list, console: Console, title: str = "") -> None:
                   f"{e2e.mean() / dec.mean():.1f}x", f"{np.max(e2e / dec):.1f}x")
     t.add_row("goal", "", "", "", "", "", "<= 3x", "")
     console.print(t)
+    # per-stage times (PitchResult.timings_s) -------------------------------------------------------
+    stages = [k for k in ("positions", "fit_positions", "markers", "spin", "fit", "metrics", "total")
+              if any(k in (r.get("timings_s") or {}) for r in rows)]
+    if stages:
+        t = Table(title="analyse_pitch per-stage time, s (mean over captures; decode = 4 x cv2.imread)")
+        for c in ["preset", "decode", *stages]:
+            t.add_column(c, justify="right" if c != "preset" else "left")
+        for p in presets + ["all"]:
+            rs = rows if p == "all" else [r for r in rows if r["preset"] == p]
+            rs = [r for r in rs if r.get("timings_s")]
+            if not rs:
+                continue
+            if p == "all":
+                t.add_section()
+            t.add_row(p, f"{np.mean([r['t_decode_s'] for r in rs]):.3f}",
+                      *[f"{np.mean([r['timings_s'].get(k, 0.0) for r in rs]):.3f}" for k in stages])
+        console.print(t)
+    # alias flags -------------------------------------------------------------------------------
+    al = [r for r in rows if r.get("aliased")]
+    if al:
+        wrong = [r for r in al if not r["alias_ok"]]
+        console.print(f"aliased: {sum(r['alias_ok'] for r in al)}/{len(al)} resolved; wrong: {len(wrong)}, of which "
+                      f"flagged ambiguous: {sum(bool(r.get('alias_ambiguous')) for r in wrong)}; right but flagged: "
+                      f"{sum(bool(r.get('alias_ambiguous')) for r in al if r['alias_ok'])}")
+
+
+def _jsonable(o):
+    return o.tolist() if hasattr(o, "tolist") else float(o)
 
 
 def load_rows(path: Path) -> list:
@@ -307,9 +341,12 @@ def main(argv=None):
 
     # the lab: calibrate once ----------------------------------------------------------------
     rig_cache = Path(f"{args.jsonl}.{tag['size']}.rig.json") if args.jsonl else None
+    cal_cache = Path(f"{args.jsonl}.{tag['size']}.calibration.json") if args.jsonl else None
+    args.calibration_record = None
     truth_rig = pitch_rig(image_size=size)
-    if rig_cache and rig_cache.is_file():
+    if rig_cache and rig_cache.is_file() and cal_cache.is_file():
         cal_rig = Rig.load(rig_cache)
+        args.calibration_record = json.loads(cal_cache.read_text())
         console.print(f"calibrated rig from {rig_cache}")
     elif todo:
         t = time.perf_counter()
@@ -320,11 +357,13 @@ def main(argv=None):
                                       progress=lambda i, n, label: prog.update(task, completed=i, total=n,
                                                                                description=label))
         cal_rig = cal.rig
+        args.calibration_record = json.loads(json.dumps(cal.to_dict(), default=_jsonable))
         console.print(f"lab calibrated once in {time.perf_counter() - t:.0f} s (seed {args.calibration_seed}, "
                       f"success {cal.success}): board RMS px "
                       + ", ".join(f"{c.name} {c.intrinsics_rms_px:.3f}/{c.extrinsics_rms_px:.3f}" for c in cal.cameras))
         if rig_cache:
             cal_rig.save(rig_cache)
+            cal_cache.write_text(json.dumps(args.calibration_record))
     else:
         cal_rig = None
     if cal_rig is not None:

@@ -15,12 +15,13 @@ Chains (``stillcap.pipelines.puppet``):
 - thesis + template: the same with the template detector (what the detector alone buys);
 - default: template detector on the bright region of the photo, assignment in CIEDE2000 with
   white-balance adaptation, DLT with refinement, partly hidden beads left out (fill test), 1 px
-  outlier rejection, pose fit; "default (whole photo)" detects on the whole photo.
+  outlier rejection, re-identification from the 3D markers (``reidentify``) and a second
+  triangulation, pose fit; "default (whole photo)" detects on the whole photo.
 
 Results and their discussion: docs/puppet.md.
 
 Measures, against each capture's truth.json: identifications right (% of visible beads) and
-wrong (% of identifications; "wrong used" = wrong ones the triangulation still used); markers
+wrong (% of identifications; "colour only" = before the re-identification from 3D; "wrong used" = wrong ones the triangulation still used); markers
 the truth shows in 2+ views that were recovered; 3D marker error; bone direction error
 (grouped by what the markers measure: "full" bones start at a joint frame whose orientation
 the beads fix, "partial" at a frame with one bead (forearms, shins), "none" at one without
@@ -49,7 +50,7 @@ console = Console(width=150)
 CHAINS = {
     "thesis": THESIS_CHAIN,
     "thesis + template": PuppetSettings(detector="template", identify="thesis", triangulation="midpoint",
-                                        outlier_px=None, use_fill=False, pose="thesis"),
+                                        outlier_px=None, use_fill=False, pose="thesis", reidentify=False),
     "default (whole photo)": PuppetSettings(roi=False),
     "default": DEFAULT,
 }
@@ -144,7 +145,8 @@ def report(rows: dict, specs: list[str]) -> None:
     n_bvh = len(specs) - n_rand
     console.print(f"\n{len(specs)} poses ({n_rand} random, {n_bvh} BVH-retargeted), 12 turntable views each\n")
     t = Table(title="Identification and 3D markers (all poses)")
-    for col in ("chain", "right % of visible", "wrong % of ident.", "wrong used", "seen 2+ views", "recovered",
+    for col in ("chain", "colour only: right % / wrong %", "right % of visible", "wrong % of ident.", "wrong used",
+                "seen 2+ views", "recovered",
                 "3D RMS mm", "3D max mm", "poses with a wrong 3D marker (> 2 mm)"):
         t.add_column(col, justify="right")
     for c, rs in rows.items():
@@ -155,7 +157,9 @@ def report(rows: dict, specs: list[str]) -> None:
         e = np.concatenate([x.marker_errors_m for x in cm])
         e = e[np.isfinite(e)] * 1e3
         bad = sum(bool(np.nanmax(np.append(x.marker_errors_m, 0)) > 2e-3) for x in cm)
-        t.add_row(c, fmt(100 * right_vis / max(vis, 1), 1), fmt(100 * wrong / max(ide, 1), 2),
+        raw = (f"{fmt(100 * sum(x.raw_right_visible for x in cm) / max(vis, 1), 1)} / "
+               f"{fmt(100 * sum(x.raw_wrong for x in cm) / max(sum(x.raw_identified for x in cm), 1), 2)}")
+        t.add_row(c, raw, fmt(100 * right_vis / max(vis, 1), 1), fmt(100 * wrong / max(ide, 1), 2),
                   str(sum(x.wrong_used for x in cm)), str(sum(x.seen_twice for x in cm)),
                   str(sum(x.recovered_seen_twice for x in cm)),
                   fmt(np.sqrt(np.mean(e ** 2)) if len(e) else np.nan, 3), fmt(e.max() if len(e) else np.nan, 3),

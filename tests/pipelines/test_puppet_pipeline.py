@@ -12,7 +12,8 @@ from stillcap.camera import Rig
 from stillcap.io.project import Project
 from stillcap.pipelines.puppet import (DEFAULT, THESIS_CHAIN, PuppetSettings, bead_fill, bright_region, fit_pose,
                                        frame_status, load_result, reconstruct_puppet, run_capture, run_folder,
-                                       run_project, solve_markers)
+                                       reidentify, run_project, solve_markers, triangulate_markers)
+from stillcap.geometry.triangulate import triangulate
 from stillcap.studio.puppet import puppet_scene
 
 
@@ -51,7 +52,7 @@ def test_random_pose_recovers_every_marker_seen_twice(random3):
     c = res.comparison
     assert c.recovered_seen_twice == c.seen_twice
     assert c.wrong_used == 0  # wrong 2D identifications (a few partly hidden beads) never reach 3D
-    assert c.wrong <= 6  # measured 4, all left out of 3D
+    assert c.wrong == 0  # the final identification follows the 3D markers (see the test below)
     assert c.marker_rms_mm() < 0.3 and c.marker_max_mm() < 1.0  # measured 0.09 / 0.21 mm
     assert c.bone_stats("full")[0] < 0.5 and c.bone_stats("full")[1] < 1.0  # measured 0.16 / 0.32 deg
     assert c.joint_stats("full")[1] < 0.6  # mm; measured 0.15
@@ -190,3 +191,80 @@ def test_bad_input(tmp_path):
         PuppetSettings(identify="magic")
     with pytest.raises(ValueError, match="not a stillcap puppet result"):
         load_result({"format": "something"})
+
+
+def test_identification_consistent_with_3d_has_no_wrong_marker(random3):
+    # issue 4 (a): colour alone named 4 beads wrong on this pose (partly hidden beads, limb
+    # edges); naming the candidates after the triangulated markers leaves none wrong
+    res = _run(random3)
+    c = res.comparison
+    assert res.raw_observations is not None
+    assert c.raw_wrong >= 2  # measured 4 colour-only: the defect is there to fix
+    assert c.wrong == 0 and c.wrong_used == 0
+    assert c.right_visible >= c.raw_right_visible
+    # every final 2D marker lies on the projection of its 3D marker (within the gate)
+    proj = np.stack([cam.project(res.markers.points) for cam in res.rig])
+    d = np.linalg.norm(res.markers.observations - proj, axis=2)
+    found = np.isfinite(res.markers.observations[..., 0]) & res.markers.ok[None]
+    assert np.all(d[found] < 4.0)  # px; gate 0.6 x the bead radius (5-7 px)
+    assert res.to_dict()["comparison"]["identification"]["colour_only"]["wrong"] == c.raw_wrong
+    # without re-identification the colour's own naming stays (what the raw numbers count)
+    plain = _run(random3, PuppetSettings(reidentify=False))
+    assert plain.raw_observations is None
+    np.testing.assert_array_equal(plain.markers.observations, res.raw_observations)
+
+
+def test_reidentify_leaves_a_marker_without_matching_candidate_unidentified(random3):
+    res = _run(random3)
+    pts = res.markers.points.copy()
+    k = int(np.flatnonzero(res.markers.ok)[0])
+    pts[k] += [0.02, 0.0, 0.0]  # 20 mm off: its projection lands on no candidate of its colour
+    out = reidentify(res.rig, pts, res.views)
+    assert out.shape == res.markers.observations.shape
+    assert not np.isfinite(out[:, k, 0]).any()
+    with pytest.raises(ValueError, match=r"points_3d must have shape \(n_markers, 3\), got \(16, 2\)"):
+        reidentify(res.rig, pts[:, :2], res.views)
+
+
+def test_triangulate_markers_is_the_shared_triangulation(random3):
+    # the puppet's fast consensus (all view pairs in one call) gives the shared function's result
+    res = _run(random3, PuppetSettings(reidentify=False))
+    x = res.markers.observations.copy()
+    rng = np.random.default_rng(5)
+    bad = rng.random(x.shape[:2]) < 0.08
+    x[bad] += rng.normal(0.0, 6.0, (int(bad.sum()), 2))  # wrong identifications
+    for o in (1.0, 2.0):
+        a, b = triangulate(res.rig, x, outlier_px=o), triangulate_markers(res.rig, x, outlier_px=o)
+        np.testing.assert_array_equal(a.used, b.used)
+        np.testing.assert_allclose(b.points, a.points, atol=1e-9)
+    with pytest.raises(ValueError, match=r"points_2d must have shape \(12, N, 2\), got \(3, 16, 2\)"):
+        triangulate_markers(res.rig, x[:3])
+
+
+def _fit_bone_errors(angles: dict) -> dict:
+    sk, ms = Skeleton.puppet(), MarkerSet.puppet()
+    local = np.tile(np.eye(3), (sk.n_joints, 1, 1))
+    for j, a in angles.items():
+        local[sk.index(j)] = Rotation.from_euler("XYZ", a, degrees=True).as_matrix()
+    truth = Pose(sk, sk.rest_root2world(), local)
+    fit = fit_pose(sk, ms, ms.positions(truth))
+    f, t = fit.pose.bone_vectors(), truth.bone_vectors()
+    return {b: float(np.degrees(np.arccos(np.clip(f[sk.index(b)] @ t[sk.index(b)] / np.linalg.norm(f[sk.index(b)])
+                                                  / np.linalg.norm(t[sk.index(b)]), -1, 1))))
+            for b in ("l-hand", "r-hand", "l-foot", "r-foot")}
+
+
+def test_forearm_and_shin_directions_on_the_hinge_and_off_it():
+    # issue 4 (b): one bead per forearm / shin fixes two of the three angles of the elbow (knee);
+    # on the hinge (the off-hinge angles 0) the fit's prior picks the truth: the elbow bent
+    # 120 degrees (past the +-90 the retargeting clips to) comes out within 0.5 degrees
+    hinge = {"l-shoulder": [20, -30, 10], "l-hip": [-50, 10, 0], "l-elbow": [30, -120, 0], "r-elbow": [-40, 70, 0],
+             "l-knee": [80, 0, 0], "r-knee": [40, 0, 0]}
+    e = _fit_bone_errors(hinge)
+    assert max(e.values()) < 0.5, e  # measured 0.03-0.09 deg
+    # the limits allow +-10 degrees off the hinge, which the one bead cannot see: 8 degrees of
+    # elbow Z or knee Y (twist of the shin about itself moves the bead, not the bone) is not
+    # recovered (measured 0.6-1.5 degrees of bone error); this is the floor of the "partial" group
+    off = dict(hinge, **{"l-elbow": [30, -120, 8], "l-knee": [80, 8, 0]})
+    e2 = _fit_bone_errors(off)
+    assert e2["l-hand"] > 0.5 and e2["l-foot"] > 0.5, e2

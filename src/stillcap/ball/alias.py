@@ -26,7 +26,12 @@ its consistency with the independent evidence and ranks them by ``exp(-chi2 / 2)
   with the fitted one, with the fit's covariance plus a relative model tolerance.
 
 The result says ``ambiguous`` when the runner-up's likelihood is within ``ambiguity_ratio`` of
-the best (e.g. one strobe rate and a mostly gyro spin, which bends the flight too little).
+the best (e.g. one strobe rate and a mostly gyro spin, which bends the flight too little), and
+also when the best candidate itself does not agree with the evidence: its chi-square above the
+``1 - consistency_p`` quantile of a chi-square with its degrees of freedom (3 per strobe
+measurement other than its source, 2 for the curvature). Then at least one measurement is wrong
+(e.g. a strobe sequence whose few markers gave a wrong principal spin), and the ranking of the
+others cannot be trusted: a small likelihood ratio between two bad candidates says nothing.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2 as chi2_dist
 
 from stillcap._checks import as_array
 
@@ -204,9 +210,15 @@ class AliasResolution:
         Best first.
     best : AliasCandidate
     ambiguous : bool
-        The runner-up's likelihood is at least ``ambiguity_ratio`` times the best's.
+        The runner-up's likelihood is at least ``ambiguity_ratio`` times the best's, or the
+        best candidate is inconsistent with the evidence (``consistent`` False).
     likelihood_ratio : float
         Runner-up / best (0 with a single candidate).
+    consistent : bool
+        The best candidate's chi-square is below the ``1 - consistency_p`` quantile for its
+        degrees of freedom (``dof``).
+    dof : int
+        Degrees of freedom of the best candidate's chi-square.
     evidence : list of str
         What was used ("80 Hz", "50 Hz", "curvature").
     message : str
@@ -218,6 +230,8 @@ class AliasResolution:
     likelihood_ratio: float
     evidence: list
     message: str = ""
+    consistent: bool = True
+    dof: int = 0
 
 
 def alias_candidates(spin, strobe_hz: float, *, min_rpm: float = 0.0,
@@ -295,7 +309,7 @@ def resolve_aliases(measurements, curvature: CurvatureMeasurement | None = None,
                     rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
                     curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
                     ambiguity_ratio: float = 0.05, merge_rpm: float = 60.0,
-                    merge_deg: float = 10.0) -> AliasResolution:
+                    merge_deg: float = 10.0, consistency_p: float = 1e-3) -> AliasResolution:
     """Rank the alias candidates of one or more strobe measurements (module docstring).
 
     Parameters
@@ -318,6 +332,9 @@ def resolve_aliases(measurements, curvature: CurvatureMeasurement | None = None,
     merge_rpm, merge_deg : float
         Candidates from different measurements closer than both are the same spin (the
         better-scoring one is kept).
+    consistency_p : float
+        Flag ``ambiguous`` when the best candidate's chi-square exceeds the ``1 - consistency_p``
+        quantile of its chi-square distribution (the evidence contradicts itself).
 
     Returns
     -------
@@ -371,13 +388,20 @@ def resolve_aliases(measurements, curvature: CurvatureMeasurement | None = None,
     for c, p in zip(merged, like / like.sum()):
         c.probability = float(p)
     ratio = float(like[1] / like[0]) if len(merged) > 1 else 0.0
-    ambiguous = ratio >= ambiguity_ratio
     best = merged[0]
+    dof = 3 * (len(meas) - 1) + (2 if curvature is not None else 0)
+    consistent = dof == 0 or best.chi2 <= float(chi2_dist.ppf(1.0 - consistency_p, dof))
+    ambiguous = ratio >= ambiguity_ratio or not consistent
     msg = f"best {best.spin_rpm:.0f} rpm (p = {best.probability:.3f})"
     if len(merged) > 1:
         msg += f", runner-up {merged[1].spin_rpm:.0f} rpm (likelihood ratio {ratio:.3g})"
-    if ambiguous:
+    if not consistent:
+        msg += (f"; the evidence disagrees (chi-square {best.chi2:.1f} with {dof} degrees of freedom): "
+                "a strobe measurement or the curvature is wrong")
+    if ratio >= ambiguity_ratio:
         msg += ": ambiguous, add a second strobe rate or the flight curvature"
+    elif ambiguous:
+        msg += ": ambiguous"
     if not best.axis_determined:
         msg += "; the best candidate's axis is not determined by its measurement"
-    return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg)
+    return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg, bool(consistent), int(dof))

@@ -143,6 +143,11 @@ class ReferenceFit:
     nfev : int
         Objective evaluations (trajectories).
     fit_time_s : float
+    position_gain : ndarray, shape (9 + G - 1, N, 3) or None
+        Linear response of the parameters to the measured positions, ``d theta / d positions``
+        (0 where not observed): a position error ``dP`` with covariance ``C`` (e.g. the
+        calibration error shared by a pair's positions) adds ``G C G^T`` (see
+        :meth:`with_position_covariance`).
     """
 
     p0: np.ndarray
@@ -177,6 +182,41 @@ class ReferenceFit:
     method: str
     nfev: int
     fit_time_s: float
+    position_gain: np.ndarray | None = None
+
+    def position_covariance_term(self, modes) -> np.ndarray:
+        """Parameter covariance from correlated position errors given as modes.
+
+        Parameters
+        ----------
+        modes : array_like, shape (n_modes, N, 3)
+            Independent error modes of the measured positions, each at 1 sigma (the position
+            error is ``sum_m z_m modes[m]`` with ``z_m`` standard normal).
+
+        Returns
+        -------
+        ndarray, shape (9 + G - 1, 9 + G - 1)
+            ``sum_m (G dP_m)(G dP_m)^T``.
+        """
+        if self.position_gain is None:
+            raise ValueError("this fit has no position_gain")
+        D = np.nan_to_num(np.asarray(modes, float))
+        if D.ndim != 3 or D.shape[1:] != self.position_gain.shape[1:]:
+            raise ValueError(f"modes must have shape (n_modes, {self.position_gain.shape[1]}, 3), got {D.shape}")
+        dth = np.einsum("pnk,mnk->mp", self.position_gain, D)
+        return dth.T @ dth
+
+    def with_extra_covariance(self, extra) -> "ReferenceFit":
+        """A copy whose covariance (and every sigma) includes ``extra`` (same shape)."""
+        from dataclasses import replace
+
+        cov = self.covariance + np.asarray(extra, float)
+        sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        B = self.spin_basis
+        cov_w = B @ cov[6:9, 6:9] @ B.T
+        return replace(self, covariance=cov, p0_sigma=sig[:3], v0_sigma=sig[3:6],
+                       spin_sigma=np.sqrt(np.clip(np.diag(cov_w), 0, None)), param_sigma=sig[:9],
+                       spin_transverse_sigma=sig[7:9], time_offset_sigma=sig[9:])
 
     def seed_table_row(self) -> dict:
         """The seed's Table 1 columns in its units (mm, deg, mph, rpm)."""
@@ -401,6 +441,13 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     cov_free = np.linalg.pinv(Jd.T @ Jd / max(s2, 1e-300) + Jp.T @ Jp)
     cov = np.zeros((len(free), len(free)))
     cov[np.ix_(free, free)] = cov_free
+    # linear response of the parameters to a shift of the measured positions (the fit as a
+    # linear estimator): d theta = G d positions, G = (J^T J)^-1 J_d^T / position_sigma
+    gain_free = np.linalg.pinv(J.T @ J) @ Jd.T / position_sigma
+    gain = np.zeros((len(free), *positions.shape))
+    g_view = np.zeros((len(free), n_data))
+    g_view[free] = gain_free
+    gain[:, prob.mask] = g_view
     theta = prob.full(x_fit)[0]
     sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     p_fit, v_fit, s_fit = theta[:3], theta[3:6], theta[6:9]
@@ -432,5 +479,5 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
                         if spin_meas is not None else nan),
         residual_scale=float(np.sqrt(s2)),
         success=success and ref.success, message=message, method=method,
-        nfev=prob.nfev, fit_time_s=_time.perf_counter() - t_start,
+        nfev=prob.nfev, fit_time_s=_time.perf_counter() - t_start, position_gain=gain,
     )

@@ -34,8 +34,8 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
 
     Returns
     -------
-    Path
-        ``out``.
+    PuppetResult
+        The reconstruction, with its comparison with the truth.
     """
     from stillcap.cli.puppet import _print_result
     from stillcap.io.atomic import write_text
@@ -68,4 +68,4 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
     for name in EXPORTS:
         export(out / name, res)
     console.print(f"capture, result.json, overlays, 3D plots and {', '.join(EXPORTS)} written to [bold]{out}[/]")
-    return out
+    return res

@@ -35,6 +35,8 @@ The module also draws synthetic bead photos with known sub-pixel centres
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass, field
 
 import cv2
@@ -187,8 +189,8 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
     of the current centre; the window then moves to the new centroid. For a symmetric bead
     that is unbiased (partly covered rim pixels weigh in proportion). Pixels nearer (relative
     to the radii) to a neighbouring circle are left out, so touching beads do not pull each
-    other. Hand-written (a loop over small windows): scikit-image's and OpenCV's moments need
-    a label image, which touching beads on a limb do not have.
+    other. Hand-written (vectorised over the circles' small windows): scikit-image's and
+    OpenCV's moments need a label image, which touching beads on a limb do not have.
 
     Parameters
     ----------
@@ -217,39 +219,51 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
         return c
     bg = float(np.median(grey)) if background is None else float(background)
     h, w = grey.shape
+    n = len(c)
+    # All circles at once over one window size (the loop over circles cost ~0.5 ms each):
+    # pixels (xs, ys) of a (S x S) window per circle, masked to the image; every mask below
+    # is the per-circle one of the plain loop (own disc, power-diagram split, ring).
+    half = int(np.ceil(r.max() + 3.5))
+    off = np.arange(-half, half + 2)  # covers floor(x - B) .. ceil(x + B) for every circle
+    idx = np.arange(n)
     for _ in range(max(1, iterations)):
-        new = c.copy()
-        for i in range(len(c)):
-            R = r[i] + 1.5
-            B = R + 2.0
-            x0, x1 = int(max(0, np.floor(c[i, 0] - B))), int(min(w - 1, np.ceil(c[i, 0] + B)))
-            y0, y1 = int(max(0, np.floor(c[i, 1] - B))), int(min(h - 1, np.ceil(c[i, 1] + B)))
-            if x1 < x0 or y1 < y0:
-                continue
-            ys, xs = np.mgrid[y0:y1 + 1, x0:x1 + 1]
-            d_own = np.hypot(xs - c[i, 0], ys - c[i, 1])
-            inside = d_own <= R
-            # Power-diagram split between neighbouring circles (touching beads).
-            near = np.flatnonzero(np.hypot(*(c - c[i]).T) < (r + r[i] + 3.0))
-            for j in near:
-                if j != i:
-                    d_j = np.hypot(xs - c[j, 0], ys - c[j, 1])
-                    inside &= d_own / r[i] <= d_j / r[j]
-            patch = grey[y0:y1 + 1, x0:x1 + 1]
+        base = np.floor(c).astype(int)  # (n, 2)
+        xs = (base[:, 0, None] + off[None])[:, None, :]  # (n, 1, S)
+        ys = (base[:, 1, None] + off[None])[:, :, None]  # (n, S, 1)
+        valid = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
+        patch = grey[np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)]  # (n, S, S)
+        d_own = np.hypot(xs - c[:, 0, None, None], ys - c[:, 1, None, None])
+        R = (r + 1.5)[:, None, None]
+        inside = valid & (d_own <= R)
+        ring = valid & (d_own > (r + 1.0)[:, None, None]) & (d_own <= R + 2.0) if local_bg else None
+        near = np.hypot(*(c[:, None] - c[None]).transpose(2, 0, 1)) < (r[None] + r[:, None] + 3.0)
+        near[idx, idx] = False
+        pi, pj = np.nonzero(near)  # pairs (circle, neighbour): few
+        if len(pi):
+            d_j = np.hypot(xs[pi] - c[pj, 0, None, None], ys[pi] - c[pj, 1, None, None])
+            # power-diagram split between neighbouring circles (touching beads)
+            np.logical_and.at(inside, pi, d_own[pi] / r[pi, None, None] <= d_j / r[pj, None, None])
             if local_bg:
-                # Local background: median of the ring just outside the bead (a limb under it
-                # then weighs nothing), never below the global background.
-                ring = (d_own > r[i] + 1.0) & (d_own <= R + 2.0)
-                for j in near:
-                    if j != i:
-                        ring &= np.hypot(xs - c[j, 0], ys - c[j, 1]) > r[j] + 1.0
-                b = max(bg, float(np.median(patch[ring]))) if ring.any() else bg
-            else:
-                b = bg
-            wgt = np.clip(patch - b, 0, None) * inside
-            s = wgt.sum()
-            if s > 0:
-                new[i] = ((wgt * xs).sum() / s, (wgt * ys).sum() / s)
+                np.logical_and.at(ring, pi, d_j > (r[pj] + 1.0)[:, None, None])
+        if local_bg:
+            # local background: median of the ring just outside the bead (a limb under it then
+            # weighs nothing), never below the global background; medians of the masked rows
+            # by sorting (NaN last) and picking the middle of each row's count
+            k = ring.reshape(n, -1).sum(axis=1)
+            srt = np.sort(np.where(ring, patch, np.inf).reshape(n, -1), axis=1)
+            lo_, hi_ = np.maximum((k - 1) // 2, 0), np.maximum(k // 2, 0)
+            med = 0.5 * (srt[idx, lo_] + srt[idx, hi_])
+            b = np.where(k > 0, np.maximum(bg, med), bg)
+        else:
+            b = np.full(n, bg)
+        wgt = np.clip(patch - b[:, None, None], 0, None) * inside
+        s_ = wgt.sum(axis=(1, 2))
+        new = c.copy()
+        ok = s_ > 0
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cx = (wgt * xs).sum(axis=(1, 2)) / s_
+            cy = (wgt * ys).sum(axis=(1, 2)) / s_
+        new[ok] = np.stack([cx, cy], axis=1)[ok]
         moved = np.hypot(*(new - c).T)
         # A refinement that walks away (a false circle on a limb) is undone.
         bad = moved > r
@@ -264,7 +278,7 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
 def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "template",
                  threshold: float | None = None, min_distance: int | None = None,
                  refine: bool | None = None, min_circularity: float = 0.7,
-                 min_contrast: float = 15.0) -> Circles:
+                 min_contrast: float = 15.0, boxes=None) -> Circles:
     """Find bead markers (bright discs on a dark scene).
 
     Parameters
@@ -292,6 +306,9 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
         ``template``: smallest disc-minus-ring contrast of a bead, grey levels (0-255); the
         threshold used is the larger of this and 30 % of the median contrast of the ``n``
         strongest peaks.
+    boxes : array_like of int, shape (B, 4), optional
+        ``template``: look for beads only inside these boxes ``(x0, y0, x1, y1)``, pixels, end
+        exclusive (e.g. around the bright parts of the photo); default everywhere.
 
     Returns
     -------
@@ -309,7 +326,8 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
     md = max(1, int(round(r_min))) if min_distance is None else int(min_distance)
     refine = (method != "thesis") if refine is None else bool(refine)
     grey = grey_image(img)
-    t = isodata_threshold(grey) if threshold is None else float(threshold)
+    needs_t = method in ("thesis", "hough", "blobs")  # the template and cv2 methods use no threshold
+    t = (isodata_threshold(grey) if threshold is None else float(threshold)) if needs_t else np.nan
     if n == 0:
         return Circles(np.zeros((0, 2)), np.zeros(0), np.zeros(0), method, t)
     if method == "cv2":
@@ -318,7 +336,7 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
     elif method in ("thesis", "hough"):
         acc, cx, cy, rr = _hough(outline(grey > t), radii, n, md)
     elif method == "template":
-        acc, cx, cy, rr = _template(grey, radii, n, md, min_contrast)
+        acc, cx, cy, rr = _template(grey, radii, n, md, min_contrast, boxes)
         t = np.nan
     else:
         acc, cx, cy, rr = _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity)
@@ -354,7 +372,14 @@ def _disc_kernel(r: float, inner_gap: float = 1.0, ring: float = 2.0) -> np.ndar
     return (disc / disc.sum() - ann / ann.sum()).astype(np.float32)
 
 
-def contrast_map(grey, radii) -> tuple[np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=32)
+def _disc_kernel_cached(r: float) -> np.ndarray:
+    k = _disc_kernel(r)
+    k.setflags(write=False)
+    return k
+
+
+def contrast_map(grey, radii, boxes=None) -> tuple[np.ndarray, np.ndarray]:
     """Disc-minus-ring contrast of every pixel for each radius, and the best radius.
 
     ``contrast[y, x]`` is the mean grey over a disc of radius r at (x, y) minus the mean over
@@ -365,6 +390,10 @@ def contrast_map(grey, radii) -> tuple[np.ndarray, np.ndarray]:
     ----------
     grey : array_like, shape (H, W)
     radii : array_like, shape (R,)
+    boxes : array_like of int, shape (B, 4), optional
+        Boxes ``(x0, y0, x1, y1)`` (end exclusive) where beads may lie; the map is computed
+        only there (exactly: each box is filtered with the grey pixels around it) and is 0
+        elsewhere. Default: the whole image.
 
     Returns
     -------
@@ -375,17 +404,61 @@ def contrast_map(grey, radii) -> tuple[np.ndarray, np.ndarray]:
     if g.ndim != 2:
         raise ValueError(f"grey must have shape (H, W), got {g.shape}")
     rs = np.atleast_1d(np.asarray(radii, float))
-    stack = np.stack([cv2.filter2D(g, -1, _disc_kernel(r), borderType=cv2.BORDER_REPLICATE) for r in rs])
-    k = stack.argmax(axis=0)
-    return np.take_along_axis(stack, k[None], 0)[0], rs[k]
+    h, w = g.shape
+    if boxes is None:
+        boxes = np.array([[0, 0, w, h]])
+    boxes = np.asarray(boxes, int).reshape(-1, 4)
+    C = np.zeros((h, w), np.float32)
+    best = np.full((h, w), rs[0])
+    kernels = [_disc_kernel_cached(float(r)) for r in rs]
+    pad = max(k.shape[0] for k in kernels) // 2
+    for x0, y0, x1, y1 in boxes:
+        x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        # filter the box with the grey around it (then the values inside are exact)
+        X0, Y0, X1, Y1 = max(0, x0 - pad), max(0, y0 - pad), min(w, x1 + pad), min(h, y1 + pad)
+        sub = g[Y0:Y1, X0:X1]
+        cut = (slice(y0 - Y0, y1 - Y0), slice(x0 - X0, x1 - X0))
+        c_box = r_box = None
+        for r, k in zip(rs, kernels):
+            f = cv2.filter2D(sub, -1, k, borderType=cv2.BORDER_REPLICATE)[cut]
+            if c_box is None:
+                c_box, r_box = f, np.full(f.shape, r)
+            else:
+                better = f > c_box  # first radius wins ties, as argmax
+                c_box = np.where(better, f, c_box)
+                r_box = np.where(better, r, r_box)
+        C[y0:y1, x0:x1] = c_box
+        best[y0:y1, x0:x1] = r_box
+    return C, best
 
 
-def _template(grey, radii, n, md, min_contrast):
-    from skimage.feature import peak_local_max
+def _local_maxima(C: np.ndarray, md: int, floor: float) -> np.ndarray:
+    """Pixels ``(row, col)`` that are the maximum of their ``(2 md + 1)^2`` square and above
+    ``floor``, strongest first; plateaus keep one pixel (the first in raster order).
 
-    C, best_r = contrast_map(grey, radii)
-    peaks = peak_local_max(C, min_distance=md, threshold_abs=max(float(min_contrast) / 3, 1e-6),
-                           exclude_border=False, num_peaks=np.inf)
+    :func:`skimage.feature.peak_local_max` does the same with a SciPy maximum filter; the
+    OpenCV dilation here is ~10x faster on these photos, and only a handful of pixels pass."""
+    k = np.ones((2 * md + 1, 2 * md + 1), np.uint8)
+    dil = cv2.dilate(C, k, borderType=cv2.BORDER_REPLICATE)
+    rows, cols = np.nonzero((C >= dil) & (C > floor))
+    if len(rows) == 0:
+        return np.zeros((0, 2), int)
+    val = C[rows, cols]
+    order = np.lexsort((cols, rows, -val))  # strongest first, raster order among equals
+    rows, cols = rows[order], cols[order]
+    keep = np.ones(len(rows), bool)
+    for i in range(len(rows)):  # plateau pixels: keep the first of equal maxima within md
+        if keep[i]:
+            near = (np.abs(rows[i + 1:] - rows[i]) <= md) & (np.abs(cols[i + 1:] - cols[i]) <= md)
+            keep[i + 1:] &= ~near
+    return np.stack([rows[keep], cols[keep]], axis=1)
+
+
+def _template(grey, radii, n, md, min_contrast, boxes=None):
+    C, best_r = contrast_map(grey, radii, boxes)
+    peaks = _local_maxima(C, md, max(float(min_contrast) / 3, 1e-6))
     if len(peaks) == 0:
         return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
     val = C[peaks[:, 0], peaks[:, 1]].astype(float)

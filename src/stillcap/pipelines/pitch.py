@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_rng
 from stillcap.ball.fit import FitPriors, ReferenceFit, fit_reference_trajectory
@@ -59,12 +60,14 @@ from stillcap.geometry.triangulate import triangulate
 from stillcap.io.capture import Capture, CaptureImage
 
 __all__ = ["PitchOptions", "StereoPairSpec", "PairResult", "PitchResult", "SPIN_METHODS", "PHYSICS", "FIT_METHODS",
+           "SIGMA_METHODS",
            "analyse_pitch", "stereo_pairs", "order_flashes", "pair_marker_observations", "flight_model",
            "marker_types", "compare_with_truth", "TABLE1_COLUMNS"]
 
 SPIN_METHODS = ("global", "seed")
 PHYSICS = ("seed", "nathan")
 FIT_METHODS = ("least_squares", "powell")
+SIGMA_METHODS = ("linear", "monte_carlo")
 #: The seed's Table 1 columns (in order) and their units.
 TABLE1_COLUMNS = (("mean_err_mm", "mm"), ("max_err_mm", "mm"), ("velocity_angle_deg", "deg"),
                   ("speed_diff_mph", "mph"), ("spin_axis_angle_deg", "deg"), ("spin_rate_diff_rpm", "rpm"),
@@ -106,10 +109,29 @@ class PitchOptions:
         the reference fit; the reported covariance is rescaled by the actual residuals).
     marker_epipolar_px : float
         Largest epipolar distance of a marker matched across a pair.
+    sigma_method : {"linear", "monte_carlo"}
+        How the metrics' uncertainties are propagated from the fits' covariances: first order
+        (central differences along the covariances' principal axes, about 24 flights; default)
+        or Monte Carlo with ``n_samples`` draws (``docs/pitch.md``, "Uncertainties").
     n_samples : int
-        Monte Carlo samples for the metrics' uncertainties (0: none).
+        Monte Carlo samples for the metrics' uncertainties (0 or 1: no metric uncertainties,
+        with either method).
     rng : int or Generator
         For the Monte Carlo samples.
+    calibration_focal_sigma : float
+        Relative 1-sigma of each camera's calibrated focal length, the calibration error that
+        dominates the positions (``docs/pitch.md``, "Uncertainties"): every camera's focal
+        length is perturbed by it, its pose re-solved on the calibration's own board corners
+        (from ``capture.json`` ``meta.calibration``) and the ball images re-triangulated; the
+        shift, shared by all positions of the pair, goes into every reported uncertainty.
+        Default 2.5e-4: the RMS focal error of ``calibrate_pitch_rig`` against the true rig
+        (0.015-0.025 %). 0 leaves calibration error out.
+    centre_bias_px : float or None
+        1-sigma per image coordinate of a systematic error of the refined ball centres shared by
+        all ball images of one camera (the strobe lights the ball from one side). None (default):
+        as large as the random centre error, estimated from the pair's triangulation residuals
+        (``sqrt(2) * RMS reprojection error``); 0 leaves it out. ``docs/pitch.md``,
+        "Uncertainties".
     """
 
     spin_method: str = "global"
@@ -123,6 +145,9 @@ class PitchOptions:
     marker_epipolar_px: float = 2.0
     n_samples: int = 200
     rng: object = 0
+    sigma_method: str = "linear"
+    calibration_focal_sigma: float = 2.5e-4
+    centre_bias_px: float | None = None
 
     def __post_init__(self):
         fm = self.fit_method.replace("-", "_") if isinstance(self.fit_method, str) else self.fit_method
@@ -138,14 +163,19 @@ class PitchOptions:
             raise ValueError(f"release_y_ft must be a finite number of feet, got {self.release_y_ft}")
         if not self.position_sigma_m > 0:
             raise ValueError(f"position_sigma_m must be positive, got {self.position_sigma_m}")
+        if self.sigma_method not in SIGMA_METHODS:
+            raise ValueError(f"sigma_method must be one of {', '.join(SIGMA_METHODS)}, got {self.sigma_method!r}")
         if int(self.n_samples) < 0:
             raise ValueError(f"n_samples must be >= 0, got {self.n_samples}")
+        if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
+            raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
 
     def to_dict(self) -> dict:
         return {"spin_method": self.spin_method, "physics": self.physics, "fit_method": self.fit_method,
                 "ball_radius_m": self.ball_radius_m, "release_y_ft": self.release_y_ft,
                 "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
-                "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples)}
+                "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
+                "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.centre_bias_px}
 
 
 @dataclass
@@ -203,7 +233,12 @@ class PairResult:
     spin : SpinResult or None
         The pair's own spin fit (principal alias, on its own clock).
     position_sigma_m : float
-        1-sigma per coordinate of the positions: RMS residual to the reference trajectory.
+        1-sigma per coordinate of the positions: RMS residual to the reference trajectory and
+        the calibration term (``calibration_sigma_m``) in quadrature.
+    calibration_sigma_m : float
+        1-sigma per coordinate (RMS over the pair's positions) of the shift the calibration
+        error gives all positions of the pair (:func:`calibration_modes`); NaN without a
+        calibration record.
     """
 
     name: str
@@ -229,6 +264,7 @@ class PairResult:
     spin: SpinResult | None = field(default=None, repr=False)
     position_sigma_m: float = float("nan")
     stereo: StereoBalls | None = field(default=None, repr=False)
+    calibration_sigma_m: float = float("nan")
 
     @property
     def local_times(self) -> np.ndarray:
@@ -249,7 +285,8 @@ class PairResult:
         return {
             "name": self.name, "cameras": list(self.cameras), "strobe_hz": self.strobe_hz,
             "flash_index": self.flash_index, "times_s": self.times, "positions": self.positions,
-            "position_sigma_mm": self.position_sigma_m * 1e3, "centers_px": self.centers_px,
+            "position_sigma_mm": self.position_sigma_m * 1e3, "calibration_sigma_mm": self.calibration_sigma_m * 1e3,
+            "centers_px": self.centers_px,
             "radius_px": self.radius_px, "reproj_error_px": self.reproj_error_px, "flags": self.flags,
             "n_detected": list(self.n_detected), "n_dropped": self.n_dropped, "spacing_m": self.spacing_m,
             "time_offset_s": self.time_offset_s, "time_offset_sigma_s": self.time_offset_sigma_s,
@@ -408,6 +445,8 @@ def _alias_dict(alias) -> dict | None:
              for c in alias.candidates[:6]]
     return {"best_rpm": alias.best.spin_rpm, "ambiguous": bool(alias.ambiguous),
             "likelihood_ratio": alias.likelihood_ratio, "evidence": list(alias.evidence),
+            "consistent": bool(getattr(alias, "consistent", True)), "dof": int(getattr(alias, "dof", 0)),
+            "best_chi2": float(alias.best.chi2),
             "message": alias.message, "candidates": cands}
 
 
@@ -644,6 +683,96 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     return obs, [ma, mb], {"n_3d": n3, "n_ray": nray, "epipolar_px": float(np.median(epi)) if epi else np.nan}
 
 
+def _board_points_world(calib: dict, pair_name: str, camera: str):
+    """World coordinates of the calibration board corners a camera's pose was solved on (from
+    the capture's ``meta.calibration`` record), or None when the record does not say."""
+    from stillcap.io.capture import target_from_dict
+
+    try:
+        target = target_from_dict(calib["extrinsics_target"])
+        T = np.asarray(calib["board2world"][pair_name], float).reshape(-1, 4, 4)
+        spots = calib["cameras"][camera].get("spots_used", range(len(T)))
+        obj = target.object_points
+        obj = np.asarray(obj() if callable(obj) else obj, float).reshape(-1, 3)
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    pts = [obj @ T[k][:3, :3].T + T[k][:3, 3] for k in spots if 0 <= int(k) < len(T)]
+    return np.concatenate(pts) if pts else None
+
+
+def calibration_modes(cams, centers_px, calib: dict | None, pair_name: str, focal_sigma: float):
+    """How a pair's triangulated positions move with each camera's focal-length error.
+
+    For each camera the focal length is scaled by ``1 + focal_sigma``, the pose re-solved by PnP
+    on the board corners it was calibrated with (their pixels as the calibrated camera sees
+    them: the error the board cannot reveal), and the ball images re-triangulated.
+
+    Parameters
+    ----------
+    cams : sequence of 2 Camera
+    centers_px : array_like, shape (2, K, 2)
+    calib : dict or None
+        The capture's ``meta.calibration`` record (``extrinsics_target``, ``board2world``,
+        ``cameras[name].spots_used``).
+    pair_name : str
+    focal_sigma : float
+
+    Returns
+    -------
+    ndarray, shape (2, K, 3) or None
+        Position shift per camera at 1 sigma (m); None without a usable calibration record.
+    """
+    import cv2
+
+    x = np.asarray(centers_px, float)
+    if calib is None or not focal_sigma > 0 or x.shape[1] == 0:
+        return None
+    X0 = triangulate(list(cams), x).points
+    out = np.zeros((2, x.shape[1], 3))
+    for i, cam in enumerate(cams):
+        W = _board_points_world(calib, pair_name, cam.name)
+        if W is None or len(W) < 6:
+            return None
+        img = cam.project(W)
+        K = cam.K.copy()
+        K[0, 0] *= 1.0 + focal_sigma
+        K[1, 1] *= 1.0 + focal_sigma
+        rvec, _ = cv2.Rodrigues(cam.R)
+        ok, rvec, tvec = cv2.solvePnP(W, img, K, cam.dist, rvec.copy(), cam.t.reshape(3, 1).copy(),
+                                      useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            return None
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(rvec)[0]
+        T[:3, 3] = tvec.ravel()
+        c2 = Camera(cam.name, K, cam.dist, T, cam.image_size)
+        pair = [c2, cams[1]] if i == 0 else [cams[0], c2]
+        out[i] = triangulate(pair, x).points - X0
+    return out
+
+
+def centre_bias_modes(cams, centers_px, sigma_px: float):
+    """How a pair's triangulated positions move with a systematic shift of one camera's ball
+    centres (the same for all its ball images): one mode per camera and image axis.
+
+    Returns
+    -------
+    ndarray, shape (4, K, 3)
+        Position shift (m) for a shift of ``sigma_px`` of camera 0 x, 0 y, 1 x, 1 y.
+    """
+    x = np.asarray(centers_px, float)
+    out = np.zeros((4, x.shape[1], 3))
+    if not sigma_px > 0 or x.shape[1] == 0:
+        return out
+    X0 = triangulate(list(cams), x).points
+    for c in range(2):
+        for j in range(2):
+            xs = x.copy()
+            xs[c, :, j] += sigma_px
+            out[2 * c + j] = triangulate(list(cams), xs).points - X0
+    return out
+
+
 def _release_state(p0, v0, spin, model, t0, release_y_m):
     """Position, velocity and time where the flight crosses ``y = release_y_m`` (Newton on the
     reference integrator, before or after ``t0``)."""
@@ -710,18 +839,28 @@ def _combined_spin(pairs: list, spin_init, layout, messages) -> SpinResult | Non
     """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``.
 
     Returns ``(SpinResult or None, reference-clock time of each observation)``."""
-    parts, times = [], []
+    parts, times, groups = [], [], []
     for p in pairs:
         if p.observations is None or len(p.observations) == 0:
             continue
         parts.append(p)
         times.append(p.times)
+        groups.append(np.full(len(p), p.group))
     if not parts:
         return None, None
+    # start at the orientation a pair's own fit found at its first flash, turned back to t = 0 at
+    # the chosen alias (alias candidates agree at flash times): one start instead of four
+    fitted = [p for p in parts
+              if p.spin is not None and p.spin.success and np.all(np.isfinite(p.spin.ball2world_t0))]
+    src = next((p for p in fitted if p.group == 0), max(fitted, key=lambda p: p.spin.n_inliers, default=None))
     if len(parts) == 1:
         p = parts[0]
-        return (fit_spin(p.local_times, p.observations, layout, strobe_hz=p.strobe_hz, spin_init=spin_init),
-                p.times[p.observations.flash])
+        R_init = p.spin.ball2world_t0 if p is src else None
+        return (fit_spin(p.local_times, p.observations, layout, strobe_hz=p.strobe_hz, spin_init=spin_init,
+                         ball2world_init=R_init), p.times[p.observations.flash])
+    R_init = None
+    if src is not None:
+        R_init = Rotation.from_rotvec(-np.asarray(spin_init, float) * src.times[0]).as_matrix() @ src.spin.ball2world_t0
     t_all = np.concatenate(times)
     order = np.argsort(t_all, kind="stable")
     if np.any(np.diff(t_all[order]) <= 0):
@@ -737,7 +876,16 @@ def _combined_spin(pairs: list, spin_init, layout, messages) -> SpinResult | Non
     obs = MarkerObservations.concatenate(obs_parts)
     ref = parts[0]
     t_sorted = t_all[order]
-    return (fit_spin(t_sorted, obs, layout, t0=0.0, strobe_hz=ref.strobe_hz, spin_init=spin_init),
+    # the other pairs' flashes sit on the reference clock through fitted offsets: their
+    # uncertainty goes into the spin's covariance
+    g_sorted = np.concatenate(groups)[order]
+    n_g = int(g_sorted.max(initial=0))
+    g_sig = np.zeros(n_g)
+    for p in parts:
+        if p.group > 0:
+            g_sig[p.group - 1] = p.time_offset_sigma_s
+    return (fit_spin(t_sorted, obs, layout, t0=0.0, strobe_hz=ref.strobe_hz, spin_init=spin_init,
+                     ball2world_init=R_init, time_groups=g_sorted, time_group_sigma=g_sig),
             t_sorted[obs.flash])
 
 
@@ -793,37 +941,28 @@ def _decay_slope(fit: ReferenceFit, model: FlightModel, t_obs, t_ref: float) -> 
 # --------------------------------------------------------------------------------------------
 # Uncertainty of the metrics
 # --------------------------------------------------------------------------------------------
-def _metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release_y_m, nominal: PitchMetrics,
-                   n_samples: int, rng) -> dict:
-    """1-sigma of every numeric metric: Monte Carlo over the reference fit's covariance (release
-    state and the spin of the trajectory) and the marker spin's covariance (spin metrics)."""
+def _metric_keys(nominal: PitchMetrics):
     nom = nominal.to_dict()
     keys = [k for k in nom if k not in ("nine_parameter", "success", "message", "spin_tilt")]
-    nine_keys = list((nom.get("nine_parameter") or {}).keys())
-    nine_keys = [k for k in nine_keys if k not in ("success", "n_points")]
-    empty = {k: None for k in keys} | {"nine_parameter": None}
-    if n_samples < 2 or not np.all(np.isfinite(fit.covariance[:9, :9])):
-        return empty
-    rng = as_rng(rng)
-    cov = fit.covariance[:9, :9]
-    cov = 0.5 * (cov + cov.T)
-    try:
-        th = rng.multivariate_normal(fit.params, cov, size=n_samples, method="eigh")
-    except (np.linalg.LinAlgError, ValueError):
-        return empty
+    nine_keys = [k for k in (nom.get("nine_parameter") or {}) if k not in ("success", "n_points")]
+    return nom, keys, nine_keys
+
+
+def _metrics_of_states(fit: ReferenceFit, th, spins, model, t_rel, release_y_m, nominal: PitchMetrics, keys,
+                       nine_keys):
+    """Metrics of many flights at once: initial states ``th`` (n, 9: p0, v0, spin-basis
+    coordinates of the reference fit) flown with the fast integrator (``simulate_batch``),
+    ``spins`` (n, 3) or None the measured spin of each. Returns ``{key: (n,)}`` and the same for
+    the nine-parameter fit (NaN where a flight gave no metrics)."""
+    n = len(th)
     w_traj = th[:, 6:9] @ fit.spin_basis.T
     t_end = t_rel + max(nominal.plate_time_s if np.isfinite(nominal.plate_time_s) else 0.6, 0.1) * 1.1 + 0.02
     t_lo = min(t_rel, fit.t0) - 0.03
     ts = np.arange(t_lo, t_end, 0.002)
     tr = simulate_batch(th[:, :3], th[:, 3:6], w_traj, ts, model, t0=fit.t0, method="rk4", max_step=0.01)
-    spins = None
-    if spin_meas is not None:
-        c = np.asarray(spin_cov, float)
-        c = 0.5 * (c + c.T) if np.all(np.isfinite(c)) else np.zeros((3, 3))
-        spins = rng.multivariate_normal(spin_meas, c, size=n_samples, method="eigh")
-    vals = {k: [] for k in keys}
-    nine_vals = {k: [] for k in nine_keys}
-    for m in range(n_samples):
+    vals = {k: np.full(n, np.nan) for k in keys}
+    nine_vals = {k: np.full(n, np.nan) for k in nine_keys}
+    for m in range(n):
         pos, vel = tr.positions[m], tr.velocities[m]
         if release_y_m is None:
             i0 = int(np.searchsorted(ts, t_rel))
@@ -845,23 +984,102 @@ def _metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release
         dm = pm.to_dict()
         for k in keys:
             v = dm.get(k)
-            vals[k].append(float(v) if isinstance(v, (int, float)) else np.nan)
+            vals[k][m] = float(v) if isinstance(v, (int, float)) and v is not None else np.nan
         for k in nine_keys:
             v = (dm.get("nine_parameter") or {}).get(k)
-            nine_vals[k].append(np.nan if v is None else float(v))
+            nine_vals[k][m] = np.nan if v is None else float(v)
+    return vals, nine_vals
 
-    def spread(k, arr, centre):
-        a = np.asarray(arr, float)
-        a = a[np.isfinite(a)]
-        if len(a) < 2 or centre is None:
-            return None
-        if k in _ANGLE_KEYS:
-            a = (a - centre + 180.0) % 360.0 - 180.0
+
+def _principal_steps(cov):
+    """1-sigma steps along the principal axes of a covariance: rows ``sqrt(lambda_i) v_i`` for
+    the positive eigenvalues (a zero-variance direction needs no evaluation)."""
+    c = np.asarray(cov, float)
+    c = 0.5 * (c + c.T)
+    lam, V = np.linalg.eigh(c)
+    keep = lam > lam.max(initial=0.0) * 1e-14
+    return (V[:, keep] * np.sqrt(lam[keep])).T
+
+
+def _metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release_y_m, nominal: PitchMetrics,
+                   n_samples: int, rng, method: str = "linear") -> dict:
+    """1-sigma of every numeric metric from the reference fit's covariance (release state and the
+    spin of the trajectory) and the marker spin's covariance (spin metrics).
+
+    ``method="linear"`` (default): first-order propagation with central differences along the
+    principal axes of both covariances, one sigma each way (at most 2 x (9 + 3) = 24 flights):
+    ``sigma_k^2 = sum_i ((f_k(x + s_i) - f_k(x - s_i)) / 2)^2``. ``"monte_carlo"``:
+    ``n_samples`` states drawn from the covariances, sigma = sample standard deviation. Angles
+    are differenced on the circle. ``n_samples < 2`` gives no sigmas (either method)."""
+    nom, keys, nine_keys = _metric_keys(nominal)
+    empty = {k: None for k in keys} | {"nine_parameter": None}
+    if n_samples < 2 or not np.all(np.isfinite(fit.covariance[:9, :9])):
+        return empty
+    cov = fit.covariance[:9, :9]
+    cov = 0.5 * (cov + cov.T)
+    c_spin = None
+    if spin_meas is not None:
+        c_spin = np.asarray(spin_cov, float)
+        c_spin = 0.5 * (c_spin + c_spin.T) if np.all(np.isfinite(c_spin)) else np.zeros((3, 3))
+    nn = nom.get("nine_parameter") or {}
+
+    def wrap(k, d):
+        return (d + 180.0) % 360.0 - 180.0 if k in _ANGLE_KEYS else d
+
+    if method == "linear":
+        try:
+            s_th = _principal_steps(cov)
+            s_w = _principal_steps(c_spin) if c_spin is not None else np.zeros((0, 3))
+        except np.linalg.LinAlgError:
+            return empty
+        n_th, n_w = len(s_th), len(s_w)
+        th = np.tile(fit.params[:9], (1 + 2 * (n_th + n_w), 1))
+        th[1:1 + n_th] += s_th
+        th[1 + n_th:1 + 2 * n_th] -= s_th
+        spins = None
+        if spin_meas is not None:
+            spins = np.tile(np.asarray(spin_meas, float), (len(th), 1))
+            o = 1 + 2 * n_th
+            spins[o:o + n_w] += s_w
+            spins[o + n_w:o + 2 * n_w] -= s_w
+        vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
+        pairs_idx = [(1 + i, 1 + n_th + i) for i in range(n_th)]
+        pairs_idx += [(1 + 2 * n_th + i, 1 + 2 * n_th + n_w + i) for i in range(n_w)]
+
+        def spread(k, a, centre):
+            if centre is None or not np.isfinite(a[0]):
+                return None
+            var = 0.0
+            for ip, im in pairs_idx:
+                fp, fm = a[ip], a[im]
+                if np.isfinite(fp) and np.isfinite(fm):
+                    d = 0.5 * wrap(k, fp - fm)
+                elif np.isfinite(fp) or np.isfinite(fm):  # one side failed: one-sided difference
+                    d = wrap(k, (fp if np.isfinite(fp) else fm) - a[0])
+                else:
+                    return None
+                var += d * d
+            return float(np.sqrt(var))
+    else:
+        rng = as_rng(rng)
+        try:
+            th = rng.multivariate_normal(fit.params[:9], cov, size=n_samples, method="eigh")
+        except (np.linalg.LinAlgError, ValueError):
+            return empty
+        spins = None
+        if spin_meas is not None:
+            spins = rng.multivariate_normal(spin_meas, c_spin, size=n_samples, method="eigh")
+        vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
+
+        def spread(k, a, centre):
+            a = a[np.isfinite(a)]
+            if len(a) < 2 or centre is None:
+                return None
+            if k in _ANGLE_KEYS:
+                a = wrap(k, a - centre)
             return float(np.std(a, ddof=1))
-        return float(np.std(a, ddof=1))
 
     out = {k: spread(k, vals[k], nom.get(k)) for k in keys}
-    nn = nom.get("nine_parameter") or {}
     out["nine_parameter"] = {k: spread(k, nine_vals[k], nn.get(k)) for k in nine_keys} if nine_keys else None
     if spin_meas is None:
         for k in ("spin_rate_rpm", "active_spin_rpm", "spin_efficiency", "gyro_angle_deg", "spin_axis_deg"):
@@ -1045,6 +1263,31 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
     # the positions-only fit (clock offsets, curvature for the alias check) always uses least
     # squares: it is a step of the pipeline, the selectable optimiser is the final fit's
     fit_pos = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **{**fit_kw, "method": "least_squares"})
+    # calibration error: shared by all positions of a pair (docs/pitch.md, "Uncertainties")
+    calib = cap.meta.get("calibration") if isinstance(cap.meta.get("calibration"), dict) else None
+    cal_modes = []
+    for i, p in enumerate(pairs):
+        if len(p) == 0:
+            continue
+        m = calibration_modes(p._cams, p.centers_px, calib, p.name, options.calibration_focal_sigma)
+        sb = options.centre_bias_px
+        if sb is None:
+            e = p.reproj_error_px[np.isfinite(p.reproj_error_px)]
+            sb = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
+        mb = centre_bias_modes(p._cams, p.centers_px, sb)
+        m = mb if m is None else np.concatenate([m, mb])
+        if not np.any(m):
+            continue
+        full = np.zeros((len(m), len(pos_a), 3))
+        full[:, pidx_a == i] = m
+        cal_modes.append(full)
+        p.calibration_sigma_m = float(np.sqrt(np.mean(np.sum(m ** 2, axis=(0, 2))) / 3.0))
+    cal_modes = np.concatenate(cal_modes) if cal_modes else None
+    if calib is None and options.calibration_focal_sigma > 0 and cap.meta.get("rig_calibrated") is not False:
+        messages.append("no calibration record (capture.json meta.calibration): the uncertainties leave out "
+                        "the calibration error")
+    if cal_modes is not None:
+        fit_pos = fit_pos.with_extra_covariance(fit_pos.position_covariance_term(cal_modes))
     timings["fit_positions"] = _time.perf_counter() - t
     for p in pairs:
         if p.group > 0:
@@ -1101,6 +1344,8 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
         fit = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **fit_kw)
     else:
         fit = fit_pos
+    if cal_modes is not None and fit is not fit_pos:
+        fit = fit.with_extra_covariance(fit.position_covariance_term(cal_modes))
     timings["fit"] = _time.perf_counter() - t
     for p in pairs:
         if p.group > 0:
@@ -1111,6 +1356,8 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
         r = r[np.all(np.isfinite(r), axis=1)]
         p.position_sigma_m = (float(np.sqrt(np.mean(r ** 2))) if len(r) >= 2
                               else float(fit.residual_scale * options.position_sigma_m))
+        if np.isfinite(p.calibration_sigma_m):  # scatter and the pair's shared calibration shift
+            p.position_sigma_m = float(np.hypot(p.position_sigma_m, p.calibration_sigma_m))
     if not fit.success:
         messages.append(f"reference fit did not converge: {fit.message}")
     if fit.rms_error > 0.05:
@@ -1146,7 +1393,7 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
     if not spin_ok:
         metrics.message = "; ".join(filter(None, [metrics.message, "spin unavailable (no usable markers)"]))
     sigma = _metrics_sigma(fit, w_meas, cov_rel, model, t_rel, release_y_m, metrics, int(options.n_samples),
-                           options.rng)
+                           options.rng, options.sigma_method)
     timings["metrics"] = _time.perf_counter() - t
     release = {"t0_s": float(t_rel), "p0": p_rel, "v0": v_rel, "spin": w_meas,
                "speed_mph": float(np.linalg.norm(v_rel) / MPH),

@@ -1,5 +1,6 @@
 """Puppet stop-motion capture (SPEC J3): photos of a marked puppet -> named 2D markers -> 3D
-markers -> posed skeleton. Wiring of existing stages, plus the two small steps no stage had.
+markers -> posed skeleton. Wiring of existing stages, plus the small steps no stage had
+(:func:`bead_fill`, :func:`fit_pose`, :func:`reidentify`, :func:`triangulate_markers`).
 
 ::
 
@@ -8,15 +9,18 @@ markers -> posed skeleton. Wiring of existing stages, plus the two small steps n
       -> identify_markers            names by colour            (detect.identify: recommended | thesis)
       -> observations (n_views, n_markers, 2), NaN = not identified
       -> bead_fill                   how whole each bead looks  (below: partly hidden beads are off-centre)
-      -> triangulate                 3D markers                 (geometry.triangulate, outlier rejection)
+      -> triangulate_markers         3D markers                 (geometry.triangulate, outlier rejection;
+                                                                 its view-pair consensus vectorised here)
                                      markers seen in fewer than 2 views: NaN, listed in ``missing``
+      -> reidentify                  candidates named after the projected 3D markers (colour as a
+                                     check), then fill + triangulation again on that identification
       -> bone_directions +           the thesis's pose          (body.kinematics)
          pose_from_markers
       -> fit_pose                    joint rotations within the limits, twist where a joint frame
                                      has 3+ points (its markers and the joint itself)
       -> PuppetResult                to_dict() keys shared with the studio's truth.json
 
-Two steps are written here because no stage did them:
+Two of them in more detail:
 
 - :func:`bead_fill` measures, for an identified bead, the share of its expected disc (radius
   from the first triangulation: ``f * bead radius / depth``) brighter than half its contrast. A
@@ -64,7 +68,7 @@ __all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSetting
            "PoseFit", "PuppetComparison", "PuppetResult", "LoadedResult", "detect_view", "bead_fill",
            "solve_markers", "fit_pose", "frame_status", "compare_with_truth", "reconstruct_puppet",
            "run_capture", "run_project", "reconstruct_project", "run_folder", "load_result", "RESULT_FORMAT",
-           "bright_region", "with_settings"]
+           "bright_region", "reidentify", "triangulate_markers", "with_settings"]
 
 RESULT_FORMAT = "stillcap-puppet-result"
 
@@ -108,6 +112,13 @@ class PuppetSettings:
     roi : bool
         Detect only inside the box around the bright pixels (:func:`bright_region`): faster, the
         same beads.
+    reidentify : bool
+        After the first triangulation, name the candidates after the 3D markers
+        (:func:`reidentify`) and triangulate again from that identification.
+    reid_gate : float
+        :func:`reidentify`'s pixel gate, share of the projected bead radius.
+    reid_colour : float
+        :func:`reidentify`'s colour gate, multiple of the identification's acceptance distance.
     """
 
     detector: str = "template"
@@ -122,6 +133,9 @@ class PuppetSettings:
     pose: str = "fit"
     marker_sigma_m: float = 0.2e-3
     roi: bool = True
+    reidentify: bool = True
+    reid_gate: float = 0.6
+    reid_colour: float = 2.0
 
     def __post_init__(self):
         if self.detector not in DETECTORS:
@@ -142,7 +156,8 @@ class PuppetSettings:
         return {"detector": self.detector, "identify": self.identify, "radius_range_px": list(self.radius_range),
                 "n_circles": self.n_circles, "triangulation": self.triangulation, "outlier_px": self.outlier_px,
                 "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
-                "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi}
+                "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
+                "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_colour}
 
 
 #: The measured best chain (``benchmarks/bench_puppet.py``).
@@ -150,7 +165,7 @@ DEFAULT = PuppetSettings()
 #: The thesis's chain: IsoData + outline + Hough, greedy HSB, midpoint triangulation of every
 #: identified view, bone directions.
 THESIS_CHAIN = PuppetSettings(detector="thesis", identify="thesis", triangulation="midpoint", outlier_px=None, roi=False,
-                              use_fill=False, pose="thesis")
+                              use_fill=False, pose="thesis", reidentify=False)
 
 
 # --- stage 1: detection and identification per photo -------------------------------------------
@@ -188,8 +203,9 @@ def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT) -> 
     t0 = time.perf_counter()
     img = np.asarray(image)
     x0 = y0 = 0
+    margin = int(np.ceil(settings.radius_range[1])) + 6
     if settings.roi:
-        x0, y0, x1, y1 = bright_region(img, margin=int(np.ceil(settings.radius_range[1])) + 6)
+        x0, y0, x1, y1 = bright_region(img, margin=margin)
         img = img[y0:y1, x0:x1]
     circles = find_circles(img, n=settings.n_circles, radius_range=settings.radius_range, method=settings.detector)
     if x0 or y0:
@@ -345,6 +361,72 @@ def _expected_radius_px(rig: Rig, points: np.ndarray, bead_radius_m: float) -> n
     return out
 
 
+def triangulate_markers(rig: Rig, points_2d, method: str = "dlt", refine: bool = True,
+                        outlier_px: float | None = None) -> Triangulation:
+    """:func:`stillcap.geometry.triangulate.triangulate` for a handful of markers, same result, faster.
+
+    The shared triangulation checks the views' consensus by looping over the 66 view pairs of
+    a turntable, each time solving and projecting every marker into every view (792 small
+    projections, ~100 ms for 16 markers). Here every (pair, marker) hypothesis becomes one
+    "point" of a single call (16 x 66 points), projected once per view, and the best pair is
+    chosen with array operations; the final solve is the shared one with the chosen views.
+    Same choice rule as the shared function (most agreeing views, then the smallest summed
+    error, then the first pair), so the same points to rounding.
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+    points_2d : array_like, shape (n_views, n_markers, 2)
+        Distorted pixels, NaN where unseen.
+    method, refine, outlier_px
+        As :func:`~stillcap.geometry.triangulate.triangulate`.
+    """
+    x = np.asarray(points_2d, float)
+    if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2:
+        raise ValueError(f"points_2d must have shape ({len(rig)}, N, 2), got {x.shape}")
+    nv, n = x.shape[:2]
+    seen = np.isfinite(x[..., 0]) & np.isfinite(x[..., 1])
+    if outlier_px is None or nv < 3 or n == 0:
+        return triangulate(rig, x, method=method, refine=refine, outlier_px=outlier_px)
+    pairs = np.array([(i, j) for i in range(nv) for j in range(i + 1, nv)])
+    n_pairs = len(pairs)
+    # hypotheses: (pair, marker) -> only the pair's two views kept
+    keep = np.zeros((nv, n_pairs), bool)
+    keep[pairs[:, 0], np.arange(n_pairs)] = True
+    keep[pairs[:, 1], np.arange(n_pairs)] = True
+    both = seen[pairs[:, 0]] & seen[pairs[:, 1]]  # (n_pairs, n)
+    m = keep[:, :, None] & both[None]  # (nv, n_pairs, n)
+    xp = np.where(m[..., None], x[:, None], np.nan).reshape(nv, n_pairs * n, 2)
+    hyp = triangulate(rig, xp, method=method, refine=False).points  # linear, as the consensus
+    proj = np.stack([cam.project(hyp) for cam in rig]).reshape(nv, n_pairs, n, 2)
+    err = np.linalg.norm(proj - x[:, None], axis=-1)
+    with np.errstate(invalid="ignore"):
+        inl = seen[:, None] & (err <= outlier_px)  # (nv, n_pairs, n)
+    count = inl.sum(axis=0)
+    score = np.where(inl, err, 0.0).sum(axis=0)
+    # the shared rule, pairs in order: a pair wins over the best so far with more inliers, or as
+    # many (>= 2) with a smaller summed error; with fewer than 2 the first of the most wins
+    best_count = count.max(axis=0)
+    cand = count == best_count[None]
+    key = np.where(cand & (best_count[None] >= 2), score, np.where(cand, 0.0, np.inf))
+    win = np.argmin(key, axis=0)
+    mask = np.where(best_count[None] > 0, inl[:, win, np.arange(n)], seen)
+    x_used = np.where(mask[..., None], x, np.nan)
+    tri = triangulate(rig, x_used, method=method, refine=refine)
+    X = tri.points
+    errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
+    with np.errstate(invalid="ignore"):
+        mask2 = seen & (errors <= outlier_px)
+    if np.any(mask2 != mask):
+        mask = mask2
+        X = triangulate(rig, np.where(mask[..., None], x, np.nan), method=method, refine=refine).points
+        errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
+    used = mask & np.all(np.isfinite(X), axis=1)[None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.nansum(np.where(used, errors, np.nan) ** 2, axis=0) / used.sum(axis=0))
+    return Triangulation(X, rms, np.where(seen, errors, np.nan), used)
+
+
 def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settings: PuppetSettings = DEFAULT,
                   bead_radius_m: float = 0.003, radii_px=None) -> MarkerSolve:
     """Triangulate identified markers, leaving out partly hidden beads and disagreeing views.
@@ -388,7 +470,7 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
         images = list(images)
         if len(images) != len(rig):
             raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
-        first = triangulate(rig, x, method=method, refine=refine, outlier_px=2.0)
+        first = triangulate_markers(rig, x, method=method, refine=refine, outlier_px=2.0)
         r_exp = _expected_radius_px(rig, first.points, bead_radius_m)
         if radii_px is not None:
             r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
@@ -405,7 +487,7 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
         enough = good.sum(axis=0) >= 2
         partial = seen & ~good & enough[None]
         x_used = np.where(partial[..., None], np.nan, x)
-    tri = triangulate(rig, x_used, method=method, refine=refine, outlier_px=settings.outlier_px)
+    tri = triangulate_markers(rig, x_used, method=method, refine=refine, outlier_px=settings.outlier_px)
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
     if first is not None and lost.any():
@@ -422,6 +504,77 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
         rms = np.where(k >= 2, np.sqrt(np.nansum(sq, axis=0) / k), np.nan)
     outlier = seen & ~used & ~partial
     return MarkerSolve(tuple(names), points, x, used, fill, partial, outlier, rms, tri, good)
+
+
+def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: float = 0.003,
+               gate_radius: float = 0.6, colour_factor: float = 2.0) -> np.ndarray:
+    """Name each view's bead candidates after the 3D markers: the identification consistent
+    with the reconstruction.
+
+    Colour alone names a few percent of the beads wrong (a bead partly hidden, its colour
+    shifted by the light, a limb edge), and misses some. Once the markers are triangulated,
+    every marker with a 3D point projects into every view: the candidate within
+    ``gate_radius`` x its projected bead radius (at least 2 px) of that projection, and whose
+    colour is within ``colour_factor`` x the identification's acceptance distance of the
+    marker's reference, is that marker (:func:`scipy.optimize.linear_sum_assignment` over
+    pixel distance / gate + colour distance / colour gate, each candidate used once); a marker
+    whose projection matches no candidate is left unidentified (hidden in that view). Markers
+    without a 3D point keep their colour identification where its candidate is not taken.
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+    points_3d : array_like, shape (n_markers, 3)
+        Triangulated markers, NaN where missing.
+    views : sequence of ViewResult, length n_views
+        Candidates and colour distances (:func:`detect_view`).
+    bead_radius_m : float
+    gate_radius, colour_factor : float
+        Pixel gate as a share of the projected bead radius; colour gate as a multiple of the
+        identification's ``max_distance``.
+
+    Returns
+    -------
+    ndarray, shape (n_views, n_markers, 2)
+        Pixels of the final identification, NaN where unidentified.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    X = np.asarray(points_3d, float)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(f"points_3d must have shape (n_markers, 3), got {X.shape}")
+    if len(views) != len(rig):
+        raise ValueError(f"need one ViewResult per view ({len(rig)}), got {len(views)}")
+    k = len(X)
+    have = np.all(np.isfinite(X), axis=1)
+    r_exp = _expected_radius_px(rig, np.where(have[:, None], X, 0.0), bead_radius_m)
+    out = np.full((len(rig), k, 2), np.nan)
+    for v, (cam, vr) in enumerate(zip(rig, views)):
+        ident = vr.identification
+        cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
+        if ident.points.shape[0] != k:
+            raise ValueError(f"view {v}: identification has {ident.points.shape[0]} markers, points_3d {k}")
+        taken = np.zeros(len(cand), bool)
+        if len(cand) and have.any():
+            proj = cam.project(np.where(have[:, None], X, np.nan))
+            d = np.linalg.norm(cand[:, None, :] - proj[None], axis=2)  # (n_cand, k)
+            gate = np.maximum(2.0, gate_radius * r_exp[v])[None]
+            cgate = colour_factor * float(ident.max_distance)
+            col = np.asarray(ident.cost, float).reshape(len(cand), k)
+            with np.errstate(invalid="ignore"):
+                ok = (d <= gate) & (col <= cgate) & have[None]
+            if ok.any():
+                cost = np.where(ok, d / gate + col / cgate, 1e6)
+                rows, cols = linear_sum_assignment(cost)
+                good = ok[rows, cols]
+                out[v, cols[good]] = cand[rows[good]]
+                taken[rows[good]] = True
+        # markers without 3D: the colour's choice, unless a 3D-consistent marker took its candidate
+        for m in np.flatnonzero(~have & (ident.candidate >= 0)):
+            c = int(ident.candidate[m])
+            if c < len(cand) and not taken[c]:
+                out[v, m] = ident.points[m]
+    return out
 
 
 # --- stage 4: pose -----------------------------------------------------------------------------
@@ -688,7 +841,9 @@ class PuppetComparison:
     one bead radius of its own bead's true pixel (the bead at least partly visible), ``wrong`` =
     anywhere else; ``visible`` = beads whose centre the truth marks visible, ``right_visible``
     = those identified right. ``wrong_used`` =
-    wrong identifications the triangulation still used. 3D errors are over the recovered
+    wrong identifications the triangulation still used. These are for the final identification
+    (after :func:`reidentify`); ``raw_*`` count the colour-only identification the same way
+    (equal to the final counts when no re-identification ran). 3D errors are over the recovered
     markers; ``seen_twice`` = markers the truth shows in 2+ views. Bone directions and joint
     positions are grouped by what the markers measure (:func:`frame_status`): ``full`` bones
     start at a fully measured joint frame, ``partial`` at one with a single bead (forearms,
@@ -713,6 +868,19 @@ class PuppetComparison:
     thesis_joint_errors_m: np.ndarray
     bone_groups: dict
     joint_groups: dict
+    raw_identified: int = 0
+    raw_right_visible: int = 0
+    raw_wrong: int = 0
+
+    @property
+    def raw_wrong_pct(self) -> float:
+        """Wrong colour-only identifications (before :func:`reidentify`), % of them."""
+        return 100.0 * self.raw_wrong / max(self.raw_identified, 1)
+
+    @property
+    def raw_right_pct(self) -> float:
+        """Visible beads the colour-only identification named right, % of the visible beads."""
+        return 100.0 * self.raw_right_visible / max(self.visible, 1)
 
     @property
     def right_pct(self) -> float:
@@ -753,7 +921,10 @@ class PuppetComparison:
         return {
             "identification": {"visible": self.visible, "identified": self.identified, "right": self.right,
                                "right_visible": self.right_visible, "wrong": self.wrong, "wrong_used": self.wrong_used,
-                               "right_pct_of_visible": _num(self.right_pct), "wrong_pct_of_identified": _num(self.wrong_pct)},
+                               "right_pct_of_visible": _num(self.right_pct), "wrong_pct_of_identified": _num(self.wrong_pct),
+                               "colour_only": {"identified": self.raw_identified, "right_visible": self.raw_right_visible,
+                                               "wrong": self.raw_wrong, "right_pct_of_visible": _num(self.raw_right_pct),
+                                               "wrong_pct_of_identified": _num(self.raw_wrong_pct)}},
             "markers": {"seen_twice": self.seen_twice, "recovered": self.recovered,
                         "recovered_seen_twice": self.recovered_seen_twice,
                         "missing_seen_twice": list(self.missing_seen_twice),
@@ -827,11 +998,17 @@ def compare_with_truth(result: PuppetResult, truth) -> PuppetComparison:
         raise ValueError(f"truth has {truth.markers_px.shape[0]} views, the result {nv}")
     true_px = np.stack([cam.project(truth.marker_positions) for cam in result.rig])
     r_true = _expected_radius_px(result.rig, truth.marker_positions, 0.5 * float(np.mean(truth.marker_diameter)))
-    found = np.isfinite(obs[..., 0])
-    d = np.linalg.norm(obs - true_px, axis=2)
-    with np.errstate(invalid="ignore"):
-        right = found & (d <= np.maximum(r_true, 2.0)) & (truth.coverage > 0)
-    wrong = found & ~right
+
+    def score(o):
+        found = np.isfinite(o[..., 0])
+        d = np.linalg.norm(o - true_px, axis=2)
+        with np.errstate(invalid="ignore"):
+            right = found & (d <= np.maximum(r_true, 2.0)) & (truth.coverage > 0)
+        return found, right, found & ~right
+
+    found, right, wrong = score(obs)
+    raw = result.raw_observations
+    r_found, r_right, r_wrong = (found, right, wrong) if raw is None else score(np.asarray(raw, float))
     seen2 = truth.visible.sum(axis=0) >= 2
     ok = result.markers.ok
     err = np.linalg.norm(result.markers.points - truth.marker_positions, axis=1)
@@ -849,7 +1026,8 @@ def compare_with_truth(result: PuppetResult, truth) -> PuppetComparison:
                             int((right & truth.visible).sum()), int(wrong.sum()),
                             int((wrong & result.markers.used).sum()), int(seen2.sum()), int(ok.sum()),
                             int((ok & seen2).sum()), tuple(n for n, s, o in zip(result.names, seen2, ok) if s and not o),
-                            np.where(ok, err, np.nan), fit_e, th_e, je, tje, bone_groups, joint_groups)
+                            np.where(ok, err, np.nan), fit_e, th_e, je, tje, bone_groups, joint_groups,
+                            int(r_found.sum()), int((r_right & truth.visible).sum()), int(r_wrong.sum()))
 
 
 # --- the result -------------------------------------------------------------------------------
@@ -880,6 +1058,9 @@ class PuppetResult:
         Against the truth, for synthetic captures.
     files : list of str or None
         The photo of every view.
+    raw_observations : ndarray, shape (n_views, n_markers, 2), or None
+        The colour-only identification, before :func:`reidentify` named the candidates after
+        the 3D markers (None when it did not run); ``markers.observations`` is the final one.
     """
 
     rig: Rig
@@ -894,6 +1075,7 @@ class PuppetResult:
     timings_s: dict = field(default_factory=dict)
     comparison: PuppetComparison | None = None
     files: list | None = None
+    raw_observations: np.ndarray | None = None
 
     @property
     def names(self) -> tuple:
@@ -950,6 +1132,8 @@ class PuppetResult:
             "cameras": list(self.view_names),
             "angles_deg": [None if a is None else float(a) for a in self.angles_deg],
             "markers_px": [[[_num(c) for c in p] for p in v] for v in m.observations],  # as truth.json: [null, null]
+            "markers_px_colour": None if self.raw_observations is None else
+            [[[_num(c) for c in p] for p in v] for v in self.raw_observations],
             "used": m.used.astype(bool).tolist(),
             "partial": m.partial.astype(bool).tolist(),
             "outlier": m.outlier.astype(bool).tolist(),
@@ -1045,15 +1229,22 @@ def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = N
     else:
         obs = np.asarray(observations, float)
     t0 = time.perf_counter()
-    solve = solve_markers(rig, obs, markerset.names, images, settings,
-                          bead_radius_m=0.5 * float(np.mean([m.diameter for m in markerset.markers])), radii_px=radii)
+    bead_r = 0.5 * float(np.mean([m.diameter for m in markerset.markers]))
+    solve = solve_markers(rig, obs, markerset.names, images, settings, bead_radius_m=bead_r, radii_px=radii)
+    raw_obs = None
+    if views is not None and settings.reidentify:
+        raw_obs = obs
+        final = reidentify(rig, solve.points, views, bead_r, settings.reid_gate, settings.reid_colour)
+        same = np.array_equal(np.isnan(final), np.isnan(obs)) and np.allclose(final, obs, equal_nan=True)
+        if not same:
+            solve = solve_markers(rig, final, markerset.names, images, settings, bead_radius_m=bead_r, radii_px=None)
     timings["triangulate"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fit = fit_pose(skeleton, markerset, solve.points, root2world, marker_sigma_m=settings.marker_sigma_m)
     timings["pose"] = time.perf_counter() - t0
     result = PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
                           list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
-                          settings, views, dict(source or {}), timings, None, list(files) if files else None)
+                          settings, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs)
     if truth is not None:
         result.comparison = compare_with_truth(result, truth)
     return result
