@@ -14,8 +14,8 @@ Protocol (the issue's benchmark spec):
   do not depend on ``calibrate``), its ``rig.json`` replaced by the calibrated rig, the four photos
   written as JPEG (quality 92 by default, as a camera would) or PNG into a temp capture folder.
 - Timing, in the same run and on the same files: decoding the 4 photos (``cv2.imread``) vs the
-  end-to-end pipeline (``Capture.load`` + ``analyse_pitch`` with its defaults, 200 Monte Carlo
-  samples included).
+  end-to-end pipeline (``Capture.load`` + ``analyse_pitch`` with its defaults, the metrics'
+  uncertainties included).
 - Errors against ``truth.json`` come from the pipeline's own ``compare_with_truth``
   (``PitchResult.truth``): position = distance to the true centre at the same flash; speed and
   velocity direction = fitted velocity vs the true velocity at the front pair's first ball image;

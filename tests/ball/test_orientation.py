@@ -283,3 +283,21 @@ def test_seed_method_bad_weights():
     times, obs, _, _ = scenario(0)
     with pytest.raises(ValueError, match="a1 > 0"):
         fit_spin_seed(times, obs, a1=0.0)
+
+
+def test_spin_init_with_orientation_gives_the_same_fit_with_one_start():
+    """A full start (spin and orientation at t0, as the pitch pipeline passes from a pair's own
+    fit) that explains the markers skips the per-flash alignments and gives the same fit as the
+    search over starts."""
+    times, obs, R0, w = scenario(11, rpm=2000.0, sparse=0, noise_deg=0.5)
+    ref = fit_spin(times, obs, spin_init=w * 1.002)
+    fast = fit_spin(times, obs, spin_init=w * 1.002, ball2world_init=ref.ball2world_t0)
+    assert fast.success and ref.success
+    np.testing.assert_allclose(fast.spin, ref.spin, atol=1e-6)
+    np.testing.assert_allclose(fast.spin_covariance, ref.spin_covariance, rtol=1e-5, atol=1e-12)
+    assert fast.n_inliers == ref.n_inliers
+    # a wrong orientation start is not trusted: the fit falls back to the per-flash anchors
+    wrong = Rotation.from_rotvec([0.0, 2.0, 0.0]).as_matrix() @ ref.ball2world_t0
+    back = fit_spin(times, obs, spin_init=w * 1.002, ball2world_init=wrong)
+    assert rot_err_deg(back.ball2world_t0, ref.ball2world_t0) < 0.1
+    np.testing.assert_allclose(back.spin, ref.spin, atol=1e-6)

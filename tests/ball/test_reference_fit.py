@@ -141,3 +141,37 @@ def test_bad_input():
         fit_reference_trajectory(np.arange(4.0), np.zeros((4, 3)), P0, V0, method="nelder")
     with pytest.raises(ValueError, match="non-zero"):
         spin_basis([0, 0, 0])
+
+
+@pytest.mark.parametrize("kind", ["seed", "nathan"])
+def test_fit_without_spin_starts_from_the_curvature_and_reaches_the_same_optimum(kind, monkeypatch):
+    """Regression (issue 3, speed): started at zero spin, the positions-only fit of a studio
+    3000 rpm pitch crawled (the seed model's lift grows as |w| w: no gradient at w = 0) for ~3000
+    residual evaluations; the curvature start took 5. The start must not change the optimum."""
+    import stillcap.ball.fit as fit_mod
+
+    model = FlightModel(kind=kind)
+    spin = spin_vector(3000.0, 210.0, V0, efficiency=0.95)
+    times, truth, gap = seed_capture(model, spin=spin)
+    meas = truth + np.random.default_rng(7).normal(0, 0.0005, truth.shape)
+    b = spin_basis(V0)
+    start = b.T @ fit_mod._spin_start(times, meas, model)
+    true = b.T @ spin
+    assert np.linalg.norm(start[1:] - true[1:]) < 0.25 * np.linalg.norm(true[1:])  # transverse spin
+    fit = fit_reference_trajectory(times, meas, P0, V0 + [0.1, 0.2, -0.1], None, model)
+    assert fit.success
+    assert np.all(np.abs(fit.params[7:] - true[1:]) < 4 * fit.param_sigma[7:])
+    monkeypatch.setattr(fit_mod, "_spin_start", lambda *a, **k: np.zeros(3))
+    zero = fit_reference_trajectory(times, meas, P0, V0 + [0.1, 0.2, -0.1], None, model)
+    assert np.all(np.abs(fit.params - zero.params) < 0.05 * fit.param_sigma)
+    assert fit.nfev <= zero.nfev
+
+
+def test_spin_start_of_a_spinless_flight_is_near_zero():
+    from stillcap.ball.fit import _spin_start
+
+    model = FlightModel(kind="seed")
+    t = np.linspace(0.0, 0.4, 10)
+    flight = simulate(P0, V0, np.zeros(3), t, model).positions  # gravity and drag only
+    assert np.linalg.norm(_spin_start(t, flight, model)) < 10.0  # rad/s (< 100 rpm)
+    assert np.all(_spin_start(t[:3], flight[:3], model) == 0.0)  # too few points

@@ -318,6 +318,47 @@ class _Problem:
         return J
 
 
+def _spin_start(times, positions, model, max_rate: float = 600.0) -> np.ndarray:
+    """A starting spin for a fit without a measured one: the transverse spin whose Magnus
+    acceleration matches the curvature of a quadratic through the positions (the gravity and
+    drag of the model taken out), rad/s; zeros when the positions show no curvature.
+
+    Starting at zero spin stalls the least-squares fit: the seed model's lift grows as ``|w| w``,
+    so the residuals' derivative with respect to the spin vanishes at ``w = 0`` and Gauss-Newton
+    crawls (3000 residual evaluations instead of 500 for a 3000 rpm pitch).
+    """
+    ok = np.all(np.isfinite(positions), axis=1)
+    if ok.sum() < 4 or np.ptp(times[ok]) <= 0:
+        return np.zeros(3)
+    tc = times[ok] - times[ok].mean()
+    coef, *_ = np.linalg.lstsq(np.vander(tc, 3), positions[ok], rcond=None)
+    a_meas, v_mid = 2.0 * coef[0], coef[1]
+    speed = float(np.linalg.norm(v_mid))
+    if not speed > 0:
+        return np.zeros(3)
+    e = v_mid / speed
+    a_free = np.asarray(model.acceleration(v_mid, np.zeros(3)), float)
+    a_t = a_meas - a_free
+    a_t = a_t - e * (a_t @ e)
+    target = float(np.linalg.norm(a_t))
+    if not np.isfinite(target) or target < 1e-6:
+        return np.zeros(3)
+    w_dir = np.cross(v_mid, a_t)
+    w_dir /= np.linalg.norm(w_dir)
+    rates = np.linspace(0.0, max_rate, 121)
+    acc = np.asarray(model.acceleration(np.broadcast_to(v_mid, (len(rates), 3)), rates[:, None] * w_dir), float)
+    mag = acc - a_free
+    mag = np.linalg.norm(mag - np.outer(mag @ e, e), axis=1)
+    above = np.flatnonzero(mag >= target)
+    if not len(above):
+        return max_rate * w_dir
+    i = int(above[0])
+    if i == 0:
+        return np.zeros(3)
+    rate = rates[i - 1] + (target - mag[i - 1]) / (mag[i] - mag[i - 1]) * (rates[i] - rates[i - 1])
+    return rate * w_dir
+
+
 def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightModel | None = None,
                              *, t0: float | None = None, method: str = "least_squares",
                              position_sigma: float = 0.002, priors: FitPriors | None = None,
@@ -400,7 +441,7 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
         # velocity turns during the flight (gravity), so spin along the initial velocity is
         # weakly observable, and fixing it at 0 would bias the transverse part.
         spin_meas = None
-        s_meas = np.zeros(3)
+        s_meas = basis.T @ _spin_start(times + np.concatenate([[0.0], off0])[group_idx], positions, model)
         sigmas[6:9] = np.inf
     else:
         spin_meas = as_array(spin, (3,), "spin")

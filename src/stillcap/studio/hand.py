@@ -43,6 +43,7 @@ from stillcap.body.hand import hand_markerset, hand_pose, hand_skeleton, marker_
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.camera import Camera, Rig, pose_matrix
+from stillcap.geometry.marker_points import lit_sphere_centroids
 from stillcap.io.capture import Capture, CaptureImage, from_jsonable
 from stillcap.studio.pitch import (AMBIENT, DEFAULT_VARIATION, PRESETS, ROOM, ReleaseState, ReleaseVariation,
                                    _ball_poses, _check_size, _flight_model, _in_view, ball_sphere,
@@ -518,8 +519,8 @@ class HandCapture:
 
     ``to_capture(ext)`` gives the capture folder content ``(Capture, {file: image})``: kind
     ``hand``, per image ``strobe_hz``, ``shutter_s`` and ``meta.pair``; capture meta
-    ``rig_calibrated: false``, ``rig_source``, ``pairs``, ``flash_times``, ``preset``,
-    ``skeleton``, ``markerset``.
+    ``rig_calibrated: false``, ``rig_source``, ``pairs``, ``flash_times``, ``strobe_position_m``
+    (the strobe, measured with the rig), ``preset``, ``skeleton``, ``markerset``.
     """
 
     rig: HandRig
@@ -550,22 +551,12 @@ class HandCapture:
             "preset": t.preset,
             "pairs": {k: list(v) for k, v in self.rig.pairs.items()},
             "flash_times": "known" if self.known_flash_times else "unknown (free-running strobe)",
+            "strobe_position_m": [float(v) for v in self.rig.light.position],
             "skeleton": self.motion.skeleton.name,
             "markerset": self.markerset.name,
         }
         cap = Capture("hand", self.rig.rig, imgs, t.to_dict(), meta)
         return cap, dict(zip(files, self.images))
-
-
-def _fibonacci_sphere(n: int) -> np.ndarray:
-    k = np.arange(n) + 0.5
-    z = 1 - 2 * k / n
-    phi = k * np.pi * (3 - np.sqrt(5))
-    rr = np.sqrt(1 - z * z)
-    return np.stack([rr * np.cos(phi), rr * np.sin(phi), z], 1)
-
-
-_SPHERE_SAMPLES = _fibonacci_sphere(1200)
 
 
 def lit_centroids(cam: Camera, centres, radius: float, light_position, occluders=None, own=None) -> np.ndarray:
@@ -574,26 +565,20 @@ def lit_centroids(cam: Camera, centres, radius: float, light_position, occluders
 
     With the strobe behind the pitcher and the cameras to the sides, a marker is partly lit
     (a half moon, like the pitch scenario's back balls): its blob centroid lies up to ~0.6
-    marker radii from the projected centre, toward the light. Computed by projecting evenly
-    spread surface points weighted by ``max(n.l, 0) / d_light^2`` times their foreshortening
-    (visible side only; matches the renderer within 0.02 px); ambient light and shadows are
-    neglected. ``occluders`` (``(body, body2world)`` pairs) hide the surface points behind
-    them, except the body ``own[i]`` (the sphere itself) for sphere ``i``.
+    marker radii from the projected centre, toward the light. The unoccluded model is the
+    pipeline's :func:`stillcap.geometry.marker_points.lit_sphere_centroids` (1200 surface points
+    weighted by ``max(n.l, 0) / d_light^2`` times their foreshortening; matches the renderer
+    within 0.02 px; ambient light and shadows are neglected). ``occluders`` (``(body,
+    body2world)`` pairs) hide the surface points behind them, except the body ``own[i]`` (the
+    sphere itself) for sphere ``i``.
     """
     c = np.atleast_2d(np.asarray(centres, float))
-    n = _SPHERE_SAMPLES
-    pts = c[:, None] + radius * n[None]  # (N, S, 3)
-    to_cam = cam.center - pts
-    dist_c = np.linalg.norm(to_cam, axis=-1)
-    fore = np.einsum("sa,nsa->ns", n, to_cam) / dist_c
-    to_l = np.asarray(light_position, float) - pts
-    dl = np.linalg.norm(to_l, axis=-1)
-    lit = np.einsum("sa,nsa->ns", n, to_l) / dl
-    w = np.where(fore > 0, fore, 0) * np.clip(lit, 0, None) / dl ** 2
-    if occluders is not None:
+
+    def hide(pts, w):
         sel = w > 0
-        d = -to_cam[sel] / dist_c[sel][:, None]  # rays from the camera to the surface points
-        t_pt = dist_c[sel]
+        to_cam = cam.center - pts[sel]
+        t_pt = np.linalg.norm(to_cam, axis=-1)
+        d = -to_cam / t_pt[:, None]  # rays from the camera to the surface points
         owner = np.broadcast_to(np.asarray(own)[:, None], w.shape)[sel]
         o = cam.center
         blocked = np.zeros(len(d), bool)
@@ -601,10 +586,11 @@ def lit_centroids(cam: Camera, centres, radius: float, light_position, occluders
             R, p = T[:3, :3], T[:3, 3]
             t = _hit(body, R.T @ (o - p), d @ R)
             blocked |= (t < t_pt - 1e-6) & (owner != j)
+        w = w.copy()
         w[sel] = np.where(blocked, 0.0, w[sel])
-    px = cam.project(pts.reshape(-1, 3)).reshape(pts.shape[:2] + (2,))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.einsum("ns,nsa->na", w, px) / w.sum(axis=1)[:, None]
+        return w
+
+    return lit_sphere_centroids(cam, c, radius, light_position, 1200, hide if occluders is not None else None)
 
 
 def _truth_per_camera(cam: Camera, placed_per_flash: list, marker_idx: list, ball_idx: int, ball_radius: float,
