@@ -3,7 +3,6 @@ import pytest
 
 from stillcap.geometry.epipolar import epipolar_distances, fundamental_matrix, match_epipolar
 
-from support import ring_rig
 
 
 def test_fundamental_matrix_satisfied_by_true_correspondences(rig4):

@@ -1,7 +1,6 @@
 """Calibration from photos the studio rendered through known cameras recovers those cameras."""
 
 import numpy as np
-import pytest
 
 from stillcap.calibrate import calibrate_intrinsics, calibrate_rig, calibrate_rig_from_points, Chessboard
 from stillcap.studio.scenes import chessboard_set, default_camera, marker_rig, rig_board_set

@@ -42,7 +42,7 @@ from stillcap.body.kinematics import _marker_array, rigid_alignment
 from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.skeleton import Joint, Pose, Skeleton
 
-__all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLOURS", "SCALE_GROUPS", "HandFit", "fit_hand", "hand_dofs",
+__all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLOURS", "SCALE_GROUPS", "HandFit", "fit_hand", "fit_hand_poses", "hand_dofs",
            "hand_markerset", "hand_pose", "hand_skeleton", "marker_colours", "personalise_hand", "scale_groups",
            "scale_hand", "same_colour_min_distance"]
 
@@ -259,7 +259,7 @@ def _fk_markers(parents, order, offsets, moffsets, mframes, r2w, local):
 
 
 def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_scale: bool = False,
-             initial: Pose | None = None, regularise: float = 1e-4) -> HandFit:
+             initial: Pose | None = None, regularise: float = 1e-4, weights=None) -> HandFit:
     """Fit the hand's root pose and joint angles (and optionally its scale) to measured markers.
 
     Parameters
@@ -278,6 +278,9 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     regularise : float
         Weight (m per radian) pulling each angle toward its start, so that joints no seen
         marker constrains stay put.
+    weights : array_like, shape (n_markers,), optional
+        Relative weight of each marker's residual (default 1): e.g. the inverse of its position
+        uncertainty relative to the others, so that a doubtful point bends the hand less.
 
     Returns
     -------
@@ -285,6 +288,9 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     """
     pts = _marker_array(markerset, marker_positions)
     seen = np.all(np.isfinite(pts), axis=1)
+    w = np.ones(len(pts)) if weights is None else as_array(weights, (len(pts),), "weights")
+    if not np.all(np.isfinite(w[seen]) & (w[seen] > 0)):
+        raise ValueError("weights of the seen markers must be finite and > 0")
     back = [markerset.index(n) for n in BACK_MARKERS]
     if not seen[back].all():
         raise ValueError(f"fitting a hand needs the back-of-hand markers {list(BACK_MARKERS)} seen, "
@@ -326,7 +332,7 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
         r2w, ang, s = unpack(x)
         local = Rotation.from_euler("XYZ", ang).as_matrix()
         p = _fk_markers(parents, order, offsets * s[gidx][:, None], moffsets * s[mg][:, None], frames, r2w, local)
-        res = (p - pts)[seen].ravel()
+        res = ((p - pts) * w[:, None])[seen].ravel()
         return np.concatenate([res, regularise * (x[6:6 + len(dofs)] - a0)])
 
     lb = np.concatenate([np.full(6, -np.inf), lo, np.full(n_s, np.log(0.5))])
@@ -354,3 +360,104 @@ def personalise_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     Keyword arguments go to :func:`fit_hand`.
     """
     return fit_hand(skeleton, markerset, marker_positions, fit_scale=True, **kw)
+
+
+def fit_hand_poses(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_scale: bool = True,
+                   initial=None, regularise: float = 1e-4) -> tuple[dict, list[HandFit]]:
+    """Fit several poses of one hand at once, sharing its scale factors (a joint personalisation).
+
+    Every pose has its own root pose and joint angles (as :func:`fit_hand`); with ``fit_scale``
+    one factor per :data:`SCALE_GROUPS` is shared by all poses, so markers seen in any flash
+    fix the bone lengths. One least-squares problem over all poses, started from each pose's
+    own :func:`fit_hand`.
+
+    Parameters
+    ----------
+    skeleton, markerset
+    marker_positions : array_like, shape (n_poses, n_markers, 3)
+        NaN for unseen markers; every pose needs its back-of-hand markers.
+    fit_scale : bool
+    initial : sequence of Pose or None, optional
+        Start per pose (default: each pose's own :func:`fit_hand` on the unscaled hand).
+    regularise : float
+        As :func:`fit_hand`.
+
+    Returns
+    -------
+    scales : dict
+    fits : list of HandFit
+        One per pose, on the scaled hand.
+    """
+    pts_all = as_array(marker_positions, (None, len(markerset), 3), "marker_positions")
+    n = len(pts_all)
+    if n == 0:
+        raise ValueError("fit_hand_poses needs at least one pose, got 0")
+    initial = [None] * n if initial is None else list(initial)
+    if len(initial) != n:
+        raise ValueError(f"initial must have {n} entries (one per pose), got {len(initial)}")
+    starts = [fit_hand(skeleton, markerset, p, initial=i, regularise=regularise) for p, i in zip(pts_all, initial)]
+    if not fit_scale:
+        return {g: 1.0 for g in SCALE_GROUPS}, starts
+    frames = markerset.bone_frames(skeleton)
+    dofs = hand_dofs(skeleton)
+    nd = len(dofs)
+    groups = scale_groups(skeleton)
+    gidx = np.array([SCALE_GROUPS.index(g) for g in groups])
+    mg = np.array([gidx[skeleton.index(m.bone)] for m in markerset.markers])
+    offsets, moffsets = skeleton.offsets, markerset.offsets
+    parents, order = skeleton.parents, skeleton.depth_first
+    lim = np.radians(skeleton.limits_deg)
+    lo = np.array([lim[i, a, 0] if np.isfinite(lim[i, a, 0]) else -np.pi for i, a in dofs])
+    hi = np.array([lim[i, a, 1] if np.isfinite(lim[i, a, 1]) else np.pi for i, a in dofs])
+    seen = np.all(np.isfinite(pts_all), axis=2)
+    npp = 6 + nd
+    ns = len(SCALE_GROUPS)
+    x0, a0s = [], []
+    for f in starts:
+        ang = np.radians(skeleton.limit_angles_deg(f.pose.local_rotations))
+        a = np.clip([ang[i, ax] for i, ax in dofs], lo, hi)
+        a0s.append(a)
+        x0.append(np.concatenate([Rotation.from_matrix(f.pose.root2world[:3, :3]).as_rotvec(),
+                                  f.pose.root2world[:3, 3], a]))
+    x0 = np.concatenate(x0 + [np.zeros(ns)])
+
+    def unpack(xp):
+        r2w = np.eye(4)
+        r2w[:3, :3] = Rotation.from_rotvec(xp[:3]).as_matrix()
+        r2w[:3, 3] = xp[3:6]
+        ang = np.zeros((skeleton.n_joints, 3))
+        for (i, a), v in zip(dofs, xp[6:]):
+            ang[i, a] = v
+        return r2w, ang
+
+    def residual(x):
+        s = np.exp(x[n * npp:])
+        out = []
+        for k in range(n):
+            r2w, ang = unpack(x[k * npp:(k + 1) * npp])
+            local = Rotation.from_euler("XYZ", ang).as_matrix()
+            p = _fk_markers(parents, order, offsets * s[gidx][:, None], moffsets * s[mg][:, None], frames, r2w, local)
+            out.append((p - pts_all[k])[seen[k]].ravel())
+            out.append(regularise * (x[k * npp + 6:(k + 1) * npp] - a0s[k]))
+        return np.concatenate(out)
+
+    lb = np.concatenate([np.concatenate([np.full(6, -np.inf), lo]) for _ in range(n)] + [np.full(ns, np.log(0.5))])
+    ub = np.concatenate([np.concatenate([np.full(6, np.inf), hi]) for _ in range(n)] + [np.full(ns, np.log(2.0))])
+    x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
+    # dense finite differences: ~30 parameters per pose plus 6 scales stay cheap, and the dense
+    # trust-region solver converges in far fewer steps than the sparse (lsmr) one
+    sol = least_squares(residual, x0, bounds=(lb, ub), x_scale="jac", xtol=1e-10, ftol=1e-10, gtol=1e-10,
+                        max_nfev=200)
+    s = np.exp(sol.x[n * npp:])
+    scales = dict(zip(SCALE_GROUPS, (float(v) for v in s)))
+    sk, ms = scale_hand(skeleton, markerset, scales)
+    fits = []
+    for k in range(n):
+        r2w, ang = unpack(sol.x[k * npp:(k + 1) * npp])
+        pose = Pose(sk, r2w, Rotation.from_euler("XYZ", ang).as_matrix())
+        d = np.linalg.norm(ms.positions(pose) - pts_all[k], axis=1)
+        d[~seen[k]] = np.nan
+        rms = float(np.sqrt(np.nanmean(d ** 2)))
+        fits.append(HandFit(pose, sk, ms, scales, np.degrees(ang), d, rms, int(seen[k].sum()),
+                            bool(sol.success) and rms < 0.005, str(sol.message)))
+    return scales, fits

@@ -22,5 +22,5 @@ __all__ = [
     "calibrate_intrinsics", "calibrate_intrinsics_from_points", "calibrate_rig", "calibrate_rig_from_points",
     "calibrate_stereo", "calibrate_stereo_from_detections", "split_stereo_images", "detect_target", "detect_targets", "initial_rig_poses", "pair_stereo_images",
     "parse_pattern", "pose_from_board", "pose_from_detection", "pose_from_object", "pose_from_points",
-    "read_gray", "reprojection_rms",
+    "read_gray", "reprojection_rms", "rig_images_from_folder",
 ]

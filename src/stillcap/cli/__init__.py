@@ -14,7 +14,7 @@ from rich.console import Console
 
 from stillcap.cli import calibrate, demo, markers, studio
 from stillcap.cli import export as export_cli, palette as palette_cli, puppet as puppet_cli
-from stillcap.cli import pitch as pitch_cli
+from stillcap.cli import hand as hand_cli, pitch as pitch_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   help="stillcap: optical motion capture from still photographs.")
@@ -26,6 +26,7 @@ app.add_typer(puppet_cli.app, name="puppet")
 app.command("export")(export_cli.export)
 app.command("palette")(palette_cli.palette)
 app.command("pitch")(pitch_cli.pitch)
+app.command("hand")(hand_cli.hand)
 
 err = Console(stderr=True)
 

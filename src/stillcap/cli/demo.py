@@ -13,11 +13,13 @@ from rich.table import Table
 from stillcap.io.atomic import write_text
 
 console = Console()
-DEMOS = ("rig", "puppet", "pitch")
+DEMOS = ("rig", "pitch", "hand", "puppet")
+#: What ``stillcap demo`` (``all``) runs, in turn.
+ALL = ("pitch", "hand", "puppet")
 
 
 def demo(
-    which: str = typer.Argument("all", help=f"Which demo: {', '.join(DEMOS)} or all."),
+    which: str = typer.Argument("all", help=f"Which demo: {', '.join(DEMOS)}, or all ({', '.join(ALL)})."),
     out: Path = typer.Option(Path("stillcap-demo"), "--out", help="Folder for the captures, results and plots."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the synthetic capture."),
 ):
@@ -27,25 +29,84 @@ def demo(
     camera, then bundle adjustment of the rig), and coloured marker balls rendered in a second
     capture are detected, matched across views and triangulated.
 
+    pitch: a multi-exposure pitch through two calibrated stereo pairs: positions, spin, the
+    physics-validated flight, the seed's Table 1 against the truth, metrics and an HTML report.
+
+    hand: the pitcher's gloved hand around release in four cameras and one strobe: glove markers
+    labelled automatically, hand poses per flash, a smooth animation, the ball's release, a
+    report with an animated GIF, and BVH, glTF and C3D exports.
+
     puppet: the thesis's turntable webcam photographs a posed puppet; beads are detected,
     identified, triangulated, the skeleton posed and exported (COLLADA, BVH, glTF, C3D).
 
-    pitch: a multi-exposure pitch through two calibrated stereo pairs: positions, spin, the
-    physics-validated flight, the seed's Table 1 against the truth, metrics and an HTML report.
+    all (the default) runs pitch, hand and puppet in turn and prints one summary.
     """
     if which not in DEMOS + ("all",):
         raise ValueError(f"unknown demo {which!r}; choose one of {', '.join(DEMOS)} or all")
-    for name in DEMOS if which == "all" else (which,):
+    rows = []
+    for name in ALL if which == "all" else (which,):
         if name == "rig":
             rig_demo(out / "rig", seed)
         elif name == "puppet":
             from stillcap.cli.demo_puppet import puppet_demo
 
-            puppet_demo(out / "puppet", seed)
+            rows += puppet_summary(puppet_demo(out / "puppet", seed))
         elif name == "pitch":
             from stillcap.cli.demo_pitch import pitch_demo
 
-            pitch_demo(out / "pitch", seed)
+            rows += pitch_summary(pitch_demo(out / "pitch", seed))
+        elif name == "hand":
+            from stillcap.cli.demo_hand import hand_demo
+
+            rows += hand_summary(hand_demo(out / "hand", seed))
+    if which == "all":
+        t = Table(title=f"stillcap demo: summary against the studio's truth (seed {seed}; results in {out})")
+        for c in ("demo", "quantity", "measured", "goal"):
+            t.add_column(c, justify="right" if c != "quantity" else "left")
+        for r in rows:
+            t.add_row(*r)
+        console.rule()
+        console.print(t)
+
+
+def _g(v, fmt: str) -> str:
+    return "-" if v is None or v != v else format(v, fmt)
+
+
+def pitch_summary(res) -> list:
+    c = (res.truth or {}).get("table1", {})
+    return [("pitch", "ball position error, mean", f"{_g(c.get('mean_err_mm'), '.2f')} mm", "<= 2 mm"),
+            ("pitch", "release speed error", f"{_g(abs(c.get('speed_diff_mph') or float('nan')), '.3f')} mph", "<= 0.1 mph"),
+            ("pitch", "velocity direction error", f"{_g(c.get('velocity_angle_deg'), '.3f')} deg", "<= 0.2 deg"),
+            ("pitch", "spin rate error", f"{_g(abs(c.get('spin_rate_diff_rpm') or float('nan')), '.2f')} rpm", "<= 3 rpm"),
+            ("pitch", "spin axis error", f"{_g(c.get('spin_axis_angle_deg'), '.2f')} deg", "<= 0.5 deg")]
+
+
+def hand_summary(res) -> list:
+    c = res.truth or {}
+    rows = [("hand", "labels right", f"{_g(c.get('labels_right_pct'), '.1f')} %", ">= 99.5 %"),
+            ("hand", "marker 3D error, RMS", f"{_g(c.get('marker_rms_mm'), '.2f')} mm", "<= 1 mm"),
+            ("hand", "joint angle error, RMS", f"{_g(c.get('joint_angle_rms_deg'), '.2f')} deg", "<= 2 deg"),
+            ("hand", "flashes with a pose", f"{c.get('flashes_reconstructed', '-')} of {c.get('flashes_true', '-')}",
+             "back of the hand in 2+ cameras")]
+    if "release_speed_mph" in c:
+        rows.append(("hand", "release speed error", f"{_g(abs(c['release_speed_mph']), '.2f')} mph", "-"))
+    return rows
+
+
+def puppet_summary(res) -> list:
+    import numpy as np
+
+    c = res.comparison
+    if c is None:
+        return []
+    e = c.marker_errors_m[np.isfinite(c.marker_errors_m)] * 1e3
+    bones = np.array([v for v in c.bone_errors_deg.values() if v == v])
+    return [("puppet", "beads identified wrong", f"{c.wrong} of {c.identified}", "0"),
+            ("puppet", "markers seen twice, recovered", f"{c.recovered_seen_twice} of {c.seen_twice}", "all"),
+            ("puppet", "marker 3D error, RMS", f"{np.sqrt(np.mean(e ** 2)):.3f} mm" if len(e) else "-", "<= 0.3 mm"),
+            ("puppet", "bone direction error, RMS (all bones)",
+             f"{np.sqrt(np.mean(bones ** 2)):.2f} deg" if len(bones) else "-", "<= 0.5 deg")]
 
 
 def rig_demo(out: Path, seed: int) -> None:

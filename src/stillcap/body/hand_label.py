@@ -1,0 +1,713 @@
+"""Automatic labelling of the glove's markers in one multi-exposure capture (SPEC J2, issue 5).
+
+Input: unlabelled 3D marker points of all flashes mixed, ``points`` (N, 3) in the field frame
+(metres) and their glove colour names ``colours`` (N,) (:data:`stillcap.body.hand.HAND_COLOURS`).
+Output: :class:`HandLabels`, the points grouped into flashes, ordered in time, each labelled with
+a marker of the hand model (:func:`~stillcap.body.hand.hand_markerset`). See
+``docs/hand-labelling.md``.
+
+The method (:func:`label_hand_markers`):
+
+1. **Back-of-hand triplets.** The three back markers (:data:`~stillcap.body.hand.BACK_MARKERS`)
+   have three different colours and known mutual distances (a scalene triangle of 44, 52 and
+   58 mm), so every triple of points with those colours and distances is a candidate hand, and
+   the rigid alignment of the triangle gives its root pose.
+2. **Per-digit grid search.** Given a root pose, each digit's three markers depend only on that
+   digit's joint angles. A grid over the joint limits (15 degree steps, 3-10 thousand poses per
+   digit, vectorised forward kinematics precomputed in the hand frame) is scored against the
+   points of the right colours (squared distance to the nearest one, capped at a gate); the
+   best grid pose per digit gives a tentative labelling and the candidate's score (markers
+   matched). Candidates are accepted greedily, best first, each taking its points out of play.
+3. **Time order.** The hands are sorted along the throw direction (the hand travels toward
+   home plate, ``-y`` in the field frame, by 0.1-0.3 m between flashes of a 75 Hz strobe).
+4. **Fit and optimal assignment.** In time order, each hand is fitted (:func:`fit_hand`, the
+   previous flash's angles as a prior grid pose and start) and its labels re-assigned with
+   :func:`scipy.optimize.linear_sum_assignment` on the squared distance between the model's
+   markers and the points (a different colour is forbidden, a dummy column at the gate's cost
+   lets a marker stay unseen), alternating until the labels no longer change. Points farther
+   than the gate from every marker are left unassigned (spurious matches).
+5. **Skipped flashes.** Points left over are clustered (single linkage); a cluster of a few
+   points is a flash whose back-of-hand triplet was not found: it is reported with why, without
+   a pose (the seed's rule).
+
+Manual corrections (:func:`read_label_overrides`, :func:`apply_label_overrides`) name a point
+by its flash and 3D position (within a tolerance, so they survive re-runs) and relabel or
+delete it.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from stillcap._checks import as_array, as_rng
+from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLOURS, fit_hand, hand_markerset,
+                                hand_skeleton, marker_colours)
+from stillcap.body.kinematics import rigid_alignment
+from stillcap.body.markerset import MarkerSet
+from stillcap.body.skeleton import Pose, Skeleton
+from stillcap.io.capture import to_jsonable
+from stillcap.io.jsonfile import read_json
+
+__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "hand_points_from_truth", "label_hand_markers",
+           "read_label_overrides"]
+
+#: Tolerance on each side of the back-of-hand triangle (m): noise of both ends plus margin.
+TRIANGLE_TOL_M = 0.006
+#: Gate of the grid search (m): grid poses are 15 degrees apart, up to ~10 mm off at a nail.
+GRID_GATE_M = 0.020
+#: Gate of the final assignment (m): a point farther than this from its fitted marker is not it.
+GATE_M = 0.008
+#: Grid step of the per-digit search (degrees).
+GRID_STEP_DEG = 15.0
+#: A hand needs this many markers (its 3 back markers included) to count.
+MIN_MARKERS = 6
+#: Single-linkage distance (m) grouping left-over points into a skipped flash, and the points
+#: such a group needs.
+CLUSTER_LINK_M = 0.10
+MIN_SKIPPED_POINTS = 4
+#: Points farther than this from a hand's root cannot belong to it (m; the hand is 0.19 m long).
+REACH_M = 0.30
+#: Log-likelihood of a marker the grid pose puts near no point of its colour (a hit at the
+#: gate scores -2): an unseen marker is less likely than a seen one.
+_LOG_MISS = -np.log(100.0)
+
+_OVERRIDES_FORMAT = "stillcap-label-overrides"
+
+
+# --------------------------------------------------------------------------------------------
+# Result
+# --------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class HandLabels:
+    """Markers of one capture grouped into flashes, ordered in time and labelled.
+
+    Flashes are in time order (first flash first). ``n`` flashes, ``m`` markers, ``N`` points.
+
+    Attributes
+    ----------
+    marker_names, marker_colours : list of str
+        The marker set's markers and their colours (length m).
+    order : ndarray of int, shape (n,)
+        Strobe period of each flash counted from the first flash found (0, 1, 2, ...).
+    times : ndarray, shape (n,)
+        ``order / strobe_hz``: seconds after the first flash found.
+    strobe_hz : float
+    point_index : ndarray of int, shape (n, m)
+        The point labelled as each marker, -1 = none.
+    positions : ndarray, shape (n, m, 3)
+        The labelled points' positions (m); NaN = not seen.
+    reconstructed : ndarray of bool, shape (n,)
+        The flash has its back-of-hand markers and a fitted pose.
+    skipped : list of str
+        Why a flash has no pose ("" for reconstructed flashes).
+    members : list of ndarray of int
+        Points of each flash: its labelled points, and for a skipped flash the points of its
+        cluster.
+    unassigned : ndarray of int
+        Points labelled in no flash (spurious points, points of skipped flashes, rejected ones).
+    deleted : ndarray of int
+        Points removed by manual overrides.
+    rms : ndarray, shape (n,)
+        RMS of the fit's marker residuals per flash (m); NaN for skipped flashes.
+    fits : list of HandFit or None
+        The hand fit per flash (None when skipped).
+    points : ndarray, shape (N, 3)
+    colours : ndarray of str, shape (N,)
+    skeleton : Skeleton
+    markerset : MarkerSet
+    """
+
+    marker_names: list
+    marker_colours: list
+    order: np.ndarray
+    times: np.ndarray
+    strobe_hz: float
+    point_index: np.ndarray
+    positions: np.ndarray
+    reconstructed: np.ndarray
+    skipped: list
+    members: list
+    unassigned: np.ndarray
+    deleted: np.ndarray
+    rms: np.ndarray
+    fits: list
+    points: np.ndarray
+    colours: np.ndarray
+    skeleton: Skeleton = field(repr=False)
+    markerset: MarkerSet = field(repr=False)
+
+    @property
+    def n_flashes(self) -> int:
+        return len(self.order)
+
+    @property
+    def root2world(self) -> np.ndarray:
+        """Fitted root pose per flash, shape (n, 4, 4); NaN for skipped flashes."""
+        out = np.full((self.n_flashes, 4, 4), np.nan)
+        for k, f in enumerate(self.fits):
+            if f is not None:
+                out[k] = f.pose.root2world
+        return out
+
+    def labels(self) -> np.ndarray:
+        """Per point ``(flash, marker)`` indices, shape (N, 2); ``(-1, -1)`` when unlabelled."""
+        out = np.full((len(self.points), 2), -1, int)
+        for k, row in enumerate(self.point_index):
+            for j, p in enumerate(row):
+                if p >= 0:
+                    out[p] = (k, j)
+        return out
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict; keys shared with the hand truth (``flashes.markers``, ``times_s``,
+        ``root2world``), NaN written as null."""
+        return to_jsonable({
+            "kind": "hand-labels", "frame": "field", "units": {"length": "m", "time": "s (since the first flash found)"},
+            "strobe_hz": self.strobe_hz, "marker_names": list(self.marker_names),
+            "marker_colours": list(self.marker_colours), "n_points": len(self.points),
+            "flashes": {"order": self.order, "times_s": self.times, "point_index": self.point_index,
+                        "markers": self.positions, "reconstructed": self.reconstructed,
+                        "skipped": list(self.skipped), "rms_mm": self.rms * 1000, "root2world": self.root2world,
+                        "members": [m.tolist() for m in self.members]},
+            "unassigned": self.unassigned, "deleted": self.deleted,
+        })
+
+
+# --------------------------------------------------------------------------------------------
+# Per-digit grids
+# --------------------------------------------------------------------------------------------
+@dataclass
+class _Digit:
+    name: str
+    chain: list            # joint indices, parents first
+    markers: np.ndarray    # marker indices on the digit
+    grid: np.ndarray       # (G, len(chain), 3) angles, degrees
+    local: np.ndarray      # (G, len(markers), 3) marker positions in the root frame
+
+
+class _HandModel:
+    """The hand model's precomputed pieces for labelling."""
+
+    def __init__(self, skeleton: Skeleton, markerset: MarkerSet, step_deg: float):
+        self.skeleton, self.markerset = skeleton, markerset
+        self.frames = markerset.bone_frames(skeleton)
+        self.colours = np.asarray(marker_colours(markerset))
+        self.back = np.array([markerset.index(n) for n in BACK_MARKERS])
+        if np.any(self.frames[self.back] != skeleton.root):
+            raise ValueError(f"the back-of-hand markers {list(BACK_MARKERS)} must ride on the root joint")
+        if len(set(self.colours[self.back])) != 3:
+            raise ValueError("the back-of-hand markers must have three different colours")
+        self.back_model = markerset.offsets[self.back]
+        self.digits = []
+        names = skeleton.names
+        for d in DIGITS:
+            chain = [i for i in skeleton.depth_first if names[i].split("-")[0] == d]
+            mk = np.flatnonzero(np.isin(self.frames, chain))
+            if not chain or not len(mk):
+                continue
+            grid = self._grid(chain, step_deg)
+            dig = _Digit(d, chain, mk, grid, np.empty(0))
+            dig.local = self.digit_markers(dig, grid)
+            self.digits.append(dig)
+
+    def _grid(self, chain, step_deg):
+        lim = self.skeleton.limits_deg
+        axes = []
+        for i in chain:
+            for a in range(3):
+                lo, hi = lim[i, a]
+                if np.isnan(lo):
+                    lo, hi = -180.0, 180.0 - step_deg
+                n = 1 if hi <= lo else int(np.ceil((hi - lo) / step_deg)) + 1
+                axes.append(np.linspace(lo, hi, n))
+        mesh = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(chain), 3)
+        return mesh
+
+    def digit_markers(self, dig: _Digit, angles: np.ndarray) -> np.ndarray:
+        """Marker positions of a digit in the root frame for angles (G, len(chain), 3) degrees."""
+        sk = self.skeleton
+        g = len(angles)
+        local = Rotation.from_euler("XYZ", angles.reshape(-1, 3), degrees=True).as_matrix().reshape(g, -1, 3, 3)
+        R, t = {}, {}
+        for k, i in enumerate(dig.chain):  # vectorised forward kinematics over the grid
+            p = sk.parents[i]
+            if p == sk.root:
+                R[i], t[i] = local[:, k], np.broadcast_to(sk.offsets[i], (g, 3))
+            else:
+                R[i] = R[p] @ local[:, k]
+                t[i] = t[p] + R[p] @ sk.offsets[i]
+        out = np.empty((g, len(dig.markers), 3))
+        for k, m in enumerate(dig.markers):
+            f = self.frames[m]
+            out[:, k] = np.einsum("gij,j->gi", R[f], self.markerset.offsets[m]) + t[f]
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Labelling
+# --------------------------------------------------------------------------------------------
+def _triplets(points, colours, avail, model: _HandModel, tol):
+    """Candidate back-of-hand triplets: point indices (K, 3) in BACK_MARKERS order."""
+    bm = model.back_model
+    dist = {(a, b): np.linalg.norm(bm[a] - bm[b]) for a, b in ((0, 1), (0, 2), (1, 2))}
+    idx = [np.flatnonzero(avail & (colours == model.colours[b])) for b in model.back]
+    out = []
+    for i in idx[0]:
+        d1 = np.linalg.norm(points[idx[1]] - points[i], axis=1)
+        d2 = np.linalg.norm(points[idx[2]] - points[i], axis=1)
+        js = idx[1][np.abs(d1 - dist[0, 1]) < tol]
+        ks = idx[2][np.abs(d2 - dist[0, 2]) < tol]
+        for j in js:
+            for k in ks:
+                if abs(np.linalg.norm(points[j] - points[k]) - dist[1, 2]) < tol:
+                    out.append((i, j, k))
+    return np.array(out, int).reshape(-1, 3)
+
+
+def _root_pose(model: _HandModel, points, triplet) -> np.ndarray:
+    return rigid_alignment(model.back_model, points[triplet]).model2world
+
+
+def _grid_match(model: _HandModel, r2w, points, colours, avail, gate, prior=None):
+    """Best grid pose per digit for a root pose: ``(labels {marker: point}, angles (n_joints, 3),
+    n matched digit markers, cost)``."""
+    R, t = r2w[:3, :3], r2w[:3, 3]
+    near = avail & (np.linalg.norm(points - t, axis=1) < REACH_M)
+    trees = {}
+    for c in np.unique(model.colours):
+        sel = np.flatnonzero(near & (colours == c))
+        trees[c] = (cKDTree(points[sel]), sel) if len(sel) else None
+    labels, angles, n, cost = {}, np.zeros((model.skeleton.n_joints, 3)), 0, 0.0
+    for dig in model.digits:
+        grid, local = dig.grid, dig.local
+        if prior is not None:  # the neighbouring flash's pose competes with the grid
+            pa = prior[dig.chain][None]
+            grid = np.concatenate([grid, pa])
+            local = np.concatenate([local, model.digit_markers(dig, pa)])
+        world = local @ R.T + t
+        logw = np.zeros(len(grid))
+        hits = np.full((len(grid), len(dig.markers)), -1)
+        dists = np.full((len(grid), len(dig.markers)), np.inf)
+        for k, m in enumerate(dig.markers):
+            tr = trees[model.colours[m]]
+            if tr is None:
+                logw += _LOG_MISS
+                continue
+            d, j = tr[0].query(world[:, k], distance_upper_bound=gate)
+            ok = np.isfinite(d)
+            hits[ok, k] = tr[1][j[ok]]
+            dists[:, k] = d
+            logw += np.where(ok, -0.5 * (np.where(ok, d, 0) / (0.5 * gate)) ** 2, _LOG_MISS)
+        # choose the labelling, not the grid pose: the labelling with the most evidence (the sum
+        # of the grid poses' likelihoods that give it, a uniform prior over the angles within
+        # the limits). A lone yellow point on the ring finger fits its PIP marker for a whole
+        # range of PIP and DIP angles but its nail marker for few: it is the PIP.
+        uniq, inv = np.unique(hits, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        w = np.exp(logw - logw.max())
+        ev = np.bincount(inv, weights=w, minlength=len(uniq))
+        g = int(np.argmax(ev))
+        members = np.flatnonzero(inv == g)
+        b = int(members[np.argmax(logw[members])])
+        angles[dig.chain] = grid[b]
+        cost -= float(logw[b])
+        row, dr = hits[b], dists[b]
+        for k in np.argsort(dr):  # a point claimed twice within the digit goes to the nearer marker
+            if row[k] >= 0 and row[k] not in labels.values():
+                labels[int(dig.markers[k])] = int(row[k])
+                n += 1
+    return labels, angles, n, cost
+
+
+def _assign(model: _HandModel, predicted, points, colours, avail, gate, fixed):
+    """Optimal assignment of points to predicted markers (colour a hard constraint, a dummy
+    column per marker at the gate's cost); ``fixed`` {marker: point} are kept."""
+    m = len(predicted)
+    cand = np.flatnonzero(avail)
+    cand = cand[np.min(np.linalg.norm(points[cand][:, None] - predicted[None], axis=-1), axis=1) < gate]
+    cand = np.setdiff1d(cand, list(fixed.values()))
+    rows = np.array([i for i in range(m) if i not in fixed], int)
+    big = 1e6
+    d2 = np.sum((predicted[rows][:, None] - points[cand][None]) ** 2, axis=-1)
+    ok = (model.colours[rows][:, None] == colours[cand][None]) & (d2 < gate ** 2)
+    cost = np.concatenate([np.where(ok, d2, big), np.where(np.eye(len(rows), dtype=bool), gate ** 2, big)], axis=1)
+    r, c = linear_sum_assignment(cost)
+    out = dict(fixed)
+    for i, j in zip(r, c):
+        if j < len(cand) and cost[i, j] < big:
+            out[int(rows[i])] = int(cand[j])
+    return out
+
+
+def _fit_labels(model: _HandModel, points, labels, initial: Pose):
+    pos = np.full((len(model.markerset), 3), np.nan)
+    for mk, p in labels.items():
+        pos[mk] = points[p]
+    return fit_hand(model.skeleton, model.markerset, pos, initial=initial), pos
+
+
+def _label_flash(model, points, colours, avail, triplet, prior_angles, grid_gate, gate, max_iter=4):
+    """Labels and fit of one hand from its back-of-hand triplet."""
+    r2w = _root_pose(model, points, triplet)
+    labels, angles, _, _ = _grid_match(model, r2w, points, colours, avail, grid_gate, prior_angles)
+    fixed = {int(b): int(p) for b, p in zip(model.back, triplet)}
+    labels = {**{k: v for k, v in labels.items() if v not in fixed.values()}, **fixed}
+    initial = Pose(model.skeleton, np.eye(4), Rotation.from_euler("XYZ", angles, degrees=True).as_matrix())
+    fit, pos = _fit_labels(model, points, labels, initial)
+    for _ in range(max_iter):
+        pred = model.markerset.positions(fit.pose)
+        new = _assign(model, pred, points, colours, avail, gate, fixed)
+        if new == labels:
+            break
+        labels = new
+        fit, pos = _fit_labels(model, points, labels, fit.pose)
+    return labels, fit, pos
+
+
+def _check_inputs(points, colours, reprojection_px):
+    pts = as_array(points, (None, 3), "points")
+    cols = np.asarray(colours, dtype=object)
+    if cols.shape != (len(pts),):
+        raise ValueError(f"colours must have shape ({len(pts)},) like points, got {cols.shape}")
+    bad = sorted({str(c) for c in cols} - set(HAND_COLOURS))
+    if bad:
+        raise ValueError(f"colours must be names in {sorted(HAND_COLOURS)}, got {bad}")
+    rep = None
+    if reprojection_px is not None:
+        rep = as_array(reprojection_px, (len(pts),), "reprojection_px")
+    return pts, cols.astype(str), rep
+
+
+def label_hand_markers(points, colours, *, strobe_hz: float, skeleton: Skeleton | None = None,
+                       markerset: MarkerSet | None = None, throw_direction=(0.0, -1.0, 0.0), reprojection_px=None,
+                       max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
+                       gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
+                       min_markers: int = MIN_MARKERS) -> HandLabels:
+    """Group unlabelled hand markers into flashes, order them in time and label them.
+
+    Parameters
+    ----------
+    points : array_like, shape (N, 3)
+        Marker positions of all flashes mixed (field frame, metres); rows with NaN are ignored.
+    colours : array_like of str, shape (N,)
+        Each point's glove colour (a name of :data:`~stillcap.body.hand.HAND_COLOURS`).
+    strobe_hz : float
+        The strobe; flash ``k`` in time order is at ``k / strobe_hz`` after the first.
+    skeleton, markerset : optional
+        The hand (default :func:`hand_skeleton`, :func:`hand_markerset`; a personalised hand
+        labels a little better).
+    throw_direction : array_like, shape (3,)
+        Where the hand travels (default ``-y``, toward home plate): it orders the flashes.
+    reprojection_px : array_like, shape (N,), optional
+        Each point's reprojection error; with ``max_reprojection_px`` points above it are not used.
+    max_reprojection_px : float, optional
+    overrides : path, or sequence of LabelOverride, optional
+        Manual corrections applied at the end (:func:`apply_label_overrides`).
+    triangle_tol_m, gate_m, grid_gate_m, grid_step_deg, min_markers
+        Tuning (module constants).
+
+    Returns
+    -------
+    HandLabels
+    """
+    pts, cols, rep = _check_inputs(points, colours, reprojection_px)
+    strobe_hz = float(strobe_hz)
+    if not (np.isfinite(strobe_hz) and strobe_hz > 0):
+        raise ValueError(f"strobe_hz must be finite and > 0, got {strobe_hz}")
+    throw = as_array(throw_direction, (3,), "throw_direction")
+    if not np.linalg.norm(throw) > 0:
+        raise ValueError(f"throw_direction must be a non-zero vector, got {throw}")
+    throw = throw / np.linalg.norm(throw)
+    skeleton = skeleton or hand_skeleton()
+    markerset = markerset or hand_markerset()
+    model = _HandModel(skeleton, markerset, grid_step_deg)
+    usable = np.all(np.isfinite(pts), axis=1)
+    if rep is not None and max_reprojection_px is not None:
+        usable &= ~(rep > float(max_reprojection_px))
+
+    # 1-2. candidate hands from back-of-hand triplets, accepted greedily by grid score
+    avail = usable.copy()
+    cands = _triplets(pts, cols, avail, model, triangle_tol_m)
+    roots = [_root_pose(model, pts, c) for c in cands]
+    accepted = []
+    alive = np.ones(len(cands), bool)
+    while alive.any():
+        best, best_key, best_pts = -1, None, None
+        for i in np.flatnonzero(alive):
+            if not avail[cands[i]].all():
+                alive[i] = False
+                continue
+            lab, _, n, cost = _grid_match(model, roots[i], pts, cols, avail, grid_gate_m)
+            if n + 3 < min_markers:
+                alive[i] = False
+                continue
+            key = (n, -cost)
+            if best_key is None or key > best_key:
+                best, best_key, best_pts = i, key, list(lab.values())
+        if best < 0:
+            break
+        accepted.append(best)
+        alive[best] = False
+        avail[cands[best]] = False
+        avail[best_pts] = False
+
+    # 3. time order of the hands, by their points' centroid along the throw
+    def centroid(i):
+        lab, _, _, _ = _grid_match(model, roots[i], pts, cols, usable, grid_gate_m)
+        return np.mean(pts[list(lab.values()) + list(cands[i])], axis=0)
+
+    hands = [(float(centroid(i) @ throw), i) for i in accepted]
+
+    # 4. fit and label in time order, each flash starting from the previous one
+    avail = usable.copy()
+    results = {}
+    prior = None
+    for _, i in sorted(hands):
+        if not avail[cands[i]].all():
+            results[i] = None
+            continue
+        labels, fit, _ = _label_flash(model, pts, cols, avail, cands[i], prior, grid_gate_m, gate_m)
+        results[i] = (labels, fit)
+        avail[list(labels.values())] = False
+        prior = fit.angles_deg
+
+    # 5. left-over points: clusters are flashes without a back-of-hand triplet
+    flashes = []  # (position along the throw, labels or None, fit or None, members, reason)
+    for s, i in hands:
+        if results[i] is None:
+            continue
+        labels, fit = results[i]
+        flashes.append((s, labels, fit, np.array(sorted(labels.values()), int), ""))
+    left = np.flatnonzero(avail)
+    if len(left) >= MIN_SKIPPED_POINTS:
+        cl = fcluster(linkage(pts[left], "single"), CLUSTER_LINK_M, criterion="distance")
+        for c in np.unique(cl):
+            mem = left[cl == c]
+            if len(mem) < MIN_SKIPPED_POINTS:
+                continue
+            found = sorted({str(x) for x in cols[mem]} & set(model.colours[model.back]))
+            flashes.append((float(pts[mem].mean(axis=0) @ throw), None, None, mem,
+                            f"no back-of-hand triplet ({', '.join(BACK_MARKERS)}: colours "
+                            f"{', '.join(model.colours[model.back])} at the model's distances) among its "
+                            f"{len(mem)} points (back colours present: {', '.join(found) or 'none'})"))
+    flashes.sort(key=lambda f: f[0])
+
+    n, m = len(flashes), len(markerset)
+    point_index = np.full((n, m), -1, int)
+    for k, (_, labels, _, _, _) in enumerate(flashes):
+        for mk, p in (labels or {}).items():
+            point_index[k, mk] = p
+    out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
+                 [f[3] for f in flashes], np.array([], int))
+    if overrides is not None:
+        if isinstance(overrides, (str, os.PathLike)):
+            overrides = read_label_overrides(overrides)
+        out = apply_label_overrides(out, overrides)
+    return out
+
+
+def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, deleted) -> HandLabels:
+    n, m = point_index.shape
+    positions = np.where((point_index >= 0)[..., None], pts[np.maximum(point_index, 0)], np.nan)
+    used = set(point_index[point_index >= 0].tolist()) | set(np.asarray(deleted).tolist())
+    unassigned = np.array([i for i in range(len(pts)) if i not in used and np.all(np.isfinite(pts[i]))], int)
+    rms = np.array([np.nan if f is None else f.rms for f in fits])
+    order = np.arange(n)
+    return HandLabels(list(model.markerset.names), list(model.colours), order, order / strobe_hz, strobe_hz,
+                      point_index, positions, np.array([f is not None for f in fits], bool), list(skipped),
+                      [np.asarray(x, int) for x in members], unassigned, np.asarray(deleted, int), rms, list(fits),
+                      pts, cols, model.skeleton, model.markerset)
+
+
+# --------------------------------------------------------------------------------------------
+# Manual overrides
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LabelOverride:
+    """One manual correction: the point of ``flash`` nearest ``position`` (within
+    ``tolerance_m``) gets ``label``, or is deleted.
+
+    Attributes
+    ----------
+    flash : int
+        Flash in time order (:attr:`HandLabels.order`).
+    position : ndarray, shape (3,)
+        Where the point is (field frame, m).
+    label : str or None
+        A marker name; None with ``delete``.
+    delete : bool
+    tolerance_m : float
+    entry : str
+        How error messages name this entry (e.g. ``"override 3 in labels.json"``).
+    """
+
+    flash: int
+    position: np.ndarray
+    label: str | None = None
+    delete: bool = False
+    tolerance_m: float = 0.003
+    entry: str = "override"
+
+
+def read_label_overrides(path) -> list[LabelOverride]:
+    """Read manual label corrections from a JSON file.
+
+    Format (``docs/hand-labelling.md``)::
+
+        {"format": "stillcap-label-overrides", "version": 1, "tolerance_mm": 3,
+         "overrides": [{"flash": 1, "position_m": [x, y, z], "label": "index.nail"},
+                       {"flash": 2, "position_m": [x, y, z], "delete": true}]}
+
+    An entry may carry its own ``tolerance_mm``. Errors name the file and the entry.
+    """
+    data = read_json(path, "label overrides file")
+    where = f"label overrides file {path}"
+    if not isinstance(data, dict) or data.get("format", _OVERRIDES_FORMAT) != _OVERRIDES_FORMAT:
+        raise ValueError(f"{where}: expected a JSON object with format {_OVERRIDES_FORMAT!r}")
+    entries = data.get("overrides")
+    if not isinstance(entries, list):
+        raise ValueError(f"{where}: needs an 'overrides' list")
+    tol = _positive(data.get("tolerance_mm", 3.0), f"{where}: tolerance_mm") / 1000
+    out = []
+    for k, e in enumerate(entries):
+        name = f"override {k} in {path}"
+        if not isinstance(e, dict):
+            raise ValueError(f"{name} must be an object, got {type(e).__name__}")
+        unknown = set(e) - {"flash", "position_m", "label", "delete", "tolerance_mm", "comment"}
+        if unknown:
+            raise ValueError(f"{name} has unknown keys {sorted(unknown)}")
+        if not isinstance(e.get("flash"), int) or isinstance(e.get("flash"), bool):
+            raise ValueError(f"{name} needs an integer 'flash', got {e.get('flash')!r}")
+        try:
+            pos = as_array(e.get("position_m"), (3,), f"{name}: position_m")
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name} needs 'position_m' [x, y, z] in metres ({err})") from None
+        delete = bool(e.get("delete", False))
+        label = e.get("label")
+        if delete == (label is not None):
+            raise ValueError(f"{name} needs either a 'label' or \"delete\": true")
+        if label is not None and not isinstance(label, str):
+            raise ValueError(f"{name}: label must be a marker name, got {label!r}")
+        t = _positive(e["tolerance_mm"], f"{name}: tolerance_mm") / 1000 if "tolerance_mm" in e else tol
+        out.append(LabelOverride(e["flash"], pos, label, delete, t, name))
+    return out
+
+
+def _positive(v, what) -> float:
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number, got {v!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{what} must be finite and > 0, got {v}")
+    return v
+
+
+def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
+    """Apply manual corrections and refit the flashes they touch.
+
+    Each override finds, among all points not yet deleted, the one nearest its position; it
+    must lie within its tolerance. A relabel moves the point to ``(flash, label)`` (the point
+    that had that label becomes unassigned); a delete removes the point. A flash that gets its
+    three back-of-hand markers is fitted (so an override can rescue a skipped flash); one that
+    loses them is skipped.
+
+    Parameters
+    ----------
+    labels : HandLabels
+    overrides : sequence of LabelOverride
+
+    Returns
+    -------
+    HandLabels
+        A new result; ``labels`` is left unchanged.
+    """
+    ms = labels.markerset
+    model = _HandModel.__new__(_HandModel)  # only the cheap parts are needed here
+    model.skeleton, model.markerset = labels.skeleton, ms
+    model.colours = np.asarray(labels.marker_colours)
+    pi = labels.point_index.copy()
+    deleted = set(labels.deleted.tolist())
+    members = [set(m.tolist()) for m in labels.members]
+    touched = set()
+    for o in overrides:
+        if not isinstance(o, LabelOverride):
+            raise ValueError(f"overrides must be LabelOverride objects, got {type(o).__name__}")
+        if not 0 <= o.flash < labels.n_flashes:
+            raise ValueError(f"{o.entry}: flash {o.flash} is not one of the {labels.n_flashes} flashes (0..{labels.n_flashes - 1})")
+        cand = np.array([i for i in range(len(labels.points)) if i not in deleted and np.all(np.isfinite(labels.points[i]))], int)
+        d = np.linalg.norm(labels.points[cand] - o.position, axis=1) if len(cand) else np.array([])
+        if not len(d) or d.min() > o.tolerance_m:
+            near = f"; the nearest point is {d.min() * 1000:.1f} mm away" if len(d) else ""
+            raise ValueError(f"{o.entry}: no point within {o.tolerance_m * 1000:g} mm of {np.round(o.position, 4).tolist()}{near}")
+        p = int(cand[np.argmin(d)])
+        for k in np.flatnonzero((pi == p).any(axis=1)):
+            touched.add(int(k))
+        pi[pi == p] = -1
+        for mem in members:
+            mem.discard(p)
+        touched.add(o.flash)
+        if o.delete:
+            deleted.add(p)
+        else:
+            if o.label not in ms.names:
+                raise ValueError(f"{o.entry}: unknown marker {o.label!r}; markers: {', '.join(ms.names)}")
+            pi[o.flash, ms.index(o.label)] = p
+            members[o.flash].add(p)
+    fits, skipped = list(labels.fits), list(labels.skipped)
+    back = [ms.index(b) for b in BACK_MARKERS]
+    for k in sorted(touched):
+        if np.all(pi[k, back] >= 0):
+            pos = np.where((pi[k] >= 0)[:, None], labels.points[np.maximum(pi[k], 0)], np.nan)
+            init = fits[k].pose if fits[k] is not None else (next((f.pose for f in fits if f is not None), None))
+            fits[k] = fit_hand(labels.skeleton, ms, pos, initial=init)
+            skipped[k] = ""
+        else:
+            fits[k] = None
+            miss = [BACK_MARKERS[j] for j in range(3) if pi[k, back[j]] < 0]
+            skipped[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}"
+    return _build(model, labels.points, labels.colours, labels.strobe_hz, pi, fits, skipped,
+                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int))
+
+
+# --------------------------------------------------------------------------------------------
+# Synthetic input from the studio's truth
+# --------------------------------------------------------------------------------------------
+def hand_points_from_truth(truth, *, noise_m: float = 0.0005, drop: float = 0.05, n_spurious: int = 3,
+                           min_views: int = 2, rng=None) -> dict:
+    """Unlabelled points as the 3D marker stage gives them, made from a studio hand truth.
+
+    Markers seen by ``min_views`` cameras (``truth.markers_visible``) are kept, a share
+    ``drop`` of them is dropped at random (missed matches), Gaussian noise of ``noise_m`` per
+    axis is added, ``n_spurious`` points of random colours are placed near the hands (wrong
+    stereo matches), and everything is shuffled.
+
+    Returns
+    -------
+    dict
+        ``points`` (N, 3), ``colours`` (N,), and the truth per point: ``flash`` (index into the
+        truth's flashes, -1 spurious) and ``marker`` (-1 spurious).
+    """
+    rng = as_rng(rng)
+    vis = np.asarray(truth.markers_visible).sum(axis=0) >= min_views  # (n, m)
+    keep = vis & (rng.random(vis.shape) >= drop)
+    f, mk = np.nonzero(keep)
+    pts = truth.markers[f, mk] + rng.normal(0, noise_m, (len(f), 3))
+    cols = np.asarray(truth.marker_colours)[mk]
+    allm = truth.markers.reshape(-1, 3)
+    lo, hi = allm.min(axis=0) - 0.03, allm.max(axis=0) + 0.03
+    sp = rng.uniform(lo, hi, (n_spurious, 3))
+    spc = rng.choice(sorted(HAND_COLOURS), n_spurious)
+    pts = np.concatenate([pts, sp])
+    cols = np.concatenate([cols, spc])
+    f = np.concatenate([f, np.full(n_spurious, -1)])
+    mk = np.concatenate([mk, np.full(n_spurious, -1)])
+    perm = rng.permutation(len(pts))
+    return {"points": pts[perm], "colours": cols[perm], "flash": f[perm], "marker": mk[perm]}

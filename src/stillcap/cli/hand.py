@@ -1,0 +1,156 @@
+"""`stillcap hand CAPTURE_DIR`: labelled glove markers, hand poses per flash, animation, ball release (SPEC J2)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+
+
+def _f(v, digits: int = 2) -> str:
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        return "-" if v is None else str(v)
+    return "-" if x != x else f"{x:.{digits}f}"
+
+
+def _point(text: str | None, name: str):
+    if text is None:
+        return None
+    try:
+        v = [float(s) for s in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 3 or not all(np.isfinite(v)):
+        raise typer.BadParameter(f"expected three numbers X,Y,Z in metres, got {text!r}", param_hint=name)
+    return tuple(v)
+
+
+def hand(
+    capture: Path = typer.Argument(..., help="Hand capture folder (capture.json, rig.json, images/)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON (keys as in truth.json, "
+                                 "docs/hand-pipeline.md)."),
+    report: Path = typer.Option(None, "--report", help="Write report.html, hand.gif, joint_angles.png and "
+                                "hand.json to this folder."),
+    export: list[Path] = typer.Option([], "--export", help="Export the animation and labelled markers "
+                                      "(.bvh, .glb, .gltf, .dae, .c3d, .csv, .json); repeatable."),
+    overrides: Path = typer.Option(None, "--overrides", help="Manual label corrections (JSON, "
+                                   "docs/hand-labelling.md)."),
+    personalise: str = typer.Option(None, "--personalise", help="Scale the hand model to the person: best "
+                                    "(from the flash with most markers) or joint (all flashes)."),
+    frame_rate: float = typer.Option(1000.0, "--frame-rate", help="Frames per second of the animation."),
+    interpolation: str = typer.Option("spline", "--interpolation", help="spline (smooth) or slerp."),
+    strobe_position: str = typer.Option(None, "--strobe-position", help="The strobe's position X,Y,Z in "
+                                        "metres (rig world); default from capture.json meta."),
+):
+    """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
+
+    The capture holds one multi-exposure photo per camera of two stereo pairs lit by one strobe.
+    Exit status 2 with a one-line message for captures that cannot give 3D markers.
+    """
+    from stillcap.pipelines.hand import HandOptions, analyse_hand
+
+    if personalise not in (None, "best", "joint"):
+        raise typer.BadParameter(f"{personalise!r} is not one of best, joint", param_hint="--personalise")
+    if interpolation not in ("spline", "slerp"):
+        raise typer.BadParameter(f"{interpolation!r} is not one of spline, slerp", param_hint="--interpolation")
+    opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
+                       personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
+    res = analyse_hand(capture, opts)
+    written = []
+    for path in export:
+        from stillcap.io.export import export as export_file
+
+        if res.animation is None and path.suffix.lower() in (".bvh", ".glb", ".gltf", ".dae"):
+            raise ValueError(f"cannot write {path.name}: the capture gave fewer than two hand poses (no animation)")
+        written.append(export_file(path, res))
+    if report is not None:
+        from stillcap.report.hand import write_result_report
+
+        written.append(write_result_report(res, report)["html"])
+    if as_json:
+        print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
+        return
+    print_hand_result(res)
+    for w in written:
+        console.print(f"wrote [bold]{w}[/]")
+
+
+def print_hand_result(res) -> None:
+    """Tables of the flashes, the poses and the release (and the truth comparison if any)."""
+    err = Console(stderr=True)
+    for m in res.messages:
+        err.print(f"[yellow]note:[/] {m}", highlight=False, soft_wrap=True)
+    lab = res.labels
+    pts = res.points
+    console.print(f"{len(pts)} glove markers in 3D from pairs {', '.join(res.pairs)} "
+                  f"({int(np.sum(pts.n_views > 2))} seen by both pairs); strobe {res.strobe_hz:g} Hz")
+    t = Table(title=f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)")
+    for c in ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"):
+        t.add_column(c, justify="right")
+    held = {}
+    if res.release is not None and res.balls is not None:
+        held = {round(float(tb) * res.strobe_hz): bool(h) for tb, h in zip(res.balls.times, res.release.held)}
+    for k in range(lab.n_flashes):
+        o = int(lab.order[k])
+        ball = {True: "held", False: "free"}.get(held.get(o), "-")
+        t.add_row(str(o), _f(lab.times[k] * 1e3, 1), f"{int(np.sum(lab.point_index[k] >= 0))} / {len(lab.marker_names)}",
+                  _f(lab.rms[k] * 1e3, 2), "yes" if lab.reconstructed[k] else f"[red]no[/] ({lab.skipped[k]})", ball)
+    console.print(t)
+    if res.sequence is not None:
+        from stillcap.body.hand import hand_dofs
+
+        seq = res.sequence
+        a = Table(title="Joint angles per pose (flexion, deg)")
+        a.add_column("joint")
+        for o in lab.order[seq.flashes]:
+            a.add_column(f"flash {int(o)}", justify="right")
+        sk = seq.skeleton
+        for i in sorted({i for i, ax in hand_dofs(sk) if ax == 1}):
+            a.add_row(sk.names[i], *(_f(ang[i, 1], 1) for ang in seq.angles_deg))
+        console.print(a)
+        if res.animation is not None:
+            console.print(f"animation: {res.animation.n_frames} frames at {res.animation.frame_rate or 0:.0f} fps "
+                          f"({(res.animation.times[-1] - res.animation.times[0]) * 1e3:.1f} ms)")
+    rel = res.release
+    if rel is not None and rel.success:
+        console.print(f"release: {rel.t_release * 1e3:.2f} ± {rel.t_release_sigma * 1e3:.2f} ms, "
+                      f"{rel.speed_mph:.1f} ± {rel.speed_sigma_mph:.1f} mph, direction "
+                      f"{rel.horizontal_deg:+.1f} / {rel.vertical_deg:+.1f} deg (horizontal / vertical) "
+                      f"± {rel.direction_sigma_deg:.1f}; velocity from {rel.velocity_source}", highlight=False)
+    if res.spin is not None and res.spin.available:
+        console.print(f"spin candidates: {', '.join(f'{r:.0f}' for r in res.spin.candidates_rpm)} rpm"
+                      + (" (ambiguous: one strobe cannot tell them apart)" if res.spin.ambiguous else ""))
+    if res.truth is not None:
+        print_hand_comparison(res.truth)
+
+
+def print_hand_comparison(cmp: dict) -> None:
+    t = Table(title="Compared with the truth (truth.json)")
+    t.add_column("quantity")
+    t.add_column("value", justify="right")
+    rows = [("flashes with a pose / with the back of the hand in 2+ cameras",
+             f"{cmp['flashes_reconstructed']} / {cmp['flashes_back_seen_2plus']}"),
+            ("labels right", f"{_f(cmp['labels_right_pct'], 2)} %  ({cmp['labels_right']} of {cmp['labels']})"),
+            ("markers seen in 2+ cameras, labelled right", f"{_f(cmp['markers_recovered_pct'], 1)} %"),
+            ("marker 3D error RMS / max", f"{_f(cmp['marker_rms_mm'], 3)} / {_f(cmp['marker_max_mm'], 3)} mm"),
+            ("joint angles RMS / max", f"{_f(cmp['joint_angle_rms_deg'], 2)} / {_f(cmp['joint_angle_max_deg'], 2)} deg"),
+            ("joint positions RMS", f"{_f(cmp['joint_rms_mm'], 2)} mm")]
+    if "ball_mean_mm" in cmp:
+        rows.append(("ball positions mean / max", f"{_f(cmp['ball_mean_mm'], 2)} / {_f(cmp['ball_max_mm'], 2)} mm "
+                     f"({cmp['ball_positions']} flashes)"))
+    if "release_time_ms" in cmp:
+        rows += [("release time", f"{_f(cmp['release_time_ms'], 2)} ms (1 sigma {_f(cmp['release_time_sigma_ms'], 2)})"),
+                 ("release point", f"{_f(cmp['release_point_mm'], 1)} mm"),
+                 ("release speed", f"{_f(cmp['release_speed_mph'], 2)} mph (1 sigma {_f(cmp['release_speed_sigma_mph'], 2)})"),
+                 ("release direction", f"{_f(cmp['release_direction_deg'], 2)} deg")]
+    for r in rows:
+        t.add_row(*r)
+    console.print(t)

@@ -1,0 +1,164 @@
+"""The hand pipeline end to end on studio captures: labelled markers, poses, animation, release,
+truth-shared JSON keys, exports, and clear errors for bad captures."""
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pytest
+
+from stillcap.io.capture import Capture
+from stillcap.pipelines.hand import HandOptions, analyse_hand, compare_with_truth
+
+SIZE = (1280, 960)
+
+
+def studio_hand(factory, name, seed, size=SIZE):
+    """Render a studio hand capture (JPEG 92) into the session's temp folder once; its folder."""
+    from stillcap.studio.hand import hand_capture
+
+    root = factory.getbasetemp() / f"hand-{name}"
+    if not (root / "capture.json").is_file():
+        hc = hand_capture(seed, image_size=size)
+        cap, images = hc.to_capture(".jpg")
+        cap.save(root, images, jpeg_quality=92)
+    return root
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    return studio_hand(tmp_path_factory, "seed1", 1)
+
+
+@pytest.fixture(scope="module")
+def result(capture):
+    return analyse_hand(capture)
+
+
+def test_recovers_the_truth(result):
+    c = result.truth
+    assert c is not None
+    assert c["labels"] >= 30 and c["labels_right_pct"] >= 99.0
+    assert c["flashes_reconstructed"] >= max(2, c["flashes_back_seen_2plus"] - 1)
+    assert c["marker_rms_mm"] < 1.2
+    assert c["joint_angle_rms_deg"] < 2.0  # the issue's goal (measured 1.0)
+    assert c["ball_mean_mm"] < 3.0
+
+
+def test_release_from_hand_and_ball(result):
+    c, rel = result.truth, result.release
+    assert rel is not None and rel.success, result.messages
+    assert abs(c["release_time_ms"]) < 3 * max(c["release_time_sigma_ms"], 0.1)
+    assert abs(c["release_speed_mph"]) < 3 * max(c["release_speed_sigma_mph"], 0.2)
+    assert c["release_point_mm"] < 30
+
+
+def test_animation_passes_through_the_keyframes(result):
+    seq, an = result.sequence, result.animation
+    assert an is not None and an.frame_rate == pytest.approx(1000.0)
+    assert an.times[0] == pytest.approx(seq.times[0])
+    # a frame that falls on a keyframe reproduces its pose
+    for t, pose in zip(seq.times, seq.poses):
+        k = int(np.argmin(np.abs(an.times - t)))
+        if abs(an.times[k] - t) < 1e-9:
+            assert np.allclose(an.local_rotations[k], pose.local_rotations, atol=1e-9)
+
+
+def test_json_keys_shared_with_the_truth(result, capture):
+    d = result.to_dict()
+    json.dumps(d, allow_nan=False)
+    truth = json.loads((capture / "truth.json").read_text())
+    assert d["kind"] == truth["kind"] == "hand"
+    assert d["marker_names"] == truth["marker_names"] and d["joint_names"] == truth["joint_names"]
+    for key in ("times_s", "markers", "angles_deg", "root2world", "joints"):
+        assert key in d["flashes"] and key in truth["flashes"], key
+    n = len(d["flashes"]["times_s"])
+    assert np.array(d["flashes"]["markers"], dtype=float).shape == (n, 18, 3)
+    for key in ("t0_s", "p0", "v0", "speed_mph"):
+        assert key in d["release"] and key in truth["release"], key
+
+
+def test_overrides_delete_and_relabel(result, capture, tmp_path):
+    lab = result.labels
+    k = int(np.flatnonzero(lab.reconstructed)[0])
+    j = int(np.flatnonzero(lab.point_index[k] >= 0)[-1])
+    p = lab.positions[k, j]
+    path = tmp_path / "labels.json"
+    path.write_text(json.dumps({"overrides": [{"flash": int(lab.order[k]), "position_m": p.tolist(), "delete": True}]}))
+    res = analyse_hand(capture, HandOptions(overrides=path, spin=False))
+    k2 = int(np.flatnonzero(res.labels.order == lab.order[k])[0])
+    assert res.labels.point_index[k2, j] == -1
+    assert int(np.sum(res.labels.point_index >= 0)) == int(np.sum(lab.point_index >= 0)) - 1
+
+
+def test_exports_hold_the_animation_and_markers(result, tmp_path):
+    import ezc3d
+
+    from stillcap.io.export import export
+
+    export(tmp_path / "hand.bvh", result)
+    export(tmp_path / "hand.c3d", result)
+    text = (tmp_path / "hand.bvh").read_text()
+    assert "ROOT wrist" in text and f"Frames: {result.animation.n_frames}" in text
+    c = ezc3d.c3d(str(tmp_path / "hand.c3d"))
+    labels = c["parameters"]["POINT"]["LABELS"]["value"]
+    assert labels[:18] == list(result.labels.marker_names)
+
+
+def test_report_writes_animation_and_plots(result, tmp_path):
+    from stillcap.report.hand import write_result_report
+
+    paths = write_result_report(result, tmp_path / "rep")
+    for key in ("html", "animation", "joint_angles", "json"):
+        assert paths[key].is_file() and paths[key].stat().st_size > 100, key
+    assert cv2.imread(str(paths["joint_angles"])) is not None
+
+
+def test_not_a_hand_capture(tmp_path_factory):
+    from support import studio_pitch
+
+    with pytest.raises(ValueError, match="is a 'pitch' capture, not a hand capture"):
+        analyse_hand(studio_pitch(tmp_path_factory, "fastball"))
+
+
+def test_black_photos_name_the_problem(capture, tmp_path):
+    root = tmp_path / "black"
+    shutil.copytree(capture, root)
+    for f in (root / "images").iterdir():
+        cv2.imwrite(str(f), np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
+    with pytest.raises(ValueError, match="no glove marker seen by both cameras of a pair"):
+        analyse_hand(root)
+
+
+def test_missing_camera_photo_is_named(capture, tmp_path):
+    root = tmp_path / "missing"
+    shutil.copytree(capture, root)
+    (root / "images" / "left_inner.jpg").unlink()
+    with pytest.raises(ValueError, match="left_inner.jpg does not exist"):
+        analyse_hand(root)
+
+
+def test_bad_options():
+    with pytest.raises(ValueError, match="interpolation must be"):
+        HandOptions(interpolation="cubic")
+    with pytest.raises(ValueError, match="frame_rate must be"):
+        HandOptions(frame_rate=0)
+
+
+def test_compare_rejects_other_marker_sets(result, capture):
+    truth = json.loads((capture / "truth.json").read_text())
+    truth["marker_names"] = truth["marker_names"][::-1]
+    with pytest.raises(ValueError, match="different marker sets"):
+        compare_with_truth(result, truth)
+
+
+def test_capture_without_strobe_position_says_so(capture, tmp_path):
+    root = tmp_path / "nolight"
+    shutil.copytree(capture, root)
+    d = json.loads((root / "capture.json").read_text())
+    d.pop("strobe_position_m")
+    (root / "capture.json").write_text(json.dumps(d))
+    res = analyse_hand(Capture.load(root), spin=False)
+    assert any("strobe position unknown" in m for m in res.messages)
+    assert not res.points.bias_corrected

@@ -1,0 +1,68 @@
+"""`stillcap hand` and the hand demo: outputs written, options honoured, bad input exits 2."""
+
+import json
+
+import pytest
+
+from support import run_cli as run
+
+SIZE = (1280, 960)
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    from stillcap.studio.hand import hand_capture
+
+    root = tmp_path_factory.getbasetemp() / "cli-hand"
+    hc = hand_capture(2, image_size=SIZE)
+    cap, images = hc.to_capture(".jpg")
+    cap.save(root, images, jpeg_quality=92)
+    return root
+
+
+def test_hand_json(capture, capsys):
+    code, out, err = run(["hand", capture, "--json", "--interpolation", "slerp", "--frame-rate", "500"], capsys)
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["kind"] == "hand" and len(d["marker_names"]) == 18
+    assert d["truth_comparison"]["labels_right_pct"] >= 99.0
+    assert d["release"] is not None and d["release"]["success"]
+
+
+def test_hand_tables_exports_and_report(capture, tmp_path, capsys):
+    code, out, err = run(["hand", capture, "--export", tmp_path / "h.bvh", "--export", tmp_path / "h.glb",
+                          "--export", tmp_path / "m.c3d", "--report", tmp_path / "rep"], capsys)
+    assert code == 0, err
+    assert "Compared with the truth" in out and "labels right" in out and "release:" in out
+    for f in ("h.bvh", "h.glb", "m.c3d", "rep/report.html", "rep/hand.gif", "rep/joint_angles.png", "rep/hand.json"):
+        assert (tmp_path / f).stat().st_size > 100, f
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--personalise", "tall"], "is not one of best, joint"),
+    (["--interpolation", "cubic"], "is not one of spline, slerp"),
+    (["--strobe-position", "1,2"], "expected three numbers X,Y,Z"),
+    (["--export", "hand.xyz"], "unknown extension '.xyz'"),
+])
+def test_bad_options_exit_2(capture, capsys, args, message, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, out, err = run(["hand", capture, *args], capsys)
+    assert code == 2 and message in err
+
+
+def test_not_a_capture_folder(tmp_path, capsys):
+    code, out, err = run(["hand", tmp_path / "nothing"], capsys)
+    assert code == 2 and "nothing" in err
+
+
+def test_hand_demo_small(tmp_path, capsys):
+    from stillcap.cli.demo import hand_summary
+    from stillcap.cli.demo_hand import hand_demo
+
+    res = hand_demo(tmp_path / "demo", 3, image_size=SIZE)
+    out = capsys.readouterr().out
+    assert "Compared with the truth" in out
+    for f in ("hand.json", "hand.bvh", "hand.glb", "markers.c3d", "report/report.html", "capture/truth.json"):
+        assert (tmp_path / "demo" / f).is_file(), f
+    rows = hand_summary(res)
+    assert rows[0][1] == "labels right" and rows[0][2].endswith("%")
