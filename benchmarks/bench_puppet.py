@@ -16,7 +16,7 @@ Chains (``stillcap.pipelines.puppet``):
 - default: template detector on the bright region of the photo, assignment in CIEDE2000 with
   white-balance adaptation, DLT with refinement, partly hidden beads left out (fill test), 1 px
   outlier rejection, re-identification from the 3D markers (``reidentify``) and a second
-  triangulation, pose fit; "default (whole photo)" detects on the whole photo.
+  triangulation of the markers it renamed, pose fit; "default (whole photo)" detects on the whole photo.
 
 Results and their discussion: docs/puppet.md.
 

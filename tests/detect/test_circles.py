@@ -163,3 +163,59 @@ def test_bad_input():
         outline(np.zeros((2, 2, 2)))
     with pytest.raises(ValueError, match="n_beads"):
         random_bead_scene(PAL.rgb, n_beads=17)
+
+
+def test_contrast_map_is_filter2d_of_the_disc_kernels(scenes):
+    """The shared-DFT contrast map equals cv2.filter2D with each kernel and a replicated border
+    (to float32 rounding), on the whole image and inside boxes."""
+    import cv2
+
+    from stillcap.detect.circles import _disc_kernel, contrast_map
+
+    radii = np.array([5.0, 6.0, 7.0])
+    for sc in scenes[:3]:
+        g = grey_image(sc.image)[37:301, 11:428]  # odd sizes: not a DFT size
+        ref = np.stack([cv2.filter2D(g, -1, _disc_kernel(r), borderType=cv2.BORDER_REPLICATE) for r in radii])
+        C, best = contrast_map(g, radii)
+        assert C.shape == g.shape and C.dtype == np.float32
+        assert np.abs(C - ref.max(axis=0)).max() < 1e-3
+        strong = ref.max(axis=0) - np.sort(ref, axis=0)[-2] > 1e-2  # a clear best radius
+        assert np.array_equal(best[strong], radii[ref.argmax(axis=0)][strong])
+        boxes = [[20, 30, 120, 90], [200, 150, 417, 264]]
+        Cb, _ = contrast_map(g, radii, boxes)
+        for x0, y0, x1, y1 in boxes:
+            assert np.abs(Cb[y0:y1, x0:x1] - ref.max(axis=0)[y0:y1, x0:x1]).max() < 1e-3
+        outside = np.ones(g.shape, bool)
+        for x0, y0, x1, y1 in boxes:
+            outside[y0:y1, x0:x1] = False
+        assert not Cb[outside].any()
+
+
+def test_local_maxima_keep_the_first_pixel_of_a_plateau():
+    """Equal maxima within md of each other: only the first in raster order stays (as the
+    plain loop over all maxima did); equal maxima farther apart both stay."""
+    from stillcap.detect.circles import _local_maxima
+
+    C = np.zeros((40, 50), np.float32)
+    C[10, 10] = C[10, 12] = C[12, 11] = 9.0  # one plateau of three pixels within md = 3
+    C[30, 40] = 9.0  # same value, far away
+    C[20, 25] = 12.0
+    C[5, 45] = 2.0  # below the floor
+    peaks = _local_maxima(C, 3, 5.0)
+    assert peaks.tolist() == [[20, 25], [10, 10], [30, 40]]
+
+
+def test_grey_median_and_grey_image_shortcuts_are_exact(scenes):
+    """grey_image of a uint8 photo and the histogram median refine_centers gets are exactly
+    the float32 channel mean and np.median of it."""
+    from stillcap.detect.circles import _median_grey
+
+    rng = np.random.default_rng(0)
+    for sc in scenes[:3]:
+        for _ in range(4):
+            y0, x0 = rng.integers(0, 200, 2)
+            sub = sc.image[y0:y0 + rng.integers(1, 250), x0:x0 + rng.integers(1, 400)]
+            g = grey_image(sub)
+            assert np.array_equal(g, sub.astype(np.float32).mean(axis=2))
+            assert _median_grey(sub) == float(np.median(g))
+    assert _median_grey(np.zeros((4, 4), np.uint8)) is None  # grey input: the caller's median

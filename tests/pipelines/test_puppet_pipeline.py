@@ -241,6 +241,29 @@ def test_triangulate_markers_is_the_shared_triangulation(random3):
         triangulate_markers(res.rig, x[:3])
 
 
+def test_second_solve_only_for_reidentified_markers_is_the_full_solve(random3):
+    """After reidentify only the renamed markers are solved again (each marker is solved on its
+    own): the same 3D markers, views and fill as solving all of them again; and the first
+    solve's view-pair hypotheses reused for the final consensus give its own result."""
+    res = _run(random3)
+    final = res.markers.observations
+    names = res.markerset.names
+    full = solve_markers(res.rig, final, names, random3.images, DEFAULT, bead_radius_m=0.003)
+    changed = ~np.all((np.isnan(final) & np.isnan(res.raw_observations)) | (final == res.raw_observations),
+                      axis=(0, 2))
+    assert 0 < changed.sum() < len(names)  # some markers renamed, some not: both paths run
+    np.testing.assert_allclose(res.markers.points, full.points, atol=1e-9)
+    for k in ("used", "partial", "outlier", "whole"):
+        np.testing.assert_array_equal(getattr(res.markers, k), getattr(full, k))
+    np.testing.assert_array_equal(res.markers.fill, full.fill)
+    np.testing.assert_allclose(res.markers.reproj_error_px, full.reproj_error_px, atol=1e-9)
+    # the final consensus on the views left after the fill test, from scratch
+    x_used = np.where(full.partial[..., None], np.nan, final)
+    own = triangulate_markers(res.rig, x_used, outlier_px=DEFAULT.outlier_px)
+    np.testing.assert_array_equal(own.used, full.triangulation.used)
+    np.testing.assert_allclose(own.points, full.triangulation.points, atol=1e-9)
+
+
 def _fit_bone_errors(angles: dict) -> dict:
     sk, ms = Skeleton.puppet(), MarkerSet.puppet()
     local = np.tile(np.eye(3), (sk.n_joints, 1, 1))

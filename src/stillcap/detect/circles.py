@@ -118,8 +118,24 @@ def grey_image(image) -> np.ndarray:
     ndarray, shape (H, W), float32
     """
     img = _as_image(image)
-    f = img.astype(np.float32)
-    return f.mean(axis=2) if f.ndim == 3 else f
+    if img.ndim == 2:
+        return img.astype(np.float32)
+    if img.dtype != np.uint8:
+        return img.astype(np.float32).mean(axis=2)
+    # the integer sum B + G + R, then / 3 in float32: the same values as ``mean(axis=2)`` in
+    # float32 (sums of uint8 are exact), without the float32 copy of all three channels
+    f = _channel_sum(img).astype(np.float32)
+    f /= np.float32(3.0)
+    return f
+
+
+def _channel_sum(img: np.ndarray) -> np.ndarray:
+    """B + G + R of a uint8 image as uint16 (channel by channel: ~10x faster than
+    ``sum(axis=2)`` on a cropped view)."""
+    s = img[..., 0].astype(np.uint16)
+    s += img[..., 1]
+    s += img[..., 2]
+    return s
 
 
 def isodata_threshold(grey) -> float:
@@ -178,6 +194,21 @@ def _hough(edges: np.ndarray, radii: np.ndarray, n: int, min_distance: int):
                                          threshold=0.0, total_num_peaks=n, normalize=False)
     keep = acc > 0
     return acc[keep], cx[keep].astype(float), cy[keep].astype(float), rr[keep].astype(float)
+
+
+def _median_grey(image) -> float | None:
+    """``float(np.median(grey_image(image)))`` of a uint8 BGR photo from a histogram of the
+    integer channel sums (the grey image is their monotonic image ``sum / 3``), several times
+    faster than partitioning the float grey image; None for other images."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8 or img.ndim != 3 or img.size == 0:
+        return None
+    s = _channel_sum(img).ravel()
+    cum = np.cumsum(np.bincount(s, minlength=766))
+    n = s.size
+    lo, hi = (np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right")).astype(np.float32) / np.float32(3.0)
+    # np.median's own arithmetic on the two middle float32 values (the same one when n is odd)
+    return float(np.mean(np.array([lo, hi], np.float32))) if n % 2 == 0 else float(lo)
 
 
 # -- refinement --------------------------------------------------------------------------------
@@ -342,7 +373,7 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
         acc, cx, cy, rr = _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity)
     centers = np.stack([cx, cy], axis=1) if len(cx) else np.zeros((0, 2))
     if refine and len(centers):
-        centers = refine_centers(grey, centers, rr)
+        centers = refine_centers(grey, centers, rr, background=_median_grey(img))
     order = np.argsort(-acc, kind="stable")
     return Circles(centers[order], np.asarray(rr, float)[order], np.asarray(acc, float)[order], method, t)
 
@@ -379,12 +410,63 @@ def _disc_kernel_cached(r: float) -> np.ndarray:
     return k
 
 
+# DFT sizes the contrast map pads to: products of 2, 3 and 5 (fast for cv2.dft) that are
+# multiples of 32, so that photos cropped to slightly different regions share a size and the
+# cached kernel spectra (:func:`_kernel_spectrum`) are reused across views (on the benchmark's
+# 624 bright regions: 28 sizes, 22 % more area than the tightest DFT sizes).
+_DFT_SIZES = np.array(sorted({2 ** a * 3 ** b * 5 ** c for a in range(5, 14) for b in range(5) for c in range(4)
+                              if 2 ** a * 3 ** b * 5 ** c <= 8192}))
+
+
+def _dft_size(n: int) -> int:
+    i = int(np.searchsorted(_DFT_SIZES, n))
+    return int(_DFT_SIZES[i]) if i < len(_DFT_SIZES) else cv2.getOptimalDFTSize(n)
+
+
+@functools.lru_cache(maxsize=96)
+def _kernel_spectrum(r: float, h: int, w: int) -> np.ndarray:
+    """cv2.dft (CCS packed) of the disc-minus-ring kernel of radius r, centred at pixel (0, 0)
+    of an (h, w) periodic grid: multiplying an image's spectrum by it correlates the image
+    with the (symmetric) kernel."""
+    k = _disc_kernel_cached(float(r))
+    half = k.shape[0] // 2
+    buf = np.zeros((h, w), np.float32)
+    idx = np.arange(-half, half + 1)
+    buf[np.ix_(idx % h, idx % w)] = k  # the kernel wrapped around (0, 0)
+    spec = cv2.dft(buf)
+    spec.setflags(write=False)
+    return spec
+
+
+def _filter_radii(sub: np.ndarray, rs: np.ndarray, pad: int) -> np.ndarray:
+    """Correlation of ``sub`` with each radius's kernel, replicated border, shape (R, h, w).
+
+    One forward DFT shared by all radii and cached kernel spectra: what ``cv2.filter2D`` does
+    per kernel (it switches to a DFT for kernels this large), without transforming the image
+    again for every radius (~2.5x faster for three radii). Equal to ``cv2.filter2D(...,
+    borderType=cv2.BORDER_REPLICATE)`` to float32 rounding (~1e-5 grey levels)."""
+    h, w = sub.shape
+    gp = cv2.copyMakeBorder(sub, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    H, W = _dft_size(h + 2 * pad), _dft_size(w + 2 * pad)
+    buf = np.zeros((H, W), np.float32)
+    buf[:h + 2 * pad, :w + 2 * pad] = gp  # zeros beyond the replicated border: wrap-around stays outside
+    F = cv2.dft(buf)
+    out = np.empty((len(rs), h, w), np.float32)
+    for i, r in enumerate(rs):
+        f = cv2.idft(cv2.mulSpectrums(F, _kernel_spectrum(float(r), H, W), 0),
+                     flags=cv2.DFT_SCALE | cv2.DFT_REAL_OUTPUT)
+        out[i] = f[pad:pad + h, pad:pad + w]
+    return out
+
+
 def contrast_map(grey, radii, boxes=None) -> tuple[np.ndarray, np.ndarray]:
     """Disc-minus-ring contrast of every pixel for each radius, and the best radius.
 
     ``contrast[y, x]`` is the mean grey over a disc of radius r at (x, y) minus the mean over
     the ring from r + 1 to r + 3 around it (a matched filter for a bright disc; zero on flat
-    ground and inside wide limbs), maximised over ``radii`` (:func:`cv2.filter2D`).
+    ground and inside wide limbs), maximised over ``radii`` (correlation with replicated
+    borders, as ``cv2.filter2D(..., borderType=cv2.BORDER_REPLICATE)``, computed with one
+    shared DFT).
 
     Parameters
     ----------
@@ -400,38 +482,42 @@ def contrast_map(grey, radii, boxes=None) -> tuple[np.ndarray, np.ndarray]:
     contrast : ndarray, shape (H, W), float32, grey units
     best_radius : ndarray, shape (H, W)
     """
+    f = _contrast_stack(grey, radii, boxes)
+    rs = np.atleast_1d(np.asarray(radii, float))
+    return _max_over(f), rs[np.argmax(f, axis=0)]  # first radius wins ties
+
+
+def _max_over(f: np.ndarray) -> np.ndarray:
+    """Maximum over the first axis (pairwise ``np.maximum``: several times faster than
+    ``f.max(axis=0)`` over a short first axis)."""
+    c = f[0].copy()
+    for fi in f[1:]:
+        np.maximum(c, fi, out=c)
+    return c
+
+
+def _contrast_stack(grey, radii, boxes=None) -> np.ndarray:
+    """The disc-minus-ring contrast of every pixel for every radius, shape (R, H, W), float32
+    (0 outside ``boxes``); :func:`contrast_map` maximises it over the radii."""
     g = np.asarray(grey, np.float32)
     if g.ndim != 2:
         raise ValueError(f"grey must have shape (H, W), got {g.shape}")
     rs = np.atleast_1d(np.asarray(radii, float))
     h, w = g.shape
+    pad = max(_disc_kernel_cached(float(r)).shape[0] for r in rs) // 2
     if boxes is None:
-        boxes = np.array([[0, 0, w, h]])
+        # the whole image: replicated border outside it, as filter2D's BORDER_REPLICATE
+        return _filter_radii(g, rs, pad)
     boxes = np.asarray(boxes, int).reshape(-1, 4)
-    C = np.zeros((h, w), np.float32)
-    best = np.full((h, w), rs[0])
-    kernels = [_disc_kernel_cached(float(r)) for r in rs]
-    pad = max(k.shape[0] for k in kernels) // 2
+    f = np.zeros((len(rs), h, w), np.float32)
     for x0, y0, x1, y1 in boxes:
         x0, y0, x1, y1 = max(0, x0), max(0, y0), min(w, x1), min(h, y1)
         if x1 <= x0 or y1 <= y0:
             continue
         # filter the box with the grey around it (then the values inside are exact)
         X0, Y0, X1, Y1 = max(0, x0 - pad), max(0, y0 - pad), min(w, x1 + pad), min(h, y1 + pad)
-        sub = g[Y0:Y1, X0:X1]
-        cut = (slice(y0 - Y0, y1 - Y0), slice(x0 - X0, x1 - X0))
-        c_box = r_box = None
-        for r, k in zip(rs, kernels):
-            f = cv2.filter2D(sub, -1, k, borderType=cv2.BORDER_REPLICATE)[cut]
-            if c_box is None:
-                c_box, r_box = f, np.full(f.shape, r)
-            else:
-                better = f > c_box  # first radius wins ties, as argmax
-                c_box = np.where(better, f, c_box)
-                r_box = np.where(better, r, r_box)
-        C[y0:y1, x0:x1] = c_box
-        best[y0:y1, x0:x1] = r_box
-    return C, best
+        f[:, y0:y1, x0:x1] = _filter_radii(g[Y0:Y1, X0:X1], rs, pad)[:, y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
+    return f
 
 
 def _local_maxima(C: np.ndarray, md: int, floor: float) -> np.ndarray:
@@ -448,16 +534,24 @@ def _local_maxima(C: np.ndarray, md: int, floor: float) -> np.ndarray:
     val = C[rows, cols]
     order = np.lexsort((cols, rows, -val))  # strongest first, raster order among equals
     rows, cols = rows[order], cols[order]
+    val = val[order]
     keep = np.ones(len(rows), bool)
-    for i in range(len(rows)):  # plateau pixels: keep the first of equal maxima within md
+    # Plateau pixels: keep the first of equal maxima within md. Two maxima within md of each
+    # other are each >= the other, so only pixels sharing their value with another one can be
+    # dropped: the loop runs over those few only (over all of them it cost ~1 ms per photo).
+    _, inv, counts = np.unique(val, return_inverse=True, return_counts=True)
+    tied = np.flatnonzero(counts[inv] > 1)
+    for a, i in enumerate(tied):
         if keep[i]:
-            near = (np.abs(rows[i + 1:] - rows[i]) <= md) & (np.abs(cols[i + 1:] - cols[i]) <= md)
-            keep[i + 1:] &= ~near
+            rest = tied[a + 1:]
+            near = (val[rest] == val[i]) & (np.abs(rows[rest] - rows[i]) <= md) & (np.abs(cols[rest] - cols[i]) <= md)
+            keep[rest[near]] = False
     return np.stack([rows[keep], cols[keep]], axis=1)
 
 
 def _template(grey, radii, n, md, min_contrast, boxes=None):
-    C, best_r = contrast_map(grey, radii, boxes)
+    f = _contrast_stack(grey, radii, boxes)
+    C = _max_over(f)
     peaks = _local_maxima(C, md, max(float(min_contrast) / 3, 1e-6))
     if len(peaks) == 0:
         return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
@@ -469,7 +563,8 @@ def _template(grey, radii, n, md, min_contrast, boxes=None):
     keep = np.flatnonzero(val >= thr)
     keep = keep[np.argsort(-val[keep], kind="stable")][:n]
     y, x = peaks[keep, 0], peaks[keep, 1]
-    return val[keep], x.astype(float), y.astype(float), best_r[y, x].astype(float)
+    best_r = np.asarray(radii, float)[np.argmax(f[:, y, x], axis=0)]  # first radius wins ties
+    return val[keep], x.astype(float), y.astype(float), best_r
 
 
 def _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity):

@@ -1,46 +1,34 @@
 """Puppet stop-motion capture (SPEC J3): photos of a marked puppet -> named 2D markers -> 3D
-markers -> posed skeleton. Wiring of existing stages, plus the small steps no stage had
-(:func:`bead_fill`, :func:`fit_pose`, :func:`reidentify`, :func:`triangulate_markers`).
+markers -> posed skeleton. Wiring of the stages, plus the marker triangulation
+(:func:`solve_markers`, :func:`triangulate_markers`), the comparison with the truth and the result.
 
 ::
 
     photo of every view
-      -> find_circles                bead candidates            (detect.circles: template | thesis)
-      -> identify_markers            names by colour            (detect.identify: recommended | thesis)
+      -> detect_beads                candidates in the bright region, named by colour
+                                     (detect.beads: find_circles template | thesis,
+                                      identify_markers recommended | thesis)
       -> observations (n_views, n_markers, 2), NaN = not identified
-      -> bead_fill                   how whole each bead looks  (below: partly hidden beads are off-centre)
+      -> bead_fill                   how whole each bead looks  (detect.beads: partly hidden beads
+                                                                 are off-centre)
       -> triangulate_markers         3D markers                 (geometry.triangulate, outlier rejection;
                                                                  its view-pair consensus vectorised here)
                                      markers seen in fewer than 2 views: NaN, listed in ``missing``
-      -> reidentify                  candidates named after the projected 3D markers (colour as a
-                                     check), then fill + triangulation again on that identification
+      -> reidentify                  candidates named after the projected 3D markers (detect.beads),
+                                     then fill + triangulation again for the markers it renamed
       -> bone_directions +           the thesis's pose          (body.kinematics)
          pose_from_markers
       -> fit_pose                    joint rotations within the limits, twist where a joint frame
-                                     has 3+ points (its markers and the joint itself)
+                                     has 3+ points (body.puppet_pose)
       -> PuppetResult                to_dict() keys shared with the studio's truth.json
 
-Two of them in more detail:
-
-- :func:`bead_fill` measures, for an identified bead, the share of its expected disc (radius
-  from the first triangulation: ``f * bead radius / depth``) brighter than half its contrast. A
-  bead partly hidden behind a limb is centred on its visible part, 1-3 px off its true centre,
-  and several such views agree with each other, so the triangulation's pair consensus can pick
-  them over the whole views. Views whose fill is below ``min_fill`` and below ``fill_ratio`` of
-  the marker's best view are left out while two or more good views remain.
-- :func:`fit_pose` fits every free joint's intrinsic XYZ Euler angles (the limits' own
-  parameters, so the limits are hard bounds) to the 3D markers by least squares with an analytic
-  Jacobian, starting from the thesis's pose. A joint frame that carries two beads not in line
-  with the joint (both arm, leg, torso and head beads sit beside their bone) has three points:
-  its full orientation, twist included, is measured. Where the markers leave a rotation open
-  (forearms and shins carry one bead each: the rotation about the elbow-to-bead line; hands and
-  feet carry none) a weak prior pulls each Euler angle toward 0 (clipped into its limits) with a
-  standard deviation of half its range, so near-hinge joints stay near their hinge.
+The stages that moved out (``detect_view``'s work, ``bright_region``, ``bead_fill``,
+``reidentify``, ``fit_pose``, ``frame_status``, ``PoseFit``, ``ViewResult``) are still importable
+from here.
 
 Units: metres and radians inside; pixels ``(x, y)`` (``docs/conventions.md``); the result's
 ``to_dict`` says its units. See ``docs/puppet.md``.
 """
-
 from __future__ import annotations
 
 import math
@@ -49,17 +37,16 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
-import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
-from stillcap.body.kinematics import bone_directions, normalised, pose_from_markers
+from stillcap.body.kinematics import normalised
 from stillcap.body.markerset import MarkerSet, MarkerTrajectories
-from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
+from stillcap.body.puppet_pose import (PoseFit, _euler_matrices, _rotations_about, _start_angles,  # noqa: F401
+                                       fit_pose, frame_status)
+from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.camera import Rig
-from stillcap.detect.circles import Circles, find_circles
-from stillcap.detect.identify import RECOMMENDED, THESIS, Identification, identify_markers
+from stillcap.detect.beads import (DETECTORS, IDENTIFIERS, ViewResult, bead_fill, bead_fill_views,  # noqa: F401
+                                   bright_region, detect_beads, expected_radius_px, reidentify)
 from stillcap.detect.palette import Palette
 from stillcap.geometry.triangulate import Triangulation, triangulate
 from stillcap.io.jsonfile import read_json
@@ -72,10 +59,7 @@ __all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSetting
 
 RESULT_FORMAT = "stillcap-puppet-result"
 
-#: Bead detectors (:func:`stillcap.detect.circles.find_circles` methods) the pipeline offers.
-DETECTORS = ("template", "thesis", "hough", "blobs", "cv2")
-#: Identification presets (:mod:`stillcap.detect.identify`).
-IDENTIFIERS = {"recommended": RECOMMENDED, "thesis": THESIS}
+# DETECTORS and IDENTIFIERS (the choices PuppetSettings offers) live in stillcap.detect.beads.
 
 
 @dataclass(frozen=True)
@@ -169,116 +153,14 @@ THESIS_CHAIN = PuppetSettings(detector="thesis", identify="thesis", triangulatio
 
 
 # --- stage 1: detection and identification per photo -------------------------------------------
-@dataclass(eq=False)
-class ViewResult:
-    """Detection and identification in one photo.
-
-    Attributes
-    ----------
-    circles : Circles
-        Bead candidates.
-    identification : Identification
-        Which candidate is which marker (palette order).
-    time_s : float
-        Detection + identification time.
-    """
-
-    circles: Circles
-    identification: Identification
-    time_s: float = 0.0
-
-
 def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT) -> ViewResult:
-    """Find the bead candidates in one photo and name them by colour.
-
-    Parameters
-    ----------
-    image : array_like, shape (H, W, 3)
-        BGR photo.
-    palette : Palette
-        Reference colours, in marker-set order.
-    settings : PuppetSettings
-        ``detector``, ``identify``, ``radius_range``, ``n_circles``.
-    """
-    t0 = time.perf_counter()
-    img = np.asarray(image)
-    x0 = y0 = 0
-    margin = int(np.ceil(settings.radius_range[1])) + 6
-    if settings.roi:
-        x0, y0, x1, y1 = bright_region(img, margin=margin)
-        img = img[y0:y1, x0:x1]
-    circles = find_circles(img, n=settings.n_circles, radius_range=settings.radius_range, method=settings.detector)
-    if x0 or y0:
-        circles = Circles(circles.centers + [x0, y0], circles.radii, circles.scores, circles.method, circles.threshold)
-    ident = identify_markers(image, circles, palette, **IDENTIFIERS[settings.identify])
-    return ViewResult(circles, ident, time.perf_counter() - t0)
+    """:func:`stillcap.detect.beads.detect_beads` with the settings' ``detector``, ``identify``,
+    ``radius_range``, ``n_circles`` and ``roi``: the bead candidates of one photo, named by colour."""
+    return detect_beads(image, palette, settings.detector, settings.identify, settings.radius_range,
+                        settings.n_circles, settings.roi)
 
 
-def bright_region(image, margin: int = 13, contrast: float = 15.0) -> tuple[int, int, int, int]:
-    """Bounding box ``(x0, y0, x1, y1)`` (pixels, end exclusive) of everything brighter than the
-    photo's median grey by ``contrast`` levels (after a 3x3 erosion against noise), grown by
-    ``margin``; the whole photo when nothing is. The beads are the brightest things in the dark
-    scene, and the template detector's own contrast floor is 15 grey levels, so no bead it could
-    find lies outside."""
-    img = np.asarray(image)
-    g = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    h, w = g.shape
-    med = float(np.median(g[::4, ::4]))
-    mask = cv2.erode((g > med + contrast).astype(np.uint8), np.ones((3, 3), np.uint8))
-    pts = cv2.findNonZero(mask)
-    if pts is None:
-        return 0, 0, w, h
-    x, y, bw, bh = cv2.boundingRect(pts)
-    return max(0, x - margin), max(0, y - margin), min(w, x + bw + margin), min(h, y + bh + margin)
-
-
-# --- stage 2: how whole each bead looks --------------------------------------------------------
-def bead_fill(image, centers, radii_px) -> np.ndarray:
-    """Share of each bead's expected disc that looks like bead, in [0, 1] (NaN where unknown).
-
-    For each centre: the background is the median grey of the ring ``r + 1.5 .. r + 3.5`` px,
-    the bead level the 90th percentile within ``r / 2``; the fill is the share of pixels within
-    ``r`` brighter than halfway between them. A whole bead gives about 0.75-0.9 (its shaded rim
-    is darker), one half hidden behind a limb about 0.4.
-
-    Parameters
-    ----------
-    image : array_like, shape (H, W, 3) or (H, W)
-        The photo (BGR or grey).
-    centers : array_like, shape (N, 2)
-        Bead centres (x, y), pixels; NaN rows give NaN.
-    radii_px : array_like, shape (N,)
-        Expected bead radius in this photo, pixels.
-    """
-    img = np.asarray(image)
-    if img.ndim not in (2, 3):
-        raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
-    c = np.asarray(centers, float).reshape(-1, 2)
-    r_all = np.broadcast_to(np.asarray(radii_px, float), (len(c),))
-    out = np.full(len(c), np.nan)
-    h, w = img.shape[:2]
-    for i, ((x, y), r) in enumerate(zip(c, r_all)):
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(r) and r > 0):
-            continue
-        R = int(math.ceil(r + 4))
-        xi, yi = int(round(x)), int(round(y))
-        y0, y1, x0, x1 = max(0, yi - R), min(h, yi + R + 1), max(0, xi - R), min(w, xi + R + 1)
-        if y1 <= y0 or x1 <= x0:
-            continue
-        patch = img[y0:y1, x0:x1].astype(float)
-        if patch.ndim == 3:
-            patch = patch.mean(axis=2)  # (R + G + B) / 3, as the thesis's grey image
-        ys, xs = np.mgrid[y0:y1, x0:x1]
-        rr = np.hypot(xs - x, ys - y)
-        ring, core, disc = patch[(rr > r + 1.5) & (rr < r + 3.5)], patch[rr < 0.5 * r], patch[rr <= r]
-        if not (ring.size and core.size and disc.size):
-            continue
-        bg, peak = float(np.median(ring)), float(np.percentile(core, 90))
-        if peak <= bg:
-            out[i] = 0.0
-            continue
-        out[i] = float(np.mean(disc > bg + 0.5 * (peak - bg)))
-    return out
+_expected_radius_px = expected_radius_px  # the name before the stages moved out
 
 
 # --- stage 3: triangulation --------------------------------------------------------------------
@@ -350,17 +232,6 @@ class MarkerSolve:
         return tuple(n for n, good in zip(self.names, self.ok) if not good)
 
 
-def _expected_radius_px(rig: Rig, points: np.ndarray, bead_radius_m: float) -> np.ndarray:
-    """Projected bead radius per view and marker, ``f * R / depth`` pixels, shape (n_views, n_markers)."""
-    out = np.full((len(rig), len(points)), np.nan)
-    for v, cam in enumerate(rig):
-        z = (points @ cam.R.T + cam.t)[:, 2]
-        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[v] = np.where(z > 0, f * bead_radius_m / z, np.nan)
-    return out
-
-
 def triangulate_markers(rig: Rig, points_2d, method: str = "dlt", refine: bool = True,
                         outlier_px: float | None = None) -> Triangulation:
     """:func:`stillcap.geometry.triangulate.triangulate` for a handful of markers, same result, faster.
@@ -384,11 +255,20 @@ def triangulate_markers(rig: Rig, points_2d, method: str = "dlt", refine: bool =
     x = np.asarray(points_2d, float)
     if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2:
         raise ValueError(f"points_2d must have shape ({len(rig)}, N, 2), got {x.shape}")
+    return _triangulate_markers(rig, x, method, refine, outlier_px)
+
+
+def _view_pairs(nv: int) -> np.ndarray:
+    return np.array([(i, j) for i in range(nv) for j in range(i + 1, nv)]).reshape(-1, 2)
+
+
+def _pair_errors(rig: Rig, x: np.ndarray, method: str) -> np.ndarray:
+    """Reprojection error of every (view pair, marker) hypothesis in every view, shape
+    (n_views, n_pairs, n_markers), NaN where the pair did not see the marker or the view
+    did not: each pair's linear point, from that pair's two views only, projected once per view."""
     nv, n = x.shape[:2]
     seen = np.isfinite(x[..., 0]) & np.isfinite(x[..., 1])
-    if outlier_px is None or nv < 3 or n == 0:
-        return triangulate(rig, x, method=method, refine=refine, outlier_px=outlier_px)
-    pairs = np.array([(i, j) for i in range(nv) for j in range(i + 1, nv)])
+    pairs = _view_pairs(nv)
     n_pairs = len(pairs)
     # hypotheses: (pair, marker) -> only the pair's two views kept
     keep = np.zeros((nv, n_pairs), bool)
@@ -399,7 +279,24 @@ def triangulate_markers(rig: Rig, points_2d, method: str = "dlt", refine: bool =
     xp = np.where(m[..., None], x[:, None], np.nan).reshape(nv, n_pairs * n, 2)
     hyp = triangulate(rig, xp, method=method, refine=False).points  # linear, as the consensus
     proj = np.stack([cam.project(hyp) for cam in rig]).reshape(nv, n_pairs, n, 2)
-    err = np.linalg.norm(proj - x[:, None], axis=-1)
+    return np.linalg.norm(proj - x[:, None], axis=-1)
+
+
+def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, outlier_px: float | None,
+                         pair_errors: np.ndarray | None = None) -> Triangulation:
+    """:func:`triangulate_markers` on a checked array. ``pair_errors``: :func:`_pair_errors` of
+    observations that include ``x``'s (``x`` may leave some out): a pair's hypothesis depends
+    only on its two views, so those of pairs still seen in ``x`` are the same and are reused."""
+    nv, n = x.shape[:2]
+    seen = np.isfinite(x[..., 0]) & np.isfinite(x[..., 1])
+    if outlier_px is None or nv < 3 or n == 0:
+        return triangulate(rig, x, method=method, refine=refine, outlier_px=outlier_px)
+    pairs = _view_pairs(nv)
+    if pair_errors is None:
+        err = _pair_errors(rig, x, method)
+    else:
+        both = seen[pairs[:, 0]] & seen[pairs[:, 1]]  # pairs whose hypothesis x still has
+        err = np.where(both[None], pair_errors, np.nan)
     with np.errstate(invalid="ignore"):
         inl = seen[:, None] & (err <= outlier_px)  # (nv, n_pairs, n)
     count = inl.sum(axis=0)
@@ -465,19 +362,18 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
     partial = np.zeros(seen.shape, bool)
     good = seen.copy()
     x_used = x
-    first = None
+    first = pair_err = None
     if images is not None and settings.use_fill:
         images = list(images)
         if len(images) != len(rig):
             raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
-        first = triangulate_markers(rig, x, method=method, refine=refine, outlier_px=2.0)
-        r_exp = _expected_radius_px(rig, first.points, bead_radius_m)
+        pair_err = _pair_errors(rig, x, method) if len(rig) >= 3 and x.shape[1] else None
+        first = _triangulate_markers(rig, x, method, refine, 2.0, pair_err)
+        r_exp = expected_radius_px(rig, first.points, bead_radius_m)
         if radii_px is not None:
             r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
         r_exp = np.where(np.isfinite(r_exp), r_exp, 0.5 * sum(settings.radius_range) + 0.7)
-        for v, img in enumerate(images):
-            if seen[v].any():
-                fill[v, seen[v]] = bead_fill(img, x[v, seen[v]], r_exp[v, seen[v]])
+        fill = bead_fill_views(images, np.where(seen[..., None], x, np.nan), r_exp)
         with np.errstate(invalid="ignore"):
             best = np.nanmax(np.where(seen, fill, -np.inf), axis=0)
             # whole: fill above min_fill, or (when the marker has a whole view at all) close to
@@ -487,7 +383,7 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
         enough = good.sum(axis=0) >= 2
         partial = seen & ~good & enough[None]
         x_used = np.where(partial[..., None], np.nan, x)
-    tri = triangulate_markers(rig, x_used, method=method, refine=refine, outlier_px=settings.outlier_px)
+    tri = _triangulate_markers(rig, x_used, method, refine, settings.outlier_px, pair_err)
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
     if first is not None and lost.any():
@@ -506,330 +402,24 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
     return MarkerSolve(tuple(names), points, x, used, fill, partial, outlier, rms, tri, good)
 
 
-def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: float = 0.003,
-               gate_radius: float = 0.6, colour_factor: float = 2.0) -> np.ndarray:
-    """Name each view's bead candidates after the 3D markers: the identification consistent
-    with the reconstruction.
-
-    Colour alone names a few percent of the beads wrong (a bead partly hidden, its colour
-    shifted by the light, a limb edge), and misses some. Once the markers are triangulated,
-    every marker with a 3D point projects into every view: the candidate within
-    ``gate_radius`` x its projected bead radius (at least 2 px) of that projection, and whose
-    colour is within ``colour_factor`` x the identification's acceptance distance of the
-    marker's reference, is that marker (:func:`scipy.optimize.linear_sum_assignment` over
-    pixel distance / gate + colour distance / colour gate, each candidate used once); a marker
-    whose projection matches no candidate is left unidentified (hidden in that view). Markers
-    without a 3D point keep their colour identification where its candidate is not taken.
-
-    Parameters
-    ----------
-    rig : Rig, n_views cameras
-    points_3d : array_like, shape (n_markers, 3)
-        Triangulated markers, NaN where missing.
-    views : sequence of ViewResult, length n_views
-        Candidates and colour distances (:func:`detect_view`).
-    bead_radius_m : float
-    gate_radius, colour_factor : float
-        Pixel gate as a share of the projected bead radius; colour gate as a multiple of the
-        identification's ``max_distance``.
-
-    Returns
-    -------
-    ndarray, shape (n_views, n_markers, 2)
-        Pixels of the final identification, NaN where unidentified.
-    """
-    from scipy.optimize import linear_sum_assignment
-
-    X = np.asarray(points_3d, float)
-    if X.ndim != 2 or X.shape[1] != 3:
-        raise ValueError(f"points_3d must have shape (n_markers, 3), got {X.shape}")
-    if len(views) != len(rig):
-        raise ValueError(f"need one ViewResult per view ({len(rig)}), got {len(views)}")
-    k = len(X)
-    have = np.all(np.isfinite(X), axis=1)
-    r_exp = _expected_radius_px(rig, np.where(have[:, None], X, 0.0), bead_radius_m)
-    out = np.full((len(rig), k, 2), np.nan)
-    for v, (cam, vr) in enumerate(zip(rig, views)):
-        ident = vr.identification
-        cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
-        if ident.points.shape[0] != k:
-            raise ValueError(f"view {v}: identification has {ident.points.shape[0]} markers, points_3d {k}")
-        taken = np.zeros(len(cand), bool)
-        if len(cand) and have.any():
-            proj = cam.project(np.where(have[:, None], X, np.nan))
-            d = np.linalg.norm(cand[:, None, :] - proj[None], axis=2)  # (n_cand, k)
-            gate = np.maximum(2.0, gate_radius * r_exp[v])[None]
-            cgate = colour_factor * float(ident.max_distance)
-            col = np.asarray(ident.cost, float).reshape(len(cand), k)
-            with np.errstate(invalid="ignore"):
-                ok = (d <= gate) & (col <= cgate) & have[None]
-            if ok.any():
-                cost = np.where(ok, d / gate + col / cgate, 1e6)
-                rows, cols = linear_sum_assignment(cost)
-                good = ok[rows, cols]
-                out[v, cols[good]] = cand[rows[good]]
-                taken[rows[good]] = True
-        # markers without 3D: the colour's choice, unless a 3D-consistent marker took its candidate
-        for m in np.flatnonzero(~have & (ident.candidate >= 0)):
-            c = int(ident.candidate[m])
-            if c < len(cand) and not taken[c]:
-                out[v, m] = ident.points[m]
-    return out
-
-
-# --- stage 4: pose -----------------------------------------------------------------------------
-def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
-    """What the markers measure of each joint's frame (its local rotation).
-
-    ``"full"``: the frame carries 2+ markers not in one line with the joint (or 3+ markers), so
-    its whole orientation, twist included, follows from them; ``"partial"``: one marker (or
-    markers in line with the joint): a rotation about that line stays open; ``"none"``: no
-    marker; ``"locked"``: the joint cannot rotate (all limits ``[0, 0]``).
-    """
-    frames = markerset.bone_frames(skeleton)
-    lim = skeleton.limits_deg
-    out = {}
-    for j, name in enumerate(skeleton.names):
-        if np.all(lim[j, :, 0] == lim[j, :, 1]):
-            out[name] = "locked"
-            continue
-        pts = markerset.offsets[frames == j]
-        if len(pts) == 0:
-            out[name] = "none"
-            continue
-        cloud = np.vstack([pts, np.zeros((1, 3))])
-        s = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
-        out[name] = "full" if len(pts) >= 1 and s[1] > 1e-3 * max(s[0], 1e-12) and len(cloud) >= 3 else "partial"
-    return out
-
-
-@dataclass(eq=False)
-class PoseFit:
-    """Result of :func:`fit_pose`.
-
-    Attributes
-    ----------
-    pose : Pose
-        The fitted pose (every local rotation within the joint limits).
-    thesis_pose : Pose
-        The thesis's pose from bone directions (:func:`~stillcap.body.kinematics.pose_from_markers`).
-    directions : dict
-        The thesis's bone directions from the markers (bone -> unit vector, NaN if unmeasured).
-    residuals_m : ndarray, shape (n_markers,)
-        Distance of each fitted model marker from its measurement, metres (NaN if unseen).
-    thesis_residuals_m : ndarray, shape (n_markers,)
-        The same for the thesis's pose.
-    success : bool
-        The optimiser converged.
-    n_markers : int
-        Markers used.
-    time_s : float
-    """
-
-    pose: Pose
-    thesis_pose: Pose
-    directions: dict
-    residuals_m: np.ndarray
-    thesis_residuals_m: np.ndarray
-    success: bool
-    n_markers: int
-    time_s: float = 0.0
-
-    @property
-    def rms_m(self) -> float:
-        r = self.residuals_m[np.isfinite(self.residuals_m)]
-        return float(np.sqrt(np.mean(r ** 2))) if len(r) else float("nan")
-
-
-def _euler_matrices(angles_deg: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Rx(a), Ry(b), Rz(c) for rows (a, b, c) in degrees, each (n, 3, 3)."""
-    return tuple(Rotation.from_euler(ax, angles_deg[:, k:k + 1], degrees=True).as_matrix() for k, ax in enumerate("xyz"))
-
-
-def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
-    """Rotations about one unit axis by each angle, shape (n, 3, 3)."""
-    return Rotation.from_rotvec(np.outer(angles_rad, axis)).as_matrix()
-
-
-def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, centre,
-                  sd) -> np.ndarray:
-    """A start for :func:`fit_pose`, joint by joint from the root (degrees, (n_joints, 3)).
-
-    Each joint's parent frame is known by then, so the joint's world position is too. A frame
-    with 2+ seen markers not in line with the joint: the rotation about the joint that best
-    maps the markers' offsets onto the measured markers (Wahba / Kabsch). One seen marker: the
-    rotations that put it exactly on its measurement form a one-parameter family (turning about
-    the joint-to-marker line); the one whose Euler angles the prior likes best, within the
-    limits, is taken. No marker: the prior's centre.
-    """
-    n = skeleton.n_joints
-    lim = np.stack([lo, hi], axis=-1)
-    frames = markerset.bone_frames(skeleton)
-    seen = np.all(np.isfinite(pts), axis=1)
-    offs = markerset.offsets
-    ang = np.zeros((n, 3))
-    world = np.zeros((n, 3, 3))
-    origin = np.zeros((n, 3))
-    parents = skeleton.parents
-    phis = np.radians(np.arange(0.0, 360.0, 3.0))
-    for j in skeleton.depth_first:
-        p = parents[j]
-        Wp = r2w[:3, :3] if p < 0 else world[p]
-        origin[j] = r2w[:3, 3] if p < 0 else origin[p] + world[p] @ skeleton.offsets[j]
-        locked = np.all(hi[j] <= lo[j])
-        sel = np.flatnonzero((frames == j) & seen)
-        cands = None
-        if not locked and len(sel):
-            meas = (pts[sel] - origin[j]) @ Wp  # measured offsets in the parent's frame (rows: Wp.T @ v)
-            model = offs[sel]
-            cloud = np.vstack([model, np.zeros((1, 3))])
-            sv = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
-            if len(sel) >= 2 and sv[1] > 1e-3 * sv[0]:
-                cands = Rotation.align_vectors(meas, model)[0].as_matrix()[None]
-            else:
-                a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
-                if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
-                    R0 = Rotation.align_vectors(a[None], b[None])[0].as_matrix()
-                    cands = _rotations_about(a, phis) @ R0
-        if cands is None:
-            ang[j] = np.where(locked, lo[j], centre[j])
+def _replace_markers(solve: MarkerSolve, cols: np.ndarray, sub: MarkerSolve, observations) -> MarkerSolve:
+    """``solve`` with the markers ``cols`` taken from ``sub`` (solved on their own) and the
+    observations replaced."""
+    def put(a, b, axis):
+        a = np.array(a, copy=True)
+        if axis == 0:
+            a[cols] = b
         else:
-            e, viol = euler_within_limits(cands, np.where(np.isfinite(lim[j]), lim[j], np.nan))
-            cost = 100.0 * viol + np.sum(((e - centre[j]) / sd[j]) ** 2, axis=1)
-            ang[j] = np.clip(e[int(np.argmin(cost))], lo[j], hi[j])
-        world[j] = Wp @ Rotation.from_euler(EULER_LIMIT_SEQUENCE, ang[j], degrees=True).as_matrix()
-    return ang
-
-
-def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
-             initial: Pose | None = None, marker_sigma_m: float = 0.2e-3, robust: bool = True) -> PoseFit:
-    """Joint rotations that put the marker set's beads on the measured markers.
-
-    The free joints' intrinsic XYZ Euler angles (:data:`~stillcap.body.skeleton.EULER_LIMIT_SEQUENCE`,
-    the angles ``limits_deg`` bounds) are fitted by least squares (``scipy.optimize.least_squares``,
-    trust region with the limits as bounds, analytic Jacobian: turning joint ``j`` about the
-    world axis ``u`` moves every point beyond it by ``u x (p - o_j)``) to
-
-    - every seen marker: ``(model - measured) / marker_sigma_m``;
-    - a weak prior per angle: ``(angle - clip(0, limits)) / (half the range, >= 5 deg)``, which
-      only matters for what the markers leave open (see the module docstring).
-
-    The start is built joint by joint from the root (:func:`_start_angles`: Kabsch where a
-    frame has 2+ markers, the prior's favourite of the exact one-marker solutions otherwise);
-    if some marker then still misses by more than 5 sigma, ``initial`` and the thesis's pose
-    are tried as starts too and the best fit is kept. With ``robust`` a soft-L1 loss (scale
-    5 sigma) keeps one wrong marker from bending the whole skeleton.
-
-    Parameters
-    ----------
-    skeleton : Skeleton
-    markerset : MarkerSet
-    marker_positions : array_like, shape (n_markers, 3)
-        Measured markers, metres, marker-set order; NaN for missing ones.
-    root2world : array_like, shape (4, 4), optional
-        The root's frame (puppet: the pelvis, fixed on the turntable axis); default rest.
-    initial : Pose, optional
-        Start instead of the thesis's pose.
-    marker_sigma_m : float
-        Expected marker error, metres.
-
-    Returns
-    -------
-    PoseFit
-    """
-    t0 = time.perf_counter()
-    pts = np.asarray(marker_positions, float)
-    if pts.shape != (len(markerset), 3):
-        raise ValueError(f"marker_positions must have shape ({len(markerset)}, 3), got {pts.shape}")
-    r2w = skeleton.rest_root2world() if root2world is None else np.asarray(root2world, float)
-    thesis = pose_from_markers(skeleton, markerset, pts, r2w)
-    dirs = bone_directions(markerset, pts, r2w)
-    n = skeleton.n_joints
-    lim = skeleton.limits_deg
-    lo = np.where(np.isnan(lim[..., 0]), -np.inf, lim[..., 0])
-    hi = np.where(np.isnan(lim[..., 1]), np.inf, lim[..., 1])
-    free = hi > lo  # (n, 3)
-    centre = np.clip(0.0, lo, hi)
-    width = np.where(np.isfinite(hi - lo), 0.5 * (hi - lo), 180.0)
-    sd = np.maximum(width, 5.0)
-    starts = [_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd)]
-    for other in ((initial,) if initial is not None else ()) + (thesis,):
-        a0 = np.clip(skeleton.limit_angles_deg(other.local_rotations), lo, hi)
-        starts.append(np.where(np.isfinite(lo) & ~free, lo, a0))
-    ang = starts[0]
-    frames = markerset.bone_frames(skeleton)
-    offs = markerset.offsets
-    seen = np.all(np.isfinite(pts), axis=1)
-    parents = skeleton.parents
-    # chain[j]: joints whose rotation moves points of frame j (j and its ancestors)
-    chain = np.zeros((n, n), bool)
-    for j in range(n):
-        k = j
-        while k >= 0:
-            chain[j, k] = True
-            k = parents[k]
-    pidx = np.argwhere(free)  # (n_params, 2): joint, axis
-    mf = frames[seen]
-    meas = pts[seen]
-
-    def unpack(x):
-        a = ang.copy()
-        a[free] = x
+            a[:, cols] = b
         return a
 
-    def model(x):
-        a = unpack(x)
-        Rx, Ry, Rz = _euler_matrices(a)
-        local = Rx @ Ry @ Rz  # intrinsic XYZ
-        j2w = forward_kinematics(skeleton, r2w, local)
-        return a, Rx, Ry, j2w
-
-    def residuals(x):
-        a, _, _, j2w = model(x)
-        m = np.einsum("nij,nj->ni", j2w[mf, :3, :3], offs[seen]) + j2w[mf, :3, 3]
-        return np.concatenate([((m - meas) / marker_sigma_m).ravel(), ((a - centre) / sd)[free]])
-
-    pj, pax = pidx[:, 0], pidx[:, 1]
-    n_res = 3 * len(mf)
-    prior_rows = n_res + np.arange(len(pidx))
-    moves = chain[mf][:, pj].T  # (n_params, n_seen): parameter moves the marker
-    k_scale = math.pi / 180.0 / marker_sigma_m
-
-    def jacobian(x):
-        a, Rx, Ry, j2w = model(x)
-        m = np.einsum("nij,nj->ni", j2w[mf, :3, :3], offs[seen]) + j2w[mf, :3, 3]
-        W = np.concatenate([r2w[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
-        # world axis of each Euler angle: x, then Rx y, then Rx Ry z (intrinsic XYZ)
-        axes = np.where((pax == 0)[:, None], [1.0, 0.0, 0.0],
-                        np.where((pax == 1)[:, None], Rx[pj][:, :, 1], (Rx[pj] @ Ry[pj])[:, :, 2]))
-        u = np.einsum("pij,pj->pi", W, axes)
-        d = np.cross(u[:, None, :], m[None] - j2w[pj, None, :3, 3]) * k_scale  # (n_params, n_seen, 3)
-        J = np.zeros((n_res + len(pidx), len(pidx)))
-        J[:n_res] = (d * moves[..., None]).reshape(len(pidx), n_res).T
-        J[prior_rows, np.arange(len(pidx))] = 1.0 / sd[pj, pax]
-        return J
-
-    lb, ub = lo[free], hi[free]
-    inner = (np.where(np.isfinite(lb), lb + 1e-9, lb), np.where(np.isfinite(ub), ub - 1e-9, ub))
-    kw = dict(loss="soft_l1", f_scale=5.0) if robust else {}
-    # tr_solver="lsmr": the dense solver's SVD of this small matrix spins multi-threaded BLAS on a
-    # busy machine (70 ms per call measured on 2 shared cores); LSMR is a few matrix products.
-    opts = dict(jac=jacobian, bounds=(lb, ub), x_scale=10.0, method="trf", tr_solver="lsmr", **kw)
-    best = None
-    for a0 in starts:  # the joint-by-joint start; the others only when it ends in a poor fit
-        r = least_squares(residuals, np.clip(a0[free], *inner), **opts)
-        if best is None or r.cost < best.cost:
-            best = r
-        if np.max(np.abs(best.fun[:3 * len(mf)]), initial=0.0) < 5.0:  # every marker within 5 sigma
-            break
-    a = unpack(best.x)
-    local = Rotation.from_euler(EULER_LIMIT_SEQUENCE, a, degrees=True).as_matrix()
-    pose = Pose(skeleton, r2w, local)
-    res = np.full(len(markerset), np.nan)
-    res[seen] = np.linalg.norm(markerset.positions(pose)[seen] - meas, axis=1)
-    tres = np.full(len(markerset), np.nan)
-    tres[seen] = np.linalg.norm(markerset.positions(thesis)[seen] - meas, axis=1)
-    return PoseFit(pose, thesis, dirs, res, tres, bool(best.success), int(seen.sum()), time.perf_counter() - t0)
+    t, ts = solve.triangulation, sub.triangulation
+    tri = Triangulation(put(t.points, ts.points, 0), put(t.reproj_error_px, ts.reproj_error_px, 0),
+                        put(t.errors_px, ts.errors_px, 1), put(t.used, ts.used, 1))
+    whole = None if solve.whole is None or sub.whole is None else put(solve.whole, sub.whole, 1)
+    return MarkerSolve(solve.names, put(solve.points, sub.points, 0), np.asarray(observations, float),
+                       put(solve.used, sub.used, 1), put(solve.fill, sub.fill, 1), put(solve.partial, sub.partial, 1),
+                       put(solve.outlier, sub.outlier, 1), put(solve.reproj_error_px, sub.reproj_error_px, 0), tri, whole)
 
 
 # --- comparison with the truth ------------------------------------------------------------------
@@ -997,7 +587,7 @@ def compare_with_truth(result: PuppetResult, truth) -> PuppetComparison:
     if truth.markers_px.shape[0] != nv:
         raise ValueError(f"truth has {truth.markers_px.shape[0]} views, the result {nv}")
     true_px = np.stack([cam.project(truth.marker_positions) for cam in result.rig])
-    r_true = _expected_radius_px(result.rig, truth.marker_positions, 0.5 * float(np.mean(truth.marker_diameter)))
+    r_true = expected_radius_px(result.rig, truth.marker_positions, 0.5 * float(np.mean(truth.marker_diameter)))
 
     def score(o):
         found = np.isfinite(o[..., 0])
@@ -1235,9 +825,15 @@ def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = N
     if views is not None and settings.reidentify:
         raw_obs = obs
         final = reidentify(rig, solve.points, views, bead_r, settings.reid_gate, settings.reid_colour)
-        same = np.array_equal(np.isnan(final), np.isnan(obs)) and np.allclose(final, obs, equal_nan=True)
-        if not same:
-            solve = solve_markers(rig, final, markerset.names, images, settings, bead_radius_m=bead_r, radii_px=None)
+        same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
+        if not same.all():
+            # solve_markers treats every marker on its own (its views' consensus, fill test and
+            # fallback look at that marker only), so only the re-identified markers are solved
+            # again (with no detected radii, as a full second solve would use)
+            cols = np.flatnonzero(~same)
+            sub = solve_markers(rig, final[:, cols], [markerset.names[c] for c in cols], images, settings,
+                                bead_radius_m=bead_r, radii_px=None)
+            solve = _replace_markers(solve, cols, sub, final)
     timings["triangulate"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     fit = fit_pose(skeleton, markerset, solve.points, root2world, marker_sigma_m=settings.marker_sigma_m)

@@ -1,0 +1,101 @@
+"""Bead stages of the puppet pipeline (stillcap.detect.beads): the fill test against a plain
+per-bead reference, and detection on a drawn photo."""
+
+import math
+
+import numpy as np
+import pytest
+
+from stillcap.detect.beads import DETECTORS, IDENTIFIERS, bead_fill, bead_fill_views, detect_beads
+from stillcap.detect.circles import draw_beads, random_bead_scene
+from stillcap.detect.palette import Palette
+
+
+def _fill_one_by_one(image, centers, radii_px):
+    """The definition, bead by bead: median of the ring r + 1.5 .. r + 3.5 (background), 90th
+    percentile within r / 2 (bead), share of the disc brighter than halfway between them."""
+    img = np.asarray(image)
+    out = np.full(len(centers), np.nan)
+    h, w = img.shape[:2]
+    for i, ((x, y), r) in enumerate(zip(centers, radii_px)):
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(r) and r > 0):
+            continue
+        R = int(math.ceil(r + 4))
+        xi, yi = int(round(x)), int(round(y))
+        y0, y1, x0, x1 = max(0, yi - R), min(h, yi + R + 1), max(0, xi - R), min(w, xi + R + 1)
+        if y1 <= y0 or x1 <= x0:
+            continue
+        patch = img[y0:y1, x0:x1].astype(float)
+        if patch.ndim == 3:
+            patch = patch.mean(axis=2)
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        rr = np.hypot(xs - x, ys - y)
+        ring, core, disc = patch[(rr > r + 1.5) & (rr < r + 3.5)], patch[rr < 0.5 * r], patch[rr <= r]
+        if not (ring.size and core.size and disc.size):
+            continue
+        bg, peak = float(np.median(ring)), float(np.percentile(core, 90))
+        out[i] = 0.0 if peak <= bg else float(np.mean(disc > bg + 0.5 * (peak - bg)))
+    return out
+
+
+def test_bead_fill_is_the_per_bead_definition():
+    """All beads at once give exactly the bead-by-bead values: colour and grey photos, beads
+    cut by the border or outside, NaN centres, bad radii, centres on half pixels."""
+    rng = np.random.default_rng(5)
+    sc = random_bead_scene(Palette.thesis().rgb, rng=1)
+    n = 0
+    for trial in range(40):
+        img = sc.image if trial % 2 else sc.image.mean(axis=2)
+        k = 25
+        c = rng.uniform([-15, -15], [655, 495], (k, 2))
+        c[:8] = sc.centers[rng.choice(len(sc.centers), 8, replace=False)] + rng.normal(0, 1, (8, 2))
+        c[rng.random(k) < 0.1] = np.nan
+        if trial % 5 == 0:
+            c = np.round(c) + 0.5  # ties of round()
+        r = rng.uniform(0.3, 9.0, k)
+        r[rng.random(k) < 0.1] = -1.0
+        got, want = bead_fill(img, c, r), _fill_one_by_one(img, c, r)
+        np.testing.assert_array_equal(got, want)
+        n += np.isfinite(want).sum()
+    assert n > 500
+
+
+def test_bead_fill_whole_against_half_hidden():
+    img = draw_beads([[30.0, 30.0], [80.0, 30.0]], [6.0, 6.0], [[0.9, 0.2, 0.2], [0.2, 0.9, 0.2]], size=(60, 120),
+                     limbs_front=[((80.0, 0.0), (80.0, 60.0), 6.0, 0.05)])
+    f = bead_fill((img * 255).astype(np.uint8), [[30.0, 30.0], [80.0, 30.0], [np.nan, 1.0]], [6.0, 6.0, 6.0])
+    assert f[0] > 0.7 and f[1] < 0.6 and np.isnan(f[2])
+    assert bead_fill(img, np.zeros((0, 2)), []).shape == (0,)
+    with pytest.raises(ValueError, match=r"shape \(H, W\) or \(H, W, 3\), got \(3,\)"):
+        bead_fill(np.zeros(3), [[1.0, 1.0]], [5.0])
+
+
+def test_detect_beads_names_the_drawn_beads():
+    pal = Palette.thesis()
+    sc = random_bead_scene(pal.rgb, rng=2)
+    vr = detect_beads(sc.image, pal)
+    found = vr.identification.found
+    assert found.sum() >= 14
+    err = np.linalg.norm(vr.identification.points[found] - sc.centers[found], axis=1)
+    assert np.all(err < 1.5)
+    whole = detect_beads(sc.image, pal, roi=False)
+    np.testing.assert_allclose(whole.identification.points, vr.identification.points, atol=1e-9)
+    assert "template" in DETECTORS and set(IDENTIFIERS) == {"recommended", "thesis"}
+    with pytest.raises(ValueError, match="unknown detector 'nope'"):
+        detect_beads(sc.image, pal, detector="nope")
+
+
+def test_bead_fill_views_is_bead_fill_of_each_view():
+    rng = np.random.default_rng(2)
+    scenes = [random_bead_scene(Palette.thesis().rgb, rng=s, size=size) for s, size in ((3, (480, 640)), (4, (300, 200)))]
+    images = [scenes[0].image, scenes[1].image, scenes[0].image.mean(axis=2)]
+    c = rng.uniform([-10, -10], [650, 490], (3, 20, 2))
+    c[0, :10], c[1, :10] = scenes[0].centers[:10], scenes[1].centers[:10]
+    c[rng.random((3, 20)) < 0.1] = np.nan
+    r = rng.uniform(3.0, 8.0, (3, 20))
+    got = bead_fill_views(images, c, r)
+    for v in range(3):
+        np.testing.assert_array_equal(got[v], bead_fill(images[v], c[v], r[v]))
+    assert np.isfinite(got).sum() > 20
+    with pytest.raises(ValueError, match=r"centers must have shape \(3, N, 2\), got \(2, 20, 2\)"):
+        bead_fill_views(images, c[:2], r[:2])
