@@ -104,15 +104,17 @@ def evaluate(res, truth: dict) -> dict:
         v = np.asarray(res.fit.v0, float)
         C = np.asarray(res.fit.covariance, float)[3:6, 3:6]
         u = vt / np.linalg.norm(vt)
-        P = np.eye(3) - np.outer(u, u)
-        e = P @ (v / np.linalg.norm(v) - u)  # direction error across the flight (rad)
-        Cd = P @ C @ P / np.linalg.norm(v) ** 2
-        if np.all(np.isfinite(Cd)):
-            w, V = np.linalg.eigh(Cd)
-            keep = w > 1e-30
-            m2 = float(np.sum((V[:, keep].T @ e) ** 2 / w[keep]))
+        # an explicit 2-D basis across the flight (an eigen-decomposition of the projected 3x3
+        # covariance sometimes kept its rounding-level third eigenvalue, which made the reported
+        # dir_sigma_deg sqrt(3/2) smaller from one run to the next)
+        E = np.linalg.svd(np.eye(3) - np.outer(u, u))[0][:, :2]  # (3, 2), orthonormal, _|_ u
+        e = E.T @ (v / np.linalg.norm(v))  # direction error across the flight (rad, small angles)
+        Cd = E.T @ C @ E / np.linalg.norm(v) ** 2
+        if np.all(np.isfinite(Cd)) and np.linalg.det(Cd) > 0:
+            m2 = float(e @ np.linalg.solve(Cd, e))
             cov["direction"] = m2 <= CHI2_2_95
-            row["dir_sigma_deg"] = float(np.degrees(np.sqrt(np.mean(w[keep]))))
+            row["dir_sigma_deg"] = float(np.degrees(np.sqrt(np.trace(Cd) / 2.0)))
+            row["dir_m2"] = m2
     if res.spin_available and row["rate_rpm"] is not None:
         s_r, s_a = tc.get("spin_rate_sigma_rpm"), tc.get("spin_axis_sigma_deg")
         if s_r and np.isfinite(s_r):

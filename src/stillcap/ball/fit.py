@@ -25,10 +25,25 @@ component along the velocity, gyro spin, produces no Magnus force in the Nathan 
 enters the seed model's ``C_L`` through ``|w|``; it becomes weakly visible because gravity turns
 the velocity during the flight). The spin is written in a fixed basis built from the measured
 initial velocity, ``w = s_a e_v + s_1 e_1 + s_2 e_2`` (``e_v`` along the velocity, ``e_1`` the
-horizontal and ``e_2`` the upward normal); with a measured spin the axial part ``s_a`` is held
+horizontal and ``e_2`` the upward normal). With a measured spin the axial part ``s_a`` is held
 near its measured value by its prior, which keeps the problem well posed (its reported
-uncertainty is then essentially the prior's). Without a measured spin all three are free and
-start at zero; the axial uncertainty is then large and says so.
+uncertainty is then essentially the prior's).
+
+Without a measured spin all three are fitted. Positions see the axial spin only weakly, but they
+do see it: the velocity turns during the flight (gravity, the break), so the axial spin at the
+first flash becomes transverse later. Holding it at 0 (``fit_axial_spin=False``, tried for
+issue 3) left the transverse part well determined but biased the flight of gyro-heavy pitches
+(studio ``mlb-gyro-slider`` and curveballs: 1.5-2 mm RMS from the positions instead of 0.6 mm,
+the velocity 12-17 of its sigmas off, and a 5x too small transverse sigma). What made the
+free fit slow is the shape of that weak direction in the seed model, whose lift is ``|w|``
+along ``w_perp``: at constant lift it is a curved valley (``|w|`` and the direction of
+``w_perp`` fixed) that Levenberg-Marquardt crawled along (1000-2800 trajectories). So with the
+seed model and no measured spin the fit runs in ``(phi, e_1, e_2)``, the gyro angle and the
+effective transverse spin ``e = |w| w_perp / |w_perp|`` (:func:`_gyro_to_basis`), where that
+valley is a coordinate axis: the same minimum and covariance in 120-420 trajectories. The
+result is reported in ``(s_a, s_1, s_2)`` as always (covariance through the Jacobian of the
+change of variables). Nathan's lift depends on ``w_perp`` alone, for which ``(s_a, s_1, s_2)``
+is already that parameterisation.
 """
 
 from __future__ import annotations
@@ -143,6 +158,10 @@ class ReferenceFit:
     nfev : int
         Objective evaluations (trajectories).
     fit_time_s : float
+    axial_spin_fitted : bool
+        False when the axial spin ``s_a`` was held (at 0, or at the measured spin's axial
+        component) rather than fitted: its row and column of ``covariance`` are then 0 and
+        ``spin_sigma`` covers the transverse part only.
     position_gain : ndarray, shape (9 + G - 1, N, 3) or None
         Linear response of the parameters to the measured positions, ``d theta / d positions``
         (0 where not observed): a position error ``dP`` with covariance ``C`` (e.g. the
@@ -183,6 +202,7 @@ class ReferenceFit:
     nfev: int
     fit_time_s: float
     position_gain: np.ndarray | None = None
+    axial_spin_fitted: bool = True
 
     def position_covariance_term(self, modes) -> np.ndarray:
         """Parameter covariance from correlated position errors given as modes.
@@ -257,6 +277,7 @@ class _Problem:
         self.has_prior = free & np.isfinite(sigmas)
         self.prior_sigma = sigmas[self.has_prior]
         self.basis = basis
+        self.gyro = False  # spin parameters (phi, e_1, e_2) instead of (s_a, s_1, s_2): _gyro_to_basis
         self.model = model
         self.t0 = t0
         self.position_sigma = position_sigma
@@ -276,7 +297,8 @@ class _Problem:
 
     def _simulate(self, th):
         """Trajectories of parameter sets sharing the same time offsets."""
-        spin = th[:, 6:9] @ self.basis.T
+        sp = _gyro_to_basis(th[:, 6:9]) if self.gyro else th[:, 6:9]
+        spin = sp @ self.basis.T
         self.nfev += len(th)
         return simulate_batch(th[:, :3], th[:, 3:6], spin, self.effective_times(th[0, 9:]),
                               self.model, t0=self.t0, method=self.integrator,
@@ -316,6 +338,49 @@ class _Problem:
                 g = free_idx[col] - 9 + 1  # the time group this offset shifts
                 J[:n_data, col] = np.where(self.entry_group == g, vel, 0.0)
         return J
+
+
+def _gyro_to_basis(g) -> np.ndarray:
+    """Spin parameters ``(phi, e_1, e_2)`` -> basis coordinates ``(s_a, s_1, s_2)``.
+
+    ``w = |e| (sin(phi) e_v + cos(phi) e_hat)``: ``e`` is the effective transverse spin of the
+    seed model (its lift is ``|w|`` along ``w_perp``, so ``|w| = |e|`` and ``w_perp`` along ``e``),
+    ``phi`` the gyro angle. At the first flash the lift depends on ``e`` alone; ``phi`` only acts
+    through the turning of the velocity during the flight. In ``(s_a, s_1, s_2)`` that weakly
+    determined direction is a curved valley (constant ``|w|`` and ``w_perp`` direction) that
+    Levenberg-Marquardt crawls along (1000-2800 trajectories on gyro-heavy pitches); in
+    ``(phi, e)`` it is a coordinate axis.
+    """
+    g = np.asarray(g, float)
+    phi, e = g[..., 0], g[..., 1:]
+    ne = np.linalg.norm(e, axis=-1)
+    out = np.empty(g.shape)
+    out[..., 0] = ne * np.sin(phi)
+    out[..., 1:] = e * np.cos(phi)[..., None]
+    return out
+
+
+def _gyro_jacobian(g) -> np.ndarray:
+    """``d (s_a, s_1, s_2) / d (phi, e_1, e_2)`` at ``g``, shape (3, 3)."""
+    phi, e = float(g[0]), np.asarray(g[1:], float)
+    ne = float(np.linalg.norm(e))
+    u = e / ne if ne > 0 else np.zeros(2)
+    J = np.zeros((3, 3))
+    J[0, 0] = ne * np.cos(phi)
+    J[0, 1:] = np.sin(phi) * u
+    J[1:, 0] = -np.sin(phi) * e
+    J[1:, 1:] = np.cos(phi) * np.eye(2)
+    return J
+
+
+def _basis_to_gyro(s) -> np.ndarray:
+    """Inverse of :func:`_gyro_to_basis` (``w_perp != 0``)."""
+    s = np.asarray(s, float)
+    nt = float(np.linalg.norm(s[1:]))
+    nw = float(np.linalg.norm(s))
+    if not nt > 0:
+        return np.zeros(3)
+    return np.concatenate([[np.arctan2(s[0], nt)], s[1:] * (nw / nt)])
 
 
 def _spin_start(times, positions, model, max_rate: float = 600.0) -> np.ndarray:
@@ -364,7 +429,8 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
                              position_sigma: float = 0.002, priors: FitPriors | None = None,
                              integrator: str = "rk4", max_step: float = 0.02,
                              time_groups=None, time_offsets=None,
-                             max_nfev: int | None = None) -> ReferenceFit:
+                             max_nfev: int | None = None,
+                             fit_axial_spin: bool = True) -> ReferenceFit:
     """Fit the physical reference trajectory to measured ball positions (seed section 4.5).
 
     Parameters
@@ -376,8 +442,9 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     p0, v0 : array_like, shape (3,)
         Measured initial position (m) and velocity (m/s) at ``t0``; also the starting guess.
     spin : array_like, shape (3,), optional
-        Measured spin vector, rad/s. Without it the spin has no prior, starts at 0 and only its
-        transverse part is fitted (the axial part is fixed at 0).
+        Measured spin vector, rad/s. Without it the spin has no prior and starts at the spin
+        whose Magnus force matches the curvature of the positions (with the seed model it is
+        then fitted as a gyro angle and an effective transverse spin, module docstring).
     model : FlightModel, optional
         Default: the seed model in the field frame.
     t0 : float, optional
@@ -400,6 +467,11 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
         Starting guesses of those offsets, s (default 0).
     max_nfev : int, optional
         Limit on residual (least_squares) or objective (Powell) evaluations.
+    fit_axial_spin : bool
+        Fit the spin component along the initial velocity (``spin_axial``, default). When False
+        it is held at the measured spin's axial component (0 without one) and only the two
+        transverse components are fitted; without a measured spin that biases the fit of
+        pitches with much gyro spin (module docstring).
 
     Returns
     -------
@@ -437,29 +509,33 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     sigmas = np.concatenate([priors.vector(), np.full(n_off, np.inf)])
     free = np.ones(9 + n_off, bool)
     if spin is None:
-        # no measured spin: start from none, no spin priors. The axial part stays free: the
-        # velocity turns during the flight (gravity), so spin along the initial velocity is
-        # weakly observable, and fixing it at 0 would bias the transverse part.
+        # no measured spin: no spin priors; start from the spin the positions' curvature implies
         spin_meas = None
         s_meas = basis.T @ _spin_start(times + np.concatenate([[0.0], off0])[group_idx], positions, model)
         sigmas[6:9] = np.inf
+        if not fit_axial_spin:
+            s_meas[0] = 0.0
     else:
         spin_meas = as_array(spin, (3,), "spin")
         s_meas = basis.T @ spin_meas
-    theta_meas = np.concatenate([p0, v0, s_meas, off0])
+    if not fit_axial_spin:
+        free[6] = False  # held at s_meas[0]: 0, or the measured spin's axial component
+    # the seed model without a measured spin: fitted in (gyro angle, effective transverse spin)
+    gyro = spin is None and fit_axial_spin and model.kind == "seed" and np.linalg.norm(s_meas[1:]) > 0
+    theta_meas = np.concatenate([p0, v0, _basis_to_gyro(s_meas) if gyro else s_meas, off0])
     prob = _Problem(times, positions, group_idx, theta_meas, sigmas, free, basis, model, t0,
                     position_sigma, integrator, max_step)
+    prob.gyro = gyro
     # parameter scales (for conditioning and finite-difference steps)
-    default_scale = np.array([0.01] * 3 + [0.5] * 3 + [10.0] * 3 + [1e-3] * n_off)
+    default_scale = np.array([0.01] * 3 + [0.5] * 3 + [0.1 if gyro else 10.0] + [10.0] * 2 + [1e-3] * n_off)
     scale = np.where(np.isfinite(sigmas), sigmas, default_scale)[free]
     steps = 1e-4 * scale
     x0 = theta_meas[free]
 
     if method == "least_squares":
-        # Levenberg-Marquardt (MINPACK) rather than "trf": without a measured spin the axial
-        # spin lies in a flat, curved valley (seen only through |w| in the seed model) where
-        # "trf" took 2000-4000 trajectory evaluations; "lm" reaches the same minimum (same
-        # parameters and covariance to 4+ digits on the studio pitches) in about half of them.
+        # Levenberg-Marquardt (MINPACK) rather than "trf": in the weakly determined directions
+        # (axial spin without a measured spin) "trf" took about twice as many trajectory
+        # evaluations to the same minimum
         res = least_squares(lambda x: prob.residuals(x)[0], x0,
                             jac=lambda x: prob.jacobian(x, steps), method="lm",
                             x_scale=scale, xtol=1e-10, ftol=1e-10, gtol=1e-10,
@@ -483,17 +559,30 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     rd = r[:n_data]
     s2 = float(rd @ rd) / max(n_data - len(x_fit), 1)
     Jd, Jp = J[:n_data], J[n_data:]
-    cov_free = np.linalg.pinv(Jd.T @ Jd / max(s2, 1e-300) + Jp.T @ Jp)
+    # pseudo-inverses in the parameters' own scales (D = diag(scale)): unscaled, the cut-off of
+    # pinv depended on the units and silently dropped a nearly undetermined axial spin (sigma
+    # 0.1 rad/s reported for an axial spin undetermined to +-200 rad/s)
+
+    def scaled_pinv(A):
+        return scale[:, None] * np.linalg.pinv(scale[:, None] * A * scale[None, :]) * scale[None, :]
+    cov_free = scaled_pinv(Jd.T @ Jd / max(s2, 1e-300) + Jp.T @ Jp)
     cov = np.zeros((len(free), len(free)))
     cov[np.ix_(free, free)] = cov_free
     # linear response of the parameters to a shift of the measured positions (the fit as a
     # linear estimator): d theta = G d positions, G = (J^T J)^-1 J_d^T / position_sigma
-    gain_free = np.linalg.pinv(J.T @ J) @ Jd.T / position_sigma
+    gain_free = scaled_pinv(J.T @ J) @ Jd.T / position_sigma
     gain = np.zeros((len(free), *positions.shape))
     g_view = np.zeros((len(free), n_data))
     g_view[free] = gain_free
     gain[:, prob.mask] = g_view
     theta = prob.full(x_fit)[0]
+    if gyro:  # back to (s_a, s_1, s_2): parameters, covariance and gain
+        T = np.eye(len(theta))
+        T[6:9, 6:9] = _gyro_jacobian(theta[6:9])
+        theta = theta.copy()
+        theta[6:9] = _gyro_to_basis(theta[6:9])
+        cov = T @ cov @ T.T
+        gain = np.einsum("pq,qnk->pnk", T, gain)
     sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     p_fit, v_fit, s_fit = theta[:3], theta[3:6], theta[6:9]
     w_fit = basis @ s_fit
@@ -525,4 +614,5 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
         residual_scale=float(np.sqrt(s2)),
         success=success and ref.success, message=message, method=method,
         nfev=prob.nfev, fit_time_s=_time.perf_counter() - t_start, position_gain=gain,
+        axial_spin_fitted=bool(fit_axial_spin),
     )

@@ -326,8 +326,11 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     sequence = animation = None
     if labels.reconstructed.any():
         # partly hidden markers' centroids shift by up to a few mm (docs/hand-markers.md): they
-        # count 10x less in the pose fit than fully seen ones
-        sigma = np.where(points.partly_hidden, HIDDEN_SIGMA_M, SEEN_SIGMA_M)
+        # count 10x less in the pose fit than fully seen ones, and less still the less of their
+        # light a view got (flux ratio: 1 unhidden, 0.01 a sliver)
+        flux = np.where(np.isfinite(points.flux_ratio), points.flux_ratio, np.inf).min(axis=0)
+        flux = np.clip(np.where(np.isfinite(flux), flux, 1.0), 0.02, 1.0)
+        sigma = np.where(points.partly_hidden, HIDDEN_SIGMA_M / flux, SEEN_SIGMA_M)
         sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
                                      point_sigma_m=sigma)
         if sequence.n >= 2:
