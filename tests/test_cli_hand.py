@@ -43,6 +43,7 @@ def test_hand_tables_exports_and_report(capture, tmp_path, capsys):
     (["--interpolation", "cubic"], "is not one of spline, slerp"),
     (["--strobe-position", "1,2"], "expected three numbers X,Y,Z"),
     (["--export", "hand.xyz"], "unknown extension '.xyz'"),
+    (["--slow-motion", "0"], "must be a positive factor"),
 ])
 def test_bad_options_exit_2(capture, capsys, args, message, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
@@ -66,3 +67,16 @@ def test_hand_demo_small(tmp_path, capsys):
         assert (tmp_path / "demo" / f).is_file(), f
     rows = hand_summary(res)
     assert rows[0][1] == "labels right" and rows[0][2].endswith("%")
+
+
+def test_slow_motion_stretches_exported_time(capture, tmp_path, capsys):
+    code, out, err = run(["hand", capture, "--export", tmp_path / "real.bvh", "--json"], capsys)
+    assert code == 0, err
+    code, out, err = run(["hand", capture, "--export", tmp_path / "slow.bvh", "--slow-motion", "40", "--json"], capsys)
+    assert code == 0, err
+
+    def frame_time(p):
+        line = next(x for x in p.read_text().splitlines() if x.startswith("Frame Time:"))
+        return float(line.split(":")[1])
+
+    assert frame_time(tmp_path / "slow.bvh") == pytest.approx(40 * frame_time(tmp_path / "real.bvh"))

@@ -82,3 +82,17 @@ def test_spin_says_why_not(capture, balls):
 def test_whiteness_shape():
     with pytest.raises(ValueError, match="image must have shape"):
         whiteness(np.zeros((4, 4, 2), np.uint8))
+
+
+def test_histogram_median_equals_numpy():
+    """The uint8 histogram median (and median absolute deviation) that replaced np.median in the
+    ball threshold is exact, for odd and even sizes."""
+    from stillcap.pipelines.hand_ball import _median
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 10, 11, 1000, 1001, 200_000):
+        w = np.clip(rng.normal(12, 30, n), 0, 255).astype(np.uint8)
+        m = np.median(w)
+        assert _median(w) == m
+        for about in (m, m + 0.5):
+            assert _median(w, about) == np.median(np.abs(w - about))

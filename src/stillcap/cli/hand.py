@@ -49,6 +49,9 @@ def hand(
     interpolation: str = typer.Option("spline", "--interpolation", help="spline (smooth) or slerp."),
     strobe_position: str = typer.Option(None, "--strobe-position", help="The strobe's position X,Y,Z in "
                                         "metres (rig world); default from capture.json meta."),
+    slow_motion: float = typer.Option(1.0, "--slow-motion", help="Stretch time in the exported animation "
+                                      "(BVH, glTF, COLLADA) by this factor, e.g. 40 to play a 60 ms take in 2.4 s "
+                                      "(Blender plays a 1000 fps take within one 24 fps frame otherwise)."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -63,14 +66,24 @@ def hand(
         raise typer.BadParameter(f"{interpolation!r} is not one of spline, slerp", param_hint="--interpolation")
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
+    if not (np.isfinite(slow_motion) and slow_motion > 0):
+        raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     res = analyse_hand(capture, opts)
     written = []
     for path in export:
         from stillcap.io.export import export as export_file
 
-        if res.animation is None and path.suffix.lower() in (".bvh", ".glb", ".gltf", ".dae"):
+        motion = path.suffix.lower() in (".bvh", ".glb", ".gltf", ".dae")
+        if res.animation is None and motion:
             raise ValueError(f"cannot write {path.name}: the capture gave fewer than two hand poses (no animation)")
-        written.append(export_file(path, res))
+        if motion and slow_motion != 1.0:
+            from stillcap.body.skeleton import Animation
+
+            an = res.animation
+            written.append(export_file(path, Animation(an.skeleton, (an.times - an.times[0]) * slow_motion,
+                                                       an.root2world, an.local_rotations)))
+        else:
+            written.append(export_file(path, res))
     if report is not None:
         from stillcap.report.hand import write_result_report
 
