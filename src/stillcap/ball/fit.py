@@ -266,11 +266,15 @@ class _Problem:
     """
 
     def __init__(self, times, positions, group_idx, theta_meas, sigmas, free, basis, model, t0,
-                 position_sigma, integrator, max_step):
+                 position_sigma, integrator, max_step, weights=None):
         self.times = times
         self.group_idx = group_idx  # (N,) 0 = reference clock, g >= 1 -> offset g - 1
         self.mask = np.isfinite(positions)
         self.meas = positions[self.mask]
+        # (N, 3, 3) whitening matrices of the position residuals (None: identity), only on rows
+        # observed in all three coordinates (fit_reference_trajectory's position_covariance)
+        self.weights = weights
+        self.meas_full = np.nan_to_num(positions)
         self.entry_group = np.broadcast_to(group_idx[:, None], positions.shape)[self.mask]
         self.theta_meas = theta_meas
         self.free = free
@@ -304,8 +308,17 @@ class _Problem:
                               self.model, t0=self.t0, method=self.integrator,
                               max_step=self.max_step)
 
+    def _apply_weights(self, d):
+        """(M, N, 3) position differences -> whitened, observed entries (M, n_data)."""
+        if self.weights is not None:
+            d = np.einsum("nij,mnj->mni", self.weights, np.nan_to_num(d))
+        return d[:, self.mask] / self.position_sigma
+
     def _whiten(self, th, positions):
-        data = (positions[:, self.mask] - self.meas) / self.position_sigma
+        if self.weights is None:
+            data = (positions[:, self.mask] - self.meas) / self.position_sigma
+        else:
+            data = self._apply_weights(positions - self.meas_full[None])
         prior = (th[:, self.has_prior] - self.theta_meas[self.has_prior]) / self.prior_sigma
         return np.concatenate([data, prior], axis=1)
 
@@ -331,7 +344,7 @@ class _Problem:
         J = np.zeros((r.shape[1], n))
         J[:, k] = ((r[1::2] - r[2::2]) / (2.0 * steps[k][:, None])).T
         if not phys.all():
-            vel = tr.velocities[0][self.mask] / self.position_sigma
+            vel = self._apply_weights(tr.velocities[:1])[0]
             free_idx = np.flatnonzero(self.free)
             n_data = len(self.meas)
             for col in np.flatnonzero(~phys):  # offsets have no priors: prior rows stay 0
@@ -424,13 +437,34 @@ def _spin_start(times, positions, model, max_rate: float = 600.0) -> np.ndarray:
     return rate * w_dir
 
 
+def _whitening(position_covariance, positions) -> np.ndarray:
+    """Whitening matrices ``W_n`` (``W_n C_n W_n^T = I`` after the common normalisation of
+    ``fit_reference_trajectory``'s ``position_covariance``), identity on unusable rows."""
+    C = np.asarray(position_covariance, float)
+    if C.shape != (len(positions), 3, 3):
+        raise ValueError(f"position_covariance must have shape ({len(positions)}, 3, 3), got {C.shape}")
+    W = np.broadcast_to(np.eye(3), C.shape).copy()
+    ok = np.all(np.isfinite(positions), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
+    if ok.any():
+        Cs = 0.5 * (C[ok] + np.swapaxes(C[ok], 1, 2))
+        ev = np.linalg.eigvalsh(Cs)
+        good = ev[:, 0] > 1e-12 * np.maximum(ev[:, -1], 1e-300)
+        idx = np.flatnonzero(ok)[good]
+        if len(idx):
+            Cs = Cs[good] / np.mean(np.trace(Cs[good], axis1=1, axis2=2) / 3.0)
+            # W = L^-1 with C = L L^T: residual W d has unit covariance
+            W[idx] = np.linalg.inv(np.linalg.cholesky(Cs))
+    return W
+
+
 def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightModel | None = None,
                              *, t0: float | None = None, method: str = "least_squares",
                              position_sigma: float = 0.002, priors: FitPriors | None = None,
                              integrator: str = "rk4", max_step: float = 0.02,
                              time_groups=None, time_offsets=None,
                              max_nfev: int | None = None,
-                             fit_axial_spin: bool = True) -> ReferenceFit:
+                             fit_axial_spin: bool = True,
+                             position_covariance=None) -> ReferenceFit:
     """Fit the physical reference trajectory to measured ball positions (seed section 4.5).
 
     Parameters
@@ -472,6 +506,15 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
         it is held at the measured spin's axial component (0 without one) and only the two
         transverse components are fitted; without a measured spin that biases the fit of
         pitches with much gyro spin (module docstring).
+    position_covariance : array_like, shape (N, 3, 3), optional
+        The *shape* of each measured position's error covariance (e.g. from the triangulation
+        geometry: a stereo pair sees depth worse than the directions across its view). The
+        residuals are whitened with it (generalised least squares) after scaling all of them by
+        one factor, so that the mean per-coordinate variance is ``position_sigma**2``: the
+        overall noise level is still estimated from the residuals (``residual_scale``); only the
+        relative weights (between points, and between the directions of one point) come from
+        it. Rows not observed in all three coordinates, or whose matrix is not finite and
+        positive definite, keep the isotropic ``position_sigma``. Default: isotropic.
 
     Returns
     -------
@@ -523,8 +566,9 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     # the seed model without a measured spin: fitted in (gyro angle, effective transverse spin)
     gyro = spin is None and fit_axial_spin and model.kind == "seed" and np.linalg.norm(s_meas[1:]) > 0
     theta_meas = np.concatenate([p0, v0, _basis_to_gyro(s_meas) if gyro else s_meas, off0])
+    weights = None if position_covariance is None else _whitening(position_covariance, positions)
     prob = _Problem(times, positions, group_idx, theta_meas, sigmas, free, basis, model, t0,
-                    position_sigma, integrator, max_step)
+                    position_sigma, integrator, max_step, weights)
     prob.gyro = gyro
     # parameter scales (for conditioning and finite-difference steps)
     default_scale = np.array([0.01] * 3 + [0.5] * 3 + [0.1 if gyro else 10.0] + [10.0] * 2 + [1e-3] * n_off)
@@ -570,11 +614,14 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     cov[np.ix_(free, free)] = cov_free
     # linear response of the parameters to a shift of the measured positions (the fit as a
     # linear estimator): d theta = G d positions, G = (J^T J)^-1 J_d^T / position_sigma
+    # (with whitening W_n of position n: d theta = (J^T J)^-1 J_d^T W dP / position_sigma)
     gain_free = scaled_pinv(J.T @ J) @ Jd.T / position_sigma
     gain = np.zeros((len(free), *positions.shape))
     g_view = np.zeros((len(free), n_data))
     g_view[free] = gain_free
     gain[:, prob.mask] = g_view
+    if weights is not None:
+        gain = np.einsum("pni,nij->pnj", gain, weights)
     theta = prob.full(x_fit)[0]
     if gyro:  # back to (s_a, s_1, s_2): parameters, covariance and gain
         T = np.eye(len(theta))

@@ -751,19 +751,43 @@ def calibration_modes(cams, centers_px, calib: dict | None, pair_name: str, foca
     return out
 
 
-def centre_bias_modes(cams, centers_px, sigma_px: float):
+def _pixel_sigma(reproj_error_px, default_px: float = 0.1) -> float:
+    """Random ball-centre error per image axis, px: ``sqrt(2) x`` the RMS reprojection error of
+    a pair's triangulated centres (a two-view reprojection error sees one of the two pixel
+    errors' four components' worth of noise per camera), ``default_px`` with fewer than two."""
+    e = np.asarray(reproj_error_px, float)
+    e = e[np.isfinite(e)]
+    s = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
+    return s if s > 0 else default_px
+
+
+def centre_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
     """How a pair's triangulated positions move with a systematic shift of one camera's ball
-    centres (the same for all its ball images): one mode per camera and image axis.
+    centres: one mode per camera and image axis, the same shift for all its ball images; with
+    ``trend`` also one mode per camera and axis whose shift changes linearly along the pair's
+    images (in flight order), from ``-sigma_px`` at the first to ``+sigma_px`` at the last.
 
     Returns
     -------
-    ndarray, shape (4, K, 3)
-        Position shift (m) for a shift of ``sigma_px`` of camera 0 x, 0 y, 1 x, 1 y.
+    ndarray, shape (4, K, 3), or (8, K, 3) with ``trend``
+        Position shift (m) of camera 0 x, 0 y, 1 x, 1 y (then the same four for the trend).
     """
     x = np.asarray(centers_px, float)
-    out = np.zeros((4, x.shape[1], 3))
-    if not sigma_px > 0 or x.shape[1] == 0:
+    K = x.shape[1]
+    profiles = [np.ones(K)]
+    if trend:
+        profiles.append(np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K))
+    out = np.zeros((4 * len(profiles), K, 3))
+    if not sigma_px > 0 or K == 0:
         return out
+    X0 = triangulate(list(cams), x).points
+    for q, prof in enumerate(profiles):
+        for c in range(2):
+            for j in range(2):
+                xs = x.copy()
+                xs[c, :, j] += sigma_px * prof
+                out[4 * q + 2 * c + j] = triangulate(list(cams), xs).points - X0
+    return out
     X0 = triangulate(list(cams), x).points
     for c in range(2):
         for j in range(2):
@@ -1260,8 +1284,22 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
         cr = cross_plane(p0, v_two, np.zeros(3), model, t0=0.0, plane_point=p.positions[0],
                          plane_normal=v_two, t_max=5.0)
         off0.append(cr.time if cr.success else float((p.positions[0] - p0) @ v_two / (v_two @ v_two)))
+    # each position's error covariance shape from its pair's triangulation geometry: a pixel
+    # error of sigma_px (the pair's sqrt(2) x RMS reprojection error) on each centre, mapped to
+    # 3-D through the re-triangulation (the four centre_bias_modes, one image at a time). A
+    # stereo pair sees depth 3-6x worse than across its view; an isotropic fit pooled the
+    # depth scatter of one pair with the small cross-view scatter of the rest and reported
+    # direction sigmas ~1.7x too small (docs/pitch.md, "Uncertainties")
+    pos_cov = np.zeros((len(pos_a), 3, 3))
+    for i, p in enumerate(pairs):
+        if len(p) == 0:
+            continue
+        p._sigma_px = _pixel_sigma(p.reproj_error_px)
+        d = centre_bias_modes(p._cams, p.centers_px, p._sigma_px)  # (4, K, 3)
+        pos_cov[pidx_a == i] = np.einsum("mki,mkj->kij", d, d)
     fit_kw = dict(model=model, t0=0.0, method=options.fit_method, position_sigma=options.position_sigma_m,
-                  time_groups=groups_a if g else None, time_offsets=np.array(off0) if g else None)
+                  time_groups=groups_a if g else None, time_offsets=np.array(off0) if g else None,
+                  position_covariance=pos_cov)
     # the positions-only fit (clock offsets, curvature for the alias check) always uses least
     # squares: it is a step of the pipeline, the selectable optimiser is the final fit's
     fit_pos = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **{**fit_kw, "method": "least_squares"})
@@ -1276,7 +1314,8 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
         if sb is None:
             e = p.reproj_error_px[np.isfinite(p.reproj_error_px)]
             sb = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
-        mb = centre_bias_modes(p._cams, p.centers_px, sb)
+        del p._sigma_px
+        mb = centre_bias_modes(p._cams, p.centers_px, sb, trend=True)
         m = mb if m is None else np.concatenate([m, mb])
         if not np.any(m):
             continue
