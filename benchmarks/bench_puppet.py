@@ -16,7 +16,9 @@ Chains (``stillcap.pipelines.puppet``):
 - default: template detector on the bright region of the photo, assignment in CIEDE2000 with
   white-balance adaptation, DLT with refinement, partly hidden beads left out (fill test), 1 px
   outlier rejection, re-identification from the 3D markers (``reidentify``) and a second
-  triangulation of the markers it renamed, pose fit; "default (whole photo)" detects on the whole photo.
+  triangulation of the markers it renamed, pose fit; "default (whole photo)" detects on the whole photo,
+  "default (full-resolution map)" finds the contrast peaks on the full-resolution map instead of
+  at half resolution (``PuppetSettings(coarse=False)``).
 
 Results and their discussion: docs/puppet.md.
 
@@ -52,6 +54,7 @@ CHAINS = {
     "thesis + template": PuppetSettings(detector="template", identify="thesis", triangulation="midpoint",
                                         outlier_px=None, use_fill=False, pose="thesis", reidentify=False),
     "default (whole photo)": PuppetSettings(roi=False),
+    "default (full-resolution map)": PuppetSettings(coarse=False),
     "default": DEFAULT,
 }
 

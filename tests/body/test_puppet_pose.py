@@ -31,3 +31,17 @@ def test_rest_markers_give_the_rest_pose():
     assert frame_status(sk, ms)["lower-back"] == "full"
     with pytest.raises(ValueError, match=r"marker_positions must have shape \(16, 3\), got \(15, 3\)"):
         fit_pose(sk, ms, pts[:15])
+
+
+def test_euler_matrices_are_scipys_elementary_rotations():
+    """The fit's closed-form Rx, Ry, Rz are Rotation.from_euler's, and their product the
+    intrinsic XYZ rotation the joint limits are written in."""
+    from scipy.spatial.transform import Rotation
+
+    from stillcap.body.puppet_pose import _euler_matrices
+
+    a = np.random.default_rng(0).uniform(-180, 180, (25, 3))
+    R = _euler_matrices(a)
+    for k, ax in enumerate("xyz"):
+        np.testing.assert_allclose(R[k], Rotation.from_euler(ax, a[:, k:k + 1], degrees=True).as_matrix(), atol=1e-15)
+    np.testing.assert_allclose(R[0] @ R[1] @ R[2], Rotation.from_euler("XYZ", a, degrees=True).as_matrix(), atol=1e-14)

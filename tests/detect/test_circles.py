@@ -219,3 +219,40 @@ def test_grey_median_and_grey_image_shortcuts_are_exact(scenes):
             assert np.array_equal(g, sub.astype(np.float32).mean(axis=2))
             assert _median_grey(sub) == float(np.median(g))
     assert _median_grey(np.zeros((4, 4), np.uint8)) is None  # grey input: the caller's median
+
+
+def test_coarse_template_finds_the_full_resolution_peaks(scenes):
+    """Peaks found at half resolution and climbed on the full-resolution contrast are the
+    full-resolution map's own: same whole-pixel starts, so the same refined centres, radii and
+    scores (to float32 rounding) on the drawn photos, also on an odd-sized crop."""
+    for sc in scenes:
+        for img in (sc.image, sc.image[13:402, 7:561]):
+            a = find_circles(img)
+            b = find_circles(img, coarse=True)
+            assert len(b) == len(a) > 0
+            np.testing.assert_allclose(b.centers, a.centers, atol=1e-6)
+            np.testing.assert_array_equal(b.radii, a.radii)
+            np.testing.assert_allclose(b.scores, a.scores, atol=1e-3)
+    # a photo with nothing in it, and one too small to shrink: no circle, no error
+    assert len(find_circles(np.zeros((60, 80, 3), np.uint8), coarse=True)) == 0
+    assert len(find_circles(np.full((6, 6), 200, np.uint8), coarse=True)) == 0
+
+
+def test_contrast_at_is_the_contrast_map(scenes):
+    """The full-resolution contrast evaluated at single pixels (what the coarse detector's
+    climb reads) equals the contrast map there, borders included."""
+    import cv2
+
+    from stillcap.detect.circles import _contrast_at, _contrast_stack, _kernel_stack
+
+    radii = (5.0, 6.0, 7.0)
+    g = grey_image(scenes[0].image)[40:200, 30:260]
+    ref = _contrast_stack(g, np.array(radii))  # (R, H, W)
+    kst = _kernel_stack(radii)
+    pad = kst.shape[1] // 2
+    gp = cv2.copyMakeBorder(g, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    rng = np.random.default_rng(1)
+    rows = np.r_[0, g.shape[0] - 1, rng.integers(0, g.shape[0], 50)]
+    cols = np.r_[g.shape[1] - 1, 0, rng.integers(0, g.shape[1], 50)]
+    v = _contrast_at(gp, pad, rows, cols, kst)
+    assert np.abs(v - ref[:, rows, cols].T).max() < 1e-3

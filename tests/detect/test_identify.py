@@ -177,3 +177,25 @@ def test_bad_input():
         calibrate_palette([np.zeros((4, 4, 3))] * 2, [np.zeros((16, 2))], PAL)
     with pytest.raises(ValueError, match=r"points must have shape \(16, 2\), got \(3, 2\)"):
         calibrate_palette([np.zeros((4, 4, 3))], [np.zeros((3, 2))], PAL)
+
+
+def test_disc_sampler_is_the_mean_of_each_disc():
+    """The vectorised disc sampler gives each candidate the mean colour of exactly the pixels
+    whose centres lie within 0.7 x its radius (written here pixel by pixel), NaN for NaN
+    centres and discs wholly outside the photo, and clips at the borders."""
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    c = np.c_[rng.uniform(-3, 83, 40), rng.uniform(-3, 63, 40)]
+    c[0] = np.nan
+    c[1] = [-20.0, 30.0]  # far outside
+    c[2] = [0.0, 0.0]  # corner
+    r = rng.uniform(1.0, 8.0, 40)
+    got = sample_colors(img, c, r, sampler="disc")
+    ys, xs = np.mgrid[0:60, 0:80]
+    for i, ((x, y), ri) in enumerate(zip(c, r)):
+        R = max(0.7 * ri, 0.75)
+        sel = (xs - x) ** 2 + (ys - y) ** 2 <= R * R if np.isfinite(x) else np.zeros(xs.shape, bool)
+        if not sel.any():
+            assert np.all(np.isnan(got[i])), i
+        else:
+            np.testing.assert_allclose(got[i], img[sel].mean(axis=0)[::-1] / 255.0, atol=1e-12)

@@ -58,7 +58,7 @@ class ViewResult:
 
 
 def detect_beads(image, palette: Palette, detector: str = "template", identify: str = "recommended",
-                 radius_range=(5.0, 7.0), n_circles: int = 16, roi: bool = True) -> ViewResult:
+                 radius_range=(5.0, 7.0), n_circles: int = 16, roi: bool = True, coarse: bool = True) -> ViewResult:
     """Find the bead candidates in one photo and name them by colour.
 
     Parameters
@@ -77,6 +77,10 @@ def detect_beads(image, palette: Palette, detector: str = "template", identify: 
         Candidates per photo.
     roi : bool
         Detect only inside :func:`bright_region` (the same beads, faster).
+    coarse : bool
+        Template detector: the contrast map's peaks at half resolution, each then climbed to
+        its full-resolution maximum (``find_circles(coarse=True)``; faster, see
+        ``docs/puppet-detection.md``); False: the full-resolution map everywhere.
     """
     if detector not in DETECTORS:
         raise ValueError(f"unknown detector {detector!r}; choose one of {', '.join(DETECTORS)}")
@@ -89,7 +93,7 @@ def detect_beads(image, palette: Palette, detector: str = "template", identify: 
     if roi:
         x0, y0, x1, y1 = bright_region(img, margin=margin)
         img = img[y0:y1, x0:x1]
-    circles = find_circles(img, n=n_circles, radius_range=radius_range, method=detector)
+    circles = find_circles(img, n=n_circles, radius_range=radius_range, method=detector, coarse=coarse)
     if x0 or y0:
         circles = Circles(circles.centers + [x0, y0], circles.radii, circles.scores, circles.method, circles.threshold)
     ident = identify_markers(image, circles, palette, **IDENTIFIERS[identify])
@@ -107,10 +111,11 @@ def bright_region(image, margin: int = 13, contrast: float = 15.0) -> tuple[int,
     h, w = g.shape
     med = float(np.median(g[::4, ::4]))
     mask = cv2.erode((g > med + contrast).astype(np.uint8), np.ones((3, 3), np.uint8))
-    pts = cv2.findNonZero(mask)
-    if pts is None:
+    # cv2.boundingRect of the mask image itself (its non-zero pixels): the box findNonZero's
+    # point list gives, without building the list
+    x, y, bw, bh = cv2.boundingRect(mask)
+    if bw == 0 or bh == 0:
         return 0, 0, w, h
-    x, y, bw, bh = cv2.boundingRect(pts)
     return max(0, x - margin), max(0, y - margin), min(w, x + bw + margin), min(h, y + bh + margin)
 
 

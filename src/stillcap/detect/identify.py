@@ -101,6 +101,8 @@ def sample_colors(image, centers, radii=None, sampler: str = "patch", size: int 
         raise ValueError(f"size must be a positive odd integer, got {size}")
     h, w = img.shape[:2]
     out = np.full((len(c), 3), np.nan)
+    if sampler == "disc":
+        return _sample_discs(img, c, r, disc_fraction, scale)
     for i, ((x, y), ri) in enumerate(zip(c, r)):
         if not (np.isfinite(x) and np.isfinite(y)):
             continue
@@ -122,6 +124,36 @@ def sample_colors(image, centers, radii=None, sampler: str = "patch", size: int 
                 continue
             px = img[y0:y1 + 1, x0:x1 + 1][sel]
         out[i] = px.astype(float).mean(axis=0)[::-1] / scale
+    return np.clip(out, 0.0, 1.0)
+
+
+def _sample_discs(img: np.ndarray, c: np.ndarray, r: np.ndarray, disc_fraction: float, scale: float) -> np.ndarray:
+    """The ``disc`` sampler of :func:`sample_colors` for all candidates at once: the pixels of
+    each disc (the same sets as a loop over the candidates) gathered from one common window
+    size and averaged with a mask (a loop cost ~0.1 ms per candidate)."""
+    h, w = img.shape[:2]
+    out = np.full((len(c), 3), np.nan)
+    with np.errstate(invalid="ignore"):
+        live = np.all(np.isfinite(c), axis=1) & np.isfinite(r)
+    if not live.any():
+        return out
+    cl, R = c[live], np.maximum(disc_fraction * r[live], 0.75)
+    x0 = np.maximum(0, np.ceil(cl[:, 0] - R)).astype(int)
+    x1 = np.minimum(w - 1, np.floor(cl[:, 0] + R)).astype(int)
+    y0 = np.maximum(0, np.ceil(cl[:, 1] - R)).astype(int)
+    y1 = np.minimum(h - 1, np.floor(cl[:, 1] + R)).astype(int)
+    S = int(max(np.max(x1 - x0), np.max(y1 - y0), 0)) + 1
+    off = np.arange(S)
+    xs = (x0[:, None] + off)[:, None, :]  # (m, 1, S)
+    ys = (y0[:, None] + off)[:, :, None]  # (m, S, 1)
+    sel = ((xs <= x1[:, None, None]) & (ys <= y1[:, None, None])
+           & ((xs - cl[:, 0, None, None]) ** 2 + (ys - cl[:, 1, None, None]) ** 2 <= (R * R)[:, None, None]))
+    px = img[np.minimum(ys, h - 1), np.minimum(xs, w - 1)].astype(float)  # (m, S, S, 3)
+    k = sel.sum(axis=(1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = (px * sel[..., None]).sum(axis=(1, 2)) / k[:, None]
+    mean = np.where((k > 0)[:, None], mean, np.nan)
+    out[np.flatnonzero(live)] = mean[:, ::-1] / scale
     return np.clip(out, 0.0, 1.0)
 
 
@@ -286,7 +318,9 @@ def _gains(measured, reference):
     r = _srgb_to_linear(reference)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(r > 0.02, m / r, np.nan)
-    g = np.nanmedian(ratio, axis=0)
+    # per channel the median of the finite ratios: np.nanmedian's value (its masked-array
+    # path cost ~0.5 ms per call on these few rows)
+    g = np.array([np.median(col[np.isfinite(col)]) if np.isfinite(col).any() else np.nan for col in ratio.T])
     return np.where(np.isfinite(g) & (g > 0), g, 1.0)
 
 

@@ -48,7 +48,7 @@ from stillcap.camera import Rig
 from stillcap.detect.beads import (DETECTORS, IDENTIFIERS, ViewResult, bead_fill, bead_fill_views,  # noqa: F401
                                    bright_region, detect_beads, expected_radius_px, reidentify)
 from stillcap.detect.palette import Palette
-from stillcap.geometry.triangulate import Triangulation, triangulate
+from stillcap.geometry.triangulate import Triangulation, _Normal3, triangulate
 from stillcap.io.jsonfile import read_json
 
 __all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSettings", "ViewResult", "MarkerSolve",
@@ -103,6 +103,9 @@ class PuppetSettings:
         :func:`reidentify`'s pixel gate, share of the projected bead radius.
     reid_colour : float
         :func:`reidentify`'s colour gate, multiple of the identification's acceptance distance.
+    coarse : bool
+        Template detector: find the contrast peaks at half resolution and climb each to its
+        full-resolution maximum (faster); False: the full-resolution contrast map.
     """
 
     detector: str = "template"
@@ -120,6 +123,7 @@ class PuppetSettings:
     reidentify: bool = True
     reid_gate: float = 0.6
     reid_colour: float = 2.0
+    coarse: bool = True
 
     def __post_init__(self):
         if self.detector not in DETECTORS:
@@ -141,7 +145,8 @@ class PuppetSettings:
                 "n_circles": self.n_circles, "triangulation": self.triangulation, "outlier_px": self.outlier_px,
                 "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
                 "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
-                "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_colour}
+                "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_colour,
+                "coarse": self.coarse}
 
 
 #: The measured best chain (``benchmarks/bench_puppet.py``).
@@ -157,7 +162,7 @@ def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT) -> 
     """:func:`stillcap.detect.beads.detect_beads` with the settings' ``detector``, ``identify``,
     ``radius_range``, ``n_circles`` and ``roi``: the bead candidates of one photo, named by colour."""
     return detect_beads(image, palette, settings.detector, settings.identify, settings.radius_range,
-                        settings.n_circles, settings.roi)
+                        settings.n_circles, settings.roi, settings.coarse)
 
 
 _expected_radius_px = expected_radius_px  # the name before the stages moved out
@@ -258,6 +263,123 @@ def triangulate_markers(rig: Rig, points_2d, method: str = "dlt", refine: bool =
     return _triangulate_markers(rig, x, method, refine, outlier_px)
 
 
+class _Views:
+    """The views' cameras as stacked arrays, and the marker observations in normalised
+    coordinates, for the many small triangulations of :func:`solve_markers`.
+
+    :func:`stillcap.geometry.triangulate.triangulate` loops over the cameras and undistorts the
+    observations again at every call (seven calls per pose, ~4 ms each); here the observations
+    are undistorted once and every step (DLT, Gauss-Newton refinement, projection) is one set
+    of array operations over all views. The arithmetic is the shared function's (same normal
+    equations, same Cramer solve, same stopping rule), so the points agree to rounding.
+    """
+
+    def __init__(self, rig: Rig, x: np.ndarray):
+        cams = list(rig)
+        self.P = np.stack([c.world2cam[:3] for c in cams])  # (nv, 3, 4)
+        self.K = np.stack([c.K for c in cams])
+        self.dist = np.stack([np.asarray(c.dist, float) for c in cams])
+        self.r2max = np.array([c.max_distortion_r2 if np.any(c.dist[[0, 1, 4]]) else np.inf for c in cams])
+        self.x = x
+        self.xn = np.stack([c.pixels_to_normalized(xi) for c, xi in zip(cams, x)])  # (nv, n, 2)
+        self.seen = np.isfinite(self.xn[..., 0]) & np.isfinite(self.xn[..., 1])
+
+    def project(self, X: np.ndarray) -> np.ndarray:
+        """Pixels of points ``X`` (N, 3) in every view, (nv, N, 2); as :meth:`Camera.project`."""
+        P = self.P
+        pc = np.einsum("vij,nj->vni", P[:, :, :3], X) + P[:, None, :, 3]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(pc[..., 2] > 1e-12, pc[..., 2], np.nan)
+            x, y = pc[..., 0] / z, pc[..., 1] / z
+            r2 = x * x + y * y
+            far = r2 > self.r2max[:, None]
+        x, y = np.where(far, np.nan, x), np.where(far, np.nan, y)
+        r2 = x * x + y * y
+        k1, k2, p1, p2, k3 = (self.dist[:, i, None] for i in range(5))
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        K = self.K
+        return np.stack([K[:, 0, 0, None] * xd + K[:, 0, 1, None] * yd + K[:, 0, 2, None],
+                         K[:, 1, 1, None] * yd + K[:, 1, 2, None]], axis=-1)
+
+    def _rows(self, mask: np.ndarray):
+        """DLT rows of every (view, marker): ``J`` (2, nv, n, 3) and ``r`` (2, nv, n), zero where unmasked."""
+        P = self.P
+        m = mask.astype(float)
+        J, r = [], []
+        for k in (0, 1):
+            c = np.where(mask, self.xn[..., k], 0.0)
+            J.append((c[..., None] * P[:, None, 2, :3] - P[:, None, k, :3]) * m[..., None])
+            r.append(-(c * P[:, None, 2, 3] - P[:, None, k, 3]) * m)
+        return np.stack(J), np.stack(r)
+
+    @staticmethod
+    def _normal(J: np.ndarray, r: np.ndarray, axis) -> _Normal3:
+        """Normal equations summed over ``axis`` of rows J (..., n, 3), r (..., n)."""
+        eq = _Normal3(J.shape[-2])
+        j0, j1, j2 = J[..., 0], J[..., 1], J[..., 2]
+        eq.a = np.stack([(j0 * j0).sum(axis), (j0 * j1).sum(axis), (j0 * j2).sum(axis), (j1 * j1).sum(axis),
+                         (j1 * j2).sum(axis), (j2 * j2).sum(axis)])
+        eq.b = np.stack([(j0 * r).sum(axis), (j1 * r).sum(axis), (j2 * r).sum(axis)])
+        return eq
+
+    def dlt(self, mask: np.ndarray) -> np.ndarray:
+        J, r = self._rows(mask)
+        return self._normal(J, r, (0, 1)).solve()
+
+    def refine(self, mask: np.ndarray, X: np.ndarray, iterations: int = 4) -> np.ndarray:
+        """Gauss-Newton on the reprojection error in undistorted pixels (``triangulate``'s ``_refine``)."""
+        X = X.copy()
+        good = np.all(np.isfinite(X), axis=1)
+        P, K = self.P, self.K
+        R, t = P[:, :, :3], P[:, :, 3]
+        fx, s, fy = K[:, 0, 0, None, None], K[:, 0, 1, None, None], K[:, 1, 1, None, None]
+        for _ in range(iterations):
+            pc = np.einsum("vij,nj->vni", R, np.where(good[:, None], X, 0.0)) + t[:, None]
+            w = mask & good[None] & (pc[..., 2] > 0)
+            iz = np.where(w, 1.0 / np.where(w, pc[..., 2], 1.0), 0.0)
+            u, v = pc[..., 0] * iz, pc[..., 1] * iz
+            du = (u - np.where(w, self.xn[..., 0], 0.0)) * w
+            dv = (v - np.where(w, self.xn[..., 1], 0.0)) * w
+            du_dX = (R[:, None, 0] - R[:, None, 2] * u[..., None]) * iz[..., None]  # (nv, n, 3)
+            dv_dX = (R[:, None, 1] - R[:, None, 2] * v[..., None]) * iz[..., None]
+            J = np.stack([fx * du_dX + s * dv_dX, fy * dv_dX])
+            r = np.stack([-(fx[..., 0] * du + s[..., 0] * dv), -fy[..., 0] * dv])
+            step = self._normal(J, r, (0, 1)).solve(damping=1e-12)
+            ok = good & np.all(np.isfinite(step), axis=1)
+            X[ok] += step[ok]
+            if not np.any(np.abs(step[ok]) > 1e-10):
+                break
+        return X
+
+    def solve(self, mask: np.ndarray, refine: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Points from the masked observations (NaN with fewer than 2) and their pixel errors
+        in every view where seen, (n, 3) and (nv, n)."""
+        mask = mask & self.seen
+        X = self.dlt(mask)
+        if refine:
+            X = self.refine(mask, X)
+        X[mask.sum(axis=0) < 2] = np.nan
+        return X, np.linalg.norm(self.project(X) - self.x, axis=-1)
+
+    def pair_errors(self) -> np.ndarray:
+        """:func:`_pair_errors`: each view pair's linear point of each marker (from the per-view
+        normal equations added pairwise), its pixel error in every view, (nv, n_pairs, n)."""
+        nv, n = self.seen.shape
+        pairs = _view_pairs(nv)
+        J, r = self._rows(self.seen)
+        eq1 = self._normal(J, r, 0)  # per view: a (6, nv, n), b (3, nv, n)
+        both = self.seen[pairs[:, 0]] & self.seen[pairs[:, 1]]  # (n_pairs, n)
+        eq = _Normal3(len(pairs) * n)
+        eq.a = (eq1.a[:, pairs[:, 0]] + eq1.a[:, pairs[:, 1]]).reshape(6, -1)
+        eq.b = (eq1.b[:, pairs[:, 0]] + eq1.b[:, pairs[:, 1]]).reshape(3, -1)
+        hyp = eq.solve()
+        hyp[~both.ravel()] = np.nan
+        proj = self.project(hyp).reshape(nv, len(pairs), n, 2)
+        return np.linalg.norm(proj - self.x[:, None], axis=-1)
+
+
 def _view_pairs(nv: int) -> np.ndarray:
     return np.array([(i, j) for i in range(nv) for j in range(i + 1, nv)]).reshape(-1, 2)
 
@@ -283,7 +405,7 @@ def _pair_errors(rig: Rig, x: np.ndarray, method: str) -> np.ndarray:
 
 
 def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, outlier_px: float | None,
-                         pair_errors: np.ndarray | None = None) -> Triangulation:
+                         pair_errors: np.ndarray | None = None, views: _Views | None = None) -> Triangulation:
     """:func:`triangulate_markers` on a checked array. ``pair_errors``: :func:`_pair_errors` of
     observations that include ``x``'s (``x`` may leave some out): a pair's hypothesis depends
     only on its two views, so those of pairs still seen in ``x`` are the same and are reused."""
@@ -292,8 +414,11 @@ def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, out
     if outlier_px is None or nv < 3 or n == 0:
         return triangulate(rig, x, method=method, refine=refine, outlier_px=outlier_px)
     pairs = _view_pairs(nv)
+    fast = method == "dlt"  # the DLT chain on stacked arrays (_Views); midpoint: the shared function
+    if fast and views is None:
+        views = _Views(rig, x)
     if pair_errors is None:
-        err = _pair_errors(rig, x, method)
+        err = views.pair_errors() if fast else _pair_errors(rig, x, method)
     else:
         both = seen[pairs[:, 0]] & seen[pairs[:, 1]]  # pairs whose hypothesis x still has
         err = np.where(both[None], pair_errors, np.nan)
@@ -308,16 +433,23 @@ def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, out
     key = np.where(cand & (best_count[None] >= 2), score, np.where(cand, 0.0, np.inf))
     win = np.argmin(key, axis=0)
     mask = np.where(best_count[None] > 0, inl[:, win, np.arange(n)], seen)
-    x_used = np.where(mask[..., None], x, np.nan)
-    tri = triangulate(rig, x_used, method=method, refine=refine)
-    X = tri.points
-    errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
+    if fast:
+        # views.x may hold more observations than x (x leaves some out): only x's are used
+        X, errors = views.solve(mask & seen, refine)
+        errors = np.where(seen, errors, np.nan)
+    else:
+        X = triangulate(rig, np.where(mask[..., None], x, np.nan), method=method, refine=refine).points
+        errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
     with np.errstate(invalid="ignore"):
         mask2 = seen & (errors <= outlier_px)
     if np.any(mask2 != mask):
         mask = mask2
-        X = triangulate(rig, np.where(mask[..., None], x, np.nan), method=method, refine=refine).points
-        errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
+        if fast:
+            X, errors = views.solve(mask, refine)
+            errors = np.where(seen, errors, np.nan)
+        else:
+            X = triangulate(rig, np.where(mask[..., None], x, np.nan), method=method, refine=refine).points
+            errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
     used = mask & np.all(np.isfinite(X), axis=1)[None]
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.nansum(np.where(used, errors, np.nan) ** 2, axis=0) / used.sum(axis=0))
@@ -362,13 +494,15 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
     partial = np.zeros(seen.shape, bool)
     good = seen.copy()
     x_used = x
-    first = pair_err = None
+    first = pair_err = views = None
     if images is not None and settings.use_fill:
         images = list(images)
         if len(images) != len(rig):
             raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
-        pair_err = _pair_errors(rig, x, method) if len(rig) >= 3 and x.shape[1] else None
-        first = _triangulate_markers(rig, x, method, refine, 2.0, pair_err)
+        views = _Views(rig, x) if method == "dlt" else None
+        pair_err = ((views.pair_errors() if views is not None else _pair_errors(rig, x, method))
+                    if len(rig) >= 3 and x.shape[1] else None)
+        first = _triangulate_markers(rig, x, method, refine, 2.0, pair_err, views)
         r_exp = expected_radius_px(rig, first.points, bead_radius_m)
         if radii_px is not None:
             r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
@@ -383,7 +517,7 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, settin
         enough = good.sum(axis=0) >= 2
         partial = seen & ~good & enough[None]
         x_used = np.where(partial[..., None], np.nan, x)
-    tri = _triangulate_markers(rig, x_used, method, refine, settings.outlier_px, pair_err)
+    tri = _triangulate_markers(rig, x_used, method, refine, settings.outlier_px, pair_err, views)
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
     if first is not None and lost.any():
