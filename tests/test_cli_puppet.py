@@ -201,3 +201,16 @@ def test_bad_input_exits_2_with_a_message(capture, tmp_path, capsys):
     code, _, err = run(["puppet", "capture", tmp_path / "p2", "--source", tmp_path / "no.avi"], capsys)
     assert code == 2 and "no.avi" in err
     shutil.rmtree(tmp_path / "p2")
+
+
+def test_puppet_demo_and_its_summary(tmp_path, capsys):
+    from stillcap.cli.demo import puppet_summary
+    from stillcap.cli.demo_puppet import EXPORTS, puppet_demo
+
+    res = puppet_demo(tmp_path / "demo", 0)
+    for name in EXPORTS + ("result.json",):
+        assert (tmp_path / "demo" / name).stat().st_size > 100, name
+    rows = {r[1]: r[2] for r in puppet_summary(res)}
+    assert rows["beads identified wrong"].startswith("0 of ")
+    assert float(rows["marker 3D error, RMS"].split()[0]) < 0.3
+    assert float(rows["bone direction error, RMS (bones the beads fix)"].split()[0]) < 0.5
