@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from stillcap.body.hand import hand_dofs
 from stillcap.body.hand_label import hand_points_from_truth, label_hand_markers
-from stillcap.body.hand_track import fit_hand_sequence, interpolate_animation, joint_angle_series
+from stillcap.body.hand_track import fit_hand_sequence, interpolate_animation, joint_angle_series, observed_dofs
 from stillcap.studio.hand import hand_capture
 
 SEEDS = (0, 2, 5)
@@ -32,29 +31,10 @@ def run(seed, noise_m):
     return lab, np.array(fmap)
 
 
-def observed(seq, i):
-    """DOFs whose angle the seen markers fix: every marker from the digit's base to the joint's
-    bone seen (the thumb CMC's twist also needs the next marker)."""
-    sk, frames = seq.skeleton, seq.markerset.bone_frames(seq.skeleton)
-    seen = np.isfinite(seq.residuals[i])
-    out = []
-    for j, a in hand_dofs(sk):
-        chain, c = [], j
-        while c != sk.root:
-            chain.append(c)
-            c = sk.parents[c]
-        need = np.isin(frames, chain)
-        if sk.names[j] == "thumb-cmc":
-            need |= frames == sk.index("thumb-mcp")
-        if seen[need].all():
-            out.append((j, a))
-    return out
-
-
 def angle_errors(seq, truth, fmap):
     err = []
     for i, k in enumerate(fmap[seq.flashes]):
-        err += [seq.angles_deg[i, j, a] - truth.angles_deg[k, j, a] for j, a in observed(seq, i)]
+        err += [seq.angles_deg[i, j, a] - truth.angles_deg[k, j, a] for j, a in observed_dofs(seq, i)]
     return np.array(err)
 
 

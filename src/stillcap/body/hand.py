@@ -258,6 +258,15 @@ def _fk_markers(parents, order, offsets, moffsets, mframes, r2w, local):
     return np.einsum("mij,mj->mi", R[mframes], moffsets) + t[mframes]
 
 
+def _fit_setup(skeleton: Skeleton, markerset: MarkerSet):
+    """What the hand fits need of the model: marker frames, DOFs, scale group per joint and per
+    marker, offsets, hierarchy, limits (radians)."""
+    gidx = np.array([SCALE_GROUPS.index(g) for g in scale_groups(skeleton)])
+    mg = np.array([gidx[skeleton.index(m.bone)] for m in markerset.markers])
+    return (markerset.bone_frames(skeleton), hand_dofs(skeleton), gidx, mg, skeleton.offsets, markerset.offsets,
+            skeleton.parents, skeleton.depth_first, np.radians(skeleton.limits_deg))
+
+
 def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_scale: bool = False,
              initial: Pose | None = None, regularise: float = 1e-4, weights=None) -> HandFit:
     """Fit the hand's root pose and joint angles (and optionally its scale) to measured markers.
@@ -295,14 +304,7 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     if not seen[back].all():
         raise ValueError(f"fitting a hand needs the back-of-hand markers {list(BACK_MARKERS)} seen, "
                          f"missing: {[BACK_MARKERS[k] for k in np.flatnonzero(~seen[back])]}")
-    frames = markerset.bone_frames(skeleton)
-    dofs = hand_dofs(skeleton)
-    groups = scale_groups(skeleton)
-    gidx = np.array([SCALE_GROUPS.index(g) for g in groups])
-    mg = np.array([gidx[skeleton.index(m.bone)] for m in markerset.markers])
-    offsets, moffsets = skeleton.offsets, markerset.offsets
-    parents, order = skeleton.parents, skeleton.depth_first
-    lim = np.radians(skeleton.limits_deg)
+    frames, dofs, gidx, mg, offsets, moffsets, parents, order, lim = _fit_setup(skeleton, markerset)
 
     ang0 = np.zeros((skeleton.n_joints, 3))
     if initial is not None:
@@ -398,15 +400,8 @@ def fit_hand_poses(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *
     starts = [fit_hand(skeleton, markerset, p, initial=i, regularise=regularise) for p, i in zip(pts_all, initial)]
     if not fit_scale:
         return {g: 1.0 for g in SCALE_GROUPS}, starts
-    frames = markerset.bone_frames(skeleton)
-    dofs = hand_dofs(skeleton)
+    frames, dofs, gidx, mg, offsets, moffsets, parents, order, lim = _fit_setup(skeleton, markerset)
     nd = len(dofs)
-    groups = scale_groups(skeleton)
-    gidx = np.array([SCALE_GROUPS.index(g) for g in groups])
-    mg = np.array([gidx[skeleton.index(m.bone)] for m in markerset.markers])
-    offsets, moffsets = skeleton.offsets, markerset.offsets
-    parents, order = skeleton.parents, skeleton.depth_first
-    lim = np.radians(skeleton.limits_deg)
     lo = np.array([lim[i, a, 0] if np.isfinite(lim[i, a, 0]) else -np.pi for i, a in dofs])
     hi = np.array([lim[i, a, 1] if np.isfinite(lim[i, a, 1]) else np.pi for i, a in dofs])
     seen = np.all(np.isfinite(pts_all), axis=2)

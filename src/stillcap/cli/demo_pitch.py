@@ -11,6 +11,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from stillcap.cli._format import num as _f
+
 console = Console()
 
 #: The seed's Table 1 (SPEC J1), per preset of the pitch studio.
@@ -21,14 +23,6 @@ SEED_TABLE1 = {
     "seed-slider": (15, 25, 3.8, 0.7, 0.4, 13, 65.7, 1491),
     "seed-changeup": (13, 35, 1.4, 1.1, 0.3, 32, 60.6, 1258),
 }
-
-
-def _f(v, d: int = 2) -> str:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return "-" if v is None else str(v)
-    return "-" if x != x else f"{x:.{d}f}"
 
 
 def pitch_demo(out: Path, seed: int, *, preset: str = "seed-4seam", calibrate: bool = True,

@@ -10,15 +10,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.cli._format import num as _f
+
 console = Console()
-
-
-def _f(v, digits: int = 2) -> str:
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return "-" if v is None else str(v)
-    return "-" if x != x else f"{x:.{digits}f}"
 
 
 def _point(text: str | None, name: str):

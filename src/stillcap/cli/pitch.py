@@ -9,6 +9,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.cli._format import num as _f
+
 console = Console()
 
 SPIN_CHOICES = ("global", "seed")
@@ -20,16 +22,6 @@ def _choice(name: str, value: str, allowed) -> str:
     if value not in allowed:
         raise typer.BadParameter(f"{value!r} is not one of {', '.join(allowed)}", param_hint=name)
     return value
-
-
-def _f(v, digits: int = 2) -> str:
-    if v is None:
-        return "-"
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return str(v)
-    return "-" if x != x else f"{x:.{digits}f}"
 
 
 def pitch(

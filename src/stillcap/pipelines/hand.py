@@ -48,7 +48,7 @@ from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolat
 from stillcap.body.skeleton import Animation
 from stillcap.detect.colour_markers import ColourBlobs, find_colour_markers
 from stillcap.geometry.marker_points import MarkerPoints, triangulate_colour_markers
-from stillcap.io.capture import Capture, from_jsonable
+from stillcap.io.capture import Capture, from_jsonable, to_jsonable
 from stillcap.pipelines.hand_ball import HandBalls, HandBallSpin, hand_ball_positions, hand_ball_spin
 from stillcap.pipelines.pitch import stereo_pairs
 
@@ -183,23 +183,7 @@ class HandResult:
              "messages": list(self.messages), "timings_s": dict(self.timings_s)}
         if self.truth is not None:
             d["truth_comparison"] = self.truth
-        return _jsonable(d)
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
+        return to_jsonable(d)
 
 
 def _spin_dict(s: HandBallSpin) -> dict:
