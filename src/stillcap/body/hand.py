@@ -320,28 +320,59 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     n_s = len(SCALE_GROUPS) if fit_scale else 0
     x0 = np.concatenate([rv0, t0, a0, np.zeros(n_s)])
 
+    nd = len(dofs)
+    dof_j = np.array([i for i, _ in dofs])
+    dof_a = np.array([a for _, a in dofs])
+
     def unpack(x):
         r2w = np.eye(4)
         r2w[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
         r2w[:3, 3] = x[3:6]
         ang = np.zeros((skeleton.n_joints, 3))
-        for (i, a), v in zip(dofs, x[6:6 + len(dofs)]):
-            ang[i, a] = v
-        s = np.exp(x[6 + len(dofs):]) if fit_scale else np.ones(len(SCALE_GROUPS))
+        ang[dof_j, dof_a] = x[6:6 + nd]
+        s = np.exp(x[6 + nd:]) if fit_scale else np.ones(len(SCALE_GROUPS))
         return r2w, ang, s
 
+    def residuals(X):
+        """Residuals of every row of ``X`` (P, n_params) at once: the forward kinematics loops
+        over the joints once for all rows (a Jacobian by differences is one call, not 30)."""
+        P = len(X)
+        R0 = Rotation.from_rotvec(X[:, :3]).as_matrix()
+        ang = np.zeros((P, skeleton.n_joints, 3))
+        ang[:, dof_j, dof_a] = X[:, 6:6 + nd]
+        local = Rotation.from_euler("XYZ", ang.reshape(-1, 3)).as_matrix().reshape(P, skeleton.n_joints, 3, 3)
+        s = np.exp(X[:, 6 + nd:]) if fit_scale else np.ones((P, len(SCALE_GROUPS)))
+        joff = offsets[None] * s[:, gidx, None]
+        moff = moffsets[None] * s[:, mg, None]
+        Rj = np.empty((P, skeleton.n_joints, 3, 3))
+        tj = np.empty((P, skeleton.n_joints, 3))
+        for i in order:
+            q = parents[i]
+            if q < 0:
+                Rj[:, i] = np.einsum("pab,pbc->pac", R0, local[:, i])
+                tj[:, i] = X[:, 3:6]
+            else:
+                tj[:, i] = np.einsum("pab,pb->pa", Rj[:, q], joff[:, i]) + tj[:, q]
+                Rj[:, i] = np.einsum("pab,pbc->pac", Rj[:, q], local[:, i])
+        m = np.einsum("pmab,pmb->pma", Rj[:, frames], moff) + tj[:, frames]
+        res = ((m - pts[None]) * w[None, :, None])[:, seen].reshape(P, -1)
+        return np.concatenate([res, regularise * (X[:, 6:6 + nd] - a0[None])], axis=1)
+
     def residual(x):
-        r2w, ang, s = unpack(x)
-        local = Rotation.from_euler("XYZ", ang).as_matrix()
-        p = _fk_markers(parents, order, offsets * s[gidx][:, None], moffsets * s[mg][:, None], frames, r2w, local)
-        res = ((p - pts) * w[:, None])[seen].ravel()
-        return np.concatenate([res, regularise * (x[6:6 + len(dofs)] - a0)])
+        return residuals(x[None])[0]
+
+    def jacobian(x):
+        # forward differences with SciPy's '2-point' step, stepping inward at a bound
+        h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
+        h = np.where(x + h > ub, -h, h)
+        F = residuals(np.vstack([x[None], x[None] + np.diag(h)]))
+        return ((F[1:] - F[0]) / h[:, None]).T
 
     lb = np.concatenate([np.full(6, -np.inf), lo, np.full(n_s, np.log(0.5))])
     ub = np.concatenate([np.full(6, np.inf), hi, np.full(n_s, np.log(2.0))])
     x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
-    sol = least_squares(residual, x0, bounds=(lb, ub), x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                        max_nfev=400)
+    sol = least_squares(residual, x0, jac=jacobian, bounds=(lb, ub), x_scale="jac", xtol=1e-12, ftol=1e-12,
+                        gtol=1e-12, max_nfev=400)
     r2w, ang, s = unpack(sol.x)
     scales = dict(zip(SCALE_GROUPS, (float(v) for v in s)))
     sk, ms = scale_hand(skeleton, markerset, scales) if fit_scale else (skeleton, markerset)
