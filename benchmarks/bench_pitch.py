@@ -269,7 +269,8 @@ def report(rows: list, console: Console, title: str = "") -> None:
     t.add_row("goal", "", "", "", "", "", "<= 3x", "")
     console.print(t)
     # per-stage times (PitchResult.timings_s) -------------------------------------------------------
-    stages = [k for k in ("positions", "fit_positions", "markers", "spin", "fit", "metrics", "total")
+    stages = [k for k in ("positions", "fit_positions", "markers", "markers_wait", "spin", "fit", "metrics",
+                            "total")
               if any(k in (r.get("timings_s") or {}) for r in rows)]
     if stages:
         t = Table(title="analyse_pitch per-stage time, s (mean over captures; decode = 4 x cv2.imread)")

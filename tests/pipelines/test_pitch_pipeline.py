@@ -177,6 +177,22 @@ def test_not_a_pitch_capture_and_bad_options(fastball, tmp_path):
         PitchOptions(spin_method="magic")
     with pytest.raises(ValueError, match="physics must be one of"):
         PitchOptions(physics="aristotle")
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        PitchOptions(workers=0)
+
+
+def test_threads_do_not_change_the_result(fastball, result):
+    """The per-pair work on a thread pool (default 2 workers) gives the serial run's numbers."""
+    truth = json.loads((fastball / "truth.json").read_text())
+    serial = analyse_pitch(fastball, release_y_ft=truth["metrics"]["release_pos_y_ft"], n_samples=100, workers=1)
+    for a, b in zip(serial.pairs, result.pairs):
+        assert a.name == b.name
+        np.testing.assert_array_equal(a.positions, b.positions)
+        np.testing.assert_array_equal(a.centers_px, b.centers_px)
+        np.testing.assert_array_equal(a.observations.directions, b.observations.directions)
+    np.testing.assert_array_equal(serial.spin.spin, result.spin.spin)
+    assert serial.metrics.to_dict() == result.metrics.to_dict()
+    assert {"markers", "markers_wait"} <= set(result.timings_s)
 
 
 # ---------------------------------------------------------------------------------------------

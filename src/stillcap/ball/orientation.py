@@ -451,7 +451,7 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     refined = []
     for h in order:
         Rh = R[h]
-        if any(_rot_angle(Rh, r) < np.radians(distinct_deg) for r, _ in refined):
+        if refined and _near_any(Rh, [r for r, _ in refined], np.radians(distinct_deg)):
             continue
         Rh, c = _refine(Rh, u, t, layout, cap)
         refined.append((Rh, c))
@@ -476,6 +476,21 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
 def _rot_angle(Ra, Rb) -> float:
     c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _near_any(R, Rs, tol: float) -> bool:
+    """Whether any of the rotations ``Rs`` is within ``tol`` (rad) of ``R`` (vectorised
+    ``any(_rot_angle(R, r) < tol for r in Rs)``)."""
+    c = (np.einsum("ab,kab->k", R, np.asarray(Rs, float).reshape(-1, 3, 3)) - 1.0) / 2.0
+    return bool(np.any(np.arccos(np.clip(c, -1.0, 1.0)) < tol))
+
+
+def _rot_angles(Rs) -> np.ndarray:
+    """Pairwise :func:`_rot_angle` of rotations (n, 3, 3) -> (n, n), in one pass
+    (``trace(Ra^T Rb)`` is the sum of the elementwise product)."""
+    Rs = np.asarray(Rs, float).reshape(-1, 3, 3)
+    c = (np.einsum("iab,kab->ik", Rs, Rs) - 1.0) / 2.0
+    return np.arccos(np.clip(c, -1.0, 1.0))
 
 
 def _refine(R, u, t, layout, cap, iters: int = 5):
@@ -767,7 +782,7 @@ def _consensus_rotations(Rs, tol):
     n = len(Rs)
     if n == 0:
         return np.zeros(0, int)
-    ang = np.array([[_rot_angle(Rs[i], Rs[k]) for k in range(n)] for i in range(n)])
+    ang = _rot_angles(Rs)
     support = (ang < tol).sum(1)
     best = int(np.argmax(support))
     return np.flatnonzero(ang[best] < tol)
@@ -795,7 +810,7 @@ def _per_flash_inits(times, flash_fit, period, t0, n_hyp: int = 3):
     if not rel:
         return []
     tol = np.radians(15.0)
-    ang = np.array([[_rot_angle(x, y) for y in rel] for x in rel])
+    ang = _rot_angles(rel)
     who = np.array(who)
     support = np.array([len(set(who[ang[i] < tol])) for i in range(len(rel))])
     out, used = [], np.zeros(len(rel), bool)

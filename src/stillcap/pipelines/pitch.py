@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import time as _time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -132,6 +133,9 @@ class PitchOptions:
         as large as the random centre error, estimated from the pair's triangulation residuals
         (``sqrt(2) * RMS reprojection error``); 0 leaves it out. ``docs/pitch.md``,
         "Uncertainties".
+    workers : int
+        Threads for the per-pair work (decoding, ball images, markers; OpenCV releases the GIL).
+        The results do not depend on it; 1 runs everything on the calling thread's order.
     """
 
     spin_method: str = "global"
@@ -148,6 +152,7 @@ class PitchOptions:
     sigma_method: str = "linear"
     calibration_focal_sigma: float = 2.5e-4
     centre_bias_px: float | None = None
+    workers: int = 2
 
     def __post_init__(self):
         fm = self.fit_method.replace("-", "_") if isinstance(self.fit_method, str) else self.fit_method
@@ -167,6 +172,8 @@ class PitchOptions:
             raise ValueError(f"sigma_method must be one of {', '.join(SIGMA_METHODS)}, got {self.sigma_method!r}")
         if int(self.n_samples) < 0:
             raise ValueError(f"n_samples must be >= 0, got {self.n_samples}")
+        if int(self.workers) < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
         if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
             raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
 
@@ -1153,6 +1160,13 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
     elif kwargs:
         raise ValueError("give either options or keyword arguments, not both")
     cap = capture if isinstance(capture, Capture) else Capture.load(capture)
+    with ThreadPoolExecutor(max(1, int(options.workers))) as pool:
+        return _analyse_pitch(cap, options, progress, pool, t_all)
+
+
+def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPoolExecutor,
+                   t_all: float) -> PitchResult:
+    """The stages of :func:`analyse_pitch`, with `pool` for the per-pair work."""
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "pitch":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a pitch capture (capture.json \"kind\")")
@@ -1166,12 +1180,20 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
 
     # -- 1-2. ball positions per pair -----------------------------------------------------------
     t = _time.perf_counter()
-    raw = []
-    for i, sp in enumerate(specs):
+    # the pairs are independent: decode and detect them on `workers` threads (OpenCV's imread,
+    # inRange, findContours, remap release the GIL); map keeps the pairs' order, so the results
+    # are those of the serial loop
+
+    def positions_of(sp):
         cams = [cap.rig[c] for c in sp.cameras]
-        imgs = [cap.read_image(im) for im in sp.images]
+        imgs = list(pool.map(cap.read_image, sp.images)) if options.workers > len(specs) else \
+            [cap.read_image(im) for im in sp.images]
+        return cams, imgs, ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], R)
+
+    found = list(pool.map(positions_of, specs))
+    raw = []
+    for i, (sp, (cams, imgs, st)) in enumerate(zip(specs, found)):
         _progress(progress, 2 * i + 1, total, f"pair {sp.name}: ball images")
-        st = ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], R)
         ok = st.ok & ((st.flags & _DROP_FLAGS) == 0)
         nd = (len(st.detections_a), len(st.detections_b))
         if nd[0] == 0 or nd[1] == 0:
@@ -1257,6 +1279,17 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
         if len(p) == 1:
             messages.append(f"pair {p.name!r}: one ball image only (its clock offset rests on it alone)")
 
+    # -- 4. markers, per pair on the pool while the main thread fits the positions (they need only
+    # the pair's ball images, not the fit; collected in step 4-5 below) ------------------------------
+    def markers_of(p):
+        t_job = _time.perf_counter()
+        out = pair_marker_observations(
+            p._cams[0], p._imgs[0], p._cams[1], p._imgs[1], p.centers_px[0], p.centers_px[1], p.radius_px[0],
+            p.radius_px[1], p.positions, types, layout, R, options.marker_epipolar_px)
+        return out, _time.perf_counter() - t_job
+
+    marker_jobs = [pool.submit(markers_of, p) if len(p) else None for p in pairs]
+
     # -- 6. release velocity (seed's two points) -----------------------------------------------------
     p0 = ref.positions[0]
     dk = int(ref.flash_index[1] - ref.flash_index[0])
@@ -1338,15 +1371,18 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
 
     # -- 4-5. markers and spin ----------------------------------------------------------------------
     t = _time.perf_counter()
-    for p in pairs:
-        if len(p):
-            obs, mk, stats = pair_marker_observations(
-                p._cams[0], p._imgs[0], p._cams[1], p._imgs[1], p.centers_px[0], p.centers_px[1], p.radius_px[0],
-                p.radius_px[1], p.positions, types, layout, R, options.marker_epipolar_px)
+    t_jobs = 0.0
+    for p, job in zip(pairs, marker_jobs):
+        if job is not None:
+            (obs, mk, stats), dt = job.result()
+            t_jobs += dt
             p.observations, p.markers = obs, mk
             p.n_markers_3d, p.n_markers_ray, p.marker_reproj_px = stats["n_3d"], stats["n_ray"], stats["epipolar_px"]
         del p._imgs, p._cams
-    timings["markers"] = _time.perf_counter() - t
+    # "markers": the pairs' marker jobs summed (they run on the pool, alongside fit_positions);
+    # "markers_wait": what the main thread still waited for them after its positions-only fit
+    timings["markers"] = t_jobs
+    timings["markers_wait"] = _time.perf_counter() - t
     t = _time.perf_counter()
     n_obs = sum(len(p.observations) for p in pairs if p.observations is not None)
     spin, alias, obs_times = None, None, None
