@@ -1,6 +1,6 @@
 """Puppet capture end to end: rendered turntable photos -> identified markers -> 3D -> pose.
 
-    python benchmarks/bench_puppet.py [--random 40] [--bvh 12] [--seed 0] [--cache DIR]
+    python benchmarks/bench_puppet.py [--random 40] [--bvh 12] [--seed 0] [--cache DIR] [--workers 2]
 
 Every pose is rendered by the studio (``stillcap.studio.puppet``: the thesis's 12 turntable
 views of the 210 mm puppet, 640x480 webcam with noise and JPEG at quality 85) and written as a
@@ -28,7 +28,8 @@ the truth shows in 2+ views that were recovered; 3D marker error; bone direction
 (grouped by what the markers measure: "full" bones start at a joint frame whose orientation
 the beads fix, "partial" at a frame with one bead (forearms, shins), "none" at one without
 (hands, feet)); joint position error; time for the 12 views (decode + pipeline) as a ratio to
-decoding the 12 JPEGs, both measured in this run, per pose.
+decoding the 12 JPEGs, both measured in this run, per pose. The pipeline decodes and detects
+the views on ``--workers`` threads (default 2); the reference decode is always serial.
 """
 
 from __future__ import annotations
@@ -119,6 +120,8 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-puppet"), help="capture folders")
     ap.add_argument("--chains", default=",".join(CHAINS), help="comma-separated chains to run")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="threads that decode and detect the views (run_capture's workers; 1 = serially)")
     args = ap.parse_args(argv)
     specs = pose_specs(args.random, args.bvh, args.seed)
     folders = render(args.cache, specs, args.seed)
@@ -132,7 +135,7 @@ def main(argv=None) -> None:
                 bar.update(task, description=f"{c}: {folder.name}")
                 dec = min(decode_time(folder), decode_time(folder))  # warm file cache, best of two
                 t0 = time.perf_counter()
-                res, _ = run_capture(folder, CHAINS[c])
+                res, _ = run_capture(folder, CHAINS[c], workers=args.workers)
                 total = time.perf_counter() - t0
                 rows[c].append(dict(spec=spec, cmp=res.comparison, total=total, decode=dec, t=res.timings_s))
                 bar.advance(task)

@@ -99,3 +99,32 @@ def test_bead_fill_views_is_bead_fill_of_each_view():
     assert np.isfinite(got).sum() > 20
     with pytest.raises(ValueError, match=r"centers must have shape \(3, N, 2\), got \(2, 20, 2\)"):
         bead_fill_views(images, c[:2], r[:2])
+
+
+def test_bead_fill_views_same_for_uint8_and_float_photos():
+    """The uint8 colour path (channel sums in integers) and the float path give the same fills."""
+    rng = np.random.default_rng(7)
+    sc = random_bead_scene(Palette.thesis().rgb, rng=6)
+    assert sc.image.dtype == np.uint8
+    c = np.concatenate([sc.centers + rng.normal(0, 0.7, sc.centers.shape), rng.uniform(-5, 645, (10, 2))])
+    r = rng.uniform(3.0, 8.0, len(c))
+    got = bead_fill_views([sc.image, sc.image.astype(np.float64)], np.stack([c, c]), np.stack([r, r]))
+    np.testing.assert_array_equal(got[0], got[1])
+    np.testing.assert_array_equal(got[0], _fill_one_by_one(sc.image, c, r))
+    assert np.isfinite(got).sum() > 30
+
+
+def test_detect_beads_with_a_given_region_is_the_same():
+    from stillcap.detect.beads import roi_box
+
+    sc = random_bead_scene(Palette.thesis().rgb, rng=8)
+    pal = Palette.thesis()
+    a = detect_beads(sc.image, pal)
+    b = detect_beads(sc.image, pal, region=roi_box(sc.image))
+    np.testing.assert_array_equal(a.circles.centers, b.circles.centers)
+    np.testing.assert_array_equal(a.identification.points, b.identification.points)
+    assert np.isfinite(a.identification.points).all(axis=1).sum() >= 10
+    # a region that leaves out half the photo loses the beads there
+    h, w = sc.image.shape[:2]
+    c = detect_beads(sc.image, pal, region=(0, 0, w // 2, h))
+    assert np.all(c.circles.centers[:, 0] < w // 2)

@@ -199,3 +199,18 @@ def test_disc_sampler_is_the_mean_of_each_disc():
             assert np.all(np.isnan(got[i])), i
         else:
             np.testing.assert_allclose(got[i], img[sel].mean(axis=0)[::-1] / 255.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("metric", ["ciede2000", "lab", "hsb"])
+def test_costs_are_color_distance(metric):
+    """The cost matrix (references converted to Lab once) is color_distance's, NaN for NaN rows."""
+    pal = Palette.thesis()
+    rng = np.random.default_rng(3)
+    col = np.clip(pal.rgb[rng.permutation(len(pal))[:12]] + rng.normal(0, 0.05, (12, 3)), 0, 1)
+    col[4] = np.nan
+    res = identify_colors(col, pal, metric=metric, lightness_weight=0.7, adapt=False)
+    want = np.full((12, len(pal)), np.nan)
+    ok = np.isfinite(col).all(axis=1)
+    want[ok] = color_distance(col[ok], pal.rgb, metric, 0.7)
+    np.testing.assert_array_equal(res.cost, want)
+    assert (res.candidate >= 0).sum() >= 8

@@ -291,3 +291,22 @@ def test_forearm_and_shin_directions_on_the_hinge_and_off_it():
     off = dict(hinge, **{"l-elbow": [30, -120, 8], "l-knee": [80, 8, 0]})
     e2 = _fit_bone_errors(off)
     assert e2["l-hand"] > 0.5 and e2["l-foot"] > 0.5, e2
+
+
+def test_threads_give_the_serial_result(tmp_path, random3):
+    """Decoding and detecting the views on two threads changes nothing (order and values)."""
+    cap, images = random3.to_capture(".jpg")
+    cap.save(tmp_path / "cap", images, jpeg_quality=85)
+    seen = []
+    one, _ = run_capture(tmp_path / "cap", workers=1)
+    two, _ = run_capture(tmp_path / "cap", workers=2, progress=lambda d, n: seen.append((d, n)))
+    assert seen == [(k, 12) for k in range(1, 13)]
+    for a, b in zip(one.views, two.views):
+        np.testing.assert_array_equal(a.circles.centers, b.circles.centers)
+        np.testing.assert_array_equal(a.identification.cost, b.identification.cost)
+    np.testing.assert_array_equal(one.markers.observations, two.markers.observations)
+    np.testing.assert_array_equal(one.markers.points, two.markers.points)
+    np.testing.assert_array_equal(one.pose.positions, two.pose.positions)
+    assert np.isfinite(two.markers.points).all(axis=1).sum() >= 14
+    with pytest.raises(ValueError, match=r"need one detection per view \(12\), got 3"):
+        reconstruct_puppet(random3.rig, random3.images, detections=one.views[:3])

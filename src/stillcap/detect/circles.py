@@ -196,14 +196,15 @@ def _hough(edges: np.ndarray, radii: np.ndarray, n: int, min_distance: int):
     return acc[keep], cx[keep].astype(float), cy[keep].astype(float), rr[keep].astype(float)
 
 
-def _median_grey(image) -> float | None:
+def _median_grey(image, channel_sum=None) -> float | None:
     """``float(np.median(grey_image(image)))`` of a uint8 BGR photo from a histogram of the
     integer channel sums (the grey image is their monotonic image ``sum / 3``), several times
-    faster than partitioning the float grey image; None for other images."""
+    faster than partitioning the float grey image; None for other images. ``channel_sum``:
+    the image's :func:`_channel_sum` when the caller has it already."""
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim != 3 or img.size == 0:
         return None
-    s = _channel_sum(img).ravel()
+    s = (_channel_sum(img) if channel_sum is None else channel_sum).ravel()
     cum = np.cumsum(np.bincount(s, minlength=766))
     n = s.size
     lo, hi = (np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right")).astype(np.float32) / np.float32(3.0)
@@ -243,7 +244,9 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
     ndarray, shape (N, 2)
         A centre that would move by more than its radius (a false circle) keeps its start value.
     """
-    grey = grey_image(image)
+    img = np.asarray(image)
+    # a float32 grey image (what find_circles passes) is only read here: no copy of it
+    grey = img if img.ndim == 2 and img.dtype == np.float32 else grey_image(img)
     c = as_array(centers, (None, 2), "centers").copy()
     r = as_array(radii, (len(c),), "radii")
     if len(c) == 0:
@@ -360,7 +363,14 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
     r_min, r_max = float(radius_range[0]), float(radius_range[1])
     md = max(1, int(round(r_min))) if min_distance is None else int(min_distance)
     refine = (method != "thesis") if refine is None else bool(refine)
-    grey = grey_image(img)
+    csum = None
+    if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] == 3:
+        # grey_image's own arithmetic, keeping the channel sum for the median below
+        csum = _channel_sum(img)
+        grey = csum.astype(np.float32)
+        grey /= np.float32(3.0)
+    else:
+        grey = grey_image(img)
     needs_t = method in ("thesis", "hough", "blobs")  # the template and cv2 methods use no threshold
     t = (isodata_threshold(grey) if threshold is None else float(threshold)) if needs_t else np.nan
     if n == 0:
@@ -380,7 +390,7 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
         acc, cx, cy, rr = _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity)
     centers = np.stack([cx, cy], axis=1) if len(cx) else np.zeros((0, 2))
     if refine and len(centers):
-        centers = refine_centers(grey, centers, rr, background=_median_grey(img))
+        centers = refine_centers(grey, centers, rr, background=_median_grey(img, csum))
     order = np.argsort(-acc, kind="stable")
     return Circles(centers[order], np.asarray(rr, float)[order], np.asarray(acc, float)[order], method, t)
 

@@ -27,7 +27,13 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stillcap._checks import as_array
-from stillcap.detect.palette import METRICS, Palette, color_distance
+from stillcap.detect.palette import (
+    METRICS,
+    Palette,
+    _lab_pairwise,
+    color_distance,
+    rgb_to_lab,
+)
 
 __all__ = [
     "RECOMMENDED",
@@ -379,10 +385,19 @@ def identify_colors(colors_rgb, palette: Palette, centers=None, method: str = "a
     ref = palette.rgb
     gains = np.ones(3)
 
+    # the references' Lab colours once for the (up to three) cost matrices rather than in
+    # every color_distance call (the same numbers: color_distance converts both sides the same way)
+    ref_lab = rgb_to_lab(ref) if metric in ("lab", "ciede2000") and len(ref) else None
+
     def costs(c):
         C = np.full((n, len(ref)), np.nan)
         if valid.any():
-            C[valid] = color_distance(c[valid], ref, metric, lightness_weight)
+            if ref_lab is not None:
+                if not lightness_weight > 0:
+                    raise ValueError(f"lightness_weight must be > 0, got {lightness_weight}")
+                C[valid] = _lab_pairwise(rgb_to_lab(c[valid]), ref_lab, metric, lightness_weight)
+            else:
+                C[valid] = color_distance(c[valid], ref, metric, lightness_weight)
         return C
 
     C = costs(col)

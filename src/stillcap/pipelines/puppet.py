@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -46,7 +47,7 @@ from stillcap.body.puppet_pose import (PoseFit, _euler_matrices, _rotations_abou
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import (DETECTORS, IDENTIFIERS, ViewResult, bead_fill, bead_fill_views,  # noqa: F401
-                                   bright_region, detect_beads, expected_radius_px, reidentify)
+                                   bright_region, detect_beads, expected_radius_px, reidentify, roi_box)
 from stillcap.detect.palette import Palette
 from stillcap.geometry.triangulate import Triangulation, _Normal3, triangulate
 from stillcap.io.jsonfile import read_json
@@ -158,11 +159,12 @@ THESIS_CHAIN = PuppetSettings(detector="thesis", identify="thesis", triangulatio
 
 
 # --- stage 1: detection and identification per photo -------------------------------------------
-def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT) -> ViewResult:
+def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT, region=None) -> ViewResult:
     """:func:`stillcap.detect.beads.detect_beads` with the settings' ``detector``, ``identify``,
-    ``radius_range``, ``n_circles`` and ``roi``: the bead candidates of one photo, named by colour."""
+    ``radius_range``, ``n_circles`` and ``roi``: the bead candidates of one photo, named by colour.
+    ``region``: the photo's :func:`~stillcap.detect.beads.roi_box` if already computed."""
     return detect_beads(image, palette, settings.detector, settings.identify, settings.radius_range,
-                        settings.n_circles, settings.roi, settings.coarse)
+                        settings.n_circles, settings.roi, settings.coarse, region)
 
 
 _expected_radius_px = expected_radius_px  # the name before the stages moved out
@@ -886,7 +888,8 @@ class PuppetResult:
 def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = None, palette: Palette | None = None,
                        observations=None, settings: PuppetSettings = DEFAULT, view_names=None, angles_deg=None,
                        root2world=None, progress: Callable[[int, int], None] | None = None, truth=None,
-                       source: dict | None = None, files=None, skeleton: Skeleton | None = None) -> PuppetResult:
+                       source: dict | None = None, files=None, skeleton: Skeleton | None = None,
+                       detections: Sequence[ViewResult] | None = None) -> PuppetResult:
     """The whole pipeline on photos (or on already identified 2D markers).
 
     Parameters
@@ -917,6 +920,9 @@ def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = N
         The photo of every view (kept in the result).
     skeleton : Skeleton, optional
         Default :meth:`Skeleton.puppet`; the marker set's bones must be in it.
+    detections : sequence of n_views ViewResult, optional
+        The views already detected in ``images`` with this palette and ``settings``
+        (:func:`detect_view`; :func:`run_capture` detects while it decodes); skips detection.
     """
     markerset = markerset or MarkerSet.puppet()
     skeleton = skeleton or Skeleton.puppet()
@@ -942,14 +948,20 @@ def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = N
         if images is None:
             raise ValueError("give images (to detect markers in) or observations")
         t0 = time.perf_counter()
-        views = []
-        for k, img in enumerate(images):
-            views.append(detect_view(img, palette, settings))
-            if progress is not None:
-                progress(k + 1, n)
+        if detections is not None:
+            views = list(detections)
+            if len(views) != n:
+                raise ValueError(f"need one detection per view ({n}), got {len(views)}")
+        else:
+            views = []
+            for k, img in enumerate(images):
+                views.append(detect_view(img, palette, settings))
+                if progress is not None:
+                    progress(k + 1, n)
         obs = np.stack([v.identification.points for v in views]) if views else np.zeros((0, len(markerset), 2))
         radii = np.stack([v.identification.radii for v in views]) if views else None
-        timings["detect_identify"] = time.perf_counter() - t0
+        timings["detect_identify"] = (time.perf_counter() - t0 if detections is None
+                                      else float(sum(v.time_s for v in views)))
     else:
         obs = np.asarray(observations, float)
     t0 = time.perf_counter()
@@ -1007,8 +1019,18 @@ def _capture_inputs(folder: Path):
 
 
 def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | None = None,
-                progress: Callable[[int, int], None] | None = None, compare: bool = True) -> tuple[PuppetResult, list]:
+                progress: Callable[[int, int], None] | None = None, compare: bool = True,
+                workers: int = 2) -> tuple[PuppetResult, list]:
     """Run the pipeline on a capture folder of kind ``puppet`` (``stillcap studio puppet``).
+
+    With ``workers`` >= 2 a second thread decodes the photos and finds each one's bright region
+    (:func:`~stillcap.detect.beads.roi_box`; OpenCV's JPEG decoder and filters release the GIL)
+    while this one detects each photo as soon as it is ready, so the decoding hides behind the
+    detection when a second core is free; the result is the same as with ``workers=1`` (decode
+    all, then detect). Detecting on two threads, or moving more of the detection to the second
+    one, was measured slower on the benchmark's two shared cores (the detector is mostly small
+    NumPy calls that hold the GIL).
+    Timings: ``read`` is the capture's loading plus the time spent waiting for decoded photos.
 
     Returns
     -------
@@ -1020,11 +1042,38 @@ def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | N
     folder = Path(folder)
     t0 = time.perf_counter()
     cap, rig, names, angles, files, truth = _capture_inputs(folder)
-    images = [cap.read_image(im) for im in cap.images]
-    t_read = time.perf_counter() - t0
+    detections = None
+    if workers <= 1 or len(cap.images) <= 1:
+        images = [cap.read_image(im) for im in cap.images]
+        t_read = time.perf_counter() - t0
+    else:
+        t_read = time.perf_counter() - t0
+        if palette is None:  # reconstruct_puppet's default for the default marker set
+            palette = Palette.from_markerset(MarkerSet.puppet())
+        images, detections = [], []
+
+        def read(entry):  # the second thread: decode, and find the region to search (OpenCV)
+            img = cap.read_image(entry)
+            return img, (roi_box(img, settings.radius_range) if settings.roi else None)
+
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            pending = [pool.submit(read, im) for im in cap.images]
+            try:
+                for k, fut in enumerate(pending):
+                    t1 = time.perf_counter()
+                    img, region = fut.result()
+                    t_read += time.perf_counter() - t1
+                    images.append(img)
+                    detections.append(detect_view(img, palette, settings, region))
+                    if progress is not None:
+                        progress(k + 1, len(pending))
+            finally:
+                for fut in pending:
+                    fut.cancel()
     res = reconstruct_puppet(rig, images, palette=palette, settings=settings, view_names=names, angles_deg=angles,
-                             progress=progress, truth=truth if compare else None,
-                             source={"type": "capture", "path": str(folder)}, files=files)
+                             progress=None if detections is not None else progress,
+                             truth=truth if compare else None, source={"type": "capture", "path": str(folder)},
+                             files=files, detections=detections)
     res.timings_s = {"read": t_read, **res.timings_s}
     return res, images
 
