@@ -87,3 +87,32 @@ def test_bad_input():
         propose_palette(2, names=["a", "b", "c"])
     with pytest.raises(ValueError, match="unknown colour"):
         Palette.thesis().index("nose")
+
+
+def test_ciede2000_pairwise_is_scikit_images_bit_for_bit():
+    """The hand-written pairwise CIEDE2000 (fast on small matrices) gives scikit-image's numbers,
+    including greys (chroma 0), hue differences across 0/360 degrees and a lightness factor."""
+    from skimage.color import deltaE_ciede2000
+
+    from stillcap.detect.palette import ciede2000_pairwise
+
+    rng = np.random.default_rng(7)
+    a = rgb_to_lab(rng.random((23, 3)))
+    b = rgb_to_lab(rng.random((16, 3)))
+    a[:4, 1:] = 0.0  # greys
+    b[:3, 1:] = 0.0
+    a[4:8, 2] = np.abs(a[4:8, 2]) + 1.0  # hues just above and below 0 degrees
+    b[3:7, 2] = -np.abs(b[3:7, 2]) - 1.0
+    a[4:8, 1] = b[3:7, 1] = 30.0
+    for kL in (1.0, 2.0, 0.7):
+        want = deltaE_ciede2000(np.broadcast_to(a[:, None], (23, 16, 3)), np.broadcast_to(b[None], (23, 16, 3)),
+                                kL=kL)
+        got = ciede2000_pairwise(a, b, kL)
+        assert got.shape == (23, 16)
+        np.testing.assert_array_equal(got, want)
+    # Sharma, Wu & Dalal (2005) test pairs 1 and 7 (hue across the 0 degree line is pair 7's point)
+    sharma = ciede2000_pairwise([[50.0, 2.6772, -79.7751], [50.0, 0.0, 0.0]], [[50.0, 0.0, -82.7485], [50.0, -1.0, 2.0]])
+    assert sharma[0, 0] == pytest.approx(2.0425, abs=1e-4) and sharma[1, 1] == pytest.approx(2.3669, abs=1e-4)
+    assert ciede2000_pairwise(np.zeros((0, 3)), b).shape == (0, 16)
+    with pytest.raises(ValueError, match=r"\(5, 2\)"):
+        ciede2000_pairwise(np.zeros((5, 2)), b)

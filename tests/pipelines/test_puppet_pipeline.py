@@ -310,3 +310,28 @@ def test_threads_give_the_serial_result(tmp_path, random3):
     assert np.isfinite(two.markers.points).all(axis=1).sum() >= 14
     with pytest.raises(ValueError, match=r"need one detection per view \(12\), got 3"):
         reconstruct_puppet(random3.rig, random3.images, detections=one.views[:3])
+
+
+def test_pipeline_runs_blas_on_one_thread_and_restores_the_callers_setting(monkeypatch, random3):
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import stillcap.pipelines.puppet as pipe
+
+    def blas_threads():
+        return sorted({d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"})
+
+    inside = []
+    real = pipe.solve_markers
+
+    def spy(*args, **kwargs):
+        inside.append(blas_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(pipe, "solve_markers", spy)
+    obs = np.stack([v.identification.points for v in _run(random3).views])
+    inside.clear()
+    with threadpool_limits(2, user_api="blas"):
+        res = reconstruct_puppet(random3.rig, observations=obs)
+        assert blas_threads() == [2]
+    assert np.isfinite(res.markers.points).all(axis=1).sum() >= 14
+    assert inside == [[1]]

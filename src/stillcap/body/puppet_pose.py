@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from threadpoolctl import threadpool_limits
 
 from stillcap.body.kinematics import bone_directions, normalised, pose_from_markers
 from stillcap.body.markerset import MarkerSet
@@ -278,19 +279,24 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     lb, ub = lo[free], hi[free]
     inner = (np.where(np.isfinite(lb), lb + 1e-9, lb), np.where(np.isfinite(ub), ub - 1e-9, ub))
     kw = dict(loss="soft_l1", f_scale=5.0) if robust else {}
-    # tr_solver="lsmr": the dense solver's SVD of this small matrix spins multi-threaded BLAS on a
-    # busy machine (70 ms per call measured on 2 shared cores); LSMR is a few matrix products.
-    # Tolerances 1e-6 instead of SciPy's 1e-8: the last trust-region steps moved the joints by
-    # at most 13 um (52 benchmark poses; the fit's joint error is ~110 um) and cost ~40 % of the time.
-    opts = dict(jac=jacobian, bounds=(lb, ub), x_scale=10.0, method="trf", tr_solver="lsmr",
+    # tr_solver="exact": the dense trust-region solve (an SVD of the small Jacobian per step) is
+    # 15 ms per fit against 22 ms with LSMR (~40 pure-Python iterations per step), and ends nearer
+    # the optimum: on the 52 benchmark poses its joints are within 5.5 um of a fit run to 1e-12
+    # tolerances, LSMR's within 36 um. It needs BLAS on one thread: on a busy machine OpenBLAS's
+    # threads spin on these small matrices (225-240 ms per fit measured on 2 shared cores), hence
+    # the threadpoolctl limit, which holds for this call only.
+    # Tolerances 1e-6 instead of SciPy's 1e-8: the steps after them move the joints by at most
+    # 5.5 um (see above; the fit's joint error is ~110 um) and cost ~40 % of the time.
+    opts = dict(jac=jacobian, bounds=(lb, ub), x_scale=10.0, method="trf", tr_solver="exact",
                 ftol=1e-6, xtol=1e-6, gtol=1e-6, **kw)
     best = None
-    for a0 in starts:  # the joint-by-joint start; the others only when it ends in a poor fit
-        r = least_squares(residuals, np.clip(a0[free], *inner), **opts)
-        if best is None or r.cost < best.cost:
-            best = r
-        if np.max(np.abs(best.fun[:3 * len(mf)]), initial=0.0) < 5.0:  # every marker within 5 sigma
-            break
+    with threadpool_limits(1, user_api="blas"):
+        for a0 in starts:  # the joint-by-joint start; the others only when it ends in a poor fit
+            r = least_squares(residuals, np.clip(a0[free], *inner), **opts)
+            if best is None or r.cost < best.cost:
+                best = r
+            if np.max(np.abs(best.fun[:3 * len(mf)]), initial=0.0) < 5.0:  # every marker within 5 sigma
+                break
     a = unpack(best.x)
     local = Rotation.from_euler(EULER_LIMIT_SEQUENCE, a, degrees=True).as_matrix()
     pose = Pose(skeleton, r2w, local)

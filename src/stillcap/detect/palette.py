@@ -19,10 +19,11 @@ Colour spaces (all from scikit-image, D65 white):
 from __future__ import annotations
 
 import colorsys
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from skimage.color import deltaE_ciede2000, hsv2rgb, rgb2hsv, rgb2lab
+from skimage.color import hsv2rgb, rgb2hsv, rgb2lab
 
 from stillcap._checks import as_array, as_rng
 
@@ -30,6 +31,7 @@ __all__ = [
     "METRICS",
     "Palette",
     "PaletteProposal",
+    "ciede2000_pairwise",
     "color_distance",
     "hsb_distance",
     "propose_palette",
@@ -85,10 +87,83 @@ def _lab_pairwise(a_lab, b_lab, metric: str, lightness_weight: float) -> np.ndar
         d[..., 0] *= lightness_weight
         return np.sqrt((d**2).sum(axis=2))
     # CIEDE2000's kL divides the lightness term: weight w <=> kL = 1 / w.
-    n, k = len(a_lab), len(b_lab)
-    aa = np.broadcast_to(a_lab[:, None, :], (n, k, 3))
-    bb = np.broadcast_to(b_lab[None, :, :], (n, k, 3))
-    return deltaE_ciede2000(aa, bb, kL=1.0 / lightness_weight)
+    return ciede2000_pairwise(a_lab, b_lab, kL=1.0 / lightness_weight)
+
+
+# np.deg2rad of these angles, bit for bit (x * pi / 180)
+_RAD6, _RAD30, _RAD63 = math.radians(6), math.radians(30), math.radians(63)
+
+
+def ciede2000_pairwise(a_lab, b_lab, kL: float = 1.0) -> np.ndarray:
+    """CIEDE2000 between every colour of ``a_lab`` and every colour of ``b_lab``.
+
+    The same numbers as ``skimage.color.deltaE_ciede2000(a[:, None], b[None], kL=kL)`` (the
+    same formula, the same operations in the same order; kC = kH = 1), written out here because
+    on the identification's small matrices (~20 x 16) scikit-image's input checks, axis moves and
+    boolean-mask updates cost more than the arithmetic: 2-3x faster; the chroma of each colour
+    is computed once instead of once per pair, and the masked updates are ``np.where``.
+
+    Parameters
+    ----------
+    a_lab : array_like, shape (N, 3)
+        CIE Lab colours (the first colour of each pair in CIEDE2000's asymmetric formula).
+    b_lab : array_like, shape (K, 3)
+    kL : float
+        Lightness factor: the lightness difference is divided by it.
+
+    Returns
+    -------
+    ndarray, shape (N, K)
+    """
+    a = as_array(a_lab, (None, 3), "a_lab")
+    b = as_array(b_lab, (None, 3), "b_lab")
+    two_pi = 2 * np.pi
+    L1, a1, b1 = a.T[:, :, None]  # each (N, 1)
+    L2, a2, b2 = b.T[:, None, :]  # each (1, K)
+    Cbar = 0.5 * (np.hypot(a1, b1) + np.hypot(a2, b2))
+    c7 = Cbar**7
+    scale = 1 + 0.5 * (1 - np.sqrt(c7 / (c7 + 25**7)))
+    x1, x2 = a1 * scale, a2 * scale
+    C1, h1 = np.hypot(x1, b1), np.arctan2(b1, x1)
+    C2, h2 = np.hypot(x2, b2), np.arctan2(b2, x2)
+    h1 += np.where(h1 < 0.0, two_pi, 0)
+    h2 += np.where(h2 < 0.0, two_pi, 0)
+    Lbar = 0.5 * (L1 + L2)
+    tmp = (Lbar - 50) ** 2
+    SL = 1 + 0.015 * tmp / np.sqrt(20 + tmp)
+    L_term = (L2 - L1) / (kL * SL)
+    Cbar = 0.5 * (C1 + C2)
+    SC = 1 + 0.045 * Cbar
+    C_term = (C2 - C1) / (1 * SC)
+    h_diff = h2 - h1
+    h_sum = h1 + h2
+    CC = C1 * C2
+    zero = CC == 0.0
+    dH = np.where(h_diff > np.pi, h_diff - two_pi, h_diff)
+    dH = np.where(h_diff < -np.pi, dH + two_pi, dH)
+    dH[zero] = 0.0
+    dH_term = 2 * np.sqrt(CC) * np.sin(dH / 2)
+    wrap = ~zero & (np.abs(h_diff) > np.pi)
+    Hbar = np.where(wrap & (h_sum < two_pi), h_sum + two_pi, h_sum)
+    Hbar = np.where(wrap & (h_sum >= two_pi), Hbar - two_pi, Hbar)
+    Hbar = np.where(zero, Hbar * 2, Hbar)
+    Hbar *= 0.5
+    T = (1
+         - 0.17 * np.cos(Hbar - _RAD30)
+         + 0.24 * np.cos(2 * Hbar)
+         + 0.32 * np.cos(3 * Hbar + _RAD6)
+         - 0.20 * np.cos(4 * Hbar - _RAD63))
+    SH = 1 + 0.015 * Cbar * T
+    H_term = dH_term / (1 * SH)
+    c7 = Cbar**7
+    Rc = 2 * np.sqrt(c7 / (c7 + 25**7))
+    dtheta = _RAD30 * np.exp(-(((np.rad2deg(Hbar) - 275) / 25) ** 2))
+    R_term = -np.sin(2 * dtheta) * Rc * C_term * H_term
+    dE2 = L_term**2
+    dE2 += C_term**2
+    dE2 += H_term**2
+    dE2 += R_term
+    return np.sqrt(np.maximum(dE2, 0))
 
 
 def color_distance(a_rgb, b_rgb, metric: str = "ciede2000", lightness_weight: float = 1.0) -> np.ndarray:

@@ -31,6 +31,7 @@ Units: metres and radians inside; pixels ``(x, y)`` (``docs/conventions.md``); t
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -39,6 +40,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from stillcap.body.kinematics import normalised
 from stillcap.body.markerset import MarkerSet, MarkerTrajectories
@@ -885,12 +887,33 @@ class PuppetResult:
 
 
 # --- wiring -------------------------------------------------------------------------------------
+def _one_blas_thread(func):
+    """Run ``func`` with BLAS (NumPy's and SciPy's OpenBLAS) limited to one thread.
+
+    The pipeline's matrix products and the pose fit's SVDs are on small matrices (at most a few
+    hundred rows), where OpenBLAS's threads only cost: on the benchmark's busy 2-core machine
+    they spin, and the dense pose fit took 225-240 ms instead of 15 ms, a 3 x 3 ``@`` 20x longer
+    than ``np.einsum``. ``threadpoolctl`` sets the limit for the call only and restores the
+    caller's setting afterwards (it is process-wide meanwhile: BLAS has no per-thread setting).
+    """
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        with threadpool_limits(1, user_api="blas"):
+            return func(*args, **kwargs)
+    return wrapper
+
+
+@_one_blas_thread
 def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = None, palette: Palette | None = None,
                        observations=None, settings: PuppetSettings = DEFAULT, view_names=None, angles_deg=None,
                        root2world=None, progress: Callable[[int, int], None] | None = None, truth=None,
                        source: dict | None = None, files=None, skeleton: Skeleton | None = None,
                        detections: Sequence[ViewResult] | None = None) -> PuppetResult:
     """The whole pipeline on photos (or on already identified 2D markers).
+
+    BLAS (NumPy's and SciPy's) runs on one thread during the call (``threadpoolctl``; the
+    caller's setting is restored afterwards): the pipeline's matrices are small, and on a busy
+    machine OpenBLAS's threads made the pose fit 15x slower.
 
     Parameters
     ----------
@@ -1018,6 +1041,7 @@ def _capture_inputs(folder: Path):
     return cap, rig, names, angles, files, truth
 
 
+@_one_blas_thread
 def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | None = None,
                 progress: Callable[[int, int], None] | None = None, compare: bool = True,
                 workers: int = 2) -> tuple[PuppetResult, list]:
@@ -1031,6 +1055,7 @@ def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | N
     one, was measured slower on the benchmark's two shared cores (the detector is mostly small
     NumPy calls that hold the GIL).
     Timings: ``read`` is the capture's loading plus the time spent waiting for decoded photos.
+    BLAS runs on one thread during the call (see :func:`reconstruct_puppet`).
 
     Returns
     -------
