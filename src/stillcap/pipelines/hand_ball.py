@@ -6,16 +6,23 @@ Wiring only (``docs/hand-ball.md``):
    the ball white: the per-pixel minimum over B, G, R keeps the ball and drops the rest. It is
    what :func:`stillcap.detect.ball.ball_centers_stereo` sees (detection, matching, known-radius
    Hough refinement), thresholded per photo between the glove and the ball (:func:`white_threshold_level`).
-2. **Per pair**: matched ball images whose refinement failed, whose size disagrees with the
-   projected radius, or that touch the border are dropped (as the pitch pipeline does).
-3. **Merge across pairs**: 3D points within ``merge_m`` of each other are the same ball image;
-   their refined centres from all views (up to 4) are triangulated together with view outlier
+2. **Every two cameras** (``pairs="all"``, default; or the rig's stereo pairs): matched ball
+   images whose refinement failed, whose size disagrees with the projected radius, or that touch
+   the border are dropped (as the pitch pipeline does). Fingers often hide the first free ball
+   from one camera of each stereo pair; the cross pairs still see it.
+3. **Merge**: the point most other views agree with wins; its centre is refined again in every
+   view that sees the ball and all agreeing views are triangulated together with view outlier
    rejection (:func:`stillcap.geometry.triangulate.triangulate`, ``outlier_px``).
-4. **Order and flashes**: positions sorted along the throw (field frame: toward -y); flash
-   indices from the spacing (:func:`stillcap.pipelines.pitch.order_flashes`: a missed flash
-   leaves a gap). Time of flash ``k``: ``k / strobe_hz`` from the first ball position.
-5. **Uncertainty** per position: the reprojection RMS (at least ``pixel_sigma``) carried
-   through the views' ray geometry (Gauss-Newton covariance).
+4. **Order and flashes**: positions sorted along the throw (field frame: toward -y). With the
+   hand's poses (``hand=(hold_times, root2world)``) the flashes are numbered from the hand
+   (:func:`stillcap.ball.release.number_flashes`), on the hand's clock; without them from the
+   spacing (:func:`stillcap.pipelines.pitch.order_flashes`: a missed flash leaves a gap, but an
+   accelerating arm can fool it), time of flash ``k`` ``k / strobe_hz`` from the first ball.
+   The hand pipeline finds the ball first (its discs mask the glove-marker search) and numbers
+   its flashes once the hand poses exist.
+5. **Uncertainty** per position: the reprojection RMS (at least ``pixel_sigma``; at least
+   ``two_view_pixel_sigma`` for a ball seen by two views only, which no third view can check)
+   carried through the views' ray geometry (Gauss-Newton covariance).
 
 :func:`hand_ball_spin` fits the spin from the painted markers of the free-flight flashes
 (:func:`stillcap.ball.orientation.fit_spin`); one 75 Hz strobe leaves the alias open: the
