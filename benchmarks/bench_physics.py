@@ -15,7 +15,6 @@ recovery errors, for least_squares and the seed's Powell.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 from rich.console import Console
@@ -24,6 +23,8 @@ from rich.table import Table
 from stillcap.ball.fit import FitPriors, fit_reference_trajectory, spin_basis
 from stillcap.ball.metrics import FT, MPH, spin_vector
 from stillcap.ball.physics import FlightModel, cross_plane, simulate, simulate_batch
+
+from _timing import best_time
 
 RELEASE = np.array([-0.6, 54.5 * FT, 1.8])
 
@@ -42,15 +43,6 @@ def pitches():
         v0 = mph * MPH * np.array([0.03, -np.cos(d), -np.sin(d)])
         out.append((name, v0, spin_vector(rpm, axis, v0, eff)))
     return out
-
-
-def best_time(fn, repeat=5):
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def integrator_table(con: Console):
@@ -82,7 +74,7 @@ def integrator_table(con: Console):
                 vel = out.velocities[0] if batch else out.velocities
                 dp = max(dp, float(np.abs(pos - tight.positions).max()))
                 dv = max(dv, float(np.abs(vel - tight.velocities).max()))
-                ms += best_time(lambda: fn(RELEASE, v0, w, ts)) * 1e3 / 5
+                ms += best_time(lambda: fn(RELEASE, v0, w, ts), repeat=5) * 1e3 / 5
                 if batch:
                     P = np.tile(RELEASE, (19, 1))
                     ms19 += best_time(lambda: fn(P, v0, w, ts), repeat=3) * 1e3 / 5 / 19

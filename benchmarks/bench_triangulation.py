@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -24,16 +23,9 @@ from support import ring_rig  # noqa: E402
 
 from stillcap.geometry.triangulate import triangulate  # noqa: E402
 
+from _timing import best_time
+
 GOAL = 1e6
-
-
-def best_time(fn, repeat=3):
-    best = np.inf
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t)
-    return best
 
 
 def main(argv=None):

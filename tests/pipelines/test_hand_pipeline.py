@@ -162,3 +162,33 @@ def test_capture_without_strobe_position_says_so(capture, tmp_path):
     res = analyse_hand(Capture.load(root), spin=False)
     assert any("strobe position unknown" in m for m in res.messages)
     assert not res.points.bias_corrected
+
+
+def test_bad_strobe_position_is_named(capture):
+    with pytest.raises(ValueError, match="strobe_position_m"):
+        analyse_hand(capture, strobe_position_m=(1.0, 2.0))
+
+
+def test_pairs_with_different_strobes_are_refused(capture, tmp_path):
+    root = tmp_path / "two-strobes"
+    shutil.copytree(capture, root)
+    d = json.loads((root / "capture.json").read_text())
+    d["images"][0]["strobe_hz"] = d["images"][1]["strobe_hz"] = 60.0
+    (root / "capture.json").write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="different strobe rates"):
+        analyse_hand(root)
+
+
+def test_point_sigma_must_match_the_points(result):
+    from stillcap.body.hand_track import fit_hand_sequence
+
+    with pytest.raises(ValueError, match="point_sigma_m"):
+        fit_hand_sequence(result.labels, point_sigma_m=np.ones(3))
+    with pytest.raises(ValueError, match="point_sigma_m must be finite and > 0"):
+        fit_hand_sequence(result.labels, point_sigma_m=np.zeros(len(result.labels.points)))
+
+
+def test_ball_held_per_flash(result):
+    held = result.ball_held()
+    assert held and set(held) <= set(int(k) for k in result.labels.order)
+    assert any(held.values()) and not all(held.values())  # held, then released

@@ -27,10 +27,8 @@ measurement) done for all joints at once.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib import resources
 from typing import Mapping
 
 import numpy as np
@@ -41,6 +39,7 @@ from stillcap._checks import as_array
 from stillcap.body.kinematics import _marker_array, rigid_alignment
 from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.skeleton import Joint, Pose, Skeleton
+from stillcap.io.jsonfile import read_package_json
 
 __all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLOURS", "SCALE_GROUPS", "HandFit", "fit_hand", "fit_hand_poses", "hand_dofs",
            "hand_markerset", "hand_pose", "hand_skeleton", "marker_colours", "personalise_hand", "scale_groups",
@@ -58,20 +57,18 @@ HAND_COLOURS = {"red": (0.0, 0.85, 1.0), "yellow": (0.15, 0.85, 1.0), "green": (
                 "blue": (0.62, 0.85, 1.0)}
 
 
-def _read(name: str) -> dict:
-    return json.loads(resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8"))
-
-
 @lru_cache(maxsize=1)
 def hand_skeleton() -> Skeleton:
     """The adult right hand (``data/hand_skeleton.json``), hand frame, metres, 21 joints."""
-    return Skeleton.from_dict(_read("hand_skeleton.json"), source="stillcap/data/hand_skeleton.json")
+    data, source = read_package_json("hand_skeleton.json")
+    return Skeleton.from_dict(data, source=source)
 
 
 @lru_cache(maxsize=1)
 def hand_markerset() -> MarkerSet:
     """The 18 glove markers (``data/hand_markers.json``) on :func:`hand_skeleton`."""
-    return MarkerSet.from_dict(_read("hand_markers.json"), source="stillcap/data/hand_markers.json")
+    data, source = read_package_json("hand_markers.json")
+    return MarkerSet.from_dict(data, source=source)
 
 
 def marker_colours(markerset: MarkerSet) -> list[str]:

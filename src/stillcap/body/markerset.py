@@ -21,7 +21,6 @@ import json
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
-from importlib import resources
 from pathlib import Path
 from typing import Sequence
 
@@ -30,7 +29,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.body.skeleton import LENGTH_UNITS, Animation, Pose, Skeleton
 from stillcap.io.atomic import write_text
-from stillcap.io.jsonfile import read_json
+from stillcap.io.jsonfile import read_json, read_package_json
 
 __all__ = ["Marker", "BoneRule", "MarkerSet", "MarkerTrajectories"]
 
@@ -300,8 +299,8 @@ class MarkerSet:
     @classmethod
     def puppet(cls) -> "MarkerSet":
         """The thesis's 16 bead markers on :meth:`Skeleton.puppet` (``data/puppet_markers.json``)."""
-        text = resources.files("stillcap").joinpath("data", "puppet_markers.json").read_text(encoding="utf-8")
-        return cls.from_dict(json.loads(text), source="stillcap/data/puppet_markers.json")
+        data, source = read_package_json("puppet_markers.json")
+        return cls.from_dict(data, source=source)
 
 
 @dataclass(eq=False)

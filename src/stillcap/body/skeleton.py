@@ -27,7 +27,6 @@ import json
 import os
 from dataclasses import dataclass, field
 from functools import cached_property
-from importlib import resources
 from pathlib import Path
 from typing import Iterator, Sequence
 
@@ -36,7 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array
 from stillcap.io.atomic import write_text
-from stillcap.io.jsonfile import read_json
+from stillcap.io.jsonfile import read_json, read_package_json
 
 __all__ = [
     "Joint",
@@ -356,8 +355,8 @@ class Skeleton:
     @classmethod
     def puppet(cls) -> "Skeleton":
         """The thesis's 210 mm lay figure (``data/puppet_skeleton.json``), puppet frame, metres."""
-        text = resources.files("stillcap").joinpath("data", "puppet_skeleton.json").read_text(encoding="utf-8")
-        return cls.from_dict(json.loads(text), source="stillcap/data/puppet_skeleton.json")
+        data, source = read_package_json("puppet_skeleton.json")
+        return cls.from_dict(data, source=source)
 
 
 def _wrap_into(angle: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -102,9 +102,7 @@ def print_hand_result(res) -> None:
     t = Table(title=f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)")
     for c in ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"):
         t.add_column(c, justify="right")
-    held = {}
-    if res.release is not None and res.balls is not None:
-        held = {round(float(tb) * res.strobe_hz): bool(h) for tb, h in zip(res.balls.times, res.release.held)}
+    held = res.ball_held()
     for k in range(lab.n_flashes):
         o = int(lab.order[k])
         ball = {True: "held", False: "free"}.get(held.get(o), "-")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from importlib import resources
 from pathlib import Path
 
 
@@ -20,3 +21,10 @@ def read_json(path, what: str = ""):
         raise ValueError(f"{name} does not exist") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{name} is not valid JSON: {e}") from None
+
+
+def read_package_json(name: str) -> tuple[dict, str]:
+    """A JSON file shipped in ``stillcap/data`` (default skeletons and marker sets): its content
+    and the source name models record (``stillcap/data/NAME``)."""
+    text = resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8")
+    return json.loads(text), f"stillcap/data/{name}"

@@ -52,7 +52,7 @@ from stillcap.io.capture import Capture, from_jsonable, to_jsonable
 from stillcap.pipelines.hand_ball import HandBalls, HandBallSpin, hand_ball_positions, hand_ball_spin
 from stillcap.pipelines.pitch import stereo_pairs
 
-__all__ = ["HandOptions", "HandResult", "analyse_hand", "compare_with_truth"]
+__all__ = ["HandOptions", "HandResult", "analyse_hand", "compare_with_truth", "truth_arrays"]
 
 #: Position uncertainty of fully seen and of partly hidden glove markers (m), as measured by
 #: ``benchmarks/bench_hand_markers.py`` (0.16 mm RMS and a few mm): the pose fit's weights.
@@ -155,6 +155,13 @@ class HandResult:
         pts = np.full((n_frames, len(lab.marker_names), 3), np.nan)
         pts[lab.order] = lab.positions  # one frame per strobe period: missed flashes stay NaN
         return MarkerTrajectories(list(lab.marker_names), pts, self.strobe_hz)
+
+    def ball_held(self) -> dict:
+        """``{flash number (labels.order): True if the ball is in the hand, False if free}`` for
+        the flashes that show the ball (empty without a release estimate)."""
+        if self.release is None or self.balls is None:
+            return {}
+        return {int(k): bool(h) for k, h in zip(self.balls.flash_index, self.release.held)}
 
     def to_dict(self) -> dict:
         """JSON-ready; keys shared with the hand truth (``flashes.times_s``, ``markers``,
@@ -338,7 +345,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
         if release.message:
             messages.append(f"release: {release.message}")
         if options.spin and release.success:
-            spin = hand_ball_spin(_RigView(rig), balls, ~release.held, pairs=pairs, images=images)
+            spin = hand_ball_spin(rig, balls, ~release.held, pairs=pairs, images=images)
             if spin.message:
                 messages.append(f"spin: {spin.message}")
     timings["release"] = _time.perf_counter() - t
@@ -349,13 +356,6 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     if cap.truth is not None and cap.truth.get("kind") == "hand":
         res.truth = compare_with_truth(res, cap.truth)
     return res
-
-
-@dataclass
-class _RigView:
-    """What the ball's spin stage reads from a capture besides the photos: the rig."""
-
-    rig: object
 
 
 def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, messages: list) -> HandBalls:
@@ -372,7 +372,9 @@ def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, m
 # --------------------------------------------------------------------------------------------
 # Comparison with the studio's truth
 # --------------------------------------------------------------------------------------------
-def _truth_arrays(truth: dict) -> dict:
+def truth_arrays(truth: dict) -> dict:
+    """The arrays of a hand ``truth.json`` (dict) by name: ``times``, ``markers``, ``angles_deg``,
+    ``root2world``, ``joints``, ``visible`` (per camera), ``ball`` (centres); NaN for null."""
     f = truth["flashes"]
     n, nm, nj = len(f["times_s"]), len(truth["marker_names"]), len(truth["joint_names"])
     nc = len(truth["cameras"])
@@ -395,7 +397,7 @@ def compare_with_truth(result: HandResult, truth: dict) -> dict:
     """
     from stillcap.body.hand import hand_dofs
 
-    tr = _truth_arrays(truth)
+    tr = truth_arrays(truth)
     lab = result.labels
     names = list(lab.marker_names)
     if names != list(truth["marker_names"]):

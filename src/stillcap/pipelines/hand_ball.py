@@ -435,7 +435,8 @@ class HandBallSpin:
 def hand_ball_spin(capture, balls: HandBalls, free, *, pairs: dict | None = None, images=None,
                    max_rpm: float = 4000.0) -> HandBallSpin:
     """Spin from the painted markers of the free-flight flashes (``free``: bool (K,) per ball
-    position, e.g. ``~Release.held``). Markers per pair with
+    position, e.g. ``~Release.held``). ``capture`` is a studio capture, or a Rig with ``pairs``
+    and ``images`` given (as :func:`hand_ball_positions`). Markers per pair with
     :func:`stillcap.pipelines.pitch.pair_marker_observations`, one constant spin with
     :func:`stillcap.ball.orientation.fit_spin`, aliases with
     :func:`stillcap.ball.alias.alias_candidates`."""
@@ -451,9 +452,14 @@ def hand_ball_spin(capture, balls: HandBalls, free, *, pairs: dict | None = None
     if len(idx) < 2:
         return HandBallSpin(False, nan3, np.zeros((0, 3)), [], False, None,
                             f"{len(idx)} free-flight flash(es): a spin needs markers on at least 2; spin unavailable")
-    rig = capture.rig.rig if hasattr(capture.rig, "rig") else capture.rig
-    pairs = pairs if pairs is not None else capture.rig.pairs
-    images = images if images is not None else capture.images
+    if isinstance(capture, Rig):
+        if pairs is None or images is None:
+            raise ValueError("hand_ball_spin with a Rig needs pairs and images")
+        rig = capture
+    else:
+        rig = capture.rig.rig if hasattr(capture.rig, "rig") else capture.rig
+        pairs = pairs if pairs is not None else capture.rig.pairs
+        images = images if images is not None else capture.images
     names = list(rig.names)
     parts = []
     for _, (a, b) in pairs.items():

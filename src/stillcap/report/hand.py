@@ -790,9 +790,7 @@ def write_result_report(result, folder, *, animation_format: str = ".gif", progr
     out = Path(folder)
     lab, seq, rel = result.labels, result.sequence, result.release
     fits = {int(k): i for i, k in enumerate(seq.flashes)} if seq is not None else {}
-    held = {}
-    if rel is not None and result.balls is not None:
-        held = {int(round(t * result.strobe_hz)): bool(h) for t, h in zip(result.balls.times, rel.held)}
+    held = result.ball_held()
     flashes = []
     for k in range(lab.n_flashes):
         names = [n for n, p in zip(lab.marker_names, lab.point_index[k]) if p >= 0]
@@ -818,20 +816,17 @@ def write_result_report(result, folder, *, animation_format: str = ".gif", progr
     tc = result.truth
     td = result.capture.truth if tc is not None else None
     if td is not None and np.isfinite(tc.get("clock_offset_s", np.nan)) and seq is not None:
-        from stillcap.io.capture import from_jsonable
+        from stillcap.pipelines.hand import truth_arrays
 
-        fl = td["flashes"]
-        n, nj = len(fl["times_s"]), seq.skeleton.n_joints
-        t_true = from_jsonable(fl["times_s"]).reshape(n) - tc["clock_offset_s"]
-        a_true = from_jsonable(fl["angles_deg"]).reshape(n, nj, 3)
+        tr = truth_arrays(td)
         match = tc["flash_match"]
-        fa = np.full((len(flashes), nj, 3), np.nan)
+        fa = np.full((len(flashes),) + tr["angles_deg"].shape[1:], np.nan)
         for i, f in enumerate(flashes):
             k = int(np.argmin(np.abs(lab.times - f["time_s"])))
             if match[k] >= 0:
-                fa[i] = a_true[match[k]]
-        truth = {"times_s": t_true, "angles_deg": a_true,
-                 "root2world": from_jsonable(fl["root2world"]).reshape(n, 4, 4), "flash_angles_deg": fa}
+                fa[i] = tr["angles_deg"][match[k]]
+        truth = {"times_s": tr["times"] - tc["clock_offset_s"], "angles_deg": tr["angles_deg"],
+                 "root2world": tr["root2world"], "flash_angles_deg": fa}
     balls = result.balls
     paths = write_hand_report(
         out, skeleton=result.skeleton, animation=result.animation, flashes=flashes, release=release,
