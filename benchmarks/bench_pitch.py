@@ -33,6 +33,13 @@ Protocol (the issue's benchmark spec):
 ``--jsonl FILE`` appends one JSON row per capture and skips (preset, seed) pairs already in it, so
 an interrupted run resumes; the calibrated rig is cached next to it (``FILE.rig.json``).
 ``--report-only`` prints the tables from the JSONL file without running anything.
+``--keep DIR`` keeps every rendered capture folder in ``DIR`` (``PRESET_SEED_WxH.FORMAT``, ~4.5 MB
+each as JPEG) and reuses a complete one on a later run instead of rendering it again, so an
+analysis change can be measured on the very same captures (use the same ``--jsonl`` rig cache:
+the kept folders hold that run's calibrated rig). Besides the errors and coverage flags each row
+holds diagnostics of the intervals: the direction error and its sigma split into a horizontal and
+a vertical component across the flight (``dir_err_hv_deg``, ``dir_sigma_hv_deg``, z up), and
+the spin vector's error, truth and covariance (``spin_err``, ``spin_true``, ``spin_cov``, rad/s).
 """
 
 from __future__ import annotations
@@ -115,6 +122,12 @@ def evaluate(res, truth: dict) -> dict:
             cov["direction"] = m2 <= CHI2_2_95
             row["dir_sigma_deg"] = float(np.degrees(np.sqrt(np.trace(Cd) / 2.0)))
             row["dir_m2"] = m2
+        # diagnostics: the direction error in a horizontal / vertical basis across the flight (z up)
+        h = np.cross([0.0, 0.0, 1.0], u)
+        h /= np.linalg.norm(h)
+        B = np.stack([h, np.cross(u, h)], axis=1)
+        row["dir_err_hv_deg"] = np.degrees(B.T @ (v / np.linalg.norm(v))).tolist()
+        row["dir_sigma_hv_deg"] = np.degrees(np.sqrt(np.diag(B.T @ C @ B)) / np.linalg.norm(v)).tolist()
     if res.spin_available and row["rate_rpm"] is not None:
         s_r, s_a = tc.get("spin_rate_sigma_rpm"), tc.get("spin_axis_sigma_deg")
         if s_r and np.isfinite(s_r):
@@ -122,6 +135,13 @@ def evaluate(res, truth: dict) -> dict:
         if s_a and np.isfinite(s_a):
             cov["spin_axis"] = row["axis_deg"] <= math.sqrt(CHI2_2_95) * s_a
         row["rate_sigma_rpm"], row["axis_sigma_deg"] = s_r, s_a
+        # diagnostics: the spin vector's error and covariance (rad/s), the markers behind it
+        w, tw = np.asarray(res.release["spin"], float), np.asarray(truth["release"]["spin"], float)
+        row["spin_err"] = (w - tw).tolist()
+        row["spin_true"] = tw.tolist()
+        row["spin_cov"] = np.asarray(res.spin.spin_covariance, float).tolist()
+        row["spin_n_inliers"], row["spin_n_obs"] = int(res.spin.n_inliers), int(res.spin.n_observations)
+        row["spin_n_flashes"] = int(len(res.spin.times))
     # positions: per ball image against the true centre at the nearest true flash of the pair
     tpairs = {p["name"]: p for p in truth["pairs"]}
     n_in = n_pos = 0
@@ -148,19 +168,33 @@ def evaluate(res, truth: dict) -> dict:
     return row
 
 
+def _kept(folder: Path) -> list | None:
+    """The photo paths of a complete capture folder kept by an earlier ``--keep`` run, else None."""
+    try:
+        cap = Capture.load(folder)
+    except (ValueError, OSError):
+        return None
+    paths = [folder / im.file for im in cap.images]
+    return paths if cap.truth is not None and paths and all(f.is_file() for f in paths) else None
+
+
 def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict:
-    t = time.perf_counter()
-    pc = pitch_capture(preset, rng=seed, calibrate=False, image_size=size)
-    t_render = time.perf_counter() - t
-    pc.capture_rig = cal_rig  # the lab's calibrated rig; photos are of the true cameras
-    cap, files = pc.to_capture("." + args.format)
-    cap.meta["rig_calibrated"] = True
-    cap.meta["rig_source"] = "calibrated once per benchmark run from rendered photos (calibrate_pitch_rig)"
-    if args.calibration_record is not None:  # as `stillcap studio pitch` writes it
-        cap.meta["calibration"] = args.calibration_record
-    folder = tmp / f"{preset}_{seed}"
-    cap.save(folder, files, jpeg_quality=args.quality)
-    paths = [folder / f for f in files]
+    keep = getattr(args, "keep", None)
+    folder = (keep if keep is not None else tmp) / f"{preset}_{seed}_{size[0]}x{size[1]}.{args.format}"
+    paths = _kept(folder) if keep is not None else None
+    t_render = float("nan")
+    if paths is None:  # render (and with --keep, keep it for later runs)
+        t = time.perf_counter()
+        pc = pitch_capture(preset, rng=seed, calibrate=False, image_size=size)
+        t_render = time.perf_counter() - t
+        pc.capture_rig = cal_rig  # the lab's calibrated rig; photos are of the true cameras
+        cap, files = pc.to_capture("." + args.format)
+        cap.meta["rig_calibrated"] = True
+        cap.meta["rig_source"] = "calibrated once per benchmark run from rendered photos (calibrate_pitch_rig)"
+        if args.calibration_record is not None:  # as `stillcap studio pitch` writes it
+            cap.meta["calibration"] = args.calibration_record
+        cap.save(folder, files, jpeg_quality=args.quality)
+        paths = [folder / f for f in files]
     # decode only, then end-to-end, on the same files (both warm in the page cache)
     t = time.perf_counter()
     imgs = [cv2.imread(str(f)) for f in paths]
@@ -169,7 +203,7 @@ def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict
     del imgs
     t = time.perf_counter()
     loaded = Capture.load(folder)
-    res = analyse_pitch(loaded, spin_method=args.spin, release_y_ft=pc.truth.metrics["release_pos_y_ft"])
+    res = analyse_pitch(loaded, spin_method=args.spin, release_y_ft=loaded.truth["metrics"]["release_pos_y_ft"])
     t_e2e = time.perf_counter() - t
     row = {"preset": preset, "seed": seed, "size": f"{size[0]}x{size[1]}", "spin_method": args.spin,
            "format": args.format, **evaluate(res, loaded.truth),
@@ -179,8 +213,9 @@ def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict
            "alias_dof": int(getattr(res.alias, "dof", 0)) if res.alias is not None else None,
            "alias_ratio": float(res.alias.likelihood_ratio) if res.alias is not None else None,
            "file_mb": sum(f.stat().st_size for f in paths) / 1e6, "messages": list(res.messages)}
-    for f in paths:
-        f.unlink()
+    if keep is None:
+        for f in paths:
+            f.unlink()
     return row
 
 
@@ -325,6 +360,8 @@ def main(argv=None):
     ap.add_argument("--calibration-seed", type=int, default=2024, help="seed of the lab's calibration photos")
     ap.add_argument("--jsonl", type=Path, default=None, help="append per-capture rows here; resume from it")
     ap.add_argument("--report-only", action="store_true", help="print the tables of --jsonl and exit")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep the rendered capture folders here and reuse them on later runs (same rig cache!)")
     args = ap.parse_args(argv)
     console = Console(width=max(Console().width, 160))
     size = _size(args.size)

@@ -1,6 +1,7 @@
 """Puppet capture end to end: rendered turntable photos -> identified markers -> 3D -> pose.
 
     python benchmarks/bench_puppet.py [--random 40] [--bvh 12] [--seed 0] [--cache DIR] [--workers 2]
+                                      [--markers puppet-16|puppet-20|FILE]
 
 Every pose is rendered by the studio (``stillcap.studio.puppet``: the thesis's 12 turntable
 views of the 210 mm puppet, 640x480 webcam with noise and JPEG at quality 85) and written as a
@@ -20,6 +21,12 @@ Chains (``stillcap.pipelines.puppet``):
   "default (full-resolution map)" finds the contrast peaks on the full-resolution map instead of
   at half resolution (``PuppetSettings(coarse=False)``).
 
+``--markers`` picks the marker set the studio renders (``MarkerSet.resolve``: the thesis's 16
+beads by default, ``puppet-20`` with a second bead on each forearm and shin, or a file); the
+captures store it and the pipeline reads it from them. Each marker set has its own cache folder
+(default ``/tmp/stillcap-bench-puppet`` for puppet-16, ``/tmp/stillcap-bench-puppet-NAME``
+otherwise); a cached capture of another marker set is an error.
+
 Results and their discussion: docs/puppet.md.
 
 Measures, against each capture's truth.json: identifications right (% of visible beads) and
@@ -27,7 +34,9 @@ wrong (% of identifications; "colour only" = before the re-identification from 3
 the truth shows in 2+ views that were recovered; 3D marker error; bone direction error
 (grouped by what the markers measure: "full" bones start at a joint frame whose orientation
 the beads fix, "partial" at a frame with one bead (forearms, shins), "none" at one without
-(hands, feet)); joint position error; time for the 12 views (decode + pipeline) as a ratio to
+(hands, feet)), by design of the marker set and by what the recovered markers of each pose
+measure ("measured": a frame whose second bead was seen in fewer than two views counts as
+partial there), and by body part; joint position error; time for the 12 views (decode + pipeline) as a ratio to
 decoding the 12 JPEGs, both measured in this run, per pose. The pipeline decodes and detects
 the views on ``--workers`` threads (default 2); the reference decode is always serial.
 """
@@ -44,6 +53,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.pipelines.puppet import DEFAULT, THESIS_CHAIN, PuppetSettings, run_capture
 
 REPO = Path(__file__).resolve().parents[1]
@@ -83,10 +93,24 @@ def folder_of(cache: Path, spec: str) -> Path:
     return cache / spec.replace(":", "_")
 
 
-def render(cache: Path, specs: list[str], seed: int) -> list[Path]:
+#: Bones by body part (the puppet skeleton names a bone after the joint at its end).
+PARTS = {"forearms, shins": ("l-hand", "r-hand", "l-foot", "r-foot"),
+         "hands, feet": ("l-finger", "r-finger", "l-toes", "r-toes")}
+TRUNK = "torso, head, shoulders, upper arms, thighs"
+
+
+def render(cache: Path, specs: list[str], seed: int, markerset: MarkerSet | None = None) -> list[Path]:
+    import json
+
     from stillcap.studio.puppet import puppet_scene, webcam_sensor
 
+    markerset = markerset or MarkerSet.puppet()
     folders = [folder_of(cache, s) for s in specs]
+    for f in folders:
+        if (f / "capture.json").is_file():
+            have = MarkerSet.resolve(json.loads((f / "capture.json").read_text()).get("markerset", "puppet-16"))
+            if have.to_dict() != markerset.to_dict():
+                raise SystemExit(f"{f} holds a capture with another marker set ({have.name}); use another --cache")
     todo = [(s, f) for s, f in zip(specs, folders) if not (f / "capture.json").is_file()]
     if todo:
         with Progress(TextColumn("[bold]rendering poses"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -94,7 +118,7 @@ def render(cache: Path, specs: list[str], seed: int) -> list[Path]:
             task = bar.add_task("render", total=len(todo))
             for i, (s, f) in enumerate(todo):
                 rng = np.random.default_rng([seed, i, len(s)])
-                sc = puppet_scene(pose=s, rng=rng, sensor=webcam_sensor(jpeg_quality=None))
+                sc = puppet_scene(pose=s, rng=rng, sensor=webcam_sensor(jpeg_quality=None), markerset=markerset)
                 cap, images = sc.to_capture(".jpg")
                 cap.save(f, images, jpeg_quality=85)
                 bar.update(task, completed=i + 1)
@@ -118,13 +142,21 @@ def main(argv=None) -> None:
     ap.add_argument("--random", type=int, default=40, help="random poses")
     ap.add_argument("--bvh", type=int, default=12, help="BVH poses (split over the files in ../shared/data/bvh)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-puppet"), help="capture folders")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="capture folders (default /tmp/stillcap-bench-puppet[-MARKERS])")
+    ap.add_argument("--markers", default="puppet-16", help="marker set: puppet-16, puppet-20 or a marker-set file")
     ap.add_argument("--chains", default=",".join(CHAINS), help="comma-separated chains to run")
     ap.add_argument("--workers", type=int, default=2,
                     help="threads that decode and detect the views (run_capture's workers; 1 = serially)")
     args = ap.parse_args(argv)
     specs = pose_specs(args.random, args.bvh, args.seed)
-    folders = render(args.cache, specs, args.seed)
+    markerset = MarkerSet.resolve(args.markers)
+    cache = args.cache
+    if cache is None:
+        cache = Path("/tmp/stillcap-bench-puppet" + ("" if markerset.builtin_name() == "puppet-16"
+                                                      else f"-{markerset.name}"))
+    console.print(f"marker set {markerset.name} ({len(markerset)} beads), captures in {cache}")
+    folders = render(cache, specs, args.seed, markerset)
     chains = [c.strip() for c in args.chains.split(",") if c.strip()]
     rows = {c: [] for c in chains}
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
@@ -192,6 +224,41 @@ def report(rows: dict, specs: list[str]) -> None:
                     vals = vals[np.isfinite(vals)]
                     cells.append(f"{fmt(np.sqrt(np.mean(vals ** 2)))} / {fmt(vals.max())}" if len(vals) else "-")
                 b.add_row(c + (" (thesis bone directions)" if thesis else f" ({CHAINS[c].pose})"), *cells)
+        console.print(b)
+
+    # the same, grouped by what each pose's recovered markers measure, and by body part
+    def cell(rs, thesis, pick):
+        vals = np.array([(r["cmp"].thesis_bone_errors_deg if thesis else r["cmp"].bone_errors_deg)[bn]
+                         for r in rs for bn in pick(r["cmp"])])
+        vals = vals[np.isfinite(vals)]
+        return f"{fmt(np.sqrt(np.mean(vals ** 2)))} / {fmt(vals.max())} ({len(vals)})" if len(vals) else "-"
+
+    def part(cm, name):
+        if name == TRUNK:
+            return [b for b in cm.bone_errors_deg if not any(b in v for v in PARTS.values())]
+        return [b for b in cm.bone_errors_deg if b in PARTS[name]]
+
+    def measured(cm, status):
+        return cm.measured_bone_groups.get(status, [])
+
+    cols = [(f"measured {g}", lambda cm, g=g: measured(cm, g)) for g in groups]
+    cols += [(p, lambda cm, p=p: part(cm, p)) for p in (TRUNK, *PARTS)]
+    cols += [("forearms, shins: measured full",
+              lambda cm: [b for b in part(cm, "forearms, shins") if b in measured(cm, "full")]),
+             ("forearms, shins: not",
+              lambda cm: [b for b in part(cm, "forearms, shins") if b not in measured(cm, "full")])]
+    for kind, label in ((None, "all poses"), ("random", "random poses"), ("bvh", "BVH poses")):
+        if not any(_agg(rs, kind) for rs in rows.values()):
+            continue
+        b = Table(title=f"Bone direction error, degrees, RMS / max (bones), by what the recovered markers measure "
+                        f"and by body part ({label})")
+        b.add_column("chain", justify="left")
+        for name, _ in cols:
+            b.add_column(name, justify="right")
+        for c, rs in rows.items():
+            rs = _agg(rs, kind)
+            if rs:
+                b.add_row(c + f" ({CHAINS[c].pose})", *[cell(rs, False, pick) for _, pick in cols])
         console.print(b)
 
     j = Table(title="Joint position error, mm, RMS / max (all poses)")

@@ -422,6 +422,44 @@ def test_grey_and_float_images_give_the_same_balls():
     assert np.abs(r1.centers - r2.centers).max() < 1e-3
 
 
+def _contour_set(contours):
+    return sorted((cv2.boundingRect(c), c.reshape(-1, 2).tolist()) for c in contours)
+
+
+@pytest.mark.parametrize("open_px", [1, 0])
+def test_silhouettes_thresholded_around_candidates_are_the_full_frame_ones(open_px):
+    """The mask is thresholded at full resolution only around silhouettes found at half
+    resolution: the contours must be those of the whole-frame mask, also for balls cut by the
+    border, balls whose boxes overlap, a thin spur the half-resolution image misses (its box
+    must grow) and with a background photo."""
+    from stillcap.detect.ball import _clean_contours, _foreground_contours, _raw_mask
+
+    balls = np.array([[30.0, 40.0, 24.0], [200.0, 150.0, 25.0], [256.0, 160.0, 22.0], [590.0, 280.0, 26.0],
+                      [420.0, 60.0, 20.0]])
+    img, _ = draw_balls((300, 600), balls, rng=3)
+    img[151, 150:180] = 255  # a 1 px spur on an odd row: invisible at half resolution
+    img[59:62, 440:470] = 200  # a 3 px wide bar sticking out of a ball
+    img[3, 300] = 250  # a hot pixel
+    for bg in (None, np.full_like(img, 6)):
+        full = _clean_contours(_raw_mask(img, bg, None, 6.0, 20.0), open_px, 25.0)
+        roi = _foreground_contours(img, bg, None, 6.0, 20.0, open_px, 25.0)
+        assert len(full) == 5  # the hot pixel is below the area limit
+        assert _contour_set(roi) == _contour_set(full)
+        if open_px == 0:  # the spur is part of its ball's silhouette: the box grew to hold it
+            assert any(cv2.boundingRect(c)[0] == 150 for c in roi)
+
+
+def test_percentile_is_numpys():
+    from stillcap.detect.ball import _percentile
+
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 10, 37, 184, 1000):
+        for dtype in (np.float32, np.float64):
+            a = rng.random(n).astype(dtype)
+            for q in (0.0, 10.0, 50.0, 90.0, 99.0, 100.0):
+                assert _percentile(a, q) == float(np.percentile(a, q))
+
+
 # --------------------------------------------------------------------------------------------
 # steps 3-5: projected outline, stereo
 # --------------------------------------------------------------------------------------------
@@ -457,6 +495,22 @@ def test_exact_outline_template_finds_the_projected_centre():
     e_exact = np.linalg.norm(exact.centers - cen, axis=1)[0]
     e_circle = np.linalg.norm(circle.centers - cen, axis=1)[0]
     assert e_exact < 0.3 and e_circle > 2.0
+
+
+@pytest.mark.parametrize("light", [(0.0, 0.0, -1.0), (1.0, 0.0, 0.0)])
+def test_refined_start_skips_the_coarse_grid_and_finds_the_same_centre(light):
+    """From a refined centre (a later round of ball_centers_stereo) the 0.5 px grid alone finds
+    the centre the full coarse-to-fine search finds, also for half moons."""
+    balls = np.array([[80.0, 90.0, 28.0], [220.3, 95.6, 29.0], [360.7, 88.2, 27.5]])
+    img, _ = draw_balls((180, 440), balls, light=light, rng=5)
+    first = refine_centers(img, balls[:, :2] + [[1.5, -1.0]], balls[:, 2])
+    assert first.ok.all()
+    start = first.centers + [[0.4, -0.3]]
+    full = refine_centers(img, start, balls[:, 2], search_px=3.0)
+    quick = refine_centers(img, start, balls[:, 2], search_px=3.0, start_refined=True)
+    assert quick.ok.all()
+    assert np.abs(quick.centers - full.centers).max() < 1e-9
+    assert np.linalg.norm(quick.centers - balls[:, :2], axis=1).max() < 0.3
 
 
 @pytest.mark.parametrize("light, max_mm, init_min_mm", [(None, 1.0, 0.0), ((1.0, 0.0, 0.0), 1.0, 5.0)])

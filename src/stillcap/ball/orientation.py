@@ -429,20 +429,19 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     ok = np.abs(cos_ab) < np.cos(np.radians(5.0))  # a pair must not be (anti)parallel
     a_idx, b_idx, cos_ab = a_idx[ok], b_idx[ok], cos_ab[ok]
     ang_model = np.arccos(np.clip(m @ m.T, -1, 1))
-    hyp_a, hyp_b, hyp_i, hyp_j = [], [], [], []
-    for a, b, c in zip(a_idx, b_idx, cos_ab):
-        ii = np.flatnonzero(layout.types == t[a])
-        jj = np.flatnonzero(layout.types == t[b])
-        I, J = np.meshgrid(ii, jj, indexing="ij")
-        I, J = I.ravel(), J.ravel()
-        keep = (I != J) & (np.abs(ang_model[I, J] - np.arccos(np.clip(c, -1, 1))) < np.radians(pair_tol_deg))
-        hyp_a += [a] * int(keep.sum())
-        hyp_b += [b] * int(keep.sum())
-        hyp_i += I[keep].tolist()
-        hyp_j += J[keep].tolist()
-    if not hyp_a:
+    # all (observed pair, model marker i, model marker j) at once: i of a's type, j of b's, i != j,
+    # model angle within pair_tol_deg of the observed one; np.nonzero keeps the order of the
+    # loop over observed pairs, then i, then j
+    n_m = len(m)
+    keep = ((layout.types[None, :, None] == t[a_idx][:, None, None])
+            & (layout.types[None, None, :] == t[b_idx][:, None, None])
+            & ~np.eye(n_m, dtype=bool)[None]
+            & (np.abs(ang_model[None] - np.arccos(np.clip(cos_ab, -1, 1))[:, None, None])
+               < np.radians(pair_tol_deg)))
+    hp, hi, hj = np.nonzero(keep)
+    if not len(hp):
         return FlashOrientation(nan3, np.inf, 0, np.nan, np.full(len(u), -1), np.inf, [], False)
-    ha, hb, hi, hj = (np.array(x) for x in (hyp_a, hyp_b, hyp_i, hyp_j))
+    ha, hb = a_idx[hp], b_idx[hp]
     R = _triad(u[ha], u[hb]) @ np.transpose(_triad(m[hi], m[hj]), (0, 2, 1))
     d, _ = _nearest_same_type(R, u, t, layout)
     cost = np.sum(np.minimum(d, cap) ** 2, axis=1)
@@ -698,7 +697,8 @@ class _GlobalProblem:
         dt = self.dt[self.flash[sel]]
         # dp/d(delta) = -A [v]x J_l(delta);  dp/dw = -[p]x J_l(w dt) dt
         dp_dd = -np.einsum("mab,mbc->mac", A, _skew(v)) @ _left_jacobian(x[:3])
-        dp_dw = -_skew(p) @ _left_jacobian(np.outer(dt, x[3:])) * dt[:, None, None]
+        # J_l per flash, then per observation (the same numbers, K instead of m evaluations)
+        dp_dw = -_skew(p) @ _left_jacobian(np.outer(self.dt, x[3:]))[self.flash[sel]] * dt[:, None, None]
         dp = np.concatenate([dp_dd, dp_dw], axis=2)  # (m, 3, 6)
         c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
         g = _phi_over_sin(c)
@@ -715,17 +715,32 @@ def _cluster_robust(cov, bread, J, r, flash):
 
     Every direction gets the larger of the two variances: ``cov + V max(D, 0) V^T`` with
     ``V D V^T`` the eigen-decomposition of ``sandwich - cov`` (a sandwich from few flashes is
-    noisy, so it only ever widens the model-based covariance). Small-sample factor
-    ``G / (G - 1) * (n - 1) / (n - p)`` (G flashes, n residuals, p parameters).
+    noisy, so it only ever widens the model-based covariance).
+
+    The sandwich is Bell and McCaffrey's CR2: each flash's residuals are divided by
+    ``(I - H_gg)^(1/2)`` (``H_gg`` its block of the hat matrix ``J (J^T J)^-1 J^T``) before the
+    meat is summed. The least-squares residuals of a flash are smaller than its errors by about
+    its leverage (``p / G`` on average: 6 parameters over 15-25 flashes, 0.25-0.4), which the
+    plain CR1 factor ``G / (G - 1) * (n - 1) / (n - p)`` (~1.1) did not make up for: the spin
+    axis errors were ~1.15x their sigma (issue 3; ``docs/pitch.md``, "Spin").
     """
     fl = np.concatenate([flash, flash])
-    groups = np.unique(fl)
+    groups, idx = np.unique(fl, return_inverse=True)
     G, n, p = len(groups), len(r), J.shape[1]
     if G < 3 or n <= p:
         return cov
-    g = np.zeros((G, p))
-    np.add.at(g, np.searchsorted(groups, fl), J * r[:, None])  # J_k^T r_k per flash
-    meat = g.T @ g * (G / (G - 1) * (n - 1) / (n - p))
+    order = np.argsort(idx, kind="stable")
+    bounds = np.searchsorted(idx[order], np.arange(G + 1))
+    meat = np.zeros((p, p))
+    for g in range(G):  # one small (rows of a flash)^2 eigen-problem per flash
+        rows = order[bounds[g]:bounds[g + 1]]
+        Jg = J[rows]
+        w, U = np.linalg.eigh(np.eye(len(rows)) - Jg @ bread @ Jg.T)
+        # (I - H_gg)^(-1/2) r_g; a flash that alone determines a direction (leverage ~1) is
+        # capped at 100x instead of dividing by ~0
+        rt = U @ ((U.T @ r[rows]) / np.sqrt(np.clip(w, 1e-4, None)))
+        s = Jg.T @ rt
+        meat += np.outer(s, s)
     sand = bread @ meat @ bread
     d, V = np.linalg.eigh(0.5 * ((sand - cov) + (sand - cov).T))
     return cov + (V * np.clip(d, 0.0, None)) @ V.T
@@ -846,14 +861,26 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     mdl = lay.directions[np.maximum(cand, 0)]  # (M, c, 3)
     u, fl = prob.u, prob.flash
 
+    flashes = [(k, np.flatnonzero(fl == k)) for k in np.unique(fl)]
+    n_c = cand.shape[1]
+
     def costs(rho, k_a, R_a):
         steps = (times - times[k_a]) / period
         body = np.swapaxes(mdl @ R_a.T, 1, 2)  # (M, 3, c): R_a m_j as columns
+        # cos(observation m, candidate marker c) = (E^T u_m) . (R_a m_c) = sum_ab E_ab u_m,a (R_a m_c)_b
+        # with E = exp(rho (t_k - t_a) / T) of the observation's flash k: per flash one matrix
+        # product (G, 9) @ (9, M_k c) over all grid points, instead of gathering a 3x3 matrix per
+        # grid point and observation (the cost of this scan is in the gathering, not the sums)
+        Wuv = (u[:, :, None, None] * body[:, None, :, :]).reshape(len(u), 9, n_c)
+        Wk = [(k, idx, np.ascontiguousarray(Wuv[idx].transpose(1, 0, 2)).reshape(9, -1)) for k, idx in flashes]
         out = np.empty(len(rho))
         for s in range(0, len(rho), 1024):
-            E = _expmap(rho[s:s + 1024, None, :] * steps[None, :, None])[:, fl]  # (G, M, 3, 3)
-            v = np.einsum("gmba,mb->gma", E, u)  # E^T u: observation in the anchor's frame
-            cos = np.where(pad[None], -1.0, (v[:, :, None, :] @ body[None])[:, :, 0, :]).max(-1)
+            E = _expmap(rho[s:s + 1024, None, :] * steps[None, :, None])  # (G, K, 3, 3)
+            G = len(E)
+            cos = np.empty((G, len(u), n_c))
+            for k, idx, W in Wk:
+                cos[:, idx, :] = (E[:, k].reshape(G, 9) @ W).reshape(G, len(idx), n_c)
+            cos = np.where(pad[None], -1.0, cos).max(-1)
             out[s:s + 1024] = np.sum(np.minimum(np.arccos(np.clip(cos, -1, 1)), cap) ** 2, axis=1)
         return out
 

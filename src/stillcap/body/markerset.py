@@ -31,9 +31,15 @@ from stillcap.body.skeleton import LENGTH_UNITS, Animation, Pose, Skeleton
 from stillcap.io.atomic import write_text
 from stillcap.io.jsonfile import read_json, read_package_json
 
-__all__ = ["Marker", "BoneRule", "MarkerSet", "MarkerTrajectories"]
+__all__ = ["BUILTIN_MARKERSETS", "PUPPET_MARKERSETS", "BoneRule", "Marker", "MarkerSet", "MarkerTrajectories"]
 
 _FORMAT = "stillcap-markerset"
+
+#: The puppet's marker sets shipped with stillcap: name -> file in ``stillcap/data``.
+PUPPET_MARKERSETS = {"puppet-16": "puppet_markers.json", "puppet-20": "puppet_markers_20.json"}
+#: Marker sets shipped with stillcap that :meth:`MarkerSet.builtin` loads by name (the hand's
+#: glove markers come with their own colour groups: :func:`stillcap.body.hand.hand_markers`).
+BUILTIN_MARKERSETS = dict(PUPPET_MARKERSETS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -297,10 +303,61 @@ class MarkerSet:
         return write_text(path, json.dumps(self.to_dict(length_unit), indent=1) + "\n")
 
     @classmethod
-    def puppet(cls) -> "MarkerSet":
-        """The thesis's 16 bead markers on :meth:`Skeleton.puppet` (``data/puppet_markers.json``)."""
-        data, source = read_package_json("puppet_markers.json")
+    def puppet(cls, name: str = "puppet-16") -> "MarkerSet":
+        """A bead marker set of :meth:`Skeleton.puppet` shipped with stillcap.
+
+        Parameters
+        ----------
+        name : {"puppet-16", "puppet-20"}
+            ``"puppet-16"`` (default): the thesis's 16 beads (``data/puppet_markers.json``);
+            ``"puppet-20"``: those 16 plus a second bead on each forearm and shin
+            (``data/puppet_markers_20.json``), so that every joint frame with a bead carries
+            two and its twist is measured (``docs/puppet.md``).
+        """
+        if name not in PUPPET_MARKERSETS:
+            raise ValueError(f"unknown puppet marker set {name!r}; built-in: {', '.join(PUPPET_MARKERSETS)}")
+        data, source = read_package_json(PUPPET_MARKERSETS[name])
         return cls.from_dict(data, source=source)
+
+    @classmethod
+    def builtin(cls, name: str) -> "MarkerSet":
+        """A marker set shipped with stillcap, by name (:data:`BUILTIN_MARKERSETS`)."""
+        if name not in BUILTIN_MARKERSETS:
+            raise ValueError(f"unknown built-in marker set {name!r}; built-in: {', '.join(BUILTIN_MARKERSETS)}")
+        data, source = read_package_json(BUILTIN_MARKERSETS[name])
+        return cls.from_dict(data, source=source)
+
+    @classmethod
+    def resolve(cls, spec: "MarkerSet | str | os.PathLike | dict | None", default: str = "puppet-16") -> "MarkerSet":
+        """A marker set from whatever names one: a :class:`MarkerSet` (returned as is), a built-in
+        name (``"puppet-16"``, ``"puppet-20"``), the path of a marker-set JSON file,
+        a :meth:`to_dict` dict, or None for ``default``.
+
+        A string is a built-in name if it is one, else a file path; ValueError if neither.
+        """
+        if spec is None:
+            spec = default
+        if isinstance(spec, MarkerSet):
+            return spec
+        if isinstance(spec, dict):
+            return cls.from_dict(spec, source="<embedded marker set>")
+        if isinstance(spec, str) and spec in BUILTIN_MARKERSETS:
+            return cls.builtin(spec)
+        if isinstance(spec, (str, os.PathLike)):
+            path = Path(spec)
+            if not path.is_file():
+                raise ValueError(f"marker set {str(spec)!r} is neither a built-in ({', '.join(BUILTIN_MARKERSETS)}) "
+                                 "nor an existing file")
+            return cls.load(path)
+        raise ValueError(f"a marker set must be a MarkerSet, a built-in name, a file or a dict, got {type(spec).__name__}")
+
+    def builtin_name(self) -> str | None:
+        """The name of the built-in marker set this one equals (same content), or None."""
+        d = self.to_dict()
+        for name in BUILTIN_MARKERSETS:
+            if name == self.name and MarkerSet.builtin(name).to_dict() == d:
+                return name
+        return None
 
 
 @dataclass(eq=False)

@@ -5,8 +5,10 @@ rotations that put the marker set's beads on them. A stage of :mod:`stillcap.pip
 parameters, so the limits are hard bounds) to the 3D markers by least squares with an analytic
 Jacobian. A joint frame that carries two beads not in line with the joint has three points
 (its markers and the joint itself): its full orientation, twist included, is measured
-(:func:`frame_status`). Where the markers leave a rotation open (forearms and shins carry one
-bead each: the rotation about the elbow-to-bead line; hands and feet carry none) a weak prior
+(:func:`frame_status`). Where the markers leave a rotation open (with the thesis's 16 beads,
+``puppet-16``, forearms and shins carry one bead each: the rotation about the elbow-to-bead
+line; ``puppet-20`` adds a second bead there, so they are fully measured; hands and feet carry
+none) a weak prior
 pulls each Euler angle toward 0 (clipped into its limits) with a standard deviation of half its
 range, so near-hinge joints stay near their hinge. The thesis's bone-direction pose
 (:func:`stillcap.body.kinematics.pose_from_markers`) is kept beside it.
@@ -18,7 +20,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -29,7 +31,7 @@ from stillcap.body.kinematics import bone_directions, normalised, pose_from_mark
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
 
-__all__ = ["PoseFit", "fit_pose", "frame_status"]
+__all__ = ["MarkerRays", "PoseFit", "fit_pose", "frame_status"]
 
 
 def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
@@ -58,6 +60,149 @@ def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
 
 
 @dataclass(eq=False)
+class MarkerRays:
+    """Single-view observations of markers: each a ray from a camera centre through the
+    bead's pixel, in world coordinates, for :func:`fit_pose`.
+
+    A bead seen in one view only has no 3D point, but it lies on its ray: the ray fixes two of
+    its three coordinates (to a pixel's accuracy times its depth), which is enough to settle a
+    forearm's twist when its other bead is triangulated.
+
+    Attributes
+    ----------
+    marker : ndarray of int, shape (n_rays,)
+        Marker-set index of each ray's bead.
+    origin : ndarray, shape (n_rays, 3)
+        Camera centres, metres, world.
+    direction : ndarray, shape (n_rays, 3)
+        Unit directions through the pixels, world.
+    focal_px : ndarray, shape (n_rays,)
+        Focal length of each ray's camera, pixels (mean of fx and fy): a pixel at depth ``z`` is
+        ``z / focal_px`` metres.
+    view : ndarray of int, shape (n_rays,)
+        The view each ray comes from (-1 if unknown).
+    sigma_px : ndarray, shape (n_rays,)
+        Expected error of each ray's pixel, pixels; NaN: :func:`fit_pose`'s ``ray_sigma_px``.
+    """
+
+    marker: np.ndarray
+    origin: np.ndarray
+    direction: np.ndarray
+    focal_px: np.ndarray
+    view: np.ndarray | None = None
+    sigma_px: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.marker = np.asarray(self.marker, int).reshape(-1)
+        k = len(self.marker)
+        self.origin = np.asarray(self.origin, float).reshape(-1, 3) if k else np.zeros((0, 3))
+        self.direction = np.asarray(self.direction, float).reshape(-1, 3) if k else np.zeros((0, 3))
+        self.focal_px = np.broadcast_to(np.asarray(self.focal_px, float), (k,)).copy()
+        self.view = np.full(k, -1) if self.view is None else np.asarray(self.view, int).reshape(-1)
+        self.sigma_px = (np.full(k, np.nan) if self.sigma_px is None
+                         else np.broadcast_to(np.asarray(self.sigma_px, float), (k,)).copy())
+        for name, a, shape in (("origin", self.origin, (k, 3)), ("direction", self.direction, (k, 3)),
+                               ("view", self.view, (k,))):
+            if a.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+        n = np.linalg.norm(self.direction, axis=1)
+        if k and not np.all(np.isfinite(n) & (n > 0)):
+            raise ValueError("every ray direction must be finite and non-zero")
+        self.direction = self.direction / n[:, None] if k else self.direction
+
+    def __len__(self) -> int:
+        return len(self.marker)
+
+    @classmethod
+    def from_views(cls, rig, observations, markers=None, fill=None, sigma_px: float = 1.0,
+                   fill_slope_px: float = 6.5) -> "MarkerRays":
+        """The rays of identified pixels.
+
+        A partly hidden bead's detected centre lies off its true centre, toward its visible part,
+        by more the less of it shows. With ``fill`` (:func:`stillcap.detect.beads.bead_fill`, as in
+        :attr:`MarkerSolve.fill <stillcap.pipelines.puppet.MarkerSolve>`) each ray's
+        ``sigma_px = max(sigma_px, fill_slope_px * (0.8 - fill))``: on the 52 ``puppet-20``
+        benchmark poses (beads ~6.3 px in radius) the centre error was 3.5 px RMS at fill < 0.3,
+        2.6 px at 0.3-0.5, 1.3 px at 0.5-0.7 and 0.2-0.3 px above 0.7.
+
+        Parameters
+        ----------
+        rig : Rig or sequence of Camera, n_views cameras
+        observations : array_like, shape (n_views, n_markers, 2)
+            Distorted pixels, NaN where a view did not identify a marker.
+        markers : array_like of bool, shape (n_markers,), or of int, optional
+            The markers to make rays of (e.g. those without a 3D point); default all.
+        fill : array_like, shape (n_views, n_markers), optional
+            Fill of every observation (NaN: unknown, ``sigma_px``).
+        sigma_px : float
+            Error of a whole bead's centre, pixels (the floor).
+        fill_slope_px : float
+            Growth of the error as the fill drops, pixels per unit fill.
+        """
+        cams = list(rig)
+        x = np.asarray(observations, float)
+        if x.ndim != 3 or x.shape[0] != len(cams) or x.shape[2] != 2:
+            raise ValueError(f"observations must have shape ({len(cams)}, n_markers, 2), got {x.shape}")
+        pick = np.ones(x.shape[1], bool)
+        if markers is not None:
+            m = np.asarray(markers)
+            pick = np.zeros(x.shape[1], bool)
+            if m.dtype == bool:
+                if m.shape != (x.shape[1],):
+                    raise ValueError(f"markers mask must have shape ({x.shape[1]},), got {m.shape}")
+                pick = m.copy()
+            else:
+                pick[m.astype(int)] = True
+        fl = np.full(x.shape[:2], np.nan) if fill is None else np.asarray(fill, float)
+        if fl.shape != x.shape[:2]:
+            raise ValueError(f"fill must have shape {x.shape[:2]}, got {fl.shape}")
+        with np.errstate(invalid="ignore"):
+            sig = np.where(np.isfinite(fl), np.maximum(sigma_px, fill_slope_px * (0.8 - fl)), sigma_px)
+        mk, org, dirs, foc, vw, sg = [], [], [], [], [], []
+        for v, cam in enumerate(cams):
+            sel = np.flatnonzero(pick & np.isfinite(x[v, :, 0]) & np.isfinite(x[v, :, 1]))
+            if not len(sel):
+                continue
+            xn = cam.pixels_to_normalized(x[v, sel])
+            ok = np.all(np.isfinite(xn), axis=1)
+            sel, xn = sel[ok], xn[ok]
+            d_cam = np.column_stack([xn, np.ones(len(sel))])
+            mk.append(sel)
+            dirs.append(d_cam @ cam.R)  # rows: R.T @ d, camera -> world
+            org.append(np.broadcast_to(cam.center, (len(sel), 3)))
+            foc.append(np.full(len(sel), 0.5 * (cam.K[0, 0] + cam.K[1, 1])))
+            vw.append(np.full(len(sel), v))
+            sg.append(sig[v, sel])
+        if not mk:
+            return cls(np.zeros(0, int), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, int))
+        return cls(np.concatenate(mk), np.vstack(org), np.vstack(dirs), np.concatenate(foc), np.concatenate(vw),
+                   np.concatenate(sg))
+
+    def subset(self, keep) -> "MarkerRays":
+        keep = np.asarray(keep)
+        return MarkerRays(self.marker[keep], self.origin[keep], self.direction[keep], self.focal_px[keep],
+                          self.view[keep], self.sigma_px[keep])
+
+    def distances(self, points) -> np.ndarray:
+        """Distance of each ray's marker (``points[marker]``, (n_markers, 3)) from the ray, metres."""
+        d = np.asarray(points, float)[self.marker] - self.origin
+        return np.linalg.norm(d - np.sum(d * self.direction, axis=1)[:, None] * self.direction, axis=1)
+
+    def depths(self, points) -> np.ndarray:
+        """Depth of each ray's marker along the ray, metres."""
+        return np.sum((np.asarray(points, float)[self.marker] - self.origin) * self.direction, axis=1)
+
+    def bases(self) -> np.ndarray:
+        """Two unit vectors perpendicular to each ray (and to each other), shape (n_rays, 2, 3)."""
+        d = self.direction
+        # any vector not along d: the world axis d is least along
+        a = np.eye(3)[np.argmin(np.abs(d), axis=1)]
+        b1 = np.cross(d, a)
+        b1 /= np.linalg.norm(b1, axis=1)[:, None]
+        return np.stack([b1, np.cross(d, b1)], axis=1)
+
+
+@dataclass(eq=False)
 class PoseFit:
     """Result of :func:`fit_pose`.
 
@@ -78,6 +223,13 @@ class PoseFit:
     n_markers : int
         Markers used.
     time_s : float
+    rays : MarkerRays or None
+        The single-view rays given to :func:`fit_pose` (None without).
+    ray_used : ndarray of bool, shape (n_rays,)
+        Rays the final fit used: not of a triangulated marker, not rejected.
+    ray_residuals_px : ndarray, shape (n_rays,)
+        Distance of each ray's fitted model bead from the ray, in pixels at the bead's depth
+        (NaN for rays of triangulated markers).
     """
 
     pose: Pose
@@ -88,6 +240,16 @@ class PoseFit:
     success: bool
     n_markers: int
     time_s: float = 0.0
+    rays: MarkerRays | None = None
+    ray_used: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    ray_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def ray_markers(self) -> np.ndarray:
+        """Marker-set indices of the markers the fit placed on single-view rays (sorted, unique)."""
+        if self.rays is None:
+            return np.zeros(0, int)
+        return np.unique(self.rays.marker[self.ray_used])
 
     @property
     def rms_m(self) -> float:
@@ -119,7 +281,7 @@ def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
 
 
 def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, centre,
-                  sd) -> np.ndarray:
+                  sd, rays: MarkerRays | None = None, ray_sigma_px: float = 1.0) -> np.ndarray:
     """A start for :func:`fit_pose`, joint by joint from the root (degrees, (n_joints, 3)).
 
     Each joint's parent frame is known by then, so the joint's world position is too. A frame
@@ -127,7 +289,9 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
     maps the markers' offsets onto the measured markers (Wahba / Kabsch). One seen marker: the
     rotations that put it exactly on its measurement form a one-parameter family (turning about
     the joint-to-marker line); the one whose Euler angles the prior likes best, within the
-    limits, is taken. No marker: the prior's centre.
+    limits, is taken, or, when ``rays`` hold single-view rays of the frame's other markers, the
+    one that puts them nearest their rays (in sigma: ``ray_sigma_px`` at the bead's depth). No
+    marker: the prior's centre.
     """
     n = skeleton.n_joints
     lim = np.stack([lo, hi], axis=-1)
@@ -163,13 +327,23 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
         else:
             e, viol = euler_within_limits(cands, np.where(np.isfinite(lim[j]), lim[j], np.nan))
             cost = 100.0 * viol + np.sum(((e - centre[j]) / sd[j]) ** 2, axis=1)
+            if rays is not None and len(cands) > 1:
+                for r in np.flatnonzero(frames[rays.marker] == j):
+                    bead = origin[j] + np.einsum("ij,cjk,k->ci", Wp, cands, offs[rays.marker[r]])  # (n_cands, 3)
+                    v = bead - rays.origin[r]
+                    z = v @ rays.direction[r]
+                    dist = np.linalg.norm(v - z[:, None] * rays.direction[r], axis=1)
+                    spx = rays.sigma_px[r] if np.isfinite(rays.sigma_px[r]) else ray_sigma_px
+                    sig = spx * np.maximum(np.abs(z), 1e-3) / rays.focal_px[r]
+                    cost = cost + np.minimum((dist / sig) ** 2, 1e4)  # a wrong ray: bounded say
             ang[j] = np.clip(e[int(np.argmin(cost))], lo[j], hi[j])
         world[j] = Wp @ Rotation.from_euler(EULER_LIMIT_SEQUENCE, ang[j], degrees=True).as_matrix()
     return ang
 
 
 def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
-             initial: Pose | None = None, marker_sigma_m: float = 0.2e-3, robust: bool = True) -> PoseFit:
+             initial: Pose | None = None, marker_sigma_m: float = 0.2e-3, robust: bool = True,
+             rays: MarkerRays | None = None, ray_sigma_px: float = 1.0, ray_reject: float = 5.0) -> PoseFit:
     """Joint rotations that put the marker set's beads on the measured markers.
 
     The free joints' intrinsic XYZ Euler angles (:data:`~stillcap.body.skeleton.EULER_LIMIT_SEQUENCE`,
@@ -178,14 +352,23 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     world axis ``u`` moves every point beyond it by ``u x (p - o_j)``) to
 
     - every seen marker: ``(model - measured) / marker_sigma_m``;
+    - every single-view ray (``rays``) of a marker without a 3D point: the model bead's offset
+      from the ray along two unit vectors perpendicular to it, divided by
+      ``sigma = sigma_px * depth / focal_px`` (the ray's pixel error, ``rays.sigma_px`` or
+      ``ray_sigma_px``, at the bead's depth along the ray, the depth taken at the start pose and
+      again at the fitted pose before a refit);
+      rays of markers that have a 3D point are ignored (never counted twice);
     - a weak prior per angle: ``(angle - clip(0, limits)) / (half the range, >= 5 deg)``, which
       only matters for what the markers leave open (see the module docstring).
 
     The start is built joint by joint from the root (:func:`_start_angles`: Kabsch where a
-    frame has 2+ markers, the prior's favourite of the exact one-marker solutions otherwise);
-    if some marker then still misses by more than 5 sigma, ``initial`` and the thesis's pose
+    frame has 2+ markers, otherwise the exact one-marker solution that puts the frame's rays'
+    beads nearest their rays, or the prior's favourite without rays);
+    if some marker or ray then still misses by more than 5 sigma, ``initial`` and the thesis's pose
     are tried as starts too and the best fit is kept. With ``robust`` a soft-L1 loss (scale
-    5 sigma) keeps one wrong marker from bending the whole skeleton.
+    5 sigma) keeps one wrong marker or ray from bending the whole skeleton. A ray still more
+    than ``ray_reject`` sigma from its fitted bead (a wrongly identified single-view bead) is
+    dropped and the fit run again from there, until none is.
 
     Parameters
     ----------
@@ -199,6 +382,16 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         Start instead of the thesis's pose.
     marker_sigma_m : float
         Expected marker error, metres.
+    robust : bool
+        Soft-L1 loss (scale 5 sigma) instead of squares.
+    rays : MarkerRays, optional
+        Single-view observations (:meth:`MarkerRays.from_views`), world frame.
+    ray_sigma_px : float
+        Expected error of a single-view bead centre, pixels, for rays without their own
+        ``sigma_px`` (default 1 px: a bead seen once is often partly hidden, so its centre is
+        less sure than a triangulated one's ~0.2 px).
+    ray_reject : float
+        Rays whose fitted residual exceeds this many sigma are rejected.
 
     Returns
     -------
@@ -209,6 +402,16 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     if pts.shape != (len(markerset), 3):
         raise ValueError(f"marker_positions must have shape ({len(markerset)}, 3), got {pts.shape}")
     r2w = skeleton.rest_root2world() if root2world is None else np.asarray(root2world, float)
+    seen = np.all(np.isfinite(pts), axis=1)
+    if rays is not None:
+        if not isinstance(rays, MarkerRays):
+            raise ValueError(f"rays must be a MarkerRays, got {type(rays).__name__}")
+        if len(rays) and (rays.marker.min() < 0 or rays.marker.max() >= len(markerset)):
+            raise ValueError(f"ray markers must index the {len(markerset)} markers, got {rays.marker.tolist()}")
+        if ray_sigma_px <= 0 or ray_reject <= 0:
+            raise ValueError(f"ray_sigma_px and ray_reject must be > 0, got {ray_sigma_px}, {ray_reject}")
+    use = np.zeros(0, bool) if rays is None else ~seen[rays.marker]  # never a triangulated marker twice
+    active = rays.subset(use) if rays is not None and use.any() else None
     thesis = pose_from_markers(skeleton, markerset, pts, r2w)
     dirs = bone_directions(markerset, pts, r2w)
     n = skeleton.n_joints
@@ -219,14 +422,13 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     centre = np.clip(0.0, lo, hi)
     width = np.where(np.isfinite(hi - lo), 0.5 * (hi - lo), 180.0)
     sd = np.maximum(width, 5.0)
-    starts = [_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd)]
+    starts = [_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd, active, ray_sigma_px)]
     for other in ((initial,) if initial is not None else ()) + (thesis,):
         a0 = np.clip(skeleton.limit_angles_deg(other.local_rotations), lo, hi)
         starts.append(np.where(np.isfinite(lo) & ~free, lo, a0))
     ang = starts[0]
     frames = markerset.bone_frames(skeleton)
     offs = markerset.offsets
-    seen = np.all(np.isfinite(pts), axis=1)
     parents = skeleton.parents
     # chain[j]: joints whose rotation moves points of frame j (j and its ancestors)
     chain = np.zeros((n, n), bool)
@@ -236,8 +438,11 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             chain[j, k] = True
             k = parents[k]
     pidx = np.argwhere(free)  # (n_params, 2): joint, axis
+    pj, pax = pidx[:, 0], pidx[:, 1]
     mf = frames[seen]
     meas = pts[seen]
+    n_res = 3 * len(mf)
+    k_deg = math.pi / 180.0
 
     def unpack(x):
         a = ang.copy()
@@ -251,30 +456,54 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         j2w = forward_kinematics(skeleton, r2w, local)
         return a, Rx, Ry, j2w
 
-    def residuals(x):
-        a, _, _, j2w = model(x)
-        m = np.einsum("nij,nj->ni", j2w[mf, :3, :3], offs[seen]) + j2w[mf, :3, 3]
-        return np.concatenate([((m - meas) / marker_sigma_m).ravel(), ((a - centre) / sd)[free]])
+    def beads(j2w, idx):
+        return np.einsum("nij,nj->ni", j2w[frames[idx], :3, :3], offs[idx]) + j2w[frames[idx], :3, 3]
 
-    pj, pax = pidx[:, 0], pidx[:, 1]
-    n_res = 3 * len(mf)
-    prior_rows = n_res + np.arange(len(pidx))
-    moves = chain[mf][:, pj].T  # (n_params, n_seen): parameter moves the marker
-    k_scale = math.pi / 180.0 / marker_sigma_m
+    def problem(ray_set: MarkerRays | None, ray_sig: np.ndarray):
+        """Residual and Jacobian functions for the markers and the rays ``ray_set`` (sigmas in metres)."""
+        nr = 0 if ray_set is None else len(ray_set)
+        rf = frames[ray_set.marker] if nr else np.zeros(0, int)
+        B = ray_set.bases() / ray_sig[:, None, None] if nr else np.zeros((0, 2, 3))  # (nr, 2, 3), per metre
+        idx = np.concatenate([np.flatnonzero(seen), ray_set.marker if nr else np.zeros(0, int)])
+        n_rows = n_res + 2 * nr
+        prior_rows = n_rows + np.arange(len(pidx))
+        moves = chain[np.concatenate([mf, rf])][:, pj].T  # (n_params, n_points): parameter moves the point
+        scale = np.concatenate([np.full(len(mf), 1.0 / marker_sigma_m), np.ones(nr)])
 
-    def jacobian(x):
-        a, Rx, Ry, j2w = model(x)
-        m = np.einsum("nij,nj->ni", j2w[mf, :3, :3], offs[seen]) + j2w[mf, :3, 3]
-        W = np.concatenate([r2w[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
-        # world axis of each Euler angle: x, then Rx y, then Rx Ry z (intrinsic XYZ)
-        axes = np.where((pax == 0)[:, None], [1.0, 0.0, 0.0],
-                        np.where((pax == 1)[:, None], Rx[pj][:, :, 1], (Rx[pj] @ Ry[pj])[:, :, 2]))
-        u = np.einsum("pij,pj->pi", W, axes)
-        d = np.cross(u[:, None, :], m[None] - j2w[pj, None, :3, 3]) * k_scale  # (n_params, n_seen, 3)
-        J = np.zeros((n_res + len(pidx), len(pidx)))
-        J[:n_res] = (d * moves[..., None]).reshape(len(pidx), n_res).T
-        J[prior_rows, np.arange(len(pidx))] = 1.0 / sd[pj, pax]
-        return J
+        def residuals(x):
+            a, _, _, j2w = model(x)
+            m = beads(j2w, idx)
+            parts = [((m[:len(mf)] - meas) / marker_sigma_m).ravel()]
+            if nr:
+                parts.append(np.einsum("rki,ri->rk", B, m[len(mf):] - ray_set.origin).ravel())
+            parts.append(((a - centre) / sd)[free])
+            return np.concatenate(parts)
+
+        def jacobian(x):
+            a, Rx, Ry, j2w = model(x)
+            m = beads(j2w, idx)
+            W = np.concatenate([r2w[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
+            # world axis of each Euler angle: x, then Rx y, then Rx Ry z (intrinsic XYZ)
+            axes = np.where((pax == 0)[:, None], [1.0, 0.0, 0.0],
+                            np.where((pax == 1)[:, None], Rx[pj][:, :, 1], (Rx[pj] @ Ry[pj])[:, :, 2]))
+            u = np.einsum("pij,pj->pi", W, axes)
+            d = np.cross(u[:, None, :], m[None] - j2w[pj, None, :3, 3]) * k_deg  # (n_params, n_points, 3)
+            d = d * (moves * scale[None])[..., None]
+            J = np.zeros((n_rows + len(pidx), len(pidx)))
+            J[:n_res] = d[:, :len(mf)].reshape(len(pidx), n_res).T
+            if nr:
+                J[n_res:n_rows] = np.einsum("rki,pri->rkp", B, d[:, len(mf):]).reshape(2 * nr, len(pidx))
+            J[prior_rows, np.arange(len(pidx))] = 1.0 / sd[pj, pax]
+            return J
+
+        return residuals, jacobian
+
+    def ray_sigmas(ray_set: MarkerRays, x) -> np.ndarray:
+        z = ray_set.depths(beads(model(x)[3], np.arange(len(markerset))))
+        # a bead behind its camera at this pose: its distance from the camera instead
+        far = np.linalg.norm(r2w[:3, 3] - ray_set.origin, axis=1)
+        spx = np.where(np.isfinite(ray_set.sigma_px), ray_set.sigma_px, ray_sigma_px)
+        return spx * np.where(z > 1e-3, z, far) / ray_set.focal_px
 
     lb, ub = lo[free], hi[free]
     inner = (np.where(np.isfinite(lb), lb + 1e-9, lb), np.where(np.isfinite(ub), ub - 1e-9, ub))
@@ -287,21 +516,51 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     # the threadpoolctl limit, which holds for this call only.
     # Tolerances 1e-6 instead of SciPy's 1e-8: the steps after them move the joints by at most
     # 5.5 um (see above; the fit's joint error is ~110 um) and cost ~40 % of the time.
-    opts = dict(jac=jacobian, bounds=(lb, ub), x_scale=10.0, method="trf", tr_solver="exact",
+    opts = dict(bounds=(lb, ub), x_scale=10.0, method="trf", tr_solver="exact",
                 ftol=1e-6, xtol=1e-6, gtol=1e-6, **kw)
+    keep = np.ones(0 if active is None else len(active), bool)
     best = None
     with threadpool_limits(1, user_api="blas"):
+        cur = active
+        sig = ray_sigmas(active, np.clip(starts[0][free], *inner)) if active is not None else np.zeros(0)
+        fun, jac = problem(cur, sig)
+        n_data = n_res + 2 * (0 if cur is None else len(cur))
         for a0 in starts:  # the joint-by-joint start; the others only when it ends in a poor fit
-            r = least_squares(residuals, np.clip(a0[free], *inner), **opts)
+            r = least_squares(fun, np.clip(a0[free], *inner), jac=jac, **opts)
             if best is None or r.cost < best.cost:
                 best = r
-            if np.max(np.abs(best.fun[:3 * len(mf)]), initial=0.0) < 5.0:  # every marker within 5 sigma
+            if np.max(np.abs(best.fun[:n_data]), initial=0.0) < 5.0:  # every marker and ray within 5 sigma
                 break
+        # rays whose bead the fit leaves > ray_reject sigma away: wrongly identified; drop, refit
+        while active is not None and keep.any():
+            sig = ray_sigmas(active, best.x)
+            off = active.distances(beads(model(best.x)[3], np.arange(len(markerset)))) / sig
+            bad = keep & (off > ray_reject)
+            if not bad.any():
+                break
+            # the worst first: one wrong ray can pull its neighbours' beads off their own rays
+            keep[np.flatnonzero(bad)[np.argmax(off[bad])]] = False
+            cur = active.subset(keep) if keep.any() else None
+            fun, jac = problem(cur, sig[keep])
+            cands = [best.x, np.clip(starts[0][free], *inner)]
+            if cur is not None:
+                cands[1] = np.clip(_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd, cur,
+                                                 ray_sigma_px)[free], *inner)
+            best = min((least_squares(fun, c, jac=jac, **opts) for c in cands), key=lambda r: r.cost)
     a = unpack(best.x)
     local = Rotation.from_euler(EULER_LIMIT_SEQUENCE, a, degrees=True).as_matrix()
     pose = Pose(skeleton, r2w, local)
+    model_pts = markerset.positions(pose)
     res = np.full(len(markerset), np.nan)
-    res[seen] = np.linalg.norm(markerset.positions(pose)[seen] - meas, axis=1)
+    res[seen] = np.linalg.norm(model_pts[seen] - meas, axis=1)
     tres = np.full(len(markerset), np.nan)
     tres[seen] = np.linalg.norm(markerset.positions(thesis)[seen] - meas, axis=1)
-    return PoseFit(pose, thesis, dirs, res, tres, bool(best.success), int(seen.sum()), time.perf_counter() - t0)
+    ray_used = np.zeros(0 if rays is None else len(rays), bool)
+    ray_px = np.full(len(ray_used), np.nan)
+    if active is not None:
+        ray_used[np.flatnonzero(use)[keep]] = True
+        z = active.depths(model_pts)
+        far = np.linalg.norm(r2w[:3, 3] - active.origin, axis=1)
+        ray_px[use] = active.distances(model_pts) * active.focal_px / np.where(z > 1e-3, z, far)
+    return PoseFit(pose, thesis, dirs, res, tres, bool(best.success), int(seen.sum()), time.perf_counter() - t0,
+                   rays, ray_used, ray_px)

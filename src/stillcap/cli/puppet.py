@@ -179,6 +179,11 @@ def run(
         from stillcap.io.project import Project
 
         markerset = Project.load(folder).markerset
+    elif palette is not None and (folder / "capture.json").is_file():
+        # the capture's own marker set (puppet-20, a file's...), read as run_folder reads it
+        from stillcap.pipelines.puppet import _capture_inputs
+
+        markerset = _capture_inputs(folder)[-1]
     pal = load_palette(palette, markerset)
     with _progress("detecting beads") as prog:
         task = prog.add_task("views", total=None)

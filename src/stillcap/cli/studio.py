@@ -112,19 +112,26 @@ def puppet(
     jpeg: int = typer.Option(85, "--jpeg", min=1, max=100,
                              help="The webcam's JPEG quality (images are written as JPEG)."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+    markers: str = typer.Option("puppet-16", "--markers",
+                                help="Marker set: puppet-16 (the thesis's 16 beads), puppet-20 (plus a second bead "
+                                     "on each forearm and shin) or a marker-set JSON file. Stored in the capture."),
 ):
     """The thesis's marked puppet on its turntable, photographed by the webcam; truth = pose, 3D
     beads and per-view bead pixels and visibility."""
+    from stillcap.body.markerset import MarkerSet
+    from stillcap.body.skeleton import Skeleton
     from stillcap.calibrate.turntable import turntable_rig
     from stillcap.studio.puppet import puppet_scene, webcam_sensor
 
+    markerset = MarkerSet.resolve(markers)
+    markerset.check_skeleton(Skeleton.puppet())
     _check_out(out, force)
     rig = turntable_rig(views, step_deg)
     with _progress("rendering views") as prog:
         task = prog.add_task("render", total=views)
         # the webcam's JPEG compression happens once, when the capture is written
         result = puppet_scene(rig, pose, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
-                              progress=lambda i, n: prog.update(task, completed=i))
+                              progress=lambda i, n: prog.update(task, completed=i), markerset=markerset)
     cap, images = result.to_capture(".jpg")
     _save(cap, images, out, jpeg)
 

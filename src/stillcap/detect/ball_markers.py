@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap.detect.ball import _percentile
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
            "detect_ball_markers", "classify_shape"]
@@ -310,6 +311,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                              "it cannot be told from a white ball")
     H, W = img.shape[:2]
     rows = []
+    # which balls' discs overlap (centres closer than the sum of the radii): computed once
+    with np.errstate(invalid="ignore"):
+        near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
+    near &= np.all(np.isfinite(c), axis=1)[None, :]
+    np.fill_diagonal(near, False)
     for bi in range(len(c)):
         cx, cy, r = c[bi, 0], c[bi, 1], radii[bi]
         if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r >= 3):
@@ -325,9 +331,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         dist = np.hypot(X - cx, Y - cy)
         disc = dist <= disc_fraction * r
         # pixels nearer (relative to radius) to another ball belong to that ball
-        for bj in range(len(c)):
-            if bj != bi and np.all(np.isfinite(c[bj])) and np.hypot(*(c[bj] - c[bi])) < radii[bj] + r:
-                disc &= dist / r <= np.hypot(X - c[bj, 0], Y - c[bj, 1]) / radii[bj]
+        for bj in np.flatnonzero(near[bi]):
+            disc &= dist / r <= np.hypot(X - c[bj, 0], Y - c[bj, 1]) / radii[bj]
         # Only the ball itself: the convex hull of its bright pixels inside the disc, one pixel in
         # (a radius a little too large, e.g. a silhouette's, would otherwise put the dark
         # background rim inside the disc, and dark rim = "black marker"). The hull fills the
@@ -346,7 +351,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         k = max(3, int(round(0.35 * r)) | 1)
         ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
         vclose = cv2.morphologyEx(np.where(disc, val, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
-        top = float(np.percentile(vclose[disc], 99))
+        top = _percentile(vclose[disc], 99.0)
         # luma darkness relative to the local white: every palette colour is much darker than
         # white paper in luma, and JPEG keeps luma at full resolution (chroma at half), so
         # centroids and shapes are measured on it; colour only says which region is which
@@ -354,6 +359,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         lclose = cv2.morphologyEx(np.where(disc, luma, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
         dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32)
         lit = disc & (vclose >= max(lit_fraction * top, min_value))
+        # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
+        inner = cv2.erode(np.pad(disc, 1).astype(np.uint8), np.ones((3, 3), np.uint8))[1:-1, 1:-1].astype(bool)
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -382,8 +389,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 area = float(stats[j, cv2.CC_STAT_AREA])
                 if area < min_area or not has_core[j]:
                     continue
-                rows.append(_measure(lab == j, soft, dark_luma, X, Y, stats[j], tl, area, bi, cx, cy, r,
-                                     disc, limb_fraction, min_aspect))
+                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, area, bi, cx, cy, r,
+                                     disc, inner, limb_fraction, min_aspect))
     rows = [rw for rw in rows if rw is not None]
     if reject_foreshortened:
         rows = [rw for rw in rows if not rw[7] & MarkerFlag.FORESHORTENED]
@@ -397,13 +404,15 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int))
 
 
-def _measure(comp, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, limb_fraction, min_aspect):
-    """Centroid, shape, confidence and flags of one colour region (bounding box + 2 px only)."""
+def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):
+    """Centroid, shape, confidence and flags of region ``j`` of the labels ``lab`` (bounding
+    box + 2 px only)."""
     bx, by, bw, bh = (int(v) for v in st[:4])
     y0, x0 = max(by - 2, 0), max(bx - 2, 0)
-    y1, x1 = min(by + bh + 2, comp.shape[0]), min(bx + bw + 2, comp.shape[1])
+    y1, x1 = min(by + bh + 2, lab.shape[0]), min(bx + bw + 2, lab.shape[1])
     sl = (slice(y0, y1), slice(x0, x1))
-    comp, soft, dark_luma, X, Y, disc = comp[sl], soft[sl], dark_luma[sl], X[sl], Y[sl], disc[sl]
+    comp = lab[sl] == j
+    soft, dark_luma, X, Y, disc, inner = soft[sl], dark_luma[sl], X[sl], Y[sl], disc[sl], inner[sl]
     # luma-darkness weighted centroid over the region grown by one pixel: partly covered edge
     # pixels count in proportion, which makes the centroid sub-pixel (cf. detect/blobs.py)
     grown = cv2.dilate(comp.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & disc
@@ -422,7 +431,6 @@ def _measure(comp, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, 
         flags |= MarkerFlag.NEAR_LIMB
     if aspect < min_aspect:
         flags |= MarkerFlag.FORESHORTENED
-    inner = cv2.erode(np.pad(disc, 1).astype(np.uint8), np.ones((3, 3), np.uint8))[1:-1, 1:-1].astype(bool)
     if np.any(comp & ~inner):
         flags |= MarkerFlag.AT_EDGE
     # shape from the weights upsampled x4 and cut at half their peak: a smooth outline even

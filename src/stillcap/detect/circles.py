@@ -51,12 +51,14 @@ __all__ = [
     "METHODS",
     "BeadScene",
     "Circles",
+    "TemplateInputs",
     "draw_beads",
     "contrast_map",
     "find_circles",
     "grey_image",
     "isodata_threshold",
     "outline",
+    "prepare_template",
     "random_bead_scene",
     "refine_centers",
 ]
@@ -93,6 +95,68 @@ class Circles:
 
     def __len__(self) -> int:
         return len(self.centers)
+
+
+@dataclass(eq=False)
+class TemplateInputs:
+    """The photo-wide part of :func:`find_circles`'s ``template`` detector
+    (:func:`prepare_template`): what depends only on the photo, made by OpenCV and NumPy calls
+    that mostly release the GIL, so that another thread can make it (the puppet pipeline does,
+    while it decodes the photos) and the detection proper starts from it.
+
+    Attributes
+    ----------
+    shape : (int, int)
+        Height and width of the photo it was made from.
+    grey : ndarray, shape (H, W), float32
+        :func:`grey_image`.
+    median : float or None
+        Median grey (None: not a uint8 BGR photo; then computed from ``grey`` when needed).
+    coarse_map : ndarray or None
+        Half-resolution contrast map of ``radii`` (``coarse``; None for photos under 8 px).
+    padded : ndarray or None
+        ``grey`` with its replicated border, for the full-resolution contrast at single pixels.
+    radii : tuple of float
+        The radii it was made for.
+    """
+
+    shape: tuple
+    grey: np.ndarray
+    median: float | None
+    coarse_map: np.ndarray | None
+    padded: np.ndarray | None
+    radii: tuple
+
+
+def prepare_template(image, radius_range=(5.0, 7.0), coarse: bool = True) -> TemplateInputs:
+    """The photo-wide inputs of ``find_circles(image, method="template", coarse=coarse)``
+    (:class:`TemplateInputs`; pass them as its ``prepared``: the same circles).
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, 3) or (H, W)
+    radius_range : (float, float)
+        As :func:`find_circles`'s.
+    coarse : bool
+        Make the half-resolution contrast map too.
+    """
+    img = _as_image(image)
+    rs = _radii(radius_range)
+    if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] == 3:
+        # grey_image's own arithmetic, keeping the channel sum for the median
+        csum = _channel_sum(img)
+        grey = csum.astype(np.float32)
+        grey /= np.float32(3.0)
+        med = _median_grey(img, csum)
+    else:
+        grey, med = grey_image(img), None
+    h, w = grey.shape
+    Ch = gp = None
+    if coarse and h >= 8 and w >= 8:
+        Ch = _coarse_map(grey, rs)
+        pad = _kernel_stack(tuple(float(r) for r in rs)).shape[1] // 2
+        gp = cv2.copyMakeBorder(grey, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    return TemplateInputs((h, w), grey, med, Ch, gp, tuple(float(r) for r in rs))
 
 
 # -- the thesis's steps ------------------------------------------------------------------------
@@ -204,9 +268,15 @@ def _median_grey(image, channel_sum=None) -> float | None:
     img = np.asarray(image)
     if img.dtype != np.uint8 or img.ndim != 3 or img.size == 0:
         return None
-    s = (_channel_sum(img) if channel_sum is None else channel_sum).ravel()
-    cum = np.cumsum(np.bincount(s, minlength=766))
+    s = _channel_sum(img) if channel_sum is None else channel_sum
     n = s.size
+    if n < 2 ** 24 and s.ndim == 2:
+        # cv2.calcHist: np.bincount's counts (unit bins of the integer sums; exact in its
+        # float32 below 2^24 pixels), 2x faster, and it releases the GIL
+        hist = cv2.calcHist([np.ascontiguousarray(s)], [0], None, [766], [0, 766]).ravel().astype(np.int64)
+    else:
+        hist = np.bincount(s.ravel(), minlength=766)
+    cum = np.cumsum(hist)
     lo, hi = (np.searchsorted(cum, [(n - 1) // 2, n // 2], side="right")).astype(np.float32) / np.float32(3.0)
     # np.median's own arithmetic on the two middle float32 values (the same one when n is odd)
     return float(np.mean(np.array([lo, hi], np.float32))) if n % 2 == 0 else float(lo)
@@ -259,30 +329,57 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
     # is the per-circle one of the plain loop (own disc, power-diagram split, ring).
     half = int(np.ceil(r.max() + 3.5))
     off = np.arange(-half, half + 2)  # covers floor(x - B) .. ceil(x + B) for every circle
+    S = len(off)
     idx = np.arange(n)
+    # every S x S window of the grey image as a zero-copy view: the windows inside the image are
+    # gathered per circle (~8x faster than indexing each pixel of each window; the few that
+    # cross the border are read with clipped indices, i.e. the replicated border)
+    g = np.ascontiguousarray(grey)
+    windows = (np.lib.stride_tricks.as_strided(g, (h - S + 1, w - S + 1, S, S), g.strides * 2, writeable=False)
+               if h >= S and w >= S else None)
     for _ in range(max(1, iterations)):
         base = np.floor(c).astype(int)  # (n, 2)
         xs = (base[:, 0, None] + off[None])[:, None, :]  # (n, 1, S)
         ys = (base[:, 1, None] + off[None])[:, :, None]  # (n, S, 1)
-        valid = (xs >= 0) & (xs < w) & (ys >= 0) & (ys < h)
-        patch = grey[np.clip(ys, 0, h - 1), np.clip(xs, 0, w - 1)]  # (n, S, S)
-        d_own = np.hypot(xs - c[:, 0, None, None], ys - c[:, 1, None, None])
+        wy, wx = base[:, 1] - half, base[:, 0] - half  # window corners
+        whole = (wy >= 0) & (wx >= 0) & (wy <= h - S) & (wx <= w - S) if windows is not None else np.zeros(n, bool)
+        valid = None if whole.all() else ((xs >= 0) & (xs < w)) & ((ys >= 0) & (ys < h))  # None: all pixels
+        if valid is None:
+            patch = windows[wy, wx]  # (n, S, S)
+        else:
+            patch = np.empty((n, S, S), g.dtype)
+            patch[whole] = windows[wy[whole], wx[whole]] if whole.any() else 0
+            o = ~whole
+            patch[o] = grey[np.clip(ys[o], 0, h - 1), np.clip(xs[o], 0, w - 1)]
+        # squared distances compared with squared radii (np.hypot over every window pixel cost
+        # as much as the rest of the iteration)
+        dx, dy = xs - c[:, 0, None, None], ys - c[:, 1, None, None]
+        d2_own = dx * dx + dy * dy
         R = (r + 1.5)[:, None, None]
-        inside = valid & (d_own <= R)
-        ring = valid & (d_own > (r + 1.0)[:, None, None]) & (d_own <= R + 2.0) if local_bg else None
+        inside = d2_own <= R * R
+        if local_bg:
+            r1, r2 = (r + 1.0)[:, None, None], R + 2.0
+            ring = (d2_own > r1 * r1) & (d2_own <= r2 * r2)
+        if valid is not None:
+            inside &= valid
+            if local_bg:
+                ring &= valid
         near = np.hypot(*(c[:, None] - c[None]).transpose(2, 0, 1)) < (r[None] + r[:, None] + 3.0)
         near[idx, idx] = False
         pi, pj = np.nonzero(near)  # pairs (circle, neighbour): few
         if len(pi):
-            d_j = np.hypot(xs[pi] - c[pj, 0, None, None], ys[pi] - c[pj, 1, None, None])
-            # power-diagram split between neighbouring circles (touching beads)
-            np.logical_and.at(inside, pi, d_own[pi] / r[pi, None, None] <= d_j / r[pj, None, None])
+            ex, ey = xs[pi] - c[pj, 0, None, None], ys[pi] - c[pj, 1, None, None]
+            d2_j = ex * ex + ey * ey
+            # power-diagram split between neighbouring circles (touching beads):
+            # d_own / r_own <= d_j / r_j, squared
+            np.logical_and.at(inside, pi, d2_own[pi] * (r[pj] ** 2)[:, None, None] <= d2_j * (r[pi] ** 2)[:, None, None])
             if local_bg:
-                np.logical_and.at(ring, pi, d_j > (r[pj] + 1.0)[:, None, None])
+                rj1 = (r[pj] + 1.0)[:, None, None]
+                np.logical_and.at(ring, pi, d2_j > rj1 * rj1)
         if local_bg:
             # local background: median of the ring just outside the bead (a limb under it then
             # weighs nothing), never below the global background; medians of the masked rows
-            # by sorting (NaN last) and picking the middle of each row's count
+            # by sorting (non-members last) and picking the middle of each row's count
             k = ring.reshape(n, -1).sum(axis=1)
             srt = np.sort(np.where(ring, patch, np.inf).reshape(n, -1), axis=1)
             lo_, hi_ = np.maximum((k - 1) // 2, 0), np.maximum(k // 2, 0)
@@ -290,7 +387,8 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
             b = np.where(k > 0, np.maximum(bg, med), bg)
         else:
             b = np.full(n, bg)
-        wgt = np.clip(patch - b[:, None, None], 0, None) * inside
+        # np.clip(patch - b, 0, None) * inside, the same values with cheaper calls
+        wgt = np.where(inside, np.maximum(patch - b[:, None, None], 0), 0)
         s_ = wgt.sum(axis=(1, 2))
         new = c.copy()
         ok = s_ > 0
@@ -312,7 +410,8 @@ def refine_centers(image, centers, radii, iterations: int = 3, background=None,
 def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "template",
                  threshold: float | None = None, min_distance: int | None = None,
                  refine: bool | None = None, min_circularity: float = 0.7,
-                 min_contrast: float = 15.0, boxes=None, coarse: bool = False) -> Circles:
+                 min_contrast: float = 15.0, boxes=None, coarse: bool = False,
+                 prepared: TemplateInputs | None = None) -> Circles:
     """Find bead markers (bright discs on a dark scene).
 
     Parameters
@@ -347,6 +446,9 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
         ``template`` without ``boxes``: find the contrast map's peaks at half resolution, then
         climb the full-resolution contrast from each to its maximum (:func:`_template_coarse`:
         the contrast map costs ~4x less; the same beads on the puppet benchmark's photos).
+    prepared : TemplateInputs, optional
+        ``template``: :func:`prepare_template` of this ``image`` with this ``radius_range``
+        and ``coarse`` (made e.g. on another thread); the same circles as without it.
 
     Returns
     -------
@@ -364,7 +466,16 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
     md = max(1, int(round(r_min))) if min_distance is None else int(min_distance)
     refine = (method != "thesis") if refine is None else bool(refine)
     csum = None
-    if img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] == 3:
+    if prepared is not None:
+        if method != "template" or boxes is not None:
+            raise ValueError("prepared inputs are for method='template' without boxes")
+        if tuple(prepared.shape) != img.shape[:2] or prepared.radii != tuple(float(r) for r in radii) \
+                or (coarse and prepared.coarse_map is None and min(img.shape[:2]) >= 8):
+            raise ValueError(f"prepared inputs are for a {prepared.shape} photo, radii {prepared.radii} "
+                             f"(coarse map: {prepared.coarse_map is not None}); this photo is {img.shape[:2]}, "
+                             f"radii {tuple(float(r) for r in radii)}, coarse={coarse}")
+        grey = prepared.grey
+    elif img.ndim == 3 and img.dtype == np.uint8 and img.shape[2] == 3:
         # grey_image's own arithmetic, keeping the channel sum for the median below
         csum = _channel_sum(img)
         grey = csum.astype(np.float32)
@@ -382,7 +493,7 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
         acc, cx, cy, rr = _hough(outline(grey > t), radii, n, md)
     elif method == "template":
         if coarse and boxes is None:
-            acc, cx, cy, rr = _template_coarse(grey, radii, n, md, min_contrast)
+            acc, cx, cy, rr = _template_coarse(grey, radii, n, md, min_contrast, prepared)
         else:
             acc, cx, cy, rr = _template(grey, radii, n, md, min_contrast, boxes)
         t = np.nan
@@ -390,7 +501,8 @@ def find_circles(image, n: int = 16, radius_range=(5.0, 7.0), method: str = "tem
         acc, cx, cy, rr = _blobs(img, grey, t, radii, r_min, r_max, n, md, min_circularity)
     centers = np.stack([cx, cy], axis=1) if len(cx) else np.zeros((0, 2))
     if refine and len(centers):
-        centers = refine_centers(grey, centers, rr, background=_median_grey(img, csum))
+        med = prepared.median if prepared is not None else _median_grey(img, csum)
+        centers = refine_centers(grey, centers, rr, background=med)
     order = np.argsort(-acc, kind="stable")
     return Circles(centers[order], np.asarray(rr, float)[order], np.asarray(acc, float)[order], method, t)
 
@@ -607,8 +719,12 @@ def _contrast_at(gp: np.ndarray, pad: int, rows: np.ndarray, cols: np.ndarray, k
     K = kst.shape[1]
     o = pad - K // 2
     # the windows as a zero-copy view (one K x K window per pixel), gathered per pixel: ~7x
-    # faster than indexing the pixels of every window one by one
-    win = np.lib.stride_tricks.sliding_window_view(gp, (K, K))[rows + o, cols + o]
+    # faster than indexing the pixels of every window one by one (as_strided directly:
+    # sliding_window_view's checks cost more than the gather, four calls per photo)
+    g = np.ascontiguousarray(gp)
+    views = np.lib.stride_tricks.as_strided(g, (g.shape[0] - K + 1, g.shape[1] - K + 1, K, K), g.strides * 2,
+                                            writeable=False)
+    win = views[rows + o, cols + o]
     # np.einsum, not ``@``: a multi-threaded BLAS call on a matrix this small costs 20x more
     # on a busy machine (measured: 5.5 vs 0.3 ms per photo)
     return np.einsum("ij,kj->ik", win.reshape(len(rows), -1), kst.reshape(len(kst), -1))
@@ -618,7 +734,15 @@ def _contrast_at(gp: np.ndarray, pad: int, rows: np.ndarray, cols: np.ndarray, k
 _NEIGHBOURS = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
 
 
-def _template_coarse(grey, radii, n, md, min_contrast):
+def _coarse_map(g: np.ndarray, rs: np.ndarray) -> np.ndarray:
+    """:func:`_template_coarse`'s half-resolution contrast map of a float32 grey image (8 px or more)."""
+    h, w = g.shape
+    gh = cv2.resize(g[:h // 2 * 2, :w // 2 * 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    pad_h = max(_disc_kernel_cached(float(r), 0.5).shape[0] for r in rs) // 2
+    return _max_over(_filter_radii(gh, rs, pad_h, 0.5))
+
+
+def _template_coarse(grey, radii, n, md, min_contrast, prepared: TemplateInputs | None = None):
     """:func:`_template` with the contrast map computed at half resolution.
 
     The map (four DFTs per photo, the detector's main cost) is computed on the photo shrunk
@@ -634,16 +758,14 @@ def _template_coarse(grey, radii, n, md, min_contrast):
     rs = np.atleast_1d(np.asarray(radii, float))
     if h < 8 or w < 8:
         return _template(g, rs, n, md, min_contrast)
-    gh = cv2.resize(g[:h // 2 * 2, :w // 2 * 2], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-    pad_h = max(_disc_kernel_cached(float(r), 0.5).shape[0] for r in rs) // 2
-    Ch = _max_over(_filter_radii(gh, rs, pad_h, 0.5))
+    Ch = _coarse_map(g, rs) if prepared is None else prepared.coarse_map
     floor = max(float(min_contrast) / 3, 1e-6)
     starts = _local_maxima(Ch, max(1, md // 2), 0.5 * float(min_contrast))
     if len(starts) == 0:
         return np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)
     kst = _kernel_stack(tuple(float(r) for r in rs))
     pad = kst.shape[1] // 2
-    gp = cv2.copyMakeBorder(g, pad, pad, pad, pad, cv2.BORDER_REPLICATE)
+    gp = cv2.copyMakeBorder(g, pad, pad, pad, pad, cv2.BORDER_REPLICATE) if prepared is None else prepared.padded
     # each start: the full-resolution contrast over the 4x4 pixels around its 2x2 block (all
     # starts in one gather and product), its maximum taken; where that lies on the window's
     # edge, 8-neighbour steps climb on from there
@@ -686,8 +808,10 @@ def _template_coarse(grey, radii, n, md, min_contrast):
             out |= near[i] & (np.arange(len(rows)) > i)
     keep = np.flatnonzero(~out)
     val, rows, cols, best_r = val[keep], rows[keep], cols[keep], best_r[keep]
-    top = val[:n]
-    thr = max(float(min_contrast), 0.3 * float(np.median(top)))
+    top = np.sort(val[:n])
+    # np.median(top) (the mean of the two middle values; NaN when empty, then the floor wins)
+    med = (top[(len(top) - 1) // 2] + top[len(top) // 2]) / 2 if len(top) else np.nan
+    thr = max(float(min_contrast), 0.3 * float(med))
     sel = np.flatnonzero(val >= thr)[:n]
     return val[sel], cols[sel].astype(float), rows[sel].astype(float), best_r[sel]
 

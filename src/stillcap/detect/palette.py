@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from skimage.color import hsv2rgb, rgb2hsv, rgb2lab
+from skimage.color import hsv2rgb, rgb2hsv
 
 from stillcap._checks import as_array, as_rng
 
@@ -44,11 +44,38 @@ METRICS = ("hsb", "lab", "ciede2000")
 
 
 def rgb_to_lab(rgb) -> np.ndarray:
-    """sRGB in [0, 1], shape (N, 3) -> CIE Lab, shape (N, 3) (scikit-image, D65)."""
+    """sRGB in [0, 1], shape (N, 3) -> CIE Lab, shape (N, 3) (scikit-image, D65).
+
+    ``skimage.color.rgb2lab``'s numbers bit for bit (its constants, its operations in the same
+    order, its ``@`` with the same matrix layout), written out because on the identification's
+    ~20 colours its input checks and dtype handling cost a third of the call (four calls per
+    photo). ``test_rgb_to_lab_is_scikit_images_bit_for_bit`` checks it.
+    """
     a = as_array(rgb, (None, 3), "rgb")
     if len(a) == 0:
         return np.zeros((0, 3))
-    return rgb2lab(np.clip(a, 0.0, 1.0)[None])[0]
+    arr = np.clip(a, 0.0, 1.0)[None]
+    # rgb2xyz: sRGB decoding (its masked updates as np.where: the same element-wise operations)
+    arr = np.where(arr > 0.04045, np.power((arr + 0.055) / 1.055, 2.4), arr / 12.92)
+    arr = arr @ _XYZ_FROM_RGB_T
+    # xyz2lab, D65, 2-degree observer
+    arr = arr / _XYZ_REF_WHITE
+    arr = np.where(arr > 0.008856, np.cbrt(arr), 7.787 * arr + 16.0 / 116.0)
+    x, y, z = arr[0, :, 0], arr[0, :, 1], arr[0, :, 2]
+    return np.stack([(116.0 * y) - 16.0, 500.0 * (x - y), 200.0 * (y - z)], axis=-1)
+
+
+def _skimage_lab_constants():
+    from skimage.color import xyz_tristimulus_values
+    from skimage.color.colorconv import xyz_from_rgb
+
+    # the transposed matrix as rgb2xyz makes it (F order: a C-order copy multiplies with
+    # different rounding)
+    return xyz_from_rgb.T.astype(np.float64), xyz_tristimulus_values(illuminant="D65", observer="2",
+                                                                      dtype=np.float64)
+
+
+_XYZ_FROM_RGB_T, _XYZ_REF_WHITE = _skimage_lab_constants()
 
 
 def rgb_to_hsb(rgb) -> np.ndarray:
@@ -336,6 +363,12 @@ class PaletteProposal:
         Smallest distance from a proposed colour to an excluded (background) colour.
     n_candidates : int
         Size of the candidate set searched.
+    fixed : Palette or None
+        The colours kept (``propose_palette(fixed=...)``); ``palette`` holds only the new ones.
+    min_distance_to_fixed : float
+        Smallest distance from a proposed colour to a kept one (inf without ``fixed``).
+    closest_fixed : tuple of str
+        (proposed, kept) names of that pair (empty strings without ``fixed``).
     """
 
     palette: Palette
@@ -345,6 +378,22 @@ class PaletteProposal:
     lightness_weight: float
     min_distance_to_excluded: float
     n_candidates: int
+    fixed: Palette | None = None
+    min_distance_to_fixed: float = math.inf
+    closest_fixed: tuple[str, str] = ("", "")
+
+    @property
+    def guaranteed_distance(self) -> float:
+        """What the proposal guarantees: no two proposed colours, and no proposed and kept
+        colour, are closer than this (``min(min_distance, min_distance_to_fixed)``)."""
+        return float(min(self.min_distance, self.min_distance_to_fixed))
+
+    @property
+    def combined(self) -> Palette:
+        """The kept colours followed by the proposed ones (just the proposed without ``fixed``)."""
+        if self.fixed is None:
+            return self.palette
+        return Palette(self.fixed.names + self.palette.names, np.vstack([self.fixed.rgb, self.palette.rgb]))
 
 
 def _candidates(min_saturation, min_brightness, max_brightness, hue_steps, sv_steps) -> np.ndarray:
@@ -360,8 +409,9 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
                     min_saturation: float = 0.45, min_brightness: float = 0.6, max_brightness: float = 0.8,
                     min_lightness: float = 40.0,
                     exclude=((0.0, 0.0, 0.0), (0.15, 0.15, 0.15)), names=None,
-                    restarts: int = 8, hue_steps: int = 120, sv_steps: int = 8) -> PaletteProposal:
-    """``n`` maximally distinct marker colours.
+                    restarts: int = 8, hue_steps: int = 120, sv_steps: int = 8, fixed=None,
+                    min_grey: float = 0.0) -> PaletteProposal:
+    """``n`` maximally distinct marker colours (or ``n`` more beside ``fixed`` ones).
 
     Maximises the smallest pairwise distance (a max-min or "dispersion" problem) over a dense
     grid of saturated, bright sRGB colours: farthest-point sampling from a random start, then
@@ -395,10 +445,25 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
     restarts : int
     hue_steps, sv_steps : int
         Candidate grid resolution (hue x saturation x brightness).
+    fixed : Palette or array_like, shape (F, 3), optional
+        Colours that exist already (sRGB in [0, 1], e.g. ``Palette.thesis()`` to add beads to
+        the thesis's marker set): the ``n`` new colours maximise the smallest distance among
+        themselves *and* to these (the distances among the kept colours cannot change and do
+        not count). Names ``f00, f01, ...`` when an array is given.
+    min_grey : float
+        Smallest mean of a candidate's sRGB channels, [0, 1]: the puppet's bead detector looks
+        for beads in the grey image (channel sum / 3), where a saturated red or blue is dim
+        although its L* passes ``min_lightness``. On the benchmark's renders the thesis's beads
+        with a grey level of 0.35-0.38 were found in 86-89 % of the views that show them, those
+        of 0.47 and more in 99-100 %, and a new red bead (0.27) in 62 % (docs/puppet.md; measured
+        with 16 candidates per photo for 20 beads, which costs the dimmest beads most).
 
     Returns
     -------
     PaletteProposal
+        ``palette`` holds the ``n`` new colours; ``min_distance`` is the smallest distance
+        among them, ``min_distance_to_fixed`` to the kept ones, ``guaranteed_distance`` the
+        smaller of the two (the quantity maximised).
     """
     if int(n) != n or n < 1:
         raise ValueError(f"n must be a positive integer, got {n}")
@@ -413,8 +478,13 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
         raise ValueError(f"{len(names)} names for {n} colours")
     rng = as_rng(rng)
     exc = as_array(exclude, (None, 3), "exclude") if len(exclude) else np.zeros((0, 3))
+    if fixed is not None and not isinstance(fixed, Palette):
+        f = as_array(fixed, (None, 3), "fixed")
+        fixed = Palette([f"f{i:02d}" for i in range(len(f))], f)
+    if fixed is not None and set(fixed.names) & set(names):
+        raise ValueError(f"names {sorted(set(fixed.names) & set(names))} are taken by the fixed colours")
     cand = _candidates(min_saturation, min_brightness, max_brightness, hue_steps, sv_steps)
-    cand = cand[rgb_to_lab(cand)[:, 0] >= min_lightness]
+    cand = cand[(rgb_to_lab(cand)[:, 0] >= min_lightness) & (cand.mean(axis=1) >= min_grey)]
     m = len(cand)
     if n > m:
         raise ValueError(f"n = {n} exceeds the {m} candidate colours")
@@ -425,6 +495,10 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
     # Distances of every candidate to the excluded colours; candidates too close to them are
     # kept but start with that distance as their "nearest chosen" distance.
     d_exc = dist(cand, exc).min(axis=1) if len(exc) else np.full(m, np.inf)
+    # Kept colours: every candidate's distance to the nearest of them is a hard part of the
+    # objective (unlike the background's, which only steers the search); inf without them.
+    d_fix = dist(cand, fixed.rgb).min(axis=1) if fixed is not None and len(fixed) else np.full(m, np.inf)
+    d_exc = np.minimum(d_exc, d_fix)
 
     best_sel, best_val = None, -np.inf
     for _ in range(max(1, restarts)):
@@ -439,12 +513,15 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
         for _ in range(20 * n):
             S = D[sel].copy()
             S[np.diag_indices(n)] = np.inf
-            cur = S.min()
+            cur = min(S.min(), d_fix[sel].min())
             i, j = np.unravel_index(np.argmin(S), S.shape)
+            if d_fix[sel].min() < S.min():  # the closest pair is a new colour and a kept one
+                i = j = int(np.argmin(d_fix[sel]))
             improved = False
-            for drop in (i, j):
+            for drop in dict.fromkeys((i, j)):
                 others = np.delete(np.arange(n), drop)
-                inner = np.delete(np.delete(S, drop, 0), drop, 1).min(initial=np.inf)
+                inner = min(np.delete(np.delete(S, drop, 0), drop, 1).min(initial=np.inf),
+                            d_fix[np.asarray(sel)[others]].min(initial=np.inf))
                 gain = np.minimum(D[:, others].min(axis=1), d_exc)
                 gain[sel] = -np.inf
                 k = int(np.argmax(gain))
@@ -457,7 +534,7 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
                 break
         S = D[sel]
         S[np.diag_indices(n)] = np.inf
-        val = S.min() if n > 1 else np.inf
+        val = min(S.min() if n > 1 else np.inf, d_fix[sel].min())
         if val > best_val:
             best_sel, best_val = list(sel), val
     # Order by hue for a readable palette.
@@ -466,4 +543,9 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
     pal = Palette(names, rgb)
     md, pair = pal.min_distance(metric, lightness_weight)
     dexc = float(dist(rgb, exc).min()) if len(exc) else np.inf
-    return PaletteProposal(pal, md, pair, metric, float(lightness_weight), dexc, m)
+    dfix, fpair = math.inf, ("", "")
+    if fixed is not None and len(fixed):
+        F = dist(rgb, fixed.rgb)
+        a, b = np.unravel_index(np.argmin(F), F.shape)
+        dfix, fpair = float(F[a, b]), (names[a], fixed.names[b])
+    return PaletteProposal(pal, md, pair, metric, float(lightness_weight), dexc, m, fixed, dfix, fpair)

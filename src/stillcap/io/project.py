@@ -20,6 +20,7 @@ Every path in ``project.json`` is relative to the project folder and must stay i
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -30,6 +31,7 @@ from typing import Mapping
 import cv2
 import numpy as np
 
+from stillcap.body.markerset import BUILTIN_MARKERSETS as _MARKERSET_NAMES
 from stillcap.body.markerset import MarkerSet
 from stillcap.calibrate.turntable import THESIS_CX, THESIS_CY, THESIS_FX, THESIS_FY, turntable_world2cam
 from stillcap.camera import RIG_FORMAT, Camera, Rig
@@ -50,8 +52,9 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 _TOP_KEYS = {"format", "version", "name", "units", "markerset", "turntable", "rig", "views", "meta"}
 _VIEW_KEYS = {"name", "image", "processed", "angle_deg", "camera", "detected", "edits"}
 
-#: Marker sets shipped with stillcap, by the name a project file may use.
-BUILTIN_MARKERSETS = {"puppet-16": MarkerSet.puppet}
+#: Marker sets shipped with stillcap, by the name a project file may use: name -> a function
+#: making it (every :data:`stillcap.body.markerset.BUILTIN_MARKERSETS` entry, via :meth:`MarkerSet.builtin`).
+BUILTIN_MARKERSETS = {name: functools.partial(MarkerSet.builtin, name) for name in _MARKERSET_NAMES}
 
 
 # --- paths: stillcap.io.paths (re-exported here) ------------------------------------------

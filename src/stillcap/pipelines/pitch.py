@@ -40,7 +40,7 @@ from __future__ import annotations
 import time as _time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -136,6 +136,14 @@ class PitchOptions:
     workers : int
         Threads for the per-pair work (decoding, ball images, markers; OpenCV releases the GIL).
         The results do not depend on it; 1 runs everything on the calling thread's order.
+    processes : int
+        Worker processes for the per-pair work (0, default: the ``workers`` threads). Each pair's
+        photos are decoded, its ball images and markers found and its own spin fitted in a
+        process of a pool that lives across calls (:mod:`stillcap.pipelines.pitch_workers`;
+        started on the first call with ``processes > 0``, about 1 s, reused afterwards): worth it
+        for many captures in one process (benchmarks, batches), not for one (``docs/pitch.md``,
+        "Timing"). The results are identical to the threads'. Needs a capture loaded from or
+        saved to a folder; scripts that use it need an ``if __name__ == "__main__":`` guard.
     """
 
     spin_method: str = "global"
@@ -153,6 +161,7 @@ class PitchOptions:
     calibration_focal_sigma: float = 2.5e-4
     centre_bias_px: float | None = None
     workers: int = 2
+    processes: int = 0
 
     def __post_init__(self):
         fm = self.fit_method.replace("-", "_") if isinstance(self.fit_method, str) else self.fit_method
@@ -174,6 +183,8 @@ class PitchOptions:
             raise ValueError(f"n_samples must be >= 0, got {self.n_samples}")
         if int(self.workers) < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if int(self.processes) < 0:
+            raise ValueError(f"processes must be >= 0, got {self.processes}")
         if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
             raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
 
@@ -659,14 +670,24 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     ma = detect_ball_markers(img_a, centers_a, radius_a, types)
     mb = detect_ball_markers(img_b, centers_b, radius_b, types)
     parts, n3, nray, epi = [], 0, 0, []
+    balls = [(ma.of_ball(k), mb.of_ball(k)) for k in range(K)]
+    matches = [match_epipolar(cam_a, cam_b, A.centers, B.centers, max_px=max_px,
+                              labels_a=list(A.types), labels_b=list(B.types)) for A, B in balls]
+    # every ball's matched markers triangulated in one call (a call per ball cost more than the
+    # triangulation itself), then split back per ball
+    n_m = [len(m.pairs) for m in matches]
+    if sum(n_m):
+        sel = [k for k in range(K) if n_m[k]]
+        u_all, ok_all = _triangulated_direction(
+            cam_a, cam_b, np.concatenate([balls[k][0].centers[matches[k].pairs[:, 0]] for k in sel]),
+            np.concatenate([balls[k][1].centers[matches[k].pairs[:, 1]] for k in sel]),
+            np.repeat(P, n_m, axis=0), radius_m)  # (3,) or (N, 3) centres: broadcast
+        starts = np.concatenate([[0], np.cumsum(n_m)])
     for k in range(K):
-        A, B = ma.of_ball(k), mb.of_ball(k)
-        m = match_epipolar(cam_a, cam_b, A.centers, B.centers, max_px=max_px,
-                           labels_a=list(A.types), labels_b=list(B.types))
+        (A, B), m = balls[k], matches[k]
         ray_a, ray_b = list(m.unmatched_a), list(m.unmatched_b)
         if len(m.pairs):
-            u, ok = _triangulated_direction(cam_a, cam_b, A.centers[m.pairs[:, 0]], B.centers[m.pairs[:, 1]],
-                                            P[k], radius_m)
+            u, ok = u_all[starts[k]:starts[k + 1]], ok_all[starts[k]:starts[k + 1]]
             if ok.any():
                 parts.append(MarkerObservations.from_directions(np.full(int(ok.sum()), k),
                                                                 list(A.types[m.pairs[ok, 0]]), u[ok], layout))
@@ -795,13 +816,6 @@ def centre_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
                 xs[c, :, j] += sigma_px * prof
                 out[4 * q + 2 * c + j] = triangulate(list(cams), xs).points - X0
     return out
-    X0 = triangulate(list(cams), x).points
-    for c in range(2):
-        for j in range(2):
-            xs = x.copy()
-            xs[c, :, j] += sigma_px
-            out[2 * c + j] = triangulate(list(cams), xs).points - X0
-    return out
 
 
 def _release_state(p0, v0, spin, model, t0, release_y_m):
@@ -824,8 +838,10 @@ def _release_state(p0, v0, spin, model, t0, release_y_m):
 # --------------------------------------------------------------------------------------------
 # Spin and aliases
 # --------------------------------------------------------------------------------------------
-def _fit_pair_spin(pair: PairResult, method: str, layout, spin_init=None) -> SpinResult | None:
-    obs = pair.observations
+def _fit_pair_spin(pair: PairResult, method: str, layout, spin_init=None, observations=None) -> SpinResult | None:
+    """The spin of one pair's markers on its own clock (``observations`` instead of the pair's:
+    the marker job on the worker pool runs it before they are stored on the pair)."""
+    obs = pair.observations if observations is None else observations
     if obs is None or len(obs) == 0 or len(pair) < 2:
         return None
     t = pair.local_times
@@ -922,13 +938,14 @@ def _combined_spin(pairs: list, spin_init, layout, messages) -> SpinResult | Non
             t_sorted[obs.flash])
 
 
-def _spin_stage(pairs, fit_pos, model, layout, method, messages):
+def _spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None):
     """Per-pair spin fits, the alias choice and the final spin: ``(SpinResult or None, alias
-    resolution or None, reference-clock time of each observation of the final fit)``."""
+    resolution or None, reference-clock time of each observation of the final fit)``.
+    ``pair_spins``: the per-pair fits already made (one per pair, in order), e.g. on the pool."""
     from stillcap.ball.alias import alias_candidates
 
-    for p in pairs:
-        p.spin = _fit_pair_spin(p, method, layout)
+    for i, p in enumerate(pairs):
+        p.spin = _fit_pair_spin(p, method, layout) if pair_spins is None else pair_spins[i]
         if p.spin is not None and not p.spin.success:
             messages.append(f"pair {p.name!r}: spin not determined ({p.spin.message})")
     w_alias, alias = _resolve_alias(pairs, fit_pos, model, messages)
@@ -1160,13 +1177,51 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
     elif kwargs:
         raise ValueError("give either options or keyword arguments, not both")
     cap = capture if isinstance(capture, Capture) else Capture.load(capture)
-    with ThreadPoolExecutor(max(1, int(options.workers))) as pool:
-        return _analyse_pitch(cap, options, progress, pool, t_all)
+    if int(options.processes) == 0:
+        with ThreadPoolExecutor(max(1, int(options.workers))) as pool:
+            return _analyse_pitch(cap, options, progress, pool, t_all)
+    from stillcap.pipelines import pitch_workers
+
+    if cap.root is None:
+        raise ValueError("processes > 0 needs a capture loaded from or saved to a folder (the worker processes "
+                         "read its photos): use processes=0")
+    procs = pitch_workers.worker_pools(int(options.processes))
+    cached: dict = {}  # token -> executor: a pair's photos held by a worker until its marker step
+    try:
+        return _analyse_pitch(cap, options, progress, None, t_all, procs, cached)
+    finally:
+        for token, ex in cached.items():  # the capture stopped before these pairs' marker step
+            ex.submit(pitch_workers.drop_job, token)
 
 
-def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPoolExecutor,
-                   t_all: float) -> PitchResult:
-    """The stages of :func:`analyse_pitch`, with `pool` for the per-pair work."""
+def pair_markers_and_spin(cams, imgs, pair: PairResult, types, layout, radius_m: float, max_px: float,
+                          spin_method: str):
+    """The marker step of one pair: :func:`pair_marker_observations` on its photos, then the
+    pair's own spin (it needs only the pair's markers and flash indices, not the flight fit).
+
+    Returns
+    -------
+    ((obs, markers, stats), spin, t_markers_s, t_spin_s)
+        ``spin``: SpinResult, None, or the ValueError / LinAlgError of the fit (reported where
+        the spin stage would report it).
+    """
+    t_job = _time.perf_counter()
+    out = pair_marker_observations(
+        cams[0], imgs[0], cams[1], imgs[1], pair.centers_px[0], pair.centers_px[1], pair.radius_px[0],
+        pair.radius_px[1], pair.positions, types, layout, radius_m, max_px)
+    t_mk = _time.perf_counter() - t_job
+    try:
+        spin = _fit_pair_spin(pair, spin_method, layout, observations=out[0])
+    except (ValueError, np.linalg.LinAlgError) as e:
+        spin = e
+    return out, spin, t_mk, _time.perf_counter() - t_job - t_mk
+
+
+def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPoolExecutor | None,
+                   t_all: float, procs: list | None = None, cached: dict | None = None) -> PitchResult:
+    """The stages of :func:`analyse_pitch`, with `pool` (threads) or `procs` (single-process
+    executors, :mod:`stillcap.pipelines.pitch_workers`) for the per-pair work; `cached` collects
+    the tokens of the photos the workers hold until the pair's marker step."""
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "pitch":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a pitch capture (capture.json \"kind\")")
@@ -1190,7 +1245,18 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
             [cap.read_image(im) for im in sp.images]
         return cams, imgs, ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], R)
 
-    found = list(pool.map(positions_of, specs))
+    if procs is None:
+        found = list(pool.map(positions_of, specs))
+    else:  # pair i on worker i % n, which keeps its photos (under a token) for the marker step
+        from stillcap.pipelines import pitch_workers
+
+        light = Capture(cap.kind, cap.rig, cap.images, None, {}, cap.root)  # paths only, no truth
+        futs = []
+        for i, sp in enumerate(specs):
+            token, ex = pitch_workers.new_token(), procs[i % len(procs)]
+            cached[token] = ex
+            futs.append((token, ex.submit(pitch_workers.pair_positions_job, light, sp.images, sp.cameras, R, token)))
+        found = [([cap.rig[c] for c in sp.cameras], token, f.result()) for sp, (token, f) in zip(specs, futs)]
     raw = []
     for i, (sp, (cams, imgs, st)) in enumerate(zip(specs, found)):
         _progress(progress, 2 * i + 1, total, f"pair {sp.name}: ball images")
@@ -1244,7 +1310,7 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
         pr = PairResult(sp.name, sp.cameras, sp.strobe_hz, k, st.points_3d[sel],
                         np.stack([st.centers_a[sel], st.centers_b[sel]]), st.radius_px[sel].T.copy(),
                         st.reproj_error_px[sel], st.flags[sel], nd, n_drop, spacing, stereo=st)
-        pr._imgs = imgs  # kept for the marker step, dropped afterwards
+        pr._imgs = imgs  # kept for the marker step, dropped afterwards (processes: the worker's token)
         pr._cams = cams
         pairs.append(pr)
     # flight order of the pairs: by the position of their first ball image along the flight
@@ -1281,14 +1347,16 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
 
     # -- 4. markers, per pair on the pool while the main thread fits the positions (they need only
     # the pair's ball images, not the fit; collected in step 4-5 below) ------------------------------
+    # the pair's own spin needs only its markers and flash indices, not the flight fit: it runs
+    # in the same job, alongside the positions-only fit on the main thread
     def markers_of(p):
-        t_job = _time.perf_counter()
-        out = pair_marker_observations(
-            p._cams[0], p._imgs[0], p._cams[1], p._imgs[1], p.centers_px[0], p.centers_px[1], p.radius_px[0],
-            p.radius_px[1], p.positions, types, layout, R, options.marker_epipolar_px)
-        return out, _time.perf_counter() - t_job
+        args = (types, layout, R, options.marker_epipolar_px, options.spin_method)
+        if procs is None:
+            return pool.submit(pair_markers_and_spin, p._cams, p._imgs, p, *args)
+        # the worker holding the photos; the pair goes without them and its StereoBalls
+        return cached.pop(p._imgs).submit(pitch_workers.pair_markers_job, p._imgs, replace(p, stereo=None), *args)
 
-    marker_jobs = [pool.submit(markers_of, p) if len(p) else None for p in pairs]
+    marker_jobs = [markers_of(p) if len(p) else None for p in pairs]
 
     # -- 6. release velocity (seed's two points) -----------------------------------------------------
     p0 = ref.positions[0]
@@ -1371,11 +1439,18 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
 
     # -- 4-5. markers and spin ----------------------------------------------------------------------
     t = _time.perf_counter()
-    t_jobs = 0.0
+    t_jobs = t_spin_jobs = 0.0
+    pair_spins, spin_error = [], None
     for p, job in zip(pairs, marker_jobs):
+        pair_spins.append(None)
         if job is not None:
-            (obs, mk, stats), dt = job.result()
+            (obs, mk, stats), sp, dt, dt_spin = job.result()
             t_jobs += dt
+            t_spin_jobs += dt_spin
+            if isinstance(sp, Exception):
+                spin_error = spin_error or sp
+            else:
+                pair_spins[-1] = sp
             p.observations, p.markers = obs, mk
             p.n_markers_3d, p.n_markers_ray, p.marker_reproj_px = stats["n_3d"], stats["n_ray"], stats["epipolar_px"]
         del p._imgs, p._cams
@@ -1390,11 +1465,16 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
         messages.append("no markers found on the ball: spin unavailable (positions and velocity are reported)")
     else:
         try:
-            spin, alias, obs_times = _spin_stage(pairs, fit_pos, model, layout, options.spin_method, messages)
+            if spin_error is not None:
+                raise spin_error
+            spin, alias, obs_times = _spin_stage(pairs, fit_pos, model, layout, options.spin_method, messages,
+                                                 pair_spins)
         except (ValueError, np.linalg.LinAlgError) as e:  # a spin that cannot be had must not cost the flight
             spin, alias, obs_times = None, None, None
             messages.append(f"spin fit failed ({e}): spin unavailable")
+    # "spin": the main thread's spin stage; "spin_pairs": the pairs' own fits, in the marker jobs
     timings["spin"] = _time.perf_counter() - t
+    timings["spin_pairs"] = t_spin_jobs
     spin_ok = spin is not None and spin.success
     w0 = cov0 = None  # measured spin at t = 0 of the reference clock
     if spin_ok:
@@ -1417,6 +1497,8 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
                            spin_transverse_sigma=max(np.sqrt(var_transverse), 0.5))
         fit_kw["time_offsets"] = fit_pos.time_offsets if g else None
         fit = fit_reference_trajectory(times_a, pos_a, p0, v_two, w0, priors=priors, **fit_kw)
+        # the priors weighed the spin with two sigmas; its error is correlated (ReferenceFit.spin_prior_covariance_term)
+        fit = fit.with_extra_covariance(fit.spin_prior_covariance_term(cov0))
     elif options.fit_method != "least_squares":
         fit = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **fit_kw)
     else:

@@ -5,8 +5,9 @@ platform, y up, x to the puppet's left, z toward the camera at turn angle 0):
 
 - the 210 mm lay figure of :meth:`Skeleton.puppet` as flat-black capsules along its bones
   (:data:`PUPPET_LIMBS`, albedo :data:`BLACK`), the pelvis fixed on the turn axis;
-- its 16 painted 6 mm beads (:meth:`MarkerSet.puppet`) as spheres of their reference colours
-  (sRGB -> linear albedo) at ``MarkerSet.positions(pose)``; each bead touches its limb;
+- its painted 6 mm beads (default the thesis's 16, :meth:`MarkerSet.puppet`; any marker set of the
+  puppet skeleton, e.g. ``"puppet-20"``) as spheres of their reference colours (sRGB -> linear
+  albedo) at ``MarkerSet.positions(pose)``; each bead touches its limb;
 - the flat-black bottom panel with the turntable platform in it (the plane y = 0) and a flat-black
   back panel behind the axis, facing the camera;
 - the webcam's LEDs (a point light at the camera centre), a little room light, webcam noise and
@@ -227,7 +228,8 @@ def random_pose(skeleton: Skeleton | None = None, rng=None, markerset: MarkerSet
     raise ValueError(f"no collision-free random pose found in {max_tries} tries")
 
 
-def pose_from_spec(spec: str, rng=None, skeleton: Skeleton | None = None) -> tuple[Pose, dict]:
+def pose_from_spec(spec: str, rng=None, skeleton: Skeleton | None = None,
+                   markerset: MarkerSet | None = None) -> tuple[Pose, dict]:
     """A puppet pose from a text spec, and a description of where it came from.
 
     Parameters
@@ -238,6 +240,10 @@ def pose_from_spec(spec: str, rng=None, skeleton: Skeleton | None = None) -> tup
         :func:`~stillcap.body.retarget.retarget_pose`).
     rng : np.random.Generator or int, optional
         Draws the seed of ``"random"``.
+    skeleton : Skeleton, optional
+        Default :meth:`Skeleton.puppet`.
+    markerset : MarkerSet, optional
+        The beads :func:`random_pose` keeps from interpenetrating (default the thesis's 16).
 
     Returns
     -------
@@ -255,7 +261,7 @@ def pose_from_spec(spec: str, rng=None, skeleton: Skeleton | None = None) -> tup
             seed = int(arg) if arg else int(as_rng(rng).integers(2**31))
         except ValueError:
             raise ValueError(f"pose spec {text!r}: the seed after 'random:' must be an integer") from None
-        return random_pose(skeleton, seed), {"type": "random", "seed": seed}
+        return random_pose(skeleton, seed, markerset), {"type": "random", "seed": seed}
     if kind in ("tpose", "t-pose", "rest") and not arg:
         return Pose.rest(skeleton), {"type": "tpose"}
     if kind == "bvh" and arg:
@@ -435,6 +441,7 @@ class PuppetScene:
     scene: Scene
     images: list
     truth: PuppetTruth
+    markerset: MarkerSet | None = None
 
     def view_scene(self, view: int) -> Scene:
         """The scene rendered for view ``view``."""
@@ -443,18 +450,24 @@ class PuppetScene:
     def to_capture(self, ext: str = ".png") -> tuple[Capture, dict]:
         """The capture folder content ``(Capture, {file: image})``: kind ``"puppet"``, the rig
         (known turntable geometry, ``rig_calibrated: true``), ``truth.json``; per image its view
-        index and turn angle (``meta``: ``view``, ``angle_deg``)."""
+        index and turn angle (``meta``: ``view``, ``angle_deg``). The marker set is stored whole
+        as ``capture.json``'s ``markerset`` (:meth:`MarkerSet.to_dict`, millimetres), so the
+        pipeline reads the capture with the beads and colours it shows, even if a built-in set
+        changes later."""
         files = [f"images/view_{i:03d}{ext}" for i in range(len(self.rig))]
         imgs = [CaptureImage(f, c.name, meta={"view": i, "angle_deg": round(float(a), 6)})
                 for i, (f, c, a) in enumerate(zip(files, self.rig, self.truth.angles_deg))]
         src = self.truth.source.get("type", "pose")
-        meta = {"synthetic": True, "rig_calibrated": True,
-                "description": f"synthetic puppet on a turntable ({src} pose), {len(files)} views"}
+        ms = self.markerset or MarkerSet.puppet()
+        meta = {"synthetic": True, "rig_calibrated": True, "markerset": ms.to_dict("mm"),
+                "description": f"synthetic puppet on a turntable ({src} pose), {len(files)} views, "
+                               f"{len(ms)} beads ({ms.name})"}
         return Capture("puppet", self.rig, imgs, self.truth.to_dict(), meta), dict(zip(files, self.images))
 
 
 def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=None, sensor: Sensor | None = None,
-                 supersample: int = 3, progress: Callable[[int, int], None] | None = None) -> PuppetScene:
+                 supersample: int = 3, progress: Callable[[int, int], None] | None = None,
+                 markerset: MarkerSet | str | None = None) -> PuppetScene:
     """Photograph the posed puppet from every view of a rig, with the truth.
 
     Parameters
@@ -474,19 +487,22 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
         Sub-pixel rays per axis at edges.
     progress : callable(i, n), optional
         Called after each rendered view.
+    markerset : MarkerSet or str, optional
+        The beads: a :class:`MarkerSet` of the puppet skeleton, a built-in name (``"puppet-16"``,
+        the default, or ``"puppet-20"``) or a marker-set file (:meth:`MarkerSet.resolve`).
     """
     rng = as_rng(rng)
+    markerset = MarkerSet.resolve(markerset)
     rig = rig if rig is not None else turntable_rig()
     if not isinstance(rig, Rig) or len(rig) == 0:
         raise ValueError(f"rig must be a stillcap Rig with at least one camera, got {rig!r}")
     sensor = sensor or webcam_sensor()
     if pose is None or isinstance(pose, str):
-        pose, source = pose_from_spec(pose or "random", rng)
+        pose, source = pose_from_spec(pose or "random", rng, markerset=markerset)
     elif isinstance(pose, Pose):
         source = {"type": "pose"}
     else:
         raise ValueError(f"pose must be a Pose, a pose spec string or None, got {type(pose).__name__}")
-    markerset = MarkerSet.puppet()
     markerset.check_skeleton(pose.skeleton)
     placed = puppet_bodies(pose, markerset)
     beads = list(range(len(PUPPET_LIMBS), len(PUPPET_LIMBS) + len(markerset)))
@@ -509,4 +525,4 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
                         list(pose.skeleton.names), pose.positions.copy(), pose.local_rotations.copy(),
                         pose.root2world.copy(), rig.names, np.array([turn_angle_deg(c) for c in rig]),
                         px, vis, cov, source)
-    return PuppetScene(rig, Scene.still(placed), images, truth)
+    return PuppetScene(rig, Scene.still(placed), images, truth, markerset)

@@ -1,0 +1,135 @@
+"""Worker processes for :func:`stillcap.pipelines.pitch.analyse_pitch` (``PitchOptions.processes``).
+
+Most of a pair's work after decoding (ball detection and refinement, markers, the pair's own spin
+fit) is many small NumPy/SciPy calls that hold the GIL, so two threads cannot overlap it. With
+``processes > 0`` each stereo pair runs in a worker process instead:
+
+1. :func:`pair_positions_job` decodes the pair's two photos and finds its ball images; the
+   decoded photos stay in the worker (a cache keyed by a token), only the small
+   :class:`~stillcap.detect.ball.StereoBalls` goes back.
+2. After the main process has ordered the flashes (which needs every pair's positions),
+   :func:`pair_markers_job` finds the markers in the cached photos and fits the pair's own spin,
+   while the main process runs the positions-only reference fit.
+
+Both steps of one pair must reach the process holding its photos, so the pool is a list of
+single-process executors (pair ``i`` goes to executor ``i % n``), created on first use, reused
+by every later capture of the process and shut down at exit. The processes start with the
+``forkserver`` method (never ``fork``: the caller may run threads), with this module preloaded;
+like every spawned process they import the caller's ``__main__`` module, so scripts need an
+``if __name__ == "__main__":`` guard. Workers receive file paths, never decoded photos.
+"""
+from __future__ import annotations
+
+import atexit
+import itertools
+import multiprocessing
+import os
+import threading
+from collections import OrderedDict
+from concurrent.futures import ProcessPoolExecutor
+
+from stillcap.detect.ball import ball_centers_stereo
+from stillcap.io.capture import Capture
+
+__all__ = ["pair_positions_job", "pair_markers_job", "drop_job", "worker_pools", "shutdown_worker_pools"]
+
+# -- worker side -------------------------------------------------------------------------------
+# decoded photos of the pairs whose marker step has not run yet (token -> (cams, imgs)); a bound
+# in case a caller's marker step never comes (the main process also sends drop_job then)
+_PHOTOS: OrderedDict = OrderedDict()
+_MAX_CACHED = 8
+
+
+def pair_positions_job(capture: Capture, images: tuple, cameras: tuple, radius_m: float, token: str):
+    """Decode a pair's 2 photos (``capture.read_image``: the same errors as in the main
+    process), find and match its ball images, keep the photos under ``token``.
+
+    Returns
+    -------
+    StereoBalls
+    """
+    cams = [capture.rig[c] for c in cameras]
+    imgs = [capture.read_image(im) for im in images]
+    st = ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], radius_m)
+    _PHOTOS[token] = (cams, imgs)
+    while len(_PHOTOS) > _MAX_CACHED:
+        _PHOTOS.popitem(last=False)
+    return st
+
+
+def pair_markers_job(token: str, pair, types, layout, radius_m: float, max_px: float, spin_method: str):
+    """The marker step of :func:`stillcap.pipelines.pitch._analyse_pitch` on the photos cached
+    under ``token`` (released here); ``pair`` is the pair's ``PairResult`` without its photos.
+    Returns what :func:`stillcap.pipelines.pitch.pair_markers_and_spin` returns."""
+    from stillcap.pipelines.pitch import pair_markers_and_spin
+
+    try:
+        cams, imgs = _PHOTOS.pop(token)
+    except KeyError:
+        raise RuntimeError(f"pitch worker {os.getpid()}: the photos of pair {pair.name!r} are no longer cached") \
+            from None
+    return pair_markers_and_spin(cams, imgs, pair, types, layout, radius_m, max_px, spin_method)
+
+
+def drop_job(token: str) -> None:
+    """Forget the photos cached under ``token`` (a capture that stopped before its marker step)."""
+    _PHOTOS.pop(token, None)
+
+
+def _ready() -> int:
+    return os.getpid()
+
+
+# -- main side -------------------------------------------------------------------------------
+_POOLS: list = []
+_LOCK = threading.Lock()
+_TOKENS = itertools.count()
+
+
+def new_token() -> str:
+    """A key for one pair's cached photos, unique in this process."""
+    return f"{os.getpid()}-{next(_TOKENS)}"
+
+
+def worker_pools(n: int) -> list:
+    """``n`` single-process executors (created on first use, started together, then reused).
+
+    Parameters
+    ----------
+    n : int
+        How many worker processes, >= 1.
+
+    Returns
+    -------
+    list of ProcessPoolExecutor
+    """
+    if int(n) < 1:
+        raise ValueError(f"need at least 1 worker process, got {n}")
+    with _LOCK:
+        for i, ex in enumerate(_POOLS):  # a worker that died (e.g. killed) breaks its executor: replace it
+            if getattr(ex, "_broken", False):
+                ex.shutdown(wait=False, cancel_futures=True)
+                _POOLS[i] = None
+        _POOLS[:] = [ex for ex in _POOLS if ex is not None]
+        new = []
+        while len(_POOLS) < int(n):
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload([__name__])
+            ex = ProcessPoolExecutor(1, mp_context=ctx)
+            _POOLS.append(ex)
+            new.append(ex)
+        # start the new processes together rather than one at the first job of each
+        for f in [ex.submit(_ready) for ex in new]:
+            f.result()
+        return _POOLS[:int(n)]
+
+
+def shutdown_worker_pools() -> None:
+    """Stop the worker processes (also done at interpreter exit)."""
+    with _LOCK:
+        pools, _POOLS[:] = list(_POOLS), []
+    for ex in pools:
+        ex.shutdown(wait=True, cancel_futures=True)
+
+
+atexit.register(shutdown_worker_pools)

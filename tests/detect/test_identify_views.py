@@ -1,0 +1,80 @@
+"""Several photos identified at once (identify_markers_views / identify_colors_views) and the
+written-out Lab conversion: the same numbers as one photo at a time and as scikit-image."""
+
+import numpy as np
+import pytest
+from skimage.color import rgb2lab
+
+from stillcap.detect.circles import find_circles, random_bead_scene
+from stillcap.detect.identify import (
+    RECOMMENDED,
+    THESIS,
+    identify_colors,
+    identify_colors_views,
+    identify_markers,
+    identify_markers_views,
+)
+from stillcap.detect.palette import Palette, rgb_to_lab
+
+PAL = Palette.thesis()
+FIELDS = ("points", "distances", "candidate", "rejected", "colors", "cost", "gains", "radii")
+
+
+def _assert_same(a, b):
+    for f in FIELDS:
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+    assert (a.method, a.metric, a.sampler, a.max_distance) == (b.method, b.metric, b.sampler, b.max_distance)
+
+
+@pytest.fixture(scope="module")
+def photos():
+    scenes = [random_bead_scene(PAL.rgb, rng=s, n_beads=n) for s, n in ((0, None), (1, 12), (2, 2), (3, None))]
+    images = [sc.image for sc in scenes]
+    circles = [find_circles(im) for im in images]
+    circles[3] = circles[3].__class__(circles[3].centers[:0], circles[3].radii[:0], circles[3].scores[:0], "template")
+    return images, circles
+
+
+@pytest.mark.parametrize("preset", [RECOMMENDED, THESIS, {"method": "assignment", "metric": "lab", "adapt": True}])
+def test_views_at_once_are_each_view_alone(photos, preset):
+    """A full photo, one with 12 beads, one with 2 (too few matches to adapt the white
+    balance), one without candidates: every field as identify_markers's, bit for bit."""
+    images, circles = photos
+    many = identify_markers_views(images, circles, PAL, **preset)
+    assert len(many) == len(images)
+    for img, c, m in zip(images, circles, many):
+        _assert_same(identify_markers(img, c, PAL, **preset), m)
+    assert many[0].n_found >= 14 and many[3].n_found == 0
+
+
+def test_colour_sets_with_nan_rows(photos):
+    rng = np.random.default_rng(2)
+    cols = [rng.uniform(0, 1, (9, 3)), np.full((3, 3), np.nan), rng.uniform(0, 1, (0, 3)), PAL.rgb * 0.9]
+    cols[0][4] = np.nan
+    many = identify_colors_views(cols, PAL)
+    for c, m in zip(cols, many):
+        _assert_same(identify_colors(c, PAL), m)
+    assert many[3].n_found == len(PAL)
+
+
+def test_views_bad_input(photos):
+    images, circles = photos
+    with pytest.raises(ValueError, match="4 images but 3 candidate sets"):
+        identify_markers_views(images, circles[:3], PAL)
+    with pytest.raises(ValueError, match="2 colour sets but 1 centre sets"):
+        identify_colors_views([np.zeros((1, 3))] * 2, PAL, centers=[np.zeros((1, 2))])
+    with pytest.raises(ValueError, match="lightness_weight must be > 0"):
+        identify_colors_views([np.full((2, 3), 0.5)], PAL, lightness_weight=0.0)
+
+
+def test_rgb_to_lab_is_scikit_images_bit_for_bit():
+    """Random colours (out of range ones clipped), the sRGB knee, black and white, 1 to 500 colours."""
+    rng = np.random.default_rng(0)
+    for n in (1, 2, 3, 16, 20, 57, 500):
+        for _ in range(20):
+            a = rng.uniform(-0.1, 1.1, (n, 3))
+            a[rng.random((n, 3)) < 0.05] = 0.04045
+            a[rng.random((n, 3)) < 0.05] = 0.0
+            a[rng.random((n, 3)) < 0.05] = 1.0
+            np.testing.assert_array_equal(rgb_to_lab(a), rgb2lab(np.clip(a, 0, 1)[None])[0])
+    assert rgb_to_lab(np.zeros((0, 3))).shape == (0, 3)

@@ -1,0 +1,47 @@
+"""run_capture's two threads: photos decoded and prepared on either thread (the detecting one
+takes over photos the other has not started while it waits) give the serial result."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from stillcap.io.capture import Capture
+from stillcap.pipelines.puppet import run_capture
+from stillcap.studio.puppet import puppet_scene
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory):
+    sc = puppet_scene(pose="random:5", rng=5, supersample=1)
+    cap, images = sc.to_capture(".jpg")
+    folder = tmp_path_factory.mktemp("cap") / "cap"
+    cap.save(folder, images, jpeg_quality=85)
+    return folder
+
+
+def test_photos_decoded_on_both_threads_give_the_serial_result(monkeypatch, capture):
+    one, _ = run_capture(capture, workers=1)
+    real = Capture.read_image
+    readers = []
+
+    def slow_read(self, entry):  # the decoding thread is slow: the detecting one helps out
+        if threading.current_thread() is not threading.main_thread():
+            time.sleep(0.05)
+        readers.append(threading.current_thread() is threading.main_thread())
+        return real(self, entry)
+
+    monkeypatch.setattr(Capture, "read_image", slow_read)
+    seen = []
+    two, images = run_capture(capture, workers=2, progress=lambda d, n: seen.append((d, n)))
+    assert any(readers) and not all(readers)  # both threads decoded photos
+    assert seen == [(k, 12) for k in range(1, 13)]
+    assert len(images) == 12
+    for a, b in zip(one.views, two.views):
+        np.testing.assert_array_equal(a.circles.centers, b.circles.centers)
+        np.testing.assert_array_equal(a.identification.cost, b.identification.cost)
+    np.testing.assert_array_equal(one.markers.observations, two.markers.observations)
+    np.testing.assert_array_equal(one.markers.points, two.markers.points)
+    np.testing.assert_array_equal(one.pose.positions, two.pose.positions)
+    assert np.isfinite(two.markers.points).all(axis=1).sum() >= 14
