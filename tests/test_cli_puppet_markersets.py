@@ -5,13 +5,12 @@ import json
 
 import numpy as np
 import pytest
+from support import run_cli as run
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.cli import main
 from stillcap.detect.palette import Palette
 from stillcap.io.project import BUILTIN_MARKERSETS, Project
-
-from support import run_cli as run
 
 
 @pytest.fixture(scope="module")

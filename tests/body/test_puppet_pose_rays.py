@@ -54,7 +54,7 @@ def test_a_bead_seen_in_one_view_fixes_its_segment():
         without.append(_bone_err_deg(f0.pose, truth))
         with_rays.append(_bone_err_deg(f1.pose, truth))
     without, with_rays = np.concatenate(without), np.concatenate(with_rays)
-    rms = lambda e: float(np.sqrt(np.mean(e ** 2)))  # noqa: E731
+    rms = lambda e: float(np.sqrt(np.mean(e ** 2)))
     assert rms(with_rays) < 1.0 and rms(with_rays) < 0.6 * rms(without)
     assert with_rays.max() < 2.0
 
@@ -76,7 +76,7 @@ def test_a_wrong_ray_is_rejected_and_leaves_the_pose_alone():
 
 
 def test_rays_of_triangulated_markers_are_ignored():
-    truth, pts, one = _case(1)
+    truth, pts, _ = _case(1)
     X = MS.positions(truth)
     full = np.stack([c.project(X) for c in RIG])
     rays = MarkerRays.from_views(RIG, full)

@@ -11,7 +11,9 @@ line; ``puppet-20`` adds a second bead there, so they are fully measured; hands 
 none) a weak prior
 pulls each Euler angle toward 0 (clipped into its limits) with a standard deviation of half its
 range, so near-hinge joints stay near their hinge. The thesis's bone-direction pose
-(:func:`stillcap.body.kinematics.pose_from_markers`) is kept beside it.
+(:func:`stillcap.body.kinematics.pose_from_markers`) is kept beside it. A marker seen in one
+view only (no 3D point) still counts: its ray (:class:`MarkerRays`) keeps the model bead near
+it, which settles a forearm's twist when its other bead is triangulated.
 
 Metres and degrees; see ``docs/puppet.md``.
 """
@@ -25,8 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
-from threadpoolctl import threadpool_limits
 
+from stillcap._blas import single_blas_thread
 from stillcap.body.kinematics import bone_directions, normalised, pose_from_markers
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
@@ -115,7 +117,7 @@ class MarkerRays:
 
     @classmethod
     def from_views(cls, rig, observations, markers=None, fill=None, sigma_px: float = 1.0,
-                   fill_slope_px: float = 6.5) -> "MarkerRays":
+                   fill_slope_px: float = 6.5) -> MarkerRays:
         """The rays of identified pixels.
 
         A partly hidden bead's detected centre lies off its true centre, toward its visible part,
@@ -178,7 +180,7 @@ class MarkerRays:
         return cls(np.concatenate(mk), np.vstack(org), np.vstack(dirs), np.concatenate(foc), np.concatenate(vw),
                    np.concatenate(sg))
 
-    def subset(self, keep) -> "MarkerRays":
+    def subset(self, keep) -> MarkerRays:
         keep = np.asarray(keep)
         return MarkerRays(self.marker[keep], self.origin[keep], self.direction[keep], self.focal_px[keep],
                           self.view[keep], self.sigma_px[keep])
@@ -480,7 +482,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             return np.concatenate(parts)
 
         def jacobian(x):
-            a, Rx, Ry, j2w = model(x)
+            _, Rx, Ry, j2w = model(x)
             m = beads(j2w, idx)
             W = np.concatenate([r2w[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
             # world axis of each Euler angle: x, then Rx y, then Rx Ry z (intrinsic XYZ)
@@ -520,7 +522,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
                 ftol=1e-6, xtol=1e-6, gtol=1e-6, **kw)
     keep = np.ones(0 if active is None else len(active), bool)
     best = None
-    with threadpool_limits(1, user_api="blas"):
+    with single_blas_thread():
         cur = active
         sig = ray_sigmas(active, np.clip(starts[0][free], *inner)) if active is not None else np.zeros(0)
         fun, jac = problem(cur, sig)

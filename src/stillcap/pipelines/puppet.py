@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -41,8 +40,8 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
-from threadpoolctl import ThreadpoolController
 
+from stillcap._blas import one_blas_thread
 from stillcap.body.kinematics import normalised
 from stillcap.body.markerset import BUILTIN_MARKERSETS, MarkerSet, MarkerTrajectories
 from stillcap.body.puppet_pose import (PoseFit, _euler_matrices, _rotations_about, _start_angles,  # noqa: F401
@@ -926,50 +925,7 @@ class PuppetResult:
 
 
 # --- wiring -------------------------------------------------------------------------------------
-def _one_blas_thread(func):
-    """Run ``func`` with BLAS (NumPy's and SciPy's OpenBLAS) limited to one thread.
-
-    The pipeline's matrix products and the pose fit's SVDs are on small matrices (at most a few
-    hundred rows), where OpenBLAS's threads only cost: on the benchmark's busy 2-core machine
-    they spin, and the dense pose fit took 225-240 ms instead of 15 ms, a 3 x 3 ``@`` 20x longer
-    than ``np.einsum``. ``threadpoolctl`` sets the limit for the call only and restores the
-    caller's setting afterwards (it is process-wide meanwhile: BLAS has no per-thread setting).
-    """
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        if _blas_limited.depth:  # an outer call set the limit already (run_capture -> reconstruct_puppet)
-            return func(*args, **kwargs)
-        _blas_limited.depth += 1
-        try:
-            with _blas_controller().limit(limits=1, user_api="blas"):
-                return func(*args, **kwargs)
-        finally:
-            _blas_limited.depth -= 1
-    return wrapper
-
-
-class _BlasDepth(threading.local):
-    """Per thread: how many :func:`_one_blas_thread` calls are running (nested ones leave the
-    limit to the outermost)."""
-
-    depth = 0
-
-
-_blas_limited = _BlasDepth()
-
-
-@functools.lru_cache(maxsize=1)
-def _blas_controller() -> ThreadpoolController:
-    """One :class:`threadpoolctl.ThreadpoolController` for the process: ``threadpool_limits``
-    looks up the loaded BLAS libraries again at every call (~1.1 ms, three calls per pose); the
-    controller does it once. SciPy's linear algebra is imported first so that its OpenBLAS
-    (which NumPy's does not cover) is among the libraries found."""
-    import scipy.linalg  # noqa: F401  (loads SciPy's BLAS)
-
-    return ThreadpoolController()
-
-
-@_one_blas_thread
+@one_blas_thread
 def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = None, palette: Palette | None = None,
                        observations=None, settings: PuppetSettings = DEFAULT, view_names=None, angles_deg=None,
                        root2world=None, progress: Callable[[int, int], None] | None = None, truth=None,
@@ -1138,7 +1094,7 @@ def _capture_inputs(folder: Path):
     return cap, rig, names, angles, files, truth, markerset
 
 
-@_one_blas_thread
+@one_blas_thread
 def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | None = None,
                 progress: Callable[[int, int], None] | None = None, compare: bool = True,
                 workers: int = 2) -> tuple[PuppetResult, list]:
