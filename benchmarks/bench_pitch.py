@@ -203,7 +203,8 @@ def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict
     del imgs
     t = time.perf_counter()
     loaded = Capture.load(folder)
-    res = analyse_pitch(loaded, spin_method=args.spin, release_y_ft=loaded.truth["metrics"]["release_pos_y_ft"])
+    res = analyse_pitch(loaded, spin_method=args.spin, release_y_ft=loaded.truth["metrics"]["release_pos_y_ft"],
+                        processes=args.processes)
     t_e2e = time.perf_counter() - t
     row = {"preset": preset, "seed": seed, "size": f"{size[0]}x{size[1]}", "spin_method": args.spin,
            "format": args.format, **evaluate(res, loaded.truth),
@@ -304,8 +305,8 @@ def report(rows: list, console: Console, title: str = "") -> None:
     t.add_row("goal", "", "", "", "", "", "<= 3x", "")
     console.print(t)
     # per-stage times (PitchResult.timings_s) -------------------------------------------------------
-    stages = [k for k in ("positions", "fit_positions", "markers", "markers_wait", "spin", "fit", "metrics",
-                            "total")
+    stages = [k for k in ("positions", "fit_positions", "markers", "markers_wait", "spin_pairs", "spin", "fit",
+                            "metrics", "total")
               if any(k in (r.get("timings_s") or {}) for r in rows)]
     if stages:
         t = Table(title="analyse_pitch per-stage time, s (mean over captures; decode = 4 x cv2.imread)")
@@ -356,6 +357,9 @@ def main(argv=None):
     ap.add_argument("--size", default="2560x1920", help="image size WxH (default full 2560x1920)")
     ap.add_argument("--spin", choices=("global", "seed"), default="global", help="spin method of analyse_pitch")
     ap.add_argument("--format", choices=("jpg", "png"), default="jpg", help="photo files (default JPEG)")
+    ap.add_argument("--processes", type=int, default=2,
+                    help="PitchOptions.processes: worker processes for the per-pair work, one pool for the whole run "
+                         "(default 2; 0: threads, as `stillcap pitch` on one capture)")
     ap.add_argument("--quality", type=int, default=92, help="JPEG quality")
     ap.add_argument("--calibration-seed", type=int, default=2024, help="seed of the lab's calibration photos")
     ap.add_argument("--jsonl", type=Path, default=None, help="append per-capture rows here; resume from it")

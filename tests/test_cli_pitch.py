@@ -72,3 +72,32 @@ def test_pitch_demo(tmp_path, capsys):
     assert (tmp_path / "demo" / "report" / "report.html").is_file()
     assert (tmp_path / "demo" / "capture" / "truth.json").is_file()
     assert res.truth["mean_err_mm"] < 3 and abs(res.truth["metrics"]["release_speed_mph"]["diff"]) < 0.3
+
+
+def test_pitch_session_of_several_captures(fastball, tmp_path, capsys):
+    """Several captures: one result each (worker processes by default), failures named and skipped, exit 2."""
+    second = tmp_path / "second"
+    shutil.copytree(fastball, second)
+    black = tmp_path / "black"
+    shutil.copytree(fastball, black)
+    for f in (black / "images").glob("*.png"):
+        cv2.imwrite(str(f), np.zeros((SIZE[1], SIZE[0], 3), np.uint8))
+    code, out, err = run(["pitch", str(fastball), str(black), str(second), "--json", "--report", str(tmp_path / "rep")],
+                         capsys)
+    assert code == 2 and "black:" in err and "no ball found" in err
+    d = json.loads(out)
+    assert [x["capture"] for x in d] == [str(fastball), str(black), str(second)]
+    assert "no ball found" in d[1]["error"] and "metrics" not in d[1]
+    code1, out1, err1 = run(["pitch", str(fastball), "--json"], capsys)  # one capture: threads
+    assert code1 == 0, err1
+    single = json.loads(out1)["metrics"]
+    for k in ("release_speed_mph", "spin_rate_rpm", "induced_vertical_break_in"):
+        assert d[0]["metrics"][k] == pytest.approx(single[k], rel=1e-12), k  # processes give the threads' result
+        assert d[2]["metrics"][k] == pytest.approx(single[k], rel=1e-12), k
+    assert (tmp_path / "rep" / fastball.name / "report.html").is_file()
+    assert (tmp_path / "rep" / "second" / "report.html").is_file() and not (tmp_path / "rep" / "black").exists()
+    code, out, err = run(["pitch", str(fastball), str(second), "--processes", "0"], capsys)
+    assert code == 0, err
+    assert "2 pitches (0 failed)" in out and "second" in out
+    code, _, err = run(["pitch", str(fastball), str(second), "--csv", str(tmp_path / "x.csv")], capsys)
+    assert code == 2 and "--csv takes one capture" in err

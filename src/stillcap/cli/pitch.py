@@ -25,7 +25,8 @@ def _choice(name: str, value: str, allowed) -> str:
 
 
 def pitch(
-    capture: Path = typer.Argument(..., help="Pitch capture folder (capture.json, rig.json, images/)."),
+    captures: list[Path] = typer.Argument(..., help="Pitch capture folder(s) (capture.json, rig.json, images/); "
+                                          "several are analysed as a session, with one summary table."),
     as_json: bool = typer.Option(False, "--json",
                                  help="Print the result as JSON (keys as in truth.json, docs/pitch.md)."),
     report: Path = typer.Option(None, "--report", help="Write report.html, pitch.json, positions.csv, metrics.csv "
@@ -40,21 +41,35 @@ def pitch(
                                        "default: at the front pair's first ball image."),
     expected_speed_mph: float = typer.Option(None, "--expected-speed-mph", help="Anchor the flash spacing "
                                              "(only needed when a pair missed every other flash)."),
+    processes: int = typer.Option(None, "--processes", min=0,
+                                  help="Worker processes for the stereo pairs' work (0: threads). Default: 0 for "
+                                       "one capture, 2 for several (the pool starts once, ~0.5 s, then is reused)."),
 ):
     """Ball positions, release velocity, spin, reference trajectory and pitch metrics of a capture.
 
     The capture holds one multi-exposure photo per camera of one or more strobed stereo pairs
     (each photo with its strobe_hz). Every number is reported with its 1-sigma uncertainty.
     Exit status 2 with a one-line message for captures that cannot give a flight.
+
+    With several captures (a session): each is analysed in turn (a capture that fails is named
+    and skipped, exit status 2 at the end), ``--report DIR`` writes one sub-folder per capture,
+    ``--json`` prints a list, and one table sums up the session.
     """
     from stillcap.pipelines.pitch import TABLE1_COLUMNS, PitchOptions, analyse_pitch
 
     _choice("--spin", spin, SPIN_CHOICES)
     _choice("--physics", physics, PHYSICS_CHOICES)
     _choice("--fit", fit, FIT_CHOICES)
+    if processes is None:
+        processes = 0 if len(captures) == 1 else 2
     opts = PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
-                        release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph)
-    res = analyse_pitch(capture, opts)
+                        release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes)
+    if len(captures) > 1:
+        if csv_file is not None:
+            raise ValueError("--csv takes one capture; with several, --report DIR writes positions.csv per capture")
+        _session(captures, opts, report, as_json)
+        return
+    res = analyse_pitch(captures[0], opts)
     written = []
     if csv_file is not None:
         from stillcap.report.pitch import write_positions_csv
@@ -100,3 +115,57 @@ def pitch(
         console.print("spin: unavailable (see notes)")
     for w in written:
         console.print(f"wrote [bold]{w}[/]")
+
+
+def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> None:
+    """Several captures: one result each (report sub-folders, a JSON list) and a summary table."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from stillcap.pipelines.pitch import analyse_pitch
+
+    names = [c.resolve().name or str(c) for c in captures]
+    if report is not None and len(set(names)) < len(names):
+        raise ValueError("--report with several captures needs distinct folder names (one sub-folder each)")
+    err = Console(stderr=True)
+    results, failed = [], []
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, transient=True) as bar:
+        task = bar.add_task("pitches", total=len(captures))
+        for cap, name in zip(captures, names):
+            bar.update(task, description=name)
+            try:
+                res = analyse_pitch(cap, opts)
+            except ValueError as e:  # this capture cannot give a flight: name it, go on with the others
+                failed.append(name)
+                results.append((cap, None, str(e)))
+                err.print(f"[red]{name}:[/] {e}", highlight=False, soft_wrap=True)
+            else:
+                results.append((cap, res, None))
+                if report is not None:
+                    from stillcap.report.pitch import write_report
+                    write_report(res, report / name)
+            bar.advance(task)
+    if as_json:
+        print(json.dumps([r.to_dict() if r is not None else {"capture": str(c), "error": e} for c, r, e in results],
+                         indent=1, allow_nan=False))
+    else:
+        t = Table(title=f"{len(captures)} pitches ({len(failed)} failed)")
+        for c in ("capture", "balls", "release mph", "spin rpm", "tilt", "IVB in", "HB in", "notes"):
+            t.add_column(c, justify="right")
+        for (cap, res, e), name in zip(results, names):
+            if res is None:
+                t.add_row(name, "-", "-", "-", "-", "-", "-", f"[red]{e}[/]")
+                continue
+            m, s = res.metrics, res.metrics_sigma
+
+            def pm(k, nd=1):  # the sigmas are small: one more digit
+                return f"{_f(getattr(m, k), nd)} ± {_f(s.get(k), nd + 1)}"
+            spin_ok = res.spin_available
+            t.add_row(name, str(len(res.times)), pm("release_speed_mph"), pm("spin_rate_rpm", 0) if spin_ok else "-",
+                      (m.spin_tilt or "-") if spin_ok else "-", pm("induced_vertical_break_in"),
+                      pm("horizontal_break_in"), str(len(res.messages)))
+        console.print(t)
+        if report is not None:
+            console.print(f"wrote one report per capture under [bold]{report}[/]")
+    if failed:
+        raise typer.Exit(2)

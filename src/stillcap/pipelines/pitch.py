@@ -1496,6 +1496,11 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
         priors = FitPriors(spin_axial_sigma=max(np.sqrt(var_axial), 0.5),
                            spin_transverse_sigma=max(np.sqrt(var_transverse), 0.5))
         fit_kw["time_offsets"] = fit_pos.time_offsets if g else None
+        # positions weighed by their measured scatter (the positions-only fit's residual scale,
+        # 0.16-0.25 of the nominal sigma): with the nominal 2 mm the spin prior pulled the fit
+        # several times harder than its covariance said (docs/pitch.md, "Coverage audit")
+        if np.isfinite(fit_pos.residual_scale) and fit_pos.residual_scale > 0:
+            fit_kw["position_sigma"] = options.position_sigma_m * fit_pos.residual_scale
         fit = fit_reference_trajectory(times_a, pos_a, p0, v_two, w0, priors=priors, **fit_kw)
         # the priors weighed the spin with two sigmas; its error is correlated (ReferenceFit.spin_prior_covariance_term)
         fit = fit.with_extra_covariance(fit.spin_prior_covariance_term(cov0))

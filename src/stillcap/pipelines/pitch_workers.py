@@ -31,7 +31,15 @@ from concurrent.futures import ProcessPoolExecutor
 from stillcap.detect.ball import ball_centers_stereo
 from stillcap.io.capture import Capture
 
-__all__ = ["pair_positions_job", "pair_markers_job", "drop_job", "worker_pools", "shutdown_worker_pools"]
+__all__ = [
+    "cached_tokens",
+    "drop_job",
+    "new_token",
+    "pair_markers_job",
+    "pair_positions_job",
+    "shutdown_worker_pools",
+    "worker_pools",
+]
 
 # -- worker side -------------------------------------------------------------------------------
 # decoded photos of the pairs whose marker step has not run yet (token -> (cams, imgs)); a bound
@@ -74,6 +82,11 @@ def pair_markers_job(token: str, pair, types, layout, radius_m: float, max_px: f
 def drop_job(token: str) -> None:
     """Forget the photos cached under ``token`` (a capture that stopped before its marker step)."""
     _PHOTOS.pop(token, None)
+
+
+def cached_tokens() -> list:
+    """The tokens whose photos this worker holds (diagnostics: empty between captures)."""
+    return list(_PHOTOS)
 
 
 def _ready() -> int:
