@@ -319,6 +319,40 @@ def test_partly_lit_balls_hough_beats_ellipse(light, hough_mean, hough_max):
     assert np.all(ref.scores < 0.9)  # only part of the outline has an edge
 
 
+@pytest.mark.parametrize("light", [(1.0, 0.0, 0.0), (0.9, 0.0, 0.3), (0.8, 0.2, -0.55)])
+def test_shading_correction_removes_the_half_moon_bias_toward_the_light(light):
+    """The Hough centre of a partly lit ball sits toward the light when lit from the side or
+    behind (its thin bright rim's blurred edge peaks outside the limb) and away from it when lit
+    from the front; the lit-sphere shading model takes the signed bias (16 balls of 20-32 px,
+    lens blur 0.6 px, markers, noise and JPEG) to a few hundredths of a pixel."""
+    u = np.array(light[:2]) / np.linalg.norm(light[:2])
+    along = {False: [], True: []}
+    for seed in (3, 4):
+        img, balls = photo(seed, light=light)
+        det = detect_balls(img)
+        idx, _ = nearest(det.centers, balls[:, :2])
+        for shading in (False, True):
+            ref = refine_centers(img, det.centers[idx], balls[:, 2], shading=shading)
+            assert np.all(ref.ok)
+            along[shading] += list((ref.centers - balls[:, :2]) @ u)
+    before, after = np.mean(along[False]), np.mean(along[True])
+    if light[2] >= 0:  # side / behind: toward the light, ~0.1-0.25 px
+        assert before > 0.08 and abs(after) < 0.06 and abs(after) < 0.4 * before
+    else:  # gibbous: a small bias away from the light
+        assert before < -0.02 and abs(after) < 0.03
+
+
+def test_shading_correction_leaves_full_discs_alone():
+    """Fully lit balls (every part of the outline has an edge) are not corrected."""
+    img, balls = photo(3)
+    det = detect_balls(img)
+    idx, _ = nearest(det.centers, balls[:, :2])
+    on = refine_centers(img, det.centers[idx], balls[:, 2], shading=True)
+    off = refine_centers(img, det.centers[idx], balls[:, 2], shading=False)
+    assert np.all(on.scores > 0.7)
+    np.testing.assert_array_equal(on.centers, off.centers)
+
+
 def test_overlapping_ball_images_are_split():
     """A slow pitch and a fast strobe: consecutive images overlap into one silhouette."""
     img, balls = photo(5, spacing=(1.3, 1.6), markers=False)
