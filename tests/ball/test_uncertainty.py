@@ -162,3 +162,100 @@ def test_spin_prior_covariance_term_without_spin_prior_is_zero():
         assert "(3, 3)" in str(e)
     else:
         raise AssertionError("no ValueError for a (2, 2) covariance")
+
+
+# ----------------------------------------------------------------------------------------------
+# the ball-centre bias that remains after the detector's shading correction
+# ----------------------------------------------------------------------------------------------
+def test_shading_model_offset_is_the_lit_limb_bias():
+    """The model the correction subtracts: no offset for a ball lit from the camera (symmetric
+    shading), toward the light and growing with the phase angle for a side-lit half moon
+    (``_shading_bias``: about +0.1 px at 90 deg, +0.25 px at 110 deg for a 20 px ball)."""
+    from stillcap.ball.uncertainty import shading_model_offset_px
+
+    assert abs(shading_model_offset_px(0.0, 20.0)) < 0.01
+    o90, o110 = shading_model_offset_px(np.radians(90), 20.0), shading_model_offset_px(np.radians(110), 20.0)
+    assert 0.05 < o90 < 0.2 and 0.15 < o110 < 0.35 and o110 > o90
+    # more blur moves the lit limb's gradient peak further out
+    assert shading_model_offset_px(np.radians(100), 20.0, psf_px=0.8) > shading_model_offset_px(np.radians(100), 20.0, psf_px=0.3)
+
+
+def test_shading_residual_is_the_models_spread_and_the_table_holds_it():
+    """Corrected: the spread under the blur and phase variations, far below the offset the
+    correction removed; not corrected: the offset itself is left. The run-time table is the
+    function on its grid (a few entries recomputed)."""
+    from stillcap.ball import uncertainty as U
+
+    a = np.radians(100.0)
+    corr, raw = U.shading_residual_px(a, 20.0, True), U.shading_residual_px(a, 20.0, False)
+    assert 0.0 < corr < 0.5 * U.shading_model_offset_px(a, 20.0) < raw
+    for i, j in ((0, 0), (2, 18), (3, 20), (4, 24)):
+        r, ph = U._TABLE_RADII[i], np.radians(U._TABLE_PHASE_DEG[j])
+        assert abs(U._RESIDUAL_CORRECTED[i, j] - U.shading_residual_px(ph, r, True)) < 1e-3
+        assert abs(U._RESIDUAL_UNCORRECTED[i, j] - U.shading_residual_px(ph, r, False)) < 1e-3
+    got = U.shading_residual_lookup(np.radians([90.0, 90.0, 0.0]), [20.0, 20.0, 30.0], [True, False, False])
+    assert np.allclose(got, [U._RESIDUAL_CORRECTED[2, 18], U._RESIDUAL_UNCORRECTED[2, 18], U._RESIDUAL_UNCORRECTED[3, 0]])
+    # between grid radii it lies between the rows
+    mid = U.shading_residual_lookup(np.radians([90.0]), [25.0], [True])[0]
+    lo, hi = sorted((U._RESIDUAL_CORRECTED[2, 18], U._RESIDUAL_CORRECTED[3, 18]))
+    assert lo <= mid <= hi
+    try:
+        U.shading_residual_lookup([0.1, 0.2], [20.0], True)
+    except ValueError as e:
+        assert "shape" in str(e)
+    else:
+        raise AssertionError("shape mismatch accepted")
+
+
+def test_lit_phase_from_the_detected_silhouette():
+    """A rendered lambertian ball, found by ``detect_balls``: its silhouette's area gives the
+    phase angle within the dim terminator the threshold loses (<= 15 deg) for half moons."""
+    import cv2
+
+    from stillcap.ball.uncertainty import lit_phase_from_area
+    from stillcap.detect.ball import _lit_sphere_image, detect_balls
+
+    rng = np.random.default_rng(3)
+    r = 20.0
+    for deg in (60, 80, 100, 120):
+        a = np.radians(deg)
+        img = _lit_sphere_image((100, 100), np.array([50.3, 49.6]), np.eye(2) * r, (np.sin(a), 0.0, np.cos(a)))
+        img = cv2.GaussianBlur(img, (0, 0), 0.5)
+        im8 = np.clip(255 * (0.8 * img) ** (1 / 2.2) + rng.normal(0, 1.5, img.shape) + 3, 0, 255).astype(np.uint8)
+        d = detect_balls(np.dstack([im8] * 3), min_area=20)
+        k = int(np.argmax(d.areas))
+        assert abs(np.degrees(lit_phase_from_area(d.areas[k], r)) - deg) < 15, deg
+
+
+def test_lit_bias_modes_shift_along_the_lit_direction():
+    """Corrected images move along their lit direction only, full discs along both axes; each
+    mode is the re-triangulated shift of one camera's centres."""
+    from stillcap.geometry.triangulate import triangulate
+    from stillcap.pipelines.pitch import lit_bias_modes
+    from stillcap.studio.pitch import pitch_rig
+
+    rig = pitch_rig(image_size=(640, 480)).rig
+    cams = [rig["back_left"], rig["back_right"]]
+    X = np.array([[0.0, 5.5 - 0.3 * k, 1.4 - 0.03 * k] for k in range(6)])
+    x = np.stack([c.project(X) for c in cams])
+    ang = np.linspace(0.3, 0.9, 6)
+    u = np.stack([np.stack([np.cos(ang), np.sin(ang)], 1), np.stack([-np.cos(ang), np.sin(ang)], 1)])
+    s = np.full((2, 6), 0.05)
+    corr = np.array([True, True, True, False, False, False])
+    m = lit_bias_modes(cams, x, u, s, corr)
+    assert m.shape == (12, 6, 3)
+    X0 = triangulate(cams, x).points
+    xs = x.copy()
+    xs[1, :3] += 0.05 * u[1, :3]
+    assert np.allclose(m[6], triangulate(cams, xs).points - X0, atol=1e-12)
+    assert np.all(np.abs(m[6, 3:]) < 1e-12) and np.all(np.abs(m[2:6, :3]) < 1e-12)  # u on corrected, axes on the rest
+    assert np.all(np.linalg.norm(m[0, :3], axis=1) > 0) and np.all(np.linalg.norm(m[2, 3:], axis=1) > 0)
+    # the trend runs from -1 to +1 times the constant shift along the flight (linspace over 6)
+    assert np.allclose(m[1, 0], -m[0, 0], rtol=1e-3, atol=1e-12) and np.allclose(m[1, 2], -0.2 * m[0, 2], rtol=1e-3, atol=1e-12)
+    assert np.allclose(m[4, 5], m[2, 5], rtol=1e-3, atol=1e-12) and np.allclose(m[4, 3], 0.2 * m[2, 3], rtol=1e-3, atol=1e-12)
+    try:
+        lit_bias_modes(cams, x, u[:, :5], s, corr)
+    except ValueError as e:
+        assert "(2, K, 2)" in str(e)
+    else:
+        raise AssertionError("shape mismatch accepted")

@@ -637,3 +637,33 @@ def test_bad_input_names_the_shape():
         ball_centers_stereo(a, z, b, z, -1.0)
     with pytest.raises(ValueError, match="stillcap Camera"):
         ball_centers_stereo("a", z, b, z, R_BALL)
+
+
+@pytest.mark.parametrize("phase_deg", [40.0, 100.0])
+def test_lit_sphere_supersampled_near_the_limb_only_keeps_the_limb(phase_deg):
+    """The shading model rendered with supersampling only in a band at the limb (what
+    _shading_bias uses, for speed) equals the fully supersampled one in the band and outside the
+    ball, and its blurred limb gradient is the same: it cannot move the Hough peak."""
+    from stillcap.detect.ball import _gradient, _lit_sphere_image
+
+    a = np.radians(phase_deg)
+    light = (np.sin(a) * 0.8, np.sin(a) * 0.6, np.cos(a))
+    A = np.array([[14.0, 1.5], [1.5, 12.5]])  # an off-axis (elliptical) outline
+    centre = np.array([30.3, 28.7])
+    full = _lit_sphere_image((60, 62), centre, A, light)
+    band = 4.0 * 0.86 + 4.0
+    part = _lit_sphere_image((60, 62), centre, A, light, band_px=band)
+    yy, xx = np.mgrid[0:60, 0:62]
+    q = np.linalg.solve(A, np.stack([xx.ravel() - centre[0], yy.ravel() - centre[1]]))
+    rho = np.hypot(*q).reshape(60, 62)
+    near = rho > 1.0 - band / np.linalg.svd(A, compute_uv=False)[0]
+    assert np.array_equal(full[near], part[near])
+    inside = ~near
+    assert inside.sum() > 100
+    # deep inside, one sample per pixel: close but not equal (a real difference, not a no-op)
+    assert 0 < np.abs(full[inside] - part[inside]).max() < 1e-2
+    gf = _gradient(cv2.GaussianBlur(full, (0, 0), 0.86))
+    gp = _gradient(cv2.GaussianBlur(part, (0, 0), 0.86))
+    limb = np.abs(rho - 1.0) * 12.5 < 2.5  # within 2.5 px of the limb
+    for f, p in zip(gf, gp):
+        assert np.abs(f[limb] - p[limb]).max() < 1e-6 * np.abs(f[limb]).max()

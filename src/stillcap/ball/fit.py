@@ -629,12 +629,22 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     steps = 1e-4 * scale
     x0 = theta_meas[free]
 
+    last: dict = {}  # the last residuals and Jacobian evaluated: x -> value
     if method == "least_squares":
         # Levenberg-Marquardt (MINPACK) rather than "trf": in the weakly determined directions
         # (axial spin without a measured spin) "trf" took about twice as many trajectory
         # evaluations to the same minimum
-        res = least_squares(lambda x: prob.residuals(x)[0], x0,
-                            jac=lambda x: prob.jacobian(x, steps), method="lm",
+        def fun(x):
+            r = prob.residuals(x)[0]
+            last["r"] = (np.array(x, float), r.copy())
+            return r
+
+        def jac(x):
+            J = prob.jacobian(x, steps)
+            last["J"] = (np.array(x, float), J.copy())
+            return J
+
+        res = least_squares(fun, x0, jac=jac, method="lm",
                             x_scale=scale, xtol=1e-10, ftol=1e-10, gtol=1e-10,
                             max_nfev=max_nfev)
         x_fit, success, message = res.x, bool(res.success), str(res.message)
@@ -650,8 +660,10 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     # residual variance of the data (s^2, so a wrong position_sigma does not matter), the prior
     # rows keep their stated sigmas (scaling them by s^2 too would shrink the uncertainty of
     # prior-dominated parameters such as the axial spin whenever the noise is overestimated).
-    r = prob.residuals(x_fit)[0]
-    J = prob.jacobian(x_fit, steps)
+    # (the optimiser's last evaluations are usually at the solution: the same numbers, reused)
+    hit_r, hit_J = (k in last and np.array_equal(last[k][0], x_fit) for k in ("r", "J"))
+    r = last["r"][1] if hit_r else prob.residuals(x_fit)[0]
+    J = last["J"][1] if hit_J else prob.jacobian(x_fit, steps)
     n_data = len(prob.meas)
     rd = r[:n_data]
     s2 = float(rd @ rd) / max(n_data - len(x_fit), 1)

@@ -672,12 +672,25 @@ class _GlobalProblem:
         return j, np.arccos(np.clip(cos[np.arange(len(j)), j], -1, 1))
 
     def _predict(self, x, R0_ref, j, sel):
-        """Predicted marker directions p (m, 3), and the pieces the Jacobian needs."""
+        """Predicted marker directions p (m, 3), and the pieces the Jacobian needs.
+
+        The last result is kept: least squares asks for the residuals and then the Jacobian
+        at the same parameters (the key holds every input, also ``dt``, which
+        :func:`_time_offset_cov` shifts)."""
+        key = (np.asarray(x, float).tobytes(), np.asarray(R0_ref, float).tobytes(), np.asarray(j).tobytes(),
+               np.asarray(sel).tobytes(), self.dt.tobytes())
+        last = getattr(self, "_last", None)
+        if last is not None and last[0] == key:
+            return last[1]
         E0 = _expmap(x[:3])
         v = (E0 @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
         A = _expmap(np.outer(self.dt, x[3:]))[self.flash[sel]]  # (m, 3, 3)
         p = np.einsum("mab,bm->ma", A, v)
-        return p, v.T, A
+        out = (p, v.T, A)
+        for a in out:
+            a.flags.writeable = False
+        self._last = (key, out)
+        return out
 
     def residuals(self, x, R0_ref, j, sel):
         """Log-map residuals (2 per observation, rad) at parameters x = (delta (3), w (3)):
@@ -863,25 +876,43 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
 
     flashes = [(k, np.flatnonzero(fl == k)) for k in np.unique(fl)]
     n_c = cand.shape[1]
+    # a padded candidate gets cos = 0 (a zero column) instead of -1: with cap <= 90 deg both are
+    # capped, the same cost; the scan then needs no masking pass
+    zero_pad = cap <= 0.5 * np.pi
 
-    def costs(rho, k_a, R_a):
+    def costs(rho, k_a, R_as):
+        """Capped costs (len(R_as), G) of the grid points rho for anchors (k_a, R_a) of one flash:
+        the rotations exp(rho (t_k - t_a) / T), the scan's main cost, are shared by the anchors."""
         steps = (times - times[k_a]) / period
-        body = np.swapaxes(mdl @ R_a.T, 1, 2)  # (M, 3, c): R_a m_j as columns
-        # cos(observation m, candidate marker c) = (E^T u_m) . (R_a m_c) = sum_ab E_ab u_m,a (R_a m_c)_b
-        # with E = exp(rho (t_k - t_a) / T) of the observation's flash k: per flash one matrix
-        # product (G, 9) @ (9, M_k c) over all grid points, instead of gathering a 3x3 matrix per
-        # grid point and observation (the cost of this scan is in the gathering, not the sums)
-        Wuv = (u[:, :, None, None] * body[:, None, :, :]).reshape(len(u), 9, n_c)
-        Wk = [(k, idx, np.ascontiguousarray(Wuv[idx].transpose(1, 0, 2)).reshape(9, -1)) for k, idx in flashes]
-        out = np.empty(len(rho))
+        Wks = []
+        for R_a in R_as:
+            body = np.swapaxes(mdl @ R_a.T, 1, 2)  # (M, 3, c): R_a m_j as columns
+            # cos(observation m, candidate marker c) = (E^T u_m) . (R_a m_c) = sum_ab E_ab u_m,a (R_a m_c)_b
+            # with E = exp(rho (t_k - t_a) / T) of the observation's flash k: per flash one matrix
+            # product (G, 9) @ (9, c M_k) over all grid points, instead of gathering a 3x3 matrix per
+            # grid point and observation (the cost of this scan is in the gathering, not the sums)
+            Wuv = (u[:, :, None, None] * body[:, None, :, :]).reshape(len(u), 9, n_c)
+            if zero_pad:
+                Wuv = np.where(pad[:, None, :], 0.0, Wuv)
+            # columns candidate-major per flash: each candidate's cosines are a contiguous block
+            Wks.append([(k, idx, np.ascontiguousarray(Wuv[idx].transpose(1, 2, 0)).reshape(9, -1))
+                        for k, idx in flashes])
+        out = np.empty((len(R_as), len(rho)))
         for s in range(0, len(rho), 1024):
             E = _expmap(rho[s:s + 1024, None, :] * steps[None, :, None])  # (G, K, 3, 3)
             G = len(E)
-            cos = np.empty((G, len(u), n_c))
-            for k, idx, W in Wk:
-                cos[:, idx, :] = (E[:, k].reshape(G, 9) @ W).reshape(G, len(idx), n_c)
-            cos = np.where(pad[None], -1.0, cos).max(-1)
-            out[s:s + 1024] = np.sum(np.minimum(np.arccos(np.clip(cos, -1, 1)), cap) ** 2, axis=1)
+            Ek = {k: np.ascontiguousarray(E[:, k]).reshape(G, 9) for k, _ in flashes}
+            for ia, Wk in enumerate(Wks):
+                best = np.empty((G, len(u)))
+                for k, idx, W in Wk:
+                    cos = (Ek[k] @ W).reshape(G, n_c, len(idx))
+                    if not zero_pad:
+                        cos = np.where(pad[idx].T[None], -1.0, cos)
+                    m = cos[:, 0].copy()
+                    for j in range(1, n_c):  # elementwise over contiguous blocks: faster than .max(1)
+                        np.maximum(m, cos[:, j], out=m)
+                    best[:, idx] = m
+                out[ia, s:s + 1024] = np.sum(np.minimum(np.arccos(np.clip(best, -1, 1)), cap) ** 2, axis=1)
         return out
 
     h = np.radians(step_deg)
@@ -892,11 +923,18 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     f = np.arange(-2, 3) * (h / 4)
     local = np.stack(np.meshgrid(f, f, f, indexing="ij"), -1).reshape(-1, 3)
     found = []
+    # the coarse scan of anchors of the same flash at once (they share its rotations)
+    by_flash = {}
     for k_a, R_a in anchors:
-        c = costs(coarse, k_a, R_a)
+        by_flash.setdefault(k_a, []).append(R_a)
+    coarse_costs = {k_a: costs(coarse, k_a, R_as) for k_a, R_as in by_flash.items()}
+    seen = {k_a: 0 for k_a in by_flash}
+    for k_a, R_a in anchors:
+        c = coarse_costs[k_a][seen[k_a]]
+        seen[k_a] += 1
         best = coarse[np.argsort(c)[:20]]
         fine = (best[:, None, :] + local[None]).reshape(-1, 3)
-        cf = costs(fine, k_a, R_a)
+        cf = costs(fine, k_a, [R_a])[0]
         for i in np.argsort(cf)[:40]:
             found.append((cf[i], fine[i], (k_a, R_a)))
     found.sort(key=lambda x: x[0])

@@ -710,8 +710,8 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     an edge votes only for centres that lie along its gradient, so the terminator of a half
     moon (whose gradient runs across the ball) does not pull the centre.
     """
-    mx = (ox[:, None] + px[None, :]).astype(np.float32)
-    my = (oy[:, None] + py[None, :]).astype(np.float32)
+    mx = (ox[:, None] + px[None, :]).astype(np.float32, copy=False)
+    my = (oy[:, None] + py[None, :]).astype(np.float32, copy=False)
     sx = cv2.remap(g[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     gn = sx * nx[None, :] + sy * ny[None, :]
@@ -728,14 +728,25 @@ def _gradient(a: np.ndarray):
             cv2.Sobel(a, cv2.CV_32F, 0, 1, ksize=3, scale=0.125))
 
 
+@functools.lru_cache(maxsize=32)
+def _grid_offsets(step: float, k: int):
+    """Offsets of a (2k+1)^2 grid of ``step`` (float32): the axis (2k+1,) and the raveled x and
+    y offsets (row-major, y slowest); cached (read-only), the grids of the refinement are few."""
+    d = (np.arange(-k, k + 1) * step).astype(np.float32)
+    DY, DX = np.meshgrid(d, d, indexing="ij")
+    out = (d, DX.ravel(), DY.ravel())
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
 def _grid_peak(g, x, y, tpl, power, step, k, moves):
     """Best centre on a (2k+1)^2 grid of ``step`` around (x, y); re-centred up to ``moves``
     times while the best lies on the grid border. Returns x, y, the grid scores, the index."""
-    d = (np.arange(-k, k + 1) * step).astype(np.float32)
-    DY, DX = np.meshgrid(d, d, indexing="ij")
+    d, DX, DY = _grid_offsets(float(step), int(k))
     for m in range(moves + 1):
-        sc, _ = _score(g, x + DX.ravel(), y + DY.ravel(), *tpl, power)
-        sc = sc.reshape(DX.shape)
+        sc, _ = _score(g, x + DX, y + DY, *tpl, power)
+        sc = sc.reshape(len(d), len(d))
         i, j = np.unravel_index(int(np.argmax(sc)), sc.shape)
         x, y = x + float(d[j]), y + float(d[i])
         if 0 < i < 2 * k and 0 < j < 2 * k:
@@ -809,22 +820,55 @@ def _outline_affine(off: np.ndarray) -> np.ndarray:
     return (V * np.sqrt(np.maximum(ev, 1e-12))) @ V.T
 
 
-def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3) -> np.ndarray:
+def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px: float | None = None,
+                      q=None) -> np.ndarray:
     """Radiance (unit albedo) of a lambertian sphere lit from the direction ``light``
     (unit 3-vector in the frame (x right, y down, z toward the camera)), seen orthographically
     through the outline ellipse ``A`` centred on ``centre`` (crop pixels), each pixel the mean
-    of ``ss x ss`` samples; float32 image of ``shape``."""
+    of ``ss x ss`` samples; float32 image of ``shape``.
+
+    ``band_px``: supersample only the pixels within about ``band_px`` of the limb (inside) and
+    the limb's own pixels; the rest get one sample at their centre (pixels well outside the
+    outline are 0 either way; inside it the radiance is smooth, and a pixel farther than the
+    blur kernel's reach from the limb does not change the limb's gradient). ``q``: the
+    outline-normalised coordinates ``A^-1 (pixel - centre)`` of the pixel centres, shape
+    (2, H, W), if the caller has them.
+    """
     h, w = shape
     o = (np.arange(ss) + 0.5) / ss - 0.5
     Ai = np.linalg.inv(A)
-    ys = (np.arange(h)[:, None] + o[None, :]).ravel() - centre[1]
-    xs = (np.arange(w)[:, None] + o[None, :]).ravel() - centre[0]
-    qx = Ai[0, 0] * xs[None, :] + Ai[0, 1] * ys[:, None]
-    qy = Ai[1, 0] * xs[None, :] + Ai[1, 1] * ys[:, None]
-    r2 = qx * qx + qy * qy
-    qz = np.sqrt(np.clip(1.0 - r2, 0.0, None))
-    rad = np.where(r2 < 1.0, np.maximum(qx * light[0] + qy * light[1] + qz * light[2], 0.0), 0.0)
-    return rad.reshape(h, ss, w, ss).mean(axis=(1, 3)).astype(np.float32)
+    lx, ly, lz = light
+
+    def rad_of(qx, qy):
+        r2 = qx * qx + qy * qy
+        qz = np.sqrt(np.clip(1.0 - r2, 0.0, None))
+        return np.where(r2 < 1.0, np.maximum(qx * lx + qy * ly + qz * lz, 0.0), 0.0)
+
+    if band_px is None:
+        ys = (np.arange(h)[:, None] + o[None, :]).ravel() - centre[1]
+        xs = (np.arange(w)[:, None] + o[None, :]).ravel() - centre[0]
+        qx = Ai[0, 0] * xs[None, :] + Ai[0, 1] * ys[:, None]
+        qy = Ai[1, 0] * xs[None, :] + Ai[1, 1] * ys[:, None]
+        return rad_of(qx, qy).reshape(h, ss, w, ss).mean(axis=(1, 3)).astype(np.float32)
+    if q is None:
+        yy, xx = np.mgrid[0:h, 0:w]
+        q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - centre[0], yy - centre[1]]).astype(float))
+    sv = np.linalg.svd(A, compute_uv=False)  # the outline's semi-axes (px)
+    r2 = q[0] ** 2 + q[1] ** 2
+    # a pixel within band_px of the limb lies beyond 1 - band / (largest semi-axis) in these
+    # coordinates; a pixel whose samples (<= 0.5 px from its centre) are all outside the outline,
+    # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
+    r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
+    r_out = 1.0 + 1.5 / sv[-1]
+    out = rad_of(q[0], q[1])
+    yb, xb = np.nonzero((r2 > r_in * r_in) & (r2 < r_out * r_out))
+    if len(yb):
+        # the samples of pixel (y, x): its centre's coordinates plus A^-1 (o_j, o_i)
+        dqx = Ai[0, 0] * o[None, :] + Ai[0, 1] * o[:, None]  # (ss_y, ss_x)
+        dqy = Ai[1, 0] * o[None, :] + Ai[1, 1] * o[:, None]
+        qxb, qyb = q[0][yb, xb], q[1][yb, xb]
+        out[yb, xb] = rad_of(qxb[:, None, None] + dqx[None], qyb[:, None, None] + dqy[None]).mean(axis=(1, 2))
+    return out.astype(np.float32)
 
 
 @functools.lru_cache(maxsize=1)
@@ -887,7 +931,10 @@ def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, pow
         return np.zeros(2)
     a = _phase_from_centroid(mn)
     light = (np.sin(a) * mq[0] / mn, np.sin(a) * mq[1] / mn, np.cos(a))
-    model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light), (0, 0), blur)
+    # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
+    # and the Hough's search around the centre from the limb, a pixel cannot change the result
+    band = 4.0 * blur + 4.0
+    model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=band, q=q), (0, 0), blur)
     gm = _gradient(model)
     kf = max(2, int(round(0.3 / fine_step)))
     bx, by, _, _ = _grid_peak(gm, float(centre[0]), float(centre[1]), tpl, power, fine_step, kf, moves=6)

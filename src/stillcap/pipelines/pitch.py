@@ -130,8 +130,10 @@ class PitchOptions:
     centre_bias_px : float or None
         1-sigma per image coordinate of a systematic error of the refined ball centres shared by
         all ball images of one camera (the strobe lights the ball from one side). None (default):
-        as large as the random centre error, estimated from the pair's triangulation residuals
-        (``sqrt(2) * RMS reprojection error``); 0 leaves it out. ``docs/pitch.md``,
+        the bias the detector's shading correction leaves, per ball image from its lit phase and
+        radius (:func:`stillcap.ball.uncertainty.shading_residual_lookup`; ``docs/pitch.md``,
+        "Coverage audit", fourth pass); a number: that many px per image axis and camera, a
+        constant and a trend along the flight; 0 leaves it out. ``docs/pitch.md``,
         "Uncertainties".
     workers : int
         Threads for the per-pair work (decoding, ball images, markers; OpenCV releases the GIL).
@@ -818,6 +820,114 @@ def centre_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
     return out
 
 
+def lit_geometry(stereo, centers_px, flags, radius_px):
+    """Per ball image of a pair: the lit direction, the phase angle and whether the shading
+    correction ran, from the stereo step's detections.
+
+    Parameters
+    ----------
+    stereo : StereoBalls
+        The pair's :func:`ball_centers_stereo` result (its detections).
+    centers_px : array_like, shape (2, K, 2)
+        The pair's refined centres (rows of ``stereo.centers_a`` / ``centers_b``).
+    flags : array_like of int, shape (K,)
+        ``BallFlag`` bits of both views (``PARTIAL``: the correction ran in both views).
+    radius_px : array_like, shape (2, K)
+
+    Returns
+    -------
+    u : ndarray, shape (2, K, 2)
+        Unit vector from the refined centre toward the silhouette's ellipse centre (the lit
+        side: a lit silhouette's middle lies toward the light); 0 where they coincide.
+    phase : ndarray, shape (2, K)
+        Phase angle (rad) from the silhouette's area (:func:`lit_phase_from_area`).
+    corrected : ndarray of bool, shape (K,)
+    """
+    from stillcap.ball.uncertainty import lit_phase_from_area
+
+    x = np.asarray(centers_px, float)
+    if x.ndim != 3 or x.shape[0] != 2 or x.shape[2] != 2:
+        raise ValueError(f"centers_px must have shape (2, K, 2), got {x.shape}")
+    K = x.shape[1]
+    u = np.zeros((2, K, 2))
+    phase = np.zeros((2, K))
+    for c, (cen, det, col) in enumerate(((stereo.centers_a, stereo.detections_a, 0),
+                                         (stereo.centers_b, stereo.detections_b, 1))):
+        if K == 0 or len(cen) == 0:
+            break
+        row = np.argmin(np.linalg.norm(np.asarray(cen)[None] - x[c][:, None], axis=2), axis=1)
+        j = stereo.pairs[row, col]
+        d = det.ellipse_centers[j] - x[c]
+        n = np.linalg.norm(d, axis=1)
+        u[c] = np.where(n[:, None] > 1e-9, d / np.maximum(n, 1e-9)[:, None], 0.0)
+        phase[c] = lit_phase_from_area(det.areas[j], np.asarray(radius_px, float)[c])
+    corrected = (np.asarray(flags, int) & int(BallFlag.PARTIAL)) > 0
+    return u, phase, corrected
+
+
+def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
+    """How a pair's triangulated positions move with the ball-centre bias that remains after
+    the shading correction (:func:`stillcap.ball.uncertainty.shading_residual_lookup`).
+
+    Per camera: for corrected images a shift of ``sigma_px`` along their lit direction ``u``
+    (the correction's model error has that direction), the same for all (constant) and growing
+    linearly from ``-sigma_px`` at the pair's first image to ``+sigma_px`` at its last (trend:
+    the phase angle changes along the flight); for the others (full discs, no lit direction)
+    the same two profiles along each image axis.
+
+    Parameters
+    ----------
+    cams : sequence of 2 Camera
+    centers_px : array_like, shape (2, K, 2)
+    u : array_like, shape (2, K, 2)
+    sigma_px : array_like, shape (2, K)
+    corrected : array_like of bool, shape (K,)
+
+    Returns
+    -------
+    ndarray, shape (12, K, 3)
+        Position shift (m) per camera (6 each: along ``u`` constant, trend; x, y constant;
+        x, y trend).
+    """
+    x = np.asarray(centers_px, float)
+    K = x.shape[1] if x.ndim == 3 else 0
+    u, s = np.asarray(u, float), np.asarray(sigma_px, float)
+    if x.shape != (2, K, 2) or u.shape != (2, K, 2) or s.shape != (2, K):
+        raise ValueError(f"centers_px and u must have shape (2, K, 2) and sigma_px (2, K), got "
+                         f"{x.shape}, {u.shape}, {s.shape}")
+    corr = np.broadcast_to(np.asarray(corrected, bool), (K,))
+    out = np.zeros((12, K, 3))
+    if K == 0:
+        return out
+    X0 = triangulate(list(cams), x).points
+    profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
+    e = np.eye(2)
+    for c in range(2):
+        shifts = [np.where(corr[:, None], u[c], 0.0) * (s[c] * prof)[:, None] for prof in profiles]
+        shifts += [np.where(corr[:, None], 0.0, e[j]) * (s[c] * prof)[:, None] for prof in profiles for j in range(2)]
+        for m, dx in enumerate(shifts):
+            if not np.any(dx):
+                continue
+            xs = x.copy()
+            xs[c] += dx
+            out[6 * c + m] = triangulate(list(cams), xs).points - X0
+    return out
+
+
+def _remaining_bias_modes(p: PairResult) -> np.ndarray:
+    """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error."""
+    from stillcap.ball.uncertainty import shading_residual_lookup
+
+    u, phase, corr = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
+    # full discs (not PARTIAL, phase below ~55 deg) as lit from the camera: there the model's
+    # offset swings by ~0.1 px within 10 deg of phase, finer than the silhouette's area resolves
+    # (a thresholded full disc loses its dim limb: 0.96-1.11 of pi r^2 from 0 to 30 deg), and
+    # against the truth the front pair's (phase ~10 deg) per-camera bias was 0.016-0.020 px
+    phase = np.where(corr[None, :], phase, 0.0)
+    s = np.stack([shading_residual_lookup(phase[c], p.radius_px[c], corr) for c in range(2)])
+    return lit_bias_modes(p._cams, p.centers_px, u, s, corr)
+
+
 def _release_state(p0, v0, spin, model, t0, release_y_m):
     """Position, velocity and time where the flight crosses ``y = release_y_m`` (Newton on the
     reference integrator, before or after ``t0``)."""
@@ -1412,11 +1522,15 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
             continue
         m = calibration_modes(p._cams, p.centers_px, calib, p.name, options.calibration_focal_sigma)
         sb = options.centre_bias_px
-        if sb is None:
-            e = p.reproj_error_px[np.isfinite(p.reproj_error_px)]
-            sb = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
         del p._sigma_px
-        mb = centre_bias_modes(p._cams, p.centers_px, sb, trend=True)
+        if sb is None and p.stereo is not None:
+            # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
+            mb = _remaining_bias_modes(p)
+        else:
+            if sb is None:
+                e = p.reproj_error_px[np.isfinite(p.reproj_error_px)]
+                sb = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
+            mb = centre_bias_modes(p._cams, p.centers_px, sb, trend=True)
         m = mb if m is None else np.concatenate([m, mb])
         if not np.any(m):
             continue
