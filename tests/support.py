@@ -57,3 +57,15 @@ def studio_pitch(factory, name, **kw):
         cap, images = pc.to_capture()
         cap.save(root, images)
     return root
+
+
+def assert_same_reconstruction(one, two):
+    """Two puppet results with the same circles, identifications, 2D and 3D markers and pose."""
+    import numpy as np
+
+    for a, b in zip(one.views, two.views):
+        np.testing.assert_array_equal(a.circles.centers, b.circles.centers)
+        np.testing.assert_array_equal(a.identification.cost, b.identification.cost)
+    np.testing.assert_array_equal(one.markers.observations, two.markers.observations)
+    np.testing.assert_array_equal(one.markers.points, two.markers.points)
+    np.testing.assert_array_equal(one.pose.positions, two.pose.positions)

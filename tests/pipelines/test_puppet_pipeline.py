@@ -15,6 +15,7 @@ from stillcap.pipelines.puppet import (DEFAULT, THESIS_CHAIN, PuppetSettings, be
                                        reidentify, run_project, solve_markers, triangulate_markers)
 from stillcap.geometry.triangulate import triangulate
 from stillcap.studio.puppet import puppet_scene
+from support import assert_same_reconstruction
 
 
 # supersample=1 (edge rays not re-traced) halves the render time; the numbers below were
@@ -301,12 +302,7 @@ def test_threads_give_the_serial_result(tmp_path, random3):
     one, _ = run_capture(tmp_path / "cap", workers=1)
     two, _ = run_capture(tmp_path / "cap", workers=2, progress=lambda d, n: seen.append((d, n)))
     assert seen == [(k, 12) for k in range(1, 13)]
-    for a, b in zip(one.views, two.views):
-        np.testing.assert_array_equal(a.circles.centers, b.circles.centers)
-        np.testing.assert_array_equal(a.identification.cost, b.identification.cost)
-    np.testing.assert_array_equal(one.markers.observations, two.markers.observations)
-    np.testing.assert_array_equal(one.markers.points, two.markers.points)
-    np.testing.assert_array_equal(one.pose.positions, two.pose.positions)
+    assert_same_reconstruction(one, two)
     assert np.isfinite(two.markers.points).all(axis=1).sum() >= 14
     with pytest.raises(ValueError, match=r"need one detection per view \(12\), got 3"):
         reconstruct_puppet(random3.rig, random3.images, detections=one.views[:3])
