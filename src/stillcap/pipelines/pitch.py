@@ -1122,7 +1122,10 @@ def _metrics_of_states(fit: ReferenceFit, th, spins, model, t_rel, release_y_m, 
     t_end = t_rel + max(nominal.plate_time_s if np.isfinite(nominal.plate_time_s) else 0.6, 0.1) * 1.1 + 0.02
     t_lo = min(t_rel, fit.t0) - 0.03
     ts = np.arange(t_lo, t_end, 0.002)
-    tr = simulate_batch(th[:, :3], th[:, 3:6], w_traj, ts, model, t0=fit.t0, method="rk4", max_step=0.01)
+    # 50 ms RK4 steps (the flight fit's): against 10 ms steps every metric sigma of 7 studio
+    # pitches moved by at most 2e-5 of itself (central differences of flights flown alike), 9 ms
+    # less per capture
+    tr = simulate_batch(th[:, :3], th[:, 3:6], w_traj, ts, model, t0=fit.t0, method="rk4", max_step=0.05)
     vals = {k: np.full(n, np.nan) for k in keys}
     nine_vals = {k: np.full(n, np.nan) for k in nine_keys}
     for m in range(n):
