@@ -28,6 +28,14 @@ def test_bad_input_exits_2_with_a_message(tmp_path, capsys):
     assert code == 2 and "--bogus" in err
 
 
+def test_unknown_marker_set_exits_2_and_writes_nothing(tmp_path, capsys):
+    code, _, err = run(["studio", "puppet", "--out", str(tmp_path / "cap"), "--seed", "1", "--markers", "nosuch"], capsys)
+    assert code == 2 and "marker set 'nosuch' is neither a built-in" in err
+    assert not (tmp_path / "cap").exists()
+    code, _, err = run(["palette", "2", "--keep", "nosuch"], capsys)
+    assert code == 2 and "--keep 'nosuch' is neither" in err
+
+
 def test_python_dash_m_entry_point():
     r = subprocess.run([sys.executable, "-m", "stillcap", "--help"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and "calibrate" in r.stdout and "demo" in r.stdout
