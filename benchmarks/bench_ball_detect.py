@@ -10,7 +10,10 @@ with a 2560 px sensor), each with the seed's 12 painted markers in a random orie
 Conditions: lit from the camera (full disc), from the side (half moon), from the side and
 front (gibbous), from a little behind (crescent), and overlapping images (spacing 1.3-1.6
 radii, one silhouette). The Hough refinement gets the true radius, as the stereo pipeline
-provides it from the triangulated centre (its radius error there is ~0.1 px).
+provides it from the triangulated centre (its radius error there is ~0.1 px). "toward light":
+the mean signed centre error along the light's direction in the image (a lit limb pulls the
+Hough centre toward the light); "+ shading": ``refine_centers(shading=True)``, the lit-sphere
+shading correction the stereo pipeline applies to partly lit balls.
 The stereo rows run the whole pipeline (``ball_centers_stereo``) on the seed's front pair
 (0.8 m vertical baseline, 3.5 m away, lens distortion on one camera).
 Goal: a 2560x1920 photo well under 0.3 s, within 3x of decoding it.
@@ -70,13 +73,16 @@ def main(argv=None):
 
     tab = Table(title=f"Ball centres, {args.photos} photos x 8 balls per condition, 2560x1920, r 20-32 px")
     for col in ("condition", "detected", "flags", "ellipse mean px", "ellipse max px", "Hough mean px",
-                "Hough max px", "markers found", "marker type ok", "marker err px", "detect ms",
+                "Hough max px", "toward light px", "+ shading mean px", "+ shading toward light px", "markers found", "marker type ok", "marker err px", "detect ms",
                 "refine ms", "markers ms"):
         tab.add_column(col, justify="right")
     decode = []
     for name, light, spacing in CONDITIONS:
         n_true = n_det = n_mk = n_mk_found = n_type = 0
         e_ell, e_h, e_mk, t_det, t_ref, t_mk, flags = [], [], [], [], [], [], []
+        b_h, e_s, b_s = [], [], []  # signed error toward the light; the shading correction's error and bias
+        toward = np.asarray(light[:2], float)
+        toward = toward / np.linalg.norm(toward) if np.linalg.norm(toward) > 1e-9 else None
         for p in range(args.photos):
             seed = 1000 * args.seed + p
             balls = flight_balls(seed, n=8, size=SIZE, r_range=(20, 32), spacing=spacing)
@@ -100,6 +106,11 @@ def main(argv=None):
             ref = refine_centers(img, det.centers[m[ok]], balls[ok, 2])
             t_ref.append(time.perf_counter() - t)
             e_h.append(np.linalg.norm(ref.centers - balls[ok, :2], axis=1))
+            shaded = refine_centers(img, det.centers[m[ok]], balls[ok, 2], shading=True)
+            e_s.append(np.linalg.norm(shaded.centers - balls[ok, :2], axis=1))
+            if toward is not None:
+                b_h.append((ref.centers - balls[ok, :2]) @ toward)
+                b_s.append((shaded.centers - balls[ok, :2]) @ toward)
             t = time.perf_counter()
             mm = detect_ball_markers(img, ref.centers, balls[ok, 2])
             t_mk.append(time.perf_counter() - t)
@@ -118,11 +129,14 @@ def main(argv=None):
                     n_mk_found += 1
                     n_type += mm.types[cand[np.argmin(d)]] == tr["type"]
                     e_mk.append(d.min())
-        e_ell, e_h = np.concatenate(e_ell), np.concatenate(e_h)
+        e_ell, e_h, e_s = np.concatenate(e_ell), np.concatenate(e_h), np.concatenate(e_s)
+        bias_h = f"{np.concatenate(b_h).mean():+.3f}" if b_h else "-"
+        bias_s = f"{np.concatenate(b_s).mean():+.3f}" if b_s else "-"
         bits = np.bitwise_or.reduce(np.array(flags, int)) if flags else 0
         names = [f for f, b in (("MERGED", 2), ("SPLIT", 4), ("PARTIAL", 8)) if bits & b]
         tab.add_row(name, f"{n_det}/{n_true}", ",".join(names) or "-", f"{e_ell.mean():.2f}", f"{e_ell.max():.2f}",
-                    f"{e_h.mean():.3f}", f"{e_h.max():.3f}", f"{n_mk_found}/{n_mk}", f"{n_type}/{n_mk_found}",
+                    f"{e_h.mean():.3f}", f"{e_h.max():.3f}", bias_h, f"{e_s.mean():.3f}", bias_s,
+                    f"{n_mk_found}/{n_mk}", f"{n_type}/{n_mk_found}",
                     f"{np.mean(e_mk):.2f}" if e_mk else "-", f"{1e3 * np.mean(t_det):.0f}",
                     f"{1e3 * np.mean(t_ref):.0f}", f"{1e3 * np.mean(t_mk):.0f}")
         con.print(f"[dim]{name} done[/dim]")
