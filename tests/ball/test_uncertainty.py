@@ -259,3 +259,27 @@ def test_lit_bias_modes_shift_along_the_lit_direction():
         assert "(2, K, 2)" in str(e)
     else:
         raise AssertionError("shape mismatch accepted")
+
+
+def test_bad_inputs_of_the_uncertainty_parts_are_named():
+    """Each uncertainty helper refuses bad input with a message that names it."""
+    import pytest
+
+    from stillcap.ball.uncertainty import shading_model_offset_px
+    from stillcap.pipelines.pitch import lit_geometry
+
+    with pytest.raises(ValueError, match="radius_px must be > 2"):
+        shading_model_offset_px(0.5, 1.5)
+    with pytest.raises(ValueError, match="psf_px must be >= 0"):
+        shading_model_offset_px(0.5, 20.0, psf_px=-0.1)
+    model = FlightModel(kind="seed")
+    times, truth = _capture(model)
+    fit = fit_reference_trajectory(times, truth, P0, V0, None, model=model, position_sigma=0.0005)
+    with pytest.raises(ValueError, match=r"modes must have shape \(n_modes, %d, 3\)" % len(times)):
+        fit.position_covariance_term(np.zeros((2, len(times) - 1, 3)))
+    from dataclasses import replace
+
+    with pytest.raises(ValueError, match="no position_gain"):
+        replace(fit, position_gain=None).position_covariance_term(np.zeros((1, len(times), 3)))
+    with pytest.raises(ValueError, match=r"centers_px must have shape \(2, K, 2\)"):
+        lit_geometry(None, np.zeros((3, 4, 2)), np.zeros(4, int), np.ones((2, 4)))

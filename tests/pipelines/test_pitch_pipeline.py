@@ -181,6 +181,15 @@ def test_not_a_pitch_capture_and_bad_options(fastball, tmp_path):
         PitchOptions(workers=0)
 
 
+def test_bad_uncertainty_options():
+    with pytest.raises(ValueError, match="sigma_method must be one of linear, monte_carlo"):
+        PitchOptions(sigma_method="bootstrap")
+    with pytest.raises(ValueError, match="calibration_focal_sigma must be >= 0"):
+        PitchOptions(calibration_focal_sigma=-1e-4)
+    with pytest.raises(ValueError, match="calibration_focal_sigma must be >= 0"):
+        PitchOptions(calibration_focal_sigma=float("nan"))
+
+
 def test_threads_do_not_change_the_result(fastball, result):
     """The per-pair work on a thread pool (default 2 workers) gives the serial run's numbers."""
     truth = json.loads((fastball / "truth.json").read_text())

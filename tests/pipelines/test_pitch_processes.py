@@ -81,3 +81,8 @@ def test_bad_process_options(fastball):
         analyse_pitch(cap, processes=2)
     pitch_workers.shutdown_worker_pools()  # stopped and restarted on demand
     assert analyse_pitch(fastball, n_samples=0, processes=1).spin_available
+
+
+def test_worker_pools_needs_a_worker():
+    with pytest.raises(ValueError, match="need at least 1 worker process, got 0"):
+        pitch_workers.worker_pools(0)

@@ -331,3 +331,25 @@ def test_pipeline_runs_blas_on_one_thread_and_restores_the_callers_setting(monke
         assert blas_threads() == [2]
     assert np.isfinite(res.markers.points).all(axis=1).sum() >= 14
     assert inside == [[1]]
+
+
+def test_capture_markerset_reads_the_entry_and_names_bad_ones():
+    from types import SimpleNamespace
+
+    from stillcap.pipelines.puppet import capture_markerset
+
+    def cap(**meta):
+        return SimpleNamespace(meta=meta)
+
+    assert len(capture_markerset("c", cap())) == 16  # no entry: the thesis's 16 beads
+    assert capture_markerset("c", cap(markerset="puppet-20")).names == MarkerSet.builtin("puppet-20").names
+    ms = MarkerSet.puppet("puppet-20")
+    assert capture_markerset("c", cap(markerset=ms.to_dict("mm"))).to_dict() == ms.to_dict()
+    with pytest.raises(ValueError, match=r"capture c: unknown marker set 'puppet-99' \(built-in: puppet-16"):
+        capture_markerset("c", cap(markerset="puppet-99"))
+    with pytest.raises(ValueError, match="capture c: unknown marker set 'markers.json'"):
+        capture_markerset("c", cap(markerset="markers.json"))  # a capture names no marker-set file
+    with pytest.raises(ValueError, match="capture c: 'markerset' must be a built-in name or a marker set, got 20"):
+        capture_markerset("c", cap(markerset=20))
+    with pytest.raises(ValueError, match="capture c: not a marker-set file"):
+        capture_markerset("c", cap(markerset={"format": "other"}))

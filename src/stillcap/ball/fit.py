@@ -166,7 +166,7 @@ class ReferenceFit:
         Linear response of the parameters to the measured positions, ``d theta / d positions``
         (0 where not observed): a position error ``dP`` with covariance ``C`` (e.g. the
         calibration error shared by a pair's positions) adds ``G C G^T`` (see
-        :meth:`with_position_covariance`).
+        :meth:`position_covariance_term`).
     prior_gain : ndarray, shape (9 + G - 1, 9 + G - 1) or None
         Linear response of the parameters to the measured initial parameters (the priors'
         centres ``(p0, v0, spin in spin_basis)``), ``d theta / d theta_meas`` (0 in the columns

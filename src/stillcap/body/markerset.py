@@ -316,8 +316,7 @@ class MarkerSet:
         """
         if name not in PUPPET_MARKERSETS:
             raise ValueError(f"unknown puppet marker set {name!r}; built-in: {', '.join(PUPPET_MARKERSETS)}")
-        data, source = read_package_json(PUPPET_MARKERSETS[name])
-        return cls.from_dict(data, source=source)
+        return cls.builtin(name)
 
     @classmethod
     def builtin(cls, name: str) -> "MarkerSet":

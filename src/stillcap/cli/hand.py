@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from stillcap.cli._format import num as _f
+from stillcap.cli._format import num as _f, print_notes, right_table
 
 console = Console()
 
@@ -92,16 +92,13 @@ def hand(
 
 def print_hand_result(res) -> None:
     """Tables of the flashes, the poses and the release (and the truth comparison if any)."""
-    err = Console(stderr=True)
-    for m in res.messages:
-        err.print(f"[yellow]note:[/] {m}", highlight=False, soft_wrap=True)
+    print_notes(res.messages)
     lab = res.labels
     pts = res.points
     console.print(f"{len(pts)} glove markers in 3D from pairs {', '.join(res.pairs)} "
                   f"({int(np.sum(pts.n_views > 2))} seen by both pairs); strobe {res.strobe_hz:g} Hz")
-    t = Table(title=f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)")
-    for c in ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"):
-        t.add_column(c, justify="right")
+    t = right_table(f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)",
+                    ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"))
     held = res.ball_held()
     for k in range(lab.n_flashes):
         o = int(lab.order[k])

@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from stillcap.cli._format import num as _f
+from stillcap.cli._format import num as _f, print_notes, right_table
 
 console = Console()
 
@@ -80,12 +80,9 @@ def pitch(
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         return
-    err = Console(stderr=True)
-    for m in res.messages:
-        err.print(f"[yellow]note:[/] {m}", highlight=False, soft_wrap=True)
-    t = Table(title=f"{len(res.times)} ball positions from {len(res.pairs)} stereo pair(s) ({res.frame} frame)")
-    for c in ("pair", "strobe Hz", "images", "clock offset s", "position sigma mm", "markers 3D / 1 cam"):
-        t.add_column(c, justify="right")
+    print_notes(res.messages)
+    t = right_table(f"{len(res.times)} ball positions from {len(res.pairs)} stereo pair(s) ({res.frame} frame)",
+                    ("pair", "strobe Hz", "images", "clock offset s", "position sigma mm", "markers 3D / 1 cam"))
     for p in res.pairs:
         offset = f"{p.time_offset_s:.5f} ± {p.time_offset_sigma_s * 1e3:.3f} ms"
         t.add_row(p.name, _f(p.strobe_hz, 0), str(len(p)), offset, _f(p.position_sigma_m * 1e3, 2),

@@ -181,9 +181,9 @@ def run(
         markerset = Project.load(folder).markerset
     elif palette is not None and (folder / "capture.json").is_file():
         # the capture's own marker set (puppet-20, a file's...), read as run_folder reads it
-        from stillcap.pipelines.puppet import _capture_inputs
+        from stillcap.pipelines.puppet import capture_markerset
 
-        markerset = _capture_inputs(folder)[-1]
+        markerset = capture_markerset(folder)
     pal = load_palette(palette, markerset)
     with _progress("detecting beads") as prog:
         task = prog.add_task("views", total=None)

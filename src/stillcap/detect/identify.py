@@ -406,12 +406,9 @@ def identify_colors(colors_rgb, palette: Palette, centers=None, method: str = "a
     -------
     Identification
     """
-    col = as_array(colors_rgb, (None, 3), "colors_rgb")
-    n = len(col)
-    pts = np.full((n, 2), np.nan) if centers is None else as_array(centers, (n, 2), "centers")
-    rad = np.full(n, np.nan) if radii is None else as_array(radii, (n,), "radii")
-    return _identify_views([col], palette, [pts], [rad], method, metric, max_distance, lightness_weight, adapt,
-                           sampler)[0]
+    return identify_colors_views([colors_rgb], palette, [centers], method=method, metric=metric,
+                                 max_distance=max_distance, lightness_weight=lightness_weight, adapt=adapt,
+                                 sampler=sampler, radii=[radii])[0]
 
 
 def identify_colors_views(colors_rgb, palette: Palette, centers=None, method: str = "assignment",
@@ -570,13 +567,9 @@ def identify_markers(image, centers, palette: Palette, radii=None, method: str =
     >>> ident = identify_markers(img, find_circles(img, method="thesis"), pal, **THESIS)  # doctest: +SKIP
     >>> ident = identify_markers(img, find_circles(img), pal)  # doctest: +SKIP
     """
-    if hasattr(centers, "centers") and hasattr(centers, "radii"):
-        radii = centers.radii if radii is None else radii
-        centers = centers.centers
-    sampler = ("patch" if method == "greedy" else "disc") if sampler is None else sampler
-    colors = sample_colors(image, centers, radii, sampler=sampler, radius=radius)
-    return identify_colors(colors, palette, centers, method=method, metric=metric, max_distance=max_distance,
-                           lightness_weight=lightness_weight, adapt=adapt, sampler=sampler, radii=radii)
+    return identify_markers_views([image], [centers], palette, [radii], method=method, metric=metric,
+                                  sampler=sampler, max_distance=max_distance, lightness_weight=lightness_weight,
+                                  adapt=adapt, radius=radius)[0]
 
 
 def identify_markers_views(images, centers, palette: Palette, radii=None, method: str = "assignment",

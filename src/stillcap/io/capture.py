@@ -287,11 +287,12 @@ class Capture:
         if not isinstance(d.get("images"), list):
             raise ValueError(f"{cfile}: \"images\" must be a list")
         images = [CaptureImage.from_dict(e, f"{cfile}: image #{i}: ") for i, e in enumerate(d["images"])]
+        real_root = root.resolve()
         for im in images:
             if im.camera not in rig.names:
                 raise ValueError(f"{cfile}: image {im.file!r}: camera {im.camera!r} is not in the rig "
                                  f"{rig_file.name} (cameras: {rig.names})")
-            p = resolve_inside(root, im.file, f"{cfile}: image", "capture folder")
+            p = resolve_inside(root, im.file, f"{cfile}: image", "capture folder", real_root=real_root)
             if not p.is_file():
                 raise ValueError(f"{cfile}: image file {p} does not exist")
             if not cv2.haveImageReader(str(p)):

@@ -47,10 +47,14 @@ def safe_relpath(path, what: str, folder: str = "project folder") -> str:
     return str(p)
 
 
-def resolve_inside(root, path, what: str, folder: str = "project folder") -> Path:
-    """``root / path`` after checking that ``path`` is safe and, symlinks resolved, stays in ``root``."""
+def resolve_inside(root, path, what: str, folder: str = "project folder", *, real_root: Path | None = None) -> Path:
+    """``root / path`` after checking that ``path`` is safe and, symlinks resolved, stays in ``root``.
+
+    ``real_root`` is ``Path(root).resolve()`` when the caller already has it (one resolve per folder
+    rather than per file).
+    """
     rel = safe_relpath(path, what, folder)
     full = Path(root) / rel
-    if not full.resolve().is_relative_to(Path(root).resolve()):
+    if not full.resolve().is_relative_to(Path(root).resolve() if real_root is None else real_root):
         raise ValueError(f"{_prefix(what)}path {path!r} leads outside the {folder} (symlink)")
     return full

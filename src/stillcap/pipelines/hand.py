@@ -50,7 +50,7 @@ from stillcap.detect.colour_markers import ColourBlobs, find_colour_markers
 from stillcap.geometry.marker_points import MarkerPoints, triangulate_colour_markers
 from stillcap.io.capture import Capture, from_jsonable, to_jsonable
 from stillcap.pipelines.hand_ball import HandBalls, HandBallSpin, hand_ball_positions, hand_ball_spin
-from stillcap.pipelines.pitch import stereo_pairs
+from stillcap.pipelines.pitch import _progress, stereo_pairs
 
 __all__ = ["HandOptions", "HandResult", "analyse_hand", "compare_with_truth", "truth_arrays"]
 
@@ -199,11 +199,6 @@ def _spin_dict(s: HandBallSpin) -> dict:
             "candidates_rpm": list(s.candidates_rpm), "ambiguous": s.ambiguous, "message": s.message}
 
 
-def _progress(cb, done, total, label):
-    if cb is not None:
-        cb(done, total, label)
-
-
 def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = None, *,
                  progress: Callable[[int, int, str], None] | None = None, **kwargs) -> HandResult:
     """Analyse one hand capture (SPEC J2): markers, labels, poses, animation, ball release.
@@ -338,7 +333,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     release = spin = None
     if balls is not None and len(balls) and sequence is not None:
         hold_times = sequence.times
-        r2w = np.stack([p.root2world for p in sequence.poses])
+        r2w = sequence.root2world
         balls = _on_hand_clock(balls, hold_times, r2w, strobe_hz, messages)
         release = estimate_release(balls.times, balls.positions, hold_times, r2w, strobe_hz=strobe_hz,
                                    position_sigma_m=balls.sigma_m)

@@ -810,14 +810,23 @@ def centre_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
     out = np.zeros((4 * len(profiles), K, 3))
     if not sigma_px > 0 or K == 0:
         return out
-    X0 = triangulate(list(cams), x).points
-    for q, prof in enumerate(profiles):
+    shifted = []
+    for prof in profiles:
         for c in range(2):
             for j in range(2):
                 xs = x.copy()
                 xs[c, :, j] += sigma_px * prof
-                out[4 * q + 2 * c + j] = triangulate(list(cams), xs).points - X0
-    return out
+                shifted.append(xs)
+    return _retriangulated_shifts(cams, x, shifted)
+
+
+def _retriangulated_shifts(cams, x, shifted) -> np.ndarray:
+    """Position shifts (m), shape (len(shifted), K, 3), of a pair's centres ``x`` (2, K, 2)
+    re-triangulated as each of the ``shifted`` copies: one triangulation of the centres and all
+    copies (a call per copy cost ~8x more)."""
+    K = x.shape[1]
+    P = triangulate(list(cams), np.concatenate([x, *shifted], axis=1)).points.reshape(1 + len(shifted), K, 3)
+    return P[1:] - P[0]
 
 
 def lit_geometry(stereo, centers_px, flags, radius_px):
@@ -901,7 +910,7 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
         return out
     profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
     e = np.eye(2)
-    modes, shifted = [], [x]
+    modes, shifted = [], []
     for c in range(2):
         shifts = [np.where(corr[:, None], u[c], 0.0) * (s[c] * prof)[:, None] for prof in profiles]
         shifts += [np.where(corr[:, None], 0.0, e[j]) * (s[c] * prof)[:, None] for prof in profiles for j in range(2)]
@@ -911,9 +920,8 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
                 xs[c] += dx
                 modes.append(6 * c + m)
                 shifted.append(xs)
-    # one triangulation of the centres and all their shifted copies (12 calls cost 8x more)
-    P = triangulate(list(cams), np.concatenate(shifted, axis=1)).points.reshape(len(shifted), K, 3)
-    out[modes] = P[1:] - P[0]
+    if shifted:
+        out[modes] = _retriangulated_shifts(cams, x, shifted)
     return out
 
 
@@ -1511,8 +1519,7 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
-        p._sigma_px = _pixel_sigma(p.reproj_error_px)
-        d = centre_bias_modes(p._cams, p.centers_px, p._sigma_px)  # (4, K, 3)
+        d = centre_bias_modes(p._cams, p.centers_px, _pixel_sigma(p.reproj_error_px))  # (4, K, 3)
         pos_cov[pidx_a == i] = np.einsum("mki,mkj->kij", d, d)
     fit_kw = dict(model=model, t0=0.0, method=options.fit_method, position_sigma=options.position_sigma_m,
                   time_groups=groups_a if g else None, time_offsets=np.array(off0) if g else None,
@@ -1528,14 +1535,12 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
             continue
         m = calibration_modes(p._cams, p.centers_px, calib, p.name, options.calibration_focal_sigma)
         sb = options.centre_bias_px
-        del p._sigma_px
         if sb is None and p.stereo is not None:
             # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
             mb = _remaining_bias_modes(p)
         else:
             if sb is None:
-                e = p.reproj_error_px[np.isfinite(p.reproj_error_px)]
-                sb = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
+                sb = _pixel_sigma(p.reproj_error_px, default_px=0.0)
             mb = centre_bias_modes(p._cams, p.centers_px, sb, trend=True)
         m = mb if m is None else np.concatenate([m, mb])
         if not np.any(m):

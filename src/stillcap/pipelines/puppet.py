@@ -59,6 +59,7 @@ __all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSetting
            "PoseFit", "PuppetComparison", "PuppetResult", "LoadedResult", "detect_view", "bead_fill",
            "solve_markers", "fit_pose", "frame_status", "compare_with_truth", "reconstruct_puppet",
            "run_capture", "run_project", "reconstruct_project", "run_folder", "load_result", "RESULT_FORMAT",
+           "capture_markerset",
            "bright_region", "reidentify", "triangulate_markers", "with_settings"]
 
 RESULT_FORMAT = "stillcap-puppet-result"
@@ -1053,13 +1054,29 @@ def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = N
     return result
 
 
-def _capture_inputs(folder: Path):
-    """A puppet capture's pieces: ``(capture, rig, view names, angles, files, truth, markerset)``.
+def capture_markerset(folder, cap=None) -> MarkerSet:
+    """The marker set a puppet capture shows: its ``markerset`` entry (the whole marker set, as
+    ``stillcap studio puppet`` writes it, or a built-in name); captures without one show the
+    thesis's 16 beads. ``cap``: the capture already loaded from ``folder``."""
+    if cap is None:
+        from stillcap.io.capture import Capture
 
-    The marker set is the capture's ``markerset`` entry (the whole marker set, as ``stillcap
-    studio puppet`` writes it, or a built-in name); captures without one show the thesis's 16
-    beads.
-    """
+        cap = Capture.load(folder)
+    entry = (cap.meta or {}).get("markerset", "puppet-16")
+    if not isinstance(entry, (str, dict)):
+        raise ValueError(f"capture {folder}: 'markerset' must be a built-in name or a marker set, got {entry!r}")
+    try:
+        markerset = MarkerSet.resolve(entry) if isinstance(entry, dict) or entry in BUILTIN_MARKERSETS else None
+    except ValueError as e:
+        raise ValueError(f"capture {folder}: {e}") from None
+    if markerset is None:
+        raise ValueError(f"capture {folder}: unknown marker set {entry!r} (built-in: {', '.join(BUILTIN_MARKERSETS)})")
+    return markerset
+
+
+def _capture_inputs(folder: Path):
+    """A puppet capture's pieces: ``(capture, rig, view names, angles, files, truth, markerset)``
+    (the marker set: :func:`capture_markerset`)."""
     from stillcap.io.capture import Capture
     from stillcap.studio.puppet import PuppetTruth
 
@@ -1077,15 +1094,7 @@ def _capture_inputs(folder: Path):
         angles.append(None if a is None else float(a))
         files.append(im.file)
     rig = Rig(cams, cap.rig.world)
-    entry = (cap.meta or {}).get("markerset", "puppet-16")
-    if not isinstance(entry, (str, dict)):
-        raise ValueError(f"capture {folder}: 'markerset' must be a built-in name or a marker set, got {entry!r}")
-    try:
-        markerset = MarkerSet.resolve(entry) if isinstance(entry, dict) or entry in BUILTIN_MARKERSETS else None
-    except ValueError as e:
-        raise ValueError(f"capture {folder}: {e}") from None
-    if markerset is None:
-        raise ValueError(f"capture {folder}: unknown marker set {entry!r} (built-in: {', '.join(BUILTIN_MARKERSETS)})")
+    markerset = capture_markerset(folder, cap)
     truth = None
     if cap.truth and cap.truth.get("kind") == "puppet":
         truth = PuppetTruth.from_dict(cap.truth)
