@@ -353,3 +353,12 @@ def test_capture_markerset_reads_the_entry_and_names_bad_ones():
         capture_markerset("c", cap(markerset=20))
     with pytest.raises(ValueError, match="capture c: not a marker-set file"):
         capture_markerset("c", cap(markerset={"format": "other"}))
+
+
+def test_every_entry_point_searches_one_candidate_per_bead():
+    from stillcap.pipelines.puppet import _settings_for
+
+    twenty = MarkerSet.puppet("puppet-20")
+    assert _settings_for(DEFAULT, twenty).n_circles == 20
+    assert _settings_for(DEFAULT, MarkerSet.puppet()) is DEFAULT  # 16 beads: the thesis's 16 circles
+    assert _settings_for(PuppetSettings(n_circles=30), twenty).n_circles == 30  # never fewer than asked

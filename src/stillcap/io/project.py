@@ -739,10 +739,11 @@ class Project:
 
     # --- files ----------------------------------------------------------------------------
     def _markerset_entry(self):
+        d = self.markerset.to_dict()
         for name, make in BUILTIN_MARKERSETS.items():
-            if self.markerset.to_dict() == make().to_dict():
+            if d == make().to_dict():
                 return name
-        return self.markerset.to_dict()
+        return d
 
     def to_dict(self) -> dict:
         """The JSON content of ``project.json``."""

@@ -44,8 +44,7 @@ import numpy as np
 from stillcap._blas import one_blas_thread
 from stillcap.body.kinematics import normalised
 from stillcap.body.markerset import BUILTIN_MARKERSETS, MarkerSet, MarkerTrajectories
-from stillcap.body.puppet_pose import (PoseFit, _euler_matrices, _rotations_about, _start_angles,  # noqa: F401
-                                       fit_pose, frame_status)
+from stillcap.body.puppet_pose import PoseFit, fit_pose, frame_status
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import (DETECTORS, IDENTIFIERS, PreparedView, ViewResult, bead_fill,  # noqa: F401
@@ -176,9 +175,6 @@ def detect_view(image, palette: Palette, settings: PuppetSettings = DEFAULT, reg
 def _prepare(image, settings: PuppetSettings = DEFAULT) -> PreparedView:
     """:func:`~stillcap.detect.beads.prepare_view` with the settings' detector, radii, roi and coarse."""
     return prepare_view(image, settings.detector, settings.radius_range, settings.roi, settings.coarse)
-
-
-_expected_radius_px = expected_radius_px  # the name before the stages moved out
 
 
 @functools.lru_cache(maxsize=1)
@@ -971,6 +967,7 @@ def reconstruct_puppet(rig: Rig, images=None, *, markerset: MarkerSet | None = N
         (:func:`detect_view`; :func:`run_capture` detects while it decodes); skips detection.
     """
     markerset = markerset or MarkerSet.puppet()
+    settings = _settings_for(settings, markerset)
     skeleton = skeleton or _puppet_skeleton()
     markerset.check_skeleton(skeleton)
     if palette is None:
@@ -1074,6 +1071,15 @@ def capture_markerset(folder, cap=None) -> MarkerSet:
     return markerset
 
 
+def _settings_for(settings: PuppetSettings, markerset: MarkerSet) -> PuppetSettings:
+    """``settings`` with at least one candidate circle per bead of ``markerset``: the thesis's
+    "N best circles" has N = its 16 beads, and puppet-20 with 16 candidates lost its four dimmest
+    beads in 10-20 % of the photos."""
+    if settings.n_circles < len(markerset):
+        return replace(settings, n_circles=len(markerset))
+    return settings
+
+
 def _capture_inputs(folder: Path):
     """A puppet capture's pieces: ``(capture, rig, view names, angles, files, truth, markerset)``
     (the marker set: :func:`capture_markerset`)."""
@@ -1131,10 +1137,7 @@ def run_capture(folder, settings: PuppetSettings = DEFAULT, palette: Palette | N
     folder = Path(folder)
     t0 = time.perf_counter()
     cap, rig, names, angles, files, truth, markerset = _capture_inputs(folder)
-    if settings.n_circles < len(markerset):
-        # the thesis's "N best circles" with N its 16 beads: a larger marker set needs N of its own
-        # (puppet-20 with 16 candidates lost its four dimmest beads in 10-20 % of the photos)
-        settings = replace(settings, n_circles=len(markerset))
+    settings = _settings_for(settings, markerset)
     detections = None
     if workers <= 1 or len(cap.images) <= 1:
         images = [cap.read_image(im) for im in cap.images]
@@ -1222,6 +1225,7 @@ def run_project(project, settings: PuppetSettings = DEFAULT, palette: Palette | 
     if not project.views:
         raise ValueError(f"project {project.root} has no views yet (add photos with stillcap puppet add)")
     pal = palette or Palette.from_markerset(project.markerset)
+    settings = _settings_for(settings, project.markerset)
     t0 = time.perf_counter()
     images = [project.read_image(v) for v in project.views]
     t_read = time.perf_counter() - t0
