@@ -101,3 +101,12 @@ def test_pitch_session_of_several_captures(fastball, tmp_path, capsys):
     assert "2 pitches (0 failed)" in out and "second" in out
     code, _, err = run(["pitch", str(fastball), str(second), "--csv", str(tmp_path / "x.csv")], capsys)
     assert code == 2 and "--csv takes one capture" in err
+
+
+def test_pitch_session_report_needs_distinct_names(fastball, tmp_path, capsys):
+    """--report with several captures writes one sub-folder each: two folders of one name exit 2, named."""
+    twin = tmp_path / "a" / fastball.name
+    shutil.copytree(fastball, twin)
+    code, _, err = run(["pitch", str(fastball), str(twin), "--report", str(tmp_path / "rep")], capsys)
+    assert code == 2 and "distinct folder names" in err
+    assert not (tmp_path / "rep").exists()

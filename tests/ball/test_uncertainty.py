@@ -275,7 +275,7 @@ def test_bad_inputs_of_the_uncertainty_parts_are_named():
     model = FlightModel(kind="seed")
     times, truth = _capture(model)
     fit = fit_reference_trajectory(times, truth, P0, V0, None, model=model, position_sigma=0.0005)
-    with pytest.raises(ValueError, match=r"modes must have shape \(n_modes, %d, 3\)" % len(times)):
+    with pytest.raises(ValueError, match=rf"modes must have shape \(n_modes, {len(times)}, 3\)"):
         fit.position_covariance_term(np.zeros((2, len(times) - 1, 3)))
     from dataclasses import replace
 

@@ -42,11 +42,7 @@ def _offset_cached(phase_deg: int, radius_q: int, blur_q: int) -> float:
     for sub in ((0.0, 0.0), (0.5, 0.25), (0.25, 0.5), (0.75, 0.75)):
         c = np.array([n / 2 + sub[0], n / 2 + sub[1]])
         img = cv2.GaussianBlur(B._lit_sphere_image((n, n), c, np.eye(2) * r, light), (0, 0), blur)
-        g = B._gradient(img)
-        bx, by, _, _ = B._grid_peak(g, float(c[0]), float(c[1]), tpl, 0.0, step, kf, moves=6)
-        bx, by, fs, (fi, fj) = B._grid_peak(g, bx, by, tpl, 0.0, step, kf, moves=3)
-        _, ddx = B._quad_peak(fs, fi, fj)
-        res.append(bx + ddx * step - c[0])
+        res.append(B._model_peak(img, c, tpl, 0.0, step, kf)[0] - c[0])
     return float(np.mean(res))
 
 

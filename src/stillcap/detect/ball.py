@@ -935,12 +935,19 @@ def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, pow
     # and the Hough's search around the centre from the limb, a pixel cannot change the result
     band = 4.0 * blur + 4.0
     model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=band, q=q), (0, 0), blur)
-    gm = _gradient(model)
     kf = max(2, int(round(0.3 / fine_step)))
-    bx, by, _, _ = _grid_peak(gm, float(centre[0]), float(centre[1]), tpl, power, fine_step, kf, moves=6)
-    bx, by, fs, (fi, fj) = _grid_peak(gm, bx, by, tpl, power, fine_step, kf, moves=3)
+    return np.array(_model_peak(model, centre, tpl, power, fine_step, kf)) - centre
+
+
+def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:
+    """Sub-pixel Hough centre (x, y) of a rendered model ball near ``start``: the ``step`` grid
+    (``(2k+1)^2``) followed up to 6 moves, again up to 3, then a parabola (the model's offset in
+    :func:`_shading_bias` and :mod:`stillcap.ball.uncertainty`)."""
+    g = _gradient(model)
+    bx, by, _, _ = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=6)
+    bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
     ddy, ddx = _quad_peak(fs, fi, fj)
-    return np.array([bx + ddx * fine_step, by + ddy * fine_step]) - centre
+    return bx + ddx * step, by + ddy * step
 
 
 def refine_centers(image, centers, radius_px, search_px=None, outlines=None, background=None,

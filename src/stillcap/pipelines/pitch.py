@@ -465,7 +465,7 @@ def _alias_dict(alias) -> dict | None:
              for c in alias.candidates[:6]]
     return {"best_rpm": alias.best.spin_rpm, "ambiguous": bool(alias.ambiguous),
             "likelihood_ratio": alias.likelihood_ratio, "evidence": list(alias.evidence),
-            "consistent": bool(getattr(alias, "consistent", True)), "dof": int(getattr(alias, "dof", 0)),
+            "consistent": bool(alias.consistent), "dof": int(alias.dof),
             "best_chi2": float(alias.best.chi2),
             "message": alias.message, "candidates": cands}
 
@@ -1158,7 +1158,7 @@ def _metrics_of_states(fit: ReferenceFit, th, spins, model, t_rel, release_y_m, 
         dm = pm.to_dict()
         for k in keys:
             v = dm.get(k)
-            vals[k][m] = float(v) if isinstance(v, (int, float)) and v is not None else np.nan
+            vals[k][m] = float(v) if isinstance(v, (int, float)) else np.nan
         for k in nine_keys:
             v = (dm.get("nine_parameter") or {}).get(k)
             nine_vals[k][m] = np.nan if v is None else float(v)
