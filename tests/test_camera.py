@@ -224,3 +224,5 @@ def test_project_does_not_fold_far_points_back_into_the_image():
     r2 = 0.05
     assert cam.project(near)[0] == pytest.approx([320 + 800 * 0.2 * (1 - 0.3 * r2), 240 + 800 * 0.1 * (1 - 0.3 * r2)])
     assert Camera("p", K, np.zeros(5), np.eye(4), (640, 480)).max_distortion_r2 == np.inf
+    cam.dist[0] = -0.15  # changed in place (as bundle adjustment does): the limit follows
+    assert cam.max_distortion_r2 == pytest.approx(1 / 0.45)

@@ -165,12 +165,19 @@ class Camera:
 
         The derivative of ``r * (1 + k1 r^2 + k2 r^4 + k3 r^6)`` is the cubic
         ``1 + 3 k1 s + 5 k2 s^2 + 7 k3 s^3`` in ``s = r^2``; its smallest positive root is the limit.
+        Kept for the coefficients it was found for (``dist`` may be changed in place).
         """
         k1, k2, _, _, k3 = self.dist
+        key = (float(k1), float(k2), float(k3))
+        cached = self.__dict__.get("_max_r2")
+        if cached is not None and cached[0] == key:
+            return cached[1]
         roots = np.roots([7 * k3, 5 * k2, 3 * k1, 1.0]) if (k1 or k2 or k3) else np.array([])
         real = roots[np.abs(roots.imag) < 1e-12].real
         real = real[real > 0]
-        return float(real.min()) if len(real) else np.inf
+        r2 = float(real.min()) if len(real) else np.inf
+        self.__dict__["_max_r2"] = (key, r2)
+        return r2
 
     def distort_normalized(self, xn) -> np.ndarray:
         """Apply the lens distortion to normalised image coordinates ``(N, 2)``."""

@@ -194,6 +194,22 @@ def test_animation_bad_input(tmp_path, studio):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_animation_more_bad_input(tmp_path, studio):
+    a, bt, bp = studio["anim"], studio["ball_t"], studio["ball_p"]
+    with pytest.raises(ValueError, match="ball_times must be strictly increasing"):
+        write_hand_animation(tmp_path / "x.gif", a, ball_times=bt[::-1], ball_positions=bp)
+    with pytest.raises(ValueError, match="ball_times must be finite"):
+        write_hand_animation(tmp_path / "x.gif", a, ball_times=np.where(bt == bt[3], np.nan, bt), ball_positions=bp)
+    colours = ["red"] * 17 + ["no-such-colour"]
+    with pytest.raises(ValueError, match="marker_colours: 'no-such-colour' is not a colour name or RGB triple"):
+        write_hand_animation(tmp_path / "x.gif", a, markers=studio["markers"], marker_colours=colours)
+    with pytest.raises(ValueError, match=r"size must be at least 64 x 64 pixels, got \(32, 240\)"):
+        write_hand_animation(tmp_path / "x.gif", a, size=(32, 240))
+    with pytest.raises(ValueError, match=r"size must be \(width, height\) in pixels"):
+        write_hand_animation(tmp_path / "x.gif", a, size=320)
+    assert list(tmp_path.iterdir()) == []
+
+
 # -- joint angles ---------------------------------------------------------------------------
 def test_joint_angle_png_has_the_size_asked(tmp_path, studio):
     tr, a = studio["truth"], studio["anim"]

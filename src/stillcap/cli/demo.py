@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from stillcap.cli._format import num as _f
 from stillcap.io.atomic import write_text
 
 console = Console()
@@ -69,29 +70,25 @@ def demo(
         console.print(t)
 
 
-def _g(v, fmt: str) -> str:
-    return "-" if v is None or v != v else format(v, fmt)
-
-
 def pitch_summary(res) -> list:
     c = (res.truth or {}).get("table1", {})
-    return [("pitch", "ball position error, mean", f"{_g(c.get('mean_err_mm'), '.2f')} mm", "<= 2 mm"),
-            ("pitch", "release speed error", f"{_g(abs(c.get('speed_diff_mph') or float('nan')), '.3f')} mph", "<= 0.1 mph"),
-            ("pitch", "velocity direction error", f"{_g(c.get('velocity_angle_deg'), '.3f')} deg", "<= 0.2 deg"),
-            ("pitch", "spin rate error", f"{_g(abs(c.get('spin_rate_diff_rpm') or float('nan')), '.2f')} rpm", "<= 3 rpm"),
-            ("pitch", "spin axis error", f"{_g(c.get('spin_axis_angle_deg'), '.2f')} deg", "<= 0.5 deg")]
+    return [("pitch", "ball position error, mean", f"{_f(c.get('mean_err_mm'), 2)} mm", "<= 2 mm"),
+            ("pitch", "release speed error", f"{_f(abs(c.get('speed_diff_mph') or float('nan')), 3)} mph", "<= 0.1 mph"),
+            ("pitch", "velocity direction error", f"{_f(c.get('velocity_angle_deg'), 3)} deg", "<= 0.2 deg"),
+            ("pitch", "spin rate error", f"{_f(abs(c.get('spin_rate_diff_rpm') or float('nan')), 2)} rpm", "<= 3 rpm"),
+            ("pitch", "spin axis error", f"{_f(c.get('spin_axis_angle_deg'), 2)} deg", "<= 0.5 deg")]
 
 
 def hand_summary(res) -> list:
     c = res.truth or {}
-    rows = [("hand", "labels right", f"{_g(c.get('labels_right_pct'), '.1f')} %", ">= 99.5 %"),
-            ("hand", "marker 3D error, RMS", f"{_g(c.get('marker_rms_mm'), '.2f')} mm", "<= 1 mm"),
+    rows = [("hand", "labels right", f"{_f(c.get('labels_right_pct'), 1)} %", ">= 99.5 %"),
+            ("hand", "marker 3D error, RMS", f"{_f(c.get('marker_rms_mm'), 2)} mm", "<= 1 mm"),
             ("hand", "joint angle error, RMS (joints the seen markers fix)",
-             f"{_g(c.get('joint_angle_rms_deg'), '.2f')} deg", "<= 2 deg"),
+             f"{_f(c.get('joint_angle_rms_deg'), 2)} deg", "<= 2 deg"),
             ("hand", "flashes with a pose (of those whose back of the hand 2+ cameras see)",
              f"{c.get('flashes_reconstructed', '-')} of {c.get('flashes_back_seen_2plus', '-')}", "all")]
     if "release_speed_mph" in c:
-        rows.append(("hand", "release speed error", f"{_g(abs(c['release_speed_mph']), '.2f')} mph", "-"))
+        rows.append(("hand", "release speed error", f"{_f(abs(c['release_speed_mph']), 2)} mph", "-"))
     return rows
 
 
@@ -106,8 +103,8 @@ def puppet_summary(res) -> list:
     return [("puppet", "beads identified wrong", f"{c.wrong} of {c.identified}", "0"),
             ("puppet", "markers seen twice, recovered", f"{c.recovered_seen_twice} of {c.seen_twice}", "all"),
             ("puppet", "marker 3D error, RMS", f"{np.sqrt(np.mean(e ** 2)):.3f} mm" if len(e) else "-", "<= 0.3 mm"),
-            ("puppet", "bone direction error, RMS (bones the beads fix)", f"{_g(full, '.2f')} deg", "<= 0.5 deg"),
-            ("puppet", "bone direction error, RMS (forearms, shins: one bead)", f"{_g(partial, '.2f')} deg",
+            ("puppet", "bone direction error, RMS (bones the beads fix)", f"{_f(full, 2)} deg", "<= 0.5 deg"),
+            ("puppet", "bone direction error, RMS (forearms, shins: one bead)", f"{_f(partial, 2)} deg",
              "<= 0.5 deg")]
 
 

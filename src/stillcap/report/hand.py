@@ -39,6 +39,7 @@ from scipy.interpolate import interp1d  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from stillcap._checks import as_array  # noqa: E402
+from stillcap.ball.layout import BASEBALL_RADIUS as _BALL_RADIUS  # noqa: E402
 from stillcap.body.hand import DIGITS, HAND_COLOURS, hand_dofs, hand_markerset  # noqa: E402
 from stillcap.body.markerset import MarkerTrajectories  # noqa: E402
 from stillcap.body.skeleton import Animation, Skeleton  # noqa: E402
@@ -61,7 +62,6 @@ VIEWS = {
 _AXIS_NAMES = ("twist", "flexion", "abduction")  # intrinsic XYZ Euler axes of the hand's limits
 _DIGIT_COLOURS = {"thumb": "tab:purple", "index": "tab:blue", "middle": "tab:green", "ring": "tab:orange",
                   "little": "tab:brown"}
-_BALL_RADIUS = 0.0737 / 2  # m, stillcap.ball.layout.BASEBALL_RADIUS (not imported: keeps report light)
 
 Progress = Callable[[int, int, str], None]
 
@@ -527,8 +527,8 @@ def plot_joint_angles(path, times, angles_deg, skeleton: Skeleton, *, keyframe_t
     def ms(x):
         return (np.asarray(x) - t0) * 1e3
 
-    panels: list[tuple[str, list[tuple[str, np.ndarray, np.ndarray | None, np.ndarray | None]]]] = []
-    # (panel title, [(label, estimate (n,), truth (m,) or None, values at keyframes or None)])
+    panels: list[tuple[str, list[tuple[str, np.ndarray | None, np.ndarray | None]]]] = []
+    # (panel title, [(label, estimate (n,) or None, truth (m,) or None)])
     wrist = []
     if r2w is not None or tr2w is not None:
         est = _orientation_deg(r2w) if r2w is not None else None
@@ -600,15 +600,15 @@ def _labels_text(labels) -> tuple[str, str]:
 
 
 def _release_rows(release: Mapping, truth_release: Mapping | None) -> list[list[str]]:
+    def show(x):
+        if x is None:
+            return ""
+        if isinstance(x, (list, tuple, np.ndarray)):
+            return "(" + ", ".join(_fmt(float(e), 4) for e in np.ravel(x)) + ")"
+        return _fmt(x, 4) if not isinstance(x, str) else x
+
     rows = []
     for k, v in release.items():
-        def show(x):
-            if x is None:
-                return ""
-            if isinstance(x, (list, tuple, np.ndarray)):
-                return "(" + ", ".join(_fmt(float(e), 4) for e in np.ravel(x)) + ")"
-            return _fmt(x, 4) if not isinstance(x, str) else x
-
         unit = metric_unit(k)
         if unit == "" and k.endswith("_m"):
             unit = "m"
@@ -791,7 +791,7 @@ def write_result_report(result, folder, *, animation_format: str = ".gif", progr
     lab, seq, rel = result.labels, result.sequence, result.release
     fits = {int(k): i for i, k in enumerate(seq.flashes)} if seq is not None else {}
     held = result.ball_held()
-    flashes = []
+    flashes, ks = [], []  # ks: the flash index of each entry
     for k in range(lab.n_flashes):
         names = [n for n, p in zip(lab.marker_names, lab.point_index[k]) if p >= 0]
         f = {"time_s": float(lab.times[k]), "labels": names, "n_markers": len(names),
@@ -802,8 +802,11 @@ def write_result_report(result, folder, *, animation_format: str = ".gif", progr
             f["angles_deg"] = seq.angles_deg[fits[k]]
             f["root2world"] = seq.poses[fits[k]].root2world
         flashes.append(f)
+        ks.append(k)
     # the angle table needs every flash: reconstructed ones only
-    flashes = [f for f in flashes if "angles_deg" in f] or flashes
+    if any("angles_deg" in f for f in flashes):
+        ks = [k for k, f in zip(ks, flashes) if "angles_deg" in f]
+        flashes = [f for f in flashes if "angles_deg" in f]
     release = None
     t_rel = None
     if rel is not None and rel.success:
@@ -821,8 +824,7 @@ def write_result_report(result, folder, *, animation_format: str = ".gif", progr
         tr = truth_arrays(td)
         match = tc["flash_match"]
         fa = np.full((len(flashes),) + tr["angles_deg"].shape[1:], np.nan)
-        for i, f in enumerate(flashes):
-            k = int(np.argmin(np.abs(lab.times - f["time_s"])))
+        for i, k in enumerate(ks):
             if match[k] >= 0:
                 fa[i] = tr["angles_deg"][match[k]]
         truth = {"times_s": tr["times"] - tc["clock_offset_s"], "angles_deg": tr["angles_deg"],
