@@ -34,6 +34,17 @@ def as_points(x, dim: int, name: str) -> tuple[np.ndarray, bool]:
     raise ValueError(f"{name} must have shape ({dim},) or (N, {dim}), got {a.shape}")
 
 
+def as_positive(v, name: str) -> float:
+    """``v`` as a finite float > 0, or a ``ValueError`` naming ``name`` and what came."""
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {v!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be finite and > 0, got {v}")
+    return v
+
+
 def as_rng(rng) -> np.random.Generator:
     """An ``np.random.Generator`` from a Generator, an int seed or None."""
     return rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)

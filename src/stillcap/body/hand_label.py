@@ -46,7 +46,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from stillcap._checks import as_array, as_rng
+from stillcap._checks import as_array, as_positive, as_rng
 from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLOURS, fit_hand, hand_markerset,
                                 hand_skeleton, marker_colours)
 from stillcap.body.kinematics import rigid_alignment
@@ -574,7 +574,7 @@ def read_label_overrides(path) -> list[LabelOverride]:
     entries = data.get("overrides")
     if not isinstance(entries, list):
         raise ValueError(f"{where}: needs an 'overrides' list")
-    tol = _positive(data.get("tolerance_mm", 3.0), f"{where}: tolerance_mm") / 1000
+    tol = as_positive(data.get("tolerance_mm", 3.0), f"{where}: tolerance_mm") / 1000
     out = []
     for k, e in enumerate(entries):
         name = f"override {k} in {path}"
@@ -595,19 +595,9 @@ def read_label_overrides(path) -> list[LabelOverride]:
             raise ValueError(f"{name} needs either a 'label' or \"delete\": true")
         if label is not None and not isinstance(label, str):
             raise ValueError(f"{name}: label must be a marker name, got {label!r}")
-        t = _positive(e["tolerance_mm"], f"{name}: tolerance_mm") / 1000 if "tolerance_mm" in e else tol
+        t = as_positive(e["tolerance_mm"], f"{name}: tolerance_mm") / 1000 if "tolerance_mm" in e else tol
         out.append(LabelOverride(e["flash"], pos, label, delete, t, name))
     return out
-
-
-def _positive(v, what) -> float:
-    try:
-        v = float(v)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a number, got {v!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"{what} must be finite and > 0, got {v}")
-    return v
 
 
 def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:

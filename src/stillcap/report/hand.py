@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import colorsys
 import html
-import math
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -38,7 +37,7 @@ from matplotlib.colors import to_rgb  # noqa: E402
 from scipy.interpolate import interp1d  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from stillcap._checks import as_array  # noqa: E402
+from stillcap._checks import as_array, as_positive  # noqa: E402
 from stillcap.ball.layout import BASEBALL_RADIUS as _BALL_RADIUS  # noqa: E402
 from stillcap.body.hand import DIGITS, HAND_COLOURS, hand_dofs, hand_markerset  # noqa: E402
 from stillcap.body.markerset import MarkerTrajectories  # noqa: E402
@@ -102,13 +101,6 @@ def dof_labels(skeleton: Skeleton) -> list[tuple[int, int, str]]:
     return out
 
 
-def _positive(v, name: str) -> float:
-    v = float(v)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {v}")
-    return v
-
-
 def _size(size, name: str = "size") -> tuple[int, int]:
     try:
         w, h = (int(s) for s in size)
@@ -134,7 +126,7 @@ def animation_frame_times(times, fps: float = 25.0, slowdown: float = 40.0) -> n
     ``times`` (a 1000 fps animation at 25 fps and 40x: one video frame per animation frame).
     """
     t = _times(times, "times")
-    dt = 1.0 / (_positive(fps, "fps") * _positive(slowdown, "slowdown"))
+    dt = 1.0 / (as_positive(fps, "fps") * as_positive(slowdown, "slowdown"))
     n = int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1
     return t[0] + dt * np.arange(n)
 
@@ -295,10 +287,10 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
     if not isinstance(animation, Animation):
         raise ValueError(f"animation must be an Animation, got {type(animation).__name__}")
     w, h = _size(size)
-    dpi = int(_positive(dpi, "dpi"))
-    fps = _positive(fps, "fps")
+    dpi = int(as_positive(dpi, "dpi"))
+    fps = as_positive(fps, "fps")
     elev, azim = _view(view)
-    ball_radius = _positive(ball_radius, "ball_radius")
+    ball_radius = as_positive(ball_radius, "ball_radius")
     if (ball_times is None) != (ball_positions is None):
         raise ValueError("ball_times and ball_positions go together: give both or neither")
     t_vid = animation_frame_times(animation.times, fps, slowdown)
@@ -507,7 +499,7 @@ def plot_joint_angles(path, times, angles_deg, skeleton: Skeleton, *, keyframe_t
     if path.suffix.lower() != ".png":
         raise ValueError(f"plot_joint_angles writes PNG, got {path.name!r}")
     w, h = _size(size)
-    dpi = int(_positive(dpi, "dpi"))
+    dpi = int(as_positive(dpi, "dpi"))
     nj = skeleton.n_joints
     t = _times(times, "times")
     ang = as_array(angles_deg, (len(t), nj, 3), "angles_deg")
