@@ -80,3 +80,17 @@ def test_slow_motion_stretches_exported_time(capture, tmp_path, capsys):
         return float(line.split(":")[1])
 
     assert frame_time(tmp_path / "slow.bvh") == pytest.approx(40 * frame_time(tmp_path / "real.bvh"))
+
+
+def test_motion_export_without_animation_exits_2_and_writes_nothing(capture, tmp_path, capsys, monkeypatch):
+    """A capture that gave fewer than two hand poses has no animation: a motion format cannot be
+    written (a marker file still could), and the error names the file."""
+    from dataclasses import replace
+
+    import stillcap.pipelines.hand as hand_pipeline
+
+    real = hand_pipeline.analyse_hand
+    monkeypatch.setattr(hand_pipeline, "analyse_hand", lambda *a, **k: replace(real(*a, **k), animation=None))
+    code, out, err = run(["hand", capture, "--export", tmp_path / "one.bvh"], capsys)
+    assert code == 2 and "one.bvh" in err and "fewer than two hand poses" in err
+    assert not (tmp_path / "one.bvh").exists()
