@@ -239,18 +239,19 @@ def _robust_level(channel: np.ndarray) -> tuple[float, float]:
     """Median and MAD-based sigma of one channel, from a strided subsample (fast on 5 Mpx).
 
     A subsample of ~1/16 of the pixels gives the median of a dark-room photo to well under one
-    grey level; for ``uint8`` both statistics come from a histogram (``np.bincount``), which is
-    ~10x faster than ``np.median``.
+    grey level; for ``uint8`` both statistics come from a histogram (``cv2.calcHist``: ~10x
+    faster than ``np.median``, and ~4x faster than ``np.bincount``, which widens every value to
+    an integer index first; its float32 counts are exact below 2^24 pixels).
     """
     step = max(1, int(np.sqrt(channel.size / 2.5e5)))
     s = channel[::step, ::step]
     if s.dtype == np.uint8:
-        h = np.bincount(s.ravel(), minlength=256).astype(np.float64)
+        h = cv2.calcHist([s.ravel()], [0], None, [256], [0, 256]).ravel().astype(np.float64)
         c = np.cumsum(h)
         med = int(np.searchsorted(c, 0.5 * c[-1]))
-        d = np.arange(256)
-        hd = np.zeros(256)
-        np.add.at(hd, np.abs(d - med), h)
+        # histogram of the absolute deviations |v - med|: each grey level's count moved to its
+        # deviation (levels med - d and med + d share one bin)
+        hd = np.bincount(np.abs(np.arange(256) - med), weights=h, minlength=256)
         mad = float(np.searchsorted(np.cumsum(hd), 0.5 * c[-1]))
         # a MAD of 0 grey levels (quantised, nearly noiseless) still means ~0.5 level of noise
         return float(med), 1.4826 * max(mad, 0.5)
@@ -692,8 +693,11 @@ def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: 
 # --------------------------------------------------------------------------------------------
 def _template(offsets: np.ndarray):
     """Inward unit normals and arc-length weights of a closed outline (M, 2) around 0."""
-    nxt, prv = np.roll(offsets, -1, axis=0), np.roll(offsets, 1, axis=0)
-    tang = nxt - prv
+    # next minus previous point, cyclically (np.roll twice, without its generic overhead)
+    tang = np.empty_like(offsets)
+    tang[1:-1] = offsets[2:] - offsets[:-2]
+    tang[0] = offsets[1] - offsets[-1]
+    tang[-1] = offsets[0] - offsets[-2]
     length = np.linalg.norm(tang, axis=1)
     n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-12)[:, None]
     # inward: towards the centre (the outline surrounds the origin)
