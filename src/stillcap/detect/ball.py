@@ -718,8 +718,10 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     my = (oy[:, None] + py[None, :]).astype(np.float32, copy=False)
     sx = cv2.remap(g[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    gn = sx * nx[None, :] + sy * ny[None, :]
-    gn = np.maximum(gn, 0.0)
+    # gn = max(0, sx nx + sy ny), in place (the remapped arrays are ours): fewer temporaries
+    gn = np.multiply(sx, nx, out=sx if not power else None)
+    gn += sy * ny
+    gn = np.maximum(gn, 0.0, out=gn)
     if power:
         mag2 = sx * sx + sy * sy + 1e-12
         gn = gn * (gn * gn / mag2) ** (0.5 * power)
