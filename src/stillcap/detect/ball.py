@@ -762,6 +762,16 @@ def _grid_peak(g, x, y, tpl, power, step, k, moves):
     return x, y, sc, (i, j)
 
 
+@functools.lru_cache(maxsize=64)
+def _resample_params(n_old: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters of a closed outline's ``n_old`` points (and its first point repeated) and of
+    ``m`` points resampled uniformly along them, for ``np.interp``; cached (read-only)."""
+    t_old = np.linspace(0, 1, n_old + 1)
+    t_new = np.linspace(0, 1, m, endpoint=False)
+    t_old.flags.writeable = t_new.flags.writeable = False
+    return t_old, t_new
+
+
 def _percentile(a: np.ndarray, q: float) -> float:
     """``np.percentile(a, q)`` (linear method), by ``np.partition``: the same number (numpy's
     interpolation formula) at a tenth of the cost on the few hundred values of an outline."""
@@ -1045,6 +1055,11 @@ def refine_centers(image, centers, radius_px, search_px=None, outlines=None, bac
         if outl.ndim != 3 or outl.shape[0] != n or outl.shape[2] != 2 or outl.shape[1] < 8:
             raise ValueError(f"outlines must have shape ({n}, M, 2) with M >= 8, got {outl.shape}")
         radii = np.linalg.norm(outl, axis=2).mean(axis=1)
+        # every outline's length at once (the per-ball resampling below needs it)
+        closed_all = np.concatenate([outl, outl[:, :1]], axis=1)
+        finite = np.all(np.isfinite(outl), axis=(1, 2))
+        with np.errstate(invalid="ignore"):
+            lengths = np.sum(np.linalg.norm(np.diff(closed_all, axis=1), axis=2), axis=1)
     else:
         r = np.asarray(radius_px, float)
         radii = np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else as_array(r, (n,), "radius_px")
@@ -1075,16 +1090,15 @@ def refine_centers(image, centers, radius_px, search_px=None, outlines=None, bac
             off = r * np.stack([np.cos(th), np.sin(th)], axis=1)
         else:
             off = outl[i]
-            if not np.all(np.isfinite(off)):
+            if not finite[i]:
                 flags[i] = BallFlag.REFINE_FAILED
                 scores[i] = np.nan
                 continue
             # resample to ~1 point per pixel of outline
-            m = max(24, int(np.ceil(np.sum(np.linalg.norm(np.diff(np.vstack([off, off[:1]]), axis=0), axis=1)))))
+            m = max(24, int(np.ceil(lengths[i])))
             if m != len(off):
-                t_old = np.linspace(0, 1, len(off) + 1)
-                t_new = np.linspace(0, 1, m, endpoint=False)
-                closed = np.vstack([off, off[:1]])
+                t_old, t_new = _resample_params(len(off), m)
+                closed = closed_all[i]
                 off = np.stack([np.interp(t_new, t_old, closed[:, 0]), np.interp(t_new, t_old, closed[:, 1])], 1)
         nrm, wt = _template(off)
         wt = (wt / wt.sum()).astype(np.float32)
