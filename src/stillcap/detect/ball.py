@@ -720,7 +720,7 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     # gn = max(0, sx nx + sy ny), in place (the remapped arrays are ours): fewer temporaries
     gn = np.multiply(sx, nx, out=sx if not power else None)
-    gn += sy * ny
+    gn += np.multiply(sy, ny, out=sy if not power else None)
     gn = np.maximum(gn, 0.0, out=gn)
     if power:
         mag2 = sx * sx + sy * sy + 1e-12
@@ -753,7 +753,7 @@ def _grid_peak(g, x, y, tpl, power, step, k, moves):
     for m in range(moves + 1):
         sc, _ = _score(g, x + DX, y + DY, *tpl, power)
         sc = sc.reshape(len(d), len(d))
-        i, j = np.unravel_index(int(np.argmax(sc)), sc.shape)
+        i, j = divmod(int(np.argmax(sc)), len(d))  # np.unravel_index on a square grid
         x, y = x + float(d[j]), y + float(d[i])
         if 0 < i < 2 * k and 0 < j < 2 * k:
             break
@@ -803,10 +803,19 @@ def _quad_peak(f: np.ndarray, i: int, j: int) -> tuple[float, float]:
     """Sub-pixel offset (dy, dx) of the maximum of a grid from separable parabolas at (i, j)."""
     def para(a, b, c):
         den = a - 2 * b + c
-        return 0.0 if den >= 0 else float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+        # clipped to +-0.5 (np.clip's overhead is large on one number)
+        return 0.0 if den >= 0 else float(min(max(0.5 * (a - c) / den, -0.5), 0.5))
     dy = para(f[i - 1, j], f[i, j], f[i + 1, j]) if 0 < i < f.shape[0] - 1 else 0.0
     dx = para(f[i, j - 1], f[i, j], f[i, j + 1]) if 0 < j < f.shape[1] - 1 else 0.0
     return dy, dx
+
+
+@functools.lru_cache(maxsize=8)
+def _gamma_lut(gamma: float) -> np.ndarray:
+    """8-bit value -> linear radiance ``(v / 255) ** gamma``, float32 (256,); cached (read-only)."""
+    lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
+    lut.flags.writeable = False
+    return lut
 
 
 def _linear(a: np.ndarray, gamma: float) -> np.ndarray:
@@ -814,8 +823,7 @@ def _linear(a: np.ndarray, gamma: float) -> np.ndarray:
     if gamma == 1.0:
         return a.astype(np.float32) / 255.0
     if a.dtype == np.uint8:
-        lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
-        return lut[a]
+        return _gamma_lut(gamma)[a]
     return (np.clip(a.astype(np.float32), 0, 255) / 255.0) ** gamma
 
 
@@ -833,8 +841,7 @@ def _linear_max(a: np.ndarray, gamma: float) -> np.ndarray:
         else:
             return _linear(a, gamma).max(axis=2)
     if a.dtype == np.uint8 and gamma != 1.0:
-        lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
-        return cv2.LUT(a, lut)
+        return cv2.LUT(a, _gamma_lut(gamma))
     return _linear(a, gamma)
 
 
@@ -1135,8 +1142,8 @@ def refine_centers(image, centers, radius_px, search_px=None, outlines=None, bac
         if sigma > 0:
             crop = cv2.GaussianBlur(crop, (0, 0), sigma)
         g2 = _gradient(crop)
-        tpl = (off[:, 0].astype(np.float32), off[:, 1].astype(np.float32),
-               nrm[:, 0].astype(np.float32), nrm[:, 1].astype(np.float32), wt)
+        off32, nrm32 = off.T.astype(np.float32), nrm.T.astype(np.float32)  # contiguous rows
+        tpl = (off32[0], off32[1], nrm32[0], nrm32[1], wt)
         cx, cy = c0[i, 0] - xa, c0[i, 1] - ya
         # Coarse to fine: a 2 px grid over the search window on a more smoothed gradient with
         # every 2nd outline point (its peak is wide enough not to fall between grid points),
