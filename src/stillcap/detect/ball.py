@@ -500,7 +500,13 @@ def _foreground_contours(img: np.ndarray, background, threshold, k_sigma: float,
     H, W = src.shape[:2]
     if min(H, W) < 16 * scale:
         return _clean_contours(_threshold(src, hi), open_px, min_area)
-    small = cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    if H % scale == 0 and scale & (scale - 1) == 0:
+        # the same pixels, ~2x faster: every scale-th row is a view (its rows' stride), so
+        # cv2.resize only samples the columns (nearest pixel of a power-of-2 factor that divides
+        # the height: exactly every scale-th row, as the full resize picks)
+        small = cv2.resize(src[::scale], (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    else:
+        small = cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
     cand, _ = cv2.findContours(_threshold(small, hi), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     boxes = []
     for c in cand:
