@@ -720,8 +720,11 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     an edge votes only for centres that lie along its gradient, so the terminator of a half
     moon (whose gradient runs across the ball) does not pull the centre.
     """
-    mx = (ox[:, None] + px[None, :]).astype(np.float32, copy=False)
-    my = (oy[:, None] + py[None, :]).astype(np.float32, copy=False)
+    # (ox + px) in the inputs' precision (float64 candidates from refine_centers), rounded to the
+    # float32 maps cv2.remap takes, without a float64 temporary
+    T, M = len(ox), len(px)
+    mx = np.add(ox[:, None], px[None, :], out=np.empty((T, M), np.float32))
+    my = np.add(oy[:, None], py[None, :], out=np.empty((T, M), np.float32))
     sx = cv2.remap(g[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     # gn = max(0, sx nx + sy ny), in place (the remapped arrays are ours): fewer temporaries
