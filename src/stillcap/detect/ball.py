@@ -883,8 +883,9 @@ def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px:
     Ai = np.linalg.inv(A)
     lx, ly, lz = light
 
-    def rad_of(qx, qy):
-        r2 = qx * qx + qy * qy
+    def rad_of(qx, qy, r2=None):
+        if r2 is None:
+            r2 = qx * qx + qy * qy
         qz = np.sqrt(np.maximum(1.0 - r2, 0.0))  # np.clip(., 0, None), without its overhead
         return np.where(r2 < 1.0, np.maximum(qx * lx + qy * ly + qz * lz, 0.0), 0.0)
 
@@ -904,14 +905,14 @@ def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px:
     # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
     r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
     r_out = 1.0 + 1.5 / sv[-1]
-    out = rad_of(q[0], q[1])
-    yb, xb = np.nonzero((r2 > r_in * r_in) & (r2 < r_out * r_out))
-    if len(yb):
+    out = rad_of(q[0], q[1], r2)
+    band = (r2 > r_in * r_in) & (r2 < r_out * r_out)
+    qxb, qyb = q[0][band], q[1][band]
+    if len(qxb):
         # the samples of pixel (y, x): its centre's coordinates plus A^-1 (o_j, o_i)
         dqx = Ai[0, 0] * o[None, :] + Ai[0, 1] * o[:, None]  # (ss_y, ss_x)
         dqy = Ai[1, 0] * o[None, :] + Ai[1, 1] * o[:, None]
-        qxb, qyb = q[0][yb, xb], q[1][yb, xb]
-        out[yb, xb] = rad_of(qxb[:, None, None] + dqx[None], qyb[:, None, None] + dqy[None]).mean(axis=(1, 2))
+        out[band] = rad_of(qxb[:, None, None] + dqx[None], qyb[:, None, None] + dqy[None]).mean(axis=(1, 2))
     return out.astype(np.float32)
 
 
