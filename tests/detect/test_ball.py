@@ -518,6 +518,20 @@ def test_robust_level_is_the_subsample_histogram_median_and_mad():
         assert _robust_level(bgr[:, :, 0]) == _robust_level(ch)
 
 
+@pytest.mark.parametrize("size", [(1024, 1280), (1024, 1282), (1500, 1500), (300, 400)])
+def test_robust_levels_of_a_photo_are_those_of_its_channels(size):
+    """All channels' levels at once (a resized subsample where the step, a power of 2, divides
+    the size; else channel by channel) are each channel's own."""
+    from stillcap.detect.ball import _robust_level, _robust_levels
+
+    rng = np.random.default_rng(4)
+    img = rng.integers(0, 30, (*size, 3)).astype(np.uint8)
+    img[::7, ::5, 1] = 200  # a different pattern on every 2nd/4th row and column would show
+    img[1::2, 1::2, 2] = 90
+    assert _robust_levels(img) == [_robust_level(img[:, :, k]) for k in range(3)]
+    assert _robust_levels(img[:, :, 0]) == [_robust_level(img[:, :, 0])]
+
+
 def test_median_is_numpys():
     from stillcap.detect.ball import _median
 

@@ -246,18 +246,42 @@ def _robust_level(channel: np.ndarray) -> tuple[float, float]:
     step = max(1, int(np.sqrt(channel.size / 2.5e5)))
     s = channel[::step, ::step]
     if s.dtype == np.uint8:
-        h = cv2.calcHist([s.ravel()], [0], None, [256], [0, 256]).ravel().astype(np.float64)
-        c = np.cumsum(h)
-        med = int(np.searchsorted(c, 0.5 * c[-1]))
-        # histogram of the absolute deviations |v - med|: each grey level's count moved to its
-        # deviation (levels med - d and med + d share one bin)
-        hd = np.bincount(np.abs(np.arange(256) - med), weights=h, minlength=256)
-        mad = float(np.searchsorted(np.cumsum(hd), 0.5 * c[-1]))
-        # a MAD of 0 grey levels (quantised, nearly noiseless) still means ~0.5 level of noise
-        return float(med), 1.4826 * max(mad, 0.5)
+        return _level_of_histogram(cv2.calcHist([s.ravel()], [0], None, [256], [0, 256]))
     s = s.astype(np.float32).ravel()
     med = float(np.median(s))
     return med, 1.4826 * float(np.median(np.abs(s - med)))
+
+
+def _level_of_histogram(hist: np.ndarray) -> tuple[float, float]:
+    """Median and MAD-based sigma of 8-bit values from their histogram (256 counts)."""
+    h = np.ravel(hist).astype(np.float64)
+    c = np.cumsum(h)
+    med = int(np.searchsorted(c, 0.5 * c[-1]))
+    # histogram of the absolute deviations |v - med|: each grey level's count moved to its
+    # deviation (levels med - d and med + d share one bin)
+    hd = np.bincount(np.abs(np.arange(256) - med), weights=h, minlength=256)
+    mad = float(np.searchsorted(np.cumsum(hd), 0.5 * c[-1]))
+    # a MAD of 0 grey levels (quantised, nearly noiseless) still means ~0.5 level of noise
+    return float(med), 1.4826 * max(mad, 0.5)
+
+
+def _robust_levels(src: np.ndarray) -> list:
+    """:func:`_robust_level` of every channel of ``src`` (H, W) or (H, W, 3), as a list.
+
+    For a BGR ``uint8`` photo whose size the subsampling step (a power of 2) divides, the
+    subsample of all three channels is taken at once and contiguous (every step-th row is a
+    view; ``cv2.resize``, nearest pixel, picks every step-th column), and each channel's
+    histogram comes from it directly: the same numbers, without copying each strided channel.
+    """
+    if src.ndim == 2:
+        return [_robust_level(src)]
+    H, W = src.shape[:2]
+    step = max(1, int(np.sqrt(H * W / 2.5e5)))
+    if (src.dtype == np.uint8 and src.strides[1:] == (3, 1) and step > 1 and step & (step - 1) == 0
+            and H % step == 0 and W % step == 0):
+        sub = cv2.resize(src[::step], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
+        return [_level_of_histogram(cv2.calcHist([sub], [k], None, [256], [0, 256])) for k in range(3)]
+    return [_robust_level(src[:, :, k]) for k in range(src.shape[2])]
 
 
 def _raw_mask(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float) -> np.ndarray:
@@ -276,21 +300,19 @@ def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_con
             diff = cv2.absdiff(img, bg)
         else:
             diff = np.abs(img.astype(np.float32) - bg.astype(np.float32))
-        chans = [diff] if diff.ndim == 2 else [diff[:, :, k] for k in range(3)]
         # |difference of two noisy photos| is half-normal: its median is 0.674 sigma
-        sig = [max(_robust_level(c)[0] / 0.674, 0.5) for c in chans]
-        base = [0.0] * len(chans)
+        sig = [max(m / 0.674, 0.5) for m, _ in _robust_levels(diff)]
+        base = [0.0] * len(sig)
         src = diff
     else:
         src = img
-        chans = [img] if img.ndim == 2 else [img[:, :, k] for k in range(3)]
-        stats = [_robust_level(c) for c in chans]
+        stats = _robust_levels(img)
         base = [m for m, _ in stats]
         sig = [s for _, s in stats]
     if threshold is None:
         thr = [max(k_sigma * s, float(min_contrast)) for s in sig]
     else:
-        thr = [float(threshold)] * len(chans)
+        thr = [float(threshold)] * len(base)
     hi = [b + t for b, t in zip(base, thr)]
     return src, hi
 
