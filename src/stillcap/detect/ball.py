@@ -726,8 +726,11 @@ def _template(offsets: np.ndarray):
     tang[1:-1] = offsets[2:] - offsets[:-2]
     tang[0] = offsets[1] - offsets[-1]
     tang[-1] = offsets[0] - offsets[-2]
-    length = np.linalg.norm(tang, axis=1)
-    n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-12)[:, None]
+    tx, ty = tang[:, 0], tang[:, 1]
+    length = np.sqrt(tx * tx + ty * ty)  # np.linalg.norm(tang, axis=1), without its overhead
+    n = np.empty_like(tang)
+    n[:, 0], n[:, 1] = ty, -tx
+    n /= np.maximum(length, 1e-12)[:, None]
     # inward: towards the centre (the outline surrounds the origin)
     if np.sum(n * offsets) > 0:
         n = -n
