@@ -661,6 +661,16 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
 # --------------------------------------------------------------------------------------------
 # step 3: projected outline of a sphere
 # --------------------------------------------------------------------------------------------
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two (N, 3) arrays: its formula, in its order of operations (the same
+    numbers), without its generic overhead (this runs 4 times per stereo pair)."""
+    out = np.empty(a.shape)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: int = 64):
     """Exact image outline of spheres in a (distorted) camera.
 
@@ -701,9 +711,9 @@ def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: 
         Q = C + (radius_m ** 2 / np.where(ok, d, np.nan))[:, None] * w
         rho = radius_m * np.sqrt(np.clip(1.0 - (radius_m / np.where(ok, d, np.nan)) ** 2, 0, None))
     ref = np.where(np.abs(w[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    e1 = np.cross(w, ref)
+    e1 = _cross(w, ref)
     e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-    e2 = np.cross(w, e1)
+    e2 = _cross(w, e1)
     th = np.linspace(0.0, 2 * np.pi, n_points, endpoint=False)
     pts = (Q[:, None, :] + rho[:, None, None] * (np.cos(th)[None, :, None] * e1[:, None, :]
                                                  + np.sin(th)[None, :, None] * e2[:, None, :]))
