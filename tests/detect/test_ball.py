@@ -483,6 +483,65 @@ def test_silhouettes_thresholded_around_candidates_are_the_full_frame_ones(open_
             assert any(cv2.boundingRect(c)[0] == 150 for c in roi)
 
 
+@pytest.mark.parametrize("size", [(300, 600), (301, 600), (302, 599), (297, 601)])
+def test_half_resolution_search_image_on_even_and_odd_sizes(size):
+    """The half-resolution search image samples every 2nd row as a view where the height is
+    even, else resizes the whole photo: the silhouettes are the whole-frame ones either way,
+    also for balls cut by the bottom and right edges."""
+    from stillcap.detect.ball import _clean_contours, _foreground_contours, _raw_mask
+
+    H, W = size
+    balls = np.array([[60.0, 50.0, 22.0], [300.0, 150.0, 25.0], [W - 5.0, 120.0, 20.0], [450.0, H - 4.0, 21.0]])
+    img, _ = draw_balls(size, balls, rng=5)
+    full = _clean_contours(_raw_mask(img, None, None, 6.0, 20.0), 1, 25.0)
+    roi = _foreground_contours(img, None, None, 6.0, 20.0, 1, 25.0)
+    assert len(full) == 4
+    assert _contour_set(roi) == _contour_set(full)
+
+
+def test_robust_level_is_the_subsample_histogram_median_and_mad():
+    """Median and MAD of a uint8 channel from its strided subsample's histogram (cv2.calcHist)
+    are the lower middle values of the sorted subsample and of its absolute deviations."""
+    from stillcap.detect.ball import _robust_level
+
+    rng = np.random.default_rng(1)
+    for shape, lo, hi in (((1000, 1300), 0, 12), ((480, 640), 3, 40), ((7, 9), 0, 256), ((2000, 2000), 100, 104)):
+        ch = rng.integers(lo, hi, shape).astype(np.uint8)
+        step = max(1, int(np.sqrt(ch.size / 2.5e5)))
+        s = np.sort(ch[::step, ::step].ravel().astype(int))
+        k = int(np.ceil(0.5 * len(s))) - 1  # the first value whose cumulative count reaches half
+        med = s[k]
+        mad = np.sort(np.abs(s - med))[k]
+        assert _robust_level(ch) == (float(med), 1.4826 * max(float(mad), 0.5))
+        # a view of a BGR photo's channel (strided), as the detection passes it
+        bgr = np.stack([ch, ch // 2, ch], axis=2)
+        assert _robust_level(bgr[:, :, 0]) == _robust_level(ch)
+
+
+@pytest.mark.parametrize("size", [(1024, 1280), (1024, 1282), (1500, 1500), (300, 400)])
+def test_robust_levels_of_a_photo_are_those_of_its_channels(size):
+    """All channels' levels at once (a resized subsample where the step, a power of 2, divides
+    the size; else channel by channel) are each channel's own."""
+    from stillcap.detect.ball import _robust_level, _robust_levels
+
+    rng = np.random.default_rng(4)
+    img = rng.integers(0, 30, (*size, 3)).astype(np.uint8)
+    img[::7, ::5, 1] = 200  # a different pattern on every 2nd/4th row and column would show
+    img[1::2, 1::2, 2] = 90
+    assert _robust_levels(img) == [_robust_level(img[:, :, k]) for k in range(3)]
+    assert _robust_levels(img[:, :, 0]) == [_robust_level(img[:, :, 0])]
+
+
+def test_median_is_numpys():
+    from stillcap.detect.ball import _median
+
+    rng = np.random.default_rng(2)
+    for n in (1, 2, 3, 4, 11, 500, 1001):
+        for dtype in (np.float32, np.float64):
+            a = rng.random(n).astype(dtype)
+            assert _median(a) == float(np.median(a))
+
+
 def test_percentile_is_numpys():
     from stillcap.detect.ball import _percentile
 

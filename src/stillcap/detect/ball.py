@@ -239,24 +239,49 @@ def _robust_level(channel: np.ndarray) -> tuple[float, float]:
     """Median and MAD-based sigma of one channel, from a strided subsample (fast on 5 Mpx).
 
     A subsample of ~1/16 of the pixels gives the median of a dark-room photo to well under one
-    grey level; for ``uint8`` both statistics come from a histogram (``np.bincount``), which is
-    ~10x faster than ``np.median``.
+    grey level; for ``uint8`` both statistics come from a histogram (``cv2.calcHist``: ~10x
+    faster than ``np.median``, and ~4x faster than ``np.bincount``, which widens every value to
+    an integer index first; its float32 counts are exact below 2^24 pixels).
     """
     step = max(1, int(np.sqrt(channel.size / 2.5e5)))
     s = channel[::step, ::step]
     if s.dtype == np.uint8:
-        h = np.bincount(s.ravel(), minlength=256).astype(np.float64)
-        c = np.cumsum(h)
-        med = int(np.searchsorted(c, 0.5 * c[-1]))
-        d = np.arange(256)
-        hd = np.zeros(256)
-        np.add.at(hd, np.abs(d - med), h)
-        mad = float(np.searchsorted(np.cumsum(hd), 0.5 * c[-1]))
-        # a MAD of 0 grey levels (quantised, nearly noiseless) still means ~0.5 level of noise
-        return float(med), 1.4826 * max(mad, 0.5)
+        return _level_of_histogram(cv2.calcHist([s.ravel()], [0], None, [256], [0, 256]))
     s = s.astype(np.float32).ravel()
     med = float(np.median(s))
     return med, 1.4826 * float(np.median(np.abs(s - med)))
+
+
+def _level_of_histogram(hist: np.ndarray) -> tuple[float, float]:
+    """Median and MAD-based sigma of 8-bit values from their histogram (256 counts)."""
+    h = np.ravel(hist).astype(np.float64)
+    c = np.cumsum(h)
+    med = int(np.searchsorted(c, 0.5 * c[-1]))
+    # histogram of the absolute deviations |v - med|: each grey level's count moved to its
+    # deviation (levels med - d and med + d share one bin)
+    hd = np.bincount(np.abs(np.arange(256) - med), weights=h, minlength=256)
+    mad = float(np.searchsorted(np.cumsum(hd), 0.5 * c[-1]))
+    # a MAD of 0 grey levels (quantised, nearly noiseless) still means ~0.5 level of noise
+    return float(med), 1.4826 * max(mad, 0.5)
+
+
+def _robust_levels(src: np.ndarray) -> list:
+    """:func:`_robust_level` of every channel of ``src`` (H, W) or (H, W, 3), as a list.
+
+    For a BGR ``uint8`` photo whose size the subsampling step (a power of 2) divides, the
+    subsample of all three channels is taken at once and contiguous (every step-th row is a
+    view; ``cv2.resize``, nearest pixel, picks every step-th column), and each channel's
+    histogram comes from it directly: the same numbers, without copying each strided channel.
+    """
+    if src.ndim == 2:
+        return [_robust_level(src)]
+    H, W = src.shape[:2]
+    step = max(1, int(np.sqrt(H * W / 2.5e5)))
+    if (src.dtype == np.uint8 and src.strides[1:] == (3, 1) and step > 1 and step & (step - 1) == 0
+            and H % step == 0 and W % step == 0):
+        sub = cv2.resize(src[::step], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
+        return [_level_of_histogram(cv2.calcHist([sub], [k], None, [256], [0, 256])) for k in range(3)]
+    return [_robust_level(src[:, :, k]) for k in range(src.shape[2])]
 
 
 def _raw_mask(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float) -> np.ndarray:
@@ -275,21 +300,19 @@ def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_con
             diff = cv2.absdiff(img, bg)
         else:
             diff = np.abs(img.astype(np.float32) - bg.astype(np.float32))
-        chans = [diff] if diff.ndim == 2 else [diff[:, :, k] for k in range(3)]
         # |difference of two noisy photos| is half-normal: its median is 0.674 sigma
-        sig = [max(_robust_level(c)[0] / 0.674, 0.5) for c in chans]
-        base = [0.0] * len(chans)
+        sig = [max(m / 0.674, 0.5) for m, _ in _robust_levels(diff)]
+        base = [0.0] * len(sig)
         src = diff
     else:
         src = img
-        chans = [img] if img.ndim == 2 else [img[:, :, k] for k in range(3)]
-        stats = [_robust_level(c) for c in chans]
+        stats = _robust_levels(img)
         base = [m for m, _ in stats]
         sig = [s for _, s in stats]
     if threshold is None:
         thr = [max(k_sigma * s, float(min_contrast)) for s in sig]
     else:
-        thr = [float(threshold)] * len(chans)
+        thr = [float(threshold)] * len(base)
     hi = [b + t for b, t in zip(base, thr)]
     return src, hi
 
@@ -499,7 +522,13 @@ def _foreground_contours(img: np.ndarray, background, threshold, k_sigma: float,
     H, W = src.shape[:2]
     if min(H, W) < 16 * scale:
         return _clean_contours(_threshold(src, hi), open_px, min_area)
-    small = cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    if H % scale == 0 and scale & (scale - 1) == 0:
+        # the same pixels, ~2x faster: every scale-th row is a view (its rows' stride), so
+        # cv2.resize only samples the columns (nearest pixel of a power-of-2 factor that divides
+        # the height: exactly every scale-th row, as the full resize picks)
+        small = cv2.resize(src[::scale], (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    else:
+        small = cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
     cand, _ = cv2.findContours(_threshold(small, hi), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     boxes = []
     for c in cand:
@@ -632,6 +661,16 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
 # --------------------------------------------------------------------------------------------
 # step 3: projected outline of a sphere
 # --------------------------------------------------------------------------------------------
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.cross`` of two (N, 3) arrays: its formula, in its order of operations (the same
+    numbers), without its generic overhead (this runs 4 times per stereo pair)."""
+    out = np.empty(a.shape)
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: int = 64):
     """Exact image outline of spheres in a (distorted) camera.
 
@@ -672,9 +711,9 @@ def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: 
         Q = C + (radius_m ** 2 / np.where(ok, d, np.nan))[:, None] * w
         rho = radius_m * np.sqrt(np.clip(1.0 - (radius_m / np.where(ok, d, np.nan)) ** 2, 0, None))
     ref = np.where(np.abs(w[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    e1 = np.cross(w, ref)
+    e1 = _cross(w, ref)
     e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-300)
-    e2 = np.cross(w, e1)
+    e2 = _cross(w, e1)
     th = np.linspace(0.0, 2 * np.pi, n_points, endpoint=False)
     pts = (Q[:, None, :] + rho[:, None, None] * (np.cos(th)[None, :, None] * e1[:, None, :]
                                                  + np.sin(th)[None, :, None] * e2[:, None, :]))
@@ -692,10 +731,16 @@ def sphere_outline_px(camera: Camera, centers_world, radius_m: float, n_points: 
 # --------------------------------------------------------------------------------------------
 def _template(offsets: np.ndarray):
     """Inward unit normals and arc-length weights of a closed outline (M, 2) around 0."""
-    nxt, prv = np.roll(offsets, -1, axis=0), np.roll(offsets, 1, axis=0)
-    tang = nxt - prv
-    length = np.linalg.norm(tang, axis=1)
-    n = np.stack([tang[:, 1], -tang[:, 0]], axis=1) / np.maximum(length, 1e-12)[:, None]
+    # next minus previous point, cyclically (np.roll twice, without its generic overhead)
+    tang = np.empty_like(offsets)
+    tang[1:-1] = offsets[2:] - offsets[:-2]
+    tang[0] = offsets[1] - offsets[-1]
+    tang[-1] = offsets[0] - offsets[-2]
+    tx, ty = tang[:, 0], tang[:, 1]
+    length = np.sqrt(tx * tx + ty * ty)  # np.linalg.norm(tang, axis=1), without its overhead
+    n = np.empty_like(tang)
+    n[:, 0], n[:, 1] = ty, -tx
+    n /= np.maximum(length, 1e-12)[:, None]
     # inward: towards the centre (the outline surrounds the origin)
     if np.sum(n * offsets) > 0:
         n = -n
@@ -710,12 +755,17 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     an edge votes only for centres that lie along its gradient, so the terminator of a half
     moon (whose gradient runs across the ball) does not pull the centre.
     """
-    mx = (ox[:, None] + px[None, :]).astype(np.float32, copy=False)
-    my = (oy[:, None] + py[None, :]).astype(np.float32, copy=False)
+    # (ox + px) in the inputs' precision (float64 candidates from refine_centers), rounded to the
+    # float32 maps cv2.remap takes, without a float64 temporary
+    T, M = len(ox), len(px)
+    mx = np.add(ox[:, None], px[None, :], out=np.empty((T, M), np.float32))
+    my = np.add(oy[:, None], py[None, :], out=np.empty((T, M), np.float32))
     sx = cv2.remap(g[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    gn = sx * nx[None, :] + sy * ny[None, :]
-    gn = np.maximum(gn, 0.0)
+    # gn = max(0, sx nx + sy ny), in place (the remapped arrays are ours): fewer temporaries
+    gn = np.multiply(sx, nx, out=sx if not power else None)
+    gn += np.multiply(sy, ny, out=sy if not power else None)
+    gn = np.maximum(gn, 0.0, out=gn)
     if power:
         mag2 = sx * sx + sy * sy + 1e-12
         gn = gn * (gn * gn / mag2) ** (0.5 * power)
@@ -747,13 +797,23 @@ def _grid_peak(g, x, y, tpl, power, step, k, moves):
     for m in range(moves + 1):
         sc, _ = _score(g, x + DX, y + DY, *tpl, power)
         sc = sc.reshape(len(d), len(d))
-        i, j = np.unravel_index(int(np.argmax(sc)), sc.shape)
+        i, j = divmod(int(np.argmax(sc)), len(d))  # np.unravel_index on a square grid
         x, y = x + float(d[j]), y + float(d[i])
         if 0 < i < 2 * k and 0 < j < 2 * k:
             break
         if m < moves:
             continue
     return x, y, sc, (i, j)
+
+
+@functools.lru_cache(maxsize=64)
+def _resample_params(n_old: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters of a closed outline's ``n_old`` points (and its first point repeated) and of
+    ``m`` points resampled uniformly along them, for ``np.interp``; cached (read-only)."""
+    t_old = np.linspace(0, 1, n_old + 1)
+    t_new = np.linspace(0, 1, m, endpoint=False)
+    t_old.flags.writeable = t_new.flags.writeable = False
+    return t_old, t_new
 
 
 def _percentile(a: np.ndarray, q: float) -> float:
@@ -771,14 +831,35 @@ def _percentile(a: np.ndarray, q: float) -> float:
     return float(hi_v - d * (1.0 - t) if t >= 0.5 else lo_v + d * t)
 
 
+def _median(a: np.ndarray) -> float:
+    """``float(np.median(a))`` of a 1-D array without NaN, by ``np.partition``: the same number
+    (the middle value, or the mean of the two middle ones in ``a``'s dtype) without
+    ``np.median``'s overhead on the few thousand values of a crop."""
+    n = len(a)
+    k = n // 2
+    if n % 2:
+        return float(np.partition(a, k)[k])
+    p = np.partition(a, [k - 1, k])
+    return float((p[k - 1] + p[k]) / 2)
+
+
 def _quad_peak(f: np.ndarray, i: int, j: int) -> tuple[float, float]:
     """Sub-pixel offset (dy, dx) of the maximum of a grid from separable parabolas at (i, j)."""
     def para(a, b, c):
         den = a - 2 * b + c
-        return 0.0 if den >= 0 else float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+        # clipped to +-0.5 (np.clip's overhead is large on one number)
+        return 0.0 if den >= 0 else float(min(max(0.5 * (a - c) / den, -0.5), 0.5))
     dy = para(f[i - 1, j], f[i, j], f[i + 1, j]) if 0 < i < f.shape[0] - 1 else 0.0
     dx = para(f[i, j - 1], f[i, j], f[i, j + 1]) if 0 < j < f.shape[1] - 1 else 0.0
     return dy, dx
+
+
+@functools.lru_cache(maxsize=8)
+def _gamma_lut(gamma: float) -> np.ndarray:
+    """8-bit value -> linear radiance ``(v / 255) ** gamma``, float32 (256,); cached (read-only)."""
+    lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
+    lut.flags.writeable = False
+    return lut
 
 
 def _linear(a: np.ndarray, gamma: float) -> np.ndarray:
@@ -786,8 +867,7 @@ def _linear(a: np.ndarray, gamma: float) -> np.ndarray:
     if gamma == 1.0:
         return a.astype(np.float32) / 255.0
     if a.dtype == np.uint8:
-        lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
-        return lut[a]
+        return _gamma_lut(gamma)[a]
     return (np.clip(a.astype(np.float32), 0, 255) / 255.0) ** gamma
 
 
@@ -805,8 +885,7 @@ def _linear_max(a: np.ndarray, gamma: float) -> np.ndarray:
         else:
             return _linear(a, gamma).max(axis=2)
     if a.dtype == np.uint8 and gamma != 1.0:
-        lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
-        return cv2.LUT(a, lut)
+        return cv2.LUT(a, _gamma_lut(gamma))
     return _linear(a, gamma)
 
 
@@ -839,9 +918,10 @@ def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px:
     Ai = np.linalg.inv(A)
     lx, ly, lz = light
 
-    def rad_of(qx, qy):
-        r2 = qx * qx + qy * qy
-        qz = np.sqrt(np.clip(1.0 - r2, 0.0, None))
+    def rad_of(qx, qy, r2=None):
+        if r2 is None:
+            r2 = qx * qx + qy * qy
+        qz = np.sqrt(np.maximum(1.0 - r2, 0.0))  # np.clip(., 0, None), without its overhead
         return np.where(r2 < 1.0, np.maximum(qx * lx + qy * ly + qz * lz, 0.0), 0.0)
 
     if band_px is None:
@@ -860,14 +940,14 @@ def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px:
     # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
     r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
     r_out = 1.0 + 1.5 / sv[-1]
-    out = rad_of(q[0], q[1])
-    yb, xb = np.nonzero((r2 > r_in * r_in) & (r2 < r_out * r_out))
-    if len(yb):
+    out = rad_of(q[0], q[1], r2)
+    band = (r2 > r_in * r_in) & (r2 < r_out * r_out)
+    qxb, qyb = q[0][band], q[1][band]
+    if len(qxb):
         # the samples of pixel (y, x): its centre's coordinates plus A^-1 (o_j, o_i)
         dqx = Ai[0, 0] * o[None, :] + Ai[0, 1] * o[:, None]  # (ss_y, ss_x)
         dqy = Ai[1, 0] * o[None, :] + Ai[1, 1] * o[:, None]
-        qxb, qyb = q[0][yb, xb], q[1][yb, xb]
-        out[yb, xb] = rad_of(qxb[:, None, None] + dqx[None], qyb[:, None, None] + dqy[None]).mean(axis=(1, 2))
+        out[band] = rad_of(qxb[:, None, None] + dqx[None], qyb[:, None, None] + dqy[None]).mean(axis=(1, 2))
     return out.astype(np.float32)
 
 
@@ -916,11 +996,13 @@ def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, pow
     A = _outline_affine(off - off.mean(axis=0))
     Ai = np.linalg.inv(A)
     h, w = lin.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - mid[0], yy - mid[1]]).astype(float))
+    xy = np.empty((2, h, w))
+    xy[0] = np.arange(w) - mid[0]
+    xy[1] = (np.arange(h) - mid[1])[:, None]
+    q = np.einsum("ij,jhw->ihw", Ai, xy)
     r2 = q[0] ** 2 + q[1] ** 2
     ring = (r2 > 1.3 ** 2)
-    level = float(np.median(lin[ring])) if np.any(ring) else 0.0
+    level = _median(lin[ring]) if np.any(ring) else 0.0
     wgt = np.where(r2 < 1.15 ** 2, np.maximum(lin - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
@@ -1039,6 +1121,11 @@ def refine_centers(image, centers, radius_px, search_px=None, outlines=None, bac
         if outl.ndim != 3 or outl.shape[0] != n or outl.shape[2] != 2 or outl.shape[1] < 8:
             raise ValueError(f"outlines must have shape ({n}, M, 2) with M >= 8, got {outl.shape}")
         radii = np.linalg.norm(outl, axis=2).mean(axis=1)
+        # every outline's length at once (the per-ball resampling below needs it)
+        closed_all = np.concatenate([outl, outl[:, :1]], axis=1)
+        finite = np.all(np.isfinite(outl), axis=(1, 2))
+        with np.errstate(invalid="ignore"):
+            lengths = np.sum(np.linalg.norm(np.diff(closed_all, axis=1), axis=2), axis=1)
     else:
         r = np.asarray(radius_px, float)
         radii = np.broadcast_to(r, (n,)).astype(float) if r.ndim == 0 else as_array(r, (n,), "radius_px")
@@ -1069,16 +1156,15 @@ def refine_centers(image, centers, radius_px, search_px=None, outlines=None, bac
             off = r * np.stack([np.cos(th), np.sin(th)], axis=1)
         else:
             off = outl[i]
-            if not np.all(np.isfinite(off)):
+            if not finite[i]:
                 flags[i] = BallFlag.REFINE_FAILED
                 scores[i] = np.nan
                 continue
             # resample to ~1 point per pixel of outline
-            m = max(24, int(np.ceil(np.sum(np.linalg.norm(np.diff(np.vstack([off, off[:1]]), axis=0), axis=1)))))
+            m = max(24, int(np.ceil(lengths[i])))
             if m != len(off):
-                t_old = np.linspace(0, 1, len(off) + 1)
-                t_new = np.linspace(0, 1, m, endpoint=False)
-                closed = np.vstack([off, off[:1]])
+                t_old, t_new = _resample_params(len(off), m)
+                closed = closed_all[i]
                 off = np.stack([np.interp(t_new, t_old, closed[:, 0]), np.interp(t_new, t_old, closed[:, 1])], 1)
         nrm, wt = _template(off)
         wt = (wt / wt.sum()).astype(np.float32)
@@ -1101,8 +1187,8 @@ def refine_centers(image, centers, radius_px, search_px=None, outlines=None, bac
         if sigma > 0:
             crop = cv2.GaussianBlur(crop, (0, 0), sigma)
         g2 = _gradient(crop)
-        tpl = (off[:, 0].astype(np.float32), off[:, 1].astype(np.float32),
-               nrm[:, 0].astype(np.float32), nrm[:, 1].astype(np.float32), wt)
+        off32, nrm32 = off.T.astype(np.float32), nrm.T.astype(np.float32)  # contiguous rows
+        tpl = (off32[0], off32[1], nrm32[0], nrm32[1], wt)
         cx, cy = c0[i, 0] - xa, c0[i, 1] - ya
         # Coarse to fine: a 2 px grid over the search window on a more smoothed gradient with
         # every 2nd outline point (its peak is wide enough not to fall between grid points),
