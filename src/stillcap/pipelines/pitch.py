@@ -1210,23 +1210,20 @@ def _metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release
             spins[o:o + n_w] += s_w
             spins[o + n_w:o + 2 * n_w] -= s_w
         vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
-        pairs_idx = [(1 + i, 1 + n_th + i) for i in range(n_th)]
-        pairs_idx += [(1 + 2 * n_th + i, 1 + 2 * n_th + n_w + i) for i in range(n_w)]
+        i_plus = np.r_[1:1 + n_th, 1 + 2 * n_th:1 + 2 * n_th + n_w]
+        i_minus = np.r_[1 + n_th:1 + 2 * n_th, 1 + 2 * n_th + n_w:1 + 2 * (n_th + n_w)]
 
         def spread(k, a, centre):
             if centre is None or not np.isfinite(a[0]):
                 return None
-            var = 0.0
-            for ip, im in pairs_idx:
-                fp, fm = a[ip], a[im]
-                if np.isfinite(fp) and np.isfinite(fm):
-                    d = 0.5 * wrap(k, fp - fm)
-                elif np.isfinite(fp) or np.isfinite(fm):  # one side failed: one-sided difference
-                    d = wrap(k, (fp if np.isfinite(fp) else fm) - a[0])
-                else:
-                    return None
-                var += d * d
-            return float(np.sqrt(var))
+            fp, fm = a[i_plus], a[i_minus]
+            ok_p, ok_m = np.isfinite(fp), np.isfinite(fm)
+            if not np.all(ok_p | ok_m):
+                return None
+            # one side failed: one-sided difference
+            d = np.where(ok_p & ok_m, 0.5 * wrap(k, fp - fm), wrap(k, np.where(ok_p, fp, fm) - a[0]))
+            # (accumulate: summed in order, as a loop would)
+            return float(np.sqrt(np.add.accumulate(d * d)[-1])) if len(d) else 0.0
     else:
         rng = as_rng(rng)
         try:
