@@ -549,7 +549,9 @@ def pitch_metrics_from_flight(p0, v0, spin, model=None, *, t0: float = 0.0,
     """Metrics of a simulated pitch released at ``p0`` with ``v0`` and ``spin`` (field frame, SI).
 
     The flight is integrated (reference integrator) from release to the front of the plate and
-    sampled at ``sample_rate_hz``; the 9-parameter fit uses the whole flight.
+    sampled at ``sample_rate_hz`` (the dense output of that integration: the same steps as a
+    second integration to the crossing, but for the last one, without its cost); the
+    9-parameter fit uses the whole flight.
 
     Parameters
     ----------
@@ -557,15 +559,15 @@ def pitch_metrics_from_flight(p0, v0, spin, model=None, *, t0: float = 0.0,
         Release position (m), velocity (m/s) and spin (rad/s).
     model : stillcap.ball.physics.FlightModel, optional
     """
-    from stillcap.ball.physics import cross_plane, simulate
+    from stillcap.ball.physics import cross_plane
 
     cross = cross_plane(p0, v0, spin, model, t0=t0)
     if not cross.success:
         return PitchMetrics(success=False, message=f"flight did not reach the plate: {cross.message}")
     n = max(int(np.ceil((cross.time - t0) * sample_rate_hz)) + 1, 4)
     ts = np.linspace(t0, cross.time, n)
-    tr = simulate(p0, v0, spin, ts, model, t0=t0)
-    return pitch_metrics(ts, tr.positions, spin, velocities=tr.velocities)
+    y = cross.trajectory(ts)  # (6, n): positions and velocities
+    return pitch_metrics(ts, y[:3].T, spin, velocities=y[3:].T)
 
 
 # --------------------------------------------------------------------------------------------
