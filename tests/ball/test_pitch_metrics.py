@@ -211,10 +211,12 @@ def test_bad_input_names_shape():
 
 
 # ---- many flights at once (the metric sigmas) ----------------------------------------------------
-def test_batch_metrics_match_the_flight_by_flight_ones():
-    """Flights of different lengths on one grid (NaN = no sample), a gap in one coordinate, pure
-    gyro spin, no spin (no spin axis), and a flight too short to fit: the batch gives what
-    pitch_metrics / fit_nine_parameter give for each flight's own samples."""
+@pytest.mark.parametrize("gap", [False, True])
+def test_batch_metrics_match_the_flight_by_flight_ones(gap):
+    """Flights of different lengths on one grid (NaN = no sample), with and without a gap in
+    one coordinate (the axes then fitted apart), pure gyro spin, no spin (no spin axis) and a
+    flight too short to fit: the batch gives what pitch_metrics / fit_nine_parameter give for
+    each flight's own samples."""
     ts = np.linspace(0.0, 0.45, 60)
     spins = [spin_vector(2300.0, 200.0, V0), spin_vector(2600.0, 30.0, V0, efficiency=0.4),
              spin_vector(2000.0, 180.0, V0, efficiency=0.0), np.zeros(3), spin_vector(1800.0, 90.0, V0)]
@@ -224,7 +226,8 @@ def test_batch_metrics_match_the_flight_by_flight_ones():
     for m, (w, i0) in enumerate(zip(spins, starts)):
         tr = simulate(P0 + 0.01 * m, V0 * (1.0 + 0.01 * m), w, ts, NATHAN)
         T[m, i0:], P[m, i0:], V[m, i0:] = ts[i0:], tr.positions[i0:], tr.velocities[i0:]
-    P[1, 30, 2] = np.nan  # one coordinate not observed
+    if gap:
+        P[1, 30, 2] = np.nan  # one coordinate not observed
     vals, nine = pitch_metrics_batch(T, P, np.array(spins), velocities=V)
     fits = fit_nine_parameter_batch(T, P)
     for m, i0 in enumerate(starts):

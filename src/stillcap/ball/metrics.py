@@ -609,18 +609,19 @@ def fit_nine_parameter_batch(times, positions, *, y0_ft: float = Y0_FT) -> dict:
     d = np.where(ok, (t - tc[:, None])[:, None, :], 0.0)
     A = np.stack([ok.astype(float), d, d * d], axis=-1)
     b = np.where(ok, pos.transpose(0, 2, 1), 0.0)
-    fit_ok = ok.sum(axis=2) >= 3
+    fit_ok = np.count_nonzero(ok, axis=2) >= 3
     if A.shape[2] >= 3:
-        q, r = np.linalg.qr(A)
+        # one decomposition per flight when its three axes use the same samples (the usual case)
+        q, r = np.linalg.qr(A[:, :1] if np.all(ok == ok[:, :1]) else A)
         diag = np.abs(np.diagonal(r, axis1=-2, axis2=-1))
         fit_ok &= np.all(diag > 1e-12 * np.maximum(diag.max(axis=-1, keepdims=True), 1e-300), axis=-1)
         r = np.where(fit_ok[..., None, None], r, np.eye(3))  # failed fits: any solvable system
-        coef = np.linalg.solve(r, np.einsum("...nk,...n->...k", q, b)[..., None])[..., 0]
+        coef = np.linalg.solve(r, (b[..., None, :] @ q)[..., 0, :, None])[..., 0]  # R c = Q^T b
     else:
         fit_ok[:] = False
         coef = np.zeros(A.shape[:2] + (3,))
     coef[~fit_ok] = np.nan
-    res = np.einsum("...nk,...k->...n", A, coef) - b
+    res = (A @ coef[..., None])[..., 0] - b
     res2 = np.sum(np.where(ok, res, 0.0) ** 2, axis=(1, 2))
     # time (relative to tc) where y = y0_ft, the root nearest the data (np.roots in the scalar fit)
     c1, c2 = coef[:, 1, 1], coef[:, 1, 2]
