@@ -9,7 +9,7 @@ from support import shared_data
 
 from stillcap.ball.metrics import (
     FT, NINE_NAMES, PLATE_FRONT_Y_FT, NineParameterFit, PitchMetrics, clock_tilt,
-    fit_nine_parameter, movement_axis_deg, movement_in, pitch_metrics, pitch_metrics_from_flight,
+    fit_nine_parameter, fit_nine_parameter_batch, movement_axis_deg, movement_in, pitch_metrics, pitch_metrics_batch, pitch_metrics_from_flight,
     plate_location_ft, spin_axis_deg, spin_efficiency, spin_rate_rpm, spin_vector, time_at_y,
 )
 from stillcap.ball.physics import FlightModel, simulate
@@ -208,3 +208,43 @@ def test_bad_input_names_shape():
         plate_location_ft(np.zeros(8))
     with pytest.raises(ValueError, match="efficiency"):
         spin_vector(2000.0, 180.0, V0, efficiency=1.5)
+
+
+# ---- many flights at once (the metric sigmas) ----------------------------------------------------
+@pytest.mark.parametrize("gap", [False, True])
+def test_batch_metrics_match_the_flight_by_flight_ones(gap):
+    """Flights of different lengths on one grid (NaN = no sample), with and without a gap in
+    one coordinate (the axes then fitted apart), pure gyro spin, no spin (no spin axis) and a
+    flight too short to fit: the batch gives what pitch_metrics / fit_nine_parameter give for
+    each flight's own samples."""
+    ts = np.linspace(0.0, 0.45, 60)
+    spins = [spin_vector(2300.0, 200.0, V0), spin_vector(2600.0, 30.0, V0, efficiency=0.4),
+             spin_vector(2000.0, 180.0, V0, efficiency=0.0), np.zeros(3), spin_vector(1800.0, 90.0, V0)]
+    starts = [0, 7, 13, 3, 58]  # the last flight keeps two samples: no fit
+    T = np.full((len(spins), len(ts)), np.nan)
+    P, V = np.full(T.shape + (3,), np.nan), np.full(T.shape + (3,), np.nan)
+    for m, (w, i0) in enumerate(zip(spins, starts)):
+        tr = simulate(P0 + 0.01 * m, V0 * (1.0 + 0.01 * m), w, ts, NATHAN)
+        T[m, i0:], P[m, i0:], V[m, i0:] = ts[i0:], tr.positions[i0:], tr.velocities[i0:]
+    if gap:
+        P[1, 30, 2] = np.nan  # one coordinate not observed
+    vals, nine = pitch_metrics_batch(T, P, np.array(spins), velocities=V)
+    fits = fit_nine_parameter_batch(T, P)
+    for m, i0 in enumerate(starts):
+        one = pitch_metrics(T[m, i0:], P[m, i0:], spins[m], velocities=V[m, i0:])
+        d, dn = one.to_dict(), one.to_dict()["nine_parameter"]
+        assert bool(vals["success"][m]) == one.success == (m != 4)
+        assert fits["n_points"][m] == dn["n_points"] and bool(fits["success"][m]) == dn["success"]
+        for k, v in vals.items():
+            if k != "success":
+                ref = np.nan if d[k] is None else d[k]
+                np.testing.assert_allclose(v[m], ref, rtol=1e-10, atol=1e-10, err_msg=f"flight {m} {k}")
+        for k, v in nine.items():
+            ref = np.nan if dn[k] is None else dn[k]
+            np.testing.assert_allclose(v[m], ref, rtol=1e-10, atol=1e-10, err_msg=f"flight {m} nine {k}")
+    assert np.isnan(vals["spin_axis_deg"][3]) and np.isnan(vals["spin_efficiency"][3])  # no spin
+    no_spin, _ = pitch_metrics_batch(T, P, velocities=V)
+    assert np.all(np.isnan(no_spin["spin_rate_rpm"])) and np.array_equal(no_spin["pfx_z_in"], vals["pfx_z_in"],
+                                                                          equal_nan=True)
+    with pytest.raises(ValueError, match="positions"):
+        fit_nine_parameter_batch(ts, P[0])

@@ -362,7 +362,9 @@ class _Problem:
     def _apply_weights(self, d):
         """(M, N, 3) position differences -> whitened, observed entries (M, n_data)."""
         if self.weights is not None:
-            d = np.einsum("nij,mnj->mni", self.weights, np.nan_to_num(d))
+            if not np.isfinite(d).all():  # (checked first: nan_to_num costs more than the check)
+                d = np.nan_to_num(d)
+            d = np.einsum("nij,mnj->mni", self.weights, d)
         return d[:, self.mask] / self.position_sigma
 
     def _whiten(self, th, positions):

@@ -549,7 +549,9 @@ def pitch_metrics_from_flight(p0, v0, spin, model=None, *, t0: float = 0.0,
     """Metrics of a simulated pitch released at ``p0`` with ``v0`` and ``spin`` (field frame, SI).
 
     The flight is integrated (reference integrator) from release to the front of the plate and
-    sampled at ``sample_rate_hz``; the 9-parameter fit uses the whole flight.
+    sampled at ``sample_rate_hz`` (the dense output of that integration: the same steps as a
+    second integration to the crossing, but for the last one, without its cost); the
+    9-parameter fit uses the whole flight.
 
     Parameters
     ----------
@@ -557,12 +559,155 @@ def pitch_metrics_from_flight(p0, v0, spin, model=None, *, t0: float = 0.0,
         Release position (m), velocity (m/s) and spin (rad/s).
     model : stillcap.ball.physics.FlightModel, optional
     """
-    from stillcap.ball.physics import cross_plane, simulate
+    from stillcap.ball.physics import cross_plane
 
     cross = cross_plane(p0, v0, spin, model, t0=t0)
     if not cross.success:
         return PitchMetrics(success=False, message=f"flight did not reach the plate: {cross.message}")
     n = max(int(np.ceil((cross.time - t0) * sample_rate_hz)) + 1, 4)
     ts = np.linspace(t0, cross.time, n)
-    tr = simulate(p0, v0, spin, ts, model, t0=t0)
-    return pitch_metrics(ts, tr.positions, spin, velocities=tr.velocities)
+    y = cross.trajectory(ts)  # (6, n): positions and velocities
+    return pitch_metrics(ts, y[:3].T, spin, velocities=y[3:].T)
+
+
+# --------------------------------------------------------------------------------------------
+# Many flights at once (the metric sigmas: ~25 flights per pitch)
+# --------------------------------------------------------------------------------------------
+def fit_nine_parameter_batch(times, positions, *, y0_ft: float = Y0_FT) -> dict:
+    """:func:`fit_nine_parameter` of many flights at once.
+
+    The flights share one sample grid; a sample a flight does not have is NaN (its time and
+    its coordinates). Each flight's fit is the one :func:`fit_nine_parameter` gives for its
+    own samples, solved per axis with a batched QR decomposition (NumPy has no batched
+    ``lstsq``) instead of one ``lstsq`` (SVD) per flight and axis: the same least-squares
+    solution up to rounding (~1e-12 relative). Only a rank-deficient design (fewer than three
+    distinct times), where ``lstsq`` would return a minimum-norm solution, counts as a failure.
+
+    Parameters
+    ----------
+    times : array_like, shape (M, N)
+        s, NaN where a flight has no sample.
+    positions : array_like, shape (M, N, 3)
+        Field frame, metres; NaN = not observed (per coordinate).
+    y0_ft : float
+
+    Returns
+    -------
+    dict
+        ``"nine"`` (M, 9) in :data:`NINE_NAMES` order, ``"t_ref"`` and ``"rms_residual_ft"``
+        (M,) (all NaN where the fit failed), ``"n_points"`` (M,) int and ``"success"`` (M,)
+        bool, as in :class:`NineParameterFit`.
+    """
+    t = np.asarray(times, float)
+    pos = np.asarray(positions, float) / FT
+    if t.ndim != 2 or pos.shape != (*t.shape, 3):
+        raise ValueError(f"need times (M, N) and positions (M, N, 3), got {t.shape} and {pos.shape}")
+    has_t = np.isfinite(t)
+    tc = np.sum(np.where(has_t, t, 0.0), axis=1) / np.maximum(has_t.sum(axis=1), 1)  # nanmean
+    ok = (np.isfinite(pos) & has_t[..., None]).transpose(0, 2, 1)  # (M, 3 axes, N)
+    # design (M, 3 axes, N, 3): rows of unused samples are zero and do not count
+    d = np.where(ok, (t - tc[:, None])[:, None, :], 0.0)
+    A = np.stack([ok.astype(float), d, d * d], axis=-1)
+    b = np.where(ok, pos.transpose(0, 2, 1), 0.0)
+    fit_ok = np.count_nonzero(ok, axis=2) >= 3
+    if A.shape[2] >= 3:
+        # one decomposition per flight when its three axes use the same samples (the usual case)
+        q, r = np.linalg.qr(A[:, :1] if np.all(ok == ok[:, :1]) else A)
+        diag = np.abs(np.diagonal(r, axis1=-2, axis2=-1))
+        fit_ok &= np.all(diag > 1e-12 * np.maximum(diag.max(axis=-1, keepdims=True), 1e-300), axis=-1)
+        r = np.where(fit_ok[..., None, None], r, np.eye(3))  # failed fits: any solvable system
+        coef = np.linalg.solve(r, (b[..., None, :] @ q)[..., 0, :, None])[..., 0]  # R c = Q^T b
+    else:
+        fit_ok[:] = False
+        coef = np.zeros(A.shape[:2] + (3,))
+    coef[~fit_ok] = np.nan
+    res = (A @ coef[..., None])[..., 0] - b
+    res2 = np.sum(np.where(ok, res, 0.0) ** 2, axis=(1, 2))
+    # time (relative to tc) where y = y0_ft, the root nearest the data (np.roots in the scalar fit)
+    c1, c2 = coef[:, 1, 1], coef[:, 1, 2]
+    c = coef[:, 1, 0] - y0_ft
+    with np.errstate(invalid="ignore", divide="ignore"):
+        qq = -0.5 * (c1 + np.copysign(np.sqrt(c1 * c1 - 4.0 * c2 * c), c1))  # stable quadratic roots
+        r1, r2 = qq / c2, c / qq
+        ts = np.where(c2 != 0, np.where(np.abs(r1) < np.abs(r2), r1, r2), -c / c1)
+    success = np.all(fit_ok, axis=1) & np.isfinite(ts)
+    p = coef[..., 0] + coef[..., 1] * ts[:, None] + coef[..., 2] * (ts * ts)[:, None]
+    v = coef[..., 1] + 2.0 * coef[..., 2] * ts[:, None]
+    nine = np.where(success[:, None], np.concatenate([p, v, 2.0 * coef[..., 2]], axis=1), np.nan)
+    n_pts = np.sum(np.all(np.isfinite(pos), axis=2), axis=1)
+    return {"nine": nine, "t_ref": np.where(success, tc + ts, np.nan),
+            "rms_residual_ft": np.where(success, np.sqrt(res2 / np.maximum(n_pts, 1)), np.nan),
+            "n_points": np.where(success, n_pts, np.where(fit_ok, ok.sum(axis=2), 0).max(axis=1)),
+            "success": success}
+
+
+def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: float = Y0_FT) -> dict:
+    """:func:`pitch_metrics` of many flights at once (release at each flight's first sample).
+
+    Parameters
+    ----------
+    times : array_like, shape (M, N)
+        s, NaN where a flight has no sample (as in :func:`fit_nine_parameter_batch`).
+    positions, velocities : array_like, shape (M, N, 3)
+        Field frame, metres and m/s (NaN where not observed).
+    spins : array_like, shape (M, 3), optional
+        Spin vector of each flight at release, rad/s. Without it the spin fields are NaN.
+    y0_ft : float
+
+    Returns
+    -------
+    metrics, nine : dict
+        ``{name: (M,)}`` for the numeric fields of :class:`PitchMetrics` and for those of
+        :class:`NineParameterFit` (``spin_tilt``, ``message`` and ``nine_parameter`` left out),
+        NaN where :func:`pitch_metrics` gives NaN (or ``None`` in ``to_dict``); ``success``
+        as there. The same numbers as :func:`pitch_metrics` flight by flight, up to rounding.
+    """
+    t = np.asarray(times, float)
+    pos = np.asarray(positions, float)
+    vel = np.asarray(velocities, float)
+    if vel.shape != pos.shape:
+        raise ValueError(f"velocities must have the shape of positions {pos.shape}, got {vel.shape}")
+    fit = fit_nine_parameter_batch(t, pos, y0_ft=y0_ft)
+    n9, ok = fit["nine"], fit["success"]
+    nine = {k: n9[:, i] for i, k in enumerate(NINE_NAMES)}
+    nine.update(t_ref=fit["t_ref"], rms_residual_ft=fit["rms_residual_ft"])
+    px, pz = plate_location_ft(n9)
+    mx, mz = movement_in(n9)
+    # release: each flight's first sample observed in all coordinates
+    seen = np.all(np.isfinite(pos), axis=2) & np.isfinite(t)
+    i = np.argmin(np.where(seen, t, np.inf), axis=1)
+    rows = np.arange(len(t))
+    ok = ok & seen[rows, i]
+    t_rel = np.where(ok, t[rows, i], np.nan)
+    p_rel, v_rel = pos[rows, i] / FT, vel[rows, i]
+    speed = np.linalg.norm(v_rel, axis=1)
+    out = {
+        "release_speed_mph": speed / MPH,
+        "release_pos_x_ft": p_rel[:, 0], "release_pos_y_ft": p_rel[:, 1], "release_pos_z_ft": p_rel[:, 2],
+        "release_extension_ft": RUBBER_Y_FT - p_rel[:, 1],
+        "start_speed_mph": np.linalg.norm(n9[:, 3:6], axis=1) / FPS_PER_MPH,
+        "movement_axis_deg": movement_axis_deg(mx, mz),
+        "pfx_x_in": mx, "pfx_z_in": mz, "induced_vertical_break_in": mz, "horizontal_break_in": mx,
+        "plate_x_ft": px, "plate_z_ft": pz,
+        "plate_time_s": fit["t_ref"] + time_at_y(n9, PLATE_FRONT_Y_FT) - t_rel,
+    }
+    nan = np.full(len(t), np.nan)
+    spin_keys = ("spin_rate_rpm", "active_spin_rpm", "spin_efficiency", "gyro_angle_deg", "spin_axis_deg")
+    if spins is None:
+        out.update({k: nan for k in spin_keys})
+    else:
+        w = np.asarray(spins, float)
+        if w.shape != (len(t), 3):
+            raise ValueError(f"spins must have shape ({len(t)}, 3), got {w.shape}")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = np.cross(w, v_rel / speed[:, None])
+            nw = np.linalg.norm(w, axis=1)
+            eff = np.where(nw == 0, np.nan, np.minimum(np.linalg.norm(m, axis=1) / nw, 1.0))
+            flat = np.hypot(m[:, 0], m[:, 2]) <= 1e-12 * np.maximum(nw, 1e-300)  # pure gyro / no spin
+            out.update(spin_rate_rpm=nw * RPM_PER_RAD_S, spin_efficiency=eff, active_spin_rpm=nw * RPM_PER_RAD_S * eff,
+                       gyro_angle_deg=np.degrees(np.arccos(np.clip(eff, 0.0, 1.0))),
+                       spin_axis_deg=np.where(flat, np.nan, np.mod(np.degrees(np.arctan2(m[:, 2], m[:, 0])) + 90.0, 360.0)))
+    # pitch_metrics: a failed 9-parameter fit leaves the release and spin fields NaN as well
+    out = {k: np.where(ok, v, np.nan) for k, v in out.items()}
+    out["success"] = ok
+    return out, nine

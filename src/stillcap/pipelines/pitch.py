@@ -49,7 +49,7 @@ from scipy.spatial.transform import Rotation
 from stillcap._checks import as_rng
 from stillcap.ball.fit import FitPriors, ReferenceFit, fit_reference_trajectory
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
-from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_tilt, pitch_metrics,
+from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_tilt, pitch_metrics_batch,
                                    spin_axis_deg, spin_efficiency)
 from stillcap.ball.orientation import MarkerObservations, SpinResult, fit_spin, fit_spin_seed, rays_to_directions
 from stillcap.ball.physics import FlightModel, cross_plane, simulate, simulate_batch
@@ -1134,35 +1134,28 @@ def _metrics_of_states(fit: ReferenceFit, th, spins, model, t_rel, release_y_m, 
     # pitches moved by at most 2e-5 of itself (central differences of flights flown alike), 9 ms
     # less per capture
     tr = simulate_batch(th[:, :3], th[:, 3:6], w_traj, ts, model, t0=fit.t0, method="rk4", max_step=0.05)
-    vals = {k: np.full(n, np.nan) for k in keys}
-    nine_vals = {k: np.full(n, np.nan) for k in nine_keys}
-    for m in range(n):
-        pos, vel = tr.positions[m], tr.velocities[m]
-        if release_y_m is None:
-            i0 = int(np.searchsorted(ts, t_rel))
-            t_m, p_m, v_m = ts[i0:], pos[i0:], vel[i0:]
-        else:
-            y = pos[:, 1] - release_y_m
-            cross = np.flatnonzero(np.sign(y[:-1]) != np.sign(y[1:]))
-            if not len(cross):
-                continue
-            i = cross[0]
-            a = y[i] / (y[i] - y[i + 1])
-            t_m = np.concatenate([[ts[i] + a * (ts[i + 1] - ts[i])], ts[i + 1:]])
-            p_m = np.concatenate([[pos[i] + a * (pos[i + 1] - pos[i])], pos[i + 1:]])
-            v_m = np.concatenate([[vel[i] + a * (vel[i + 1] - vel[i])], vel[i + 1:]])
-        try:
-            pm = pitch_metrics(t_m, p_m, None if spins is None else spins[m], velocities=v_m)
-        except ValueError:
-            continue
-        dm = pm.to_dict()
-        for k in keys:
-            v = dm.get(k)
-            vals[k][m] = float(v) if isinstance(v, (int, float)) else np.nan
-        for k in nine_keys:
-            v = (dm.get("nine_parameter") or {}).get(k)
-            nine_vals[k][m] = np.nan if v is None else float(v)
-    return vals, nine_vals
+    pos, vel = tr.positions, tr.velocities
+    # each flight from the release: the samples after its crossing of the release plane, led by
+    # the crossing (linear interpolation); NaN marks the samples a flight does not use
+    keep = np.broadcast_to(np.arange(len(ts)) >= np.searchsorted(ts, t_rel), (n, len(ts)))
+    first_t, first_p, first_v = np.full(n, np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    if release_y_m is not None:
+        y = pos[:, :, 1] - release_y_m
+        sign_change = np.sign(y[:, :-1]) != np.sign(y[:, 1:])
+        crossed = sign_change.any(axis=1)  # a flight that never crosses gives no metrics
+        i = np.argmax(sign_change, axis=1)
+        rows = np.arange(n)
+        with np.errstate(invalid="ignore", divide="ignore"):  # (flights that do not cross)
+            a = (y[rows, i] / (y[rows, i] - y[rows, i + 1]))[:, None]
+        first_t = np.where(crossed, ts[i] + a[:, 0] * (ts[i + 1] - ts[i]), np.nan)
+        first_p = np.where(crossed[:, None], pos[rows, i] + a * (pos[rows, i + 1] - pos[rows, i]), np.nan)
+        first_v = np.where(crossed[:, None], vel[rows, i] + a * (vel[rows, i + 1] - vel[rows, i]), np.nan)
+        keep = crossed[:, None] & (np.arange(len(ts))[None] > i[:, None])
+    t_m = np.concatenate([first_t[:, None], np.where(keep, ts, np.nan)], axis=1)
+    p_m = np.concatenate([first_p[:, None], np.where(keep[..., None], pos, np.nan)], axis=1)
+    v_m = np.concatenate([first_v[:, None], np.where(keep[..., None], vel, np.nan)], axis=1)
+    vals, nine = pitch_metrics_batch(t_m, p_m, spins, velocities=v_m)
+    return {k: vals[k] for k in keys}, {k: nine[k] for k in nine_keys}
 
 
 def _principal_steps(cov):
@@ -1217,23 +1210,20 @@ def _metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release
             spins[o:o + n_w] += s_w
             spins[o + n_w:o + 2 * n_w] -= s_w
         vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
-        pairs_idx = [(1 + i, 1 + n_th + i) for i in range(n_th)]
-        pairs_idx += [(1 + 2 * n_th + i, 1 + 2 * n_th + n_w + i) for i in range(n_w)]
+        i_plus = np.r_[1:1 + n_th, 1 + 2 * n_th:1 + 2 * n_th + n_w]
+        i_minus = np.r_[1 + n_th:1 + 2 * n_th, 1 + 2 * n_th + n_w:1 + 2 * (n_th + n_w)]
 
         def spread(k, a, centre):
             if centre is None or not np.isfinite(a[0]):
                 return None
-            var = 0.0
-            for ip, im in pairs_idx:
-                fp, fm = a[ip], a[im]
-                if np.isfinite(fp) and np.isfinite(fm):
-                    d = 0.5 * wrap(k, fp - fm)
-                elif np.isfinite(fp) or np.isfinite(fm):  # one side failed: one-sided difference
-                    d = wrap(k, (fp if np.isfinite(fp) else fm) - a[0])
-                else:
-                    return None
-                var += d * d
-            return float(np.sqrt(var))
+            fp, fm = a[i_plus], a[i_minus]
+            ok_p, ok_m = np.isfinite(fp), np.isfinite(fm)
+            if not np.all(ok_p | ok_m):
+                return None
+            # one side failed: one-sided difference
+            d = np.where(ok_p & ok_m, 0.5 * wrap(k, fp - fm), wrap(k, np.where(ok_p, fp, fm) - a[0]))
+            # (accumulate: summed in order, as a loop would)
+            return float(np.sqrt(np.add.accumulate(d * d)[-1])) if len(d) else 0.0
     else:
         rng = as_rng(rng)
         try:
