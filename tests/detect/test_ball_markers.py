@@ -211,3 +211,18 @@ def test_empty_and_bad_input():
     with pytest.raises(ValueError, match=r"region must have shape \(H, W\)"):
         classify_shape(np.zeros((4, 4, 3)))
     assert [t.name for t in BASEBALL_MARKER_TYPES] == ["red", "blue", "green", "black"]
+
+
+def test_hue_distance_is_the_remainder_formula_bit_for_bit():
+    """The fast hue difference gives exactly ``|(hue - h + 180) % 360 - 180|`` (float32) over
+    OpenCV's whole hue range, edges and their float neighbours included."""
+    from stillcap.detect.ball_markers import _hue_distance
+
+    rng = np.random.default_rng(3)
+    edges = np.array([0, 1e-6, 30, 150, 180, 210, 330, 359.99, 360], np.float32)
+    near = np.concatenate([np.nextafter(edges, np.float32(-1)), edges, np.nextafter(edges, np.float32(400))])
+    hue = np.concatenate([rng.uniform(0, 360, 200_000).astype(np.float32), np.clip(near, 0, 360)])
+    palette = np.concatenate([edges, rng.uniform(0, 360, 6).astype(np.float32)]).reshape(-1, 1)
+    want = np.abs((hue - palette + 180.0) % 360.0 - 180.0)
+    got = _hue_distance(hue, palette)
+    assert got.dtype == np.float32 and np.array_equal(got, want)

@@ -242,6 +242,19 @@ def _hsv(bgr) -> tuple[float, float, float]:
     return float(h), float(s), float(v)
 
 
+def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
+    """``|(hue - h + 180) % 360 - 180|``: hue difference in degrees (0-180), float32.
+
+    Both in [0, 360] (OpenCV's float hue; ``h`` a float32 array broadcasting against ``hue``),
+    so ``a = hue - h + 180`` is in [-180, 540] and ``a % 360`` is ``a + 360`` below 0 and
+    ``a - 360`` (exact there) from 360 on: the same numbers as NumPy's float remainder, which
+    (fmod and a sign fix-up) costs ten times more.
+    """
+    a = hue - h + 180.0
+    a = np.where(a >= 360.0, a - 360.0, np.where(a < 0.0, a + 360.0, a))
+    return np.abs(a - 180.0)
+
+
 def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | Mapping = BASEBALL_MARKER_TYPES,
                         min_area_px: float | None = None, hue_tol_deg: float = 30.0,
                         min_saturation: float = 0.2, min_value: float = 0.12, dark_ratio: float = 0.5,
@@ -383,7 +396,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         cand = []  # (types, weak mask, core mask, soft)
         lit_ok = disc & (val >= min_value)
         if chroma:
-            dh = np.abs((hue - ch_hue + 180.0) % 360.0 - 180.0)  # (types, h, w)
+            dh = _hue_distance(hue, ch_hue)  # (types, h, w)
             hue_ok = lit_ok & (dh <= hue_tol_deg)
             soft = np.where(hue_ok, np.clip(sat / ch_sat, 0, 1), 0.0).astype(np.float32, copy=False)
             weak = soft >= weak_membership
@@ -462,7 +475,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         shape = _shape_name(*_shape_features((big >= 0.5 * peak).astype(np.uint8) * 255), 0.06)
     elif area < 20:
         flags |= MarkerFlag.SMALL
-    col = float(np.clip(soft[comp].mean(), 0, 1))
+    col = min(max(float(soft[comp].mean()), 0.0), 1.0)  # np.clip costs more on one number
     match = [t for t in tlist if t.shape == shape]
     if match:
         t, shape_conf = match[0], 1.0
