@@ -41,6 +41,7 @@ __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "
            "detect_ball_markers", "classify_shape"]
 
 SHAPES = ("disc", "ring", "square", "triangle")
+_BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
 
 
 @dataclass(frozen=True)
@@ -154,12 +155,13 @@ def _shape_features(region: np.ndarray):
     cs, hier = cv2.findContours(region, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     if not cs:
         return 0.0, np.nan
-    outer = [i for i in range(len(cs)) if hier[0][i][3] < 0]
-    main = max(outer, key=lambda i: cv2.contourArea(cs[i]))
-    a_out = cv2.contourArea(cs[main])
+    parent = hier[0][:, 3]
+    areas = [cv2.contourArea(ci) for ci in cs]
+    main = max(np.flatnonzero(parent < 0), key=areas.__getitem__)
+    a_out = areas[main]
     if a_out <= 0:
         return 0.0, np.nan
-    holes = sum(cv2.contourArea(cs[i]) for i in range(len(cs)) if hier[0][i][3] == main)
+    holes = sum(areas[i] for i in np.flatnonzero(parent == main))
     m = cv2.moments(cs[main])
     if m["m00"] <= 0:
         return holes / a_out, np.nan
@@ -169,8 +171,10 @@ def _shape_features(region: np.ndarray):
         return holes / a_out, np.nan
     white = v @ np.diag(1 / np.sqrt(w)) @ v.T
     p = cs[main].reshape(-1, 2).astype(float) - (m["m10"] / m["m00"], m["m01"] / m["m00"])
-    rad = np.sort(np.linalg.norm(p @ white.T, axis=1))
-    spread = float(rad[int(0.98 * (len(rad) - 1))] / max(rad[int(0.02 * (len(rad) - 1))], 1e-9))
+    rad = np.linalg.norm(p @ white.T, axis=1)
+    lo, hi = int(0.02 * (len(rad) - 1)), int(0.98 * (len(rad) - 1))
+    rad = np.partition(rad, (lo, hi))  # the two order statistics only, not a full sort
+    spread = float(rad[hi] / max(rad[lo], 1e-9))
     return holes / a_out, spread
 
 
@@ -334,7 +338,6 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
-    box3 = np.ones((3, 3), np.uint8)
     for bi in range(len(c)):
         cx, cy, r = c[bi, 0], c[bi, 1], radii[bi]
         if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r >= 3):
@@ -371,7 +374,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         ends[:, 1] = np.repeat(ys, 2)
         support = np.zeros(fg.shape, np.uint8)
         cv2.fillConvexPoly(support, cv2.convexHull(ends), 1)
-        disc &= cv2.erode(support, box3).astype(bool)
+        disc &= cv2.erode(support, _BOX3).astype(bool)
         if not np.any(disc):
             continue
         min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
@@ -388,7 +391,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32)
         lit = disc & (vclose >= max(lit_fraction * top, min_value))
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
-        inner = cv2.erode(disc.astype(np.uint8), box3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+        inner = cv2.erode(disc.astype(np.uint8), _BOX3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -447,7 +450,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     soft, dark_luma, X, Y, disc, inner = soft[sl], dark_luma[sl], X[:, sl[1]], Y[sl[0]], disc[sl], inner[sl]
     # luma-darkness weighted centroid over the region grown by one pixel: partly covered edge
     # pixels count in proportion, which makes the centroid sub-pixel (cf. detect/blobs.py)
-    grown = cv2.dilate(comp.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & disc
+    grown = cv2.dilate(comp.view(np.uint8), _BOX3).view(bool) & disc
     w = np.where(grown, dark_luma, 0.0)
     sw = float(w.sum())
     if sw <= 0:
@@ -469,10 +472,12 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     # for a 5 px marker (a binary mask's staircase would pass for a square)
     shape = "unknown"
     if area >= 20 and aspect >= min_aspect:
-        big = cv2.resize(w.astype(np.float32), None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)
-        big = cv2.copyMakeBorder(big, 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
-        peak = float(np.partition(w[w > 0], int(0.9 * (np.count_nonzero(w) - 1)))[int(0.9 * (np.count_nonzero(w) - 1))])
-        shape = _shape_name(*_shape_features((big >= 0.5 * peak).astype(np.uint8) * 255), 0.06)
+        big = cv2.resize(w, None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)  # w is float32
+        kth = int(0.9 * (np.count_nonzero(w) - 1))
+        peak = float(np.partition(w[w > 0], kth)[kth])
+        # cut (255 where >= half the peak), then a 2 px border of 0 (the weights' zero border cut)
+        cut = cv2.copyMakeBorder(cv2.compare(big, 0.5 * peak, cv2.CMP_GE), 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
+        shape = _shape_name(*_shape_features(cut), 0.06)
     elif area < 20:
         flags |= MarkerFlag.SMALL
     col = min(max(float(soft[comp].mean()), 0.0), 1.0)  # np.clip costs more on one number
