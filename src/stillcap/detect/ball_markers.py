@@ -419,12 +419,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             if not np.any(core):
                 continue
             n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.view(np.uint8), connectivity=8)
+            areas = stats[:, cv2.CC_STAT_AREA]
             has_core = np.bincount(lab[core], minlength=n) > 0
-            for j in range(1, n):
-                area = float(stats[j, cv2.CC_STAT_AREA])
-                if area < min_area or not has_core[j]:
-                    continue
-                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, area, bi, cx, cy, r,
+            for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
+                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
                                      disc, inner, limb_fraction, min_aspect))
     rows = [rw for rw in rows if rw is not None]
     if reject_foreshortened:
@@ -480,7 +478,9 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         shape = _shape_name(*_shape_features(cut), 0.06)
     elif area < 20:
         flags |= MarkerFlag.SMALL
-    col = min(max(float(soft[comp].mean()), 0.0), 1.0)  # np.clip costs more on one number
+    # the mean membership (float32, as ndarray.mean, without its overhead), clipped to 0-1
+    sc = soft[comp]
+    col = min(max(float(sc.sum() / sc.size), 0.0), 1.0)
     match = [t for t in tlist if t.shape == shape]
     if match:
         t, shape_conf = match[0], 1.0
