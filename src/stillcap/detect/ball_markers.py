@@ -246,6 +246,23 @@ def _hsv(bgr) -> tuple[float, float, float]:
     return float(h), float(s), float(v)
 
 
+def _hull_mask(mask: np.ndarray) -> np.ndarray:
+    """The filled convex hull (uint8 0/1) of the pixels of a boolean mask (>= 1 pixel).
+
+    The hull's vertices are among each row's first and last pixels, so the hull is taken of
+    those: the same polygon as of all the pixels (``cv2.findNonZero``), at a fraction of the cost.
+    """
+    ys = np.flatnonzero(mask.any(axis=1))
+    m = mask[ys]
+    ends = np.empty((2 * len(ys), 2), np.int32)
+    ends[0::2, 0] = m.argmax(axis=1)
+    ends[1::2, 0] = m.shape[1] - 1 - m[:, ::-1].argmax(axis=1)
+    ends[:, 1] = np.repeat(ys, 2)
+    out = np.zeros(mask.shape, np.uint8)
+    cv2.fillConvexPoly(out, cv2.convexHull(ends), 1)
+    return out
+
+
 def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
     """``|(hue - h + 180) % 360 - 180|``: hue difference in degrees (0-180), float32.
 
@@ -360,21 +377,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # Only the ball itself: the convex hull of its bright pixels inside the disc, one pixel in
         # (a radius a little too large, e.g. a silhouette's, would otherwise put the dark
         # background rim inside the disc, and dark rim = "black marker"). The hull fills the
-        # notches that dark markers cut into the lit silhouette. Its vertices are among each
-        # row's first and last bright pixels, so the hull is taken of those (the same polygon
-        # as of all bright pixels, at a fraction of the cost).
+        # notches that dark markers cut into the lit silhouette.
         fg = disc & (val >= min_value)
         if np.count_nonzero(fg) < 3:
             continue
-        ys = np.flatnonzero(fg.any(axis=1))
-        f = fg[ys]
-        ends = np.empty((2 * len(ys), 2), np.int32)
-        ends[0::2, 0] = f.argmax(axis=1)
-        ends[1::2, 0] = f.shape[1] - 1 - f[:, ::-1].argmax(axis=1)
-        ends[:, 1] = np.repeat(ys, 2)
-        support = np.zeros(fg.shape, np.uint8)
-        cv2.fillConvexPoly(support, cv2.convexHull(ends), 1)
-        disc &= cv2.erode(support, _BOX3).astype(bool)
+        disc &= cv2.erode(_hull_mask(fg), _BOX3).astype(bool)
         if not np.any(disc):
             continue
         min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
