@@ -211,3 +211,46 @@ def test_empty_and_bad_input():
     with pytest.raises(ValueError, match=r"region must have shape \(H, W\)"):
         classify_shape(np.zeros((4, 4, 3)))
     assert [t.name for t in BASEBALL_MARKER_TYPES] == ["red", "blue", "green", "black"]
+
+
+def test_hue_distance_is_the_remainder_formula_bit_for_bit():
+    """The fast hue difference gives exactly ``|(hue - h + 180) % 360 - 180|`` (float32) over
+    OpenCV's whole hue range, edges and their float neighbours included."""
+    from stillcap.detect.ball_markers import _hue_distance
+
+    rng = np.random.default_rng(3)
+    edges = np.array([0, 1e-6, 30, 150, 180, 210, 330, 359.99, 360], np.float32)
+    near = np.concatenate([np.nextafter(edges, np.float32(-1)), edges, np.nextafter(edges, np.float32(400))])
+    hue = np.concatenate([rng.uniform(0, 360, 200_000).astype(np.float32), np.clip(near, 0, 360)])
+    palette = np.concatenate([edges, rng.uniform(0, 360, 6).astype(np.float32)]).reshape(-1, 1)
+    want = np.abs((hue - palette + 180.0) % 360.0 - 180.0)
+    got = _hue_distance(hue, palette)
+    assert got.dtype == np.float32 and np.array_equal(got, want)
+
+
+def test_hull_mask_is_the_hull_of_all_pixels():
+    """The hull of each row's end pixels fills exactly what the hull of every pixel fills, on
+    discs with dark notches, scattered pixels, lines and single rows."""
+    from stillcap.detect.ball_markers import _hull_mask
+
+    rng = np.random.default_rng(5)
+    masks = []
+    for _ in range(150):
+        h, w = rng.integers(8, 70, 2)
+        m = np.zeros((h, w), np.uint8)
+        cv2.circle(m, (int(rng.integers(0, w)), int(rng.integers(0, h))), int(rng.integers(2, 40)), 1, -1)
+        for _ in range(int(rng.integers(0, 4))):  # dark markers cut into the disc
+            cv2.circle(m, (int(rng.integers(0, w)), int(rng.integers(0, h))), int(rng.integers(1, 8)), 0, -1)
+        masks.append(m.astype(bool))
+        masks.append(rng.random((h, w)) < rng.uniform(0.005, 0.3))
+    masks += [np.eye(20, dtype=bool), np.ones((1, 9), bool), np.pad(np.ones((5, 1), bool), 3)]
+    n = 0
+    for m in masks:
+        pts = cv2.findNonZero(m.astype(np.uint8))
+        if pts is None or len(pts) < 3:
+            continue
+        want = np.zeros(m.shape, np.uint8)
+        cv2.fillConvexPoly(want, cv2.convexHull(pts), 1)
+        np.testing.assert_array_equal(_hull_mask(m), want)
+        n += 1
+    assert n > 250

@@ -41,6 +41,7 @@ __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "
            "detect_ball_markers", "classify_shape"]
 
 SHAPES = ("disc", "ring", "square", "triangle")
+_BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
 
 
 @dataclass(frozen=True)
@@ -154,12 +155,13 @@ def _shape_features(region: np.ndarray):
     cs, hier = cv2.findContours(region, cv2.RETR_CCOMP, cv2.CHAIN_APPROX_NONE)
     if not cs:
         return 0.0, np.nan
-    outer = [i for i in range(len(cs)) if hier[0][i][3] < 0]
-    main = max(outer, key=lambda i: cv2.contourArea(cs[i]))
-    a_out = cv2.contourArea(cs[main])
+    parent = hier[0][:, 3]
+    areas = [cv2.contourArea(ci) for ci in cs]
+    main = max(np.flatnonzero(parent < 0), key=areas.__getitem__)
+    a_out = areas[main]
     if a_out <= 0:
         return 0.0, np.nan
-    holes = sum(cv2.contourArea(cs[i]) for i in range(len(cs)) if hier[0][i][3] == main)
+    holes = sum(areas[i] for i in np.flatnonzero(parent == main))
     m = cv2.moments(cs[main])
     if m["m00"] <= 0:
         return holes / a_out, np.nan
@@ -169,8 +171,10 @@ def _shape_features(region: np.ndarray):
         return holes / a_out, np.nan
     white = v @ np.diag(1 / np.sqrt(w)) @ v.T
     p = cs[main].reshape(-1, 2).astype(float) - (m["m10"] / m["m00"], m["m01"] / m["m00"])
-    rad = np.sort(np.linalg.norm(p @ white.T, axis=1))
-    spread = float(rad[int(0.98 * (len(rad) - 1))] / max(rad[int(0.02 * (len(rad) - 1))], 1e-9))
+    rad = np.linalg.norm(p @ white.T, axis=1)
+    lo, hi = int(0.02 * (len(rad) - 1)), int(0.98 * (len(rad) - 1))
+    rad = np.partition(rad, (lo, hi))  # the two order statistics only, not a full sort
+    spread = float(rad[hi] / max(rad[lo], 1e-9))
     return holes / a_out, spread
 
 
@@ -242,6 +246,36 @@ def _hsv(bgr) -> tuple[float, float, float]:
     return float(h), float(s), float(v)
 
 
+def _hull_mask(mask: np.ndarray) -> np.ndarray:
+    """The filled convex hull (uint8 0/1) of the pixels of a boolean mask (>= 1 pixel).
+
+    The hull's vertices are among each row's first and last pixels, so the hull is taken of
+    those: the same polygon as of all the pixels (``cv2.findNonZero``), at a fraction of the cost.
+    """
+    ys = np.flatnonzero(mask.any(axis=1))
+    m = mask[ys]
+    ends = np.empty((2 * len(ys), 2), np.int32)
+    ends[0::2, 0] = m.argmax(axis=1)
+    ends[1::2, 0] = m.shape[1] - 1 - m[:, ::-1].argmax(axis=1)
+    ends[:, 1] = np.repeat(ys, 2)
+    out = np.zeros(mask.shape, np.uint8)
+    cv2.fillConvexPoly(out, cv2.convexHull(ends), 1)
+    return out
+
+
+def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
+    """``|(hue - h + 180) % 360 - 180|``: hue difference in degrees (0-180), float32.
+
+    Both in [0, 360] (OpenCV's float hue; ``h`` a float32 array broadcasting against ``hue``),
+    so ``a = hue - h + 180`` is in [-180, 540] and ``a % 360`` is ``a + 360`` below 0 and
+    ``a - 360`` (exact there) from 360 on: the same numbers as NumPy's float remainder, which
+    (fmod and a sign fix-up) costs ten times more.
+    """
+    a = hue - h + 180.0
+    a = np.where(a >= 360.0, a - 360.0, np.where(a < 0.0, a + 360.0, a))
+    return np.abs(a - 180.0)
+
+
 def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | Mapping = BASEBALL_MARKER_TYPES,
                         min_area_px: float | None = None, hue_tol_deg: float = 30.0,
                         min_saturation: float = 0.2, min_value: float = 0.12, dark_ratio: float = 0.5,
@@ -310,6 +344,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             raise ValueError(f"marker type {t.name!r}: colour {t.color_bgr} is neither saturated nor dark; "
                              "it cannot be told from a white ball")
     H, W = img.shape[:2]
+    # the palette in HSV, once per call: chromatic types stacked so each step below is one
+    # array operation over all of them (float32 like the crop's hue, so the same arithmetic)
+    ch_hue = np.array([h for _, h, _ in chroma], np.float32).reshape(-1, 1, 1)
+    ch_sat = np.array([s for _, _, s in chroma], np.float32).reshape(-1, 1, 1)
+    v_pal = min(_hsv(t.color_bgr)[2] for t in dark) if dark else 0.0
     rows = []
     # which balls' discs overlap (centres closer than the sum of the radii): computed once
     with np.errstate(invalid="ignore"):
@@ -327,7 +366,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
         hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
         hue, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
-        X, Y = np.meshgrid(np.arange(x0, x1, dtype=np.float32), np.arange(y0, y1, dtype=np.float32))
+        # pixel coordinates as a row (1, w) and a column (h, 1): they broadcast to the grid
+        X = np.arange(x0, x1, dtype=np.float32)[None, :]
+        Y = np.arange(y0, y1, dtype=np.float32)[:, None]
         dist = np.hypot(X - cx, Y - cy)
         disc = dist <= disc_fraction * r
         # pixels nearer (relative to radius) to another ball belong to that ball
@@ -337,13 +378,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # (a radius a little too large, e.g. a silhouette's, would otherwise put the dark
         # background rim inside the disc, and dark rim = "black marker"). The hull fills the
         # notches that dark markers cut into the lit silhouette.
-        fg = (disc & (val >= min_value)).astype(np.uint8)
-        pts = cv2.findNonZero(fg)
-        if pts is None or len(pts) < 3:
+        fg = disc & (val >= min_value)
+        if np.count_nonzero(fg) < 3:
             continue
-        support = np.zeros_like(fg)
-        cv2.fillConvexPoly(support, cv2.convexHull(pts), 1)
-        disc &= cv2.erode(support, np.ones((3, 3), np.uint8)).astype(bool)
+        disc &= cv2.erode(_hull_mask(fg), _BOX3).astype(bool)
         if not np.any(disc):
             continue
         min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
@@ -360,36 +398,38 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32)
         lit = disc & (vclose >= max(lit_fraction * top, min_value))
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
-        inner = cv2.erode(np.pad(disc, 1).astype(np.uint8), np.ones((3, 3), np.uint8))[1:-1, 1:-1].astype(bool)
+        inner = cv2.erode(disc.astype(np.uint8), _BOX3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
         # foreshortened marker is blurred below the core threshold at its rim).
         cand = []  # (types, weak mask, core mask, soft)
-        any_chroma = np.zeros_like(disc)
-        for t, h, s_pal in chroma:
-            dh = np.abs((hue - h + 180.0) % 360.0 - 180.0)
-            hue_ok = disc & (dh <= hue_tol_deg) & (val >= min_value)
-            soft = np.where(hue_ok, np.clip(sat / s_pal, 0, 1), 0.0).astype(np.float32)
+        lit_ok = disc & (val >= min_value)
+        if chroma:
+            dh = _hue_distance(hue, ch_hue)  # (types, h, w)
+            hue_ok = lit_ok & (dh <= hue_tol_deg)
+            soft = np.where(hue_ok, np.clip(sat / ch_sat, 0, 1), 0.0).astype(np.float32, copy=False)
             weak = soft >= weak_membership
-            any_chroma |= weak
-            cand.append(([tc for tc, hc, _ in chroma if tc is t], weak, hue_ok & (sat >= min_saturation), soft))
+            core = hue_ok & (sat >= min_saturation)
+            any_chroma = weak.any(axis=0)
+            for i, (t, _, _) in enumerate(chroma):
+                cand.append(([t], weak[i], core[i], soft[i]))
+        else:
+            any_chroma = np.zeros_like(disc)
         if dark:
             ratio = val / np.maximum(vclose, 1e-6)
-            v_pal = min(_hsv(t.color_bgr)[2] for t in dark)
-            soft = np.where(lit & ~any_chroma, np.clip((1.0 - ratio) / max(1.0 - v_pal, 0.1), 0, 1), 0.0)
-            soft = soft.astype(np.float32)
-            cand.append((dark, soft >= weak_membership, lit & ~any_chroma & (ratio < dark_ratio), soft))
+            lit_free = lit & ~any_chroma
+            soft = np.where(lit_free, np.clip((1.0 - ratio) / max(1.0 - v_pal, 0.1), 0, 1), 0.0)
+            soft = soft.astype(np.float32, copy=False)
+            cand.append((dark, soft >= weak_membership, lit_free & (ratio < dark_ratio), soft))
         for tl, weak, core, soft in cand:
             if not np.any(core):
                 continue
-            n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.astype(np.uint8), connectivity=8)
+            n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.view(np.uint8), connectivity=8)
+            areas = stats[:, cv2.CC_STAT_AREA]
             has_core = np.bincount(lab[core], minlength=n) > 0
-            for j in range(1, n):
-                area = float(stats[j, cv2.CC_STAT_AREA])
-                if area < min_area or not has_core[j]:
-                    continue
-                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, area, bi, cx, cy, r,
+            for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
+                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
                                      disc, inner, limb_fraction, min_aspect))
     rows = [rw for rw in rows if rw is not None]
     if reject_foreshortened:
@@ -412,10 +452,10 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     y1, x1 = min(by + bh + 2, lab.shape[0]), min(bx + bw + 2, lab.shape[1])
     sl = (slice(y0, y1), slice(x0, x1))
     comp = lab[sl] == j
-    soft, dark_luma, X, Y, disc, inner = soft[sl], dark_luma[sl], X[sl], Y[sl], disc[sl], inner[sl]
+    soft, dark_luma, X, Y, disc, inner = soft[sl], dark_luma[sl], X[:, sl[1]], Y[sl[0]], disc[sl], inner[sl]
     # luma-darkness weighted centroid over the region grown by one pixel: partly covered edge
     # pixels count in proportion, which makes the centroid sub-pixel (cf. detect/blobs.py)
-    grown = cv2.dilate(comp.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & disc
+    grown = cv2.dilate(comp.view(np.uint8), _BOX3).view(bool) & disc
     w = np.where(grown, dark_luma, 0.0)
     sw = float(w.sum())
     if sw <= 0:
@@ -437,13 +477,17 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     # for a 5 px marker (a binary mask's staircase would pass for a square)
     shape = "unknown"
     if area >= 20 and aspect >= min_aspect:
-        big = cv2.resize(w.astype(np.float32), None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)
-        big = cv2.copyMakeBorder(big, 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
-        peak = float(np.partition(w[w > 0], int(0.9 * (np.count_nonzero(w) - 1)))[int(0.9 * (np.count_nonzero(w) - 1))])
-        shape = _shape_name(*_shape_features((big >= 0.5 * peak).astype(np.uint8) * 255), 0.06)
+        big = cv2.resize(w, None, fx=4, fy=4, interpolation=cv2.INTER_LINEAR)  # w is float32
+        kth = int(0.9 * (np.count_nonzero(w) - 1))
+        peak = float(np.partition(w[w > 0], kth)[kth])
+        # cut (255 where >= half the peak), then a 2 px border of 0 (the weights' zero border cut)
+        cut = cv2.copyMakeBorder(cv2.compare(big, 0.5 * peak, cv2.CMP_GE), 2, 2, 2, 2, cv2.BORDER_CONSTANT, value=0)
+        shape = _shape_name(*_shape_features(cut), 0.06)
     elif area < 20:
         flags |= MarkerFlag.SMALL
-    col = float(np.clip(soft[comp].mean(), 0, 1))
+    # the mean membership (float32, as ndarray.mean, without its overhead), clipped to 0-1
+    sc = soft[comp]
+    col = min(max(float(sc.sum() / sc.size), 0.0), 1.0)
     match = [t for t in tlist if t.shape == shape]
     if match:
         t, shape_conf = match[0], 1.0

@@ -671,43 +671,46 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
         return empty, [BallMarkers.empty(), BallMarkers.empty()], {"n_3d": 0, "n_ray": 0, "epipolar_px": np.nan}
     ma = detect_ball_markers(img_a, centers_a, radius_a, types)
     mb = detect_ball_markers(img_b, centers_b, radius_b, types)
-    parts, n3, nray, epi = [], 0, 0, []
-    balls = [(ma.of_ball(k), mb.of_ball(k)) for k in range(K)]
-    matches = [match_epipolar(cam_a, cam_b, A.centers, B.centers, max_px=max_px,
-                              labels_a=list(A.types), labels_b=list(B.types)) for A, B in balls]
-    # every ball's matched markers triangulated in one call (a call per ball cost more than the
-    # triangulation itself), then split back per ball
-    n_m = [len(m.pairs) for m in matches]
-    if sum(n_m):
-        sel = [k for k in range(K) if n_m[k]]
-        u_all, ok_all = _triangulated_direction(
-            cam_a, cam_b, np.concatenate([balls[k][0].centers[matches[k].pairs[:, 0]] for k in sel]),
-            np.concatenate([balls[k][1].centers[matches[k].pairs[:, 1]] for k in sel]),
-            np.repeat(P, n_m, axis=0), radius_m)  # (3,) or (N, 3) centres: broadcast
-        starts = np.concatenate([[0], np.cumsum(n_m)])
-    for k in range(K):
-        (A, B), m = balls[k], matches[k]
-        ray_a, ray_b = list(m.unmatched_a), list(m.unmatched_b)
-        if len(m.pairs):
-            u, ok = u_all[starts[k]:starts[k + 1]], ok_all[starts[k]:starts[k + 1]]
-            if ok.any():
-                parts.append(MarkerObservations.from_directions(np.full(int(ok.sum()), k),
-                                                                list(A.types[m.pairs[ok, 0]]), u[ok], layout))
-                n3 += int(ok.sum())
-                epi += list(m.distance_px[ok])
-            ray_a += list(m.pairs[~ok, 0])
-            ray_b += list(m.pairs[~ok, 1])
-        for M, cam, idx in ((A, cam_a, ray_a), (B, cam_b, ray_b)):
-            if not idx:
-                continue
-            idx = np.asarray(idx, int)
+    # The K balls' markers (sorted by ball), matched in one call (a call per ball cost more than
+    # the matching): labelled by ball and type, a marker pairs only with one of the same ball
+    # and type, and an optimal assignment of such independent blocks is each block's own.
+    A, B = ma.select(ma.ball_index < K), mb.select(mb.ball_index < K)
+    m = match_epipolar(cam_a, cam_b, A.centers, B.centers, max_px=max_px,
+                       labels_a=[f"{k} {t}" for k, t in zip(A.ball_index, A.types)],
+                       labels_b=[f"{k} {t}" for k, t in zip(B.ball_index, B.types)])
+    ia, ib = m.pairs[:, 0], m.pairs[:, 1]
+    ball = A.ball_index[ia]  # of each match
+    if len(ia):
+        u, ok = _triangulated_direction(cam_a, cam_b, A.centers[ia], B.centers[ib], P[ball], radius_m)
+    else:
+        u, ok = np.zeros((0, 3)), np.zeros(0, bool)
+    # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
+    # sphere; a stable sort by ball keeps that order within each ball.
+    rays = []
+    for M, cam, idx in ((A, cam_a, np.concatenate([m.unmatched_a, ia[~ok]])),
+                        (B, cam_b, np.concatenate([m.unmatched_b, ib[~ok]]))):
+        idx = idx[np.argsort(M.ball_index[idx], kind="stable")].astype(int)
+        k_ray = M.ball_index[idx]
+        if len(idx):
             o, dirs = cam.rays(M.centers[idx])
-            u, hit = rays_to_directions(o, dirs, np.repeat(P[k:k + 1], len(idx), axis=0), radius_m)
-            if hit.any():
-                ob = MarkerObservations(np.full(int(hit.sum()), k), layout.type_index(list(M.types[idx[hit]])),
-                                        u[hit], np.ones(int(hit.sum()), bool))
-                parts.append(ob)
-                nray += int(hit.sum())
+            v, hit = rays_to_directions(o, dirs, P[k_ray], radius_m)
+        else:
+            v, hit = np.zeros((0, 3)), np.zeros(0, bool)
+        rays.append((M.types[idx], k_ray, v, hit))
+    parts, n3, nray, epi = [], 0, 0, []
+    for k in range(K):
+        sel = ok & (ball == k)
+        if sel.any():
+            parts.append(MarkerObservations.from_directions(np.full(int(sel.sum()), k), list(A.types[ia[sel]]),
+                                                            u[sel], layout))
+            n3 += int(sel.sum())
+            epi += list(m.distance_px[sel])
+        for types_r, k_ray, v, hit in rays:
+            sel = hit & (k_ray == k)
+            if sel.any():
+                parts.append(MarkerObservations(np.full(int(sel.sum()), k), layout.type_index(list(types_r[sel])),
+                                                v[sel], np.ones(int(sel.sum()), bool)))
+                nray += int(sel.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))
     return obs, [ma, mb], {"n_3d": n3, "n_ray": nray, "epipolar_px": float(np.median(epi)) if epi else np.nan}
