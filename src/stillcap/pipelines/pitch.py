@@ -652,7 +652,9 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     photos' markers are matched (same type, epipolar distance below ``max_px``, optimal
     assignment) and triangulated, and the direction from the ball centre is kept when the
     marker lies on the sphere (0.8-1.15 radii: a wrong match does not). Markers seen by one
-    camera (or badly triangulated) become pixel rays meeting the ball sphere.
+    camera (or badly triangulated) become pixel rays meeting the sphere their image centroids
+    lie on (:attr:`BallLayout.centroid_depth <stillcap.ball.layout.BallLayout.centroid_depth>`,
+    just inside the ball).
 
     Returns
     -------
@@ -701,11 +703,15 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             if not idx:
                 continue
             idx = np.asarray(idx, int)
+            ti = layout.type_index(list(M.types[idx]))
             o, dirs = cam.rays(M.centers[idx])
-            u, hit = rays_to_directions(o, dirs, np.repeat(P[k:k + 1], len(idx), axis=0), radius_m)
+            # a centroid is the image of a point inside the ball (BallLayout.centroid_depth): the
+            # ray meets that smaller sphere where the marker's axis does, the ball's surface
+            # closer to the line of sight (a fixed-sign spin error otherwise, "Coverage audit")
+            u, hit = rays_to_directions(o, dirs, np.repeat(P[k:k + 1], len(idx), axis=0),
+                                        radius_m * (1.0 - layout.centroid_depth[ti]))
             if hit.any():
-                ob = MarkerObservations(np.full(int(hit.sum()), k), layout.type_index(list(M.types[idx[hit]])),
-                                        u[hit], np.ones(int(hit.sum()), bool))
+                ob = MarkerObservations(np.full(int(hit.sum()), k), ti[hit], u[hit], np.ones(int(hit.sum()), bool))
                 parts.append(ob)
                 nray += int(hit.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
