@@ -121,3 +121,31 @@ def test_bad_input_names_the_shape():
         BallLayout.seed().visible([1.0, 0.0])
     with pytest.raises(ValueError, match=r"visible must have shape \(12,\)"):
         BallLayout.seed().separation_deg(np.ones(5, bool))
+
+
+def test_centroid_depth_is_where_the_studio_markers_image_centroids_lie():
+    """A marker's projected-area-weighted image centroid (shapes as the studio paints them) is the
+    image of (1 - k) r u: k = centroid_depth to first order, far from k = 0 (the surface point)."""
+    from stillcap.studio.renderer import _marker_material
+    from stillcap.studio.scene import Sphere, SphereMarker
+
+    layout = BallLayout.seed()
+    k = layout.centroid_depth
+    assert k.shape == (4,) and np.all(k > 0)
+    # equal-area samples of the cap within 0.4 rad of +z (uniform in z and in azimuth)
+    z = np.linspace(np.cos(0.4), 1.0, 700)
+    phi = np.linspace(0.0, 2 * np.pi, 1440, endpoint=False)
+    Z, PHI = np.meshgrid(z, phi)
+    s = np.sqrt(1 - Z ** 2)
+    n = np.stack([s * np.cos(PHI), s * np.sin(PHI), Z], axis=-1).reshape(-1, 3)
+    for t, shape in enumerate(layout.type_shapes):
+        body = Sphere(1.0, markers=[SphereMarker([0.0, 0.0, 1.0], shape, layout.marker_size, angle=0.3)])
+        inside = _marker_material(body, n) > 0
+        for alpha in np.radians([20.0, 45.0, 65.0]):
+            view = np.array([np.sin(alpha), 0.0, np.cos(alpha)])  # towards the camera
+            radial = np.array([-np.cos(alpha), 0.0, np.sin(alpha)])  # image direction of +z
+            w = np.clip(n[inside] @ view, 0.0, None)  # projected area of each sample
+            ratio = (w @ (n[inside] @ radial)) / w.sum() / np.sin(alpha)
+            assert abs((1 - ratio) - k[t]) < 0.03 * k[t], (shape, np.degrees(alpha), 1 - ratio, k[t])
+    with pytest.raises(ValueError, match="no centroid model"):
+        BallLayout(layout.directions, layout.types, type_shapes=("square", "ring", "triangle", "star")).centroid_depth

@@ -61,6 +61,22 @@ def test_rays_meet_the_visible_hemisphere():
         rays_to_directions(np.zeros((3, 3)), np.ones((2, 3)), c, 0.0368)
 
 
+def test_rays_meet_a_sphere_per_ray():
+    # one radius per ray = each ray on its own sphere; a radius of the wrong length is refused
+    c = np.array([[0.0, 18.0, 1.7]] * 3)
+    cam = np.array([3.5, 17.0, 1.2])
+    X = c + [[0.03, 0.0, 0.0], [0.0, -0.01, 0.03], [0.02, 0.01, -0.02]]
+    r = np.array([0.036, 0.0368, 0.035])
+    d, hit = rays_to_directions(np.repeat(cam[None], 3, 0), X - cam, c, r)
+    for i in range(3):
+        di, hi = rays_to_directions(cam[None], (X[i] - cam)[None], c[i:i + 1], r[i])
+        assert hit[i] == hi[0] and np.allclose(d[i], di[0], atol=1e-12)
+    with pytest.raises(ValueError, match="one value or one per ray"):
+        rays_to_directions(np.repeat(cam[None], 3, 0), X - cam, c, r[:2])
+    with pytest.raises(ValueError, match="positive"):
+        rays_to_directions(np.repeat(cam[None], 3, 0), X - cam, c, [0.036, 0.0, 0.035])
+
+
 def test_observation_constructors():
     obs = MarkerObservations.from_per_flash([
         (np.eye(3), ["red", "blue", 3]),

@@ -67,6 +67,14 @@ DEFAULT_PALETTE = {
 }
 #: Angular size of a marker, rad (disc radius, square half-side, ...): 12 mm on a baseball.
 DEFAULT_MARKER_SIZE = 0.16
+#: Inner radius of a ring marker as a fraction of its outer radius (the studio's
+#: :class:`~stillcap.studio.scene.SphereMarker` default).
+RING_INNER = 0.55
+#: Mean squared angular distance of a marker's painted area from its centre, in units of
+#: ``marker_size ** 2``, per shape (azimuthal-equidistant tangent coordinates: disc radius a:
+#: a^2 / 2; ring a^2 (1 + q^2) / 2; square of half-side a: 2 a^2 / 3; equilateral triangle of
+#: circumradius a: a^2 / 4).
+_SHAPE_SECOND_MOMENT = {"disc": 0.5, "ring": 0.5 * (1 + RING_INNER ** 2), "square": 2.0 / 3.0, "triangle": 0.25}
 
 # (azimuth deg, polar deg, type index) of the 12 markers, in order
 _SEED_MARKERS = (
@@ -195,6 +203,30 @@ class BallLayout:
     def shapes(self) -> tuple:
         """Shape of each marker, length n."""
         return tuple(self.type_shapes[k] for k in self.types)
+
+    @cached_property
+    def centroid_depth(self) -> np.ndarray:
+        """How far inside the ball a marker's image centroid lies, per type, as a fraction of the radius.
+
+        A painted patch on the sphere, seen from any direction, has its image centroid (area
+        weighted: each patch element by its projected area) at the image of the point
+        ``(1 - k) radius u`` on the marker's axis ``u``, to first order in the marker's size,
+        with ``k`` the mean squared angular distance of the painted area from the marker's centre
+        (rad^2): the patch curves away from the viewer and its far side is foreshortened more than
+        its near side. So a pixel ray through a centroid meets the sphere closer to the line of
+        sight than the marker's centre (by ``k tan(angle from the line of sight)``, ~2 deg for
+        the seed's markers 65 deg off it), while two views' centroids triangulate to that inner
+        point along the right direction. Neglected: markers cut by the limb.
+
+        Returns
+        -------
+        ndarray, shape (n_types,)
+            ``k`` per type index (the seed's markers: 0.0064 (triangle) to 0.0171 (square)).
+        """
+        unknown = [s for s in self.type_shapes if s not in _SHAPE_SECOND_MOMENT]
+        if unknown:
+            raise ValueError(f"no centroid model for marker shapes {unknown} (known: {sorted(_SHAPE_SECOND_MOMENT)})")
+        return np.array([_SHAPE_SECOND_MOMENT[s] for s in self.type_shapes]) * self.marker_size ** 2
 
     @property
     def colors(self) -> np.ndarray:

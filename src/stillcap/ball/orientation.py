@@ -146,8 +146,9 @@ def rays_to_directions(ray_origins, ray_directions, ball_centers, radius: float 
         Ray directions through the marker pixels (any length), world frame.
     ball_centers : array_like, shape (M, 3)
         Ball centre at each observation's flash, m.
-    radius : float
-        Ball radius, m.
+    radius : float or array_like, shape (M,)
+        Sphere radius, m (per ray: e.g. the depth of each marker's image centroid,
+        :attr:`stillcap.ball.layout.BallLayout.centroid_depth`).
 
     Returns
     -------
@@ -159,8 +160,9 @@ def rays_to_directions(ray_origins, ray_directions, ball_centers, radius: float 
     o = as_array(ray_origins, (None, 3), "ray_origins")
     d = _unit_rows(as_array(ray_directions, (len(o), 3), "ray_directions"), "ray_directions")
     c = as_array(ball_centers, (len(o), 3), "ball_centers")
-    if not radius > 0:
-        raise ValueError(f"radius must be positive, got {radius}")
+    radius = np.asarray(radius, float)
+    if radius.shape not in ((), (len(o),)) or not np.all(radius > 0):
+        raise ValueError(f"radius must be positive, one value or one per ray, got {radius}")
     oc = o - c
     b = np.einsum("ij,ij->i", oc, d)
     disc = b * b - (np.einsum("ij,ij->i", oc, oc) - radius * radius)

@@ -652,7 +652,9 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     photos' markers are matched (same type, epipolar distance below ``max_px``, optimal
     assignment) and triangulated, and the direction from the ball centre is kept when the
     marker lies on the sphere (0.8-1.15 radii: a wrong match does not). Markers seen by one
-    camera (or badly triangulated) become pixel rays meeting the ball sphere.
+    camera (or badly triangulated) become pixel rays meeting the sphere their image centroids
+    lie on (:attr:`BallLayout.centroid_depth <stillcap.ball.layout.BallLayout.centroid_depth>`,
+    just inside the ball).
 
     Returns
     -------
@@ -691,12 +693,16 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
                         (B, cam_b, np.concatenate([m.unmatched_b, ib[~ok]]))):
         idx = idx[np.argsort(M.ball_index[idx], kind="stable")].astype(int)
         k_ray = M.ball_index[idx]
+        ti = layout.type_index(list(M.types[idx]))
         if len(idx):
             o, dirs = cam.rays(M.centers[idx])
-            v, hit = rays_to_directions(o, dirs, P[k_ray], radius_m)
+            # a centroid is the image of a point inside the ball (BallLayout.centroid_depth): the
+            # ray meets that smaller sphere where the marker's axis does, the ball's surface
+            # closer to the line of sight (a fixed-sign spin error otherwise, "Coverage audit")
+            v, hit = rays_to_directions(o, dirs, P[k_ray], radius_m * (1.0 - layout.centroid_depth[ti]))
         else:
             v, hit = np.zeros((0, 3)), np.zeros(0, bool)
-        rays.append((M.types[idx], k_ray, v, hit))
+        rays.append((ti, k_ray, v, hit))
     parts, n3, nray, epi = [], 0, 0, []
     for k in range(K):
         sel = ok & (ball == k)
@@ -705,11 +711,11 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
                                                             u[sel], layout))
             n3 += int(sel.sum())
             epi += list(m.distance_px[sel])
-        for types_r, k_ray, v, hit in rays:
+        for ti, k_ray, v, hit in rays:
             sel = hit & (k_ray == k)
             if sel.any():
-                parts.append(MarkerObservations(np.full(int(sel.sum()), k), layout.type_index(list(types_r[sel])),
-                                                v[sel], np.ones(int(sel.sum()), bool)))
+                parts.append(MarkerObservations(np.full(int(sel.sum()), k), ti[sel], v[sel],
+                                                np.ones(int(sel.sum()), bool)))
                 nray += int(sel.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))
