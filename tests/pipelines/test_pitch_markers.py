@@ -53,9 +53,11 @@ def ball_by_ball(cam_a, cam_b, ma, mb, P, layout, radius_m, max_px):
         for M, cam, idx in ((A, cam_a, ray_a), (B, cam_b, ray_b)):
             if idx:
                 o, d = cam.rays(M.centers[idx])
-                u, hit = rays_to_directions(o, d, np.repeat(P[k:k + 1], len(idx), axis=0), radius_m)
-                parts.append(MarkerObservations(np.full(hit.sum(), k), layout.type_index(list(M.types[np.array(idx)[hit]])),
-                                                u[hit], np.ones(hit.sum(), bool)))
+                ti = layout.type_index(list(M.types[idx]))
+                # rays meet the sphere the type's image centroids lie on (BallLayout.centroid_depth)
+                u, hit = rays_to_directions(o, d, np.repeat(P[k:k + 1], len(idx), axis=0),
+                                            radius_m * (1.0 - layout.centroid_depth[ti]))
+                parts.append(MarkerObservations(np.full(hit.sum(), k), ti[hit], u[hit], np.ones(hit.sum(), bool)))
                 nray += hit.sum()
     return MarkerObservations.concatenate(parts), n3, nray, float(np.median(epi)) if epi else np.nan
 
