@@ -70,11 +70,15 @@ def _expmap(rotvecs) -> np.ndarray:
     th2 = np.einsum("...i,...i->...", v, v)
     th = np.sqrt(th2)
     small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    if small.any():
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+        b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    else:  # the same numbers without the series branch (most calls: small arrays, no zero angle)
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / (th * th)
     c = 1.0 - b * th2  # cos(theta)
-    R = (b[..., None, None] * v[..., :, None]) * v[..., None, :]
+    R = (b[..., None] * v)[..., :, None] * v[..., None, :]  # (b v_i) v_j
     av = a[..., None] * v
     R[..., 0, 0] += c
     R[..., 1, 1] += c
@@ -104,9 +108,13 @@ def _left_jacobian(rotvecs) -> np.ndarray:
     th2 = np.einsum("...i,...i->...", v, v)
     th = np.sqrt(th2)
     small = th < 1e-4
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
-    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths ** 3))
+    if small.any():
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+        b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths ** 3))
+    else:
+        a = (1.0 - np.cos(th)) / (th * th)
+        b = (th - np.sin(th)) / (np.asarray(th) ** 3)  # ndarray power as above (a numpy scalar's differs)
     K = _skew(v)
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
