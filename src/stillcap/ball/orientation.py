@@ -864,6 +864,43 @@ def _per_flash_inits(times, flash_fit, period, t0, n_hyp: int = 3):
     return out
 
 
+def _coarse_grid(step_deg):
+    """The coarse grid of rotations per interval of :func:`_grid_inits`: a cubic grid of spacing
+    ``step_deg`` inside the ball ``|rho| <= pi`` (plus half a step), (G, 3)."""
+    h = np.radians(step_deg)
+    n = int(np.ceil(np.pi / h))
+    g = np.arange(-n, n + 1) * h
+    coarse = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return coarse[np.linalg.norm(coarse, axis=1) <= np.pi + 0.5 * h]
+
+
+_COARSE_ROTATIONS = {}
+
+
+def _coarse_grid_rotations(step_deg, step):
+    """``exp(rho step)`` of every coarse grid point ``rho``, (G, 9) row-major: cached, since the
+    grid is fixed and the steps (flash time minus anchor time over the period) are small integers
+    that recur from pitch to pitch; the same numbers as computing them anew (elementwise)."""
+    key = (float(step_deg), float(step))
+    E = _COARSE_ROTATIONS.get(key)
+    if E is None:
+        if len(_COARSE_ROTATIONS) >= 64:  # bounded: ~0.6 MB per entry at 15 deg
+            _COARSE_ROTATIONS.clear()
+        E = _expmap(_coarse_grid(step_deg) * step).reshape(-1, 9)
+        E.flags.writeable = False
+        _COARSE_ROTATIONS[key] = E
+    return E
+
+
+def _capped_sq_angles(c, cap):
+    """``min(arccos(clip(c, -1, 1)), cap) ** 2`` elementwise: the arccos only where it can be
+    below the cap (most cosines of a grid scan are far from every marker: cap^2 then)."""
+    out = np.full(c.shape, cap * cap)
+    near = c > np.cos(cap) - 1e-9  # arccos(c) > cap elsewhere, with margin for rounding
+    out[near] = np.minimum(np.arccos(np.clip(c[near], -1, 1)), cap) ** 2
+    return out
+
+
 def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     """Best constant spins from a grid over the rotation per interval ``rho`` (|rho| <= pi).
 
@@ -888,9 +925,10 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     # capped, the same cost; the scan then needs no masking pass
     zero_pad = cap <= 0.5 * np.pi
 
-    def costs(rho, k_a, R_as):
+    def costs(rho, k_a, R_as, coarse_step=None):
         """Capped costs (len(R_as), G) of the grid points rho for anchors (k_a, R_a) of one flash:
-        the rotations exp(rho (t_k - t_a) / T), the scan's main cost, are shared by the anchors."""
+        the rotations exp(rho (t_k - t_a) / T), the scan's main cost, are shared by the anchors
+        (and, for the coarse grid ``coarse_step`` = its spacing, by every call: cached per step)."""
         steps = (times - times[k_a]) / period
         Wks = []
         for R_a in R_as:
@@ -906,10 +944,15 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
             Wks.append([(k, idx, np.ascontiguousarray(Wuv[idx].transpose(1, 2, 0)).reshape(9, -1))
                         for k, idx in flashes])
         out = np.empty((len(R_as), len(rho)))
-        for s in range(0, len(rho), 1024):
-            E = _expmap(rho[s:s + 1024, None, :] * steps[None, :, None])  # (G, K, 3, 3)
-            G = len(E)
-            Ek = {k: np.ascontiguousarray(E[:, k]).reshape(G, 9) for k, _ in flashes}
+        chunk = 1024  # grid points at a time (the scan's arrays stay in the cache)
+        for s in range(0, len(rho), chunk):
+            if coarse_step is not None:
+                Ek = {k: _coarse_grid_rotations(coarse_step, steps[k])[s:s + chunk] for k, _ in flashes}
+            else:  # only the flashes with markers
+                ks = [k for k, _ in flashes]
+                E = _expmap(rho[s:s + chunk, None, :] * steps[ks][None, :, None])  # (G, K', 3, 3)
+                Ek = {k: np.ascontiguousarray(E[:, i]).reshape(len(E), 9) for i, k in enumerate(ks)}
+            G = min(chunk, len(rho) - s)
             for ia, Wk in enumerate(Wks):
                 best = np.empty((G, len(u)))
                 for k, idx, W in Wk:
@@ -920,14 +963,11 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
                     for j in range(1, n_c):  # elementwise over contiguous blocks: faster than .max(1)
                         np.maximum(m, cos[:, j], out=m)
                     best[:, idx] = m
-                out[ia, s:s + 1024] = np.sum(np.minimum(np.arccos(np.clip(best, -1, 1)), cap) ** 2, axis=1)
+                out[ia, s:s + chunk] = _capped_sq_angles(best, cap).sum(axis=1)
         return out
 
     h = np.radians(step_deg)
-    n = int(np.ceil(np.pi / h))
-    g = np.arange(-n, n + 1) * h
-    coarse = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-    coarse = coarse[np.linalg.norm(coarse, axis=1) <= np.pi + 0.5 * h]
+    coarse = _coarse_grid(step_deg)
     f = np.arange(-2, 3) * (h / 4)
     local = np.stack(np.meshgrid(f, f, f, indexing="ij"), -1).reshape(-1, 3)
     found = []
@@ -935,7 +975,7 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     by_flash = {}
     for k_a, R_a in anchors:
         by_flash.setdefault(k_a, []).append(R_a)
-    coarse_costs = {k_a: costs(coarse, k_a, R_as) for k_a, R_as in by_flash.items()}
+    coarse_costs = {k_a: costs(coarse, k_a, R_as, step_deg) for k_a, R_as in by_flash.items()}
     seen = {k_a: 0 for k_a in by_flash}
     for k_a, R_a in anchors:
         c = coarse_costs[k_a][seen[k_a]]
