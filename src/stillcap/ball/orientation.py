@@ -679,8 +679,20 @@ class _GlobalProblem:
         j = cos.argmax(1)
         return j, np.arccos(np.clip(cos[np.arange(len(j)), j], -1, 1))
 
+    def _subset(self, sel):
+        """``u``, ``t1``, ``t2`` and ``flash`` of the observations ``sel``: kept, since a fit asks
+        for the same subset at every evaluation."""
+        key = np.asarray(sel).tobytes()
+        last = getattr(self, "_last_subset", None)
+        if last is None or last[0] != key:
+            last = (key, (self.u[sel], self.t1[sel], self.t2[sel], self.flash[sel]))
+            self._last_subset = last
+        return last[1]
+
     def _predict(self, x, R0_ref, j, sel):
-        """Predicted marker directions p (m, 3), and the pieces the Jacobian needs.
+        """Predicted marker directions p (m, 3), and the pieces the residuals and the Jacobian
+        need: v (m, 3), A (m, 3, 3), the clipped cosine c (m,) between u and p, and
+        ``_phi_over_sin(c)``.
 
         The last result is kept: least squares asks for the residuals and then the Jacobian
         at the same parameters (the key holds every input, also ``dt``, which
@@ -690,11 +702,14 @@ class _GlobalProblem:
         last = getattr(self, "_last", None)
         if last is not None and last[0] == key:
             return last[1]
-        E0 = _expmap(x[:3])
-        v = (E0 @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
-        A = _expmap(np.outer(self.dt, x[3:]))[self.flash[sel]]  # (m, 3, 3)
+        u, _, _, fl = self._subset(sel)
+        # exp(delta) and the K flash rotations in one call (elementwise: the same numbers)
+        E = _expmap(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
+        v = (E[0] @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
+        A = E[1:][fl]  # (m, 3, 3)
         p = np.einsum("mab,bm->ma", A, v)
-        out = (p, v.T, A)
+        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
+        out = (p, v.T, A, c, _phi_over_sin(c))
         for a in out:
             a.flags.writeable = False
         self._last = (key, out)
@@ -703,26 +718,24 @@ class _GlobalProblem:
     def residuals(self, x, R0_ref, j, sel):
         """Log-map residuals (2 per observation, rad) at parameters x = (delta (3), w (3)):
         the angle between observation u and prediction p as a vector in u's tangent plane."""
-        p, _, _ = self._predict(x, R0_ref, j, sel)
-        u = self.u[sel]
-        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
-        g = _phi_over_sin(c)
-        r1 = g * np.einsum("ma,ma->m", self.t1[sel], p)
-        r2 = g * np.einsum("ma,ma->m", self.t2[sel], p)
+        p, _, _, _, g = self._predict(x, R0_ref, j, sel)
+        _, t1, t2, _ = self._subset(sel)
+        r1 = g * np.einsum("ma,ma->m", t1, p)
+        r2 = g * np.einsum("ma,ma->m", t2, p)
         return np.concatenate([r1, r2])
 
     def jacobian(self, x, R0_ref, j, sel):
         """Analytic Jacobian of :meth:`residuals`, shape (2 m, 6)."""
-        p, v, A = self._predict(x, R0_ref, j, sel)
-        u, t1, t2 = self.u[sel], self.t1[sel], self.t2[sel]
-        dt = self.dt[self.flash[sel]]
+        p, v, A, c, g = self._predict(x, R0_ref, j, sel)
+        u, t1, t2, fl = self._subset(sel)
+        dt = self.dt[fl]
+        # J_l of delta and per flash (then per observation: the same numbers, K instead of m
+        # evaluations), in one call
+        Jl = _left_jacobian(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
         # dp/d(delta) = -A [v]x J_l(delta);  dp/dw = -[p]x J_l(w dt) dt
-        dp_dd = -np.einsum("mab,mbc->mac", A, _skew(v)) @ _left_jacobian(x[:3])
-        # J_l per flash, then per observation (the same numbers, K instead of m evaluations)
-        dp_dw = -_skew(p) @ _left_jacobian(np.outer(self.dt, x[3:]))[self.flash[sel]] * dt[:, None, None]
+        dp_dd = -np.einsum("mab,mbc->mac", A, _skew(v)) @ Jl[0]
+        dp_dw = -_skew(p) @ Jl[1:][fl] * dt[:, None, None]
         dp = np.concatenate([dp_dd, dp_dw], axis=2)  # (m, 3, 6)
-        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
-        g = _phi_over_sin(c)
         dg = _dphi_over_sin(c)
         dc = np.einsum("ma,mak->mk", u, dp)
         J1 = g[:, None] * np.einsum("ma,mak->mk", t1, dp) + (dg * (t1 * p).sum(1))[:, None] * dc
