@@ -342,18 +342,20 @@ def _nearest_same_type(R, u, t, layout):
     cos = np.einsum("na,hja->hnj", u, model)  # (H, n, 12)
     same = layout.types[None, :] == t[:, None]  # (n, 12)
     cos = np.where(same[None], cos, -2.0)
-    j = cos.argmax(-1)
-    c = np.take_along_axis(cos, j[..., None], -1)[..., 0]
-    return np.arccos(np.clip(c, -1.0, 1.0)), j
+    # the largest cosine is the one at argmax; np.minimum/np.maximum clip with less overhead
+    # than take_along_axis and np.clip (this runs ~10 times per flash in orient_flash)
+    return np.arccos(np.minimum(np.maximum(cos.max(-1), -1.0), 1.0)), cos.argmax(-1)
 
 
 def _kabsch(a, b, w=None):
     """Rotation R minimising sum w |R a_i - b_i|^2 (a, b: (n, 3))."""
-    w = np.ones(len(a)) if w is None else w
-    h = (a * w[:, None]).T @ b
+    h = (a if w is None else a * w[:, None]).T @ b
     u, _, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(vt.T @ u.T))
-    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    # vt^T diag(1, 1, d) u^T with the diagonal applied as a column sign (exact, no product)
+    v = vt.T.copy()
+    v[:, 2] *= d
+    return v @ u.T
 
 
 @dataclass
