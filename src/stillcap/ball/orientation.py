@@ -890,6 +890,9 @@ def _coarse_grid(step_deg):
 
 
 _COARSE_ROTATIONS = {}
+# ~0.6 MB per entry at 15 deg; a pitch's steps take 10-20 entries (times with rounding noise
+# give several keys per integer step): 64 entries (~38 MB) keep the last few pitches' steps
+_COARSE_CACHE_SIZE = 64
 
 
 def _coarse_grid_rotations(step_deg, step):
@@ -897,13 +900,13 @@ def _coarse_grid_rotations(step_deg, step):
     grid is fixed and the steps (flash time minus anchor time over the period) are small integers
     that recur from pitch to pitch; the same numbers as computing them anew (elementwise)."""
     key = (float(step_deg), float(step))
-    E = _COARSE_ROTATIONS.get(key)
+    E = _COARSE_ROTATIONS.pop(key, None)
     if E is None:
-        if len(_COARSE_ROTATIONS) >= 64:  # bounded: ~0.6 MB per entry at 15 deg
-            _COARSE_ROTATIONS.clear()
+        if len(_COARSE_ROTATIONS) >= _COARSE_CACHE_SIZE:  # least recently used out
+            del _COARSE_ROTATIONS[next(iter(_COARSE_ROTATIONS))]
         E = _expmap(_coarse_grid(step_deg) * step).reshape(-1, 9)
         E.flags.writeable = False
-        _COARSE_ROTATIONS[key] = E
+    _COARSE_ROTATIONS[key] = E  # (re)inserted last: dicts keep insertion order
     return E
 
 
