@@ -123,6 +123,8 @@ def _phi_over_sin(c):
     """``arccos(c) / sqrt(1 - c^2)`` (1 at c = 1), for the log-map residual."""
     s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
     small = s < 1e-6
+    if not small.any():  # the same numbers without the series branch
+        return np.arctan2(s, c) / s
     return np.where(small, 1.0 + (1.0 - c) / 3.0, np.arctan2(s, c) / np.where(small, 1.0, s))
 
 
@@ -131,6 +133,8 @@ def _dphi_over_sin(c):
     s2 = np.maximum(1.0 - c * c, 0.0)
     s = np.sqrt(s2)
     small = s < 1e-4
+    if not small.any():  # the same numbers without the series branch
+        return (-1.0 + np.arctan2(s, c) * c / s) / s2
     ss = np.where(small, 1.0, s)
     return np.where(small, -1.0 / 3.0, (-1.0 + np.arctan2(s, c) * c / ss) / np.where(small, 1.0, s2))
 
@@ -808,23 +812,28 @@ def _time_offset_cov(prob, x, R0, j, sel, bread, J, time_groups, time_group_sigm
     return out
 
 
-def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None):
-    """Outer loop: assign nearest same-type markers, robust least squares, repeat."""
+def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None, assigned=None):
+    """Outer loop: assign nearest same-type markers, robust least squares, repeat.
+
+    ``assigned``: ``prob.assign(R0, w)`` when the caller has it already."""
     m = len(prob.u)
     sel = np.ones(m, bool) if sel is None else sel
     j_prev = None
     res = None
+    jd = assigned
     for _ in range(max_outer):
-        j, _ = prob.assign(R0, w)
+        j, d = prob.assign(R0, w) if jd is None else jd
+        jd = (j, d)
         if j_prev is not None and np.array_equal(j[sel], j_prev[sel]):
-            break
+            break  # (j, d) is the assignment at the solution
         j_prev = j
         res = least_squares(prob.residuals, np.concatenate([np.zeros(3), w]), jac=prob.jacobian,
                             args=(R0, j, sel), loss=loss, f_scale=f_scale, x_scale=x_scale,
                             xtol=1e-9, ftol=1e-9, gtol=1e-9, max_nfev=100)
         R0 = _expmap(res.x[:3]) @ R0
         w = res.x[3:].copy()
-    j, d = prob.assign(R0, w)
+        jd = None
+    j, d = prob.assign(R0, w) if jd is None else jd
     return R0, w, j, d, res
 
 
@@ -1182,9 +1191,11 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
                    time_groups, time_group_sigma, t_start) -> SpinResult:
     """:func:`fit_spin` after the robust stage: outliers, least-squares polish, covariance."""
     _, R0, w, j, d = best
+    assigned = (j, d)  # at (R0, w)
     if spin_init is None and np.linalg.norm(w) * period > np.pi:
         # the same rotation per interval the short way round: report the principal alias
         w = Rotation.from_rotvec(w * period).as_rotvec() / period
+        assigned = None
 
     # outliers, then a plain least-squares polish on the inliers for the covariance
     r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, np.ones(len(obs), bool))
@@ -1196,7 +1207,7 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         inl = d <= np.sort(d)[min(3, len(d) - 1)]
         message = "few inliers"
     R0, w, j, d, res = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
-                                     max_outer=max_outer, sel=inl)
+                                     max_outer=max_outer, sel=inl, assigned=assigned)
     x = np.concatenate([np.zeros(3), w])
     r = prob.residuals(x, R0, j, inl)
     J = prob.jacobian(x, R0, j, inl)
