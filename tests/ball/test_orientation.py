@@ -361,3 +361,14 @@ def test_grid_scan_gives_the_same_starts_with_its_rotation_cache_cold_or_warm():
         O._coarse_grid_rotations(15.0, float(s))
     assert len(O._COARSE_ROTATIONS) == O._COARSE_CACHE_SIZE and (15.0, 0.0) not in O._COARSE_ROTATIONS
     O._COARSE_ROTATIONS.clear()
+
+
+def test_model_triad_table_matches_the_pairs_it_replaces():
+    from stillcap.ball.layout import _triad
+    from stillcap.ball.orientation import _model_triads_t
+
+    m = LAYOUT.directions
+    T = _model_triads_t(m)
+    i, j = np.nonzero(~np.eye(len(m), dtype=bool))
+    assert np.array_equal(T[i, j], np.transpose(_triad(m[i], m[j]), (0, 2, 1)))
+    assert _model_triads_t(m.copy()) is T  # kept per layout

@@ -396,6 +396,26 @@ class FlashOrientation:
     determined: bool = True
 
 
+_MODEL_TRIADS = {}
+
+
+def _model_triads_t(m):
+    """``_triad(m_i, m_j)^T`` of every ordered pair of layout markers, (n, n, 3, 3), kept per
+    layout (orient_flash needs the same ones on every flash; row-wise the same numbers)."""
+    key = m.tobytes()
+    T = _MODEL_TRIADS.get(key)
+    if T is None:
+        n = len(m)
+        i, j = np.divmod(np.arange(n * n), n)
+        with np.errstate(invalid="ignore", divide="ignore"):  # i = j (never used) or antipodal
+            T = np.transpose(_triad(m[i], m[j]), (0, 2, 1)).reshape(n, n, 3, 3)
+        T.flags.writeable = False
+        if len(_MODEL_TRIADS) >= 8:
+            _MODEL_TRIADS.clear()
+        _MODEL_TRIADS[key] = T
+    return T
+
+
 def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg: float = 8.0,
                  pair_tol_deg: float = 8.0, n_candidates: int = 4,
                  distinct_deg: float = 10.0) -> FlashOrientation:
@@ -456,7 +476,7 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     if not len(hp):
         return FlashOrientation(nan3, np.inf, 0, np.nan, np.full(len(u), -1), np.inf, [], False)
     ha, hb = a_idx[hp], b_idx[hp]
-    R = _triad(u[ha], u[hb]) @ np.transpose(_triad(m[hi], m[hj]), (0, 2, 1))
+    R = _triad(u[ha], u[hb]) @ _model_triads_t(m)[hi, hj]
     d, _ = _nearest_same_type(R, u, t, layout)
     cost = np.sum(np.minimum(d, cap) ** 2, axis=1)
     order = np.argsort(cost)
@@ -880,7 +900,8 @@ def _per_flash_inits(times, flash_fit, period, t0, n_hyp: int = 3):
         grp = ang[i] < tol
         used |= grp
         w0 = Rotation.from_matrix(_mean_rotation([rel[g] for g in np.flatnonzero(grp)])).as_rotvec() / period
-        R0s = [_expmap(-w0 * (times[k] - t0)) @ R for k in keys for R in flash_fit[k].candidates[:2]]
+        back = _expmap((-w0)[None, :] * (times[keys] - t0)[:, None])  # per flash, one call (row-wise the same)
+        R0s = [back[i] @ R for i, k in enumerate(keys) for R in flash_fit[k].candidates[:2]]
         idx = _consensus_rotations(R0s, np.radians(20.0))
         out.append((_mean_rotation([R0s[g] for g in idx]), w0))
         if len(out) >= n_hyp:
