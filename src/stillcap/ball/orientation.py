@@ -477,33 +477,30 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
         return FlashOrientation(nan3, np.inf, 0, np.nan, np.full(len(u), -1), np.inf, [], False)
     ha, hb = a_idx[hp], b_idx[hp]
     R = _triad(u[ha], u[hb]) @ _model_triads_t(m)[hi, hj]
-    d, _ = _nearest_same_type(R, u, t, layout)
+    d, jh = _nearest_same_type(R, u, t, layout)
     cost = np.sum(np.minimum(d, cap) ** 2, axis=1)
     order = np.argsort(cost)
     # refine the best distinct hypotheses
-    refined = []
+    refined = []  # (R, cost, angles, assigned markers)
     for h in order:
         Rh = R[h]
-        if refined and _near_any(Rh, [r for r, _ in refined], np.radians(distinct_deg)):
+        if refined and _near_any(Rh, [rc[0] for rc in refined], np.radians(distinct_deg)):
             continue
-        Rh, c = _refine(Rh, u, t, layout, cap)
-        refined.append((Rh, c))
+        refined.append(_refine(Rh, u, t, layout, cap, nearest=(d[h:h + 1], jh[h:h + 1])))
         if len(refined) >= max(n_candidates, 2) + 2:
             break
     refined.sort(key=lambda rc: rc[1])
     distinct = []
-    for r, c in refined:
-        if not any(_rot_angle(r, q) < np.radians(distinct_deg) for q, _ in distinct):
-            distinct.append((r, c))
-    best, best_cost = distinct[0]
-    d, j = _nearest_same_type(best[None], u, t, layout)
-    d, j = d[0], j[0]
+    for rc in refined:
+        if not any(_rot_angle(rc[0], q[0]) < np.radians(distinct_deg) for q in distinct):
+            distinct.append(rc)
+    best, best_cost, d, j = distinct[0]
     inl = d < cap
     rms = float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))) if inl.any() else np.nan
     runner = distinct[1][1] if len(distinct) > 1 else np.inf
     determined = int(inl.sum()) >= 2
     return FlashOrientation(best if determined else nan3, float(best_cost), int(inl.sum()), rms, j,
-                            float(runner), [r for r, _ in distinct[:n_candidates]], determined)
+                            float(runner), [rc[0] for rc in distinct[:n_candidates]], determined)
 
 
 def _rot_angle(Ra, Rb) -> float:
@@ -526,10 +523,13 @@ def _rot_angles(Rs) -> np.ndarray:
     return np.arccos(np.clip(c, -1.0, 1.0))
 
 
-def _refine(R, u, t, layout, cap, iters: int = 5):
-    """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best."""
-    d, j = _nearest_same_type(R[None], u, t, layout)
-    best = (R, float(np.sum(np.minimum(d[0], cap) ** 2)))
+def _refine(R, u, t, layout, cap, iters: int = 5, nearest=None):
+    """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best.
+
+    ``nearest``: ``_nearest_same_type(R[None], u, t, layout)`` when known (orient_flash has it
+    for every hypothesis). Returns ``(R, cost, angles (n,), assigned markers (n,))`` of the best."""
+    d, j = _nearest_same_type(R[None], u, t, layout) if nearest is None else nearest
+    best = (R, float(np.sum(np.minimum(d[0], cap) ** 2)), d[0], j[0])
     for _ in range(iters):
         inl = d[0] < cap
         if inl.sum() < 2:
@@ -539,7 +539,7 @@ def _refine(R, u, t, layout, cap, iters: int = 5):
         cost = float(np.sum(np.minimum(d[0], cap) ** 2))
         if cost >= best[1] - 1e-12:
             break
-        best = (R, cost)
+        best = (R, cost, d[0], j[0])
     return best
 
 
@@ -734,7 +734,7 @@ class _GlobalProblem:
         v = (E[0] @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
         A = E[1:][fl]  # (m, 3, 3)
         p = np.einsum("mab,bm->ma", A, v)
-        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
+        c = np.minimum(np.maximum(np.einsum("ma,ma->m", u, p), -1.0), 1.0)  # np.clip, less overhead
         out = (p, v.T, A, c, _phi_over_sin(c))
         for a in out:
             a.flags.writeable = False
