@@ -35,6 +35,7 @@ curvature; ``fit_spin(..., spin_init=candidate)`` then refits at that alias.
 
 from __future__ import annotations
 
+import threading
 import time as _time
 from dataclasses import dataclass, field
 
@@ -920,6 +921,7 @@ def _coarse_grid(step_deg):
 
 
 _COARSE_ROTATIONS = {}
+_COARSE_LOCK = threading.Lock()
 # ~0.6 MB per entry at 15 deg; a pitch's steps take 10-20 entries (times with rounding noise
 # give several keys per integer step): 64 entries (~38 MB) keep the last few pitches' steps
 _COARSE_CACHE_SIZE = 64
@@ -930,13 +932,17 @@ def _coarse_grid_rotations(step_deg, step):
     grid is fixed and the steps (flash time minus anchor time over the period) are small integers
     that recur from pitch to pitch; the same numbers as computing them anew (elementwise)."""
     key = (float(step_deg), float(step))
-    E = _COARSE_ROTATIONS.pop(key, None)
-    if E is None:
-        if len(_COARSE_ROTATIONS) >= _COARSE_CACHE_SIZE:  # least recently used out
+    with _COARSE_LOCK:  # the pipeline may fit several balls on threads
+        E = _COARSE_ROTATIONS.pop(key, None)
+        if E is not None:
+            _COARSE_ROTATIONS[key] = E  # reinserted last: dicts keep insertion order
+            return E
+    E = _expmap(_coarse_grid(step_deg) * step).reshape(-1, 9)
+    E.flags.writeable = False
+    with _COARSE_LOCK:
+        while len(_COARSE_ROTATIONS) >= _COARSE_CACHE_SIZE:  # least recently used out
             del _COARSE_ROTATIONS[next(iter(_COARSE_ROTATIONS))]
-        E = _expmap(_coarse_grid(step_deg) * step).reshape(-1, 9)
-        E.flags.writeable = False
-    _COARSE_ROTATIONS[key] = E  # (re)inserted last: dicts keep insertion order
+        _COARSE_ROTATIONS[key] = E
     return E
 
 
