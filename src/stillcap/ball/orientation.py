@@ -982,7 +982,8 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     def costs(rho, k_a, R_as, coarse_step=None):
         """Capped costs (len(R_as), G) of the grid points rho for anchors (k_a, R_a) of one flash:
         the rotations exp(rho (t_k - t_a) / T), the scan's main cost, are shared by the anchors
-        (and, for the coarse grid ``coarse_step`` = its spacing, by every call: cached per step)."""
+        (and with ``coarse_step``, when rho is ``_coarse_grid(coarse_step)``, by every call: cached
+        per step)."""
         steps = (times - times[k_a]) / period
         Wks = []
         for R_a in R_as:
@@ -998,7 +999,7 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
             Wks.append([(k, idx, np.ascontiguousarray(Wuv[idx].transpose(1, 2, 0)).reshape(9, -1))
                         for k, idx in flashes])
         out = np.empty((len(R_as), len(rho)))
-        chunk = 1024  # grid points at a time (the scan's arrays stay in the cache)
+        chunk = 1024  # grid points at a time (the scan's arrays stay in the CPU cache)
         for s in range(0, len(rho), chunk):
             if coarse_step is not None:
                 Ek = {k: _coarse_grid_rotations(coarse_step, steps[k])[s:s + chunk] for k, _ in flashes}
