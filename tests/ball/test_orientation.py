@@ -372,3 +372,13 @@ def test_model_triad_table_matches_the_pairs_it_replaces():
     i, j = np.nonzero(~np.eye(len(m), dtype=bool))
     assert np.array_equal(T[i, j], np.transpose(_triad(m[i], m[j]), (0, 2, 1)))
     assert _model_triads_t(m.copy()) is T  # kept per layout
+
+
+def test_orient_flash_takes_type_names_or_indices_alike():
+    times, obs, R0, w = scenario(1, sparse=0, mistype_rate=0.0)
+    u, t = obs.of_flash(0)
+    by_index = orient_flash(u, t)
+    by_name = orient_flash(u, [LAYOUT.type_names[i] for i in t])
+    assert np.array_equal(by_index.ball2world, by_name.ball2world) and by_index.cost == by_name.cost
+    with pytest.raises(ValueError):
+        orient_flash(u, np.full(len(u), LAYOUT.n_types))

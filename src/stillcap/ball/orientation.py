@@ -449,7 +449,12 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     """
     layout = _default_layout(layout)
     u = as_array(directions, (None, 3), "directions")
-    t = layout.type_index(np.asarray(types, dtype=object).reshape(-1)) if len(u) else np.zeros(0, int)
+    tt = np.asarray(types)
+    if (len(u) and tt.dtype.kind in "iu" and tt.ndim == 1 and tt.size
+            and 0 <= tt.min() and tt.max() < layout.n_types):
+        t = tt.astype(int)  # indices already (fit_spin's observations): no per-element lookup
+    else:
+        t = layout.type_index(np.asarray(types, dtype=object).reshape(-1)) if len(u) else np.zeros(0, int)
     if len(t) != len(u):
         raise ValueError(f"types must have shape ({len(u)},), got {np.shape(types)}")
     nan3 = np.full((3, 3), np.nan)
@@ -901,7 +906,7 @@ def _per_flash_inits(times, flash_fit, period, t0, n_hyp: int = 3):
         grp = ang[i] < tol
         used |= grp
         w0 = Rotation.from_matrix(_mean_rotation([rel[g] for g in np.flatnonzero(grp)])).as_rotvec() / period
-        back = _expmap((-w0)[None, :] * (times[keys] - t0)[:, None])  # per flash, one call (row-wise the same)
+        back = _expmap((-w0)[None, :] * (times[keys] - t0)[:, None])  # all flashes in one call
         R0s = [back[i] @ R for i, k in enumerate(keys) for R in flash_fit[k].candidates[:2]]
         idx = _consensus_rotations(R0s, np.radians(20.0))
         out.append((_mean_rotation([R0s[g] for g in idx]), w0))
