@@ -696,6 +696,7 @@ class _GlobalProblem:
         self.t1, self.t2 = _tangent_bases(self.u)
         self.layout = layout
         self.flash = obs.flash
+        self._same = layout.types[None, :] == obs.types[:, None]  # (M, 12): markers of each one's type
 
     def rotations(self, R0, w):
         """ball2world per flash, (K, 3, 3)."""
@@ -705,11 +706,9 @@ class _GlobalProblem:
         """Nearest same-type model marker and its angle for every observation."""
         Rk = self.rotations(R0, w)[self.flash]  # (M, 3, 3)
         model = np.einsum("mab,jb->mja", Rk, self.layout.directions)  # (M, 12, 3)
-        cos = np.einsum("ma,mja->mj", self.u, model)
-        same = self.layout.types[None, :] == self.obs.types[:, None]
-        cos = np.where(same, cos, -2.0)
+        cos = np.where(self._same, np.einsum("ma,mja->mj", self.u, model), -2.0)
         j = cos.argmax(1)
-        return j, np.arccos(np.clip(cos[np.arange(len(j)), j], -1, 1))
+        return j, np.arccos(np.minimum(np.maximum(cos.max(1), -1.0), 1.0))  # the cosine at j, clipped
 
     def _subset(self, sel):
         """``u``, ``t1``, ``t2`` and ``flash`` of the observations ``sel``: kept, since a fit asks
