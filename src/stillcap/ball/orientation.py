@@ -35,6 +35,7 @@ curvature; ``fit_spin(..., spin_init=candidate)`` then refits at that alias.
 
 from __future__ import annotations
 
+import threading
 import time as _time
 from dataclasses import dataclass, field
 
@@ -70,11 +71,15 @@ def _expmap(rotvecs) -> np.ndarray:
     th2 = np.einsum("...i,...i->...", v, v)
     th = np.sqrt(th2)
     small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    if small.any():
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 1.0 - th2 / 6.0, np.sin(ths) / ths)
+        b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+    else:  # the same numbers without the series branch (most calls: small arrays, no zero angle)
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / (th * th)
     c = 1.0 - b * th2  # cos(theta)
-    R = (b[..., None, None] * v[..., :, None]) * v[..., None, :]
+    R = (b[..., None] * v)[..., :, None] * v[..., None, :]  # (b v_i) v_j
     av = a[..., None] * v
     R[..., 0, 0] += c
     R[..., 1, 1] += c
@@ -104,9 +109,13 @@ def _left_jacobian(rotvecs) -> np.ndarray:
     th2 = np.einsum("...i,...i->...", v, v)
     th = np.sqrt(th2)
     small = th < 1e-4
-    ths = np.where(small, 1.0, th)
-    a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
-    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths ** 3))
+    if small.any():
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(ths)) / (ths * ths))
+        b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (ths - np.sin(ths)) / (ths ** 3))
+    else:
+        a = (1.0 - np.cos(th)) / (th * th)
+        b = (th - np.sin(th)) / (np.asarray(th) ** 3)  # ndarray power as above (a numpy scalar's differs)
     K = _skew(v)
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
@@ -115,6 +124,8 @@ def _phi_over_sin(c):
     """``arccos(c) / sqrt(1 - c^2)`` (1 at c = 1), for the log-map residual."""
     s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
     small = s < 1e-6
+    if not small.any():  # the same numbers without the series branch
+        return np.arctan2(s, c) / s
     return np.where(small, 1.0 + (1.0 - c) / 3.0, np.arctan2(s, c) / np.where(small, 1.0, s))
 
 
@@ -123,6 +134,8 @@ def _dphi_over_sin(c):
     s2 = np.maximum(1.0 - c * c, 0.0)
     s = np.sqrt(s2)
     small = s < 1e-4
+    if not small.any():  # the same numbers without the series branch
+        return (-1.0 + np.arctan2(s, c) * c / s) / s2
     ss = np.where(small, 1.0, s)
     return np.where(small, -1.0 / 3.0, (-1.0 + np.arctan2(s, c) * c / ss) / np.where(small, 1.0, s2))
 
@@ -336,18 +349,20 @@ def _nearest_same_type(R, u, t, layout):
     cos = np.einsum("na,hja->hnj", u, model)  # (H, n, 12)
     same = layout.types[None, :] == t[:, None]  # (n, 12)
     cos = np.where(same[None], cos, -2.0)
-    j = cos.argmax(-1)
-    c = np.take_along_axis(cos, j[..., None], -1)[..., 0]
-    return np.arccos(np.clip(c, -1.0, 1.0)), j
+    # the largest cosine is the one at argmax; np.minimum/np.maximum clip with less overhead
+    # than take_along_axis and np.clip (this runs ~10 times per flash in orient_flash)
+    return np.arccos(np.minimum(np.maximum(cos.max(-1), -1.0), 1.0)), cos.argmax(-1)
 
 
 def _kabsch(a, b, w=None):
     """Rotation R minimising sum w |R a_i - b_i|^2 (a, b: (n, 3))."""
-    w = np.ones(len(a)) if w is None else w
-    h = (a * w[:, None]).T @ b
+    h = (a if w is None else a * w[:, None]).T @ b
     u, _, vt = np.linalg.svd(h)
     d = np.sign(np.linalg.det(vt.T @ u.T))
-    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    # vt^T diag(1, 1, d) u^T with the diagonal applied as a column sign (exact, no product)
+    v = vt.T.copy()
+    v[:, 2] *= d
+    return v @ u.T
 
 
 @dataclass
@@ -384,6 +399,26 @@ class FlashOrientation:
     determined: bool = True
 
 
+_MODEL_TRIADS = {}
+
+
+def _model_triads_t(m):
+    """``_triad(m_i, m_j)^T`` of every ordered pair of layout markers, (n, n, 3, 3), kept per
+    layout (orient_flash needs the same ones on every flash; row-wise the same numbers)."""
+    key = m.tobytes()
+    T = _MODEL_TRIADS.get(key)
+    if T is None:
+        n = len(m)
+        i, j = np.divmod(np.arange(n * n), n)
+        with np.errstate(invalid="ignore", divide="ignore"):  # i = j (never used) or antipodal
+            T = np.transpose(_triad(m[i], m[j]), (0, 2, 1)).reshape(n, n, 3, 3)
+        T.flags.writeable = False
+        if len(_MODEL_TRIADS) >= 8:
+            _MODEL_TRIADS.clear()
+        _MODEL_TRIADS[key] = T
+    return T
+
+
 def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg: float = 8.0,
                  pair_tol_deg: float = 8.0, n_candidates: int = 4,
                  distinct_deg: float = 10.0) -> FlashOrientation:
@@ -416,7 +451,12 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     """
     layout = _default_layout(layout)
     u = as_array(directions, (None, 3), "directions")
-    t = layout.type_index(np.asarray(types, dtype=object).reshape(-1)) if len(u) else np.zeros(0, int)
+    tt = np.asarray(types)
+    if (len(u) and tt.dtype.kind in "iu" and tt.ndim == 1 and tt.size
+            and 0 <= tt.min() and tt.max() < layout.n_types):
+        t = tt.astype(int)  # indices already (fit_spin's observations): no per-element lookup
+    else:
+        t = layout.type_index(np.asarray(types, dtype=object).reshape(-1)) if len(u) else np.zeros(0, int)
     if len(t) != len(u):
         raise ValueError(f"types must have shape ({len(u)},), got {np.shape(types)}")
     nan3 = np.full((3, 3), np.nan)
@@ -444,34 +484,31 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     if not len(hp):
         return FlashOrientation(nan3, np.inf, 0, np.nan, np.full(len(u), -1), np.inf, [], False)
     ha, hb = a_idx[hp], b_idx[hp]
-    R = _triad(u[ha], u[hb]) @ np.transpose(_triad(m[hi], m[hj]), (0, 2, 1))
-    d, _ = _nearest_same_type(R, u, t, layout)
+    R = _triad(u[ha], u[hb]) @ _model_triads_t(m)[hi, hj]
+    d, jh = _nearest_same_type(R, u, t, layout)
     cost = np.sum(np.minimum(d, cap) ** 2, axis=1)
     order = np.argsort(cost)
     # refine the best distinct hypotheses
-    refined = []
+    refined = []  # (R, cost, angles, assigned markers)
     for h in order:
         Rh = R[h]
-        if refined and _near_any(Rh, [r for r, _ in refined], np.radians(distinct_deg)):
+        if refined and _near_any(Rh, [rc[0] for rc in refined], np.radians(distinct_deg)):
             continue
-        Rh, c = _refine(Rh, u, t, layout, cap)
-        refined.append((Rh, c))
+        refined.append(_refine(Rh, u, t, layout, cap, nearest=(d[h:h + 1], jh[h:h + 1])))
         if len(refined) >= max(n_candidates, 2) + 2:
             break
     refined.sort(key=lambda rc: rc[1])
     distinct = []
-    for r, c in refined:
-        if not any(_rot_angle(r, q) < np.radians(distinct_deg) for q, _ in distinct):
-            distinct.append((r, c))
-    best, best_cost = distinct[0]
-    d, j = _nearest_same_type(best[None], u, t, layout)
-    d, j = d[0], j[0]
+    for rc in refined:
+        if not any(_rot_angle(rc[0], q[0]) < np.radians(distinct_deg) for q in distinct):
+            distinct.append(rc)
+    best, best_cost, d, j = distinct[0]
     inl = d < cap
     rms = float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))) if inl.any() else np.nan
     runner = distinct[1][1] if len(distinct) > 1 else np.inf
     determined = int(inl.sum()) >= 2
     return FlashOrientation(best if determined else nan3, float(best_cost), int(inl.sum()), rms, j,
-                            float(runner), [r for r, _ in distinct[:n_candidates]], determined)
+                            float(runner), [rc[0] for rc in distinct[:n_candidates]], determined)
 
 
 def _rot_angle(Ra, Rb) -> float:
@@ -494,10 +531,13 @@ def _rot_angles(Rs) -> np.ndarray:
     return np.arccos(np.clip(c, -1.0, 1.0))
 
 
-def _refine(R, u, t, layout, cap, iters: int = 5):
-    """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best."""
-    d, j = _nearest_same_type(R[None], u, t, layout)
-    best = (R, float(np.sum(np.minimum(d[0], cap) ** 2)))
+def _refine(R, u, t, layout, cap, iters: int = 5, nearest=None):
+    """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best.
+
+    ``nearest``: ``_nearest_same_type(R[None], u, t, layout)`` when known (orient_flash has it
+    for every hypothesis). Returns ``(R, cost, angles (n,), assigned markers (n,))`` of the best."""
+    d, j = _nearest_same_type(R[None], u, t, layout) if nearest is None else nearest
+    best = (R, float(np.sum(np.minimum(d[0], cap) ** 2)), d[0], j[0])
     for _ in range(iters):
         inl = d[0] < cap
         if inl.sum() < 2:
@@ -507,7 +547,7 @@ def _refine(R, u, t, layout, cap, iters: int = 5):
         cost = float(np.sum(np.minimum(d[0], cap) ** 2))
         if cost >= best[1] - 1e-12:
             break
-        best = (R, cost)
+        best = (R, cost, d[0], j[0])
     return best
 
 
@@ -658,6 +698,7 @@ class _GlobalProblem:
         self.t1, self.t2 = _tangent_bases(self.u)
         self.layout = layout
         self.flash = obs.flash
+        self._same = layout.types[None, :] == obs.types[:, None]  # (M, 12): markers of each one's type
 
     def rotations(self, R0, w):
         """ball2world per flash, (K, 3, 3)."""
@@ -667,14 +708,24 @@ class _GlobalProblem:
         """Nearest same-type model marker and its angle for every observation."""
         Rk = self.rotations(R0, w)[self.flash]  # (M, 3, 3)
         model = np.einsum("mab,jb->mja", Rk, self.layout.directions)  # (M, 12, 3)
-        cos = np.einsum("ma,mja->mj", self.u, model)
-        same = self.layout.types[None, :] == self.obs.types[:, None]
-        cos = np.where(same, cos, -2.0)
+        cos = np.where(self._same, np.einsum("ma,mja->mj", self.u, model), -2.0)
         j = cos.argmax(1)
-        return j, np.arccos(np.clip(cos[np.arange(len(j)), j], -1, 1))
+        return j, np.arccos(np.minimum(np.maximum(cos.max(1), -1.0), 1.0))  # the cosine at j, clipped
+
+    def _subset(self, sel):
+        """``u``, ``t1``, ``t2`` and ``flash`` of the observations ``sel``: kept, since a fit asks
+        for the same subset at every evaluation."""
+        key = np.asarray(sel).tobytes()
+        last = getattr(self, "_last_subset", None)
+        if last is None or last[0] != key:
+            last = (key, (self.u[sel], self.t1[sel], self.t2[sel], self.flash[sel]))
+            self._last_subset = last
+        return last[1]
 
     def _predict(self, x, R0_ref, j, sel):
-        """Predicted marker directions p (m, 3), and the pieces the Jacobian needs.
+        """Predicted marker directions p (m, 3), and the pieces the residuals and the Jacobian
+        need: v (m, 3), A (m, 3, 3), the clipped cosine c (m,) between u and p, and
+        ``_phi_over_sin(c)``.
 
         The last result is kept: least squares asks for the residuals and then the Jacobian
         at the same parameters (the key holds every input, also ``dt``, which
@@ -684,11 +735,14 @@ class _GlobalProblem:
         last = getattr(self, "_last", None)
         if last is not None and last[0] == key:
             return last[1]
-        E0 = _expmap(x[:3])
-        v = (E0 @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
-        A = _expmap(np.outer(self.dt, x[3:]))[self.flash[sel]]  # (m, 3, 3)
+        u, _, _, fl = self._subset(sel)
+        # exp(delta) and the K flash rotations in one call (elementwise: the same numbers)
+        E = _expmap(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
+        v = (E[0] @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
+        A = E[1:][fl]  # (m, 3, 3)
         p = np.einsum("mab,bm->ma", A, v)
-        out = (p, v.T, A)
+        c = np.minimum(np.maximum(np.einsum("ma,ma->m", u, p), -1.0), 1.0)  # np.clip, less overhead
+        out = (p, v.T, A, c, _phi_over_sin(c))
         for a in out:
             a.flags.writeable = False
         self._last = (key, out)
@@ -697,26 +751,24 @@ class _GlobalProblem:
     def residuals(self, x, R0_ref, j, sel):
         """Log-map residuals (2 per observation, rad) at parameters x = (delta (3), w (3)):
         the angle between observation u and prediction p as a vector in u's tangent plane."""
-        p, _, _ = self._predict(x, R0_ref, j, sel)
-        u = self.u[sel]
-        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
-        g = _phi_over_sin(c)
-        r1 = g * np.einsum("ma,ma->m", self.t1[sel], p)
-        r2 = g * np.einsum("ma,ma->m", self.t2[sel], p)
+        p, _, _, _, g = self._predict(x, R0_ref, j, sel)
+        _, t1, t2, _ = self._subset(sel)
+        r1 = g * np.einsum("ma,ma->m", t1, p)
+        r2 = g * np.einsum("ma,ma->m", t2, p)
         return np.concatenate([r1, r2])
 
     def jacobian(self, x, R0_ref, j, sel):
         """Analytic Jacobian of :meth:`residuals`, shape (2 m, 6)."""
-        p, v, A = self._predict(x, R0_ref, j, sel)
-        u, t1, t2 = self.u[sel], self.t1[sel], self.t2[sel]
-        dt = self.dt[self.flash[sel]]
+        p, v, A, c, g = self._predict(x, R0_ref, j, sel)
+        u, t1, t2, fl = self._subset(sel)
+        dt = self.dt[fl]
+        # J_l of delta and per flash (then per observation: the same numbers, K instead of m
+        # evaluations), in one call
+        Jl = _left_jacobian(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
         # dp/d(delta) = -A [v]x J_l(delta);  dp/dw = -[p]x J_l(w dt) dt
-        dp_dd = -np.einsum("mab,mbc->mac", A, _skew(v)) @ _left_jacobian(x[:3])
-        # J_l per flash, then per observation (the same numbers, K instead of m evaluations)
-        dp_dw = -_skew(p) @ _left_jacobian(np.outer(self.dt, x[3:]))[self.flash[sel]] * dt[:, None, None]
+        dp_dd = -np.einsum("mab,mbc->mac", A, _skew(v)) @ Jl[0]
+        dp_dw = -_skew(p) @ Jl[1:][fl] * dt[:, None, None]
         dp = np.concatenate([dp_dd, dp_dw], axis=2)  # (m, 3, 6)
-        c = np.clip(np.einsum("ma,ma->m", u, p), -1.0, 1.0)
-        g = _phi_over_sin(c)
         dg = _dphi_over_sin(c)
         dc = np.einsum("ma,mak->mk", u, dp)
         J1 = g[:, None] * np.einsum("ma,mak->mk", t1, dp) + (dg * (t1 * p).sum(1))[:, None] * dc
@@ -787,23 +839,28 @@ def _time_offset_cov(prob, x, R0, j, sel, bread, J, time_groups, time_group_sigm
     return out
 
 
-def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None):
-    """Outer loop: assign nearest same-type markers, robust least squares, repeat."""
+def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None, assigned=None):
+    """Outer loop: assign nearest same-type markers, robust least squares, repeat.
+
+    ``assigned``: ``prob.assign(R0, w)`` when the caller has it already."""
     m = len(prob.u)
     sel = np.ones(m, bool) if sel is None else sel
     j_prev = None
     res = None
+    jd = assigned
     for _ in range(max_outer):
-        j, _ = prob.assign(R0, w)
+        j, d = prob.assign(R0, w) if jd is None else jd
+        jd = (j, d)
         if j_prev is not None and np.array_equal(j[sel], j_prev[sel]):
-            break
+            break  # (j, d) is the assignment at the solution
         j_prev = j
         res = least_squares(prob.residuals, np.concatenate([np.zeros(3), w]), jac=prob.jacobian,
                             args=(R0, j, sel), loss=loss, f_scale=f_scale, x_scale=x_scale,
                             xtol=1e-9, ftol=1e-9, gtol=1e-9, max_nfev=100)
         R0 = _expmap(res.x[:3]) @ R0
         w = res.x[3:].copy()
-    j, d = prob.assign(R0, w)
+        jd = None
+    j, d = prob.assign(R0, w) if jd is None else jd
     return R0, w, j, d, res
 
 
@@ -850,11 +907,57 @@ def _per_flash_inits(times, flash_fit, period, t0, n_hyp: int = 3):
         grp = ang[i] < tol
         used |= grp
         w0 = Rotation.from_matrix(_mean_rotation([rel[g] for g in np.flatnonzero(grp)])).as_rotvec() / period
-        R0s = [_expmap(-w0 * (times[k] - t0)) @ R for k in keys for R in flash_fit[k].candidates[:2]]
+        back = _expmap((-w0)[None, :] * (times[keys] - t0)[:, None])  # all flashes in one call
+        R0s = [back[i] @ R for i, k in enumerate(keys) for R in flash_fit[k].candidates[:2]]
         idx = _consensus_rotations(R0s, np.radians(20.0))
         out.append((_mean_rotation([R0s[g] for g in idx]), w0))
         if len(out) >= n_hyp:
             break
+    return out
+
+
+def _coarse_grid(step_deg):
+    """The coarse grid of rotations per interval of :func:`_grid_inits`: a cubic grid of spacing
+    ``step_deg`` inside the ball ``|rho| <= pi`` (plus half a step), (G, 3)."""
+    h = np.radians(step_deg)
+    n = int(np.ceil(np.pi / h))
+    g = np.arange(-n, n + 1) * h
+    coarse = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return coarse[np.linalg.norm(coarse, axis=1) <= np.pi + 0.5 * h]
+
+
+_COARSE_ROTATIONS = {}
+_COARSE_LOCK = threading.Lock()
+# ~0.6 MB per entry at 15 deg; a pitch's steps take 10-20 entries (times with rounding noise
+# give several keys per integer step): 64 entries (~38 MB) keep the last few pitches' steps
+_COARSE_CACHE_SIZE = 64
+
+
+def _coarse_grid_rotations(step_deg, step):
+    """``exp(rho step)`` of every coarse grid point ``rho``, (G, 9) row-major: cached, since the
+    grid is fixed and the steps (flash time minus anchor time over the period) are small integers
+    that recur from pitch to pitch; the same numbers as computing them anew (elementwise)."""
+    key = (float(step_deg), float(step))
+    with _COARSE_LOCK:  # the pipeline may fit several balls on threads
+        E = _COARSE_ROTATIONS.pop(key, None)
+        if E is not None:
+            _COARSE_ROTATIONS[key] = E  # reinserted last: dicts keep insertion order
+            return E
+    E = _expmap(_coarse_grid(step_deg) * step).reshape(-1, 9)
+    E.flags.writeable = False
+    with _COARSE_LOCK:
+        while len(_COARSE_ROTATIONS) >= _COARSE_CACHE_SIZE:  # least recently used out
+            del _COARSE_ROTATIONS[next(iter(_COARSE_ROTATIONS))]
+        _COARSE_ROTATIONS[key] = E
+    return E
+
+
+def _capped_sq_angles(c, cap):
+    """``min(arccos(clip(c, -1, 1)), cap) ** 2`` elementwise: the arccos only where it can be
+    below the cap (most cosines of a grid scan are far from every marker: cap^2 then)."""
+    out = np.full(c.shape, cap * cap)
+    near = c > np.cos(cap) - 1e-9  # arccos(c) > cap elsewhere, with margin for rounding
+    out[near] = np.minimum(np.arccos(np.clip(c[near], -1, 1)), cap) ** 2
     return out
 
 
@@ -882,9 +985,11 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     # capped, the same cost; the scan then needs no masking pass
     zero_pad = cap <= 0.5 * np.pi
 
-    def costs(rho, k_a, R_as):
+    def costs(rho, k_a, R_as, coarse_step=None):
         """Capped costs (len(R_as), G) of the grid points rho for anchors (k_a, R_a) of one flash:
-        the rotations exp(rho (t_k - t_a) / T), the scan's main cost, are shared by the anchors."""
+        the rotations exp(rho (t_k - t_a) / T), the scan's main cost, are shared by the anchors
+        (and with ``coarse_step``, when rho is ``_coarse_grid(coarse_step)``, by every call: cached
+        per step)."""
         steps = (times - times[k_a]) / period
         Wks = []
         for R_a in R_as:
@@ -900,10 +1005,15 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
             Wks.append([(k, idx, np.ascontiguousarray(Wuv[idx].transpose(1, 2, 0)).reshape(9, -1))
                         for k, idx in flashes])
         out = np.empty((len(R_as), len(rho)))
-        for s in range(0, len(rho), 1024):
-            E = _expmap(rho[s:s + 1024, None, :] * steps[None, :, None])  # (G, K, 3, 3)
-            G = len(E)
-            Ek = {k: np.ascontiguousarray(E[:, k]).reshape(G, 9) for k, _ in flashes}
+        chunk = 1024  # grid points at a time (the scan's arrays stay in the CPU cache)
+        for s in range(0, len(rho), chunk):
+            if coarse_step is not None:
+                Ek = {k: _coarse_grid_rotations(coarse_step, steps[k])[s:s + chunk] for k, _ in flashes}
+            else:  # only the flashes with markers
+                ks = [k for k, _ in flashes]
+                E = _expmap(rho[s:s + chunk, None, :] * steps[ks][None, :, None])  # (G, K', 3, 3)
+                Ek = {k: np.ascontiguousarray(E[:, i]).reshape(len(E), 9) for i, k in enumerate(ks)}
+            G = min(chunk, len(rho) - s)
             for ia, Wk in enumerate(Wks):
                 best = np.empty((G, len(u)))
                 for k, idx, W in Wk:
@@ -914,14 +1024,11 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
                     for j in range(1, n_c):  # elementwise over contiguous blocks: faster than .max(1)
                         np.maximum(m, cos[:, j], out=m)
                     best[:, idx] = m
-                out[ia, s:s + 1024] = np.sum(np.minimum(np.arccos(np.clip(best, -1, 1)), cap) ** 2, axis=1)
+                out[ia, s:s + chunk] = _capped_sq_angles(best, cap).sum(axis=1)
         return out
 
     h = np.radians(step_deg)
-    n = int(np.ceil(np.pi / h))
-    g = np.arange(-n, n + 1) * h
-    coarse = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
-    coarse = coarse[np.linalg.norm(coarse, axis=1) <= np.pi + 0.5 * h]
+    coarse = _coarse_grid(step_deg)
     f = np.arange(-2, 3) * (h / 4)
     local = np.stack(np.meshgrid(f, f, f, indexing="ij"), -1).reshape(-1, 3)
     found = []
@@ -929,7 +1036,7 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
     by_flash = {}
     for k_a, R_a in anchors:
         by_flash.setdefault(k_a, []).append(R_a)
-    coarse_costs = {k_a: costs(coarse, k_a, R_as) for k_a, R_as in by_flash.items()}
+    coarse_costs = {k_a: costs(coarse, k_a, R_as, step_deg) for k_a, R_as in by_flash.items()}
     seen = {k_a: 0 for k_a in by_flash}
     for k_a, R_a in anchors:
         c = coarse_costs[k_a][seen[k_a]]
@@ -1118,9 +1225,11 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
                    time_groups, time_group_sigma, t_start) -> SpinResult:
     """:func:`fit_spin` after the robust stage: outliers, least-squares polish, covariance."""
     _, R0, w, j, d = best
+    assigned = (j, d)  # at (R0, w)
     if spin_init is None and np.linalg.norm(w) * period > np.pi:
         # the same rotation per interval the short way round: report the principal alias
         w = Rotation.from_rotvec(w * period).as_rotvec() / period
+        assigned = None
 
     # outliers, then a plain least-squares polish on the inliers for the covariance
     r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, np.ones(len(obs), bool))
@@ -1132,7 +1241,7 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         inl = d <= np.sort(d)[min(3, len(d) - 1)]
         message = "few inliers"
     R0, w, j, d, res = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
-                                     max_outer=max_outer, sel=inl)
+                                     max_outer=max_outer, sel=inl, assigned=assigned)
     x = np.concatenate([np.zeros(3), w])
     r = prob.residuals(x, R0, j, inl)
     J = prob.jacobian(x, R0, j, inl)
