@@ -144,18 +144,30 @@ def evaluate(res, truth: dict) -> dict:
         row["spin_n_flashes"] = int(len(res.spin.times))
     # positions: per ball image against the true centre at the nearest true flash of the pair
     tpairs = {p["name"]: p for p in truth["pairs"]}
-    n_in = n_pos = 0
+    # with each image's covariance (PairResult.position_covariance_m2): e^T C^-1 e <= chi2_3(95 %);
+    # the isotropic test |e|^2 / sigma_pos^2 is kept as "positions_isotropic": the error is a thin
+    # ellipsoid along the lines of sight, for which that test covers 89 % at best (docs/pitch.md,
+    # "Coverage audit", sixth pass)
+    n_in = n_iso = n_pos = 0
     for p in res.pairs:
         tp = tpairs.get(p.name)
         if tp is None or not len(p) or not np.isfinite(p.position_sigma_m) or p.position_sigma_m <= 0:
             continue
         Pt = from_jsonable(tp["positions"]).reshape(-1, 3)
         d = np.linalg.norm(Pt[None] - p.positions[:, None], axis=2)
-        err = d[np.arange(len(p)), np.nanargmin(d, axis=1)]
-        n_in += int(np.sum(err ** 2 / p.position_sigma_m ** 2 <= CHI2_3_95))
+        j = np.nanargmin(d, axis=1)
+        err = d[np.arange(len(p)), j]
+        n_iso += int(np.sum(err ** 2 / p.position_sigma_m ** 2 <= CHI2_3_95))
+        C = p.position_covariance_m2
+        if C is None:
+            n_in += int(np.sum(err ** 2 / p.position_sigma_m ** 2 <= CHI2_3_95))
+        else:
+            e = p.positions - Pt[j]
+            n_in += int(np.sum(np.einsum("ki,ki->k", e, np.linalg.solve(C, e[:, :, None])[:, :, 0]) <= CHI2_3_95))
         n_pos += len(p)
     if n_pos:
         cov["positions"] = n_in / n_pos
+        cov["positions_isotropic"] = n_iso / n_pos
         row["positions_n"] = n_pos
     row["coverage"] = {k: (float(v) if isinstance(v, float) else bool(v)) for k, v in cov.items()}
     # aliasing ---------------------------------------------------------------------------------

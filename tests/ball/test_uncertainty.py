@@ -283,3 +283,74 @@ def test_bad_inputs_of_the_uncertainty_parts_are_named():
         replace(fit, position_gain=None).position_covariance_term(np.zeros((1, len(times), 3)))
     with pytest.raises(ValueError, match=r"centers_px must have shape \(2, K, 2\)"):
         lit_geometry(None, np.zeros((3, 4, 2)), np.zeros(4, int), np.ones((2, 4)))
+
+
+# ----------------------------------------------------------------------------------------------
+# per-image position covariance (a stereo pair's thin depth ellipsoids)
+# ----------------------------------------------------------------------------------------------
+def _depth_shapes(rng, K):
+    """Covariance shapes like a stereo pair's: 4-10x longer along a line of sight that turns
+    slowly along the flight, the level growing toward the pair's last images."""
+    S = np.empty((K, 3, 3))
+    for k in range(K):
+        a = 0.3 * k / K
+        los = np.array([np.cos(a), np.sin(a), 0.1])
+        los /= np.linalg.norm(los)
+        Q, _ = np.linalg.qr(np.column_stack([los, rng.normal(size=(3, 2))]))
+        sd = np.array([4.0 + 6.0 * k / K, 1.0, 1.2]) * (1.0 + k / K)
+        S[k] = (Q * sd ** 2) @ Q.T
+    return S * 1e-8
+
+
+def test_position_covariances_cover_a_depth_ellipsoid_where_one_sigma_cannot():
+    """Errors drawn from per-image thin ellipsoids plus a shared shift: the per-image covariance
+    (level from the residuals of a fitted offset, with the fit's degrees of freedom, plus the
+    shared mode) passes the chi2_3 95 % test 95 % of the time; one isotropic sigma per pair (RMS
+    per coordinate of the residuals, the shared shift in quadrature) covers only ~89 %."""
+    from stillcap.ball.uncertainty import position_covariances
+
+    rng = np.random.default_rng(3)
+    K, n_trials, scale, q = 12, 400, 1.7, 7.815
+    S = _depth_shapes(rng, K)
+    L = np.linalg.cholesky(S)
+    mode = np.tile([[0.0, 4e-5, 1e-5]], (1, K, 1))  # (1, K, 3) a calibration-like shift
+    Winv = np.linalg.inv(S)
+    inside, inside_iso, s2s, s2s_raw = 0, 0, [], []
+    for _ in range(n_trials):
+        noise = scale * np.einsum("kij,kj->ki", L, rng.normal(size=(K, 3)))
+        err = noise + rng.normal() * mode[0]
+        # the fit: a constant offset (3 parameters, generalised least squares) absorbs part of the noise
+        c = np.linalg.solve(Winv.sum(0), np.einsum("kij,kj->i", Winv, noise))
+        resid = noise - c
+        cov, s2 = position_covariances(resid, S, mode, dof_ratio=3 * K / (3 * K - 3))
+        _, s2_raw = position_covariances(resid, S)
+        s2s.append(s2)
+        s2s_raw.append(s2_raw)
+        m2 = np.einsum("ki,ki->k", err, np.linalg.solve(cov, err[:, :, None])[:, :, 0])
+        inside += np.sum(m2 <= q)
+        sig2 = np.mean(resid ** 2) + np.sum(mode ** 2) / (3 * K)
+        inside_iso += np.sum(np.sum(err ** 2, 1) / sig2 <= q)
+    n = n_trials * K
+    assert abs(np.mean(s2s) / scale ** 2 - 1.0) < 0.03  # unbiased level with the fit's dof
+    assert np.mean(s2s_raw) / scale ** 2 < 0.94  # without: short by 3 / (3 K)
+    assert 0.93 <= inside / n <= 0.97
+    assert inside_iso / n < 0.91
+
+
+def test_position_covariances_edge_cases_and_bad_inputs():
+    import pytest
+
+    from stillcap.ball.uncertainty import position_covariances
+
+    S = np.broadcast_to(np.diag([4.0, 1.0, 1.0]), (3, 3, 3)).copy()
+    r = np.array([[2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [np.nan, 0.0, 0.0]])
+    cov, s2 = position_covariances(r, S)
+    assert s2 == pytest.approx(1.0 / 3.0)  # (1 + 1) / 2 rows / 3 coordinates; the NaN row skipped
+    np.testing.assert_allclose(cov, S / 3.0)
+    assert position_covariances(r[1:], S[1:]) == (None, pytest.approx(float("nan"), nan_ok=True))
+    with pytest.raises(ValueError, match="shape_covariance"):
+        position_covariances(r, S[:2])
+    with pytest.raises(ValueError, match="dof_ratio must be >= 1"):
+        position_covariances(r, S, dof_ratio=0.5)
+    with pytest.raises(ValueError, match=r"shared_modes must have shape \(M, 3, 3\)"):
+        position_covariances(r, S, np.zeros((2, 4, 3)))

@@ -16,7 +16,8 @@ import functools
 import cv2
 import numpy as np
 
-__all__ = ["lit_phase_from_area", "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px"]
+__all__ = ["lit_phase_from_area", "position_covariances", "shading_model_offset_px", "shading_residual_lookup",
+           "shading_residual_px"]
 
 #: refinement smoothing of :func:`stillcap.detect.ball.refine_centers` (its ``sigma``)
 _REFINE_SIGMA = 0.7
@@ -162,3 +163,63 @@ def shading_residual_lookup(phase_rad, radius_px, corrected) -> np.ndarray:
         k = np.arange(sel.sum())
         out[sel] = (1 - w) * rows[j, k] + w * rows[j + 1, k]
     return out
+
+
+def position_covariances(residuals, shape_covariance, shared_modes=None, dof_ratio: float = 1.0):
+    """Per-image 3-D error covariance of one stereo pair's ball positions.
+
+    A pair's triangulated position errors are a thin ellipsoid along its lines of sight (depth
+    3-10x worse than across the view), and they grow where the geometry is worse (farther
+    balls, narrower angles between the rays), so one isotropic sigma per pair cannot describe
+    them: a chi-square test with it covers too little where the error is one-dimensional
+    (``3 chi2_1 <= chi2_3(95 %)`` holds 89 % of the time) and mis-sizes the ends of the pair's
+    flight (docs/pitch.md, "Coverage audit", sixth pass). Here each image keeps its own shape
+    from the triangulation geometry (``shape_covariance``, e.g. a pixel error mapped through the
+    re-triangulation), its level is estimated from the pair's residuals to the reference
+    trajectory, whitened with that shape (generalised least squares' residual variance), and the
+    errors the pair's images share (calibration, remaining centre bias: ``shared_modes``, which
+    the residuals cannot show) are added:
+
+    ``C_k = s^2 S_k + sum_m d_mk d_mk^T``,  ``s^2 = dof_ratio * mean_k(r_k^T S_k^-1 r_k) / 3``.
+
+    Parameters
+    ----------
+    residuals : array_like, shape (K, 3)
+        The pair's positions' residuals to the fitted flight (m; rows with a NaN are skipped).
+    shape_covariance : array_like, shape (K, 3, 3)
+        Each image's error covariance shape (m^2; its overall scale is re-estimated).
+    shared_modes : array_like, shape (M, K, 3), optional
+        1-sigma position shifts shared by the pair's images (m).
+    dof_ratio : float
+        ``m / (m - n)`` of the fit the residuals come from (``m`` observed coordinates, ``n``
+        fitted parameters): residuals are smaller than the errors by the fitted degrees of
+        freedom, as in the fit's own ``residual_scale``.
+
+    Returns
+    -------
+    cov : ndarray, shape (K, 3, 3) or None
+        Covariance per image (m^2); None with fewer than two usable residual rows.
+    s2 : float
+        The shape's estimated scale (NaN when ``cov`` is None).
+    """
+    r = np.asarray(residuals, float)
+    S = np.asarray(shape_covariance, float)
+    if r.ndim != 2 or r.shape[1] != 3 or S.shape != (len(r), 3, 3):
+        raise ValueError(f"residuals must have shape (K, 3) and shape_covariance (K, 3, 3), got {r.shape}, {S.shape}")
+    if not dof_ratio >= 1.0:
+        raise ValueError(f"dof_ratio must be >= 1, got {dof_ratio}")
+    ok = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(S), axis=(1, 2))
+    if ok.sum() >= 2:
+        ev = np.linalg.eigvalsh(S[ok])
+        ok[np.flatnonzero(ok)[ev[:, 0] <= 1e-12 * np.maximum(ev[:, -1], 1e-300)]] = False
+    if ok.sum() < 2:
+        return None, float("nan")
+    m2 = np.einsum("ki,ki->k", r[ok], np.linalg.solve(S[ok], r[ok][:, :, None])[:, :, 0])
+    s2 = float(dof_ratio * np.mean(m2) / 3.0)
+    cov = s2 * S
+    if shared_modes is not None:
+        D = np.asarray(shared_modes, float)
+        if D.ndim != 3 or D.shape[1:] != (len(r), 3):
+            raise ValueError(f"shared_modes must have shape (M, {len(r)}, 3), got {D.shape}")
+        cov = cov + np.einsum("mki,mkj->kij", D, D)
+    return cov, s2

@@ -259,6 +259,12 @@ class PairResult:
         1-sigma per coordinate (RMS over the pair's positions) of the shift the calibration
         error gives all positions of the pair (:func:`calibration_modes`); NaN without a
         calibration record.
+    position_covariance_m2 : ndarray, shape (K, 3, 3) or None
+        Error covariance of each position (m^2): the triangulation geometry's shape (depth along
+        the lines of sight) at the level of the pair's residuals, plus the shared calibration
+        and centre-bias modes (:func:`stillcap.ball.uncertainty.position_covariances`). Test a
+        position with ``e^T C^-1 e`` against chi-square(3); ``position_sigma_m`` is its
+        isotropic summary.
     """
 
     name: str
@@ -285,6 +291,7 @@ class PairResult:
     position_sigma_m: float = float("nan")
     stereo: StereoBalls | None = field(default=None, repr=False)
     calibration_sigma_m: float = float("nan")
+    position_covariance_m2: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def local_times(self) -> np.ndarray:
@@ -306,6 +313,8 @@ class PairResult:
             "name": self.name, "cameras": list(self.cameras), "strobe_hz": self.strobe_hz,
             "flash_index": self.flash_index, "times_s": self.times, "positions": self.positions,
             "position_sigma_mm": self.position_sigma_m * 1e3, "calibration_sigma_mm": self.calibration_sigma_m * 1e3,
+            "position_covariance_mm2": (None if self.position_covariance_m2 is None
+                                        else self.position_covariance_m2 * 1e6),
             "centers_px": self.centers_px,
             "radius_px": self.radius_px, "reproj_error_px": self.reproj_error_px, "flags": self.flags,
             "n_detected": list(self.n_detected), "n_dropped": self.n_dropped, "spacing_m": self.spacing_m,
@@ -1528,7 +1537,7 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
     fit_pos = fit_reference_trajectory(times_a, pos_a, p0, v_two, None, **{**fit_kw, "method": "least_squares"})
     # calibration error: shared by all positions of a pair (docs/pitch.md, "Uncertainties")
     calib = cap.meta.get("calibration") if isinstance(cap.meta.get("calibration"), dict) else None
-    cal_modes = []
+    cal_modes, shared_modes = [], {}
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
@@ -1544,6 +1553,7 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
         m = mb if m is None else np.concatenate([m, mb])
         if not np.any(m):
             continue
+        shared_modes[i] = m
         full = np.zeros((len(m), len(pos_a), 3))
         full[:, pidx_a == i] = m
         cal_modes.append(full)
@@ -1635,6 +1645,12 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
     if cal_modes is not None and fit is not fit_pos:
         fit = fit.with_extra_covariance(fit.position_covariance_term(cal_modes))
     timings["fit"] = _time.perf_counter() - t
+    from stillcap.ball.uncertainty import position_covariances
+
+    # residuals fall short of the errors by the fitted degrees of freedom (as in residual_scale)
+    n_obs_coord = int(np.sum(np.isfinite(fit.residuals)))
+    n_par = int(np.asarray(fit.covariance).shape[0])
+    dof_ratio = n_obs_coord / (n_obs_coord - n_par) if n_obs_coord > n_par else 1.0
     for p in pairs:
         if p.group > 0:
             p.time_offset_s = float(fit.time_offsets[p.group - 1])
@@ -1646,6 +1662,13 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
                               else float(fit.residual_scale * options.position_sigma_m))
         if np.isfinite(p.calibration_sigma_m):  # scatter and the pair's shared calibration shift
             p.position_sigma_m = float(np.hypot(p.position_sigma_m, p.calibration_sigma_m))
+        # per image: the triangulation's error shape at the residuals' level, plus the shared
+        # modes (an isotropic sigma mis-tests the thin depth ellipsoid; docs/pitch.md, sixth pass)
+        cov_k, _ = position_covariances(fit.residuals[sel], pos_cov[sel], shared_modes.get(pairs.index(p)),
+                                        dof_ratio)
+        if cov_k is None and len(p) and np.isfinite(p.position_sigma_m):  # too few residuals for a shape
+            cov_k = np.broadcast_to(np.eye(3) * p.position_sigma_m ** 2, (len(p), 3, 3)).copy()
+        p.position_covariance_m2 = cov_k
     if not fit.success:
         messages.append(f"reference fit did not converge: {fit.message}")
     if fit.rms_error > 0.05:
