@@ -69,6 +69,14 @@ def test_report_files(result, tmp_path):
     assert "release_speed_mph" in html and "Table 1" in html
     rows = (tmp_path / "rep" / "positions.csv").read_text().splitlines()
     assert rows[0].split(",") == list(POSITION_COLUMNS) and len(rows) == 1 + len(result.times)
+    # each row's covariance columns are its pair's position_covariance_m2 entry, in mm^2
+    import csv
+    first = next(csv.DictReader(rows))
+    p = next(p for p in result.pairs if p.name == first["pair"])
+    C = p.position_covariance_m2[0] * 1e6
+    got = [float(first[k]) for k in ("cov_xx_mm2", "cov_yy_mm2", "cov_zz_mm2", "cov_xy_mm2", "cov_xz_mm2", "cov_yz_mm2")]
+    np.testing.assert_allclose(got, [C[0, 0], C[1, 1], C[2, 2], C[0, 1], C[0, 2], C[1, 2]], rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(C) > 0)
     assert json.loads(paths["json"].read_text())["metrics"] == result.to_dict()["metrics"]
     assert "spin_rate_rpm" in (tmp_path / "rep" / "metrics.csv").read_text()
     assert not list((tmp_path / "rep").glob(".*"))  # atomic writes leave no temporary files

@@ -36,7 +36,11 @@ __all__ = ["POSITION_COLUMNS", "METRIC_UNITS", "write_json", "write_positions_cs
 
 #: Columns of ``positions.csv``.
 POSITION_COLUMNS = ("pair", "camera_a", "camera_b", "strobe_hz", "flash_index", "time_s", "x_m", "y_m", "z_m",
-                    "sigma_mm", "ref_x_m", "ref_y_m", "ref_z_m", "residual_mm", "reproj_px", "markers", "flags")
+                    "sigma_mm", "cov_xx_mm2", "cov_yy_mm2", "cov_zz_mm2", "cov_xy_mm2", "cov_xz_mm2", "cov_yz_mm2",
+                    "ref_x_m", "ref_y_m", "ref_z_m", "residual_mm", "reproj_px", "markers", "flags")
+#: (column, row, col) of the position covariance entries in ``positions.csv``.
+_COV_ENTRIES = (("cov_xx_mm2", 0, 0), ("cov_yy_mm2", 1, 1), ("cov_zz_mm2", 2, 2), ("cov_xy_mm2", 0, 1),
+                ("cov_xz_mm2", 0, 2), ("cov_yz_mm2", 1, 2))
 #: Unit of each metric key (by suffix where the key names it).
 METRIC_UNITS = {"spin_efficiency": "0-1", "spin_tilt": "clock (h:mm)", "success": "", "message": ""}
 _PAIR_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
@@ -79,6 +83,8 @@ def _position_rows(result):
     n = 0
     for i, p in enumerate(result.pairs):
         counts = (p.observations.counts(len(p)) if p.observations is not None and len(p) else np.zeros(len(p), int))
+        cov = (np.full((len(p), 3, 3), np.nan) if p.position_covariance_m2 is None
+               else np.asarray(p.position_covariance_m2) * 1e6)  # mm^2
         for j in range(len(p)):
             sel = np.flatnonzero(result.pair_index == i)
             r = sel[j] if j < len(sel) else None
@@ -89,6 +95,7 @@ def _position_rows(result):
                 "flash_index": int(p.flash_index[j]), "time_s": _g(p.times[j]),
                 "x_m": _g(p.positions[j, 0]), "y_m": _g(p.positions[j, 1]), "z_m": _g(p.positions[j, 2]),
                 "sigma_mm": _g(p.position_sigma_m * 1e3),
+                **{name: _g(cov[j, a, b]) for name, a, b in _COV_ENTRIES},
                 "ref_x_m": _g(ref[0]), "ref_y_m": _g(ref[1]), "ref_z_m": _g(ref[2]), "residual_mm": _g(res),
                 "reproj_px": _g(p.reproj_error_px[j]), "markers": int(counts[j]), "flags": int(p.flags[j]),
             })
