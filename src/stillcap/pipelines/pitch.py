@@ -136,8 +136,9 @@ class PitchOptions:
         constant and a trend along the flight; 0 leaves it out. ``docs/pitch.md``,
         "Uncertainties".
     workers : int
-        Threads for the per-pair work (decoding, ball images, markers; OpenCV releases the GIL).
-        The results do not depend on it; 1 runs everything on the calling thread's order.
+        Threads for the per-pair work: decoding the photos (while the calling thread finds the
+        ball images of the pairs already decoded), markers and the pairs' own spin fits. The
+        results do not depend on it.
     processes : int
         Worker processes for the per-pair work (0, default: the ``workers`` threads). Each pair's
         photos are decoded, its ball images and markers found and its own spin fitted in a
@@ -1367,18 +1368,16 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
 
     # -- 1-2. ball positions per pair -----------------------------------------------------------
     t = _time.perf_counter()
-    # the pairs are independent: decode and detect them on `workers` threads (OpenCV's imread,
-    # inRange, findContours, remap release the GIL); map keeps the pairs' order, so the results
-    # are those of the serial loop
-
-    def positions_of(sp):
-        cams = [cap.rig[c] for c in sp.cameras]
-        imgs = list(pool.map(cap.read_image, sp.images)) if options.workers > len(specs) else \
-            [cap.read_image(im) for im in sp.images]
-        return cams, imgs, ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], R)
-
     if procs is None:
-        found = list(pool.map(positions_of, specs))
+        # the photos decode on the pool in pair order (imread releases the GIL); each pair's ball
+        # images are found on this thread as soon as its two photos are in, while the next pair's
+        # photos decode (detection mostly holds the GIL: two pairs on threads overlapped less)
+        decoding = [[pool.submit(cap.read_image, im) for im in sp.images] for sp in specs]
+        found = []
+        for sp, futs in zip(specs, decoding):
+            cams = [cap.rig[c] for c in sp.cameras]
+            imgs = [f.result() for f in futs]
+            found.append((cams, imgs, ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], R)))
     else:  # pair i on worker i % n, which keeps its photos (under a token) for the marker step
         from stillcap.pipelines import pitch_workers
 
