@@ -147,6 +147,9 @@ class BallLayout:
         nt = len(self.type_names)
         if len(self.type_shapes) != nt:
             raise ValueError(f"type_shapes must have {nt} entries, got {len(self.type_shapes)}")
+        unknown = [s for s in self.type_shapes if s not in _SHAPE_SECOND_MOMENT]
+        if unknown:  # the detector tells these shapes apart, and centroid_depth models them
+            raise ValueError(f"unknown marker shapes {unknown}: use {', '.join(TYPE_SHAPES)}")
         if t.min() < 0 or t.max() >= nt:
             raise ValueError(f"types must be in 0..{nt - 1}, got {sorted(set(t.tolist()))}")
         missing = [n for n in self.type_names if n not in self.palette]
@@ -223,9 +226,6 @@ class BallLayout:
         ndarray, shape (n_types,)
             ``k`` per type index (the seed's markers: 0.0064 (triangle) to 0.0171 (square)).
         """
-        unknown = [s for s in self.type_shapes if s not in _SHAPE_SECOND_MOMENT]
-        if unknown:
-            raise ValueError(f"no centroid model for marker shapes {unknown} (known: {sorted(_SHAPE_SECOND_MOMENT)})")
         return np.array([_SHAPE_SECOND_MOMENT[s] for s in self.type_shapes]) * self.marker_size ** 2
 
     @property
