@@ -81,26 +81,20 @@ def _expmap(rotvecs) -> np.ndarray:
     c = 1.0 - b * th2  # cos(theta)
     R = (b[..., None] * v)[..., :, None] * v[..., None, :]  # (b v_i) v_j
     av = a[..., None] * v
-    R[..., 0, 0] += c
-    R[..., 1, 1] += c
-    R[..., 2, 2] += c
-    R[..., 0, 1] -= av[..., 2]
-    R[..., 1, 0] += av[..., 2]
-    R[..., 0, 2] += av[..., 1]
-    R[..., 2, 0] -= av[..., 1]
-    R[..., 1, 2] -= av[..., 0]
-    R[..., 2, 1] += av[..., 0]
+    # + c I + [a v]x in one addition (x + (-y) is x - y exactly): fewer calls than entry by entry
+    R += np.concatenate([c[..., None], av, -av], axis=-1)[..., _SKEW_INDEX].reshape(R.shape)
     return R
+
+
+# row-major entries of c I + [v]x from (c, v0, v1, v2, -v0, -v1, -v2)
+_SKEW_INDEX = np.array([0, 6, 2, 3, 0, 4, 5, 1, 0])
 
 
 def _skew(v) -> np.ndarray:
     """Cross-product matrices ``[v]x``, shape (..., 3) -> (..., 3, 3)."""
     v = np.asarray(v, float)
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
+    parts = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v, -v], axis=-1)
+    return parts[..., _SKEW_INDEX].reshape(v.shape[:-1] + (3, 3))
 
 
 def _left_jacobian(rotvecs) -> np.ndarray:
@@ -490,13 +484,16 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     order = np.argsort(cost)
     # refine the best distinct hypotheses
     refined = []  # (R, cost, angles, assigned markers)
+    # hypotheses within distinct_deg of a refined one are skipped: the mask is updated once per
+    # refined rotation for all hypotheses (instead of testing each hypothesis against the list)
+    near = np.zeros(len(R), bool)
     for h in order:
-        Rh = R[h]
-        if refined and _near_any(Rh, [rc[0] for rc in refined], np.radians(distinct_deg)):
+        if near[h]:
             continue
-        refined.append(_refine(Rh, u, t, layout, cap, nearest=(d[h:h + 1], jh[h:h + 1])))
+        refined.append(_refine(R[h], u, t, layout, cap, nearest=(d[h:h + 1], jh[h:h + 1])))
         if len(refined) >= max(n_candidates, 2) + 2:
             break
+        near |= _angles_to(refined[-1][0], R) < np.radians(distinct_deg)
     refined.sort(key=lambda rc: rc[1])
     distinct = []
     for rc in refined:
@@ -516,11 +513,10 @@ def _rot_angle(Ra, Rb) -> float:
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def _near_any(R, Rs, tol: float) -> bool:
-    """Whether any of the rotations ``Rs`` is within ``tol`` (rad) of ``R`` (vectorised
-    ``any(_rot_angle(R, r) < tol for r in Rs)``)."""
-    c = (np.einsum("ab,kab->k", R, np.asarray(Rs, float).reshape(-1, 3, 3)) - 1.0) / 2.0
-    return bool(np.any(np.arccos(np.clip(c, -1.0, 1.0)) < tol))
+def _angles_to(R, Rs) -> np.ndarray:
+    """:func:`_rot_angle` of ``R`` to each of the rotations ``Rs``: (k, 3, 3) -> (k,)."""
+    c = (np.einsum("ab,kab->k", R, Rs) - 1.0) / 2.0
+    return np.arccos(np.clip(c, -1.0, 1.0))
 
 
 def _rot_angles(Rs) -> np.ndarray:
