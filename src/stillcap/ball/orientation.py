@@ -81,20 +81,26 @@ def _expmap(rotvecs) -> np.ndarray:
     c = 1.0 - b * th2  # cos(theta)
     R = (b[..., None] * v)[..., :, None] * v[..., None, :]  # (b v_i) v_j
     av = a[..., None] * v
-    # + c I + [a v]x in one addition (x + (-y) is x - y exactly): fewer calls than entry by entry
-    R += np.concatenate([c[..., None], av, -av], axis=-1)[..., _SKEW_INDEX].reshape(R.shape)
+    R[..., 0, 0] += c
+    R[..., 1, 1] += c
+    R[..., 2, 2] += c
+    R[..., 0, 1] -= av[..., 2]
+    R[..., 1, 0] += av[..., 2]
+    R[..., 0, 2] += av[..., 1]
+    R[..., 2, 0] -= av[..., 1]
+    R[..., 1, 2] -= av[..., 0]
+    R[..., 2, 1] += av[..., 0]
     return R
-
-
-# row-major entries of c I + [v]x from (c, v0, v1, v2, -v0, -v1, -v2)
-_SKEW_INDEX = np.array([0, 6, 2, 3, 0, 4, 5, 1, 0])
 
 
 def _skew(v) -> np.ndarray:
     """Cross-product matrices ``[v]x``, shape (..., 3) -> (..., 3, 3)."""
     v = np.asarray(v, float)
-    parts = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v, -v], axis=-1)
-    return parts[..., _SKEW_INDEX].reshape(v.shape[:-1] + (3, 3))
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
 
 
 def _left_jacobian(rotvecs) -> np.ndarray:
