@@ -78,19 +78,24 @@ def _expmap(rotvecs) -> np.ndarray:
     else:  # the same numbers without the series branch (most calls: small arrays, no zero angle)
         a = np.sin(th) / th
         b = (1.0 - np.cos(th)) / (th * th)
-    c = 1.0 - b * th2  # cos(theta)
-    R = (b[..., None] * v)[..., :, None] * v[..., None, :]  # (b v_i) v_j
-    av = a[..., None] * v
-    R[..., 0, 0] += c
-    R[..., 1, 1] += c
-    R[..., 2, 2] += c
-    R[..., 0, 1] -= av[..., 2]
-    R[..., 1, 0] += av[..., 2]
-    R[..., 0, 2] += av[..., 1]
-    R[..., 2, 0] -= av[..., 1]
-    R[..., 1, 2] -= av[..., 0]
-    R[..., 2, 1] += av[..., 0]
-    return R
+    c = (1.0 - b * th2).reshape(-1)  # cos(theta)
+    # assembled entry-major, (3, 3, N): every entry's products and sums run over one contiguous
+    # row (the (N, 3, 3) layout's 3-long inner loops cost most of the time of the grid scan's
+    # large calls); the same products and sums, so the same numbers
+    vT = np.ascontiguousarray(v.reshape(-1, 3).T)
+    bv = b.reshape(-1) * vT
+    R = bv[:, None, :] * vT[None, :, :]  # (b v_i) v_j
+    av = a.reshape(-1) * vT
+    R[0, 0] += c
+    R[1, 1] += c
+    R[2, 2] += c
+    R[0, 1] -= av[2]
+    R[1, 0] += av[2]
+    R[0, 2] += av[1]
+    R[2, 0] -= av[1]
+    R[1, 2] -= av[0]
+    R[2, 1] += av[0]
+    return np.ascontiguousarray(R.transpose(2, 0, 1)).reshape(v.shape + (3,))
 
 
 def _skew(v) -> np.ndarray:
@@ -1018,8 +1023,8 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
                 Ek = {k: _coarse_grid_rotations(coarse_step, steps[k])[s:s + chunk] for k, _ in flashes}
             else:  # only the flashes with markers
                 ks = [k for k, _ in flashes]
-                E = _expmap(rho[s:s + chunk, None, :] * steps[ks][None, :, None])  # (G, K', 3, 3)
-                Ek = {k: np.ascontiguousarray(E[:, i]).reshape(len(E), 9) for i, k in enumerate(ks)}
+                E = _expmap(steps[ks][:, None, None] * rho[None, s:s + chunk, :])  # (K', G, 3, 3)
+                Ek = {k: E[i].reshape(-1, 9) for i, k in enumerate(ks)}
             G = min(chunk, len(rho) - s)
             for ia, Wk in enumerate(Wks):
                 best = np.empty((G, len(u)))
