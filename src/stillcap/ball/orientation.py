@@ -506,10 +506,12 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
             break
         near |= _angles_to(refined[-1][0], R) < np.radians(distinct_deg)
     refined.sort(key=lambda rc: rc[1])
-    distinct = []
-    for rc in refined:
-        if not any(_rot_angle(rc[0], q[0]) < np.radians(distinct_deg) for q in distinct):
-            distinct.append(rc)
+    close = _rot_angles([rc[0] for rc in refined]) < np.radians(distinct_deg)  # all pairs at once
+    kept = []
+    for i in range(len(refined)):
+        if not close[i, kept].any():
+            kept.append(i)
+    distinct = [refined[i] for i in kept]
     best, best_cost, d, j = distinct[0]
     inl = d < cap
     rms = float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))) if inl.any() else np.nan
