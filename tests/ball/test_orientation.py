@@ -351,6 +351,33 @@ def test_rotation_maps_are_rowwise_the_same_in_any_batch():
     assert np.allclose(_expmap(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-14)
 
 
+def test_expmap_of_a_multi_dimensional_batch_is_entrywise_the_same():
+    """_expmap assembles its matrices entry-major: the same numbers as Rodrigues' formula written
+    on (..., 3, 3) arrays, in any batch shape and order (the grid scan's fine steps are computed
+    flash-major)."""
+    from stillcap.ball.orientation import _expmap
+
+    rng = np.random.default_rng(8)
+    v = rng.normal(size=(5, 4, 3)) * 2.0
+    th2 = np.einsum("...i,...i->...", v, v)
+    th = np.sqrt(th2)
+    a, b = np.sin(th) / th, (1.0 - np.cos(th)) / (th * th)
+    plain = (b[..., None] * v)[..., :, None] * v[..., None, :]
+    plain += (1.0 - b * th2)[..., None, None] * np.eye(3)  # + c on the diagonal only (+ 0 elsewhere)
+    av = a[..., None] * v
+    plain[..., 0, 1] -= av[..., 2]
+    plain[..., 1, 0] += av[..., 2]
+    plain[..., 0, 2] += av[..., 1]
+    plain[..., 2, 0] -= av[..., 1]
+    plain[..., 1, 2] -= av[..., 0]
+    plain[..., 2, 1] += av[..., 0]
+    E = _expmap(v)
+    assert E.shape == (5, 4, 3, 3) and E.flags.c_contiguous
+    assert np.array_equal(E, plain)
+    assert np.array_equal(_expmap(np.swapaxes(v, 0, 1)), np.swapaxes(E, 0, 1))
+    assert _expmap(v[0, 0]).shape == (3, 3) and np.array_equal(_expmap(v[0, 0]), E[0, 0])
+
+
 def test_capped_angles_only_skip_the_arccos_above_the_cap():
     from stillcap.ball.orientation import _capped_sq_angles
 

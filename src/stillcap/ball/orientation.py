@@ -78,19 +78,24 @@ def _expmap(rotvecs) -> np.ndarray:
     else:  # the same numbers without the series branch (most calls: small arrays, no zero angle)
         a = np.sin(th) / th
         b = (1.0 - np.cos(th)) / (th * th)
-    c = 1.0 - b * th2  # cos(theta)
-    R = (b[..., None] * v)[..., :, None] * v[..., None, :]  # (b v_i) v_j
-    av = a[..., None] * v
-    R[..., 0, 0] += c
-    R[..., 1, 1] += c
-    R[..., 2, 2] += c
-    R[..., 0, 1] -= av[..., 2]
-    R[..., 1, 0] += av[..., 2]
-    R[..., 0, 2] += av[..., 1]
-    R[..., 2, 0] -= av[..., 1]
-    R[..., 1, 2] -= av[..., 0]
-    R[..., 2, 1] += av[..., 0]
-    return R
+    c = (1.0 - b * th2).reshape(-1)  # cos(theta)
+    # assembled entry-major, (3, 3, N): every entry's products and sums run over one contiguous
+    # row (the (N, 3, 3) layout's 3-long inner loops cost most of the time of the grid scan's
+    # large calls); the same products and sums, so the same numbers
+    vT = np.ascontiguousarray(v.reshape(-1, 3).T)
+    bv = b.reshape(-1) * vT
+    R = bv[:, None, :] * vT[None, :, :]  # (b v_i) v_j
+    av = a.reshape(-1) * vT
+    R[0, 0] += c
+    R[1, 1] += c
+    R[2, 2] += c
+    R[0, 1] -= av[2]
+    R[1, 0] += av[2]
+    R[0, 2] += av[1]
+    R[2, 0] -= av[1]
+    R[1, 2] -= av[0]
+    R[2, 1] += av[0]
+    return np.ascontiguousarray(R.transpose(2, 0, 1)).reshape(v.shape + (3,))
 
 
 def _skew(v) -> np.ndarray:
@@ -490,18 +495,23 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
     order = np.argsort(cost)
     # refine the best distinct hypotheses
     refined = []  # (R, cost, angles, assigned markers)
+    # hypotheses within distinct_deg of a refined one are skipped: the mask is updated once per
+    # refined rotation for all hypotheses (instead of testing each hypothesis against the list)
+    near = np.zeros(len(R), bool)
     for h in order:
-        Rh = R[h]
-        if refined and _near_any(Rh, [rc[0] for rc in refined], np.radians(distinct_deg)):
+        if near[h]:
             continue
-        refined.append(_refine(Rh, u, t, layout, cap, nearest=(d[h:h + 1], jh[h:h + 1])))
+        refined.append(_refine(R[h], u, t, layout, cap, nearest=(d[h:h + 1], jh[h:h + 1])))
         if len(refined) >= max(n_candidates, 2) + 2:
             break
+        near |= _angles_to(refined[-1][0], R) < np.radians(distinct_deg)
     refined.sort(key=lambda rc: rc[1])
-    distinct = []
-    for rc in refined:
-        if not any(_rot_angle(rc[0], q[0]) < np.radians(distinct_deg) for q in distinct):
-            distinct.append(rc)
+    close = _rot_angles([rc[0] for rc in refined]) < np.radians(distinct_deg)  # all pairs at once
+    kept = []
+    for i in range(len(refined)):
+        if not close[i, kept].any():
+            kept.append(i)
+    distinct = [refined[i] for i in kept]
     best, best_cost, d, j = distinct[0]
     inl = d < cap
     rms = float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))) if inl.any() else np.nan
@@ -516,11 +526,10 @@ def _rot_angle(Ra, Rb) -> float:
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
-def _near_any(R, Rs, tol: float) -> bool:
-    """Whether any of the rotations ``Rs`` is within ``tol`` (rad) of ``R`` (vectorised
-    ``any(_rot_angle(R, r) < tol for r in Rs)``)."""
-    c = (np.einsum("ab,kab->k", R, np.asarray(Rs, float).reshape(-1, 3, 3)) - 1.0) / 2.0
-    return bool(np.any(np.arccos(np.clip(c, -1.0, 1.0)) < tol))
+def _angles_to(R, Rs) -> np.ndarray:
+    """:func:`_rot_angle` of ``R`` to each of the rotations ``Rs``: (k, 3, 3) -> (k,)."""
+    c = (np.einsum("ab,kab->k", R, Rs) - 1.0) / 2.0
+    return np.arccos(np.clip(c, -1.0, 1.0))
 
 
 def _rot_angles(Rs) -> np.ndarray:
@@ -797,17 +806,22 @@ def _cluster_robust(cov, bread, J, r, flash):
     if G < 3 or n <= p:
         return cov
     order = np.argsort(idx, kind="stable")
-    bounds = np.searchsorted(idx[order], np.arange(G + 1))
-    meat = np.zeros((p, p))
-    for g in range(G):  # one small (rows of a flash)^2 eigen-problem per flash
-        rows = order[bounds[g]:bounds[g + 1]]
+    size = np.bincount(idx, minlength=G)
+    bounds = np.concatenate([[0], np.cumsum(size)])
+    S = np.empty((G, p))  # J_g^T (I - H_gg)^(-1/2) r_g of every flash g
+    # one small (rows of a flash)^2 eigen-problem per flash, batched over the flashes with the
+    # same number of rows (fewer calls; each matrix's numbers are the same as one at a time)
+    for n_g in np.unique(size):
+        gs = np.flatnonzero(size == n_g)
+        rows = order[bounds[gs][:, None] + np.arange(n_g)]  # (flashes, n_g)
         Jg = J[rows]
-        w, U = np.linalg.eigh(np.eye(len(rows)) - Jg @ bread @ Jg.T)
+        w, U = np.linalg.eigh(np.eye(n_g) - Jg @ bread @ np.swapaxes(Jg, 1, 2))
         # (I - H_gg)^(-1/2) r_g; a flash that alone determines a direction (leverage ~1) is
         # capped at 100x instead of dividing by ~0
-        rt = U @ ((U.T @ r[rows]) / np.sqrt(np.clip(w, 1e-4, None)))
-        s = Jg.T @ rt
-        meat += np.outer(s, s)
+        ut_r = np.swapaxes(U, 1, 2) @ r[rows][:, :, None]
+        rt = U @ (ut_r / np.sqrt(np.clip(w, 1e-4, None))[:, :, None])
+        S[gs] = (np.swapaxes(Jg, 1, 2) @ rt)[:, :, 0]
+    meat = (S[:, :, None] * S[:, None, :]).sum(axis=0)  # sum of outer(s_g, s_g), in flash order
     sand = bread @ meat @ bread
     d, V = np.linalg.eigh(0.5 * ((sand - cov) + (sand - cov).T))
     return cov + (V * np.clip(d, 0.0, None)) @ V.T
@@ -1011,8 +1025,8 @@ def _grid_inits(prob, times, period, anchors, t0, cap, step_deg, n_keep):
                 Ek = {k: _coarse_grid_rotations(coarse_step, steps[k])[s:s + chunk] for k, _ in flashes}
             else:  # only the flashes with markers
                 ks = [k for k, _ in flashes]
-                E = _expmap(rho[s:s + chunk, None, :] * steps[ks][None, :, None])  # (G, K', 3, 3)
-                Ek = {k: np.ascontiguousarray(E[:, i]).reshape(len(E), 9) for i, k in enumerate(ks)}
+                E = _expmap(steps[ks][:, None, None] * rho[None, s:s + chunk, :])  # (K', G, 3, 3)
+                Ek = {k: E[i].reshape(-1, 9) for i, k in enumerate(ks)}
             G = min(chunk, len(rho) - s)
             for ia, Wk in enumerate(Wks):
                 best = np.empty((G, len(u)))
