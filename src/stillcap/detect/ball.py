@@ -760,6 +760,16 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     T, M = len(ox), len(px)
     mx = np.add(ox[:, None], px[None, :], out=np.empty((T, M), np.float32))
     my = np.add(oy[:, None], py[None, :], out=np.empty((T, M), np.float32))
+    return _score_maps(g, mx, my, nx, ny, wt, power)
+
+
+def _score_maps(g, mx, my, nx, ny, wt, power):
+    """:func:`_score` of the outline points' positions ``mx``, ``my`` (float32, (T, M)).
+
+    Each gradient is sampled by its own single-channel ``cv2.remap``: OpenCV's float path for
+    one channel interpolates exactly, while a 2-channel remap (or fixed-point maps from
+    ``cv2.convertMaps``) rounds the bilinear weights to 1/32 px, which moves the scores.
+    """
     sx = cv2.remap(g[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     # gn = max(0, sx nx + sy ny), in place (the remapped arrays are ours): fewer temporaries
@@ -793,11 +803,19 @@ def _grid_offsets(step: float, k: int):
 def _grid_peak(g, x, y, tpl, power, step, k, moves):
     """Best centre on a (2k+1)^2 grid of ``step`` around (x, y); re-centred up to ``moves``
     times while the best lies on the grid border. Returns x, y, the grid scores, the index."""
-    d, DX, DY = _grid_offsets(float(step), int(k))
+    d = _grid_offsets(float(step), int(k))[0]
+    n = len(d)
+    px, py = tpl[0], tpl[1]
     for m in range(moves + 1):
-        sc, _ = _score(g, x + DX, y + DY, *tpl, power)
-        sc = sc.reshape(len(d), len(d))
-        i, j = divmod(int(np.argmax(sc)), len(d))  # np.unravel_index on a square grid
+        # the outline points of every candidate (row-major, y slowest): candidate (i, j) is
+        # (x + d[j], y + d[i]), so the x map has only n distinct rows (tiled) and the y map n
+        # (each repeated): summed once per row, the same numbers as x + DX + p per candidate
+        xs, ys = x + d, y + d  # the candidates' dtype as in x + DX (NumPy's promotion of x)
+        mx = np.add(xs[:, None], px[None, :], out=np.empty((n, len(px)), np.float32))
+        my = np.add(ys[:, None], py[None, :], out=np.empty((n, len(py)), np.float32))
+        sc, _ = _score_maps(g, np.tile(mx, (n, 1)), np.repeat(my, n, axis=0), *tpl[2:], power)
+        sc = sc.reshape(n, n)
+        i, j = divmod(int(np.argmax(sc)), n)  # np.unravel_index on a square grid
         x, y = x + float(d[j]), y + float(d[i])
         if 0 < i < 2 * k and 0 < j < 2 * k:
             break
@@ -1026,8 +1044,10 @@ def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int
     (``(2k+1)^2``) followed up to 6 moves, again up to 3, then a parabola (the model's offset in
     :func:`_shading_bias` and :mod:`stillcap.ball.uncertainty`)."""
     g = _gradient(model)
-    bx, by, _, _ = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=6)
-    bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
+    bx, by, fs, (fi, fj) = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=6)
+    if (fi, fj) != (k, k):
+        # (a peak at the grid's centre: the second search would score the same grid again)
+        bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
     ddy, ddx = _quad_peak(fs, fi, fj)
     return bx + ddx * step, by + ddy * step
 
