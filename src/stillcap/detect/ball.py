@@ -813,7 +813,7 @@ def _grid_peak(g, x, y, tpl, power, step, k, moves):
         xs, ys = x + d, y + d  # the candidates' dtype as in x + DX (NumPy's promotion of x)
         mx = np.add(xs[:, None], px[None, :], out=np.empty((n, len(px)), np.float32))
         my = np.add(ys[:, None], py[None, :], out=np.empty((n, len(py)), np.float32))
-        sc, _ = _score_maps(g, np.tile(mx, (n, 1)), np.repeat(my, n, axis=0), *tpl[2:], power)
+        sc, _ = _score_maps(g, cv2.repeat(mx, n, 1), my.repeat(n, axis=0), *tpl[2:], power)
         sc = sc.reshape(n, n)
         i, j = divmod(int(np.argmax(sc)), n)  # np.unravel_index on a square grid
         x, y = x + float(d[j]), y + float(d[i])
