@@ -265,13 +265,16 @@ def _level_of_histogram(hist: np.ndarray) -> tuple[float, float]:
     return float(med), 1.4826 * max(mad, 0.5)
 
 
-def _robust_levels(src: np.ndarray) -> list:
+def _robust_levels(src: np.ndarray, small: np.ndarray | None = None, scale: int = 1) -> list:
     """:func:`_robust_level` of every channel of ``src`` (H, W) or (H, W, 3), as a list.
 
     For a BGR ``uint8`` photo whose size the subsampling step (a power of 2) divides, the
     subsample of all three channels is taken at once and contiguous (every step-th row is a
     view; ``cv2.resize``, nearest pixel, picks every step-th column), and each channel's
     histogram comes from it directly: the same numbers, without copying each strided channel.
+    ``small``: every ``scale``-th pixel of ``src`` (contiguous), if the caller has it; where
+    ``scale`` divides the step, the subsample is taken from it (the same pixels, read from a
+    smaller image that is in the cache, not from the photo).
     """
     if src.ndim == 2:
         return [_robust_level(src)]
@@ -279,19 +282,37 @@ def _robust_levels(src: np.ndarray) -> list:
     step = max(1, int(np.sqrt(H * W / 2.5e5)))
     if (src.dtype == np.uint8 and src.strides[1:] == (3, 1) and step > 1 and step & (step - 1) == 0
             and H % step == 0 and W % step == 0):
-        sub = cv2.resize(src[::step], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
+        if small is not None and step % scale == 0 and small.shape == (H // scale, W // scale, 3):
+            f = step // scale
+            sub = small if f == 1 else cv2.resize(small[::f], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
+        else:
+            sub = cv2.resize(src[::step], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
         return [_level_of_histogram(cv2.calcHist([sub], [k], None, [256], [0, 256])) for k in range(3)]
     return [_robust_level(src[:, :, k]) for k in range(src.shape[2])]
 
 
 def _raw_mask(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float) -> np.ndarray:
     """Foreground mask before clean-up: any channel differs from the background by > threshold."""
-    return _threshold(*_mask_limits(img, background, threshold, k_sigma, min_contrast))
+    src, hi, _ = _mask_limits(img, background, threshold, k_sigma, min_contrast)
+    return _threshold(src, hi)
 
 
-def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float):
-    """The image to threshold (the photo, or its difference from the background) and each
-    channel's upper limit of "background": ``(src, hi)``."""
+def _subsample(src: np.ndarray, scale: int) -> np.ndarray:
+    """``src`` at 1/``scale`` resolution, nearest pixel (``cv2.resize``)."""
+    H, W = src.shape[:2]
+    if H % scale == 0 and scale & (scale - 1) == 0:
+        # the same pixels, ~2x faster: every scale-th row is a view (its rows' stride), so
+        # cv2.resize only samples the columns (nearest pixel of a power-of-2 factor that divides
+        # the height: exactly every scale-th row, as the full resize picks)
+        return cv2.resize(src[::scale], (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    return cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+
+
+def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float,
+                 scale: int = 0):
+    """The image to threshold (the photo, or its difference from the background), each
+    channel's upper limit of "background", and (``scale`` > 0) the image at 1/``scale``
+    resolution (:func:`_subsample`; else None): ``(src, hi, small)``."""
     if background is not None:
         bg = _check_image(background, "background")
         if bg.shape != img.shape:
@@ -300,13 +321,15 @@ def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_con
             diff = cv2.absdiff(img, bg)
         else:
             diff = np.abs(img.astype(np.float32) - bg.astype(np.float32))
+        small = _subsample(diff, scale) if scale else None
         # |difference of two noisy photos| is half-normal: its median is 0.674 sigma
-        sig = [max(m / 0.674, 0.5) for m, _ in _robust_levels(diff)]
+        sig = [max(m / 0.674, 0.5) for m, _ in _robust_levels(diff, small, scale)]
         base = [0.0] * len(sig)
         src = diff
     else:
         src = img
-        stats = _robust_levels(img)
+        small = _subsample(img, scale) if scale else None
+        stats = _robust_levels(img, small, scale)
         base = [m for m, _ in stats]
         sig = [s for _, s in stats]
     if threshold is None:
@@ -314,7 +337,7 @@ def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_con
     else:
         thr = [float(threshold)] * len(base)
     hi = [b + t for b, t in zip(base, thr)]
-    return src, hi
+    return src, hi, small
 
 
 def _threshold(src: np.ndarray, hi) -> np.ndarray:
@@ -518,17 +541,12 @@ def _foreground_contours(img: np.ndarray, background, threshold, k_sigma: float,
     same contours. A silhouette that falls between the sampled pixels everywhere (thinner than
     ``scale`` px in both directions) is not found; the opening removes such shapes anyway.
     """
-    src, hi = _mask_limits(img, background, threshold, k_sigma, min_contrast)
-    H, W = src.shape[:2]
+    H, W = img.shape[:2]
     if min(H, W) < 16 * scale:
+        src, hi, _ = _mask_limits(img, background, threshold, k_sigma, min_contrast)
         return _clean_contours(_threshold(src, hi), open_px, min_area)
-    if H % scale == 0 and scale & (scale - 1) == 0:
-        # the same pixels, ~2x faster: every scale-th row is a view (its rows' stride), so
-        # cv2.resize only samples the columns (nearest pixel of a power-of-2 factor that divides
-        # the height: exactly every scale-th row, as the full resize picks)
-        small = cv2.resize(src[::scale], (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
-    else:
-        small = cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    # the low-resolution image also gives the background levels their subsample
+    src, hi, small = _mask_limits(img, background, threshold, k_sigma, min_contrast, scale)
     cand, _ = cv2.findContours(_threshold(small, hi), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     boxes = []
     for c in cand:
