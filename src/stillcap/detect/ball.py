@@ -1351,12 +1351,12 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         ref_a = refine_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0, shading=sh)
         ref_b = refine_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0, shading=sh)
         ca, cb = ref_a.centers, ref_b.centers
-        X = triangulate([cam_a, cam_b], np.stack([ca, cb])).points
+        tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))  # the last round's is the result
+        X = tri.points
         search_a = np.maximum(2.0, 0.1 * ra)
         search_b = np.maximum(2.0, 0.1 * rb)
         if not np.all(np.isfinite(X)):
             X = np.where(np.isfinite(X), X, X0)
-    tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))
     size_bad = ((np.abs(_ellipse_radius(det_a, ia) - ref_a.radii_px) > size_tolerance * ref_a.radii_px)
                 | (np.abs(_ellipse_radius(det_b, ib) - ref_b.radii_px) > size_tolerance * ref_b.radii_px))
     # write the refined centres back into the per-view detections
