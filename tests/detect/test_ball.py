@@ -532,6 +532,51 @@ def test_robust_levels_of_a_photo_are_those_of_its_channels(size):
     assert _robust_levels(img[:, :, 0]) == [_robust_level(img[:, :, 0])]
 
 
+@pytest.mark.parametrize("size", [(1024, 1280), (1920, 2560), (1500, 1500)])
+def test_robust_levels_from_the_half_resolution_image_are_the_photos(size):
+    """The levels taken from the silhouette search's half-resolution image (the same pixels)
+    equal those of the photo; a small image of another size is not used."""
+    from stillcap.detect.ball import _mask_limits, _robust_levels, _subsample
+
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 30, (*size, 3)).astype(np.uint8)
+    img[::4, ::4, 0] = 17  # exactly the pixels of a step-4 subsample: a wrong pick would show
+    img[1::4, 2::4, 2] = 120
+    small = _subsample(img, 2)
+    assert np.array_equal(small, img[::2, ::2])
+    assert _robust_levels(img, small, 2) == _robust_levels(img)
+    assert _robust_levels(img, small[:-2], 2) == _robust_levels(img)
+    src, hi, sm = _mask_limits(img, None, None, 6.0, 20.0, scale=2)
+    assert src is img and np.array_equal(sm, small)
+    assert _mask_limits(img, None, None, 6.0, 20.0)[1] == hi
+
+
+@pytest.mark.parametrize("start", [(40.3, 41.7), (np.float64(39.95), np.float64(42.05))])
+def test_grid_peak_scores_every_candidate_of_its_grid(start):
+    """_grid_peak builds the outline maps from the grid's distinct rows and columns; its scores
+    are _score's of the full list of candidates (x + DX, y + DY) in row-major order."""
+    from stillcap.detect.ball import _gradient, _grid_offsets, _grid_peak, _score, _template
+
+    yy, xx = np.mgrid[0:80, 0:84]
+    img = (np.hypot(xx - 41.2, (yy - 40.6) * 1.1) < 15).astype(np.float32)
+    g = _gradient(cv2.GaussianBlur(img, (0, 0), 1.0))
+    th = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    off = np.stack([15 * np.cos(th), 13.6 * np.sin(th)], axis=1)
+    nrm, wt = _template(off)
+    tpl = (off[:, 0].astype(np.float32), off[:, 1].astype(np.float32),
+           nrm[:, 0].astype(np.float32), nrm[:, 1].astype(np.float32), (wt / wt.sum()).astype(np.float32))
+    x, y = start
+    for step, k in ((0.5, 3), (0.1, 3), (2.0, 5)):
+        bx, by, sc, (i, j) = _grid_peak(g, x, y, tpl, 0.0, step, k, moves=0)
+        d, DX, DY = _grid_offsets(step, k)
+        ref, _ = _score(g, x + DX, y + DY, *tpl, 0.0)
+        assert np.array_equal(sc.ravel(), ref)
+        assert (bx, by) == (x + float(d[j]), y + float(d[i]))
+    # the peak is found (re-centred from a start 2 px off)
+    bx, by, _, _ = _grid_peak(g, x + 2.0, y - 2.0, tpl, 0.0, 0.5, 3, moves=3)
+    assert abs(bx - 41.2) <= 0.5 and abs(by - 40.6) <= 0.5
+
+
 def test_median_is_numpys():
     from stillcap.detect.ball import _median
 

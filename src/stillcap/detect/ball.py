@@ -265,13 +265,16 @@ def _level_of_histogram(hist: np.ndarray) -> tuple[float, float]:
     return float(med), 1.4826 * max(mad, 0.5)
 
 
-def _robust_levels(src: np.ndarray) -> list:
+def _robust_levels(src: np.ndarray, small: np.ndarray | None = None, scale: int = 1) -> list:
     """:func:`_robust_level` of every channel of ``src`` (H, W) or (H, W, 3), as a list.
 
     For a BGR ``uint8`` photo whose size the subsampling step (a power of 2) divides, the
     subsample of all three channels is taken at once and contiguous (every step-th row is a
     view; ``cv2.resize``, nearest pixel, picks every step-th column), and each channel's
     histogram comes from it directly: the same numbers, without copying each strided channel.
+    ``small``: every ``scale``-th pixel of ``src`` (contiguous), if the caller has it; where
+    ``scale`` divides the step, the subsample is taken from it (the same pixels, read from a
+    smaller image that is in the cache, not from the photo).
     """
     if src.ndim == 2:
         return [_robust_level(src)]
@@ -279,19 +282,37 @@ def _robust_levels(src: np.ndarray) -> list:
     step = max(1, int(np.sqrt(H * W / 2.5e5)))
     if (src.dtype == np.uint8 and src.strides[1:] == (3, 1) and step > 1 and step & (step - 1) == 0
             and H % step == 0 and W % step == 0):
-        sub = cv2.resize(src[::step], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
+        if small is not None and step % scale == 0 and small.shape == (H // scale, W // scale, 3):
+            f = step // scale
+            sub = small if f == 1 else cv2.resize(small[::f], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
+        else:
+            sub = cv2.resize(src[::step], (W // step, H // step), interpolation=cv2.INTER_NEAREST)
         return [_level_of_histogram(cv2.calcHist([sub], [k], None, [256], [0, 256])) for k in range(3)]
     return [_robust_level(src[:, :, k]) for k in range(src.shape[2])]
 
 
 def _raw_mask(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float) -> np.ndarray:
     """Foreground mask before clean-up: any channel differs from the background by > threshold."""
-    return _threshold(*_mask_limits(img, background, threshold, k_sigma, min_contrast))
+    src, hi, _ = _mask_limits(img, background, threshold, k_sigma, min_contrast)
+    return _threshold(src, hi)
 
 
-def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float):
-    """The image to threshold (the photo, or its difference from the background) and each
-    channel's upper limit of "background": ``(src, hi)``."""
+def _subsample(src: np.ndarray, scale: int) -> np.ndarray:
+    """``src`` at 1/``scale`` resolution, nearest pixel (``cv2.resize``)."""
+    H, W = src.shape[:2]
+    if H % scale == 0 and scale & (scale - 1) == 0:
+        # the same pixels, ~2x faster: every scale-th row is a view (its rows' stride), so
+        # cv2.resize only samples the columns (nearest pixel of a power-of-2 factor that divides
+        # the height: exactly every scale-th row, as the full resize picks)
+        return cv2.resize(src[::scale], (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    return cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+
+
+def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_contrast: float,
+                 scale: int = 0):
+    """The image to threshold (the photo, or its difference from the background), each
+    channel's upper limit of "background", and (``scale`` > 0) the image at 1/``scale``
+    resolution (:func:`_subsample`; else None): ``(src, hi, small)``."""
     if background is not None:
         bg = _check_image(background, "background")
         if bg.shape != img.shape:
@@ -300,13 +321,15 @@ def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_con
             diff = cv2.absdiff(img, bg)
         else:
             diff = np.abs(img.astype(np.float32) - bg.astype(np.float32))
+        small = _subsample(diff, scale) if scale else None
         # |difference of two noisy photos| is half-normal: its median is 0.674 sigma
-        sig = [max(m / 0.674, 0.5) for m, _ in _robust_levels(diff)]
+        sig = [max(m / 0.674, 0.5) for m, _ in _robust_levels(diff, small, scale)]
         base = [0.0] * len(sig)
         src = diff
     else:
         src = img
-        stats = _robust_levels(img)
+        small = _subsample(img, scale) if scale else None
+        stats = _robust_levels(img, small, scale)
         base = [m for m, _ in stats]
         sig = [s for _, s in stats]
     if threshold is None:
@@ -314,7 +337,7 @@ def _mask_limits(img: np.ndarray, background, threshold, k_sigma: float, min_con
     else:
         thr = [float(threshold)] * len(base)
     hi = [b + t for b, t in zip(base, thr)]
-    return src, hi
+    return src, hi, small
 
 
 def _threshold(src: np.ndarray, hi) -> np.ndarray:
@@ -518,17 +541,12 @@ def _foreground_contours(img: np.ndarray, background, threshold, k_sigma: float,
     same contours. A silhouette that falls between the sampled pixels everywhere (thinner than
     ``scale`` px in both directions) is not found; the opening removes such shapes anyway.
     """
-    src, hi = _mask_limits(img, background, threshold, k_sigma, min_contrast)
-    H, W = src.shape[:2]
+    H, W = img.shape[:2]
     if min(H, W) < 16 * scale:
+        src, hi, _ = _mask_limits(img, background, threshold, k_sigma, min_contrast)
         return _clean_contours(_threshold(src, hi), open_px, min_area)
-    if H % scale == 0 and scale & (scale - 1) == 0:
-        # the same pixels, ~2x faster: every scale-th row is a view (its rows' stride), so
-        # cv2.resize only samples the columns (nearest pixel of a power-of-2 factor that divides
-        # the height: exactly every scale-th row, as the full resize picks)
-        small = cv2.resize(src[::scale], (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
-    else:
-        small = cv2.resize(src, (W // scale, H // scale), interpolation=cv2.INTER_NEAREST)
+    # the low-resolution image also gives the background levels their subsample
+    src, hi, small = _mask_limits(img, background, threshold, k_sigma, min_contrast, scale)
     cand, _ = cv2.findContours(_threshold(small, hi), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     boxes = []
     for c in cand:
@@ -760,6 +778,16 @@ def _score(g, ox, oy, px, py, nx, ny, wt, power):
     T, M = len(ox), len(px)
     mx = np.add(ox[:, None], px[None, :], out=np.empty((T, M), np.float32))
     my = np.add(oy[:, None], py[None, :], out=np.empty((T, M), np.float32))
+    return _score_maps(g, mx, my, nx, ny, wt, power)
+
+
+def _score_maps(g, mx, my, nx, ny, wt, power):
+    """:func:`_score` of the outline points' positions ``mx``, ``my`` (float32, (T, M)).
+
+    Each gradient is sampled by its own single-channel ``cv2.remap``: OpenCV's float path for
+    one channel interpolates exactly, while a 2-channel remap (or fixed-point maps from
+    ``cv2.convertMaps``) rounds the bilinear weights to 1/32 px, which moves the scores.
+    """
     sx = cv2.remap(g[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     sy = cv2.remap(g[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     # gn = max(0, sx nx + sy ny), in place (the remapped arrays are ours): fewer temporaries
@@ -793,11 +821,19 @@ def _grid_offsets(step: float, k: int):
 def _grid_peak(g, x, y, tpl, power, step, k, moves):
     """Best centre on a (2k+1)^2 grid of ``step`` around (x, y); re-centred up to ``moves``
     times while the best lies on the grid border. Returns x, y, the grid scores, the index."""
-    d, DX, DY = _grid_offsets(float(step), int(k))
+    d = _grid_offsets(float(step), int(k))[0]
+    n = len(d)
+    px, py = tpl[0], tpl[1]
     for m in range(moves + 1):
-        sc, _ = _score(g, x + DX, y + DY, *tpl, power)
-        sc = sc.reshape(len(d), len(d))
-        i, j = divmod(int(np.argmax(sc)), len(d))  # np.unravel_index on a square grid
+        # the outline points of every candidate (row-major, y slowest): candidate (i, j) is
+        # (x + d[j], y + d[i]), so the x map has only n distinct rows (tiled) and the y map n
+        # (each repeated): summed once per row, the same numbers as x + DX + p per candidate
+        xs, ys = x + d, y + d  # the candidates' dtype as in x + DX (NumPy's promotion of x)
+        mx = np.add(xs[:, None], px[None, :], out=np.empty((n, len(px)), np.float32))
+        my = np.add(ys[:, None], py[None, :], out=np.empty((n, len(py)), np.float32))
+        sc, _ = _score_maps(g, cv2.repeat(mx, n, 1), my.repeat(n, axis=0), *tpl[2:], power)
+        sc = sc.reshape(n, n)
+        i, j = divmod(int(np.argmax(sc)), n)  # np.unravel_index on a square grid
         x, y = x + float(d[j]), y + float(d[i])
         if 0 < i < 2 * k and 0 < j < 2 * k:
             break
@@ -1026,8 +1062,10 @@ def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int
     (``(2k+1)^2``) followed up to 6 moves, again up to 3, then a parabola (the model's offset in
     :func:`_shading_bias` and :mod:`stillcap.ball.uncertainty`)."""
     g = _gradient(model)
-    bx, by, _, _ = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=6)
-    bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
+    bx, by, fs, (fi, fj) = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=6)
+    if (fi, fj) != (k, k):
+        # (a peak at the grid's centre: the second search would score the same grid again)
+        bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
     ddy, ddx = _quad_peak(fs, fi, fj)
     return bx + ddx * step, by + ddy * step
 
@@ -1313,12 +1351,12 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         ref_a = refine_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0, shading=sh)
         ref_b = refine_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0, shading=sh)
         ca, cb = ref_a.centers, ref_b.centers
-        X = triangulate([cam_a, cam_b], np.stack([ca, cb])).points
+        tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))  # the last round's is the result
+        X = tri.points
         search_a = np.maximum(2.0, 0.1 * ra)
         search_b = np.maximum(2.0, 0.1 * rb)
         if not np.all(np.isfinite(X)):
             X = np.where(np.isfinite(X), X, X0)
-    tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))
     size_bad = ((np.abs(_ellipse_radius(det_a, ia) - ref_a.radii_px) > size_tolerance * ref_a.radii_px)
                 | (np.abs(_ellipse_radius(det_b, ib) - ref_b.radii_px) > size_tolerance * ref_b.radii_px))
     # write the refined centres back into the per-view detections
