@@ -111,6 +111,22 @@ def test_scalar_and_vector_accelerations_agree(kind):
 
 
 @pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (1.0, -2.0, 0.5)])
+def test_seed_scalar_acceleration_is_bit_identical(wind):
+    # simulate / cross_plane use the float twin for the seed model: it must not change a bit
+    m = FlightModel(kind="seed", wind=wind)
+    rng = np.random.default_rng(5)
+    vs = V0 + rng.normal(0, 15, (200, 3))
+    ws = rng.normal(0, 200, (200, 3))
+    ws[0] = 0.0
+    ws[1] = 2.0 * vs[1]
+    vs[2] = 1.0  # below the polynomial's Reynolds range
+    for v, w in zip(vs, ws):
+        a = m.acceleration(v, w, 0.1)
+        b = np.array(m._acceleration_scalar(*v.tolist(), *w.tolist(), 0.1))
+        assert np.array_equal(a, b), (v, w, a - b)
+
+
+@pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (1.0, -2.0, 0.5)])
 @pytest.mark.parametrize("kind", ["seed", "nathan"])
 def test_fixed_spin_kernel_is_bit_identical_to_acceleration(kind, wind):
     # the integrators' in-place kernel must not change a single bit of the physics

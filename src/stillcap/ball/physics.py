@@ -525,6 +525,18 @@ class Trajectory:
 
 
 def _rhs(model, spin, t0):
+    if isinstance(model, FlightModel) and model.kind == "seed":
+        # solve_ivp integrates one ball: the plain-float twin of the acceleration is ~6x faster
+        # than NumPy on 3-vectors and, for the seed model, bit-identical to it (tests check it;
+        # Nathan's spin decay needs exp, where math.exp and np.exp may differ in the last bit)
+        acc = model._acceleration_scalar
+        wx, wy, wz = np.asarray(spin, float).tolist()
+
+        def f(t, y):
+            vx, vy, vz = y[3:].tolist()
+            return np.array((vx, vy, vz, *acc(vx, vy, vz, wx, wy, wz, t - t0)))
+        return f
+
     def f(t, y):
         a = model.acceleration(y[3:], spin, t - t0)
         return np.concatenate([y[3:], a])
