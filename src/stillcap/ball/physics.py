@@ -365,10 +365,7 @@ class FlightModel:
     def _fixed_spin(self, spin):
         """:meth:`acceleration` as a function ``acc(v, dt)`` of (M, 3) velocities for fixed spins.
 
-        The integrators' hot loop: everything that depends only on the spin (its components as
-        contiguous arrays, ``|w|``) is computed once per flight instead of once per stage, and the
-        arithmetic runs in place (``out=``) to save allocations. The operations and their order
-        are those of :meth:`acceleration`, so the results are bit-identical (tests check it).
+        The (M, 3) face of :meth:`_fixed_spin_rows` (same numbers, transposed views).
 
         Parameters
         ----------
@@ -378,13 +375,40 @@ class FlightModel:
         -------
         callable ``acc(velocity (M, 3), dt) -> ndarray (M, 3)``
         """
+        rows = self._fixed_spin_rows(np.asarray(spin, float).T)
+
+        def acc(velocity, dt):
+            return rows(np.asarray(velocity, float).T, dt).T
+        return acc
+
+    def _fixed_spin_rows(self, spin):
+        """:meth:`acceleration` as a function ``acc(v, dt, out=None)`` of (3, M) velocities.
+
+        The integrators' hot loop, on component rows (x, y, z of M flights): the cost is NumPy's
+        per-call overhead, so it is written to make few ufunc calls (squares and cross products
+        on whole (3, M) blocks, the spin's rotated copies and ``|w|`` computed once per flight,
+        arithmetic in place with ``out=``). The operations on every number and their order are
+        those of :meth:`acceleration`, so the results are bit-identical (tests check it).
+
+        Parameters
+        ----------
+        spin : ndarray, shape (3, M)
+
+        Returns
+        -------
+        callable ``acc(velocity (3, M), dt, out=None) -> ndarray (3, M)``
+            ``out`` (3, M), if given, must not overlap ``velocity``.
+        """
         c = self._c
-        w = np.asarray(spin, float)
-        wx, wy, wz = (np.ascontiguousarray(w[..., i]) for i in range(3))
+        w = np.array(spin, float)
+        wx, wy, wz = w
+        # cross product w x v = w1 * v[(2, 0, 1)] - w2 * v[(1, 2, 0)] row by row
+        w1, w2 = w[[1, 2, 0]], w[[2, 0, 1]]
+        i1, i2 = np.array([2, 0, 1]), np.array([1, 2, 0])
         seed = self.kind == "seed"
         k = c["k"]
-        g0, g1, g2 = c["g"]
-        windy, wind = c["windy"], c["wind"]
+        g = np.array(c["g"], float)[:, None]
+        windy, wind = c["windy"], c["wind"][:, None]
         if seed:
             kw = c["k15r"] * np.sqrt(wx * wx + wy * wy + wz * wz)
             d_over_nu, re_lo, re_hi = c["d_over_nu"], c["re_lo"], c["re_hi"]
@@ -395,23 +419,18 @@ class FlightModel:
             cl0, cl1, cl2 = nt.cl0, nt.cl1, nt.cl2
         mul, add, sub, sqrt = np.multiply, np.add, np.subtract, np.sqrt
 
-        def acc(velocity, dt):
+        def acc(velocity, dt, out=None):
             v = velocity - wind if windy else velocity
-            vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-            speed = vx * vx
-            add(speed, vy * vy, out=speed)
-            add(speed, vz * vz, out=speed)
+            sq = v * v
+            speed = add(sq[0], sq[1])
+            add(speed, sq[2], out=speed)
             sqrt(speed, out=speed)
             np.maximum(speed, 1e-12, out=speed)
-            cx = wy * vz
-            sub(cx, wz * vy, out=cx)
-            cy = wz * vx
-            sub(cy, wx * vz, out=cy)
-            cz = wx * vy
-            sub(cz, wy * vx, out=cz)
-            n_wxv = cx * cx
-            add(n_wxv, cy * cy, out=n_wxv)
-            add(n_wxv, cz * cz, out=n_wxv)
+            cr = w1 * v[i1]
+            sub(cr, w2 * v[i2], out=cr)
+            mul(cr, cr, out=sq)
+            n_wxv = add(sq[0], sq[1])
+            add(n_wxv, sq[2], out=n_wxv)
             sqrt(n_wxv, out=n_wxv)
             np.maximum(n_wxv, 1e-300, out=n_wxv)
             if seed:
@@ -448,13 +467,11 @@ class FlightModel:
                 np.divide(mag, n_wxv, out=mag)
             drag = k * cd
             mul(drag, speed, out=drag)
-            out = np.empty(v.shape)
-            for i, (gi, vi, ci) in enumerate(((g0, vx, cx), (g1, vy, cy), (g2, vz, cz))):
-                o = out[..., i]
-                mul(drag, vi, out=o)
-                sub(gi, o, out=o)
-                mul(mag, ci, out=ci)
-                add(o, ci, out=o)
+            # g - drag v + mag (w x v)
+            out = mul(v, drag, out=out)
+            sub(g, out, out=out)
+            mul(cr, mag, out=cr)
+            add(out, cr, out=out)
             return out
         return acc
 
@@ -705,23 +722,39 @@ class BatchTrajectory:
     nfev: int = 0
 
 
-def _rk_step(acc, tab, t, h, p, v, w, t0, a1):
-    # one explicit Runge-Kutta step of p' = v, v' = acc(v, t - t0) for (M, 3) arrays (the spin
-    # w is bound into acc, FlightModel._fixed_spin); a1 = acc(v, t - t0) is the first stage,
-    # known from the previous step
+def _rk_step(acc, tab, t, h, y, d1, ks, t0, out):
+    # one explicit Runge-Kutta step of y = (p, v) (6, M), y' = (v, acc(v, t - t0)), written into
+    # out (6, M). d1 = y'(t) is the first stage, known from the previous step; ks are (6, M)
+    # buffers for the other stages (rows 0-2 the stage velocity, 3-5 its acceleration), so the
+    # final combination of positions and velocities is one array operation per stage. The
+    # arithmetic of every number is that of the textbook formula vi = v + sum_j (h a_ij) ka_j,
+    # y + h sum_i b_i k_i, in the same order.
     c, a, b = tab
-    kv = [v]  # stage velocities (= dp/dt)
-    ka = [a1]  # stage accelerations (= dv/dt)
+    ks[0] = d1
+    v = y[3:]
     for i in range(1, len(c)):
-        vi = v
+        vi = ks[i][:3]
+        first = True
         for j, aij in enumerate(a[i]):
             if aij:
-                vi = vi + (h * aij) * ka[j]
-        kv.append(vi)
-        ka.append(acc(vi, t + c[i] * h - t0))
-    dp = sum(bi * ki for bi, ki in zip(b, kv) if bi)
-    dv = sum(bi * ki for bi, ki in zip(b, ka) if bi)
-    return p + h * dp, v + h * dv
+                if first:
+                    np.multiply(ks[j][3:], h * aij, out=vi)
+                    np.add(v, vi, out=vi)
+                    first = False
+                else:
+                    np.add(vi, (h * aij) * ks[j][3:], out=vi)
+        if first:
+            vi[...] = v
+        acc(vi, t + c[i] * h - t0, out=ks[i][3:])
+    dy = None
+    for bi, ki in zip(b, ks):
+        if bi:
+            if dy is None:
+                dy = bi * ki
+            else:
+                np.add(dy, bi * ki, out=dy)
+    np.multiply(dy, h, out=dy)
+    return np.add(y, dy, out=out)
 
 
 def _rk_step_scalar(acc, tab, t, h, p, v, w, t0, a1):
@@ -770,6 +803,80 @@ def _hermite5(s, h, p0, v0, a0, p1, v1, a1):
     d4 = -12 * s2 + 28 * s3 - 15 * s4
     vel = (d0 * (p0 - p1)) / h + d1 * v0 + h * d2 * a0 + h * d3 * a1 + d4 * v1
     return pos, vel
+
+
+def _steps(t0, t_end, sign, max_step):
+    """Number of steps and signed step from ``t0`` towards ``t_end`` (0 steps: nothing to do)."""
+    span = sign * (t_end - t0)
+    if span <= 0:
+        return 0, 0.0
+    k = int(np.ceil(span / max_step - 1e-9))
+    return k, sign * span / k
+
+
+def _nodes_scalar(model, tab, p, v, w, t0, max_step, ends):
+    # simulate_batch's nodes for one flight with plain floats: node times (K,), positions,
+    # velocities and accelerations (1, K, 3)
+    acc = model._acceleration_scalar
+    p, v, w = tuple(p[0]), tuple(v[0]), tuple(w[0])
+    a_start = acc(*v, *w, 0.0)
+    branches = []
+    for sign, t_end in ends:
+        k, h = _steps(t0, t_end, sign, max_step)
+        ts, ps, vs, as_ = [t0], [p], [v], [a_start]
+        pc, vc = p, v
+        for i in range(k):
+            pc, vc = _rk_step_scalar(acc, tab, t0 + i * h, h, pc, vc, w, t0, as_[-1])
+            ts.append(t0 + (i + 1) * h)
+            ps.append(pc)
+            vs.append(vc)
+            as_.append(acc(*vc, *w, (i + 1) * h))
+        branches.append((ts, ps, vs, as_))
+    (tf, pf, vf, af), (tb, pb, vb, ab) = branches
+    # one ascending node list: backward branch reversed, then forward without the shared t0
+    return (np.array(tb[::-1] + tf[1:]),
+            *(np.array(lb[::-1] + lf[1:])[None] for lb, lf in ((pb, pf), (vb, vf), (ab, af))))
+
+
+def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
+    # simulate_batch's nodes for M flights, integrated on (6, M) states (rows: x, y, z of the
+    # positions, then of the velocities); returns node times (K,), positions, velocities and
+    # accelerations as (M, K, 3) views
+    m = len(p)
+    if hasattr(model, "_fixed_spin_rows"):
+        acc = model._fixed_spin_rows(w.T)
+    else:
+        def acc(vel, dt, out=None):
+            a = model.acceleration(vel.T, w, dt).T
+            if out is None:
+                return a
+            out[...] = a
+            return out
+    y0 = np.concatenate([p.T, v.T])
+    d0 = np.empty((6, m))
+    d0[:3] = y0[3:]
+    acc(y0[3:], 0.0, out=d0[3:])
+    ks = [None] + [np.empty((6, m)) for _ in range(len(tab[0]) - 1)]
+    branches = []
+    for sign, t_end in ends:
+        k, h = _steps(t0, t_end, sign, max_step)
+        ys = np.empty((k + 1, 6, m))  # states y and derivatives y' = (v, a) at the nodes
+        ds = np.empty((k + 1, 6, m))
+        ys[0], ds[0] = y0, d0
+        for i in range(k):
+            _rk_step(acc, tab, t0 + i * h, h, ys[i], ds[i], ks, t0, out=ys[i + 1])
+            ds[i + 1, :3] = ys[i + 1, 3:]
+            acc(ys[i + 1, 3:], (i + 1) * h, out=ds[i + 1, 3:])
+        # (i + 1) * h and t0 + ... as in the scalar path: the same node times
+        ts = [t0] + [t0 + (i + 1) * h for i in range(k)]
+        branches.append((ts, ys, ds))
+    (tf, yf, df), (tb, yb, db) = branches
+    node_t = np.array(tb[::-1] + tf[1:])
+    ys = np.concatenate([yb[::-1], yf[1:]]).transpose(2, 0, 1)  # (M, K, 6)
+    ds = np.concatenate([db[::-1], df[1:]]).transpose(2, 0, 1)
+    # C-contiguous (M, K, 3) like the scalar path: the layout of the interpolated outputs follows
+    # it, and downstream reductions (einsum) may add in another order on other layouts
+    return (node_t, *(np.ascontiguousarray(x) for x in (ys[..., :3], ys[..., 3:], ds[..., 3:])))
 
 
 def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: str = "rk4",
@@ -826,48 +933,12 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     tab = _TABLEAUX[method]
     n_stage = len(tab[0])
     scalar = m == 1 and hasattr(model, "_acceleration_scalar")
+    ends = ((1.0, times.max(initial=t0)), (-1.0, times.min(initial=t0)))
     if scalar:
-        acc = model._acceleration_scalar
-        step = _rk_step_scalar
-        p, v, w = tuple(p[0]), tuple(v[0]), tuple(w[0])
-        a_start = acc(*v, *w, 0.0)
+        node_t, node_p, node_v, node_a = _nodes_scalar(model, tab, p, v, w, t0, max_step, ends)
     else:
-        if hasattr(model, "_fixed_spin"):
-            acc = model._fixed_spin(w)
-        else:
-            def acc(vel, dt):
-                return model.acceleration(vel, w, dt)
-        step = _rk_step
-        a_start = acc(v, 0.0)
-    nfev = 1
-    # nodes per direction: (t, p, v, a) lists, starting at t0
-    branches = []
-    for sign, t_end in ((1.0, times.max(initial=t0)), (-1.0, times.min(initial=t0))):
-        span = sign * (t_end - t0)
-        if span <= 0:
-            branches.append(([t0], [p], [v], [a_start]))
-            continue
-        k = int(np.ceil(span / max_step - 1e-9))
-        h = sign * span / k
-        ts, ps, vs, as_ = [t0], [p], [v], [a_start]
-        pc, vc = p, v
-        for i in range(k):
-            pc, vc = step(acc, tab, t0 + i * h, h, pc, vc, w, t0, as_[-1])
-            ts.append(t0 + (i + 1) * h)
-            ps.append(pc)
-            vs.append(vc)
-            as_.append(acc(*vc, *w, (i + 1) * h) if scalar else acc(vc, (i + 1) * h))
-        nfev += k * n_stage  # stages 2..n plus the node acceleration (next step's first stage)
-        branches.append((ts, ps, vs, as_))
-    (tf, pf, vf, af), (tb, pb, vb, ab) = branches
-    # one ascending node list: backward branch reversed, then forward without the shared t0
-    node_t = np.array(tb[::-1] + tf[1:])
-
-    def stack(lb, lf):
-        if scalar:
-            return np.array(lb[::-1] + lf[1:])[None]  # (1, K, 3)
-        return np.stack(lb[::-1] + lf[1:], axis=1)  # (M, K, 3)
-    node_p, node_v, node_a = stack(pb, pf), stack(vb, vf), stack(ab, af)
+        node_t, node_p, node_v, node_a = _nodes_rows(model, tab, p, v, w, t0, max_step, ends)
+    nfev = 1 + (len(node_t) - 1) * n_stage  # stages 2..n plus each node's acceleration
     if len(node_t) == 1:
         pos = np.repeat(node_p, len(times), axis=1)
         vel = np.repeat(node_v, len(times), axis=1)
