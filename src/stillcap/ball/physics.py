@@ -475,6 +475,62 @@ class FlightModel:
             return out
         return acc
 
+    def _fixed_spin_scalar(self, spin):
+        """:meth:`_acceleration_scalar` for a fixed spin: ``acc(vx, vy, vz, dt) -> (ax, ay, az)``.
+
+        The single-flight integrators' hot loop (:func:`simulate`, :func:`cross_plane`,
+        :func:`simulate_batch` with one flight): the constants and the spin terms are bound once,
+        as Python floats. Same formulas in the same order as :meth:`_acceleration_scalar`, so the
+        results are bit-identical (tests check it).
+        """
+        c = self._c
+        wx, wy, wz = (float(x) for x in spin)
+        k = c["k"]
+        g0, g1, g2 = c["g"]
+        windy = c["windy"]
+        ux, uy, uz = self.wind
+        sqrt, exp = math.sqrt, math.exp
+        if self.kind == "seed":
+            d_over_nu, re_lo, re_hi = c["d_over_nu"], c["re_lo"], c["re_hi"]
+            p0, p1, p2, p3, p4 = SEED_CD_POLY
+            kw = c["k15r"] * sqrt(wx * wx + wy * wy + wz * wz)
+
+            def acc(vx, vy, vz, dt):
+                if windy:
+                    vx, vy, vz = vx - ux, vy - uy, vz - uz
+                speed = max(sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+                cx = wy * vz - wz * vy
+                cy = wz * vx - wx * vz
+                cz = wx * vy - wy * vx
+                n_wxv = max(sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+                re = min(max(speed * d_over_nu, re_lo), re_hi)
+                cd = p0 + re * (p1 + re * (p2 + re * (p3 + re * p4)))
+                mag = kw * speed / n_wxv
+                drag = k * cd * speed
+                return (g0 - drag * vx + mag * cx, g1 - drag * vy + mag * cy,
+                        g2 - drag * vz + mag * cz)
+            return acc
+        nt = self.nathan
+        r, inv_tau, cd0, cdspin = c["r"], c["inv_tau_vref"], nt.cd0, c["cdspin_rad"]
+        cl0, cl1, cl2 = nt.cl0, nt.cl1, nt.cl2
+
+        def acc(vx, vy, vz, dt):
+            if windy:
+                vx, vy, vz = vx - ux, vy - uy, vz - uz
+            speed = max(sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+            cx = wy * vz - wz * vy
+            cy = wz * vx - wx * vz
+            cz = wx * vy - wy * vx
+            n_wxv = max(sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+            wd = (n_wxv / speed) * exp(-dt * speed * inv_tau)
+            cd = cd0 + cdspin * wd
+            s = r * wd / speed
+            mag = k * (cl2 * s / (cl0 + cl1 * s)) * speed * speed / n_wxv
+            drag = k * cd * speed
+            return (g0 - drag * vx + mag * cx, g1 - drag * vy + mag * cy,
+                    g2 - drag * vz + mag * cz)
+        return acc
+
     def _acceleration_scalar(self, vx, vy, vz, wx, wy, wz, dt):
         """:meth:`acceleration` for one ball in plain Python floats.
 
@@ -546,12 +602,11 @@ def _rhs(model, spin, t0):
         # solve_ivp integrates one ball: the plain-float twin of the acceleration is ~6x faster
         # than NumPy on 3-vectors and, for the seed model, bit-identical to it (tests check it;
         # Nathan's spin decay needs exp, where math.exp and np.exp may differ in the last bit)
-        acc = model._acceleration_scalar
-        wx, wy, wz = np.asarray(spin, float).tolist()
+        acc = model._fixed_spin_scalar(spin)
 
         def f(t, y):
             vx, vy, vz = y[3:].tolist()
-            return np.array((vx, vy, vz, *acc(vx, vy, vz, wx, wy, wz, t - t0)))
+            return np.array((vx, vy, vz, *acc(vx, vy, vz, t - t0)))
         return f
 
     def f(t, y):
@@ -757,26 +812,37 @@ def _rk_step(acc, tab, t, h, y, d1, ks, t0, out):
     return np.add(y, dy, out=out)
 
 
-def _rk_step_scalar(acc, tab, t, h, p, v, w, t0, a1):
-    # pure-float twin of _rk_step for one flight (see FlightModel._acceleration_scalar)
+def _rk_step_scalar(acc, tab, t, h, p, v, t0, a1):
+    # pure-float twin of _rk_step for one flight (see FlightModel._fixed_spin_scalar): the same
+    # operations on every number, in the same order; tab holds Python floats (_float_tableau)
     c, a, b = tab
     kv, ka = [v], [a1]
     for i in range(1, len(c)):
-        vi = v
+        x, y, z = v
         for j, aij in enumerate(a[i]):
             if aij:
-                kj = ka[j]
-                vi = (vi[0] + h * aij * kj[0], vi[1] + h * aij * kj[1], vi[2] + h * aij * kj[2])
-        kv.append(vi)
-        ka.append(acc(vi[0], vi[1], vi[2], w[0], w[1], w[2], t + c[i] * h - t0))
-    dp = [0.0, 0.0, 0.0]
-    dv = [0.0, 0.0, 0.0]
-    for bi, vi, ai in zip(b, kv, ka):
+                ha = h * aij
+                kx, ky, kz = ka[j]
+                x, y, z = x + ha * kx, y + ha * ky, z + ha * kz
+        kv.append((x, y, z))
+        ka.append(acc(x, y, z, t + c[i] * h - t0))
+    px = py = pz = ax = ay = az = 0.0
+    for bi, (ux, uy, uz), (gx, gy, gz) in zip(b, kv, ka):
         if bi:
-            for d in range(3):
-                dp[d] += bi * vi[d]
-                dv[d] += bi * ai[d]
-    return (tuple(p[d] + h * dp[d] for d in range(3)), tuple(v[d] + h * dv[d] for d in range(3)))
+            px += bi * ux
+            py += bi * uy
+            pz += bi * uz
+            ax += bi * gx
+            ay += bi * gy
+            az += bi * gz
+    return ((p[0] + h * px, p[1] + h * py, p[2] + h * pz),
+            (v[0] + h * ax, v[1] + h * ay, v[2] + h * az))
+
+
+def _float_tableau(tab):
+    # a Butcher tableau as Python floats (NumPy scalars would slow the pure-float integrator)
+    c, a, b = tab
+    return [float(x) for x in c], [[float(x) for x in row] for row in a], [float(x) for x in b]
 
 
 def _hermite5(s, h, p0, v0, a0, p1, v1, a1):
@@ -817,20 +883,23 @@ def _steps(t0, t_end, sign, max_step):
 def _nodes_scalar(model, tab, p, v, w, t0, max_step, ends):
     # simulate_batch's nodes for one flight with plain floats: node times (K,), positions,
     # velocities and accelerations (1, K, 3)
-    acc = model._acceleration_scalar
-    p, v, w = tuple(p[0]), tuple(v[0]), tuple(w[0])
-    a_start = acc(*v, *w, 0.0)
+    # (Python floats throughout: arithmetic on NumPy scalars costs several times more)
+    acc = model._fixed_spin_scalar(w[0])
+    tab = _float_tableau(tab)
+    p, v = tuple(p[0].tolist()), tuple(v[0].tolist())
+    a_start = acc(*v, 0.0)
     branches = []
     for sign, t_end in ends:
         k, h = _steps(t0, t_end, sign, max_step)
+        h = float(h)
         ts, ps, vs, as_ = [t0], [p], [v], [a_start]
         pc, vc = p, v
         for i in range(k):
-            pc, vc = _rk_step_scalar(acc, tab, t0 + i * h, h, pc, vc, w, t0, as_[-1])
+            pc, vc = _rk_step_scalar(acc, tab, t0 + i * h, h, pc, vc, t0, as_[-1])
             ts.append(t0 + (i + 1) * h)
             ps.append(pc)
             vs.append(vc)
-            as_.append(acc(*vc, *w, (i + 1) * h))
+            as_.append(acc(*vc, (i + 1) * h))
         branches.append((ts, ps, vs, as_))
     (tf, pf, vf, af), (tb, pb, vb, ab) = branches
     # one ascending node list: backward branch reversed, then forward without the shared t0
@@ -932,7 +1001,7 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     model = _model(model)
     tab = _TABLEAUX[method]
     n_stage = len(tab[0])
-    scalar = m == 1 and hasattr(model, "_acceleration_scalar")
+    scalar = m == 1 and hasattr(model, "_fixed_spin_scalar")
     ends = ((1.0, times.max(initial=t0)), (-1.0, times.min(initial=t0)))
     if scalar:
         node_t, node_p, node_v, node_a = _nodes_scalar(model, tab, p, v, w, t0, max_step, ends)
