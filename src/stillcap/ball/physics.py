@@ -402,9 +402,11 @@ class FlightModel:
         c = self._c
         w = np.array(spin, float)
         wx, wy, wz = w
-        # cross product w x v = w1 * v[(2, 0, 1)] - w2 * v[(1, 2, 0)] row by row
+        # cross product w x v = w1 * v[(2, 0, 1)] - w2 * v[(1, 2, 0)] row by row; the rotated
+        # velocities are slices of the rows (vx, vy, vz, vx, vy) (two copies: cheaper than
+        # fancy indexing)
         w1, w2 = w[[1, 2, 0]], w[[2, 0, 1]]
-        i1, i2 = np.array([2, 0, 1]), np.array([1, 2, 0])
+        shape = (5,) + w.shape[1:]
         seed = self.kind == "seed"
         k = c["k"]
         g = np.array(c["g"], float)[:, None]
@@ -420,14 +422,20 @@ class FlightModel:
         mul, add, sub, sqrt = np.multiply, np.add, np.subtract, np.sqrt
 
         def acc(velocity, dt, out=None):
-            v = velocity - wind if windy else velocity
+            vb = np.empty(shape)
+            v = vb[:3]
+            if windy:
+                sub(velocity, wind, out=v)
+            else:
+                v[...] = velocity
+            vb[3:] = vb[:2]
             sq = v * v
             speed = add(sq[0], sq[1])
             add(speed, sq[2], out=speed)
             sqrt(speed, out=speed)
             np.maximum(speed, 1e-12, out=speed)
-            cr = w1 * v[i1]
-            sub(cr, w2 * v[i2], out=cr)
+            cr = w1 * vb[2:]
+            sub(cr, w2 * vb[1:4], out=cr)
             mul(cr, cr, out=sq)
             n_wxv = add(sq[0], sq[1])
             add(n_wxv, sq[2], out=n_wxv)
@@ -777,39 +785,41 @@ class BatchTrajectory:
     nfev: int = 0
 
 
-def _rk_step(acc, tab, t, h, y, d1, ks, t0, out):
+def _rk_step(acc, plan, t, h, y, d1, ks, t0, out):
     # one explicit Runge-Kutta step of y = (p, v) (6, M), y' = (v, acc(v, t - t0)), written into
     # out (6, M). d1 = y'(t) is the first stage, known from the previous step; ks are (6, M)
     # buffers for the other stages (rows 0-2 the stage velocity, 3-5 its acceleration), so the
-    # final combination of positions and velocities is one array operation per stage. The
-    # arithmetic of every number is that of the textbook formula vi = v + sum_j (h a_ij) ka_j,
-    # y + h sum_i b_i k_i, in the same order.
-    c, a, b = tab
+    # final combination of positions and velocities is one array operation per stage. plan is
+    # _rk_plan(tableau). The arithmetic of every number is that of the textbook formula
+    # vi = v + sum_j (h a_ij) ka_j, y + h sum_i b_i k_i, in the same order.
+    stages, weights = plan
     ks[0] = d1
     v = y[3:]
-    for i in range(1, len(c)):
+    for i, (ci, row) in enumerate(stages, 1):
         vi = ks[i][:3]
-        first = True
-        for j, aij in enumerate(a[i]):
-            if aij:
-                if first:
-                    np.multiply(ks[j][3:], h * aij, out=vi)
-                    np.add(v, vi, out=vi)
-                    first = False
-                else:
-                    np.add(vi, (h * aij) * ks[j][3:], out=vi)
-        if first:
+        if row:
+            (j, aij), *rest = row
+            np.multiply(ks[j][3:], h * aij, out=vi)
+            np.add(v, vi, out=vi)
+            for j, aij in rest:
+                np.add(vi, (h * aij) * ks[j][3:], out=vi)
+        else:
             vi[...] = v
-        acc(vi, t + c[i] * h - t0, out=ks[i][3:])
-    dy = None
-    for bi, ki in zip(b, ks):
-        if bi:
-            if dy is None:
-                dy = bi * ki
-            else:
-                np.add(dy, bi * ki, out=dy)
+        acc(vi, t + ci * h - t0, out=ks[i][3:])
+    (i, bi), *rest = weights
+    dy = bi * ks[i]
+    for i, bi in rest:
+        np.add(dy, bi * ks[i], out=dy)
     np.multiply(dy, h, out=dy)
     return np.add(y, dy, out=out)
+
+
+def _rk_plan(tab):
+    # a Butcher tableau as (c_i, nonzero (j, a_ij)) per stage after the first and the nonzero
+    # (i, b_i), Python floats: what _rk_step loops over
+    c, a, b = _float_tableau(tab)
+    stages = [(c[i], [(j, aij) for j, aij in enumerate(a[i]) if aij]) for i in range(1, len(c))]
+    return stages, [(i, bi) for i, bi in enumerate(b) if bi]
 
 
 def _rk_step_scalar(acc, tab, t, h, p, v, t0, a1):
@@ -926,6 +936,7 @@ def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
     d0[:3] = y0[3:]
     acc(y0[3:], 0.0, out=d0[3:])
     ks = [None] + [np.empty((6, m)) for _ in range(len(tab[0]) - 1)]
+    plan = _rk_plan(tab)
     branches = []
     for sign, t_end in ends:
         k, h = _steps(t0, t_end, sign, max_step)
@@ -933,7 +944,7 @@ def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
         ds = np.empty((k + 1, 6, m))
         ys[0], ds[0] = y0, d0
         for i in range(k):
-            _rk_step(acc, tab, t0 + i * h, h, ys[i], ds[i], ks, t0, out=ys[i + 1])
+            _rk_step(acc, plan, t0 + i * h, h, ys[i], ds[i], ks, t0, out=ys[i + 1])
             ds[i + 1, :3] = ys[i + 1, 3:]
             acc(ys[i + 1, 3:], (i + 1) * h, out=ds[i + 1, 3:])
         # (i + 1) * h and t0 + ... as in the scalar path: the same node times
