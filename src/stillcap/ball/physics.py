@@ -914,7 +914,8 @@ def _nodes_scalar(model, tab, p, v, w, t0, max_step, ends):
     (tf, pf, vf, af), (tb, pb, vb, ab) = branches
     # one ascending node list: backward branch reversed, then forward without the shared t0
     return (np.array(tb[::-1] + tf[1:]),
-            *(np.array(lb[::-1] + lf[1:])[None] for lb, lf in ((pb, pf), (vb, vf), (ab, af))))
+            np.concatenate([np.array(lb[::-1] + lf[1:]) for lb, lf in ((pb, pf), (vb, vf), (ab, af))],
+                           axis=1)[None])
 
 
 def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
@@ -954,9 +955,9 @@ def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
     node_t = np.array(tb[::-1] + tf[1:])
     ys = np.concatenate([yb[::-1], yf[1:]]).transpose(2, 0, 1)  # (M, K, 6)
     ds = np.concatenate([db[::-1], df[1:]]).transpose(2, 0, 1)
-    # C-contiguous (M, K, 3) like the scalar path: the layout of the interpolated outputs follows
+    # C-contiguous (M, K, 9) like the scalar path: the layout of the interpolated outputs follows
     # it, and downstream reductions (einsum) may add in another order on other layouts
-    return (node_t, *(np.ascontiguousarray(x) for x in (ys[..., :3], ys[..., 3:], ds[..., 3:])))
+    return node_t, np.ascontiguousarray(np.concatenate([ys, ds[..., 3:]], axis=2))
 
 
 def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: str = "rk4",
@@ -1002,9 +1003,8 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     for name, arr in (("p0", p), ("v0", v), ("spin", w)):
         if len(arr) not in (1, m):
             raise ValueError(f"{name} must have shape (3,) or ({m}, 3), got {arr.shape}")
-    p = np.broadcast_to(p, (m, 3)).astype(float)
-    v = np.broadcast_to(v, (m, 3)).astype(float)
-    w = np.broadcast_to(w, (m, 3)).astype(float)
+    # (read-only views: the integrators copy what they keep)
+    p, v, w = (a if len(a) == m else np.broadcast_to(a, (m, 3)) for a in (p, v, w))
     times = as_array(times, (None,), "times")
     if not np.all(np.isfinite(times)):
         raise ValueError("times must be finite")
@@ -1014,18 +1014,18 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     n_stage = len(tab[0])
     scalar = m == 1 and hasattr(model, "_fixed_spin_scalar")
     ends = ((1.0, times.max(initial=t0)), (-1.0, times.min(initial=t0)))
-    if scalar:
-        node_t, node_p, node_v, node_a = _nodes_scalar(model, tab, p, v, w, t0, max_step, ends)
-    else:
-        node_t, node_p, node_v, node_a = _nodes_rows(model, tab, p, v, w, t0, max_step, ends)
+    # node times (K,) and (M, K, 9) positions, velocities and accelerations at the nodes
+    nodes_of = _nodes_scalar if scalar else _nodes_rows
+    node_t, nodes = nodes_of(model, tab, p, v, w, t0, max_step, ends)
     nfev = 1 + (len(node_t) - 1) * n_stage  # stages 2..n plus each node's acceleration
     if len(node_t) == 1:
-        pos = np.repeat(node_p, len(times), axis=1)
-        vel = np.repeat(node_v, len(times), axis=1)
+        pos = np.repeat(nodes[..., :3], len(times), axis=1)
+        vel = np.repeat(nodes[..., 3:6], len(times), axis=1)
         return BatchTrajectory(times, pos, vel, nfev)
     j = np.clip(np.searchsorted(node_t, times, side="right") - 1, 0, len(node_t) - 2)
     hh = (node_t[j + 1] - node_t[j])[:, None]
     s = (times - node_t[j])[:, None] / hh
-    pos, vel = _hermite5(s, hh, node_p[:, j], node_v[:, j], node_a[:, j],
-                         node_p[:, j + 1], node_v[:, j + 1], node_a[:, j + 1])
+    n0, n1 = nodes[:, j], nodes[:, j + 1]  # the nodes before and after each time, (M, N, 9)
+    pos, vel = _hermite5(s, hh, n0[..., :3], n0[..., 3:6], n0[..., 6:],
+                         n1[..., :3], n1[..., 3:6], n1[..., 6:])
     return BatchTrajectory(times, pos, vel, nfev)
