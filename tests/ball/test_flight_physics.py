@@ -241,3 +241,24 @@ def test_bad_input_names_shape():
         simulate_batch(P0, V0, BACKSPIN, [0.1], method="euler")
     with pytest.raises(ValueError, match="positive"):
         BallProperties(mass=0.0)
+
+
+class _GravityOnly:
+    """A model with only the AccelerationModel protocol (no FlightModel kernels)."""
+
+    def acceleration(self, velocity, spin, dt):
+        return np.broadcast_to(np.array([0.0, 0.0, -9.80665]), np.broadcast_shapes(
+            np.shape(velocity), np.shape(spin))).copy()
+
+
+def test_simulate_batch_with_a_protocol_model_is_a_parabola():
+    # the generic path of the batch integrator (one and several flights): RK4 is exact on a
+    # parabola, and so is the quintic Hermite interpolation between the nodes
+    ts = np.linspace(-0.1, 0.45, 7)
+    v0 = np.array([[0.5, -30.0, 1.0], [1.0, -35.0, 2.0]])
+    for v in (v0[:1], v0):
+        tr = simulate_batch(np.zeros(3), v, np.ones(3), ts, _GravityOnly(), t0=0.05)
+        dt = (ts - 0.05)[None, :, None]
+        g = np.array([0.0, 0.0, -9.80665])
+        np.testing.assert_allclose(tr.positions, v[:, None] * dt + 0.5 * g * dt ** 2, atol=1e-12)
+        np.testing.assert_allclose(tr.velocities, v[:, None] + g * dt, atol=1e-12)

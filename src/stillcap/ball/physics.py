@@ -891,8 +891,8 @@ def _steps(t0, t_end, sign, max_step):
 
 
 def _nodes_scalar(model, tab, p, v, w, t0, max_step, ends):
-    # simulate_batch's nodes for one flight with plain floats: node times (K,), positions,
-    # velocities and accelerations (1, K, 3)
+    # simulate_batch's nodes for one flight with plain floats: node times (K,) and a (1, K, 9)
+    # array of positions, velocities and accelerations
     # (Python floats throughout: arithmetic on NumPy scalars costs several times more)
     acc = model._fixed_spin_scalar(w[0])
     tab = _float_tableau(tab)
@@ -920,8 +920,9 @@ def _nodes_scalar(model, tab, p, v, w, t0, max_step, ends):
 
 def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
     # simulate_batch's nodes for M flights, integrated on (6, M) states (rows: x, y, z of the
-    # positions, then of the velocities); returns node times (K,), positions, velocities and
-    # accelerations as (M, K, 3) views
+    # positions, then of the velocities); returns node times (K,) and an (M, K, 9) array of
+    # positions, velocities and accelerations. A model without FlightModel's kernels is called
+    # through its acceleration method.
     m = len(p)
     if hasattr(model, "_fixed_spin_rows"):
         acc = model._fixed_spin_rows(w.T)
