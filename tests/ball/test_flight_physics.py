@@ -111,6 +111,37 @@ def test_scalar_and_vector_accelerations_agree(kind):
 
 
 @pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (1.0, -2.0, 0.5)])
+def test_seed_scalar_acceleration_is_bit_identical(wind):
+    # simulate / cross_plane use the float twin for the seed model: it must not change a bit
+    m = FlightModel(kind="seed", wind=wind)
+    rng = np.random.default_rng(5)
+    vs = V0 + rng.normal(0, 15, (200, 3))
+    ws = rng.normal(0, 200, (200, 3))
+    ws[0] = 0.0
+    ws[1] = 2.0 * vs[1]
+    vs[2] = 1.0  # below the polynomial's Reynolds range
+    for v, w in zip(vs, ws):
+        a = m.acceleration(v, w, 0.1)
+        b = np.array(m._acceleration_scalar(*v.tolist(), *w.tolist(), 0.1))
+        assert np.array_equal(a, b), (v, w, a - b)
+
+
+@pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (1.0, -2.0, 0.5)])
+@pytest.mark.parametrize("kind", ["seed", "nathan"])
+def test_fixed_spin_scalar_kernel_is_bit_identical(kind, wind):
+    # the single-flight integrators' float kernel (constants bound once) must equal the method
+    m = FlightModel(kind=kind, wind=wind)
+    rng = np.random.default_rng(11)
+    vs = V0 + rng.normal(0, 15, (50, 3))
+    vs[0] = 1.0  # slow ball: Re below the seed polynomial's range
+    for w in (rng.normal(0, 200, 3), np.zeros(3), 1e6 * rng.normal(0, 1, 3)):
+        acc = m._fixed_spin_scalar(w)
+        for v in vs:
+            for dt in (0.0, 0.25, -0.1):
+                assert acc(*v.tolist(), dt) == m._acceleration_scalar(*v.tolist(), *w.tolist(), dt)
+
+
+@pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (1.0, -2.0, 0.5)])
 @pytest.mark.parametrize("kind", ["seed", "nathan"])
 def test_fixed_spin_kernel_is_bit_identical_to_acceleration(kind, wind):
     # the integrators' in-place kernel must not change a single bit of the physics
@@ -210,3 +241,24 @@ def test_bad_input_names_shape():
         simulate_batch(P0, V0, BACKSPIN, [0.1], method="euler")
     with pytest.raises(ValueError, match="positive"):
         BallProperties(mass=0.0)
+
+
+class _GravityOnly:
+    """A model with only the AccelerationModel protocol (no FlightModel kernels)."""
+
+    def acceleration(self, velocity, spin, dt):
+        return np.broadcast_to(np.array([0.0, 0.0, -9.80665]), np.broadcast_shapes(
+            np.shape(velocity), np.shape(spin))).copy()
+
+
+def test_simulate_batch_with_a_protocol_model_is_a_parabola():
+    # the generic path of the batch integrator (one and several flights): RK4 is exact on a
+    # parabola, and so is the quintic Hermite interpolation between the nodes
+    ts = np.linspace(-0.1, 0.45, 7)
+    v0 = np.array([[0.5, -30.0, 1.0], [1.0, -35.0, 2.0]])
+    for v in (v0[:1], v0):
+        tr = simulate_batch(np.zeros(3), v, np.ones(3), ts, _GravityOnly(), t0=0.05)
+        dt = (ts - 0.05)[None, :, None]
+        g = np.array([0.0, 0.0, -9.80665])
+        np.testing.assert_allclose(tr.positions, v[:, None] * dt + 0.5 * g * dt ** 2, atol=1e-12)
+        np.testing.assert_allclose(tr.velocities, v[:, None] + g * dt, atol=1e-12)

@@ -365,10 +365,7 @@ class FlightModel:
     def _fixed_spin(self, spin):
         """:meth:`acceleration` as a function ``acc(v, dt)`` of (M, 3) velocities for fixed spins.
 
-        The integrators' hot loop: everything that depends only on the spin (its components as
-        contiguous arrays, ``|w|``) is computed once per flight instead of once per stage, and the
-        arithmetic runs in place (``out=``) to save allocations. The operations and their order
-        are those of :meth:`acceleration`, so the results are bit-identical (tests check it).
+        The (M, 3) face of :meth:`_fixed_spin_rows` (same numbers, transposed views).
 
         Parameters
         ----------
@@ -378,13 +375,42 @@ class FlightModel:
         -------
         callable ``acc(velocity (M, 3), dt) -> ndarray (M, 3)``
         """
+        rows = self._fixed_spin_rows(np.asarray(spin, float).T)
+
+        def acc(velocity, dt):
+            return rows(np.asarray(velocity, float).T, dt).T
+        return acc
+
+    def _fixed_spin_rows(self, spin):
+        """:meth:`acceleration` as a function ``acc(v, dt, out=None)`` of (3, M) velocities.
+
+        The integrators' hot loop, on component rows (x, y, z of M flights): the cost is NumPy's
+        per-call overhead, so it is written to make few ufunc calls (squares and cross products
+        on whole (3, M) blocks, the spin's rotated copies and ``|w|`` computed once per flight,
+        arithmetic in place with ``out=``). The operations on every number and their order are
+        those of :meth:`acceleration`, so the results are bit-identical (tests check it).
+
+        Parameters
+        ----------
+        spin : ndarray, shape (3, M)
+
+        Returns
+        -------
+        callable ``acc(velocity (3, M), dt, out=None) -> ndarray (3, M)``
+            ``out`` (3, M), if given, must not overlap ``velocity``.
+        """
         c = self._c
-        w = np.asarray(spin, float)
-        wx, wy, wz = (np.ascontiguousarray(w[..., i]) for i in range(3))
+        w = np.array(spin, float)
+        wx, wy, wz = w
+        # cross product w x v = w1 * v[(2, 0, 1)] - w2 * v[(1, 2, 0)] row by row; the rotated
+        # velocities are slices of the rows (vx, vy, vz, vx, vy) (two copies: cheaper than
+        # fancy indexing)
+        w1, w2 = w[[1, 2, 0]], w[[2, 0, 1]]
+        shape = (5,) + w.shape[1:]
         seed = self.kind == "seed"
         k = c["k"]
-        g0, g1, g2 = c["g"]
-        windy, wind = c["windy"], c["wind"]
+        g = np.array(c["g"], float)[:, None]
+        windy, wind = c["windy"], c["wind"][:, None]
         if seed:
             kw = c["k15r"] * np.sqrt(wx * wx + wy * wy + wz * wz)
             d_over_nu, re_lo, re_hi = c["d_over_nu"], c["re_lo"], c["re_hi"]
@@ -395,23 +421,24 @@ class FlightModel:
             cl0, cl1, cl2 = nt.cl0, nt.cl1, nt.cl2
         mul, add, sub, sqrt = np.multiply, np.add, np.subtract, np.sqrt
 
-        def acc(velocity, dt):
-            v = velocity - wind if windy else velocity
-            vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-            speed = vx * vx
-            add(speed, vy * vy, out=speed)
-            add(speed, vz * vz, out=speed)
+        def acc(velocity, dt, out=None):
+            vb = np.empty(shape)
+            v = vb[:3]
+            if windy:
+                sub(velocity, wind, out=v)
+            else:
+                v[...] = velocity
+            vb[3:] = vb[:2]
+            sq = v * v
+            speed = add(sq[0], sq[1])
+            add(speed, sq[2], out=speed)
             sqrt(speed, out=speed)
             np.maximum(speed, 1e-12, out=speed)
-            cx = wy * vz
-            sub(cx, wz * vy, out=cx)
-            cy = wz * vx
-            sub(cy, wx * vz, out=cy)
-            cz = wx * vy
-            sub(cz, wy * vx, out=cz)
-            n_wxv = cx * cx
-            add(n_wxv, cy * cy, out=n_wxv)
-            add(n_wxv, cz * cz, out=n_wxv)
+            cr = w1 * vb[2:]
+            sub(cr, w2 * vb[1:4], out=cr)
+            mul(cr, cr, out=sq)
+            n_wxv = add(sq[0], sq[1])
+            add(n_wxv, sq[2], out=n_wxv)
             sqrt(n_wxv, out=n_wxv)
             np.maximum(n_wxv, 1e-300, out=n_wxv)
             if seed:
@@ -448,14 +475,68 @@ class FlightModel:
                 np.divide(mag, n_wxv, out=mag)
             drag = k * cd
             mul(drag, speed, out=drag)
-            out = np.empty(v.shape)
-            for i, (gi, vi, ci) in enumerate(((g0, vx, cx), (g1, vy, cy), (g2, vz, cz))):
-                o = out[..., i]
-                mul(drag, vi, out=o)
-                sub(gi, o, out=o)
-                mul(mag, ci, out=ci)
-                add(o, ci, out=o)
+            # g - drag v + mag (w x v)
+            out = mul(v, drag, out=out)
+            sub(g, out, out=out)
+            mul(cr, mag, out=cr)
+            add(out, cr, out=out)
             return out
+        return acc
+
+    def _fixed_spin_scalar(self, spin):
+        """:meth:`_acceleration_scalar` for a fixed spin: ``acc(vx, vy, vz, dt) -> (ax, ay, az)``.
+
+        The single-flight integrators' hot loop (:func:`simulate`, :func:`cross_plane`,
+        :func:`simulate_batch` with one flight): the constants and the spin terms are bound once,
+        as Python floats. Same formulas in the same order as :meth:`_acceleration_scalar`, so the
+        results are bit-identical (tests check it).
+        """
+        c = self._c
+        wx, wy, wz = (float(x) for x in spin)
+        k = c["k"]
+        g0, g1, g2 = c["g"]
+        windy = c["windy"]
+        ux, uy, uz = self.wind
+        sqrt, exp = math.sqrt, math.exp
+        if self.kind == "seed":
+            d_over_nu, re_lo, re_hi = c["d_over_nu"], c["re_lo"], c["re_hi"]
+            p0, p1, p2, p3, p4 = SEED_CD_POLY
+            kw = c["k15r"] * sqrt(wx * wx + wy * wy + wz * wz)
+
+            def acc(vx, vy, vz, dt):
+                if windy:
+                    vx, vy, vz = vx - ux, vy - uy, vz - uz
+                speed = max(sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+                cx = wy * vz - wz * vy
+                cy = wz * vx - wx * vz
+                cz = wx * vy - wy * vx
+                n_wxv = max(sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+                re = min(max(speed * d_over_nu, re_lo), re_hi)
+                cd = p0 + re * (p1 + re * (p2 + re * (p3 + re * p4)))
+                mag = kw * speed / n_wxv
+                drag = k * cd * speed
+                return (g0 - drag * vx + mag * cx, g1 - drag * vy + mag * cy,
+                        g2 - drag * vz + mag * cz)
+            return acc
+        nt = self.nathan
+        r, inv_tau, cd0, cdspin = c["r"], c["inv_tau_vref"], nt.cd0, c["cdspin_rad"]
+        cl0, cl1, cl2 = nt.cl0, nt.cl1, nt.cl2
+
+        def acc(vx, vy, vz, dt):
+            if windy:
+                vx, vy, vz = vx - ux, vy - uy, vz - uz
+            speed = max(sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+            cx = wy * vz - wz * vy
+            cy = wz * vx - wx * vz
+            cz = wx * vy - wy * vx
+            n_wxv = max(sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
+            wd = (n_wxv / speed) * exp(-dt * speed * inv_tau)
+            cd = cd0 + cdspin * wd
+            s = r * wd / speed
+            mag = k * (cl2 * s / (cl0 + cl1 * s)) * speed * speed / n_wxv
+            drag = k * cd * speed
+            return (g0 - drag * vx + mag * cx, g1 - drag * vy + mag * cy,
+                    g2 - drag * vz + mag * cz)
         return acc
 
     def _acceleration_scalar(self, vx, vy, vz, wx, wy, wz, dt):
@@ -525,6 +606,17 @@ class Trajectory:
 
 
 def _rhs(model, spin, t0):
+    if isinstance(model, FlightModel) and model.kind == "seed":
+        # solve_ivp integrates one ball: the plain-float twin of the acceleration is ~6x faster
+        # than NumPy on 3-vectors and, for the seed model, bit-identical to it (tests check it;
+        # Nathan's spin decay needs exp, where math.exp and np.exp may differ in the last bit)
+        acc = model._fixed_spin_scalar(spin)
+
+        def f(t, y):
+            vx, vy, vz = y[3:].tolist()
+            return np.array((vx, vy, vz, *acc(vx, vy, vz, t - t0)))
+        return f
+
     def f(t, y):
         a = model.acceleration(y[3:], spin, t - t0)
         return np.concatenate([y[3:], a])
@@ -693,45 +785,74 @@ class BatchTrajectory:
     nfev: int = 0
 
 
-def _rk_step(acc, tab, t, h, p, v, w, t0, a1):
-    # one explicit Runge-Kutta step of p' = v, v' = acc(v, t - t0) for (M, 3) arrays (the spin
-    # w is bound into acc, FlightModel._fixed_spin); a1 = acc(v, t - t0) is the first stage,
-    # known from the previous step
-    c, a, b = tab
-    kv = [v]  # stage velocities (= dp/dt)
-    ka = [a1]  # stage accelerations (= dv/dt)
-    for i in range(1, len(c)):
-        vi = v
-        for j, aij in enumerate(a[i]):
-            if aij:
-                vi = vi + (h * aij) * ka[j]
-        kv.append(vi)
-        ka.append(acc(vi, t + c[i] * h - t0))
-    dp = sum(bi * ki for bi, ki in zip(b, kv) if bi)
-    dv = sum(bi * ki for bi, ki in zip(b, ka) if bi)
-    return p + h * dp, v + h * dv
+def _rk_step(acc, plan, t, h, y, d1, ks, t0, out):
+    # one explicit Runge-Kutta step of y = (p, v) (6, M), y' = (v, acc(v, t - t0)), written into
+    # out (6, M). d1 = y'(t) is the first stage, known from the previous step; ks are (6, M)
+    # buffers for the other stages (rows 0-2 the stage velocity, 3-5 its acceleration), so the
+    # final combination of positions and velocities is one array operation per stage. plan is
+    # _rk_plan(tableau). The arithmetic of every number is that of the textbook formula
+    # vi = v + sum_j (h a_ij) ka_j, y + h sum_i b_i k_i, in the same order.
+    stages, weights = plan
+    ks[0] = d1
+    v = y[3:]
+    for i, (ci, row) in enumerate(stages, 1):
+        vi = ks[i][:3]
+        if row:
+            (j, aij), *rest = row
+            np.multiply(ks[j][3:], h * aij, out=vi)
+            np.add(v, vi, out=vi)
+            for j, aij in rest:
+                np.add(vi, (h * aij) * ks[j][3:], out=vi)
+        else:
+            vi[...] = v
+        acc(vi, t + ci * h - t0, out=ks[i][3:])
+    (i, bi), *rest = weights
+    dy = bi * ks[i]
+    for i, bi in rest:
+        np.add(dy, bi * ks[i], out=dy)
+    np.multiply(dy, h, out=dy)
+    return np.add(y, dy, out=out)
 
 
-def _rk_step_scalar(acc, tab, t, h, p, v, w, t0, a1):
-    # pure-float twin of _rk_step for one flight (see FlightModel._acceleration_scalar)
+def _rk_plan(tab):
+    # a Butcher tableau as (c_i, nonzero (j, a_ij)) per stage after the first and the nonzero
+    # (i, b_i), Python floats: what _rk_step loops over
+    c, a, b = _float_tableau(tab)
+    stages = [(c[i], [(j, aij) for j, aij in enumerate(a[i]) if aij]) for i in range(1, len(c))]
+    return stages, [(i, bi) for i, bi in enumerate(b) if bi]
+
+
+def _rk_step_scalar(acc, tab, t, h, p, v, t0, a1):
+    # pure-float twin of _rk_step for one flight (see FlightModel._fixed_spin_scalar): the same
+    # operations on every number, in the same order; tab holds Python floats (_float_tableau)
     c, a, b = tab
     kv, ka = [v], [a1]
     for i in range(1, len(c)):
-        vi = v
+        x, y, z = v
         for j, aij in enumerate(a[i]):
             if aij:
-                kj = ka[j]
-                vi = (vi[0] + h * aij * kj[0], vi[1] + h * aij * kj[1], vi[2] + h * aij * kj[2])
-        kv.append(vi)
-        ka.append(acc(vi[0], vi[1], vi[2], w[0], w[1], w[2], t + c[i] * h - t0))
-    dp = [0.0, 0.0, 0.0]
-    dv = [0.0, 0.0, 0.0]
-    for bi, vi, ai in zip(b, kv, ka):
+                ha = h * aij
+                kx, ky, kz = ka[j]
+                x, y, z = x + ha * kx, y + ha * ky, z + ha * kz
+        kv.append((x, y, z))
+        ka.append(acc(x, y, z, t + c[i] * h - t0))
+    px = py = pz = ax = ay = az = 0.0
+    for bi, (ux, uy, uz), (gx, gy, gz) in zip(b, kv, ka):
         if bi:
-            for d in range(3):
-                dp[d] += bi * vi[d]
-                dv[d] += bi * ai[d]
-    return (tuple(p[d] + h * dp[d] for d in range(3)), tuple(v[d] + h * dv[d] for d in range(3)))
+            px += bi * ux
+            py += bi * uy
+            pz += bi * uz
+            ax += bi * gx
+            ay += bi * gy
+            az += bi * gz
+    return ((p[0] + h * px, p[1] + h * py, p[2] + h * pz),
+            (v[0] + h * ax, v[1] + h * ay, v[2] + h * az))
+
+
+def _float_tableau(tab):
+    # a Butcher tableau as Python floats (NumPy scalars would slow the pure-float integrator)
+    c, a, b = tab
+    return [float(x) for x in c], [[float(x) for x in row] for row in a], [float(x) for x in b]
 
 
 def _hermite5(s, h, p0, v0, a0, p1, v1, a1):
@@ -758,6 +879,86 @@ def _hermite5(s, h, p0, v0, a0, p1, v1, a1):
     d4 = -12 * s2 + 28 * s3 - 15 * s4
     vel = (d0 * (p0 - p1)) / h + d1 * v0 + h * d2 * a0 + h * d3 * a1 + d4 * v1
     return pos, vel
+
+
+def _steps(t0, t_end, sign, max_step):
+    """Number of steps and signed step from ``t0`` towards ``t_end`` (0 steps: nothing to do)."""
+    span = sign * (t_end - t0)
+    if span <= 0:
+        return 0, 0.0
+    k = int(np.ceil(span / max_step - 1e-9))
+    return k, sign * span / k
+
+
+def _nodes_scalar(model, tab, p, v, w, t0, max_step, ends):
+    # simulate_batch's nodes for one flight with plain floats: node times (K,) and a (1, K, 9)
+    # array of positions, velocities and accelerations
+    # (Python floats throughout: arithmetic on NumPy scalars costs several times more)
+    acc = model._fixed_spin_scalar(w[0])
+    tab = _float_tableau(tab)
+    p, v = tuple(p[0].tolist()), tuple(v[0].tolist())
+    a_start = acc(*v, 0.0)
+    branches = []
+    for sign, t_end in ends:
+        k, h = _steps(t0, t_end, sign, max_step)
+        h = float(h)
+        ts, ps, vs, as_ = [t0], [p], [v], [a_start]
+        pc, vc = p, v
+        for i in range(k):
+            pc, vc = _rk_step_scalar(acc, tab, t0 + i * h, h, pc, vc, t0, as_[-1])
+            ts.append(t0 + (i + 1) * h)
+            ps.append(pc)
+            vs.append(vc)
+            as_.append(acc(*vc, (i + 1) * h))
+        branches.append((ts, ps, vs, as_))
+    (tf, pf, vf, af), (tb, pb, vb, ab) = branches
+    # one ascending node list: backward branch reversed, then forward without the shared t0
+    return (np.array(tb[::-1] + tf[1:]),
+            np.concatenate([np.array(lb[::-1] + lf[1:]) for lb, lf in ((pb, pf), (vb, vf), (ab, af))],
+                           axis=1)[None])
+
+
+def _nodes_rows(model, tab, p, v, w, t0, max_step, ends):
+    # simulate_batch's nodes for M flights, integrated on (6, M) states (rows: x, y, z of the
+    # positions, then of the velocities); returns node times (K,) and an (M, K, 9) array of
+    # positions, velocities and accelerations. A model without FlightModel's kernels is called
+    # through its acceleration method.
+    m = len(p)
+    if hasattr(model, "_fixed_spin_rows"):
+        acc = model._fixed_spin_rows(w.T)
+    else:
+        def acc(vel, dt, out=None):
+            a = model.acceleration(vel.T, w, dt).T
+            if out is None:
+                return a
+            out[...] = a
+            return out
+    y0 = np.concatenate([p.T, v.T])
+    d0 = np.empty((6, m))
+    d0[:3] = y0[3:]
+    acc(y0[3:], 0.0, out=d0[3:])
+    ks = [None] + [np.empty((6, m)) for _ in range(len(tab[0]) - 1)]
+    plan = _rk_plan(tab)
+    branches = []
+    for sign, t_end in ends:
+        k, h = _steps(t0, t_end, sign, max_step)
+        ys = np.empty((k + 1, 6, m))  # states y and derivatives y' = (v, a) at the nodes
+        ds = np.empty((k + 1, 6, m))
+        ys[0], ds[0] = y0, d0
+        for i in range(k):
+            _rk_step(acc, plan, t0 + i * h, h, ys[i], ds[i], ks, t0, out=ys[i + 1])
+            ds[i + 1, :3] = ys[i + 1, 3:]
+            acc(ys[i + 1, 3:], (i + 1) * h, out=ds[i + 1, 3:])
+        # (i + 1) * h and t0 + ... as in the scalar path: the same node times
+        ts = [t0] + [t0 + (i + 1) * h for i in range(k)]
+        branches.append((ts, ys, ds))
+    (tf, yf, df), (tb, yb, db) = branches
+    node_t = np.array(tb[::-1] + tf[1:])
+    ys = np.concatenate([yb[::-1], yf[1:]]).transpose(2, 0, 1)  # (M, K, 6)
+    ds = np.concatenate([db[::-1], df[1:]]).transpose(2, 0, 1)
+    # C-contiguous (M, K, 9) like the scalar path: the layout of the interpolated outputs follows
+    # it, and downstream reductions (einsum) may add in another order on other layouts
+    return node_t, np.ascontiguousarray(np.concatenate([ys, ds[..., 3:]], axis=2))
 
 
 def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: str = "rk4",
@@ -803,9 +1004,8 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     for name, arr in (("p0", p), ("v0", v), ("spin", w)):
         if len(arr) not in (1, m):
             raise ValueError(f"{name} must have shape (3,) or ({m}, 3), got {arr.shape}")
-    p = np.broadcast_to(p, (m, 3)).astype(float)
-    v = np.broadcast_to(v, (m, 3)).astype(float)
-    w = np.broadcast_to(w, (m, 3)).astype(float)
+    # (read-only views: the integrators copy what they keep)
+    p, v, w = (a if len(a) == m else np.broadcast_to(a, (m, 3)) for a in (p, v, w))
     times = as_array(times, (None,), "times")
     if not np.all(np.isfinite(times)):
         raise ValueError("times must be finite")
@@ -813,56 +1013,20 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     model = _model(model)
     tab = _TABLEAUX[method]
     n_stage = len(tab[0])
-    scalar = m == 1 and hasattr(model, "_acceleration_scalar")
-    if scalar:
-        acc = model._acceleration_scalar
-        step = _rk_step_scalar
-        p, v, w = tuple(p[0]), tuple(v[0]), tuple(w[0])
-        a_start = acc(*v, *w, 0.0)
-    else:
-        if hasattr(model, "_fixed_spin"):
-            acc = model._fixed_spin(w)
-        else:
-            def acc(vel, dt):
-                return model.acceleration(vel, w, dt)
-        step = _rk_step
-        a_start = acc(v, 0.0)
-    nfev = 1
-    # nodes per direction: (t, p, v, a) lists, starting at t0
-    branches = []
-    for sign, t_end in ((1.0, times.max(initial=t0)), (-1.0, times.min(initial=t0))):
-        span = sign * (t_end - t0)
-        if span <= 0:
-            branches.append(([t0], [p], [v], [a_start]))
-            continue
-        k = int(np.ceil(span / max_step - 1e-9))
-        h = sign * span / k
-        ts, ps, vs, as_ = [t0], [p], [v], [a_start]
-        pc, vc = p, v
-        for i in range(k):
-            pc, vc = step(acc, tab, t0 + i * h, h, pc, vc, w, t0, as_[-1])
-            ts.append(t0 + (i + 1) * h)
-            ps.append(pc)
-            vs.append(vc)
-            as_.append(acc(*vc, *w, (i + 1) * h) if scalar else acc(vc, (i + 1) * h))
-        nfev += k * n_stage  # stages 2..n plus the node acceleration (next step's first stage)
-        branches.append((ts, ps, vs, as_))
-    (tf, pf, vf, af), (tb, pb, vb, ab) = branches
-    # one ascending node list: backward branch reversed, then forward without the shared t0
-    node_t = np.array(tb[::-1] + tf[1:])
-
-    def stack(lb, lf):
-        if scalar:
-            return np.array(lb[::-1] + lf[1:])[None]  # (1, K, 3)
-        return np.stack(lb[::-1] + lf[1:], axis=1)  # (M, K, 3)
-    node_p, node_v, node_a = stack(pb, pf), stack(vb, vf), stack(ab, af)
+    scalar = m == 1 and hasattr(model, "_fixed_spin_scalar")
+    ends = ((1.0, times.max(initial=t0)), (-1.0, times.min(initial=t0)))
+    # node times (K,) and (M, K, 9) positions, velocities and accelerations at the nodes
+    nodes_of = _nodes_scalar if scalar else _nodes_rows
+    node_t, nodes = nodes_of(model, tab, p, v, w, t0, max_step, ends)
+    nfev = 1 + (len(node_t) - 1) * n_stage  # stages 2..n plus each node's acceleration
     if len(node_t) == 1:
-        pos = np.repeat(node_p, len(times), axis=1)
-        vel = np.repeat(node_v, len(times), axis=1)
+        pos = np.repeat(nodes[..., :3], len(times), axis=1)
+        vel = np.repeat(nodes[..., 3:6], len(times), axis=1)
         return BatchTrajectory(times, pos, vel, nfev)
     j = np.clip(np.searchsorted(node_t, times, side="right") - 1, 0, len(node_t) - 2)
     hh = (node_t[j + 1] - node_t[j])[:, None]
     s = (times - node_t[j])[:, None] / hh
-    pos, vel = _hermite5(s, hh, node_p[:, j], node_v[:, j], node_a[:, j],
-                         node_p[:, j + 1], node_v[:, j + 1], node_a[:, j + 1])
+    n0, n1 = nodes[:, j], nodes[:, j + 1]  # the nodes before and after each time, (M, N, 9)
+    pos, vel = _hermite5(s, hh, n0[..., :3], n0[..., 3:6], n0[..., 6:],
+                         n1[..., :3], n1[..., 3:6], n1[..., 6:])
     return BatchTrajectory(times, pos, vel, nfev)
