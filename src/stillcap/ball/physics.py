@@ -522,6 +522,8 @@ class FlightModel:
         r, inv_tau, cd0, cdspin = c["r"], c["inv_tau_vref"], nt.cd0, c["cdspin_rad"]
         cl0, cl1, cl2 = nt.cl0, nt.cl1, nt.cl2
 
+        # the seed closure's first lines repeated on purpose: a shared helper would add a Python
+        # call to every evaluation of this hot loop
         def acc(vx, vy, vz, dt):
             if windy:
                 vx, vy, vz = vx - ux, vy - uy, vz - uz
