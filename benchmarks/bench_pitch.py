@@ -157,10 +157,11 @@ def evaluate(res, truth: dict) -> dict:
         d = np.linalg.norm(Pt[None] - p.positions[:, None], axis=2)
         j = np.nanargmin(d, axis=1)
         err = d[np.arange(len(p)), j]
-        n_iso += int(np.sum(err ** 2 / p.position_sigma_m ** 2 <= CHI2_3_95))
+        iso = int(np.sum(err ** 2 / p.position_sigma_m ** 2 <= CHI2_3_95))
+        n_iso += iso
         C = p.position_covariance_m2
         if C is None:
-            n_in += int(np.sum(err ** 2 / p.position_sigma_m ** 2 <= CHI2_3_95))
+            n_in += iso
         else:
             e = p.positions - Pt[j]
             n_in += int(np.sum(np.einsum("ki,ki->k", e, np.linalg.solve(C, e[:, :, None])[:, :, 0]) <= CHI2_3_95))

@@ -248,3 +248,13 @@ def test_batch_metrics_match_the_flight_by_flight_ones(gap):
                                                                           equal_nan=True)
     with pytest.raises(ValueError, match="positions"):
         fit_nine_parameter_batch(ts, P[0])
+
+
+def test_batch_metrics_bad_input_names_the_shape():
+    ts = np.linspace(0.0, 0.45, 10)
+    tr = simulate(P0, V0, np.zeros(3), ts, NATHAN)
+    T, P, V = ts[None], tr.positions[None], tr.velocities[None]
+    with pytest.raises(ValueError, match=r"velocities must have the shape of positions \(1, 10, 3\)"):
+        pitch_metrics_batch(T, P, velocities=V[:, :5])
+    with pytest.raises(ValueError, match=r"spins must have shape \(1, 3\)"):
+        pitch_metrics_batch(T, P, np.zeros(3), velocities=V)

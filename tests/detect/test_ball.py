@@ -577,16 +577,6 @@ def test_grid_peak_scores_every_candidate_of_its_grid(start):
     assert abs(bx - 41.2) <= 0.5 and abs(by - 40.6) <= 0.5
 
 
-def test_median_is_numpys():
-    from stillcap.detect.ball import _median
-
-    rng = np.random.default_rng(2)
-    for n in (1, 2, 3, 4, 11, 500, 1001):
-        for dtype in (np.float32, np.float64):
-            a = rng.random(n).astype(dtype)
-            assert _median(a) == float(np.median(a))
-
-
 def test_percentile_is_numpys():
     from stillcap.detect.ball import _percentile
 

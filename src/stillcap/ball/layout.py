@@ -67,8 +67,8 @@ DEFAULT_PALETTE = {
 }
 #: Angular size of a marker, rad (disc radius, square half-side, ...): 12 mm on a baseball.
 DEFAULT_MARKER_SIZE = 0.16
-#: Inner radius of a ring marker as a fraction of its outer radius (the studio's
-#: :class:`~stillcap.studio.scene.SphereMarker` default).
+#: Inner radius of a ring marker as a fraction of its outer radius (also the default of the
+#: studio's :class:`~stillcap.studio.scene.SphereMarker`).
 RING_INNER = 0.55
 #: Mean squared angular distance of a marker's painted area from its centre, in units of
 #: ``marker_size ** 2``, per shape (azimuthal-equidistant tangent coordinates: disc radius a:

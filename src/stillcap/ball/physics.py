@@ -486,9 +486,9 @@ class FlightModel:
     def _fixed_spin_scalar(self, spin):
         """:meth:`_acceleration_scalar` for a fixed spin: ``acc(vx, vy, vz, dt) -> (ax, ay, az)``.
 
-        The single-flight integrators' hot loop (:func:`simulate`, :func:`cross_plane`,
-        :func:`simulate_batch` with one flight): the constants and the spin terms are bound once,
-        as Python floats. Same formulas in the same order as :meth:`_acceleration_scalar`, so the
+        The single-flight integrators' hot loop (:func:`simulate_batch` with one flight; for the
+        seed model also :func:`simulate` and :func:`cross_plane`, see ``_rhs``): the constants
+        and the spin terms are bound once, as Python floats. Same formulas in the same order as :meth:`_acceleration_scalar`, so the
         results are bit-identical (tests check it).
         """
         c = self._c

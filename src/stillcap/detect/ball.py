@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap._numeric import median
 from stillcap.camera import Camera
 
 __all__ = [
@@ -824,7 +825,7 @@ def _grid_peak(g, x, y, tpl, power, step, k, moves):
     d = _grid_offsets(float(step), int(k))[0]
     n = len(d)
     px, py = tpl[0], tpl[1]
-    for m in range(moves + 1):
+    for _ in range(moves + 1):
         # the outline points of every candidate (row-major, y slowest): candidate (i, j) is
         # (x + d[j], y + d[i]), so the x map has only n distinct rows (tiled) and the y map n
         # (each repeated): summed once per row, the same numbers as x + DX + p per candidate
@@ -837,8 +838,6 @@ def _grid_peak(g, x, y, tpl, power, step, k, moves):
         x, y = x + float(d[j]), y + float(d[i])
         if 0 < i < 2 * k and 0 < j < 2 * k:
             break
-        if m < moves:
-            continue
     return x, y, sc, (i, j)
 
 
@@ -865,18 +864,6 @@ def _percentile(a: np.ndarray, q: float) -> float:
     lo_v, hi_v = p[lo], p[hi]
     d = hi_v - lo_v
     return float(hi_v - d * (1.0 - t) if t >= 0.5 else lo_v + d * t)
-
-
-def _median(a: np.ndarray) -> float:
-    """``float(np.median(a))`` of a 1-D array without NaN, by ``np.partition``: the same number
-    (the middle value, or the mean of the two middle ones in ``a``'s dtype) without
-    ``np.median``'s overhead on the few thousand values of a crop."""
-    n = len(a)
-    k = n // 2
-    if n % 2:
-        return float(np.partition(a, k)[k])
-    p = np.partition(a, [k - 1, k])
-    return float((p[k - 1] + p[k]) / 2)
 
 
 def _quad_peak(f: np.ndarray, i: int, j: int) -> tuple[float, float]:
@@ -1038,7 +1025,7 @@ def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, pow
     q = np.einsum("ij,jhw->ihw", Ai, xy)
     r2 = q[0] ** 2 + q[1] ** 2
     ring = (r2 > 1.3 ** 2)
-    level = _median(lin[ring]) if np.any(ring) else 0.0
+    level = median(lin[ring]) if np.any(ring) else 0.0
     wgt = np.where(r2 < 1.15 ** 2, np.maximum(lin - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:

@@ -404,10 +404,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
         # foreshortened marker is blurred below the core threshold at its rim).
         cand = []  # (types, weak mask, core mask, soft)
-        lit_ok = disc & (val >= min_value)
         if chroma:
             dh = _hue_distance(hue, ch_hue)  # (types, h, w)
-            hue_ok = lit_ok & (dh <= hue_tol_deg)
+            hue_ok = (disc & (val >= min_value)) & (dh <= hue_tol_deg)
             soft = np.where(hue_ok, np.clip(sat / ch_sat, 0, 1), 0.0).astype(np.float32, copy=False)
             weak = soft >= weak_membership
             core = hue_ok & (sat >= min_saturation)

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stillcap._checks import as_array
+from stillcap._numeric import median
 from stillcap.detect.palette import (
     METRICS,
     Palette,
@@ -337,19 +338,8 @@ def _gains(measured, reference):
         ratio = np.where(r > 0.02, m / r, np.nan)
     # per channel the median of the finite ratios: np.nanmedian's value (its masked-array
     # path cost ~0.5 ms per call on these few rows)
-    g = np.array([_median(col[np.isfinite(col)]) for col in ratio.T])
+    g = np.array([median(col[np.isfinite(col)]) for col in ratio.T])
     return np.where(np.isfinite(g) & (g > 0), g, 1.0)
-
-
-def _median(v: np.ndarray) -> float:
-    """``np.median`` of a short 1-D array without NaN, bit for bit (the mean of the two middle
-    values, ``(a + b) / 2``; one value for an odd length), NaN when empty: np.median's
-    generic machinery costs ~30 us per call, three to five calls per photo."""
-    n = len(v)
-    if n == 0:
-        return np.nan
-    s = np.sort(v)
-    return float((s[(n - 1) // 2] + s[n // 2]) / 2)
 
 
 _REF_LAB: dict = {}
@@ -500,7 +490,7 @@ def _identify_views(cols: list, palette: Palette, pts: list, rad: list, method: 
         for v in active:
             # Gains from the confident half of the matches; colours corrected in linear light.
             rows, cols_ = matches[v]
-            good = C[v][rows, cols_] <= _median(C[v][rows, cols_])
+            good = C[v][rows, cols_] <= median(C[v][rows, cols_])
             g = _gains(cols[v][rows[good]], ref[cols_[good]]) if good.sum() >= 3 else np.ones(3)
             gains[v] = gains[v] * g
             cols[v] = _linear_to_srgb(_srgb_to_linear(cols[v]) / g)

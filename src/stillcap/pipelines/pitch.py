@@ -1650,11 +1650,11 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
     n_obs_coord = int(np.sum(np.isfinite(fit.residuals)))
     n_par = int(np.asarray(fit.covariance).shape[0])
     dof_ratio = n_obs_coord / (n_obs_coord - n_par) if n_obs_coord > n_par else 1.0
-    for p in pairs:
+    for i, p in enumerate(pairs):
         if p.group > 0:
             p.time_offset_s = float(fit.time_offsets[p.group - 1])
             p.time_offset_sigma_s = float(fit.time_offset_sigma[p.group - 1])
-        sel = pidx_a == pairs.index(p)
+        sel = pidx_a == i
         r = fit.residuals[sel]
         r = r[np.all(np.isfinite(r), axis=1)]
         p.position_sigma_m = (float(np.sqrt(np.mean(r ** 2))) if len(r) >= 2
@@ -1663,7 +1663,7 @@ def _analyse_pitch(cap: Capture, options: PitchOptions, progress, pool: ThreadPo
             p.position_sigma_m = float(np.hypot(p.position_sigma_m, p.calibration_sigma_m))
         # per image: the triangulation's error shape at the residuals' level, plus the shared
         # modes (an isotropic sigma mis-tests the thin depth ellipsoid; docs/pitch.md, sixth pass)
-        cov_k, _ = position_covariances(fit.residuals[sel], pos_cov[sel], shared_modes.get(pairs.index(p)),
+        cov_k, _ = position_covariances(fit.residuals[sel], pos_cov[sel], shared_modes.get(i),
                                         dof_ratio)
         if cov_k is None and len(p) and np.isfinite(p.position_sigma_m):  # too few residuals for a shape
             cov_k = np.broadcast_to(np.eye(3) * p.position_sigma_m ** 2, (len(p), 3, 3)).copy()

@@ -80,13 +80,12 @@ def write_json(result, path) -> Path:
 def _position_rows(result):
     fit = result.fit
     rows = []
-    n = 0
     for i, p in enumerate(result.pairs):
         counts = (p.observations.counts(len(p)) if p.observations is not None and len(p) else np.zeros(len(p), int))
         cov = (np.full((len(p), 3, 3), np.nan) if p.position_covariance_m2 is None
                else np.asarray(p.position_covariance_m2) * 1e6)  # mm^2
+        sel = np.flatnonzero(result.pair_index == i)
         for j in range(len(p)):
-            sel = np.flatnonzero(result.pair_index == i)
             r = sel[j] if j < len(sel) else None
             ref = fit.positions[r] if r is not None else np.full(3, np.nan)
             res = fit.errors[r] * 1e3 if r is not None else np.nan
@@ -99,7 +98,6 @@ def _position_rows(result):
                 "ref_x_m": _g(ref[0]), "ref_y_m": _g(ref[1]), "ref_z_m": _g(ref[2]), "residual_mm": _g(res),
                 "reproj_px": _g(p.reproj_error_px[j]), "markers": int(counts[j]), "flags": int(p.flags[j]),
             })
-            n += 1
     return rows
 
 

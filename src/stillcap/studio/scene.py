@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap.ball.layout import RING_INNER
 
 SHAPES = ("disc", "ring", "square", "triangle")
 
@@ -88,7 +89,7 @@ class SphereMarker:
     size: float = 0.15
     angle: float = 0.0
     color: np.ndarray = field(default_factory=lambda: np.array([0.8, 0.05, 0.04]))
-    inner: float = 0.55
+    inner: float = RING_INNER
     name: str = ""
 
     def __post_init__(self):
