@@ -1,0 +1,110 @@
+"""CPU time of the pitch pipeline's stages, per capture (where the time of ``analyse_pitch`` goes).
+
+    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6]
+    python benchmarks/bench_pitch_stages.py --seeds 5
+
+``--captures DIR``: capture folders kept by ``bench_pitch.py --keep DIR`` (every ``--every``-th);
+without it ``--seeds`` pitches of each preset are rendered into a temporary folder (true rig).
+Each capture runs ``analyse_pitch`` on threads (``processes=0``) after one warm-up run. Times are
+CPU times, which a shared machine disturbs far less than wall times: the whole call in
+``time.process_time`` (every thread of the process, OpenCV's own included), and each stage
+function in ``time.thread_time`` of the thread that ran it (OpenCV's worker threads not
+included), summed per capture. To compare two versions of the code, run this script with each
+version first on ``PYTHONPATH`` (e.g. ``git worktree add``), alternately, on the same captures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+import stillcap
+import stillcap.pipelines.pitch as pitch
+from stillcap.io.capture import Capture
+
+#: Stage functions looked up in stillcap.pipelines.pitch (what the pipeline calls), in pipeline order.
+STAGES = ("ball_centers_stereo", "pair_marker_observations", "_fit_pair_spin", "_combined_spin",
+          "fit_reference_trajectory", "_metrics_sigma")
+
+
+def instrument(totals: dict) -> None:
+    """Wrap the stage functions of ``stillcap.pipelines.pitch`` to add their thread CPU time (s)
+    to ``totals[name]`` (measurement only: the results are unchanged)."""
+    for name in STAGES:
+        fn = getattr(pitch, name, None)
+        if fn is None:  # an older version of the code without this stage
+            continue
+
+        def timed(*a, _fn=fn, _name=name, **k):
+            t = time.thread_time()
+            try:
+                return _fn(*a, **k)
+            finally:
+                totals[_name] += time.thread_time() - t
+        setattr(pitch, name, timed)
+
+
+def _captures(args, tmp: Path) -> list:
+    if args.captures is not None:
+        folders = sorted(p for p in Path(args.captures).iterdir() if (p / "capture.json").is_file())
+        if not folders:
+            raise SystemExit(f"{args.captures}: no capture folders (capture.json) in it")
+        return folders[::args.every]
+    from stillcap.studio.pitch import PRESETS, pitch_capture
+
+    out = []
+    for preset in PRESETS:
+        for seed in range(args.seeds):
+            pc = pitch_capture(preset, rng=seed, calibrate=False)
+            cap, files = pc.to_capture(".jpg")
+            folder = tmp / f"{preset}_{seed}"
+            cap.save(folder, files, jpeg_quality=92)
+            out.append(folder)
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--captures", type=Path, default=None, help="folders kept by bench_pitch.py --keep")
+    ap.add_argument("--every", type=int, default=6, help="every n-th kept capture")
+    ap.add_argument("--seeds", type=int, default=2, help="pitches per preset when rendering (no --captures)")
+    args = ap.parse_args()
+    console = Console()
+    with tempfile.TemporaryDirectory() as tmp:
+        folders = _captures(args, Path(tmp))
+        totals: dict = defaultdict(float)
+        instrument(totals)
+
+        def run(folder):
+            cap = Capture.load(folder)
+            rel = cap.truth["metrics"]["release_pos_y_ft"] if isinstance(cap.truth, dict) else None
+            t = time.process_time()
+            pitch.analyse_pitch(cap, release_y_ft=rel, processes=0)
+            return time.process_time() - t
+
+        run(folders[0])  # warm-up: imports, caches
+        totals.clear()
+        whole = [run(f) for f in folders]
+    n = len(folders)
+    t = Table(title=f"pitch pipeline CPU per capture, ms ({n} captures; stillcap from "
+                    f"{Path(stillcap.__file__).parent})")
+    t.add_column("stage")
+    t.add_column("ms per capture", justify="right")
+    t.add_column("share", justify="right")
+    total = float(np.mean(whole))
+    t.add_row("whole analyse_pitch (process CPU)", f"{1e3 * total:.1f}", "100 %")
+    for name in STAGES:
+        if name in totals:
+            t.add_row(name, f"{1e3 * totals[name] / n:.1f}", f"{100 * totals[name] / n / total:.0f} %")
+    console.print(t)
+
+
+if __name__ == "__main__":
+    main()
