@@ -484,12 +484,15 @@ class FlightModel:
         return acc
 
     def _fixed_spin_scalar(self, spin):
-        """:meth:`_acceleration_scalar` for a fixed spin: ``acc(vx, vy, vz, dt) -> (ax, ay, az)``.
+        """:meth:`acceleration` of one ball with a fixed spin, in plain Python floats:
+        ``acc(vx, vy, vz, dt) -> (ax, ay, az)``.
 
         The single-flight integrators' hot loop (:func:`simulate_batch` with one flight; for the
         seed model also :func:`simulate` and :func:`cross_plane`, see ``_rhs``): the constants
-        and the spin terms are bound once, as Python floats. Same formulas in the same order as :meth:`_acceleration_scalar`, so the
-        results are bit-identical (tests check it).
+        and the spin terms are bound once, as Python floats (~10x faster than NumPy on length-3
+        arrays). The same formulas in the same order as :meth:`acceleration`: bit-identical for
+        the seed model; Nathan's ``math.exp`` can differ from ``np.exp`` in the last bit (tests
+        check both).
         """
         c = self._c
         wx, wy, wz = (float(x) for x in spin)
@@ -540,38 +543,6 @@ class FlightModel:
             return (g0 - drag * vx + mag * cx, g1 - drag * vy + mag * cy,
                     g2 - drag * vz + mag * cz)
         return acc
-
-    def _acceleration_scalar(self, vx, vy, vz, wx, wy, wz, dt):
-        """:meth:`acceleration` for one ball in plain Python floats.
-
-        Same formulas; about 10x faster than NumPy on length-3 arrays, which is what a Powell
-        fit (one trajectory per objective evaluation) spends its time on. Tests keep the two
-        implementations equal.
-        """
-        c = self._c
-        if c["windy"]:
-            vx, vy, vz = vx - self.wind[0], vy - self.wind[1], vz - self.wind[2]
-        speed = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-        cx = wy * vz - wz * vy
-        cy = wz * vx - wx * vz
-        cz = wx * vy - wy * vx
-        n_wxv = max(math.sqrt(cx * cx + cy * cy + cz * cz), 1e-300)
-        k = c["k"]
-        if self.kind == "seed":
-            re = min(max(speed * c["d_over_nu"], c["re_lo"]), c["re_hi"])
-            p = SEED_CD_POLY
-            cd = p[0] + re * (p[1] + re * (p[2] + re * (p[3] + re * p[4])))
-            mag = c["k15r"] * math.sqrt(wx * wx + wy * wy + wz * wz) * speed / n_wxv
-        else:
-            nt = self.nathan
-            wd = (n_wxv / speed) * math.exp(-dt * speed * c["inv_tau_vref"])
-            cd = nt.cd0 + c["cdspin_rad"] * wd
-            s = c["r"] * wd / speed
-            mag = k * (nt.cl2 * s / (nt.cl0 + nt.cl1 * s)) * speed * speed / n_wxv
-        drag = k * cd * speed
-        g = c["g"]
-        return (g[0] - drag * vx + mag * cx, g[1] - drag * vy + mag * cy,
-                g[2] - drag * vz + mag * cz)
 
 
 def _model(model) -> AccelerationModel:
