@@ -36,7 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from detect.test_ball import (FLIGHT, R_BALL, baseball_markers, draw_balls,  # noqa: E402
                               draw_balls_camera, flight_balls, front_pair)
 
-from stillcap.detect.ball import ball_centers_stereo, detect_balls, refine_centers  # noqa: E402
+from stillcap.detect.ball import detect_balls, refine_centers  # noqa: E402  # noqa: E402
+from stillcap.ball.stereo import ball_centers_stereo  # noqa: E402
 from stillcap.detect.ball_markers import detect_ball_markers  # noqa: E402
 
 SIZE = (1920, 2560)

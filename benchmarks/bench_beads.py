@@ -25,6 +25,7 @@ from rich.console import Console
 from rich.table import Table
 from scipy.optimize import linear_sum_assignment
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.circles import METHODS, find_circles, random_bead_scene
 from stillcap.detect.identify import RECOMMENDED, THESIS, calibrate_palette, identify_markers
 from stillcap.detect.palette import Palette, propose_palette
@@ -127,7 +128,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     con = Console(width=150)
-    thesis = Palette.thesis()
+    thesis = Palette.from_markerset(MarkerSet.puppet())
     cal = {"ref": thesis, "cal-patch": calibrated(thesis, "patch", 10_000),
            "cal-disc": calibrated(thesis, "disc", 10_000)}
 

@@ -34,6 +34,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.body.hand import HAND_COLOURS
 from stillcap.detect.colour_markers import find_colour_markers
 from stillcap.geometry.marker_points import triangulate_colour_markers
 from stillcap.studio.hand import hand_capture
@@ -86,7 +87,7 @@ def main(argv=None):
         images = [cv2.imdecode(j, cv2.IMREAD_COLOR) for j in jpgs]
         t_dec = time.perf_counter() - t0
         t0 = time.perf_counter()
-        blobs = [find_colour_markers(im, exclude=ball_discs(cam, tr)) for cam, im in zip(rig, images)]
+        blobs = [find_colour_markers(im, HAND_COLOURS, exclude=ball_discs(cam, tr)) for cam, im in zip(rig, images)]
         t_det = time.perf_counter() - t0
         t0 = time.perf_counter()
         mp = triangulate_colour_markers(rig, hc.rig.pairs, blobs, light_position=hc.rig.light.position)

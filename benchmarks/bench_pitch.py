@@ -61,8 +61,10 @@ from rich.table import Table
 
 from stillcap.ball.physics import simulate
 from stillcap.camera import Rig
-from stillcap.io.capture import Capture, from_jsonable
-from stillcap.pipelines.pitch import analyse_pitch, flight_model
+from stillcap.io.capture import Capture
+from stillcap.files.jsonable import from_jsonable
+from stillcap.ball.physics import flight_model
+from stillcap.pipelines.pitch import analyse_pitch
 from stillcap.studio.pitch import PRESETS, calibrate_pitch_rig, pitch_capture, pitch_rig
 
 #: The issue's goals (absolute errors) and the seed's Table 1 ranges (real photos).

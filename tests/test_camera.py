@@ -143,7 +143,7 @@ def test_save_is_atomic_on_failure(tmp_path, monkeypatch):
     path = tmp_path / "rig.json"
     ring_rig(2).save(path)
     before = path.read_text()
-    import stillcap.io.atomic as atomic
+    import stillcap.files.atomic as atomic
 
     def boom(src, dst):
         raise OSError("disk full")

@@ -12,7 +12,8 @@ from typer.testing import CliRunner
 from stillcap.cli import app, main
 
 from support import run_cli as run
-from stillcap.io.capture import Capture, from_jsonable
+from stillcap.io.capture import Capture
+from stillcap.files.jsonable import from_jsonable
 from stillcap.io.project import Project
 from stillcap.studio.puppet import PuppetTruth
 

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array, as_points
-from stillcap.io.atomic import write_text
-from stillcap.io.jsonfile import read_json
+from stillcap.files.atomic import write_text
+from stillcap.files.jsonfile import read_json
 
 RIG_FORMAT = "stillcap-rig"
 RIG_VERSION = 1

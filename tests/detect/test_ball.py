@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from stillcap.camera import Camera, look_at
-from stillcap.detect.ball import (BallFlag, ball_centers_stereo, detect_balls, foreground_mask,
-                                  refine_centers, sphere_outline_px)
+from stillcap.detect.ball import BallFlag, detect_balls, foreground_mask, refine_centers, sphere_outline_px
+from stillcap.ball.stereo import ball_centers_stereo
 
 # --------------------------------------------------------------------------------------------
 # drawing (also used by test_ball_markers.py and benchmarks/bench_ball_detect.py)

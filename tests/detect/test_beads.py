@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.beads import DETECTORS, IDENTIFIERS, bead_fill, bead_fill_views, detect_beads
 from stillcap.detect.circles import draw_beads, random_bead_scene
 from stillcap.detect.palette import Palette
@@ -42,7 +43,7 @@ def test_bead_fill_is_the_per_bead_definition():
     """All beads at once give exactly the bead-by-bead values: colour and grey photos, beads
     cut by the border or outside, NaN centres, bad radii, centres on half pixels."""
     rng = np.random.default_rng(5)
-    sc = random_bead_scene(Palette.thesis().rgb, rng=1)
+    sc = random_bead_scene(Palette.from_markerset(MarkerSet.puppet()).rgb, rng=1)
     n = 0
     for trial in range(40):
         img = sc.image if trial % 2 else sc.image.mean(axis=2)
@@ -71,7 +72,7 @@ def test_bead_fill_whole_against_half_hidden():
 
 
 def test_detect_beads_names_the_drawn_beads():
-    pal = Palette.thesis()
+    pal = Palette.from_markerset(MarkerSet.puppet())
     sc = random_bead_scene(pal.rgb, rng=2)
     vr = detect_beads(sc.image, pal)
     found = vr.identification.found
@@ -87,7 +88,7 @@ def test_detect_beads_names_the_drawn_beads():
 
 def test_bead_fill_views_is_bead_fill_of_each_view():
     rng = np.random.default_rng(2)
-    scenes = [random_bead_scene(Palette.thesis().rgb, rng=s, size=size) for s, size in ((3, (480, 640)), (4, (300, 200)))]
+    scenes = [random_bead_scene(Palette.from_markerset(MarkerSet.puppet()).rgb, rng=s, size=size) for s, size in ((3, (480, 640)), (4, (300, 200)))]
     images = [scenes[0].image, scenes[1].image, scenes[0].image.mean(axis=2)]
     c = rng.uniform([-10, -10], [650, 490], (3, 20, 2))
     c[0, :10], c[1, :10] = scenes[0].centers[:10], scenes[1].centers[:10]
@@ -104,7 +105,7 @@ def test_bead_fill_views_is_bead_fill_of_each_view():
 def test_bead_fill_views_same_for_uint8_and_float_photos():
     """The uint8 colour path (channel sums in integers) and the float path give the same fills."""
     rng = np.random.default_rng(7)
-    sc = random_bead_scene(Palette.thesis().rgb, rng=6)
+    sc = random_bead_scene(Palette.from_markerset(MarkerSet.puppet()).rgb, rng=6)
     assert sc.image.dtype == np.uint8
     c = np.concatenate([sc.centers + rng.normal(0, 0.7, sc.centers.shape), rng.uniform(-5, 645, (10, 2))])
     r = rng.uniform(3.0, 8.0, len(c))
@@ -117,8 +118,8 @@ def test_bead_fill_views_same_for_uint8_and_float_photos():
 def test_detect_beads_with_a_given_region_is_the_same():
     from stillcap.detect.beads import roi_box
 
-    sc = random_bead_scene(Palette.thesis().rgb, rng=8)
-    pal = Palette.thesis()
+    sc = random_bead_scene(Palette.from_markerset(MarkerSet.puppet()).rgb, rng=8)
+    pal = Palette.from_markerset(MarkerSet.puppet())
     a = detect_beads(sc.image, pal)
     b = detect_beads(sc.image, pal, region=roi_box(sc.image))
     np.testing.assert_array_equal(a.circles.centers, b.circles.centers)

@@ -5,6 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.beads import (
     bright_region,
     detect_beads,
@@ -15,7 +16,7 @@ from stillcap.detect.beads import (
 from stillcap.detect.circles import random_bead_scene
 from stillcap.detect.palette import Palette
 
-PAL = Palette.thesis()
+PAL = Palette.from_markerset(MarkerSet.puppet())
 
 
 @pytest.fixture(scope="module")

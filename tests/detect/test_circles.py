@@ -3,6 +3,7 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 from skimage.filters import threshold_isodata
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.circles import (
     METHODS,
     draw_beads,
@@ -15,7 +16,7 @@ from stillcap.detect.circles import (
 )
 from stillcap.detect.palette import Palette
 
-PAL = Palette.thesis()
+PAL = Palette.from_markerset(MarkerSet.puppet())
 
 
 @pytest.fixture(scope="module")

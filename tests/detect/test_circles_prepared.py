@@ -4,6 +4,7 @@
 import numpy as np
 import pytest
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.circles import (
     find_circles,
     grey_image,
@@ -13,7 +14,7 @@ from stillcap.detect.circles import (
 )
 from stillcap.detect.palette import Palette
 
-PAL = Palette.thesis()
+PAL = Palette.from_markerset(MarkerSet.puppet())
 
 
 @pytest.fixture(scope="module")

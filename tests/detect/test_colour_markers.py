@@ -28,7 +28,7 @@ def centroid_errors(capture, **kw):
     cols = np.array(tr.marker_colours)
     errs, right = [], []
     for ci, (cam, img) in enumerate(zip(capture.rig.rig, capture.images)):
-        b = find_colour_markers(img, exclude=ball_discs(cam, tr), **kw)
+        b = find_colour_markers(img, HAND_COLOURS, exclude=ball_discs(cam, tr), **kw)
         k, m = np.nonzero(tr.markers_isolated[ci])
         d = np.linalg.norm(b.centers[None] - tr.markers_lit_px[ci, k, m][:, None], axis=2)
         j = d.argmin(axis=1)
@@ -61,7 +61,7 @@ def test_ball_paint_is_excluded(capture):
         centres, radii = ball_discs(cam, tr, grow_px=0.0)
         inner = disc_mask(img.shape, centres, radii - 1.0)
         for exclude, counter in ((None, "without"), (ball_discs(cam, tr), "with")):
-            b = find_colour_markers(img, exclude=exclude)
+            b = find_colour_markers(img, HAND_COLOURS, exclude=exclude)
             xy = np.round(b.centers).astype(int)
             n = int(inner[xy[:, 1], xy[:, 0]].sum())
             if counter == "without":
@@ -75,8 +75,8 @@ def test_ball_paint_is_excluded(capture):
 def test_exclude_mask_and_discs_agree(capture):
     img, cam = capture.images[1], capture.rig.rig[1]
     discs = ball_discs(cam, capture.truth)
-    a = find_colour_markers(img, exclude=discs)
-    b = find_colour_markers(img, exclude=disc_mask(img.shape, *discs))
+    a = find_colour_markers(img, HAND_COLOURS, exclude=discs)
+    b = find_colour_markers(img, HAND_COLOURS, exclude=disc_mask(img.shape, *discs))
     assert np.allclose(a.centers, b.centers) and a.colours == b.colours
     assert np.any(a.flags & CLIPPED)  # markers on the held ball touch its disc
 
@@ -105,7 +105,7 @@ def test_touching_same_colour_markers_are_split():
     singles = [(20 + 25 * i, 20, 4.0, red) for i in range(5)] + [(20 + 25 * i, 90, 4.0, yellow) for i in range(5)]
     pair = [(60.3, 55.2, 4.0, red), (68.7, 55.6, 4.0, red)]  # 8.4 px apart: touching
     img = _draw(singles + pair)
-    b = find_colour_markers(img)
+    b = find_colour_markers(img, HAND_COLOURS)
     assert len(b) == 12 and sorted(set(b.colours)) == ["red", "yellow"]
     single = b.flags == 0
     assert single.sum() == 10
@@ -116,7 +116,7 @@ def test_touching_same_colour_markers_are_split():
     d = np.linalg.norm(parts[:, None] - np.array([p[:2] for p in pair])[None], axis=2).min(axis=1)
     assert d.max() < 0.6  # a split part loses its neighbour's rim: a few tenths of a pixel
     # not split on request: one blob flagged merged
-    b2 = find_colour_markers(img, split=False)
+    b2 = find_colour_markers(img, HAND_COLOURS, split=False)
     assert len(b2) == 11 and np.sum((b2.flags & MERGED) > 0) == 1
 
 
@@ -127,22 +127,22 @@ def test_colours_are_told_apart_and_dark_noise_ignored():
         enumerate(HAND_COLOURS.values())]
     img = _draw(discs)
     img = np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
-    b = find_colour_markers(img)
+    b = find_colour_markers(img, HAND_COLOURS)
     assert b.colours == list(HAND_COLOURS)
     assert np.abs(b.centers - np.array([d[:2] for d in discs])).max() < 0.1
     assert np.all(np.abs((b.mean_hsb[:, 0] - [0.0, 0.15, 0.38, 0.62] + 0.5) % 1 - 0.5) < 0.02)
 
 
 def test_empty_and_bad_input():
-    b = find_colour_markers(np.zeros((10, 12, 3), np.uint8))
+    b = find_colour_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLOURS)
     assert isinstance(b, ColourBlobs) and len(b) == 0 and b.centers.shape == (0, 2)
     with pytest.raises(ValueError, match=r"shape \(H, W, 3\).*\(10, 12\)"):
-        find_colour_markers(np.zeros((10, 12), np.uint8))
+        find_colour_markers(np.zeros((10, 12), np.uint8), HAND_COLOURS)
     with pytest.raises(ValueError, match="uint8"):
-        find_colour_markers(np.zeros((10, 12, 3)))
+        find_colour_markers(np.zeros((10, 12, 3)), HAND_COLOURS)
     with pytest.raises(ValueError, match="weighting"):
-        find_colour_markers(np.zeros((10, 12, 3), np.uint8), weighting="mean")
+        find_colour_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLOURS, weighting="mean")
     with pytest.raises(ValueError, match="exclude mask must have shape"):
-        find_colour_markers(np.zeros((10, 12, 3), np.uint8), exclude=np.zeros((3, 3), bool))
+        find_colour_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLOURS, exclude=np.zeros((3, 3), bool))
     with pytest.raises(ValueError, match="colours"):
         find_colour_markers(np.zeros((10, 12, 3), np.uint8), colours={})

@@ -16,7 +16,7 @@ from stillcap.detect.identify import (
 )
 from stillcap.detect.palette import Palette, color_distance, hsb_distance, rgb_to_hsb
 
-PAL = Palette.thesis()
+PAL = Palette.from_markerset(MarkerSet.puppet())
 
 
 def photo(canvas, rng=0, noise=3.0, quality=80):
@@ -204,7 +204,7 @@ def test_disc_sampler_is_the_mean_of_each_disc():
 @pytest.mark.parametrize("metric", ["ciede2000", "lab", "hsb"])
 def test_costs_are_color_distance(metric):
     """The cost matrix (references converted to Lab once) is color_distance's, NaN for NaN rows."""
-    pal = Palette.thesis()
+    pal = Palette.from_markerset(MarkerSet.puppet())
     rng = np.random.default_rng(3)
     col = np.clip(pal.rgb[rng.permutation(len(pal))[:12]] + rng.normal(0, 0.05, (12, 3)), 0, 1)
     col[4] = np.nan

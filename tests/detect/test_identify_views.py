@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from skimage.color import rgb2lab
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.circles import find_circles, random_bead_scene
 from stillcap.detect.identify import (
     RECOMMENDED,
@@ -16,7 +17,7 @@ from stillcap.detect.identify import (
 )
 from stillcap.detect.palette import Palette, rgb_to_lab
 
-PAL = Palette.thesis()
+PAL = Palette.from_markerset(MarkerSet.puppet())
 FIELDS = ("points", "distances", "candidate", "rejected", "colors", "cost", "gains", "radii")
 
 

@@ -14,7 +14,7 @@ from stillcap.detect.palette import (
 
 def test_thesis_palette_matches_the_marker_set():
     ms = MarkerSet.puppet()
-    pal = Palette.thesis()
+    pal = Palette.from_markerset(MarkerSet.puppet())
     assert pal.names == ms.names and len(pal) == 16
     assert np.allclose(pal.rgb, ms.rgb) and np.allclose(pal.hsb, ms.hsb, atol=1e-6)
     assert pal.hex[0] == "#9ec0c0"  # head.1, HSB (0.499, 0.176, 0.754)
@@ -41,7 +41,7 @@ def test_hue_is_periodic_and_distances_have_shapes():
 
 
 def test_min_distance_and_apply_to_markerset():
-    pal = Palette.thesis()
+    pal = Palette.from_markerset(MarkerSet.puppet())
     d, pair = pal.min_distance("ciede2000")
     assert pair == ("arm.R1", "leg.R3") and 4 < d < 6
     assert pal.min_distance("hsb")[1] == ("torso.2", "arm.R3")
@@ -52,7 +52,7 @@ def test_min_distance_and_apply_to_markerset():
 
 
 def test_proposed_palette_is_more_distinct_than_the_thesis_colours():
-    thesis, _ = Palette.thesis().min_distance("ciede2000")
+    thesis, _ = Palette.from_markerset(MarkerSet.puppet()).min_distance("ciede2000")
     prop = propose_palette(16, rng=0, restarts=3)
     pal = prop.palette
     assert len(pal) == 16 and pal.names[0] == "c00"
@@ -86,7 +86,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="3 names for 2 colours"):
         propose_palette(2, names=["a", "b", "c"])
     with pytest.raises(ValueError, match="unknown colour"):
-        Palette.thesis().index("nose")
+        Palette.from_markerset(MarkerSet.puppet()).index("nose")
 
 
 def test_ciede2000_pairwise_is_scikit_images_bit_for_bit():

@@ -3,11 +3,12 @@
 import numpy as np
 import pytest
 
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.palette import Palette, color_distance, propose_palette
 
 
 def test_new_colours_keep_away_from_the_fixed_ones():
-    thesis = Palette.thesis()
+    thesis = Palette.from_markerset(MarkerSet.puppet())
     prop = propose_palette(4, rng=0, fixed=thesis, restarts=4, lightness_weight=0.5)
     new = prop.palette
     assert len(new) == 4 and prop.fixed is thesis

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from stillcap.body.hand import HAND_COLOURS
 from stillcap.detect.colour_markers import find_colour_markers
 from stillcap.geometry.marker_points import (MarkerPoints, lit_sphere_centroids, lit_sphere_offsets,
                                              triangulate_colour_markers)
@@ -177,7 +178,7 @@ def studio():
     for cam, img in zip(rig, hc.images):
         c = tr.ball2world[:, :3, 3]
         r = cam.K[0, 0] * tr.ball["radius"] / cam.world_to_cam(c)[:, 2] + 2.0
-        blobs.append(find_colour_markers(img, exclude=(cam.project(c), r)))
+        blobs.append(find_colour_markers(img, HAND_COLOURS, exclude=(cam.project(c), r)))
     return hc, blobs
 
 

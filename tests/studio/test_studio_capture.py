@@ -7,8 +7,8 @@ import pytest
 
 from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
 from stillcap.camera import Camera, Rig
-from stillcap.io.capture import (Capture, CaptureImage, from_jsonable, target_from_dict, target_to_dict,
-                                 to_jsonable)
+from stillcap.io.capture import Capture, CaptureImage, target_from_dict, target_to_dict
+from stillcap.files.jsonable import from_jsonable, to_jsonable
 
 
 def small_rig():

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Callable, Literal, Protocol
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -545,8 +545,25 @@ class FlightModel:
         return acc
 
 
-def _model(model) -> AccelerationModel:
-    return FlightModel() if model is None else model
+#: The flight models by name: the one registry that options, capture files, the CLI and the
+#: studio choose from (``--physics NAME``).
+FLIGHT_MODELS: dict[str, Callable[[], FlightModel]] = {
+    "seed": FlightModel.seed_model,
+    "nathan": FlightModel.nathan_model,
+}
+
+
+def flight_model(model: str | AccelerationModel | None = None) -> AccelerationModel:
+    """A flight model from its name in :data:`FLIGHT_MODELS`; ``None`` is the seed's model and a
+    model object (a :class:`FlightModel` or anything that implements
+    :class:`AccelerationModel`) is returned as it is."""
+    if model is None:
+        return FlightModel()
+    if isinstance(model, str):
+        if model not in FLIGHT_MODELS:
+            raise ValueError(f"unknown flight model {model!r}; choose one of {', '.join(FLIGHT_MODELS)}")
+        return FLIGHT_MODELS[model]()
+    return model
 
 
 # --------------------------------------------------------------------------------------------
@@ -634,7 +651,7 @@ def simulate(p0, v0, spin, times, model=None, *, t0: float = 0.0, rtol: float = 
     times = as_array(times, (None,), "times")
     if not np.all(np.isfinite(times)):
         raise ValueError("times must be finite")
-    model = _model(model)
+    model = flight_model(model)
     n = len(times)
     pos = np.full((n, 3), np.nan)
     vel = np.full((n, 3), np.nan)
@@ -702,7 +719,7 @@ def cross_plane(p0, v0, spin, model=None, *, t0: float = 0.0,
     p0, v0, spin = _check_initial(p0, v0, spin)
     q = as_array(plane_point, (3,), "plane_point")
     nrm = as_array(plane_normal, (3,), "plane_normal")
-    model = _model(model)
+    model = flight_model(model)
 
     def event(t, y):
         return float(np.dot(y[:3] - q, nrm))
@@ -983,7 +1000,7 @@ def simulate_batch(p0, v0, spin, times, model=None, *, t0: float = 0.0, method: 
     if not np.all(np.isfinite(times)):
         raise ValueError("times must be finite")
     t0 = float(t0)
-    model = _model(model)
+    model = flight_model(model)
     tab = _TABLEAUX[method]
     n_stage = len(tab[0])
     scalar = m == 1 and hasattr(model, "_fixed_spin_scalar")

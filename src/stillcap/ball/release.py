@@ -245,9 +245,9 @@ def estimate_release(ball_times, ball_positions, hold_times, root2world, *, stro
         raise ValueError(f"strobe_hz must be positive, got {strobe_hz}")
     if len(t_h) and np.any(np.diff(t_h) <= 0):
         raise ValueError("hold_times must be strictly increasing")
-    if isinstance(model, str) and model in ("seed", "nathan"):
-        from stillcap.ball.physics import FlightModel
-        model = FlightModel.seed_model() if model == "seed" else FlightModel.nathan_model()
+    if isinstance(model, str):
+        from stillcap.ball.physics import flight_model
+        model = flight_model(model)
     psig = np.broadcast_to(np.asarray(position_sigma_m, float), (len(t_b),)).astype(float)
     if not np.all(psig > 0):
         raise ValueError("position_sigma_m must be positive")

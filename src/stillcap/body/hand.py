@@ -39,7 +39,7 @@ from stillcap._checks import as_array
 from stillcap.body.kinematics import _marker_array, rigid_alignment
 from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.skeleton import Joint, Pose, Skeleton
-from stillcap.io.jsonfile import read_package_json
+from stillcap.files.jsonfile import read_package_json
 
 __all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLOURS", "SCALE_GROUPS", "HandFit", "fit_hand", "fit_hand_poses", "hand_dofs",
            "hand_markerset", "hand_pose", "hand_skeleton", "marker_colours", "personalise_hand", "scale_groups",

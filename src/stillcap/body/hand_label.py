@@ -52,8 +52,8 @@ from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLOURS, fit_hand, ha
 from stillcap.body.kinematics import rigid_alignment
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Pose, Skeleton
-from stillcap.io.capture import to_jsonable
-from stillcap.io.jsonfile import read_json
+from stillcap.files.jsonable import to_jsonable
+from stillcap.files.jsonfile import read_json
 
 __all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "hand_points_from_truth", "label_hand_markers",
            "read_label_overrides"]

@@ -95,7 +95,7 @@ class HandSequence:
     def to_dict(self) -> dict:
         """JSON-ready dict, keys shared with the hand truth (``times_s``, ``root2world``,
         ``angles_deg``, ``joints``)."""
-        from stillcap.io.capture import to_jsonable
+        from stillcap.files.jsonable import to_jsonable
 
         return to_jsonable({"joint_names": list(self.skeleton.names), "scales": self.scales,
                             "personalise": self.personalise,

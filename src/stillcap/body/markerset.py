@@ -28,8 +28,8 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap.body.skeleton import LENGTH_UNITS, Animation, Pose, Skeleton
-from stillcap.io.atomic import write_text
-from stillcap.io.jsonfile import read_json, read_package_json
+from stillcap.files.atomic import write_text
+from stillcap.files.jsonfile import read_json, read_package_json
 
 __all__ = ["BUILTIN_MARKERSETS", "PUPPET_MARKERSETS", "BoneRule", "Marker", "MarkerSet", "MarkerTrajectories"]
 

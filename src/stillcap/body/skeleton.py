@@ -34,8 +34,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array
-from stillcap.io.atomic import write_text
-from stillcap.io.jsonfile import read_json, read_package_json
+from stillcap.files.atomic import write_text
+from stillcap.files.jsonfile import read_json, read_package_json
 
 __all__ = [
     "Joint",

@@ -11,7 +11,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from stillcap.cli._format import num as _f
-from stillcap.io.atomic import write_text
+from stillcap.files.atomic import write_text
 
 console = Console()
 DEMOS = ("rig", "pitch", "hand", "puppet")
@@ -109,7 +109,7 @@ def puppet_summary(res) -> list:
 
 
 def rig_demo(out: Path, seed: int) -> None:
-    from stillcap.pipelines.rig_demo import run_rig_demo
+    from stillcap.studio.rig_demo import run_rig_demo
     from stillcap.report.rig_demo import plot_rig_demo
 
     console.rule("[bold]stillcap demo: calibrate a 4-camera rig from photos, then triangulate markers")

@@ -28,7 +28,7 @@ def hand_demo(out: Path, seed: int, *, preset: str = "seed-4seam", image_size=(2
     HandResult
     """
     from stillcap.cli.hand import print_hand_result
-    from stillcap.io.atomic import write_text
+    from stillcap.files.atomic import write_text
     from stillcap.io.capture import Capture
     from stillcap.io.export import export
     from stillcap.io.project import dumps_json

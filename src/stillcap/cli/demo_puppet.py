@@ -38,7 +38,7 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
         The reconstruction, with its comparison with the truth.
     """
     from stillcap.cli.puppet import _print_result
-    from stillcap.io.atomic import write_text
+    from stillcap.files.atomic import write_text
     from stillcap.io.project import dumps_json
     from stillcap.io.export import export
     from stillcap.pipelines.puppet import run_capture

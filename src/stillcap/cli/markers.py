@@ -26,7 +26,7 @@ def markers(
     One photo per camera of the capture's rig. With a synthetic capture (truth.json) the
     result is compared with the true ball centres.
     """
-    from stillcap.io.atomic import write_text
+    from stillcap.files.atomic import write_text
     from stillcap.io.capture import Capture
     from stillcap.pipelines.markers import reconstruct_markers
 

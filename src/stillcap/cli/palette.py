@@ -19,7 +19,7 @@ def _kept_palette(keep: str):
     from stillcap.detect.palette import Palette
 
     if keep == "puppet":
-        return Palette.thesis()
+        return Palette.from_markerset(MarkerSet.puppet())
     if keep in BUILTIN_MARKERSETS:
         return Palette.from_markerset(MarkerSet.builtin(keep))
     path = Path(keep)

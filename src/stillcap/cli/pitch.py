@@ -14,7 +14,7 @@ from stillcap.cli._format import num as _f, print_notes, right_table
 console = Console()
 
 SPIN_CHOICES = ("global", "seed")
-PHYSICS_CHOICES = ("seed", "nathan")
+PHYSICS_CHOICES = ("seed", "nathan")  # stillcap.ball.physics.FLIGHT_MODELS (not imported: the CLI starts fast)
 FIT_CHOICES = ("least-squares", "powell")
 
 

@@ -127,7 +127,7 @@ def print_comparison(cmp) -> None:
 def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = True) -> None:
     if out is None:
         return
-    from stillcap.io.atomic import write_text
+    from stillcap.files.atomic import write_text
     from stillcap.io.project import dumps_json
     from stillcap.report.puppet import write_report
 
@@ -457,7 +457,7 @@ def calibrate_palette_cmd(
     the mean of its patches over all photos.
     """
     from stillcap.detect.identify import calibrate_palette
-    from stillcap.io.atomic import write_text
+    from stillcap.files.atomic import write_text
     from stillcap.pipelines.puppet import DEFAULT, run_folder
 
     res, images = run_folder(folder, DEFAULT)

@@ -14,6 +14,13 @@ import cv2
 import numpy as np
 from skimage.filters import threshold_otsu
 
+#: Linear RGB albedos of the built-in single-colour marker balls (``stillcap markers``' default
+#: palette; the studio paints its marker balls with them, cycled).
+MARKER_BALL_COLORS = {
+    "red": (0.75, 0.04, 0.03), "green": (0.05, 0.60, 0.06), "blue": (0.03, 0.10, 0.80),
+    "yellow": (0.75, 0.65, 0.03), "magenta": (0.70, 0.04, 0.60), "cyan": (0.03, 0.60, 0.70),
+}
+
 
 @dataclass
 class Blobs:

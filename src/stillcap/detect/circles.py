@@ -1034,7 +1034,7 @@ def random_bead_scene(colors_rgb, rng=None, size=(480, 640), radius_range=(5.0, 
     Parameters
     ----------
     colors_rgb : array_like, shape (K, 3)
-        Bead colours at nominal light, sRGB [0, 1] (e.g. ``Palette.thesis().rgb``).
+        Bead colours at nominal light, sRGB [0, 1] (e.g. ``Palette.from_markerset(MarkerSet.puppet()).rgb``).
     rng : numpy.random.Generator or int, optional
     size : (int, int)
         Height, width.

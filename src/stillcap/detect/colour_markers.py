@@ -1,7 +1,7 @@
 """Luminous coloured markers (the hand glove's) in multi-exposure photos: colour intervals,
 connected regions, sub-pixel centroids, merged-blob splitting.
 
-The glove's markers (:data:`stillcap.body.hand.HAND_COLOURS`) are saturated spheres of four
+The glove's markers (:data:`stillcap.body.hand.HAND_COLOURS`, given by the caller) are saturated spheres of four
 hues far apart on a black glove in a dark room; the only other saturated things in a hand
 photo are the ball's painted markers, which an ``exclude`` mask (the ball discs) removes.
 
@@ -37,7 +37,6 @@ from scipy import ndimage as ndi
 from skimage.feature import peak_local_max
 from skimage.segmentation import watershed
 
-from stillcap.body.hand import HAND_COLOURS
 
 __all__ = ["CLIPPED", "MERGED", "SPLIT", "ColourBlobs", "disc_mask", "find_colour_markers"]
 
@@ -182,7 +181,7 @@ def _hue_distance(h, ref) -> np.ndarray:
     return np.minimum(d, 1.0 - d)
 
 
-def find_colour_markers(image, colours: Mapping[str, tuple] = HAND_COLOURS, *, min_area_px: int = 4,
+def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int = 4,
                         max_area_px: int | None = 5000, exclude=None, hue_tol: float = 0.06,
                         min_saturation: float = 0.5, min_brightness: float = 0.25, grow_px: int = 1,
                         weighting: str = "linear-chroma", encoding: str = "srgb", split: bool = True,
@@ -196,7 +195,7 @@ def find_colour_markers(image, colours: Mapping[str, tuple] = HAND_COLOURS, *, m
     colours : mapping of str to (hue, saturation, brightness)
         Reference colours, HSB in [0, 1] (hue in turns); only the hue is used to classify, the
         saturation and brightness minima are ``min_saturation`` and ``min_brightness``.
-        Default the glove's :data:`~stillcap.body.hand.HAND_COLOURS`.
+        The glove's are :data:`stillcap.body.hand.HAND_COLOURS`.
     min_area_px, max_area_px : int
         Core area limits of a region (pixels) before any split; ``max_area_px=None``: no limit.
     exclude : ndarray of bool, shape (H, W), or (centers (N, 2), radii (N,)), optional

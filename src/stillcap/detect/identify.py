@@ -530,7 +530,7 @@ def identify_markers(image, centers, palette: Palette, radii=None, method: str =
     centers : array_like, shape (N, 2), or Circles
         Candidate centres (x, y); a :class:`~stillcap.detect.circles.Circles` also gives radii.
     palette : Palette
-        Reference colours (e.g. ``Palette.thesis()`` or :func:`calibrate_palette` output).
+        Reference colours (e.g. ``Palette.from_markerset(MarkerSet.puppet())`` or :func:`calibrate_palette` output).
     radii : array_like, shape (N,), optional
         Candidate radii for the ``disc`` sampler.
     method : {"greedy", "assignment"}

@@ -269,13 +269,6 @@ class Palette:
         """The reference colours of a :class:`~stillcap.body.markerset.MarkerSet` (e.g. ``MarkerSet.puppet()``)."""
         return cls(markerset.names, markerset.rgb)
 
-    @classmethod
-    def thesis(cls) -> "Palette":
-        """The thesis's 16 puppet bead colours (SPEC J3), from ``MarkerSet.puppet()``."""
-        from stillcap.body.markerset import MarkerSet
-
-        return cls.from_markerset(MarkerSet.puppet())
-
     # -- views -------------------------------------------------------------------------------
     def __len__(self) -> int:
         return len(self.names)
@@ -446,7 +439,7 @@ def propose_palette(n: int, rng=None, metric: str = "ciede2000", lightness_weigh
     hue_steps, sv_steps : int
         Candidate grid resolution (hue x saturation x brightness).
     fixed : Palette or array_like, shape (F, 3), optional
-        Colours that exist already (sRGB in [0, 1], e.g. ``Palette.thesis()`` to add beads to
+        Colours that exist already (sRGB in [0, 1], e.g. ``Palette.from_markerset(MarkerSet.puppet())`` to add beads to
         the thesis's marker set): the ``n`` new colours maximise the smallest distance among
         themselves *and* to these (the distances among the kept colours cannot change and do
         not count). Names ``f00, f01, ...`` when an array is given.

@@ -23,9 +23,10 @@ import cv2
 import numpy as np
 
 from stillcap.camera import Rig
-from stillcap.io.atomic import atomic_path, write_text
-from stillcap.io.jsonfile import read_json
-from stillcap.io.paths import resolve_inside, safe_relpath
+from stillcap.files.atomic import atomic_path, write_text
+from stillcap.files.jsonfile import read_json
+from stillcap.files.jsonable import to_jsonable
+from stillcap.files.paths import resolve_inside, safe_relpath
 
 CAPTURE_FORMAT = "stillcap-capture"
 CAPTURE_VERSION = 1
@@ -37,30 +38,6 @@ _RESERVED = {"format", "version", "kind", "units", "rig", "truth", "images"}
 def _safe_relpath(file: str, where: str) -> str:
     """``file`` as a normalised relative POSIX path that cannot leave the capture folder."""
     return safe_relpath(file, where.rstrip(": ").strip(), "capture folder")
-
-
-def to_jsonable(x):
-    """Arrays -> nested lists with NaN/inf -> None, recursively (strict JSON)."""
-    if isinstance(x, dict):
-        return {str(k): to_jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [to_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return to_jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
-
-
-def from_jsonable(x) -> np.ndarray:
-    """Nested lists with None (as :func:`to_jsonable` writes NaN) -> float array with NaN."""
-    def nan(v):
-        return [nan(e) for e in v] if isinstance(v, list) else (np.nan if v is None else v)
-    return np.array(nan(x), dtype=float)
 
 
 @dataclass

@@ -52,7 +52,7 @@ import defusedxml.ElementTree as DET
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.camera import Rig
-from stillcap.io.atomic import atomic_path, write_bytes
+from stillcap.files.atomic import atomic_path, write_bytes
 from stillcap.io.project import Project, TurntableSetup, resolve_inside
 
 __all__ = ["JJ_SUFFIX", "MAX_XML_BYTES", "JJImage", "JJProjectFile", "read_jumpingjack", "parse_jumpingjack",

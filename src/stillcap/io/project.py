@@ -36,9 +36,9 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.calibrate.turntable import THESIS_CX, THESIS_CY, THESIS_FX, THESIS_FY, turntable_world2cam
 from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import Triangulation, triangulate
-from stillcap.io.atomic import write_bytes, write_text
-from stillcap.io.jsonfile import read_json
-from stillcap.io.paths import resolve_inside, safe_relpath
+from stillcap.files.atomic import write_bytes, write_text
+from stillcap.files.jsonfile import read_json
+from stillcap.files.paths import resolve_inside, safe_relpath
 
 __all__ = ["PROJECT_FORMAT", "PROJECT_VERSION", "PROJECT_FILE", "PHOTOS_DIR", "dumps_json", "TurntableSetup", "Edit",
            "View", "Markers3D", "Project", "safe_relpath", "resolve_inside", "BUILTIN_MARKERSETS"]
@@ -57,7 +57,7 @@ _VIEW_KEYS = {"name", "image", "processed", "angle_deg", "camera", "detected", "
 BUILTIN_MARKERSETS = {name: functools.partial(MarkerSet.builtin, name) for name in _MARKERSET_NAMES}
 
 
-# --- paths: stillcap.io.paths (re-exported here) ------------------------------------------
+# --- paths: stillcap.files.paths (re-exported here) ------------------------------------------
 
 
 def dumps_json(obj, indent: int = 0, step: int = 1) -> str:

@@ -42,13 +42,15 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.ball.layout import BASEBALL_RADIUS
 from stillcap.ball.release import Release, estimate_release, number_flashes
+from stillcap.body.hand import HAND_COLOURS
 from stillcap.body.hand_label import HandLabels, label_hand_markers
 from stillcap.body.markerset import MarkerTrajectories
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation, observed_dofs
 from stillcap.body.skeleton import Animation
 from stillcap.detect.colour_markers import ColourBlobs, find_colour_markers
 from stillcap.geometry.marker_points import MarkerPoints, triangulate_colour_markers
-from stillcap.io.capture import Capture, from_jsonable, to_jsonable
+from stillcap.io.capture import Capture
+from stillcap.files.jsonable import from_jsonable, to_jsonable
 from stillcap.pipelines.hand_ball import HandBalls, HandBallSpin, hand_ball_positions, hand_ball_spin
 from stillcap.pipelines.pitch import _progress, stereo_pairs
 
@@ -282,7 +284,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
             blobs.append(ColourBlobs.empty())
             continue
         exclude = balls.ball_discs_px(i) if balls is not None and len(balls) else None
-        blobs.append(find_colour_markers(img, exclude=exclude))
+        blobs.append(find_colour_markers(img, HAND_COLOURS, exclude=exclude))
     timings["markers"] = _time.perf_counter() - t
     t = _time.perf_counter()
     _progress(progress, 3, total, "3D markers")

@@ -4,7 +4,7 @@ Wiring only (``docs/hand-ball.md``):
 
 1. **Whiteness image.** The glove and sleeves are dark grey, the hand markers saturated colours,
    the ball white: the per-pixel minimum over B, G, R keeps the ball and drops the rest. It is
-   what :func:`stillcap.detect.ball.ball_centers_stereo` sees (detection, matching, known-radius
+   what :func:`stillcap.ball.stereo.ball_centers_stereo` sees (detection, matching, known-radius
    Hough refinement), thresholded per photo between the glove and the ball (:func:`white_threshold_level`).
 2. **Every two cameras** (``pairs="all"``, default; or the rig's stereo pairs): matched ball
    images whose refinement failed, whose size disagrees with the projected radius, or that touch
@@ -38,7 +38,8 @@ import numpy as np
 
 from stillcap.ball.layout import BASEBALL_RADIUS
 from stillcap.camera import Rig
-from stillcap.detect.ball import BallFlag, ball_centers_stereo
+from stillcap.detect.ball import BallFlag
+from stillcap.ball.stereo import ball_centers_stereo
 from stillcap.geometry.triangulate import triangulate
 
 __all__ = ["HandBalls", "HandBallSpin", "hand_ball_positions", "hand_ball_spin", "white_threshold_level", "whiteness"]

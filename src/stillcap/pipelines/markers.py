@@ -10,14 +10,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stillcap.camera import Rig
-from stillcap.detect.blobs import Blobs, classify_colors, find_blobs
+from stillcap.detect.blobs import MARKER_BALL_COLORS, Blobs, classify_colors, find_blobs
 from stillcap.geometry.correspond import correspond
 from stillcap.geometry.triangulate import Triangulation, triangulate
-from stillcap.studio.scenes import MARKER_BALL_COLORS
 
 
 def default_palette() -> dict[str, tuple[float, float, float]]:
-    """The studio's marker-ball colours as they photograph (sRGB, BGR order, 0-255).
+    """The built-in marker-ball colours as they photograph (sRGB, BGR order, 0-255).
 
     Only the hue and chroma matter much to :func:`classify_colors`, so the albedo is encoded
     with the sRGB curve as if lit to full scale.

@@ -4,7 +4,7 @@ Wiring only; every step is a stage of its own module (``docs/pitch.md`` tells th
 
 1. **Stereo pairs** (:func:`stereo_pairs`): the capture's photos grouped into strobed pairs (by
    ``images[].meta.pair``, the capture's ``pairs`` map, or the strobe rate), each with its rate.
-2. **Ball positions** per pair (:func:`stillcap.detect.ball.ball_centers_stereo`, the seed's steps
+2. **Ball positions** per pair (:func:`stillcap.ball.stereo.ball_centers_stereo`, the seed's steps
    1-5): colour background subtraction, contours, convex hull, ellipse, epipolar matching,
    approximate triangulation, projected radius, known-radius Hough refinement (half moons
    included), final triangulation. Off-path detections are dropped.
@@ -52,9 +52,10 @@ from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
 from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_tilt, pitch_metrics_batch,
                                    spin_axis_deg, spin_efficiency)
 from stillcap.ball.orientation import MarkerObservations, SpinResult, fit_spin, fit_spin_seed, rays_to_directions
-from stillcap.ball.physics import FlightModel, cross_plane, simulate, simulate_batch
+from stillcap.ball.physics import FLIGHT_MODELS, FlightModel, cross_plane, flight_model, simulate, simulate_batch
 from stillcap.camera import Camera
-from stillcap.detect.ball import BallFlag, StereoBalls, ball_centers_stereo
+from stillcap.detect.ball import BallFlag
+from stillcap.ball.stereo import StereoBalls, ball_centers_stereo
 from stillcap.detect.ball_markers import BallMarkers, MarkerType, detect_ball_markers
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
@@ -62,11 +63,11 @@ from stillcap.io.capture import Capture, CaptureImage
 
 __all__ = ["PitchOptions", "StereoPairSpec", "PairResult", "PitchResult", "SPIN_METHODS", "PHYSICS", "FIT_METHODS",
            "SIGMA_METHODS",
-           "analyse_pitch", "stereo_pairs", "order_flashes", "pair_marker_observations", "flight_model",
+           "analyse_pitch", "stereo_pairs", "order_flashes", "pair_marker_observations",
            "marker_types", "compare_with_truth", "TABLE1_COLUMNS"]
 
 SPIN_METHODS = ("global", "seed")
-PHYSICS = ("seed", "nathan")
+PHYSICS = tuple(FLIGHT_MODELS)
 FIT_METHODS = ("least_squares", "powell")
 SIGMA_METHODS = ("linear", "monte_carlo")
 #: The seed's Table 1 columns (in order) and their units.
@@ -399,7 +400,7 @@ class PitchResult:
 
     def to_dict(self) -> dict:
         """Strict-JSON-ready summary; key names shared with the studio's ``truth.json``."""
-        from stillcap.io.capture import to_jsonable
+        from stillcap.files.jsonable import to_jsonable
 
         fit = self.fit
         w = self.release.get("spin") if self.spin_available else None
@@ -483,17 +484,6 @@ def _alias_dict(alias) -> dict | None:
 # --------------------------------------------------------------------------------------------
 # Stages
 # --------------------------------------------------------------------------------------------
-def flight_model(physics: str | FlightModel) -> FlightModel:
-    """``"seed"`` or ``"nathan"`` -> :class:`FlightModel` (field-frame gravity, standard air)."""
-    if isinstance(physics, FlightModel):
-        return physics
-    if physics == "seed":
-        return FlightModel.seed_model()
-    if physics == "nathan":
-        return FlightModel.nathan_model()
-    raise ValueError(f"physics must be one of {', '.join(PHYSICS)}, got {physics!r}")
-
-
 def marker_types(layout: BallLayout | None = None) -> tuple:
     """The detector's palette for a ball layout: each type's linear-RGB colour through a 2.2 gamma
     (as a fully lit marker looks in a photo), BGR 0-255, with the type's shape."""
@@ -1772,7 +1762,7 @@ def compare_with_truth(result: PitchResult, truth: dict) -> dict:
     the release velocity with the true velocity at the instant of the front pair's first ball
     image; spin with the true spin vector; metrics key by key (``ours - truth``).
     """
-    from stillcap.io.capture import from_jsonable
+    from stillcap.files.jsonable import from_jsonable
 
     tmodel = flight_model(truth.get("model", "seed"))
     rel = truth["release"]

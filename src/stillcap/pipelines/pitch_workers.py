@@ -6,7 +6,7 @@ fit) is many small NumPy/SciPy calls that hold the GIL, so two threads cannot ov
 
 1. :func:`pair_positions_job` decodes the pair's two photos and finds its ball images; the
    decoded photos stay in the worker (a cache keyed by a token), only the small
-   :class:`~stillcap.detect.ball.StereoBalls` goes back.
+   :class:`~stillcap.ball.stereo.StereoBalls` goes back.
 2. After the main process has ordered the flashes (which needs every pair's positions),
    :func:`pair_markers_job` finds the markers in the cached photos and fits the pair's own spin,
    while the main process runs the positions-only reference fit.
@@ -28,7 +28,7 @@ import threading
 from collections import OrderedDict
 from concurrent.futures import ProcessPoolExecutor
 
-from stillcap.detect.ball import ball_centers_stereo
+from stillcap.ball.stereo import ball_centers_stereo
 from stillcap.io.capture import Capture
 
 __all__ = [

@@ -52,7 +52,7 @@ from stillcap.detect.beads import (DETECTORS, IDENTIFIERS, PreparedView, ViewRes
                                    find_bead_candidates, identify_views, prepare_view, reidentify, roi_box)
 from stillcap.detect.palette import Palette
 from stillcap.geometry.triangulate import Triangulation, _Normal3, triangulate
-from stillcap.io.jsonfile import read_json
+from stillcap.files.jsonfile import read_json
 
 __all__ = ["DETECTORS", "IDENTIFIERS", "DEFAULT", "THESIS_CHAIN", "PuppetSettings", "ViewResult", "MarkerSolve",
            "PoseFit", "PuppetComparison", "PuppetResult", "LoadedResult", "detect_view", "bead_fill",
@@ -1308,7 +1308,7 @@ def load_result(path_or_dict) -> LoadedResult:
     ValueError
         Naming the file when it is not a puppet result or lacks the skeleton or pose.
     """
-    from stillcap.io.capture import from_jsonable
+    from stillcap.files.jsonable import from_jsonable
 
     if isinstance(path_or_dict, dict):
         d, where = path_or_dict, "<result>"

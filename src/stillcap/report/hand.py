@@ -15,7 +15,7 @@ joint-angle plots and an HTML report (issue 5, section 4; ``docs/hand-outputs.md
 
 The inputs are plain: an :class:`~stillcap.body.Animation`, arrays of times (seconds) and
 positions (metres, NaN = not seen), mappings of numbers. Every file is written atomically
-(:mod:`stillcap.io.atomic`); matplotlib runs with the Agg backend (no display needed).
+(:mod:`stillcap.files.atomic`); matplotlib runs with the Agg backend (no display needed).
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from stillcap.ball.layout import BASEBALL_RADIUS as _BALL_RADIUS  # noqa: E402
 from stillcap.body.hand import DIGITS, HAND_COLOURS, hand_dofs, hand_markerset  # noqa: E402
 from stillcap.body.markerset import MarkerTrajectories  # noqa: E402
 from stillcap.body.skeleton import Animation, Skeleton  # noqa: E402
-from stillcap.io.atomic import atomic_path, write_text  # noqa: E402
+from stillcap.files.atomic import atomic_path, write_text  # noqa: E402
 from stillcap.report.pitch import _CSS, _fmt, _table, metric_unit  # noqa: E402
 
 __all__ = ["ANIMATION_FORMATS", "VIEWS", "animation_frame_times", "dof_labels", "find_ffmpeg", "plot_joint_angles",

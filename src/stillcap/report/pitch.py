@@ -1,6 +1,6 @@
 """Outputs of the pitch pipeline: JSON, CSV, plots and a self-contained HTML report.
 
-Every file is written atomically (:mod:`stillcap.io.atomic`). The HTML report embeds its plots as
+Every file is written atomically (:mod:`stillcap.files.atomic`). The HTML report embeds its plots as
 PNG data URIs, so the one file can be mailed or archived on its own.
 
 Files of :func:`write_report` (``docs/pitch.md``)::
@@ -29,7 +29,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from stillcap.io.atomic import atomic_path, write_bytes, write_text  # noqa: E402
+from stillcap.files.atomic import atomic_path, write_bytes, write_text  # noqa: E402
 
 __all__ = ["POSITION_COLUMNS", "METRIC_UNITS", "write_json", "write_positions_csv", "write_metrics_csv",
            "plot_pitch", "write_report", "metric_unit"]
@@ -138,7 +138,7 @@ def write_metrics_csv(result, path) -> Path:
 def _reference_path(result, n: int = 300):
     """The fitted flight from the first ball image (or the release, if earlier) to the plate."""
     from stillcap.ball.physics import simulate
-    from stillcap.pipelines.pitch import flight_model
+    from stillcap.ball.physics import flight_model
 
     fit = result.fit
     t_lo = min(float(result.release.get("t0_s", fit.t0)), float(np.nanmin(result.times)))

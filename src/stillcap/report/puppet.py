@@ -10,7 +10,7 @@
   from four sides.
 - :func:`write_report`: all of them into a folder.
 
-Every file is written atomically (:func:`stillcap.io.atomic.atomic_path`); matplotlib runs
+Every file is written atomically (:func:`stillcap.files.atomic.atomic_path`); matplotlib runs
 with the Agg backend (no display needed).
 """
 
@@ -25,7 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from stillcap.io.atomic import atomic_path  # noqa: E402
+from stillcap.files.atomic import atomic_path  # noqa: E402
 
 __all__ = ["overlay_view", "plot_markers_3d", "plot_skeleton_3d", "write_image", "write_report"]
 

@@ -11,7 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from stillcap.io.atomic import atomic_path  # noqa: E402
+from stillcap.files.atomic import atomic_path  # noqa: E402
 
 
 def plot_rig_demo(res, path) -> Path:

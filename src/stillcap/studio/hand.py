@@ -39,14 +39,16 @@ from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array, as_rng
+from stillcap.ball.physics import flight_model
 from stillcap.body.hand import hand_markerset, hand_pose, hand_skeleton, marker_colours
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.camera import Camera, Rig, pose_matrix
 from stillcap.geometry.marker_points import lit_sphere_centroids
-from stillcap.io.capture import Capture, CaptureImage, from_jsonable
+from stillcap.io.capture import Capture, CaptureImage
+from stillcap.files.jsonable import from_jsonable
 from stillcap.studio.pitch import (AMBIENT, DEFAULT_VARIATION, PRESETS, ROOM, ReleaseState, ReleaseVariation,
-                                   _ball_poses, _check_size, _flight_model, _in_view, ball_sphere,
+                                   _ball_poses, _check_size, _in_view, ball_sphere,
                                    field_look_at, release_state)
 from stillcap.studio.puppet import marker_visibility
 from stillcap.studio.renderer import _hit, render
@@ -215,7 +217,7 @@ def hand_motion(release: ReleaseState, model="seed", skeleton: Skeleton | None =
     a = a - (a @ vhat) * vhat
     a /= np.linalg.norm(a)
     return HandMotion(release, release.p0 - ARM_RADIUS * a, a, vhat, skeleton or hand_skeleton(),
-                      _flight_model(model))
+                      flight_model(model))
 
 
 # --------------------------------------------------------------------------------------------
@@ -691,7 +693,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
         raise ValueError(f"release_time_s must leave the motion window inside the shutter "
                          f"({-w0:g}..{hrig.shutter_s - w1:g} s), got {t0}")
     phase = float(r_time.uniform(0, 1 / hrig.strobe_hz))
-    flight = _flight_model(model)
+    flight = flight_model(model)
     release = release_state(preset, r_pitch, variation=variation, model=flight, t0=t0)
     skeleton, markerset = hand_skeleton(), hand_markerset()
     motion = hand_motion(release, flight, skeleton)

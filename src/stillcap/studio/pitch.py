@@ -49,13 +49,14 @@ from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array, as_rng
 from stillcap.ball.metrics import MPH, RPM_PER_RAD_S, pitch_metrics_from_flight, spin_vector
-from stillcap.ball.physics import PLATE_FRONT_Y, FlightModel, cross_plane, simulate
+from stillcap.ball.physics import PLATE_FRONT_Y, FlightModel, cross_plane, flight_model, simulate
 from stillcap.calibrate.detect import detect_target
 from stillcap.calibrate.extrinsics import pose_from_points
 from stillcap.calibrate.intrinsics import calibrate_intrinsics_from_points
 from stillcap.calibrate.targets import Chessboard
 from stillcap.camera import Camera, Rig, pose_matrix
-from stillcap.io.capture import Capture, CaptureImage, from_jsonable, target_to_dict
+from stillcap.io.capture import Capture, CaptureImage, target_to_dict
+from stillcap.files.jsonable import from_jsonable
 from stillcap.studio.renderer import render
 from stillcap.studio.scene import Backdrop, Exposure, Flash, PointLight, Scene, Sphere, SphereMarker
 from stillcap.studio.scenes import chessboard_set, target_scene
@@ -233,16 +234,6 @@ class ReleaseState:
                    np.asarray(d["spin"], float), np.asarray(d["ball2world"], float))
 
 
-def _flight_model(model) -> FlightModel:
-    if isinstance(model, FlightModel):
-        return model
-    if model in (None, "seed"):
-        return FlightModel.seed_model()
-    if model == "nathan":
-        return FlightModel.nathan_model()
-    raise ValueError(f"model must be 'seed', 'nathan' or a FlightModel, got {model!r}")
-
-
 def _tilt(v: np.ndarray, max_deg: float, rng: np.random.Generator) -> np.ndarray:
     """``v`` turned by an angle up to ``max_deg`` (uniform over the disc) in a random direction."""
     n = np.linalg.norm(v)
@@ -329,7 +320,7 @@ def release_state(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, speed
         preset = PRESETS[preset]
     elif not isinstance(preset, PitchPreset):
         raise ValueError(f"preset must be a preset name or a PitchPreset, got {type(preset).__name__}")
-    model = _flight_model(model)
+    model = flight_model(model)
     speed = preset.speed_mph if speed_mph is None else float(speed_mph)
     rate = preset.spin_rpm if spin_rpm is None else float(spin_rpm)
     axis = preset.spin_axis_deg if spin_axis_deg is None else float(spin_axis_deg)
@@ -1258,7 +1249,7 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
         raise ValueError(f"calibration needs at least 3 close-up views per camera, got {calibration_views}")
     seeds = rng.integers(0, 2 ** 63 - 1, size=4)
     r_pitch, r_time, r_render, r_calib = (np.random.default_rng(int(s)) for s in seeds)
-    flight = _flight_model(model)
+    flight = flight_model(model)
     rig = pitch_rig(front_hz, back_hz, image_size)
     ball, layout = ball_sphere(palette)
     supersample = int(supersample)

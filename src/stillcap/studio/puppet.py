@@ -416,7 +416,7 @@ class PuppetTruth:
 
     @classmethod
     def from_dict(cls, d: dict) -> PuppetTruth:
-        from stillcap.io.capture import from_jsonable
+        from stillcap.files.jsonable import from_jsonable
 
         m, j = d["markers"], d["joints"]
         nv, nm = len(d["cameras"]), len(m)

@@ -17,6 +17,7 @@ from stillcap._checks import as_rng
 from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
 from stillcap.camera import Camera, Rig, look_at, pose_matrix
 from stillcap.io.capture import Capture, CaptureImage, target_to_dict
+from stillcap.detect.blobs import MARKER_BALL_COLORS
 from stillcap.studio.markers import baseball_markers
 from stillcap.studio.renderer import render
 from stillcap.studio.scene import Backdrop, Exposure, PointLight, Scene, Sphere, target_planes
@@ -24,11 +25,6 @@ from stillcap.studio.sensor import Sensor
 
 BASEBALL_RADIUS = 0.0737 / 2  # m
 
-#: Linear RGB albedos of the single-colour marker balls, cycled.
-MARKER_BALL_COLORS = {
-    "red": (0.75, 0.04, 0.03), "green": (0.05, 0.60, 0.06), "blue": (0.03, 0.10, 0.80),
-    "yellow": (0.75, 0.65, 0.03), "magenta": (0.70, 0.04, 0.60), "cyan": (0.03, 0.60, 0.70),
-}
 
 
 def default_camera(name: str = "cam0", image_size=(1280, 960)) -> Camera:
@@ -385,7 +381,7 @@ class MarkerTruth:
 
     @classmethod
     def from_dict(cls, d: dict) -> MarkerTruth:
-        from stillcap.io.capture import from_jsonable
+        from stillcap.files.jsonable import from_jsonable
 
         balls, markers = d["balls"], d["markers"]
         nc = len(d["cameras"])

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stillcap.io.atomic import atomic_path
-from stillcap.io.export import ExportData, register, require
+from stillcap.files.atomic import atomic_path
+from stillcap.io.export._base import ExportData, register, require
 
 __all__ = ["write_c3d", "c3d_points"]
 

@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stillcap.io.atomic import write_bytes
-from stillcap.io.export import ExportData, register, stick_mesh
+from stillcap.files.atomic import write_bytes
+from stillcap.io.export._base import ExportData, register, stick_mesh
 
 __all__ = ["write_collada", "collada_matrices"]
 

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from stillcap.io.atomic import write_bytes
-from stillcap.io.export import ExportData, register, require, stick_mesh
+from stillcap.files.atomic import write_bytes
+from stillcap.io.export._base import ExportData, register, require, stick_mesh
 
 __all__ = ["write_gltf", "build_gltf"]
 

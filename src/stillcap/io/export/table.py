@@ -27,8 +27,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stillcap.body.skeleton import LENGTH_UNITS
-from stillcap.io.atomic import write_text
-from stillcap.io.export import ExportData, register
+from stillcap.files.atomic import write_text
+from stillcap.io.export._base import ExportData, register
 
 __all__ = ["write_csv", "write_json", "export_dict"]
 

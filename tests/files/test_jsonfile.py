@@ -2,7 +2,7 @@ import pytest
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
-from stillcap.io.jsonfile import read_json
+from stillcap.files.jsonfile import read_json
 
 
 def test_missing_and_invalid_files_name_the_file(tmp_path):
