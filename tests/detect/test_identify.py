@@ -14,6 +14,7 @@ from stillcap.detect.identify import (
     optimal_match,
     sample_colors,
 )
+from stillcap.body.markerset import MarkerSet
 from stillcap.detect.palette import Palette, color_distance, hsb_distance, rgb_to_hsb
 
 PAL = Palette.from_markerset(MarkerSet.puppet())
