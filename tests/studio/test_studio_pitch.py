@@ -351,7 +351,7 @@ def test_cli_bad_options_are_user_errors(tmp_path, capsys):
     (dict(back_hz=5000), "back_hz must be a strobe rate"),
     (dict(palette={"purple": (1, 0, 1)}), "unknown marker types"),
     (dict(palette=[(1, 0, 0)]), "palette must be a dict"),
-    (dict(model="newton"), "model must be 'seed', 'nathan'"),
+    (dict(model="newton"), "unknown flight model 'newton'; choose one of seed, nathan"),
     (dict(image_size=(640, 640)), "4:3 aspect ratio"),
     (dict(image_size=(640, 480), calibrate=True), "calibrate=True needs images at least 960 px"),
     (dict(release_time_s=2.0), "release_time_s must be within the shutter"),
