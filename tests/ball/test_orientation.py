@@ -241,7 +241,7 @@ def test_above_nyquist_gives_principal_alias_then_spin_init_selects():
 
 
 def test_analytic_jacobian_matches_finite_differences():
-    from stillcap.ball.orientation import _GlobalProblem
+    from stillcap.ball.orientation._global import _GlobalProblem
 
     times, obs, R0, w = scenario(3)
     prob = _GlobalProblem(times, obs, LAYOUT, times[0])
@@ -338,7 +338,7 @@ def test_stop_fraction_skips_the_other_starts_with_the_same_result():
 def test_rotation_maps_are_rowwise_the_same_in_any_batch():
     """exp and J_l of a batch equal those of each row alone (the fit evaluates delta and the
     flashes in one call), also with a zero or tiny angle in the batch."""
-    from stillcap.ball.orientation import _expmap, _left_jacobian
+    from stillcap.ball.orientation._so3 import _expmap, _left_jacobian
 
     rng = np.random.default_rng(5)
     for scale in (1e-7, 1e-3, 0.5, 3.0):
@@ -355,7 +355,7 @@ def test_expmap_of_a_multi_dimensional_batch_is_entrywise_the_same():
     """_expmap assembles its matrices entry-major: the same numbers as Rodrigues' formula written
     on (..., 3, 3) arrays, in any batch shape and order (the grid scan's fine steps are computed
     flash-major)."""
-    from stillcap.ball.orientation import _expmap
+    from stillcap.ball.orientation._so3 import _expmap
 
     rng = np.random.default_rng(8)
     v = rng.normal(size=(5, 4, 3)) * 2.0
@@ -379,7 +379,7 @@ def test_expmap_of_a_multi_dimensional_batch_is_entrywise_the_same():
 
 
 def test_capped_angles_only_skip_the_arccos_above_the_cap():
-    from stillcap.ball.orientation import _capped_sq_angles
+    from stillcap.ball.orientation._global import _capped_sq_angles
 
     cap = np.radians(8.0)
     c = np.concatenate([np.linspace(-1.2, 1.2, 2001), np.cos(cap) + np.linspace(-1e-8, 1e-8, 41)])
@@ -390,7 +390,8 @@ def test_capped_angles_only_skip_the_arccos_above_the_cap():
 def test_grid_scan_gives_the_same_starts_with_its_rotation_cache_cold_or_warm():
     """The coarse grid's rotations are cached per flash step (bounded); the starts and the fit
     do not depend on what the cache holds."""
-    import stillcap.ball.orientation as O
+    import stillcap.ball.orientation._global as O
+    from stillcap.ball.orientation._so3 import _expmap
 
     times, obs, R0, w = scenario(2, sparse=0, mistype_rate=0.0)
     O._COARSE_ROTATIONS.clear()
@@ -399,7 +400,7 @@ def test_grid_scan_gives_the_same_starts_with_its_rotation_cache_cold_or_warm():
     warm = fit_spin(times, obs, init="grid")
     assert np.array_equal(cold.spin, warm.spin) and np.array_equal(cold.spin_covariance, warm.spin_covariance)
     E = O._coarse_grid_rotations(15.0, 2.0)
-    assert np.array_equal(E, O._expmap(O._coarse_grid(15.0) * 2.0).reshape(-1, 9))
+    assert np.array_equal(E, _expmap(O._coarse_grid(15.0) * 2.0).reshape(-1, 9))
     for s in range(O._COARSE_CACHE_SIZE + 5):  # least recently used entries leave
         O._coarse_grid_rotations(15.0, float(s))
     assert len(O._COARSE_ROTATIONS) == O._COARSE_CACHE_SIZE and (15.0, 0.0) not in O._COARSE_ROTATIONS
@@ -408,7 +409,7 @@ def test_grid_scan_gives_the_same_starts_with_its_rotation_cache_cold_or_warm():
 
 def test_model_triad_table_matches_the_pairs_it_replaces():
     from stillcap.ball.layout import _triad
-    from stillcap.ball.orientation import _model_triads_t
+    from stillcap.ball.orientation._flash import _model_triads_t
 
     m = LAYOUT.directions
     T = _model_triads_t(m)

@@ -6,7 +6,7 @@ import numpy as np
 
 from stillcap.ball.fit import FitPriors, fit_reference_trajectory
 from stillcap.ball.metrics import FT, spin_vector
-from stillcap.ball.orientation import _cluster_robust
+from stillcap.ball.orientation._global import _cluster_robust
 from stillcap.ball.physics import FlightModel, cross_plane, simulate
 
 
