@@ -7,21 +7,14 @@ Thin: parse arguments, call :mod:`stillcap.calibrate`, print. Lengths (``--squar
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
-import cv2
-import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 from rich.table import Table
 
-from stillcap.calibrate import (CharucoTarget, Chessboard, calibrate_intrinsics, calibrate_rig, calibrate_stereo,
-                                parse_pattern)
-from stillcap.calibrate.extrinsics import rig_images_from_folder, split_stereo_images
-from stillcap.camera import Rig
+from stillcap.cli._progress import progress
 
 app = typer.Typer(no_args_is_help=True, help="Calibrate cameras from chessboard or ChArUco photos.")
 out_console = Console(highlight=False)
@@ -41,6 +34,10 @@ AsJson = Annotated[bool, typer.Option("--json", help="Print the result as one JS
 
 
 def _target(pattern: str, square: float, charuco: bool, squares: str, marker: float | None, dictionary: str):
+    import cv2
+
+    from stillcap.calibrate import CharucoTarget, Chessboard, parse_pattern
+
     if not square > 0:
         raise ValueError(f"--square must be a positive length in metres, got {square}")
     if not charuco:
@@ -57,16 +54,6 @@ def _target(pattern: str, square: float, charuco: bool, squares: str, marker: fl
     if not 0 < marker < square:
         raise ValueError(f"--marker must be between 0 and --square ({square}), got {marker}")
     return CharucoTarget(sx, sy, square, marker, d)
-
-
-@contextmanager
-def _progress(label: str):
-    """A rich progress bar on stderr; yields a ``progress(done, total, name)`` callback."""
-    cols = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-            TextColumn("{task.fields[item]}"))
-    with Progress(*cols, console=err_console, transient=True) as bar:
-        task = bar.add_task(label, total=None, item="")
-        yield lambda done, total, name: bar.update(task, completed=done, total=total, item=name)
 
 
 def _f(x) -> float:
@@ -113,8 +100,11 @@ def intrinsics(
 
     Images where the board is not found are skipped and listed with the reason.
     """
+    from stillcap.calibrate import calibrate_intrinsics
+    from stillcap.camera import Rig
+
     target = _target(pattern, square, charuco, squares, marker, dictionary)
-    with _progress("detecting") as cb:
+    with progress("detecting", err_console) as cb:
         res = calibrate_intrinsics(images, target, camera_name=name, progress=cb)
     if out is not None:
         Rig([res.camera]).save(out)
@@ -144,9 +134,14 @@ def stereo(
 
     Example: stillcap calibrate stereo data/left*.jpg data/right*.jpg --pattern 9x6 --square 0.025
     """
+    import numpy as np
+
+    from stillcap.calibrate import calibrate_stereo
+    from stillcap.calibrate.extrinsics import split_stereo_images
+
     target = _target(pattern, square, charuco, squares, marker, dictionary)
     left, right = split_stereo_images(images, (left_key, right_key))
-    with _progress("detecting") as cb:
+    with progress("detecting", err_console) as cb:
         res = calibrate_stereo(left, right, target, names=(left_key, right_key), keys=(left_key, right_key),
                                fix_intrinsics=not refine_intrinsics, progress=cb)
     if out is not None:
@@ -192,10 +187,14 @@ def rig(
 
     Layout: FOLDER/cam0/001.jpg, FOLDER/cam1/001.jpg, ... (same name = same instant).
     """
+    from stillcap.calibrate import calibrate_rig
+    from stillcap.calibrate.extrinsics import rig_images_from_folder
+    from stillcap.camera import Rig
+
     target = _target(pattern, square, charuco, squares, marker, dictionary)
     images, instants = rig_images_from_folder(folder)
     known = {c.name: c for f in intrinsics_files or [] for c in Rig.load(f)} or None
-    with _progress("detecting") as cb:
+    with progress("detecting", err_console) as cb:
         res = calibrate_rig(images, target, cameras=known, instants=instants, refine_intrinsics=refine_intrinsics,
                             progress=cb)
     if out is not None:

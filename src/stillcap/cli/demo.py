@@ -7,7 +7,6 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from stillcap.cli._format import num as _f
@@ -109,6 +108,8 @@ def puppet_summary(res) -> list:
 
 
 def rig_demo(out: Path, seed: int) -> None:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     from stillcap.studio.rig_demo import run_rig_demo
     from stillcap.report.rig_demo import plot_rig_demo
 

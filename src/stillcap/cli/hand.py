@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -18,6 +17,8 @@ console = Console()
 def _point(text: str | None, name: str):
     if text is None:
         return None
+    import numpy as np
+
     try:
         v = [float(s) for s in text.split(",")]
     except ValueError:
@@ -52,6 +53,8 @@ def hand(
     The capture holds one multi-exposure photo per camera of two stereo pairs lit by one strobe.
     Exit status 2 with a one-line message for captures that cannot give 3D markers.
     """
+    import numpy as np
+
     from stillcap.pipelines.hand import HandOptions, analyse_hand
 
     if personalise not in (None, "best", "joint"):
@@ -92,6 +95,8 @@ def hand(
 
 def print_hand_result(res) -> None:
     """Tables of the flashes, the poses and the release (and the truth comparison if any)."""
+    import numpy as np
+
     print_notes(res.messages)
     lab = res.labels
     pts = res.points

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -26,6 +25,8 @@ def markers(
     One photo per camera of the capture's rig. With a synthetic capture (truth.json) the
     result is compared with the true ball centres.
     """
+    import numpy as np
+
     from stillcap.files.atomic import write_text
     from stillcap.io.capture import Capture
     from stillcap.pipelines.markers import reconstruct_markers

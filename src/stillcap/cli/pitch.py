@@ -13,9 +13,11 @@ from stillcap.cli._format import num as _f, print_notes, right_table
 
 console = Console()
 
-SPIN_CHOICES = ("global", "seed")
-PHYSICS_CHOICES = ("seed", "nathan")  # stillcap.ball.physics.FLIGHT_MODELS (not imported: the CLI starts fast)
-FIT_CHOICES = ("least-squares", "powell")
+# The choices of --spin, --physics and --fit, written out so that the CLI starts without NumPy;
+# tests/test_cli_lazy.py checks them against the library's lists.
+SPIN_CHOICES = ("global", "seed")  # stillcap.pipelines.pitch.SPIN_METHODS
+PHYSICS_CHOICES = ("seed", "nathan")  # stillcap.ball.physics.FLIGHT_MODELS
+FIT_CHOICES = ("least-squares", "powell")  # stillcap.pipelines.pitch.FIT_METHODS, "_" written "-"
 
 
 def _choice(name: str, value: str, allowed) -> str:

@@ -15,21 +15,16 @@ import json
 from pathlib import Path
 from typing import Optional, Tuple
 
-import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+
+from stillcap.cli._progress import progress
 
 app = typer.Typer(no_args_is_help=True, add_completion=False,
                   help="Puppet capture: turntable photos of a marked puppet -> 3D markers and a posed skeleton "
                        "(see docs/puppet.md), and puppet projects.")
 console = Console()
-
-
-def _progress(label: str):
-    return Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console, transient=True)
 
 
 def _settings(detector: str, identify: str):
@@ -46,6 +41,8 @@ def load_palette(path: Path | None, markerset=None):
     """A palette file (``stillcap palette --json`` or ``puppet calibrate-palette``) by marker name."""
     if path is None:
         return None
+    import numpy as np
+
     from stillcap.body.markerset import MarkerSet
     from stillcap.detect.palette import Palette
 
@@ -64,6 +61,8 @@ def load_palette(path: Path | None, markerset=None):
 
 
 def _print_result(res, title: str) -> None:
+    import numpy as np
+
     m, cmp = res.markers, res.comparison
     t = Table(title=title)
     cols = ["marker", "x mm", "y mm", "z mm", "views used", "identified in", "reproj px"]
@@ -185,10 +184,8 @@ def run(
 
         markerset = capture_markerset(folder)
     pal = load_palette(palette, markerset)
-    with _progress("detecting beads") as prog:
-        task = prog.add_task("views", total=None)
-        res, images = run_folder(folder, settings, pal, redetect,
-                                 progress=lambda i, n: prog.update(task, completed=i, total=n))
+    with progress("detecting beads", console) as update:
+        res, images = run_folder(folder, settings, pal, redetect, progress=lambda i, n: update(i, n))
     _write_outputs(res, images, out, _truth_of(folder) if out is not None else None)
     if as_json:
         print(dumps_json(res.to_dict()))
@@ -456,6 +453,8 @@ def calibrate_palette_cmd(
     The beads are found and identified with the current colours, then each marker's colour is
     the mean of its patches over all photos.
     """
+    import numpy as np
+
     from stillcap.detect.identify import calibrate_palette
     from stillcap.files.atomic import write_text
     from stillcap.pipelines.puppet import DEFAULT, run_folder

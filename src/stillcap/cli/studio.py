@@ -6,7 +6,8 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from stillcap.cli._progress import progress
 
 app = typer.Typer(no_args_is_help=True, add_completion=False,
                   help="Render synthetic captures with ground truth (see docs/studio.md).")
@@ -28,11 +29,6 @@ def _parse_size(text: str) -> tuple[int, int]:
     if w < 16 or h < 16:
         raise ValueError(f"--size must be at least 16x16 pixels, got {text!r}")
     return w, h
-
-
-def _progress(label: str):
-    return Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=console, transient=True)
 
 
 def _save(capture, images, out: Path, jpeg: int | None) -> None:
@@ -66,10 +62,9 @@ def chessboard(
     else:
         cols, rows = parse_pattern(pattern or "9x6")
         target = Chessboard(cols, rows, (square_mm or 25.0) / 1000)
-    with _progress("rendering views") as prog:
-        task = prog.add_task("render", total=views)
+    with progress("rendering views", console, total=views) as update:
         result = chessboard_set(camera, n_views=views, target=target, rng=seed,
-                                progress=lambda i, n: prog.update(task, completed=i))
+                                progress=lambda i, n: update(i))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
 
@@ -94,9 +89,8 @@ def markers(
 
     rng = np.random.default_rng(seed)
     rig = marker_rig(cameras, _parse_size(size), rng=rng)
-    with _progress("rendering cameras") as prog:
-        task = prog.add_task("render", total=cameras)
-        result = marker_scene(rig, balls, rng, n_marked=marked, progress=lambda i, n: prog.update(task, completed=i))
+    with progress("rendering cameras", console, total=cameras) as update:
+        result = marker_scene(rig, balls, rng, n_marked=marked, progress=lambda i, n: update(i))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
 
@@ -127,11 +121,10 @@ def puppet(
     markerset.check_skeleton(Skeleton.puppet())
     _check_out(out, force)
     rig = turntable_rig(views, step_deg)
-    with _progress("rendering views") as prog:
-        task = prog.add_task("render", total=views)
+    with progress("rendering views", console, total=views) as update:
         # the webcam's JPEG compression happens once, when the capture is written
         result = puppet_scene(rig, pose, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
-                              progress=lambda i, n: prog.update(task, completed=i), markerset=markerset)
+                              progress=lambda i, n: update(i), markerset=markerset)
     cap, images = result.to_capture(".jpg")
     _save(cap, images, out, jpeg)
 
@@ -165,6 +158,7 @@ def pitch(
     """A pitched, marked baseball photographed by the seed's two strobed stereo pairs (front 80 Hz,
     back 50 Hz); the rig is calibrated from rendered board photos; truth = flight, orientation per
     flash, true pixels and pitch metrics."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
     from stillcap.studio.pitch import DEFAULT_VARIATION, PRESETS, pitch_capture
@@ -222,10 +216,9 @@ def hand(
     from stillcap.studio.hand import hand_capture
 
     _check_out(out, force)
-    with _progress("rendering cameras") as prog:
-        task = prog.add_task("render", total=4)
+    with progress("rendering cameras", console, total=4) as update:
         result = hand_capture(seed, preset=preset, image_size=_parse_size(size),
-                              progress=lambda i, n, label: prog.update(task, completed=i, total=n))
+                              progress=lambda i, n, label: update(i, n))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
     tr = result.truth
