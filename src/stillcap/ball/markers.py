@@ -119,5 +119,3 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))
     return obs, [ma, mb], {"n_3d": n3, "n_ray": nray, "epipolar_px": float(np.median(epi)) if epi else np.nan}
-
-

@@ -14,7 +14,7 @@
   the speed (:func:`speed_sigma`), and the Nathan model's spin decay over the flashes
   (:func:`spin_decay_slope`).
 
-The known-radius Hough centre of a lit lambertian sphere sits off the true centre along the lit
+**The shading bias.** The known-radius Hough centre of a lit lambertian sphere sits off the true centre along the lit
 direction (:func:`stillcap.detect.ball._shading_bias`); ``refine_centers(shading=...)`` removes
 that offset for partly lit (``PARTIAL``) balls with a model of the ball (phase angle read from
 the image, lens blur ``psf_px``). What it leaves is the model's own error: this module sizes it
