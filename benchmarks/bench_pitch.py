@@ -16,11 +16,12 @@ Protocol (the issue's benchmark spec):
 - Timing, in the same run and on the same files: decoding the 4 photos (``cv2.imread``) vs the
   end-to-end pipeline (``Capture.load`` + ``analyse_pitch`` with its defaults, the metrics'
   uncertainties included). Ratios per capture (mean, median, max) and of the mean times.
-- Errors against ``truth.json`` come from the pipeline's own ``compare_with_truth``
-  (``PitchResult.truth``): position = distance to the true centre at the same flash; speed and
-  velocity direction = fitted velocity vs the true velocity at the front pair's first ball image;
-  spin rate and axis at release. "Consistency" is the seed's Table 1 error: the reference
-  trajectory against the measured positions (``table1.mean_err_mm``).
+- Errors against ``truth.json`` come from the studio's ``compare_with_truth``
+  (``stillcap.studio.compare.pitch``, stored as ``PitchResult.truth``): position = distance to the
+  true centre at the same flash; speed and velocity direction = fitted velocity vs the true
+  velocity at the front pair's first ball image; spin rate and axis at release. "Consistency" is
+  the seed's Table 1 error: the reference trajectory against the measured positions
+  (``table1.mean_err_mm``).
 - Coverage of the reported 95 % intervals (1-sigma from the pipeline, scaled): speed
   ``|d| <= 1.96 sigma``; direction: 2-D Mahalanobis distance of the direction error with the fitted
   velocity covariance projected across the flight, ``<= chi2_2(95 %) = 5.99``; spin rate
@@ -65,6 +66,7 @@ from stillcap.io.capture import Capture
 from stillcap.files.jsonable import from_jsonable
 from stillcap.ball.physics import flight_model
 from stillcap.pipelines.pitch import analyse_pitch
+from stillcap.studio.compare.pitch import add_truth_comparison
 from stillcap.studio.pitch import PRESETS, calibrate_pitch_rig, pitch_capture, pitch_rig
 
 #: The issue's goals (absolute errors) and the seed's Table 1 ranges (real photos).
@@ -222,6 +224,7 @@ def run_one(preset: str, seed: int, size, cal_rig: Rig, args, tmp: Path) -> dict
     loaded = Capture.load(folder)
     res = analyse_pitch(loaded, spin_method=args.spin, release_y_ft=loaded.truth["metrics"]["release_pos_y_ft"],
                         processes=args.processes)
+    add_truth_comparison(res, loaded.truth)
     t_e2e = time.perf_counter() - t
     row = {"preset": preset, "seed": seed, "size": f"{size[0]}x{size[1]}", "spin_method": args.spin,
            "format": args.format, **evaluate(res, loaded.truth),

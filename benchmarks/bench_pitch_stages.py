@@ -16,6 +16,7 @@ version first on ``PYTHONPATH`` (e.g. ``git worktree add``), alternately, on the
 from __future__ import annotations
 
 import argparse
+import importlib
 import tempfile
 import time
 from collections import defaultdict
@@ -26,29 +27,49 @@ from rich.console import Console
 from rich.table import Table
 
 import stillcap
-import stillcap.pipelines.pitch as pitch
 from stillcap.io.capture import Capture
+from stillcap.pipelines.pitch import analyse_pitch
 
-#: Stage functions looked up in stillcap.pipelines.pitch (what the pipeline calls), in pipeline order.
-STAGES = ("ball_centers_stereo", "pair_marker_observations", "_fit_pair_spin", "_combined_spin",
-          "fit_reference_trajectory", "_metrics_sigma")
+#: The timed functions, in pipeline order: (row name, [(module that calls it, name there), ...]).
+#: The row name is the function's own; each module's name is patched where the pipeline (on
+#: threads, ``processes=0``) calls it. Older versions of the code, with the whole pipeline in the
+#: module ``stillcap.pipelines.pitch``, are patched there (missing names are skipped).
+STAGES = (
+    ("ball_centers_stereo", [("stillcap.pipelines.pitch.workers", "ball_centers_stereo"),
+                             ("stillcap.pipelines.pitch", "ball_centers_stereo")]),
+    ("pair_marker_observations", [("stillcap.pipelines.pitch.spin", "pair_marker_observations"),
+                                  ("stillcap.pipelines.pitch", "pair_marker_observations")]),
+    ("fit_pair_spin", [("stillcap.pipelines.pitch.spin", "_fit_pair_spin"),
+                       ("stillcap.pipelines.pitch", "_fit_pair_spin")]),
+    ("combined_spin", [("stillcap.pipelines.pitch.spin", "_combined_spin"),
+                       ("stillcap.pipelines.pitch", "_combined_spin")]),
+    ("fit_reference_trajectory", [("stillcap.pipelines.pitch.stages", "fit_reference_trajectory"),
+                                  ("stillcap.pipelines.pitch", "fit_reference_trajectory")]),
+    ("metrics_sigma", [("stillcap.pipelines.pitch.stages", "metrics_sigma"),
+                       ("stillcap.pipelines.pitch", "_metrics_sigma")]),
+)
 
 
 def instrument(totals: dict) -> None:
-    """Wrap the stage functions of ``stillcap.pipelines.pitch`` to add their thread CPU time (s)
-    to ``totals[name]`` (measurement only: the results are unchanged)."""
-    for name in STAGES:
-        fn = getattr(pitch, name, None)
-        if fn is None:  # an older version of the code without this stage
-            continue
-
-        def timed(*a, _fn=fn, _name=name, **k):
-            t = time.thread_time()
+    """Wrap the stage functions where the pitch pipeline calls them, to add their thread CPU time
+    (s) to ``totals[name]`` (measurement only: the results are unchanged)."""
+    for name, places in STAGES:
+        for module_name, attr in places:
             try:
-                return _fn(*a, **k)
-            finally:
-                totals[_name] += time.thread_time() - t
-        setattr(pitch, name, timed)
+                module = importlib.import_module(module_name)
+            except ImportError:  # a version of the code without this module
+                continue
+            fn = getattr(module, attr, None)
+            if fn is None:  # a version of the code without this stage here
+                continue
+
+            def timed(*a, _fn=fn, _name=name, **k):
+                t = time.thread_time()
+                try:
+                    return _fn(*a, **k)
+                finally:
+                    totals[_name] += time.thread_time() - t
+            setattr(module, attr, timed)
 
 
 def _captures(args, tmp: Path) -> list:
@@ -86,7 +107,7 @@ def main():
             cap = Capture.load(folder)
             rel = cap.truth["metrics"]["release_pos_y_ft"] if isinstance(cap.truth, dict) else None
             t = time.process_time()
-            pitch.analyse_pitch(cap, release_y_ft=rel, processes=0)
+            analyse_pitch(cap, release_y_ft=rel, processes=0)
             return time.process_time() - t
 
         run(folders[0])  # warm-up: imports, caches
@@ -100,7 +121,7 @@ def main():
     t.add_column("share", justify="right")
     total = float(np.mean(whole))
     t.add_row("whole analyse_pitch (process CPU)", f"{1e3 * total:.1f}", "100 %")
-    for name in STAGES:
+    for name, _ in STAGES:
         if name in totals:
             t.add_row(name, f"{1e3 * totals[name] / n:.1f}", f"{100 * totals[name] / n / total:.0f} %")
     console.print(t)

@@ -32,7 +32,7 @@ def test_pitch_json_report_csv(fastball, tmp_path, capsys):
 
 
 def test_pitch_table_output_and_options(fastball, capsys, monkeypatch):
-    import stillcap.pipelines.pitch as pipeline
+    import stillcap.pipelines.pitch.stages as pipeline
 
     methods, real_fit = [], pipeline.fit_reference_trajectory
 

@@ -60,7 +60,7 @@ def test_ball_in_hand_and_bad_shapes():
 @pytest.mark.parametrize("seed", range(6))
 def test_number_flashes_across_a_gap(seed):
     """Issue 5 bug: numbering by spacing broke on a missed flash; the hand numbers it right."""
-    from stillcap.ball.release import number_flashes
+    from stillcap.ball.flashes import number_flashes
 
     rel, t, B, T, t0 = _flashes(seed)
     flash = np.rint(t * 75).astype(int)
@@ -75,7 +75,7 @@ def test_number_flashes_when_the_first_flash_has_no_hand_pose(seed):
     """Issue 5 bug: the pipeline's first flash often lacks its back-of-hand markers (no pose),
     and numbering failed ('no flash numbering puts 2+ leading ball positions at one point of the
     hand') although the ball was held there; it now leads the held run unchecked."""
-    from stillcap.ball.release import number_flashes
+    from stillcap.ball.flashes import number_flashes
 
     rel, t, B, T, t0 = _flashes(seed)
     held = t < t0

@@ -231,7 +231,7 @@ def test_lit_bias_modes_shift_along_the_lit_direction():
     """Corrected images move along their lit direction only, full discs along both axes; each
     mode is the re-triangulated shift of one camera's centres."""
     from stillcap.geometry.triangulate import triangulate
-    from stillcap.pipelines.pitch import lit_bias_modes
+    from stillcap.ball.uncertainty import lit_bias_modes
     from stillcap.studio.pitch import pitch_rig
 
     rig = pitch_rig(image_size=(640, 480)).rig
@@ -266,7 +266,7 @@ def test_bad_inputs_of_the_uncertainty_parts_are_named():
     import pytest
 
     from stillcap.ball.uncertainty import shading_model_offset_px
-    from stillcap.pipelines.pitch import lit_geometry
+    from stillcap.ball.uncertainty import lit_geometry
 
     with pytest.raises(ValueError, match="radius_px must be > 2"):
         shading_model_offset_px(0.5, 1.5)

@@ -56,7 +56,7 @@ def test_release_from_detected_positions(capture, balls):
 def test_numbering_from_hand_across_a_missed_flash(capture, balls):
     """Issue 5 bug: the spacing numbered the flashes wrongly across a gap (the arm speeds up);
     the hand numbers them right with a ball image removed."""
-    from stillcap.ball.release import number_flashes
+    from stillcap.ball.flashes import number_flashes
 
     tr = capture.truth
     t = tr.times - tr.times[0]

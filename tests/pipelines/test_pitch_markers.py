@@ -11,8 +11,9 @@ from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
 from stillcap.ball.orientation import MarkerObservations, rays_to_directions
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
-from stillcap.io.capture import Capture
-from stillcap.pipelines.pitch import analyse_pitch, pair_marker_observations, stereo_pairs
+from stillcap.ball.markers import pair_marker_observations
+from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.pipelines.pitch import analyse_pitch
 
 from support import studio_pitch
 
@@ -89,7 +90,7 @@ def test_markers_pair_only_within_their_ball_and_rays_keep_each_balls_order(pair
     and ball 1's red marker seen by b only sit on one epipolar line (distance 0) and would
     triangulate onto ball 0's sphere: they must not pair. Ball 2's red markers pair but
     triangulate off the sphere (two rays), and its blue one is unmatched: its ray comes first."""
-    import stillcap.pipelines.pitch as pitch
+    import stillcap.ball.markers as markers
     from stillcap.detect.ball_markers import BallMarkers
 
     (cam_a, cam_b), _, p = pairs[0]
@@ -107,7 +108,7 @@ def test_markers_pair_only_within_their_ball_and_rays_keep_each_balls_order(pair
         return BallMarkers(xy, np.array(names, object), np.array(["unknown"] * n, object), np.full(n, 30.0),
                            np.ones(n), np.ones(n), np.array(ball), np.zeros(n, int))
 
-    monkeypatch.setattr(pitch, "detect_ball_markers", fake_detect)
+    monkeypatch.setattr(markers, "detect_ball_markers", fake_detect)
     obs, (ma, mb), st = pair_marker_observations(cam_a, "a", cam_b, "b", None, None, None, None, P)
     layout = BallLayout.seed()
     ref, n3, nray, _ = ball_by_ball(cam_a, cam_b, ma, mb, P, layout, r, 2.0)

@@ -8,13 +8,21 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.io.capture import Capture
-from stillcap.pipelines.pitch import PitchOptions, analyse_pitch, order_flashes, stereo_pairs
+from stillcap.ball.flashes import order_flashes
+from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
 from stillcap.report.pitch import POSITION_COLUMNS, write_report
+from stillcap.studio.compare.pitch import add_truth_comparison
 
 from support import PITCH_SIZE as SIZE, studio_pitch
 
 WHITE = (0.75, 0.75, 0.72)  # the ball's leather: markers painted in it are invisible
+
+
+def analysed(root, **kwargs):
+    """analyse_pitch, then the comparison with the capture's truth (``result.truth``)."""
+    cap = Capture.load(root)
+    return add_truth_comparison(analyse_pitch(cap, **kwargs), cap.truth)
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +33,7 @@ def fastball(tmp_path_factory):
 @pytest.fixture(scope="module")
 def result(fastball):
     truth = json.loads((fastball / "truth.json").read_text())
-    return analyse_pitch(fastball, release_y_ft=truth["metrics"]["release_pos_y_ft"], n_samples=100)
+    return analysed(fastball, release_y_ft=truth["metrics"]["release_pos_y_ft"], n_samples=100)
 
 
 def test_positions_timing_and_velocity_match_the_truth(result):
@@ -83,14 +91,14 @@ def test_report_files(result, tmp_path):
 
 
 def test_seed_spin_method(fastball):
-    res = analyse_pitch(fastball, spin_method="seed", n_samples=0)
+    res = analysed(fastball, spin_method="seed", n_samples=0)
     assert res.spin.method == "seed" and res.spin_available
     assert abs(res.truth["spin_rate_diff_rpm"]) < 40 and res.truth["spin_axis_angle_deg"] < 5
 
 
 def test_no_markers_still_gives_positions_and_velocity(tmp_path_factory):
     root = studio_pitch(tmp_path_factory, "nomarkers", palette={k: WHITE for k in ("red", "blue", "green", "black")})
-    res = analyse_pitch(root, n_samples=20)
+    res = analysed(root, n_samples=20)
     assert res.spin is None and not res.spin_available
     assert any("no markers" in m for m in res.messages)
     d = res.to_dict()
@@ -103,7 +111,7 @@ def test_markers_on_one_side_only(tmp_path_factory):
     """Only the red markers are painted (one type, three markers): the flight is reported either
     way; the spin is reported only if it is determined, with a message otherwise."""
     root = studio_pitch(tmp_path_factory, "redonly", palette={k: WHITE for k in ("blue", "green", "black")})
-    res = analyse_pitch(root, n_samples=0)
+    res = analysed(root, n_samples=0)
     assert len(res.times) >= 15 and res.truth["mean_err_mm"] < 3.0
     if not res.spin_available:
         assert any("spin" in m for m in res.messages)

@@ -8,8 +8,8 @@ import pytest
 from support import studio_pitch
 
 from stillcap.io.capture import Capture
-from stillcap.pipelines import pitch_workers
 from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
+from stillcap.pipelines.pitch import workers as pitch_workers
 
 
 @pytest.fixture(scope="module")

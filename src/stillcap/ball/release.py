@@ -22,7 +22,8 @@ first flash of the window).
 
 Flags: ``held_seen`` (some flash holds the ball), ``released_seen`` (some flash shows it free);
 without both there is no release time (NaN) and ``message`` says why. Nothing here imports the
-studio.
+studio. The ball's flashes are numbered from the hand poses by
+:func:`stillcap.ball.flashes.number_flashes` (on the hold-point path of :func:`hold_point_path`).
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ from scipy.optimize import least_squares
 from stillcap._checks import as_array
 from stillcap.ball.metrics import MPH
 
-__all__ = ["FlashNumbers", "Release", "estimate_release", "ball_in_hand", "number_flashes", "release_angles_deg"]
+__all__ = ["Release", "estimate_release", "ball_in_hand", "hold_point_path", "release_angles_deg"]
 
 
 @dataclass
@@ -149,7 +150,7 @@ def _circle_3d(points: np.ndarray):
     return mu + c2[0] * e1 + c2[1] * e2, e1, e2, n, r
 
 
-def _hold_path(times: np.ndarray, points: np.ndarray):
+def hold_point_path(times: np.ndarray, points: np.ndarray):
     """Path of the hold point through its positions at the hand flashes: ``(h(t), h'(t))``.
 
     The hand swings about the shoulder, so the path is close to a circular arc sampled ~30
@@ -315,7 +316,7 @@ def estimate_release(ball_times, ball_positions, hold_times, root2world, *, stro
             return res
         # 2. hold-point path through every hand pose
         hp = np.einsum("kab,b->ka", T[:, :3, :3], c) + T[:, :3, 3]
-        h, dh = _hold_path(t_h, hp)
+        h, dh = hold_point_path(t_h, hp)
         t_lo, t_hi = float(t_b[run[-1]]), float(t_b[free[0]])
         tf = t_b[free]
         Pf = P[free]
@@ -420,139 +421,3 @@ def estimate_release(ball_times, ball_positions, hold_times, root2world, *, stro
             alt.message += "; the last flash near the hold point fits the free flight better"
             res = alt
     return res
-
-
-@dataclass
-class FlashNumbers:
-    """Flash of each ball position, from the hand poses (:func:`number_flashes`).
-
-    Attributes
-    ----------
-    success : bool
-        An assignment with a held run was found (else ``flash`` / ``times`` are NaN/-1).
-    flash : ndarray of int, shape (m,)
-        Flash number of each ball position on the hand's clock (``round(t * strobe_hz)``).
-    times : ndarray, shape (m,)
-        ``flash / strobe_hz``, s (same clock as ``hold_times``).
-    n_held : int
-        Leading positions at one point of the hand.
-    cost, margin : float
-        Normalised squared misfit of the best assignment, and how much worse the runner-up is.
-    message : str
-    """
-
-    success: bool
-    flash: np.ndarray
-    times: np.ndarray
-    n_held: int = 0
-    cost: float = float("nan")
-    margin: float = float("nan")
-    message: str = ""
-
-
-def number_flashes(ball_positions, hold_times, root2world, *, strobe_hz: float, hold_tol_m: float = 0.012,
-                   hold_sigma_m: float = 0.004, free_sigma_m: float = 0.03, min_held: int = 2,
-                   max_after: int = 3) -> FlashNumbers:
-    """Number the ball's flashes by the hand poses instead of by the ball's spacing.
-
-    The arm speeds up across the window, so a gap in the ball's spacing does not say how many
-    flashes are missing. The hand does: every increasing map of the ball positions (given in
-    time order, e.g. along the throw) onto the flashes from one before the first hand pose to
-    ``max_after`` after the last is scored, and the best kept:
-
-    - **held** positions: the leading run (at least ``min_held`` with a hand pose) whose
-      hand-frame positions ``R^T (p - t)`` at their flash agree within ``hold_tol_m``; misfit
-      to their mean over ``hold_sigma_m``; positions at flashes before the first hand pose
-      (whose back of the hand was not seen) lead the run unchecked;
-    - **free** positions (the rest): they lie on the tangent to the hold-point path from one
-      release time between the last held and the first free flash,
-      ``h(t_r) + h'(t_r) (t - t_r)`` (the model of :func:`estimate_release`, without its
-      small gravity term); misfit over ``free_sigma_m`` (the speed's few-% model error).
-
-    A wrong flash number moves a free prediction by a whole flash of travel (~0.4 m), or breaks
-    the held run. Without a map that has a held run, ``success`` is False: the caller falls back
-    to the spacing.
-
-    Parameters
-    ----------
-    ball_positions : array_like, shape (m, 3)
-        In time order, no NaN.
-    hold_times : array_like, shape (n,)
-        Times of the hand poses, s (flash ``k`` at ``k / strobe_hz``).
-    root2world : array_like, shape (n, 4, 4)
-    strobe_hz : float
-
-    Returns
-    -------
-    FlashNumbers
-    """
-    from itertools import combinations
-
-    P = as_array(ball_positions, (None, 3), "ball_positions")
-    t_h = as_array(hold_times, (None,), "hold_times")
-    T = as_array(root2world, (len(t_h), 4, 4), "root2world")
-    if not (np.isfinite(strobe_hz) and strobe_hz > 0):
-        raise ValueError(f"strobe_hz must be positive, got {strobe_hz}")
-    m = len(P)
-    fail = FlashNumbers(False, np.full(m, -1), np.full(m, np.nan))
-    hand_ok = np.all(np.isfinite(T.reshape(len(t_h), -1)), axis=1) & np.isfinite(t_h)
-    t_h, T = t_h[hand_ok], T[hand_ok]
-    if len(t_h) < 2 or m < min_held or not np.all(np.isfinite(P)):
-        fail.message = "flash numbering from the hand needs 2+ hand poses and finite ball positions"
-        return fail
-    f_h = np.rint(t_h * strobe_hz).astype(int)
-    cand = np.arange(f_h.min() - 1, f_h.max() + max_after + 1)
-    if m > len(cand):
-        fail.message = f"{m} ball positions but only {len(cand)} candidate flashes"
-        return fail
-    j_of = {int(f): j for j, f in enumerate(f_h)}
-    Q = np.einsum("jba,ijb->ija", T[:, :3, :3], P[:, None, :] - T[None, :, :3, 3])  # (m, n, 3)
-    results = []
-    path_cache = {}
-    for combo in combinations(cand, m):
-        fl = np.array(combo)
-        run, verified = [], []
-        for i in range(m):
-            j = j_of.get(int(fl[i]))
-            if j is None:
-                if not verified and fl[i] < f_h.min():
-                    run.append(i)  # before the first hand pose: held, but nothing to check it against
-                    continue
-                break
-            trial = verified + [i]
-            q = np.array([Q[r, j_of[int(fl[r])]] for r in trial])
-            if np.max(np.linalg.norm(q - q.mean(axis=0), axis=1)) > hold_tol_m:
-                break
-            verified = trial
-            run.append(i)
-        if len(verified) < min_held:
-            continue
-        q = np.array([Q[r, j_of[int(fl[r])]] for r in verified])
-        c = q.mean(axis=0)
-        # an unchecked held position costs a 3-sigma misfit: a flash with a hand pose that
-        # agrees is preferred to one before the hand poses, where nothing can disagree
-        cost = float(np.sum((q - c) ** 2)) / hold_sigma_m ** 2 + 9.0 * (len(run) - len(verified))
-        free = list(range(len(run), m))
-        if free:
-            key = tuple(np.round(c, 6))
-            if key not in path_cache:
-                hp = np.einsum("kab,b->ka", T[:, :3, :3], c) + T[:, :3, 3]
-                path_cache[key] = _hold_path(t_h, hp)
-            h, dh = path_cache[key]
-            t_lo, t_hi = fl[run[-1]] / strobe_hz, fl[free[0]] / strobe_hz
-            tf = fl[free] / strobe_hz
-            best = np.inf
-            for tr in np.linspace(t_lo, t_hi, 25):
-                pred = np.asarray(h(tr)) + np.outer(tf - tr, np.asarray(dh(tr)))
-                best = min(best, float(np.sum((pred - P[free]) ** 2)))
-            cost += best / free_sigma_m ** 2
-        results.append((cost, fl, len(run)))
-    if not results:
-        fail.message = "no flash numbering puts 2+ leading ball positions at one point of the hand"
-        return fail
-    results.sort(key=lambda r: r[0])
-    cost, fl, nh = results[0]
-    margin = results[1][0] - cost if len(results) > 1 else float("inf")
-    return FlashNumbers(True, fl.copy(), fl / float(strobe_hz), nh, cost, margin,
-                        f"flashes numbered from the hand: {nh} held, {m - nh} free; cost {cost:.1f}, "
-                        f"runner-up +{margin:.1f}")

@@ -1,6 +1,20 @@
-"""The ball-centre bias that remains after the detector's shading correction (issue 3, coverage).
+"""Uncertainty of a pitch's measurements: the error modes of the ball positions and the metrics' sigmas.
 
-The known-radius Hough centre of a lit lambertian sphere sits off the true centre along the lit
+- **Ball-centre bias left by the shading correction** (issue 3, coverage):
+  :func:`shading_model_offset_px`, :func:`shading_residual_px` and its table
+  :func:`shading_residual_lookup`, :func:`lit_phase_from_area` (below).
+- **Error modes of a stereo pair's positions**: how its triangulated positions move with each
+  camera's focal-length error (:func:`calibration_modes`), a shared shift of one camera's ball
+  centres (:func:`centre_bias_modes`), or the bias the shading correction leaves
+  (:func:`lit_geometry`, :func:`lit_bias_modes`, :func:`remaining_bias_modes`); the random
+  centre error (:func:`pixel_sigma`); each image's covariance from them
+  (:func:`position_covariances`). ``docs/pitch.md``, "Uncertainties".
+- **Metrics**: 1-sigma of every pitch metric from the reference fit's and the marker spin's
+  covariances (:func:`metrics_sigma`, first order or Monte Carlo through the flight model), of
+  the speed (:func:`speed_sigma`), and the Nathan model's spin decay over the flashes
+  (:func:`spin_decay_slope`).
+
+**The shading bias.** The known-radius Hough centre of a lit lambertian sphere sits off the true centre along the lit
 direction (:func:`stillcap.detect.ball._shading_bias`); ``refine_centers(shading=...)`` removes
 that offset for partly lit (``PARTIAL``) balls with a model of the ball (phase angle read from
 the image, lens blur ``psf_px``). What it leaves is the model's own error: this module sizes it
@@ -16,8 +30,21 @@ import functools
 import cv2
 import numpy as np
 
-__all__ = ["lit_phase_from_area", "position_covariances", "shading_model_offset_px", "shading_residual_lookup",
-           "shading_residual_px"]
+from stillcap._checks import as_rng
+from stillcap.ball.fit import ReferenceFit
+from stillcap.ball.metrics import PitchMetrics, pitch_metrics_batch
+from stillcap.ball.physics import FlightModel, simulate, simulate_batch
+from stillcap.camera import Camera
+from stillcap.detect.ball import BallFlag
+from stillcap.geometry.triangulate import triangulate
+
+__all__ = ["ANGLE_KEYS", "calibration_modes", "centre_bias_modes", "lit_bias_modes", "lit_geometry",
+           "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
+           "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "speed_sigma",
+           "spin_decay_slope"]
+
+#: Metric keys that are angles (their spread is taken on the circle).
+ANGLE_KEYS = ("spin_axis_deg", "movement_axis_deg")
 
 #: refinement smoothing of :func:`stillcap.detect.ball.refine_centers` (its ``sigma``)
 _REFINE_SIGMA = 0.7
@@ -223,3 +250,379 @@ def position_covariances(residuals, shape_covariance, shared_modes=None, dof_rat
             raise ValueError(f"shared_modes must have shape (M, {len(r)}, 3), got {D.shape}")
         cov = cov + np.einsum("mki,mkj->kij", D, D)
     return cov, s2
+
+# --------------------------------------------------------------------------------------------
+# Error modes of a stereo pair's positions
+# --------------------------------------------------------------------------------------------
+def calibration_modes(cams, centers_px, board_points, focal_sigma: float):
+    """How a pair's triangulated positions move with each camera's focal-length error.
+
+    For each camera the focal length is scaled by ``1 + focal_sigma``, the pose re-solved by PnP
+    on the board corners it was calibrated with (their pixels as the calibrated camera sees
+    them: the error the board cannot reveal), and the ball images re-triangulated.
+
+    Parameters
+    ----------
+    cams : sequence of 2 Camera
+    centers_px : array_like, shape (2, K, 2)
+    board_points : sequence of 2 (ndarray, shape (N, 3), or None), or None
+        World coordinates of the calibration board corners each camera's pose was solved on
+        (:func:`stillcap.io.capture.board_points_world`, from the capture's ``meta.calibration``
+        record; None where the record does not say); None without a record.
+    focal_sigma : float
+
+    Returns
+    -------
+    ndarray, shape (2, K, 3) or None
+        Position shift per camera at 1 sigma (m); None without usable board points.
+    """
+    x = np.asarray(centers_px, float)
+    if board_points is None or not focal_sigma > 0 or x.shape[1] == 0:
+        return None
+    X0 = triangulate(list(cams), x).points
+    out = np.zeros((2, x.shape[1], 3))
+    for i, cam in enumerate(cams):
+        W = board_points[i]
+        if W is None or len(W) < 6:
+            return None
+        img = cam.project(W)
+        K = cam.K.copy()
+        K[0, 0] *= 1.0 + focal_sigma
+        K[1, 1] *= 1.0 + focal_sigma
+        rvec, _ = cv2.Rodrigues(cam.R)
+        ok, rvec, tvec = cv2.solvePnP(W, img, K, cam.dist, rvec.copy(), cam.t.reshape(3, 1).copy(),
+                                      useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
+        if not ok:
+            return None
+        T = np.eye(4)
+        T[:3, :3] = cv2.Rodrigues(rvec)[0]
+        T[:3, 3] = tvec.ravel()
+        c2 = Camera(cam.name, K, cam.dist, T, cam.image_size)
+        pair = [c2, cams[1]] if i == 0 else [cams[0], c2]
+        out[i] = triangulate(pair, x).points - X0
+    return out
+
+
+def pixel_sigma(reproj_error_px, default_px: float = 0.1) -> float:
+    """Random ball-centre error per image axis, px: ``sqrt(2) x`` the RMS reprojection error of
+    a pair's triangulated centres (a two-view reprojection error sees one of the two pixel
+    errors' four components' worth of noise per camera), ``default_px`` with fewer than two."""
+    e = np.asarray(reproj_error_px, float)
+    e = e[np.isfinite(e)]
+    s = float(np.sqrt(2.0 * np.mean(e ** 2))) if len(e) >= 2 else 0.0
+    return s if s > 0 else default_px
+
+
+def centre_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
+    """How a pair's triangulated positions move with a systematic shift of one camera's ball
+    centres: one mode per camera and image axis, the same shift for all its ball images; with
+    ``trend`` also one mode per camera and axis whose shift changes linearly along the pair's
+    images (in flight order), from ``-sigma_px`` at the first to ``+sigma_px`` at the last.
+
+    Returns
+    -------
+    ndarray, shape (4, K, 3), or (8, K, 3) with ``trend``
+        Position shift (m) of camera 0 x, 0 y, 1 x, 1 y (then the same four for the trend).
+    """
+    x = np.asarray(centers_px, float)
+    K = x.shape[1]
+    profiles = [np.ones(K)]
+    if trend:
+        profiles.append(np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K))
+    out = np.zeros((4 * len(profiles), K, 3))
+    if not sigma_px > 0 or K == 0:
+        return out
+    shifted = []
+    for prof in profiles:
+        for c in range(2):
+            for j in range(2):
+                xs = x.copy()
+                xs[c, :, j] += sigma_px * prof
+                shifted.append(xs)
+    return _retriangulated_shifts(cams, x, shifted)
+
+
+def _retriangulated_shifts(cams, x, shifted) -> np.ndarray:
+    """Position shifts (m), shape (len(shifted), K, 3), of a pair's centres ``x`` (2, K, 2)
+    re-triangulated as each of the ``shifted`` copies: one triangulation of the centres and all
+    copies (a call per copy cost ~8x more)."""
+    K = x.shape[1]
+    P = triangulate(list(cams), np.concatenate([x, *shifted], axis=1)).points.reshape(1 + len(shifted), K, 3)
+    return P[1:] - P[0]
+
+
+def lit_geometry(stereo, centers_px, flags, radius_px):
+    """Per ball image of a pair: the lit direction, the phase angle and whether the shading
+    correction ran, from the stereo step's detections.
+
+    Parameters
+    ----------
+    stereo : StereoBalls
+        The pair's :func:`stillcap.ball.stereo.ball_centers_stereo` result (its detections).
+    centers_px : array_like, shape (2, K, 2)
+        The pair's refined centres (rows of ``stereo.centers_a`` / ``centers_b``).
+    flags : array_like of int, shape (K,)
+        ``BallFlag`` bits of both views (``PARTIAL``: the correction ran in both views).
+    radius_px : array_like, shape (2, K)
+
+    Returns
+    -------
+    u : ndarray, shape (2, K, 2)
+        Unit vector from the refined centre toward the silhouette's ellipse centre (the lit
+        side: a lit silhouette's middle lies toward the light); 0 where they coincide.
+    phase : ndarray, shape (2, K)
+        Phase angle (rad) from the silhouette's area (:func:`lit_phase_from_area`).
+    corrected : ndarray of bool, shape (K,)
+    """
+    x = np.asarray(centers_px, float)
+    if x.ndim != 3 or x.shape[0] != 2 or x.shape[2] != 2:
+        raise ValueError(f"centers_px must have shape (2, K, 2), got {x.shape}")
+    K = x.shape[1]
+    u = np.zeros((2, K, 2))
+    phase = np.zeros((2, K))
+    for c, (cen, det, col) in enumerate(((stereo.centers_a, stereo.detections_a, 0),
+                                         (stereo.centers_b, stereo.detections_b, 1))):
+        if K == 0 or len(cen) == 0:
+            break
+        row = np.argmin(np.linalg.norm(np.asarray(cen)[None] - x[c][:, None], axis=2), axis=1)
+        j = stereo.pairs[row, col]
+        d = det.ellipse_centers[j] - x[c]
+        n = np.linalg.norm(d, axis=1)
+        u[c] = np.where(n[:, None] > 1e-9, d / np.maximum(n, 1e-9)[:, None], 0.0)
+        phase[c] = lit_phase_from_area(det.areas[j], np.asarray(radius_px, float)[c])
+    corrected = (np.asarray(flags, int) & int(BallFlag.PARTIAL)) > 0
+    return u, phase, corrected
+
+
+def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
+    """How a pair's triangulated positions move with the ball-centre bias that remains after
+    the shading correction (:func:`shading_residual_lookup`).
+
+    Per camera: for corrected images a shift of ``sigma_px`` along their lit direction ``u``
+    (the correction's model error has that direction), the same for all (constant) and growing
+    linearly from ``-sigma_px`` at the pair's first image to ``+sigma_px`` at its last (trend:
+    the phase angle changes along the flight); for the others (full discs, no lit direction)
+    the same two profiles along each image axis.
+
+    Parameters
+    ----------
+    cams : sequence of 2 Camera
+    centers_px : array_like, shape (2, K, 2)
+    u : array_like, shape (2, K, 2)
+    sigma_px : array_like, shape (2, K)
+    corrected : array_like of bool, shape (K,)
+
+    Returns
+    -------
+    ndarray, shape (12, K, 3)
+        Position shift (m) per camera (6 each: along ``u`` constant, trend; x, y constant;
+        x, y trend).
+    """
+    x = np.asarray(centers_px, float)
+    K = x.shape[1] if x.ndim == 3 else 0
+    u, s = np.asarray(u, float), np.asarray(sigma_px, float)
+    if x.shape != (2, K, 2) or u.shape != (2, K, 2) or s.shape != (2, K):
+        raise ValueError(f"centers_px and u must have shape (2, K, 2) and sigma_px (2, K), got "
+                         f"{x.shape}, {u.shape}, {s.shape}")
+    corr = np.broadcast_to(np.asarray(corrected, bool), (K,))
+    out = np.zeros((12, K, 3))
+    if K == 0:
+        return out
+    profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
+    e = np.eye(2)
+    modes, shifted = [], []
+    for c in range(2):
+        shifts = [np.where(corr[:, None], u[c], 0.0) * (s[c] * prof)[:, None] for prof in profiles]
+        shifts += [np.where(corr[:, None], 0.0, e[j]) * (s[c] * prof)[:, None] for prof in profiles for j in range(2)]
+        for m, dx in enumerate(shifts):
+            if np.any(dx):
+                xs = x.copy()
+                xs[c] += dx
+                modes.append(6 * c + m)
+                shifted.append(xs)
+    if shifted:
+        out[modes] = _retriangulated_shifts(cams, x, shifted)
+    return out
+
+
+def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px) -> np.ndarray:
+    """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
+    (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras)."""
+    u, phase, corr = lit_geometry(stereo, centers_px, flags, radius_px)
+    # full discs (not PARTIAL, phase below ~55 deg) as lit from the camera: there the model's
+    # offset swings by ~0.1 px within 10 deg of phase, finer than the silhouette's area resolves
+    # (a thresholded full disc loses its dim limb: 0.96-1.11 of pi r^2 from 0 to 30 deg), and
+    # against the truth the front pair's (phase ~10 deg) per-camera bias was 0.016-0.020 px
+    phase = np.where(corr[None, :], phase, 0.0)
+    s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
+    return lit_bias_modes(cams, centers_px, u, s, corr)
+
+
+# --------------------------------------------------------------------------------------------
+# Uncertainty of the metrics
+# --------------------------------------------------------------------------------------------
+def speed_sigma(v, cov) -> float:
+    """1-sigma of the speed ``|v|`` from the velocity's covariance ``cov`` (3, 3): first order,
+    along the velocity's direction (NaN for a zero velocity)."""
+    v = np.asarray(v, float)
+    n = np.linalg.norm(v)
+    if not n > 0:
+        return float("nan")
+    u = v / n
+    return float(np.sqrt(max(u @ np.asarray(cov) @ u, 0.0)))
+
+
+def spin_decay_slope(fit: ReferenceFit, model: FlightModel, t_obs, t_ref: float) -> float:
+    """How much slower a constant-spin fit over ``t_obs`` turns than the spin at ``t_ref`` under
+    the Nathan model's decay ``exp(-(t - t_ref) |v(t)| / (tau0 v_ref))``: the least-squares slope
+    of the turned angle (unit rate at ``t_ref``) against time over the observation times."""
+    t_obs = np.asarray(t_obs, float)
+    if len(t_obs) < 2 or np.ptp(t_obs) <= 0:
+        return 1.0
+    grid = np.linspace(min(t_ref, t_obs.min()), t_obs.max(), 400)
+    tr = simulate(fit.p0, fit.v0, fit.spin, grid, model, t0=fit.t0)
+    n = model.nathan
+    rate = np.exp(-(grid - t_ref) * np.linalg.norm(tr.velocities, axis=1) / (n.tau0 * n.v_ref))
+    phi = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(grid))])
+    slope = float(np.polyfit(t_obs, np.interp(t_obs, grid, phi), 1)[0])
+    return slope if slope > 0.5 else 1.0
+
+
+def _metric_keys(nominal: PitchMetrics):
+    nom = nominal.to_dict()
+    keys = [k for k in nom if k not in ("nine_parameter", "success", "message", "spin_tilt")]
+    nine_keys = [k for k in (nom.get("nine_parameter") or {}) if k not in ("success", "n_points")]
+    return nom, keys, nine_keys
+
+
+def _metrics_of_states(fit: ReferenceFit, th, spins, model, t_rel, release_y_m, nominal: PitchMetrics, keys,
+                       nine_keys):
+    """Metrics of many flights at once: initial states ``th`` (n, 9: p0, v0, spin-basis
+    coordinates of the reference fit) flown with the fast integrator (``simulate_batch``),
+    ``spins`` (n, 3) or None the measured spin of each. Returns ``{key: (n,)}`` and the same for
+    the nine-parameter fit (NaN where a flight gave no metrics)."""
+    n = len(th)
+    w_traj = th[:, 6:9] @ fit.spin_basis.T
+    t_end = t_rel + max(nominal.plate_time_s if np.isfinite(nominal.plate_time_s) else 0.6, 0.1) * 1.1 + 0.02
+    t_lo = min(t_rel, fit.t0) - 0.03
+    ts = np.arange(t_lo, t_end, 0.002)
+    # 50 ms RK4 steps (the flight fit's): against 10 ms steps every metric sigma of 7 studio
+    # pitches moved by at most 2e-5 of itself (central differences of flights flown alike), 9 ms
+    # less per capture
+    tr = simulate_batch(th[:, :3], th[:, 3:6], w_traj, ts, model, t0=fit.t0, method="rk4", max_step=0.05)
+    pos, vel = tr.positions, tr.velocities
+    # each flight from the release: the samples after its crossing of the release plane, led by
+    # the crossing (linear interpolation); NaN marks the samples a flight does not use
+    keep = np.broadcast_to(np.arange(len(ts)) >= np.searchsorted(ts, t_rel), (n, len(ts)))
+    first_t, first_p, first_v = np.full(n, np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    if release_y_m is not None:
+        y = pos[:, :, 1] - release_y_m
+        sign_change = np.sign(y[:, :-1]) != np.sign(y[:, 1:])
+        crossed = sign_change.any(axis=1)  # a flight that never crosses gives no metrics
+        i = np.argmax(sign_change, axis=1)
+        rows = np.arange(n)
+        with np.errstate(invalid="ignore", divide="ignore"):  # (flights that do not cross)
+            a = (y[rows, i] / (y[rows, i] - y[rows, i + 1]))[:, None]
+        first_t = np.where(crossed, ts[i] + a[:, 0] * (ts[i + 1] - ts[i]), np.nan)
+        first_p = np.where(crossed[:, None], pos[rows, i] + a * (pos[rows, i + 1] - pos[rows, i]), np.nan)
+        first_v = np.where(crossed[:, None], vel[rows, i] + a * (vel[rows, i + 1] - vel[rows, i]), np.nan)
+        keep = crossed[:, None] & (np.arange(len(ts))[None] > i[:, None])
+    t_m = np.concatenate([first_t[:, None], np.where(keep, ts, np.nan)], axis=1)
+    p_m = np.concatenate([first_p[:, None], np.where(keep[..., None], pos, np.nan)], axis=1)
+    v_m = np.concatenate([first_v[:, None], np.where(keep[..., None], vel, np.nan)], axis=1)
+    vals, nine = pitch_metrics_batch(t_m, p_m, spins, velocities=v_m)
+    return {k: vals[k] for k in keys}, {k: nine[k] for k in nine_keys}
+
+
+def _principal_steps(cov):
+    """1-sigma steps along the principal axes of a covariance: rows ``sqrt(lambda_i) v_i`` for
+    the positive eigenvalues (a zero-variance direction needs no evaluation)."""
+    c = np.asarray(cov, float)
+    c = 0.5 * (c + c.T)
+    lam, V = np.linalg.eigh(c)
+    keep = lam > lam.max(initial=0.0) * 1e-14
+    return (V[:, keep] * np.sqrt(lam[keep])).T
+
+
+def metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release_y_m, nominal: PitchMetrics,
+                  n_samples: int, rng, method: str = "linear") -> dict:
+    """1-sigma of every numeric metric from the reference fit's covariance (release state and the
+    spin of the trajectory) and the marker spin's covariance (spin metrics).
+
+    ``method="linear"`` (default): first-order propagation with central differences along the
+    principal axes of both covariances, one sigma each way (at most 2 x (9 + 3) = 24 flights):
+    ``sigma_k^2 = sum_i ((f_k(x + s_i) - f_k(x - s_i)) / 2)^2``. ``"monte_carlo"``:
+    ``n_samples`` states drawn from the covariances, sigma = sample standard deviation. Angles
+    are differenced on the circle. ``n_samples < 2`` gives no sigmas (either method)."""
+    nom, keys, nine_keys = _metric_keys(nominal)
+    empty = {k: None for k in keys} | {"nine_parameter": None}
+    if n_samples < 2 or not np.all(np.isfinite(fit.covariance[:9, :9])):
+        return empty
+    cov = fit.covariance[:9, :9]
+    cov = 0.5 * (cov + cov.T)
+    c_spin = None
+    if spin_meas is not None:
+        c_spin = np.asarray(spin_cov, float)
+        c_spin = 0.5 * (c_spin + c_spin.T) if np.all(np.isfinite(c_spin)) else np.zeros((3, 3))
+    nn = nom.get("nine_parameter") or {}
+
+    def wrap(k, d):
+        return (d + 180.0) % 360.0 - 180.0 if k in ANGLE_KEYS else d
+
+    if method == "linear":
+        try:
+            s_th = _principal_steps(cov)
+            s_w = _principal_steps(c_spin) if c_spin is not None else np.zeros((0, 3))
+        except np.linalg.LinAlgError:
+            return empty
+        n_th, n_w = len(s_th), len(s_w)
+        th = np.tile(fit.params[:9], (1 + 2 * (n_th + n_w), 1))
+        th[1:1 + n_th] += s_th
+        th[1 + n_th:1 + 2 * n_th] -= s_th
+        spins = None
+        if spin_meas is not None:
+            spins = np.tile(np.asarray(spin_meas, float), (len(th), 1))
+            o = 1 + 2 * n_th
+            spins[o:o + n_w] += s_w
+            spins[o + n_w:o + 2 * n_w] -= s_w
+        vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
+        i_plus = np.r_[1:1 + n_th, 1 + 2 * n_th:1 + 2 * n_th + n_w]
+        i_minus = np.r_[1 + n_th:1 + 2 * n_th, 1 + 2 * n_th + n_w:1 + 2 * (n_th + n_w)]
+
+        def spread(k, a, centre):
+            if centre is None or not np.isfinite(a[0]):
+                return None
+            fp, fm = a[i_plus], a[i_minus]
+            ok_p, ok_m = np.isfinite(fp), np.isfinite(fm)
+            if not np.all(ok_p | ok_m):
+                return None
+            # one side failed: one-sided difference
+            d = np.where(ok_p & ok_m, 0.5 * wrap(k, fp - fm), wrap(k, np.where(ok_p, fp, fm) - a[0]))
+            # (accumulate: summed in order, as a loop would)
+            return float(np.sqrt(np.add.accumulate(d * d)[-1])) if len(d) else 0.0
+    else:
+        rng = as_rng(rng)
+        try:
+            th = rng.multivariate_normal(fit.params[:9], cov, size=n_samples, method="eigh")
+        except (np.linalg.LinAlgError, ValueError):
+            return empty
+        spins = None
+        if spin_meas is not None:
+            spins = rng.multivariate_normal(spin_meas, c_spin, size=n_samples, method="eigh")
+        vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
+
+        def spread(k, a, centre):
+            a = a[np.isfinite(a)]
+            if len(a) < 2 or centre is None:
+                return None
+            if k in ANGLE_KEYS:
+                a = wrap(k, a - centre)
+            return float(np.std(a, ddof=1))
+
+    out = {k: spread(k, vals[k], nom.get(k)) for k in keys}
+    out["nine_parameter"] = {k: spread(k, nine_vals[k], nn.get(k)) for k in nine_keys} if nine_keys else None
+    if spin_meas is None:
+        for k in ("spin_rate_rpm", "active_spin_rpm", "spin_efficiency", "gyro_angle_deg", "spin_axis_deg"):
+            if k in out:
+                out[k] = None
+    return out

@@ -53,6 +53,7 @@ def pitch_demo(out: Path, seed: int, *, preset: str = "seed-4seam", calibrate: b
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import TABLE1_COLUMNS, PitchOptions, analyse_pitch
     from stillcap.report.pitch import write_report
+    from stillcap.studio.compare.pitch import add_truth_comparison
     from stillcap.studio.pitch import pitch_capture
 
     out = Path(out)
@@ -68,8 +69,10 @@ def pitch_demo(out: Path, seed: int, *, preset: str = "seed-4seam", calibrate: b
         release_y_ft = truth.metrics.get("release_pos_y_ft")
         opts = PitchOptions(spin_method=spin_method, physics=physics or truth.model, release_y_ft=release_y_ft)
         bar.update(task, description="analysing", total=None, completed=0)
-        res = analyse_pitch(Capture.load(out / "capture"), opts,
+        loaded = Capture.load(out / "capture")
+        res = analyse_pitch(loaded, opts,
                             progress=lambda i, n, label: bar.update(task, completed=i, total=n, description=label))
+        add_truth_comparison(res, loaded.truth)
     rel = truth.release
     console.print(f"true pitch: {rel.speed_mph:.1f} mph, {rel.spin_rpm:.0f} rpm, {truth.metrics.get('spin_tilt')}; rig "
                   + ("calibrated from rendered board photos" if calibrate else "true (not calibrated)")

@@ -57,7 +57,9 @@ def pitch(
     and skipped, exit status 2 at the end), ``--report DIR`` writes one sub-folder per capture,
     ``--json`` prints a list, and one table sums up the session.
     """
+    from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import TABLE1_COLUMNS, PitchOptions, analyse_pitch
+    from stillcap.studio.compare.pitch import add_truth_comparison
 
     _choice("--spin", spin, SPIN_CHOICES)
     _choice("--physics", physics, PHYSICS_CHOICES)
@@ -71,7 +73,8 @@ def pitch(
             raise ValueError("--csv takes one capture; with several, --report DIR writes positions.csv per capture")
         _session(captures, opts, report, as_json)
         return
-    res = analyse_pitch(captures[0], opts)
+    cap = Capture.load(captures[0])
+    res = add_truth_comparison(analyse_pitch(cap, opts), cap.truth)
     written = []
     if csv_file is not None:
         from stillcap.report.pitch import write_positions_csv
@@ -120,7 +123,9 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
     """Several captures: one result each (report sub-folders, a JSON list) and a summary table."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import analyse_pitch
+    from stillcap.studio.compare.pitch import add_truth_comparison
 
     names = [c.resolve().name or str(c) for c in captures]
     if report is not None and len(set(names)) < len(names):
@@ -133,7 +138,8 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
         for cap, name in zip(captures, names):
             bar.update(task, description=name)
             try:
-                res = analyse_pitch(cap, opts)
+                loaded = Capture.load(cap)
+                res = add_truth_comparison(analyse_pitch(loaded, opts), loaded.truth)
             except ValueError as e:  # this capture cannot give a flight: name it, go on with the others
                 failed.append(name)
                 results.append((cap, None, str(e)))

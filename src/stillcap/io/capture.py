@@ -10,6 +10,9 @@ A capture folder holds (see ``docs/capture-folder.md``)::
 :meth:`Capture.load` validates everything a pipeline relies on: the files exist, every image's
 camera is in the rig, paths stay inside the folder; :meth:`Capture.read_image` decodes an image
 and checks its size against its camera. Every file is written atomically.
+
+:func:`stereo_pairs` groups a capture's photos into strobed stereo pairs (:class:`StereoPairSpec`);
+:func:`board_points_world` reads the calibration record a capture may hold (``meta.calibration``).
 """
 
 from __future__ import annotations
@@ -337,3 +340,101 @@ def target_from_dict(d: dict):
     except (TypeError, KeyError) as e:
         raise ValueError(f"bad {kind} target description: {e}") from None
     raise ValueError(f"unknown calibration target type {kind!r} (chessboard, charuco, calibration-object)")
+
+
+# --- calibration record in capture.json --------------------------------------------------
+def board_points_world(calib: dict, pair_name: str, camera: str):
+    """World coordinates of the calibration board corners a camera's pose was solved on (from
+    the capture's ``meta.calibration`` record), or None when the record does not say."""
+    try:
+        target = target_from_dict(calib["extrinsics_target"])
+        T = np.asarray(calib["board2world"][pair_name], float).reshape(-1, 4, 4)
+        spots = calib["cameras"][camera].get("spots_used", range(len(T)))
+        obj = target.object_points
+        obj = np.asarray(obj() if callable(obj) else obj, float).reshape(-1, 3)
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    pts = [obj @ T[k][:3, :3].T + T[k][:3, 3] for k in spots if 0 <= int(k) < len(T)]
+    return np.concatenate(pts) if pts else None
+
+
+# --- strobed stereo pairs -----------------------------------------------------------------
+@dataclass
+class StereoPairSpec:
+    """Two photos of one strobed stereo pair."""
+
+    name: str
+    images: tuple  # (CaptureImage, CaptureImage)
+    strobe_hz: float
+
+    @property
+    def cameras(self) -> tuple:
+        return tuple(im.camera for im in self.images)
+
+
+def stereo_pairs(capture: Capture) -> tuple[list[StereoPairSpec], list[str]]:
+    """Group a capture's photos into strobed stereo pairs.
+
+    A photo's pair is ``images[].meta.pair``, else the pair of the capture's ``pairs`` map
+    (``{"front": ["front_top", "front_bottom"], ...}``) holding its camera, else photos are
+    grouped by strobe rate and paired in the order given. A group that is not exactly two photos
+    of two cameras at one strobe rate is skipped with a message.
+
+    Returns
+    -------
+    pairs : list of StereoPairSpec
+        In the capture's order.
+    messages : list of str
+
+    Raises
+    ------
+    ValueError
+        When no complete pair is left.
+    """
+    messages: list[str] = []
+    cmap = capture.meta.get("pairs") if isinstance(capture.meta.get("pairs"), dict) else {}
+    cam_pair = {str(c): str(name) for name, cams in cmap.items() for c in (cams or [])}
+    groups: dict[str, list[CaptureImage]] = {}
+    unnamed: list[CaptureImage] = []
+    for im in capture.images:
+        name = im.meta.get("pair") if isinstance(im.meta, dict) else None
+        name = name if name is not None else cam_pair.get(im.camera)
+        if name is None:
+            unnamed.append(im)
+        else:
+            groups.setdefault(str(name), []).append(im)
+    # photos without a pair name: by strobe rate, two by two in the order given
+    by_rate: dict = {}
+    for im in unnamed:
+        by_rate.setdefault(None if im.strobe_hz is None else round(im.strobe_hz, 6), []).append(im)
+    for rate, ims in by_rate.items():
+        for i in range(0, len(ims), 2):
+            groups.setdefault(f"pair{len(groups)}", []).extend(ims[i:i + 2])
+    for name, cams in cmap.items():
+        if name not in groups:
+            messages.append(f"pair {name!r}: no photo in the capture (cameras {list(cams or [])}): skipped")
+    out = []
+    for name, ims in groups.items():
+        files = ", ".join(im.file for im in ims)
+        if len(ims) != 2:
+            want = cmap.get(name)
+            have = {im.camera for im in ims}
+            missing = [c for c in (want or []) if c not in have]
+            why = f"camera {', '.join(missing)} has no photo" if missing else f"{len(ims)} photo(s) ({files})"
+            messages.append(f"pair {name!r}: {why}; a stereo pair needs one photo from each of two cameras: skipped")
+            continue
+        if ims[0].camera == ims[1].camera:
+            messages.append(f"pair {name!r}: both photos are from camera {ims[0].camera!r}: skipped")
+            continue
+        rates = [im.strobe_hz for im in ims]
+        if any(r is None for r in rates):
+            messages.append(f"pair {name!r}: no strobe_hz for {files} (flash times unknown): skipped")
+            continue
+        if abs(rates[0] - rates[1]) > 1e-6 * max(rates):
+            messages.append(f"pair {name!r}: the two photos have different strobe rates {rates} Hz: skipped")
+            continue
+        out.append(StereoPairSpec(name, (ims[0], ims[1]), float(rates[0])))
+    if not out:
+        detail = "; ".join(messages) if messages else "no photos"
+        raise ValueError(f"capture {capture.root or ''}: no complete stereo pair ({detail})")
+    return out, messages

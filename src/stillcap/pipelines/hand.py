@@ -3,7 +3,7 @@ hand poses per flash, a smooth animation, and the ball's release.
 
 Wiring only; every step is a stage of its own module (``docs/hand-pipeline.md`` tells the story):
 
-1. **Stereo pairs** (:func:`stillcap.pipelines.pitch.stereo_pairs`): the capture's photos grouped
+1. **Stereo pairs** (:func:`stillcap.io.capture.stereo_pairs`): the capture's photos grouped
    into strobed stereo pairs; all pairs share one strobe.
 2. **Ball** (:func:`stillcap.pipelines.hand_ball.hand_ball_positions`): the white ball's centre
    per flash from all views; its discs are masked out of the marker search so that its painted
@@ -41,7 +41,8 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap.ball.layout import BASEBALL_RADIUS
-from stillcap.ball.release import Release, estimate_release, number_flashes
+from stillcap.ball.flashes import number_flashes
+from stillcap.ball.release import Release, estimate_release
 from stillcap.body.hand import HAND_COLOURS
 from stillcap.body.hand_label import HandLabels, label_hand_markers
 from stillcap.body.markerset import MarkerTrajectories
@@ -49,10 +50,10 @@ from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolat
 from stillcap.body.skeleton import Animation
 from stillcap.detect.colour_markers import ColourBlobs, find_colour_markers
 from stillcap.geometry.marker_points import MarkerPoints, triangulate_colour_markers
-from stillcap.io.capture import Capture
+from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.files.jsonable import from_jsonable, to_jsonable
 from stillcap.pipelines.hand_ball import HandBalls, HandBallSpin, hand_ball_positions, hand_ball_spin
-from stillcap.pipelines.pitch import _progress, stereo_pairs
+from stillcap.pipelines.progress import report_progress
 
 __all__ = ["HandOptions", "HandResult", "analyse_hand", "compare_with_truth", "truth_arrays"]
 
@@ -252,7 +253,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     total = 7
 
     t = _time.perf_counter()
-    _progress(progress, 0, total, "reading photos")
+    report_progress(progress, 0, total, "reading photos")
     rig = cap.rig
     used = [c for sp in specs for c in sp.cameras]
     images = []
@@ -263,7 +264,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
 
     # -- ball ---------------------------------------------------------------------------------
     t = _time.perf_counter()
-    _progress(progress, 1, total, "ball")
+    report_progress(progress, 1, total, "ball")
     balls = None
     try:
         # every two cameras, not only the stereo pairs: fingers often hide the first free ball
@@ -277,7 +278,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
 
     # -- markers ------------------------------------------------------------------------------
     t = _time.perf_counter()
-    _progress(progress, 2, total, "glove markers")
+    report_progress(progress, 2, total, "glove markers")
     blobs = []
     for i, img in enumerate(images):
         if img is None:
@@ -287,7 +288,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
         blobs.append(find_colour_markers(img, HAND_COLOURS, exclude=exclude))
     timings["markers"] = _time.perf_counter() - t
     t = _time.perf_counter()
-    _progress(progress, 3, total, "3D markers")
+    report_progress(progress, 3, total, "3D markers")
     points = triangulate_colour_markers(rig, pairs, blobs, light_position=light, radius_m=options.marker_radius_m)
     doubtful = points.partly_hidden & points.ambiguous
     if doubtful.any():
@@ -302,7 +303,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
 
     # -- labels and poses ---------------------------------------------------------------------
     t = _time.perf_counter()
-    _progress(progress, 4, total, "labelling")
+    report_progress(progress, 4, total, "labelling")
     labels = label_hand_markers(points.points, points.colours, strobe_hz=strobe_hz,
                                 reprojection_px=points.reprojection_px, overrides=options.overrides)
     for k, why in enumerate(labels.skipped):
@@ -310,7 +311,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
             messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
-    _progress(progress, 5, total, "poses")
+    report_progress(progress, 5, total, "poses")
     sequence = animation = None
     if labels.reconstructed.any():
         # partly hidden markers' centroids shift by up to a few mm (docs/hand-markers.md): they
@@ -331,7 +332,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
 
     # -- release and spin ----------------------------------------------------------------------
     t = _time.perf_counter()
-    _progress(progress, 6, total, "release")
+    report_progress(progress, 6, total, "release")
     release = spin = None
     if balls is not None and len(balls) and sequence is not None:
         hold_times = sequence.times
@@ -346,7 +347,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
             if spin.message:
                 messages.append(f"spin: {spin.message}")
     timings["release"] = _time.perf_counter() - t
-    _progress(progress, total, total, "done")
+    report_progress(progress, total, total, "done")
     timings["total"] = _time.perf_counter() - t_all
     res = HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,
                      messages, timings)
@@ -356,7 +357,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
 
 
 def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, messages: list) -> HandBalls:
-    """Renumber the ball's flashes from the hand poses (:func:`stillcap.ball.release.number_flashes`):
+    """Renumber the ball's flashes from the hand poses (:func:`stillcap.ball.flashes.number_flashes`):
     the ball was found before the hand (its discs mask the glove-marker search), numbered from
     its spacing, which a missed flash of an accelerating arm gets wrong."""
     fn = number_flashes(balls.positions, hold_times, root2world, strobe_hz=strobe_hz)

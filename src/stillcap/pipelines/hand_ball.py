@@ -15,8 +15,8 @@ Wiring only (``docs/hand-ball.md``):
    rejection (:func:`stillcap.geometry.triangulate.triangulate`, ``outlier_px``).
 4. **Order and flashes**: positions sorted along the throw (field frame: toward -y). With the
    hand's poses (``hand=(hold_times, root2world)``) the flashes are numbered from the hand
-   (:func:`stillcap.ball.release.number_flashes`), on the hand's clock; without them from the
-   spacing (:func:`stillcap.pipelines.pitch.order_flashes`: a missed flash leaves a gap, but an
+   (:func:`stillcap.ball.flashes.number_flashes`), on the hand's clock; without them from the
+   spacing (:func:`stillcap.ball.flashes.order_flashes`: a missed flash leaves a gap, but an
    accelerating arm can fool it), time of flash ``k`` ``k / strobe_hz`` from the first ball.
    The hand pipeline finds the ball first (its discs mask the glove-marker search) and numbers
    its flashes once the hand poses exist.
@@ -273,7 +273,7 @@ def hand_ball_positions(capture, pairs: dict | str | None = "all", *, images=Non
     hand : (hold_times, root2world), optional
         The hand's poses per reconstructed flash (``hold_times`` (n,) s, flash ``k`` at
         ``k / strobe_hz``; ``root2world`` (n, 4, 4)). Given, the flashes are numbered from the
-        hand (:func:`stillcap.ball.release.number_flashes`) and ``times`` / ``flash_index`` are
+        hand (:func:`stillcap.ball.flashes.number_flashes`) and ``times`` / ``flash_index`` are
         on the hand's clock; without it (or when that fails, see ``messages``) they come from
         the ball's spacing with the first ball position at 0.
 
@@ -373,14 +373,14 @@ def hand_ball_positions(capture, pairs: dict | str | None = "all", *, images=Non
     if not good.all():
         messages.append(f"{int((~good).sum())} ball image(s) not triangulated")
     # order along the throw and flash indices
-    from stillcap.pipelines.pitch import order_flashes
+    from stillcap.ball.flashes import order_flashes
     Xg = X[good]
     idx_good = np.flatnonzero(good)
     order, k, spacing = order_flashes(Xg, np.asarray(direction, float), strobe_hz)
     sel = idx_good[order]
     times = k / float(strobe_hz)
     if hand is not None:
-        from stillcap.ball.release import number_flashes
+        from stillcap.ball.flashes import number_flashes
 
         hold_times, root2world = hand
         fn = number_flashes(X[sel], hold_times, root2world, strobe_hz=strobe_hz)
@@ -438,12 +438,12 @@ def hand_ball_spin(capture, balls: HandBalls, free, *, pairs: dict | None = None
     """Spin from the painted markers of the free-flight flashes (``free``: bool (K,) per ball
     position, e.g. ``~Release.held``). ``capture`` is a studio capture, or a Rig with ``pairs``
     and ``images`` given (as :func:`hand_ball_positions`). Markers per pair with
-    :func:`stillcap.pipelines.pitch.pair_marker_observations`, one constant spin with
+    :func:`stillcap.ball.markers.pair_marker_observations`, one constant spin with
     :func:`stillcap.ball.orientation.fit_spin`, aliases with
     :func:`stillcap.ball.alias.alias_candidates`."""
     from stillcap.ball.alias import alias_candidates
     from stillcap.ball.orientation import MarkerObservations, fit_spin
-    from stillcap.pipelines.pitch import pair_marker_observations
+    from stillcap.ball.markers import pair_marker_observations
 
     nan3 = np.full(3, np.nan)
     free = np.asarray(free, bool)

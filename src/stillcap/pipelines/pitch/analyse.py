@@ -1,0 +1,88 @@
+"""The pitch pipeline's entry point: :func:`analyse_pitch` runs the stages of
+:mod:`stillcap.pipelines.pitch.stages` in the order of the method, the per-pair work scheduled by
+:mod:`stillcap.pipelines.pitch.workers`."""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from pathlib import Path
+
+from stillcap.ball.layout import BallLayout
+from stillcap.ball.markers import marker_types
+from stillcap.ball.physics import flight_model
+from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.pipelines.pitch.options import PitchOptions
+from stillcap.pipelines.pitch.result import PitchResult
+from stillcap.pipelines.pitch.stages import (StageLog, find_balls, fit_flight, markers_and_spin,
+                                             metrics_and_uncertainty, number_flashes, refit_with_spin,
+                                             start_markers_and_spin)
+from stillcap.pipelines.pitch.workers import pair_jobs
+
+__all__ = ["analyse_pitch"]
+
+
+def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = None, *,
+                  progress: Callable[[int, int, str], None] | None = None, **kwargs) -> PitchResult:
+    """Analyse one pitch capture (SPEC J1): positions, timing, markers, spin, flight, metrics.
+
+    Parameters
+    ----------
+    capture : Capture or path
+        A capture folder (``kind: pitch``) with one photo per camera of 1+ strobed stereo pairs,
+        each photo with its ``strobe_hz``; the rig's world should be the baseball field frame
+        for the metrics.
+    options : PitchOptions, optional
+        Or pass its fields as keyword arguments (``spin_method="seed"``, ``physics="nathan"``).
+    progress : callable(done, total, label), optional
+
+    Returns
+    -------
+    PitchResult
+
+    Raises
+    ------
+    ValueError
+        A capture that cannot give a flight: not a pitch capture, no complete stereo pair, an
+        unreadable photo, no ball found, fewer than 3 ball positions or fewer than 2 in the front
+        pair. Missing markers (no spin) are not errors: the result says so in ``messages``.
+    """
+    t_all = _time.perf_counter()
+    if options is None:
+        options = PitchOptions(**kwargs)
+    elif kwargs:
+        raise ValueError("give either options or keyword arguments, not both")
+    cap = capture if isinstance(capture, Capture) else Capture.load(capture)
+    # the per-pair work on threads, or in worker processes (options.processes > 0)
+    with pair_jobs(cap, options.workers, options.processes) as jobs:
+        return _analyse(cap, options, jobs, progress, t_all)
+
+
+def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) -> PitchResult:
+    """The method, stage by stage (:mod:`stillcap.pipelines.pitch.stages`)."""
+    where = f"capture {cap.root}" if cap.root is not None else "capture"
+    if cap.kind != "pitch":
+        raise ValueError(f"{where} is a {cap.kind!r} capture, not a pitch capture (capture.json \"kind\")")
+    layout = options.layout or BallLayout.seed(radius=options.ball_radius_m)
+    types = marker_types(layout)
+    model = flight_model(options.physics)
+    timings: dict = {}
+    specs, messages = stereo_pairs(cap)
+    log = StageLog(messages, timings, progress, 2 * len(specs) + 3)
+
+    balls = find_balls(specs, jobs, options.ball_radius_m, where, log)
+    pairs = number_flashes(cap, balls, options, where, log)
+    # each pair's markers and own spin need only its ball images: on the workers, while this
+    # thread fits the flight
+    marker_jobs = start_markers_and_spin(pairs, jobs, types, layout, options)
+    flight = fit_flight(cap, pairs, model, options, log)
+    spin = markers_and_spin(pairs, marker_jobs, flight, model, layout, options, log)
+    fit = refit_with_spin(pairs, flight, spin, options, log)
+    out = metrics_and_uncertainty(cap, pairs, flight, spin, fit, model, options, log)
+
+    timings["total"] = _time.perf_counter() - t_all
+    log.step(log.total, "done")
+    return PitchResult(cap.rig.world, options, pairs, fit.times, flight.positions, flight.pair_index, flight.v_two,
+                       out.v_two_sigma, fit, flight.fit, spin.spin, spin.alias, out.metrics, out.sigma, out.release,
+                       out.table1, messages, timings, None if cap.root is None else str(cap.root),
+                       spin_obs_times=spin.obs_times)

@@ -1,0 +1,133 @@
+"""Options of the pitch pipeline (:class:`PitchOptions`) and the names its options take."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
+from stillcap.ball.physics import FLIGHT_MODELS
+
+__all__ = ["FIT_METHODS", "PHYSICS", "PitchOptions", "SIGMA_METHODS", "SPIN_METHODS"]
+
+SPIN_METHODS = ("global", "seed")
+PHYSICS = tuple(FLIGHT_MODELS)
+FIT_METHODS = ("least_squares", "powell")
+SIGMA_METHODS = ("linear", "monte_carlo")
+
+
+@dataclass(frozen=True)
+class PitchOptions:
+    """How :func:`analyse_pitch` runs.
+
+    Attributes
+    ----------
+    spin_method : {"global", "seed"}
+        One constant spin fitted to all flashes (default), or the seed's per-flash method.
+    physics : {"seed", "nathan"}
+        Flight model of the reference fit and the metrics.
+    fit_method : {"least_squares", "powell"}
+        Optimiser of the reference fit (Powell is the seed's).
+    ball_radius_m : float
+    layout : BallLayout or None
+        The painted markers (default: the seed's 12-marker ball).
+    release_y_ft : float or None
+        Where "release" is evaluated: None = at the first ball image of the front pair (the
+        photos do not show the hand); a value evaluates the fitted flight at that plane
+        (field frame ``y``, feet), e.g. the pitcher's known release extension.
+    expected_speed_mph : float or None
+        Anchors the flash spacing (``speed / strobe_hz``) when a pair may have missed flashes
+        between every pair of ball images; default: from the smallest spacing.
+    position_sigma_m : float
+        Expected position noise (relative weight of positions and measured initial parameters in
+        the reference fit; the reported covariance is rescaled by the actual residuals).
+    marker_epipolar_px : float
+        Largest epipolar distance of a marker matched across a pair.
+    sigma_method : {"linear", "monte_carlo"}
+        How the metrics' uncertainties are propagated from the fits' covariances: first order
+        (central differences along the covariances' principal axes, about 24 flights; default)
+        or Monte Carlo with ``n_samples`` draws (``docs/pitch.md``, "Uncertainties").
+    n_samples : int
+        Monte Carlo samples for the metrics' uncertainties (0 or 1: no metric uncertainties,
+        with either method).
+    rng : int or Generator
+        For the Monte Carlo samples.
+    calibration_focal_sigma : float
+        Relative 1-sigma of each camera's calibrated focal length, the calibration error that
+        dominates the positions (``docs/pitch.md``, "Uncertainties"): every camera's focal
+        length is perturbed by it, its pose re-solved on the calibration's own board corners
+        (from ``capture.json`` ``meta.calibration``) and the ball images re-triangulated; the
+        shift, shared by all positions of the pair, goes into every reported uncertainty.
+        Default 2.5e-4: the RMS focal error of ``calibrate_pitch_rig`` against the true rig
+        (0.015-0.025 %). 0 leaves calibration error out.
+    centre_bias_px : float or None
+        1-sigma per image coordinate of a systematic error of the refined ball centres shared by
+        all ball images of one camera (the strobe lights the ball from one side). None (default):
+        the bias the detector's shading correction leaves, per ball image from its lit phase and
+        radius (:func:`stillcap.ball.uncertainty.shading_residual_lookup`; ``docs/pitch.md``,
+        "Coverage audit", fourth pass); a number: that many px per image axis and camera, a
+        constant and a trend along the flight; 0 leaves it out. ``docs/pitch.md``,
+        "Uncertainties".
+    workers : int
+        Threads for the per-pair work: decoding the photos (while the calling thread finds the
+        ball images of the pairs already decoded), markers and the pairs' own spin fits. The
+        results do not depend on it.
+    processes : int
+        Worker processes for the per-pair work (0, default: the ``workers`` threads). Each pair's
+        photos are decoded, its ball images and markers found and its own spin fitted in a
+        process of a pool that lives across calls (:mod:`stillcap.pipelines.pitch.workers`;
+        started on the first call with ``processes > 0``, about 1 s, reused afterwards): worth it
+        for many captures in one process (benchmarks, batches), not for one (``docs/pitch.md``,
+        "Timing"). The results are identical to the threads'. Needs a capture loaded from or
+        saved to a folder; scripts that use it need an ``if __name__ == "__main__":`` guard.
+    """
+
+    spin_method: str = "global"
+    physics: str = "seed"
+    fit_method: str = "least_squares"
+    ball_radius_m: float = BASEBALL_RADIUS
+    layout: BallLayout | None = None
+    release_y_ft: float | None = None
+    expected_speed_mph: float | None = None
+    position_sigma_m: float = 0.002
+    marker_epipolar_px: float = 2.0
+    n_samples: int = 200
+    rng: object = 0
+    sigma_method: str = "linear"
+    calibration_focal_sigma: float = 2.5e-4
+    centre_bias_px: float | None = None
+    workers: int = 2
+    processes: int = 0
+
+    def __post_init__(self):
+        fm = self.fit_method.replace("-", "_") if isinstance(self.fit_method, str) else self.fit_method
+        object.__setattr__(self, "fit_method", fm)
+        for name, allowed in (("spin_method", SPIN_METHODS), ("physics", PHYSICS), ("fit_method", FIT_METHODS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        if not (np.isfinite(self.ball_radius_m) and self.ball_radius_m > 0):
+            raise ValueError(f"ball_radius_m must be a positive number of metres, got {self.ball_radius_m}")
+        if self.expected_speed_mph is not None and not self.expected_speed_mph > 0:
+            raise ValueError(f"expected_speed_mph must be positive, got {self.expected_speed_mph}")
+        if self.release_y_ft is not None and not np.isfinite(self.release_y_ft):
+            raise ValueError(f"release_y_ft must be a finite number of feet, got {self.release_y_ft}")
+        if not self.position_sigma_m > 0:
+            raise ValueError(f"position_sigma_m must be positive, got {self.position_sigma_m}")
+        if self.sigma_method not in SIGMA_METHODS:
+            raise ValueError(f"sigma_method must be one of {', '.join(SIGMA_METHODS)}, got {self.sigma_method!r}")
+        if int(self.n_samples) < 0:
+            raise ValueError(f"n_samples must be >= 0, got {self.n_samples}")
+        if int(self.workers) < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if int(self.processes) < 0:
+            raise ValueError(f"processes must be >= 0, got {self.processes}")
+        if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
+            raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
+
+    def to_dict(self) -> dict:
+        return {"spin_method": self.spin_method, "physics": self.physics, "fit_method": self.fit_method,
+                "ball_radius_m": self.ball_radius_m, "release_y_ft": self.release_y_ft,
+                "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
+                "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
+                "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.centre_bias_px}

@@ -1,0 +1,195 @@
+"""The spin step of the pitch pipeline: a pair's markers and own spin (the per-pair job, on a
+thread or in a worker process), the alias choice, and one spin over all pairs.
+
+- :func:`pair_markers_and_spin`: the markers of one pair
+  (:func:`stillcap.ball.markers.pair_marker_observations`) and the pair's own spin on its clock;
+  it needs neither the flight fit nor the other pairs, so it runs alongside the positions-only fit.
+- :func:`spin_stage`: the alias above the strobe's Nyquist limit chosen with both strobe rates
+  and the flight's Magnus curvature (:mod:`stillcap.ball.alias`), then (``"global"``) all pairs'
+  markers refitted together on the reference clock at that alias, or (``"seed"``) the best
+  pair's per-flash fit moved to it.
+"""
+
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from stillcap.ball.fit import ReferenceFit
+from stillcap.ball.markers import pair_marker_observations
+from stillcap.ball.metrics import RPM_PER_RAD_S
+from stillcap.ball.orientation import MarkerObservations, SpinResult, fit_spin, fit_spin_seed
+from stillcap.ball.physics import FlightModel
+from stillcap.pipelines.pitch.result import PairResult
+
+__all__ = ["pair_markers_and_spin", "spin_stage"]
+
+
+def pair_markers_and_spin(cams, imgs, pair: PairResult, types, layout, radius_m: float, max_px: float,
+                          spin_method: str):
+    """The marker step of one pair: :func:`~stillcap.ball.markers.pair_marker_observations` on
+    its photos, then the pair's own spin (it needs only the pair's markers and flash indices, not
+    the flight fit).
+
+    Returns
+    -------
+    ((obs, markers, stats), spin, t_markers_s, t_spin_s)
+        ``spin``: SpinResult, None, or the ValueError / LinAlgError of the fit (reported where
+        the spin stage would report it).
+    """
+    t_job = _time.perf_counter()
+    out = pair_marker_observations(
+        cams[0], imgs[0], cams[1], imgs[1], pair.centers_px[0], pair.centers_px[1], pair.radius_px[0],
+        pair.radius_px[1], pair.positions, types, layout, radius_m, max_px)
+    t_mk = _time.perf_counter() - t_job
+    try:
+        spin = _fit_pair_spin(pair, spin_method, layout, observations=out[0])
+    except (ValueError, np.linalg.LinAlgError) as e:
+        spin = e
+    return out, spin, t_mk, _time.perf_counter() - t_job - t_mk
+
+
+def _fit_pair_spin(pair: PairResult, method: str, layout, spin_init=None, observations=None) -> SpinResult | None:
+    """The spin of one pair's markers on its own clock (``observations`` instead of the pair's:
+    the marker job on the worker pool runs it before they are stored on the pair)."""
+    obs = pair.observations if observations is None else observations
+    if obs is None or len(obs) == 0 or len(pair) < 2:
+        return None
+    t = pair.local_times
+    if method == "seed":
+        return fit_spin_seed(t, obs, layout, strobe_hz=pair.strobe_hz)
+    # stop after the first start that explains 90 % of the markers (fit_spin: the same result on
+    # the benchmark pitches, one fit instead of three)
+    return fit_spin(t, obs, layout, strobe_hz=pair.strobe_hz, spin_init=spin_init, stop_fraction=0.9)
+
+
+def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, messages: list):
+    """Choose the spin alias with both strobe rates and the flight's Magnus curvature
+    (:func:`stillcap.ball.alias.resolve_aliases`).
+
+    Returns ``(spin vector (3,) or None, AliasResolution or None)``."""
+    from stillcap.ball.alias import CurvatureMeasurement, StrobeMeasurement, resolve_aliases
+
+    meas = []
+    for p in pairs:
+        s = p.spin
+        if s is None or not s.success or not np.all(np.isfinite(s.spin)):
+            continue
+        cov = s.spin_covariance
+        if not np.all(np.isfinite(cov)):  # e.g. the seed method with one interval: no spread
+            cov = np.eye(3) * (20.0 / RPM_PER_RAD_S) ** 2
+        meas.append(StrobeMeasurement(s.spin, p.strobe_hz, cov, f"pair {p.name} ({p.strobe_hz:g} Hz)"))
+    if not meas:
+        return None, None
+    curv = None
+    if fit_curv is not None and np.all(np.isfinite(fit_curv.covariance[6:9, 6:9])):
+        try:
+            curv = CurvatureMeasurement.from_reference_fit(fit_curv, model)
+        except ValueError:
+            curv = None
+    res = resolve_aliases(meas, curv)
+    if res.ambiguous:
+        messages.append(f"spin rate ambiguous (aliasing above the strobe's Nyquist limit): {res.message}")
+    elif len(meas) == 1 and curv is None:
+        messages.append("spin alias checked with one strobe rate only")
+    return res.best.spin.copy(), res
+
+
+def _combined_spin(pairs: list, spin_init, layout, messages) -> SpinResult | None:
+    """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``.
+
+    Returns ``(SpinResult or None, reference-clock time of each observation)``."""
+    parts, times, groups = [], [], []
+    for p in pairs:
+        if p.observations is None or len(p.observations) == 0:
+            continue
+        parts.append(p)
+        times.append(p.times)
+        groups.append(np.full(len(p), p.group))
+    if not parts:
+        return None, None
+    # start at the orientation a pair's own fit found at its first flash, turned back to t = 0 at
+    # the chosen alias (alias candidates agree at flash times): one start instead of four
+    fitted = [p for p in parts
+              if p.spin is not None and p.spin.success and np.all(np.isfinite(p.spin.ball2world_t0))]
+    src = next((p for p in fitted if p.group == 0), max(fitted, key=lambda p: p.spin.n_inliers, default=None))
+    if len(parts) == 1:
+        p = parts[0]
+        R_init = p.spin.ball2world_t0 if p is src else None
+        return (fit_spin(p.local_times, p.observations, layout, strobe_hz=p.strobe_hz, spin_init=spin_init,
+                         ball2world_init=R_init), p.times[p.observations.flash])
+    R_init = None
+    if src is not None:
+        R_init = Rotation.from_rotvec(-np.asarray(spin_init, float) * src.times[0]).as_matrix() @ src.spin.ball2world_t0
+    t_all = np.concatenate(times)
+    order = np.argsort(t_all, kind="stable")
+    if np.any(np.diff(t_all[order]) <= 0):
+        messages.append("flashes of different pairs coincide in time: spin from the pairs separately")
+        return None, None
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    obs_parts, start = [], 0
+    for p in parts:
+        o = p.observations
+        obs_parts.append(MarkerObservations(rank[start + o.flash], o.types, o.directions, o.from_ray))
+        start += len(p)
+    obs = MarkerObservations.concatenate(obs_parts)
+    ref = parts[0]
+    t_sorted = t_all[order]
+    # the other pairs' flashes sit on the reference clock through fitted offsets: their
+    # uncertainty goes into the spin's covariance
+    g_sorted = np.concatenate(groups)[order]
+    n_g = int(g_sorted.max(initial=0))
+    g_sig = np.zeros(n_g)
+    for p in parts:
+        if p.group > 0:
+            g_sig[p.group - 1] = p.time_offset_sigma_s
+    return (fit_spin(t_sorted, obs, layout, t0=0.0, strobe_hz=ref.strobe_hz, spin_init=spin_init,
+                     ball2world_init=R_init, time_groups=g_sorted, time_group_sigma=g_sig),
+            t_sorted[obs.flash])
+
+
+def spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None):
+    """Per-pair spin fits, the alias choice and the final spin: ``(SpinResult or None, alias
+    resolution or None, reference-clock time of each observation of the final fit)``.
+    ``pair_spins``: the per-pair fits already made (one per pair, in order), e.g. on the pool."""
+    from stillcap.ball.alias import alias_candidates
+
+    for i, p in enumerate(pairs):
+        p.spin = _fit_pair_spin(p, method, layout) if pair_spins is None else pair_spins[i]
+        if p.spin is not None and not p.spin.success:
+            messages.append(f"pair {p.name!r}: spin not determined ({p.spin.message})")
+    w_alias, alias = _resolve_alias(pairs, fit_pos, model, messages)
+    if w_alias is None:
+        messages.append("too few markers for a spin (need markers on 2+ flashes with 2+ types): spin unavailable")
+        return None, alias, None
+    best = max((p for p in pairs if p.spin is not None and p.spin.success), key=lambda p: p.spin.n_inliers)
+    if method == "global":
+        spin, obs_times = _combined_spin(pairs, w_alias, layout, messages)
+        if spin is None or not spin.success:
+            spin = _fit_pair_spin(best, "global", layout, spin_init=w_alias)
+            obs_times = best.times[best.observations.flash]
+    else:
+        spin = best.spin
+        obs_times = best.times[best.observations.flash]
+        # the seed method's rate is the principal alias of its strobe: move it to the chosen alias
+        cands = alias_candidates(spin.spin, best.strobe_hz, max_rpm=max(4000.0, 1.5 * np.linalg.norm(w_alias)
+                                                                        * RPM_PER_RAD_S))
+        w = min((c.spin for c in cands), key=lambda c: float(np.linalg.norm(c - w_alias)))
+        if np.linalg.norm(w - spin.spin) > 1e-9:
+            spin = _with_spin(spin, w)
+    if spin is not None and not spin.success:
+        messages.append(f"spin fit failed: {spin.message}")
+    return spin, alias, obs_times
+
+
+def _with_spin(res: SpinResult, w) -> SpinResult:
+    """A copy of a spin result moved to another alias ``w`` (same axis line, rate from the alias)."""
+    from dataclasses import replace as _replace
+
+    w = np.asarray(w, float)
+    n = float(np.linalg.norm(w))
+    return _replace(res, spin=w.copy(), spin_rpm=n * RPM_PER_RAD_S, axis=w / n if n > 0 else np.full(3, np.nan),
+                    message=f"{res.message}; alias chosen with both strobe rates and the flight curvature")
