@@ -25,6 +25,7 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap.camera import Camera, Rig
+from stillcap.geometry.robust import consensus
 
 
 @dataclass
@@ -254,27 +255,33 @@ def _triangulate_block(cams, x, method, refine, outlier_px, min_views):
     return X, rms, np.where(seen, errors, np.nan), used
 
 
+class _PairPoints:
+    """The robust model of triangulation (:class:`~stillcap.geometry.robust.RobustModel`): a
+    hypothesis is a pair of views, its parameters the points triangulated linearly from those two
+    views alone, its residuals every view's reprojection error, shape (n_cams, N)."""
+
+    def __init__(self, cams, world2cams, xn, x, seen, linear):
+        self.cams, self.world2cams, self.xn, self.x, self.seen, self.linear = cams, world2cams, xn, x, seen, linear
+
+    def estimate(self, pair):
+        i, j = pair
+        both = self.seen[i] & self.seen[j]
+        mask = np.zeros_like(self.seen)
+        mask[i], mask[j] = both, both
+        X = self.linear(self.world2cams, self.xn, mask)
+        X[~both] = np.nan
+        return X
+
+    def residuals(self, X):
+        return reprojection_errors(self.cams, X, self.x)
+
+
 def _consensus(cams, world2cams, xn, x, seen, linear, outlier_px) -> np.ndarray:
     """Views of each point that agree with the best pair hypothesis (RANSAC over view pairs).
 
     With the handful of cameras of a capture rig all pairs are tried (deterministic, and cheaper
-    than random sampling for n_cams <= ~12).
+    than random sampling for n_cams <= ~12). Points no pair explains keep all their views.
     """
-    n_cams, n = seen.shape
-    best_count = np.zeros(n, int)
-    best_err = np.full(n, np.inf)
-    best_mask = seen.copy()
-    for i, j in combinations(range(n_cams), 2):
-        pair = np.zeros_like(seen)
-        pair[i], pair[j] = seen[i] & seen[j], seen[i] & seen[j]
-        X = linear(world2cams, xn, pair)
-        X[~(seen[i] & seen[j])] = np.nan
-        err = reprojection_errors(cams, X, x)
-        inl = seen & (err <= outlier_px)
-        count = inl.sum(axis=0)
-        score = np.where(inl, err, 0.0).sum(axis=0)
-        better = (count > best_count) | ((count == best_count) & (count >= 2) & (score < best_err))
-        best_count = np.where(better, count, best_count)
-        best_err = np.where(better, score, best_err)
-        best_mask[:, better] = inl[:, better]
-    return best_mask
+    model = _PairPoints(cams, world2cams, xn, x, seen, linear)
+    found = consensus(model, combinations(range(len(cams)), 2), outlier_px, min_inliers=2)
+    return np.where(found.best >= 0, found.inliers, seen)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from stillcap.geometry.robust import consensus
+
 
 def _expmap(rotvecs) -> np.ndarray:
     """Rotation matrices of rotation vectors, shape (..., 3) -> (..., 3, 3) (Rodrigues).
@@ -122,15 +124,28 @@ def _rot_angles(Rs) -> np.ndarray:
     return np.arccos(np.clip(c, -1.0, 1.0))
 
 
+class _RotationGroup:
+    """The robust model of :func:`_consensus_rotations`: a hypothesis is one of the rotations,
+    the residuals the angles (rad) of all of them to it."""
+
+    def __init__(self, angles):
+        self.angles = angles
+
+    def estimate(self, i):
+        return i
+
+    def residuals(self, i):
+        return self.angles[i]
+
+
 def _consensus_rotations(Rs, tol):
-    """Index set of the largest group of rotations within ``tol`` (rad) of one of them."""
+    """Index set of the largest group of rotations within ``tol`` (rad) of one of them (the first
+    such group on ties; :func:`stillcap.geometry.robust.consensus` with each rotation a hypothesis)."""
     n = len(Rs)
     if n == 0:
         return np.zeros(0, int)
-    ang = _rot_angles(Rs)
-    support = (ang < tol).sum(1)
-    best = int(np.argmax(support))
-    return np.flatnonzero(ang[best] < tol)
+    found = consensus(_RotationGroup(_rot_angles(Rs)), range(n), tol, inclusive=False, tie_break=False)
+    return np.flatnonzero(found.inliers)
 
 
 def _mean_rotation(Rs):
