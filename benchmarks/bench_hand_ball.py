@@ -17,7 +17,7 @@ import numpy as np
 
 from stillcap.ball.metrics import RPM_PER_RAD_S
 from stillcap.ball.release import estimate_release
-from stillcap.pipelines.hand_ball import hand_ball_positions, hand_ball_spin
+from stillcap.pipelines.hand.ball import hand_ball_positions, hand_ball_spin
 from stillcap.studio.hand import hand_capture
 
 

@@ -19,7 +19,7 @@ Chains (``stillcap.pipelines.puppet``):
   outlier rejection, re-identification from the 3D markers (``reidentify``) and a second
   triangulation of the markers it renamed, pose fit; "default (whole photo)" detects on the whole photo,
   "default (full-resolution map)" finds the contrast peaks on the full-resolution map instead of
-  at half resolution (``PuppetSettings(coarse=False)``).
+  at half resolution (``PuppetOptions(coarse=False)``).
 
 ``--markers`` picks the marker set the studio renders (``MarkerSet.resolve``: the thesis's 16
 beads by default, ``puppet-20`` with a second bead on each forearm and shin, or a file); the
@@ -37,8 +37,8 @@ the beads fix, "partial" at a frame with one bead (forearms, shins), "none" at o
 (hands, feet)), by design of the marker set and by what the recovered markers of each pose
 measure ("measured": a frame whose second bead was seen in fewer than two views counts as
 partial there), and by body part; joint position error; time for the 12 views (decode +
-pipeline, ``run_capture(compare=False)``: the comparison with the truth is this benchmark's
-evaluation, done after the clock stops) as a ratio to decoding the 12 JPEGs, both measured in
+pipeline, ``analyse_puppet``: the comparison with the truth (``studio.compare.puppet``) is this
+benchmark's evaluation, done after the clock stops) as a ratio to decoding the 12 JPEGs, both measured in
 this run, per pose. The pipeline decodes and detects
 the views on ``--workers`` threads (default 2); the reference decode is always serial.
 """
@@ -57,8 +57,8 @@ from rich.table import Table
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.io.capture import Capture
-from stillcap.pipelines.puppet import (DEFAULT, THESIS_CHAIN, PuppetSettings, compare_with_truth,
-                                       run_capture)
+from stillcap.pipelines.puppet import DEFAULT, THESIS_CHAIN, PuppetOptions, analyse_puppet
+from stillcap.studio.compare.puppet import compare_with_truth
 from stillcap.studio.puppet import PuppetTruth
 
 REPO = Path(__file__).resolve().parents[1]
@@ -67,10 +67,10 @@ console = Console(width=150)
 
 CHAINS = {
     "thesis": THESIS_CHAIN,
-    "thesis + template": PuppetSettings(detector="template", identify="thesis", triangulation="midpoint",
+    "thesis + template": PuppetOptions(detector="template", identify="thesis", triangulation="midpoint",
                                         outlier_px=None, use_fill=False, pose="thesis", reidentify=False),
-    "default (whole photo)": PuppetSettings(roi=False),
-    "default (full-resolution map)": PuppetSettings(coarse=False),
+    "default (whole photo)": PuppetOptions(roi=False),
+    "default (full-resolution map)": PuppetOptions(coarse=False),
     "default": DEFAULT,
 }
 
@@ -152,7 +152,7 @@ def main(argv=None) -> None:
     ap.add_argument("--markers", default="puppet-16", help="marker set: puppet-16, puppet-20 or a marker-set file")
     ap.add_argument("--chains", default=",".join(CHAINS), help="comma-separated chains to run")
     ap.add_argument("--workers", type=int, default=2,
-                    help="threads that decode and detect the views (run_capture's workers; 1 = serially)")
+                    help="threads that decode and detect the views (analyse_puppet's workers; 1 = serially)")
     args = ap.parse_args(argv)
     specs = pose_specs(args.random, args.bvh, args.seed)
     markerset = MarkerSet.resolve(args.markers)
@@ -173,7 +173,7 @@ def main(argv=None) -> None:
                 bar.update(task, description=f"{c}: {folder.name}")
                 dec = min(decode_time(folder), decode_time(folder))  # warm file cache, best of two
                 t0 = time.perf_counter()
-                res, _ = run_capture(folder, CHAINS[c], workers=args.workers, compare=False)
+                res, _ = analyse_puppet(folder, CHAINS[c], workers=args.workers)
                 total = time.perf_counter() - t0
                 # the comparison with the truth is the benchmark's evaluation, not the capture's work
                 res.comparison = compare_with_truth(res, truths[folder])

@@ -8,18 +8,6 @@ from stillcap.body import MarkerSet, Skeleton
 from stillcap.body.puppet_pose import fit_pose, frame_status
 
 
-def test_the_pipeline_still_exports_the_moved_stages():
-    import stillcap.body.puppet_pose as pose
-    import stillcap.detect.beads as beads
-    import stillcap.pipelines.puppet as pipe
-
-    for mod, names in ((pose, ("fit_pose", "frame_status", "PoseFit")),
-                       (beads, ("bead_fill", "bright_region", "reidentify", "ViewResult", "DETECTORS", "IDENTIFIERS"))):
-        for n in names:
-            assert getattr(pipe, n) is getattr(mod, n)
-            assert n in pipe.__all__
-
-
 def test_rest_markers_give_the_rest_pose():
     sk, ms = Skeleton.puppet(), MarkerSet.puppet()
     rest = sk.rest_pose()

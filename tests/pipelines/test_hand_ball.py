@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stillcap.ball.release import estimate_release
-from stillcap.pipelines.hand_ball import hand_ball_positions, hand_ball_spin, whiteness
+from stillcap.pipelines.hand.ball import hand_ball_positions, hand_ball_spin, whiteness
 from stillcap.studio.hand import hand_capture
 
 
@@ -87,7 +87,7 @@ def test_whiteness_shape():
 def test_histogram_median_equals_numpy():
     """The uint8 histogram median (and median absolute deviation) that replaced np.median in the
     ball threshold is exact, for odd and even sizes."""
-    from stillcap.pipelines.hand_ball import _median
+    from stillcap.pipelines.hand.ball import _median
 
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 10, 11, 1000, 1001, 200_000):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from stillcap.io.capture import Capture
-from stillcap.pipelines.hand import HandOptions, analyse_hand, compare_with_truth
+from stillcap.pipelines.hand import HandOptions, analyse_hand
+from stillcap.studio.compare.hand import compare_with_capture, compare_with_truth, truth_arrays
 
 SIZE = (1280, 960)
 
@@ -33,7 +34,9 @@ def capture(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def result(capture):
-    return analyse_hand(capture)
+    res = analyse_hand(capture)
+    res.truth = compare_with_capture(res)
+    return res
 
 
 def test_recovers_the_truth(result):
@@ -109,7 +112,7 @@ def test_exports_hold_the_animation_and_markers(result, tmp_path):
 def test_report_writes_animation_and_plots(result, tmp_path):
     from stillcap.report.hand import write_result_report
 
-    paths = write_result_report(result, tmp_path / "rep")
+    paths = write_result_report(result, tmp_path / "rep", truth_arrays=truth_arrays(result.capture.truth))
     for key in ("html", "animation", "joint_angles", "json"):
         assert paths[key].is_file() and paths[key].stat().st_size > 100, key
     assert cv2.imread(str(paths["joint_angles"])) is not None

@@ -10,10 +10,13 @@ from scipy.spatial.transform import Rotation
 from stillcap.body import MarkerSet, Pose, Skeleton
 from stillcap.camera import Rig
 from stillcap.io.project import Project
-from stillcap.pipelines.puppet import (DEFAULT, THESIS_CHAIN, PuppetSettings, bead_fill, bright_region, fit_pose,
-                                       frame_status, load_result, reconstruct_puppet, run_capture, run_folder,
-                                       reidentify, run_project, solve_markers, triangulate_markers)
-from stillcap.geometry.triangulate import triangulate
+from stillcap.body.puppet_pose import fit_pose, frame_status
+from stillcap.detect.beads import bead_fill, bright_region, reidentify
+from stillcap.io.puppet_result import load_result
+from stillcap.pipelines.puppet import (DEFAULT, THESIS_CHAIN, PuppetOptions, analyse_puppet, analyse_puppet_views,
+                                       solve_markers)
+from stillcap.geometry.triangulate import triangulate, triangulate_markers
+from stillcap.studio.compare.puppet import compare_with_capture, compare_with_truth
 from stillcap.studio.puppet import puppet_scene
 from support import assert_same_reconstruction
 
@@ -30,9 +33,10 @@ def random3():
     return puppet_scene(pose="random:3", rng=3, supersample=1)
 
 
-def _run(scene, settings=DEFAULT):
-    return reconstruct_puppet(scene.rig, scene.images, settings=settings, truth=scene.truth,
-                              angles_deg=list(scene.truth.angles_deg))
+def _run(scene, options=DEFAULT):
+    res = analyse_puppet_views(scene.rig, scene.images, options=options, angles_deg=list(scene.truth.angles_deg))
+    res.comparison = compare_with_truth(res, scene.truth)
+    return res
 
 
 def test_tpose_every_marker_recovered_without_a_wrong_identification(tpose):
@@ -79,8 +83,8 @@ def test_thesis_chain_runs(random3):
     # the thesis's detector finds few beads on these renders (IsoData picks a threshold in the
     # background noise, see docs/puppet.md) and is slow; two views show that the chain runs
     rig = Rig(list(random3.rig)[:2], random3.rig.world)
-    res = reconstruct_puppet(rig, random3.images[:2], settings=THESIS_CHAIN)
-    assert res.settings.pose == "thesis" and res.pose is res.thesis_pose
+    res = analyse_puppet_views(rig, random3.images[:2], options=THESIS_CHAIN)
+    assert res.options.pose == "thesis" and res.pose is res.thesis_pose
     assert res.views[0].circles.method == "thesis" and res.views[0].identification.method == "greedy"
     assert res.markers.observations.shape == (2, 16, 2)
 
@@ -148,7 +152,7 @@ def test_markers_seen_once_are_missing(tpose):
     obs = np.full((len(tpose.rig), 16, 2), np.nan)
     obs[:] = tpose.truth.markers_px
     obs[1:, 0] = np.nan  # head.1 only in view 0
-    s = solve_markers(tpose.rig, obs, names, settings=PuppetSettings(use_fill=False))
+    s = solve_markers(tpose.rig, obs, names, options=PuppetOptions(use_fill=False))
     assert s.missing == ("head.1",) and np.all(np.isnan(s.points[0]))
     assert s.ok[1:].all() and np.nanmax(s.reproj_error_px) < 0.05
     with pytest.raises(ValueError, match=r"points_2d must have shape \(12, 16, 2\)"):
@@ -159,14 +163,15 @@ def test_capture_folder_and_project(tmp_path, tpose):
     cap, images = tpose.to_capture(".png")
     cap.save(tmp_path / "cap", images)
     images = list(images.values())
-    res, imgs = run_capture(tmp_path / "cap")
+    res, imgs = analyse_puppet(tmp_path / "cap")
+    res.comparison = compare_with_capture(res, tmp_path / "cap")
     assert len(imgs) == 12 and res.comparison is not None and res.comparison.recovered == 16
     # the same photos in a project: detected, stored, reconstructed
     p = Project.create(tmp_path / "proj")
     for img, a in zip(images[:6], tpose.truth.angles_deg[:6]):
         p.add_view(img, angle_deg=float(a))
     p.save()
-    res2, _ = run_folder(tmp_path / "proj")
+    res2, _ = analyse_puppet(tmp_path / "proj")
     p = Project.load(tmp_path / "proj")
     assert all(v.detected for v in p.views)
     assert res2.markers.ok.sum() == 16 and res2.source["type"] == "project"
@@ -176,20 +181,20 @@ def test_capture_folder_and_project(tmp_path, tpose):
         if "head.1" in v.markers:
             p.edit(v, delete="head.1")
     p.save()
-    res3, _ = run_project(tmp_path / "proj")
+    res3, _ = analyse_puppet(tmp_path / "proj")
     assert "head.1" in res3.missing
 
 
 def test_bad_input(tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
-        run_folder(tmp_path / "nothing")
+        analyse_puppet(tmp_path / "nothing")
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="neither a capture folder"):
-        run_folder(tmp_path / "empty")
+        analyse_puppet(tmp_path / "empty")
     with pytest.raises(ValueError, match="unknown detector 'sift'"):
-        PuppetSettings(detector="sift")
+        PuppetOptions(detector="sift")
     with pytest.raises(ValueError, match="unknown identification 'magic'"):
-        PuppetSettings(identify="magic")
+        PuppetOptions(identify="magic")
     with pytest.raises(ValueError, match="not a stillcap puppet result"):
         load_result({"format": "something"})
 
@@ -210,7 +215,7 @@ def test_identification_consistent_with_3d_has_no_wrong_marker(random3):
     assert np.all(d[found] < 4.0)  # px; gate 0.6 x the bead radius (5-7 px)
     assert res.to_dict()["comparison"]["identification"]["colour_only"]["wrong"] == c.raw_wrong
     # without re-identification the colour's own naming stays (what the raw numbers count)
-    plain = _run(random3, PuppetSettings(reidentify=False))
+    plain = _run(random3, PuppetOptions(reidentify=False))
     assert plain.raw_observations is None
     np.testing.assert_array_equal(plain.markers.observations, res.raw_observations)
 
@@ -229,7 +234,7 @@ def test_reidentify_leaves_a_marker_without_matching_candidate_unidentified(rand
 
 def test_triangulate_markers_is_the_shared_triangulation(random3):
     # the puppet's fast consensus (all view pairs in one call) gives the shared function's result
-    res = _run(random3, PuppetSettings(reidentify=False))
+    res = _run(random3, PuppetOptions(reidentify=False))
     x = res.markers.observations.copy()
     rng = np.random.default_rng(5)
     bad = rng.random(x.shape[:2]) < 0.08
@@ -299,19 +304,19 @@ def test_threads_give_the_serial_result(tmp_path, random3):
     cap, images = random3.to_capture(".jpg")
     cap.save(tmp_path / "cap", images, jpeg_quality=85)
     seen = []
-    one, _ = run_capture(tmp_path / "cap", workers=1)
-    two, _ = run_capture(tmp_path / "cap", workers=2, progress=lambda d, n: seen.append((d, n)))
+    one, _ = analyse_puppet(tmp_path / "cap", workers=1)
+    two, _ = analyse_puppet(tmp_path / "cap", workers=2, progress=lambda d, n: seen.append((d, n)))
     assert seen == [(k, 12) for k in range(1, 13)]
     assert_same_reconstruction(one, two)
     assert np.isfinite(two.markers.points).all(axis=1).sum() >= 14
     with pytest.raises(ValueError, match=r"need one detection per view \(12\), got 3"):
-        reconstruct_puppet(random3.rig, random3.images, detections=one.views[:3])
+        analyse_puppet_views(random3.rig, random3.images, detections=one.views[:3])
 
 
 def test_pipeline_runs_blas_on_one_thread_and_restores_the_callers_setting(monkeypatch, random3):
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    import stillcap.pipelines.puppet as pipe
+    import stillcap.pipelines.puppet.stages as pipe
 
     def blas_threads():
         return sorted({d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"})
@@ -327,7 +332,7 @@ def test_pipeline_runs_blas_on_one_thread_and_restores_the_callers_setting(monke
     obs = np.stack([v.identification.points for v in _run(random3).views])
     inside.clear()
     with threadpool_limits(2, user_api="blas"):
-        res = reconstruct_puppet(random3.rig, observations=obs)
+        res = analyse_puppet_views(random3.rig, observations=obs)
         assert blas_threads() == [2]
     assert np.isfinite(res.markers.points).all(axis=1).sum() >= 14
     assert inside == [[1]]
@@ -356,9 +361,9 @@ def test_capture_markerset_reads_the_entry_and_names_bad_ones():
 
 
 def test_every_entry_point_searches_one_candidate_per_bead():
-    from stillcap.pipelines.puppet import _settings_for
+    from stillcap.pipelines.puppet.options import _options_for
 
     twenty = MarkerSet.puppet("puppet-20")
-    assert _settings_for(DEFAULT, twenty).n_circles == 20
-    assert _settings_for(DEFAULT, MarkerSet.puppet()) is DEFAULT  # 16 beads: the thesis's 16 circles
-    assert _settings_for(PuppetSettings(n_circles=30), twenty).n_circles == 30  # never fewer than asked
+    assert _options_for(DEFAULT, twenty).n_circles == 20
+    assert _options_for(DEFAULT, MarkerSet.puppet()) is DEFAULT  # 16 beads: the thesis's 16 circles
+    assert _options_for(PuppetOptions(n_circles=30), twenty).n_circles == 30  # never fewer than asked

@@ -1,4 +1,4 @@
-"""run_capture's two threads: photos decoded and prepared on either thread (the detecting one
+"""analyse_puppet's two threads: photos decoded and prepared on either thread (the detecting one
 takes over photos the other has not started while it waits) give the serial result."""
 
 import threading
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from stillcap.io.capture import Capture
-from stillcap.pipelines.puppet import run_capture
+from stillcap.pipelines.puppet import analyse_puppet
 from stillcap.studio.puppet import puppet_scene
 from support import assert_same_reconstruction
 
@@ -23,7 +23,7 @@ def capture(tmp_path_factory):
 
 
 def test_photos_decoded_on_both_threads_give_the_serial_result(monkeypatch, capture):
-    one, _ = run_capture(capture, workers=1)
+    one, _ = analyse_puppet(capture, workers=1)
     real = Capture.read_image
     readers = []
 
@@ -35,7 +35,7 @@ def test_photos_decoded_on_both_threads_give_the_serial_result(monkeypatch, capt
 
     monkeypatch.setattr(Capture, "read_image", slow_read)
     seen = []
-    two, images = run_capture(capture, workers=2, progress=lambda d, n: seen.append((d, n)))
+    two, images = analyse_puppet(capture, workers=2, progress=lambda d, n: seen.append((d, n)))
     assert any(readers) and not all(readers)  # both threads decoded photos
     assert seen == [(k, 12) for k in range(1, 13)]
     assert len(images) == 12

@@ -9,7 +9,8 @@ from support import run_cli as run
 
 from stillcap.body import MarkerSet
 from stillcap.io.capture import Capture
-from stillcap.pipelines.puppet import run_capture
+from stillcap.pipelines.puppet import analyse_puppet
+from stillcap.studio.compare.puppet import compare_with_capture
 from stillcap.studio.puppet import puppet_scene, webcam_sensor
 
 LOWER = ("l-hand", "r-hand", "l-foot", "r-foot")  # forearm and shin bones
@@ -34,7 +35,8 @@ def test_the_capture_stores_the_marker_set_and_the_pipeline_uses_it(capture20):
     assert stored.to_dict() == MarkerSet.puppet("puppet-20").to_dict()
     truth = json.loads((capture20 / "truth.json").read_text())
     assert [m["name"] for m in truth["markers"]] == list(stored.names)
-    res, _ = run_capture(capture20)
+    res, _ = analyse_puppet(capture20)
+    res.comparison = compare_with_capture(res, capture20)
     assert res.markerset.name == "puppet-20" and len(res.names) == 20
     assert res.to_dict()["markerset"] == "puppet-20" and res.comparison is not None
     cmp = res.comparison
@@ -48,7 +50,8 @@ def test_the_capture_stores_the_marker_set_and_the_pipeline_uses_it(capture20):
     c16, imgs = sc.to_capture(".png")
     folder = capture20.parent / "cap16"
     c16.save(folder, imgs)
-    r16, _ = run_capture(folder)
+    r16, _ = analyse_puppet(folder)
+    r16.comparison = compare_with_capture(r16, folder)
     e16 = np.array([r16.comparison.bone_errors_deg[b] for b in LOWER])
     assert r16.markerset.name == "puppet-16" and e16.max() > 5.0
 

@@ -34,6 +34,7 @@ def hand_demo(out: Path, seed: int, *, preset: str = "seed-4seam", image_size=(2
     from stillcap.io.project import dumps_json
     from stillcap.pipelines.hand import analyse_hand
     from stillcap.report.hand import write_result_report
+    from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
     from stillcap.studio.hand import hand_capture
 
     out = Path(out)
@@ -50,6 +51,7 @@ def hand_demo(out: Path, seed: int, *, preset: str = "seed-4seam", image_size=(2
         bar.update(task, description="analysing", total=None, completed=0)
         res = analyse_hand(Capture.load(out / "capture"),
                            progress=lambda i, n, label: bar.update(task, completed=i, total=n, description=label))
+    res.truth = compare_with_capture(res)
     tr = hc.truth
     console.print(f"true delivery: {tr.n} flashes at {tr.strobe_hz:g} Hz, release {tr.release.speed_mph:.1f} mph; "
                   "rig: the true cameras")
@@ -59,7 +61,8 @@ def hand_demo(out: Path, seed: int, *, preset: str = "seed-4seam", image_size=(2
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), console=console,
                   transient=True) as bar:
         task = bar.add_task("writing the animation", total=None)
-        paths = write_result_report(res, out / "report",
+        paths = write_result_report(res, out / "report", truth_arrays=None if res.truth is None
+                                    else truth_arrays(res.capture.truth),
                                     progress=lambda i, n, label: bar.update(task, completed=i, total=n))
     written = []
     for name in EXPORTS:

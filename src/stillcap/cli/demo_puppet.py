@@ -41,8 +41,9 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
     from stillcap.files.atomic import write_text
     from stillcap.io.project import dumps_json
     from stillcap.io.export import export
-    from stillcap.pipelines.puppet import run_capture
+    from stillcap.pipelines.puppet import analyse_puppet
     from stillcap.report.puppet import write_report
+    from stillcap.studio.compare.puppet import compare_with_capture
     from stillcap.studio.puppet import puppet_scene, webcam_sensor
 
     out = Path(out)
@@ -58,7 +59,8 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
         cap, images = scene.to_capture(".jpg")
         cap.save(out / "capture", images, jpeg_quality=85)
         task2 = bar.add_task("detecting beads", total=len(images))
-        res, photos = run_capture(out / "capture", progress=lambda i, n: bar.update(task2, completed=i, total=n))
+        res, photos = analyse_puppet(out / "capture", progress=lambda i, n: bar.update(task2, completed=i, total=n))
+    res.comparison = compare_with_capture(res, out / "capture")
     _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} rendered photos "
                        "(puppet frame)")
     t = res.timings_s

@@ -17,15 +17,16 @@ def load_exportable(source: Path):
     output of ``--json``), a puppet project folder (reconstructed from its stored markers) or a
     puppet capture folder (the pipeline runs on it).
     """
-    from stillcap.pipelines.puppet import load_result, reconstruct_project, run_capture
+    from stillcap.io.puppet_result import load_result
+    from stillcap.pipelines.puppet import analyse_puppet
 
     if not source.exists():
         raise ValueError(f"{source} does not exist")
     if source.is_dir():
         if (source / "project.json").is_file():
-            res = reconstruct_project(source)
+            res, _ = analyse_puppet(source, detect=False)
         elif (source / "capture.json").is_file():
-            res, _ = run_capture(source)
+            res, _ = analyse_puppet(source)
         else:
             raise ValueError(f"{source} is neither a puppet project (project.json) nor a capture folder "
                              "(capture.json); give a result.json, a project or a capture")

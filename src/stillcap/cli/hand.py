@@ -66,6 +66,9 @@ def hand(
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     res = analyse_hand(capture, opts)
+    from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
+
+    res.truth = compare_with_capture(res)  # a studio capture: compared with its truth
     written = []
     for path in export:
         from stillcap.io.export import export as export_file
@@ -84,7 +87,8 @@ def hand(
     if report is not None:
         from stillcap.report.hand import write_result_report
 
-        written.append(write_result_report(res, report)["html"])
+        written.append(write_result_report(res, report, truth_arrays=None if res.truth is None
+                                           else truth_arrays(res.capture.truth))["html"])
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         return

@@ -28,13 +28,14 @@ console = Console()
 
 
 def _settings(detector: str, identify: str):
-    from stillcap.pipelines.puppet import DEFAULT, DETECTORS, IDENTIFIERS, with_settings
+    from stillcap.detect.beads import DETECTORS, IDENTIFIERS
+    from stillcap.pipelines.puppet import DEFAULT, with_options
 
     if detector not in DETECTORS:
         raise ValueError(f"unknown detector {detector!r}; choose one of {', '.join(DETECTORS)}")
     if identify not in IDENTIFIERS:
         raise ValueError(f"unknown identification {identify!r}; choose one of {', '.join(IDENTIFIERS)}")
-    return with_settings(DEFAULT, detector=detector, identify=identify)
+    return with_options(DEFAULT, detector=detector, identify=identify)
 
 
 def load_palette(path: Path | None, markerset=None):
@@ -93,7 +94,7 @@ def _print_result(res, title: str) -> None:
     left = int(m.partial.sum()), int(m.outlier.sum())
     console.print(f"views left out: {left[0]} partly hidden beads, {left[1]} disagreeing views (outliers)")
     fit = res.fit
-    console.print(f"pose ({res.settings.pose}): markers fitted with RMS {fit.rms_m * 1e3:.3f} mm "
+    console.print(f"pose ({res.options.pose}): markers fitted with RMS {fit.rms_m * 1e3:.3f} mm "
                   f"(thesis bone directions: {np.sqrt(np.nanmean(fit.thesis_residuals_m ** 2)) * 1e3:.2f} mm)")
     if cmp is not None:
         print_comparison(cmp)
@@ -139,13 +140,11 @@ def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = T
 
 
 def _truth_of(folder: Path):
-    from stillcap.io.capture import Capture
-    from stillcap.studio.puppet import PuppetTruth
+    from stillcap.studio.compare.puppet import capture_truth
 
     if not (folder / "capture.json").is_file():
         return None
-    cap = Capture.load(folder)
-    return PuppetTruth.from_dict(cap.truth) if cap.truth and cap.truth.get("kind") == "puppet" else None
+    return capture_truth(folder)
 
 
 @app.command()
@@ -168,7 +167,7 @@ def run(
     identified in fewer than two views are flagged as missing.
     """
     from stillcap.io.project import dumps_json
-    from stillcap.pipelines.puppet import run_folder
+    from stillcap.pipelines.puppet import analyse_puppet
 
     settings = _settings(detector, identify)
     if not folder.exists():
@@ -179,13 +178,18 @@ def run(
 
         markerset = Project.load(folder).markerset
     elif palette is not None and (folder / "capture.json").is_file():
-        # the capture's own marker set (puppet-20, a file's...), read as run_folder reads it
+        # the capture's own marker set (puppet-20, a file's...), read as analyse_puppet reads it
         from stillcap.pipelines.puppet import capture_markerset
 
         markerset = capture_markerset(folder)
     pal = load_palette(palette, markerset)
     with progress("detecting beads", console) as update:
-        res, images = run_folder(folder, settings, pal, redetect, progress=lambda i, n: update(i, n))
+        res, images = analyse_puppet(folder, settings, palette=pal, redetect=redetect,
+                                     progress=lambda i, n: update(i, n))
+    if res.source.get("type") == "capture":  # a studio capture: compared with its truth
+        from stillcap.studio.compare.puppet import compare_with_capture
+
+        res.comparison = compare_with_capture(res, folder)
     _write_outputs(res, images, out, _truth_of(folder) if out is not None else None)
     if as_json:
         print(dumps_json(res.to_dict()))
@@ -352,14 +356,11 @@ def reconstruct(
 ):
     """3D markers and the pose from the project's stored markers (detections with edits)."""
     from stillcap.io.project import dumps_json
-    from stillcap.pipelines.puppet import reconstruct_project
+    from stillcap.pipelines.puppet import analyse_puppet
 
-    res = reconstruct_project(project)
+    res, images = analyse_puppet(project, detect=False)
     if out is not None:
-        from stillcap.io.project import Project
-
-        p = Project.load(project)
-        _write_outputs(res, [p.read_image(v) for v in p.views], out)
+        _write_outputs(res, images, out)
     if as_json:
         print(dumps_json(res.to_dict()))
         return
@@ -457,9 +458,9 @@ def calibrate_palette_cmd(
 
     from stillcap.detect.identify import calibrate_palette
     from stillcap.files.atomic import write_text
-    from stillcap.pipelines.puppet import DEFAULT, run_folder
+    from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
 
-    res, images = run_folder(folder, DEFAULT)
+    res, images = analyse_puppet(folder, DEFAULT)
     pts = [np.where(res.markers.used[k][:, None], res.markers.observations[k], np.nan) for k in range(len(images))]
     from stillcap.detect.palette import Palette
 

@@ -82,7 +82,7 @@ def prepare_view(image, detector: str = "template", radius_range=(5.0, 7.0), roi
     """What :func:`detect_beads` computes over the whole photo before it looks at candidates:
     the bright region (``roi``) and, for the template detector, the grey image, its median and
     the half-resolution contrast map. These are OpenCV calls and large NumPy operations that
-    release the GIL, so :func:`~stillcap.pipelines.puppet.run_capture` makes them on its
+    release the GIL, so :func:`~stillcap.pipelines.puppet.analyse_puppet` makes them on its
     decoding thread while the previous photo is detected. Pass the result to
     :func:`detect_beads` as ``prepared`` with the same settings: the same result as without it."""
     img = np.asarray(image)

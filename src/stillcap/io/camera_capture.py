@@ -20,7 +20,8 @@ from typing import Callable, Mapping, Sequence
 import cv2
 import numpy as np
 
-from stillcap.io.project import Project, View, _same_angle
+from stillcap.io.project import Project, View
+from stillcap.io.project._records import _same_angle
 
 __all__ = ["Answer", "SKIP", "ABORT", "CAMERA_DISCARD_FRAMES", "CaptureResult", "capture_turntable",
            "open_source", "grab_frame", "parse_angles"]

@@ -769,13 +769,14 @@ def write_hand_report(folder, *, skeleton: Skeleton | None = None, animation: An
 
 
 
-def write_result_report(result, folder, *, animation_format: str = ".gif", progress: Progress | None = None
-                        ) -> dict[str, Path]:
+def write_result_report(result, folder, *, animation_format: str = ".gif", progress: Progress | None = None,
+                        truth_arrays: dict | None = None) -> dict[str, Path]:
     """:func:`write_hand_report` for a :class:`~stillcap.pipelines.hand.HandResult`, plus
     ``hand.json`` (the result's :meth:`~stillcap.pipelines.hand.HandResult.to_dict`).
 
     Times are ms from the estimated release when there is one. With a studio truth in the
-    capture, the true joint angles are drawn dashed and per-flash errors listed.
+    capture (``truth_arrays``: :func:`stillcap.studio.compare.hand.truth_arrays` of it, for a
+    result compared with it), the true joint angles are drawn dashed and per-flash errors listed.
     """
     from stillcap.io.project import dumps_json
 
@@ -809,11 +810,9 @@ def write_result_report(result, folder, *, animation_format: str = ".gif", progr
                    "position_m": rel.position, "velocity_source": rel.velocity_source}
     truth = None
     tc = result.truth
-    td = result.capture.truth if tc is not None else None
+    td = truth_arrays if tc is not None else None
     if td is not None and np.isfinite(tc.get("clock_offset_s", np.nan)) and seq is not None:
-        from stillcap.pipelines.hand import truth_arrays
-
-        tr = truth_arrays(td)
+        tr = td
         match = tc["flash_match"]
         fa = np.full((len(flashes),) + tr["angles_deg"].shape[1:], np.nan)
         for i, k in enumerate(ks):

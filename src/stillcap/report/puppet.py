@@ -220,9 +220,9 @@ def plot_skeleton_3d(result, path, truth=None, thesis: bool = True) -> Path:
             tp = truth.pose(result.pose.skeleton)
             _bones(ax, tp, "-", "0.75", "truth")
             pts.append(tp.positions)
-        if thesis and result.settings.pose == "fit":
+        if thesis and result.options.pose == "fit":
             _bones(ax, result.thesis_pose, "--", "tab:orange", "thesis (bone directions)")
-        _bones(ax, result.pose, "-", "tab:blue", "fitted" if result.settings.pose == "fit" else "thesis")
+        _bones(ax, result.pose, "-", "tab:blue", "fitted" if result.options.pose == "fit" else "thesis")
         ok = m.ok
         ax.scatter(*_xzy(m.points[ok]), c=np.asarray(result.markerset.rgb)[ok], s=18, edgecolors="k",
                    linewidths=0.3, depthshade=False)

@@ -1,0 +1,115 @@
+"""The hand pipeline's entry point :func:`analyse_hand`: a hand capture's stereo pairs and photos,
+then the stages of :mod:`~stillcap.pipelines.hand.stages` in order."""
+
+from __future__ import annotations
+
+import time as _time
+from collections.abc import Callable
+from pathlib import Path
+
+from stillcap._checks import as_array
+from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.pipelines.hand.options import HandOptions
+from stillcap.pipelines.hand.result import HandResult
+from stillcap.pipelines.hand.stages import (find_ball, find_glove_markers, fit_poses, label_markers, release_and_spin,
+                                            triangulate_glove_markers)
+from stillcap.pipelines.progress import report_progress
+
+__all__ = ["analyse_hand"]
+
+
+def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = None, *,
+                 progress: Callable[[int, int, str], None] | None = None, **kwargs) -> HandResult:
+    """Analyse one hand capture (SPEC J2): markers, labels, poses, animation, ball release.
+
+    Parameters
+    ----------
+    capture : Capture or path
+        A capture folder (``kind: hand``) with one multi-exposure photo per camera of two or
+        more stereo pairs (``images[].meta.pair`` or the capture's ``pairs`` map), all lit by
+        one strobe (``strobe_hz``).
+    options : HandOptions, optional
+        Or its fields as keyword arguments.
+    progress : callable(done, total, label), optional
+
+    Returns
+    -------
+    HandResult
+
+    Raises
+    ------
+    ValueError
+        Not a hand capture, no complete stereo pair, pairs with different strobes, an
+        unreadable photo, or no glove marker in 3D. A capture where no flash shows the three
+        back-of-hand markers still gives its 3D markers; the result says why in ``messages``.
+    """
+    t_all = _time.perf_counter()
+    if options is None:
+        options = HandOptions(**kwargs)
+    elif kwargs:
+        raise ValueError("give either options or keyword arguments, not both")
+    cap = capture if isinstance(capture, Capture) else Capture.load(capture)
+    where = f"capture {cap.root}" if cap.root is not None else "capture"
+    if cap.kind != "hand":
+        raise ValueError(f"{where} is a {cap.kind!r} capture, not a hand capture (capture.json \"kind\")")
+    specs, messages = stereo_pairs(cap)
+    rates = {sp.strobe_hz for sp in specs}
+    if len(rates) != 1:
+        raise ValueError(f"{where}: the stereo pairs have different strobe rates {sorted(rates)} Hz; "
+                         "a hand capture is lit by one strobe")
+    strobe_hz = rates.pop()
+    pairs = {sp.name: sp.cameras for sp in specs}
+    light = options.strobe_position_m if options.strobe_position_m is not None else cap.meta.get("strobe_position_m")
+    if light is not None:
+        light = as_array(light, (3,), "strobe_position_m")
+    else:
+        messages.append("strobe position unknown (capture.json meta strobe_position_m): marker centroids keep "
+                        "their half-lit bias (~1 px)")
+    timings: dict = {}
+    total = 7
+
+    t = _time.perf_counter()
+    report_progress(progress, 0, total, "reading photos")
+    rig = cap.rig
+    used = [c for sp in specs for c in sp.cameras]
+    images = []
+    for name in rig.names:
+        ims = cap.images_of(name)
+        images.append(cap.read_image(ims[0]) if (name in used and ims) else None)
+    timings["decode"] = _time.perf_counter() - t
+
+    # -- ball ---------------------------------------------------------------------------------
+    t = _time.perf_counter()
+    report_progress(progress, 1, total, "ball")
+    balls = find_ball(rig, images, strobe_hz, options, messages)
+    timings["ball"] = _time.perf_counter() - t
+
+    # -- markers ------------------------------------------------------------------------------
+    t = _time.perf_counter()
+    report_progress(progress, 2, total, "glove markers")
+    blobs = find_glove_markers(images, balls)
+    timings["markers"] = _time.perf_counter() - t
+    t = _time.perf_counter()
+    report_progress(progress, 3, total, "3D markers")
+    points = triangulate_glove_markers(rig, pairs, blobs, light, options, messages, where)
+    timings["triangulation"] = _time.perf_counter() - t
+
+    # -- labels and poses ---------------------------------------------------------------------
+    t = _time.perf_counter()
+    report_progress(progress, 4, total, "labelling")
+    labels = label_markers(points, strobe_hz, options, messages)
+    timings["labels"] = _time.perf_counter() - t
+    t = _time.perf_counter()
+    report_progress(progress, 5, total, "poses")
+    sequence, animation = fit_poses(labels, points, options, messages)
+    timings["poses"] = _time.perf_counter() - t
+
+    # -- release and spin ----------------------------------------------------------------------
+    t = _time.perf_counter()
+    report_progress(progress, 6, total, "release")
+    balls, release, spin = release_and_spin(rig, balls, sequence, strobe_hz, pairs, images, options, messages)
+    timings["release"] = _time.perf_counter() - t
+    report_progress(progress, total, total, "done")
+    timings["total"] = _time.perf_counter() - t_all
+    return HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,
+                      messages, timings)

@@ -1,0 +1,155 @@
+"""The hand pipeline's stages, in order (``docs/hand-pipeline.md`` tells the story); each a
+plain function over arrays and dataclasses that appends what went wrong to ``messages``:
+
+1. :func:`find_ball`            the white ball's centre per flash from all views
+                                (:func:`~stillcap.pipelines.hand.ball.hand_ball_positions`)
+2. :func:`find_glove_markers`   colour intervals, connected regions, centroids, the ball's discs
+                                masked out (:func:`~stillcap.detect.colour_markers.find_colour_markers`)
+3. :func:`triangulate_glove_markers`  epipolar matching per stereo pair, triangulation, the
+                                half-lit centroid bias removed
+                                (:func:`~stillcap.geometry.marker_points.triangulate_colour_markers`)
+4. :func:`label_markers`        3D markers clustered into hand poses per flash and labelled
+                                (:func:`~stillcap.body.hand_label.label_hand_markers`)
+5. :func:`fit_poses`            hand poses per flash and the animation between them
+                                (:func:`~stillcap.body.hand_track.fit_hand_sequence`,
+                                :func:`~stillcap.body.hand_track.interpolate_animation`)
+6. :func:`release_and_spin`     the ball's flashes on the hand's clock, the release
+                                (:func:`~stillcap.ball.release.estimate_release`) and the free
+                                ball's spin (:func:`~stillcap.pipelines.hand.ball.hand_ball_spin`)
+
+:func:`~stillcap.pipelines.hand.analyse_hand` runs them in this order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from stillcap.ball.flashes import number_flashes
+from stillcap.ball.release import estimate_release
+from stillcap.body.hand import HAND_COLOURS
+from stillcap.body.hand_label import HandLabels, label_hand_markers
+from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
+from stillcap.detect.colour_markers import ColourBlobs, find_colour_markers
+from stillcap.geometry.marker_points import MarkerPoints, triangulate_colour_markers
+from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ball_spin
+from stillcap.pipelines.hand.options import HandOptions
+
+__all__ = ["find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
+           "release_and_spin"]
+
+#: Position uncertainty of fully seen and of partly hidden glove markers (m), as measured by
+#: ``benchmarks/bench_hand_markers.py`` (0.16 mm RMS and a few mm): the pose fit's weights.
+SEEN_SIGMA_M, HIDDEN_SIGMA_M = 0.0003, 0.003
+
+
+def find_ball(rig, images, strobe_hz: float, options: HandOptions, messages: list) -> HandBalls | None:
+    """Stage 1: the ball's positions (None when it cannot be found: the reason in ``messages``)."""
+    balls = None
+    try:
+        # every two cameras, not only the stereo pairs: fingers often hide the first free ball
+        # from one camera of each pair (docs/hand-ball.md)
+        balls = hand_ball_positions(rig, "all", images=images, ball_radius_m=options.ball_radius_m,
+                                    strobe_hz=strobe_hz)
+        messages.extend(balls.messages)
+    except ValueError as e:
+        messages.append(f"ball: {e}")
+    return balls
+
+
+def find_glove_markers(images, balls: HandBalls | None) -> list:
+    """Stage 2: the coloured blobs of every camera (empty where a camera has no photo)."""
+    blobs = []
+    for i, img in enumerate(images):
+        if img is None:
+            blobs.append(ColourBlobs.empty())
+            continue
+        exclude = balls.ball_discs_px(i) if balls is not None and len(balls) else None
+        blobs.append(find_colour_markers(img, HAND_COLOURS, exclude=exclude))
+    return blobs
+
+
+def triangulate_glove_markers(rig, pairs: dict, blobs: list, light, options: HandOptions, messages: list,
+                              where: str = "capture") -> MarkerPoints:
+    """Stage 3: the unlabelled 3D markers of all flashes.
+
+    Raises
+    ------
+    ValueError
+        No glove marker seen by both cameras of a pair.
+    """
+    points = triangulate_colour_markers(rig, pairs, blobs, light_position=light, radius_m=options.marker_radius_m)
+    doubtful = points.partly_hidden & points.ambiguous
+    if doubtful.any():
+        # a partly hidden blob whose match no third view confirmed: on the benchmark these are
+        # the points that get wrong labels; one view less is cheaper than a wrong label
+        messages.append(f"{int(doubtful.sum())} partly hidden, unconfirmed 3D marker(s) left out")
+        points = points.select(~doubtful)
+    if len(points) == 0:
+        raise ValueError(f"{where}: no glove marker seen by both cameras of a pair "
+                         f"(blobs per camera: {dict(zip(rig.names, (len(b) for b in blobs)))})")
+    return points
+
+
+def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list) -> HandLabels:
+    """Stage 4: the 3D markers labelled per flash (manual overrides from ``options.overrides``)."""
+    labels = label_hand_markers(points.points, points.colours, strobe_hz=strobe_hz,
+                                reprojection_px=points.reprojection_px, overrides=options.overrides)
+    for k, why in enumerate(labels.skipped):
+        if why:
+            messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
+    return labels
+
+
+def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list):
+    """Stage 5: ``(sequence, animation)``, the hand poses of the flashes with the three
+    back-of-hand markers and the animation through them (None where there are too few)."""
+    sequence = animation = None
+    if labels.reconstructed.any():
+        # partly hidden markers' centroids shift by up to a few mm (docs/hand-markers.md): they
+        # count 10x less in the pose fit than fully seen ones, and less still the less of their
+        # light a view got (flux ratio: 1 unhidden, 0.01 a sliver)
+        flux = np.where(np.isfinite(points.flux_ratio), points.flux_ratio, np.inf).min(axis=0)
+        flux = np.clip(np.where(np.isfinite(flux), flux, 1.0), 0.02, 1.0)
+        sigma = np.where(points.partly_hidden, HIDDEN_SIGMA_M / flux, SEEN_SIGMA_M)
+        sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
+                                     point_sigma_m=sigma)
+        if sequence.n >= 2:
+            animation = interpolate_animation(sequence, options.frame_rate, method=options.interpolation)
+        else:
+            messages.append("one pose only: no animation")
+    else:
+        messages.append("no flash shows the three back-of-hand markers: no hand pose")
+    return sequence, animation
+
+
+def release_and_spin(rig, balls: HandBalls | None, sequence: HandSequence | None, strobe_hz: float, pairs: dict,
+                     images, options: HandOptions, messages: list):
+    """Stage 6: ``(balls, release, spin)``: the ball's flashes renumbered on the hand's clock, the
+    release and the free ball's spin (None where they cannot be had)."""
+    release = spin = None
+    if balls is not None and len(balls) and sequence is not None:
+        hold_times = sequence.times
+        r2w = sequence.root2world
+        balls = _on_hand_clock(balls, hold_times, r2w, strobe_hz, messages)
+        release = estimate_release(balls.times, balls.positions, hold_times, r2w, strobe_hz=strobe_hz,
+                                   position_sigma_m=balls.sigma_m)
+        if release.message:
+            messages.append(f"release: {release.message}")
+        if options.spin and release.success:
+            spin = hand_ball_spin(rig, balls, ~release.held, pairs=pairs, images=images)
+            if spin.message:
+                messages.append(f"spin: {spin.message}")
+    return balls, release, spin
+
+
+def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, messages: list) -> HandBalls:
+    """Renumber the ball's flashes from the hand poses (:func:`stillcap.ball.flashes.number_flashes`):
+    the ball was found before the hand (its discs mask the glove-marker search), numbered from
+    its spacing, which a missed flash of an accelerating arm gets wrong."""
+    fn = number_flashes(balls.positions, hold_times, root2world, strobe_hz=strobe_hz)
+    if not fn.success:
+        messages.append(f"ball: {fn.message}; flashes numbered from the ball's spacing")
+        return balls
+    return replace(balls, flash_index=np.asarray(fn.flash, int), times=np.asarray(fn.times, float))

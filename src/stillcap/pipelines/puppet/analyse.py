@@ -1,0 +1,403 @@
+"""The puppet pipeline's entry points: :func:`analyse_puppet` on a capture folder or a puppet
+project, :func:`analyse_puppet_views` on a rig's photos (or identified 2D markers); both run the
+stages of :mod:`~stillcap.pipelines.puppet.stages` in order. Also :func:`capture_markerset`, the
+marker set a capture shows.
+"""
+from __future__ import annotations
+
+import functools
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from stillcap._blas import one_blas_thread
+from stillcap.body.markerset import BUILTIN_MARKERSETS, MarkerSet
+from stillcap.body.skeleton import Skeleton
+from stillcap.camera import Rig
+from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views
+from stillcap.detect.palette import Palette
+from stillcap.pipelines.puppet.options import DEFAULT, PuppetOptions, _options_for
+from stillcap.pipelines.puppet.result import PuppetResult
+from stillcap.pipelines.puppet.stages import (_prepare, detect_view, find_beads, identify_beads, pose_skeleton,
+                                              triangulate_beads)
+
+__all__ = ["analyse_puppet", "analyse_puppet_views", "capture_markerset"]
+
+
+@functools.lru_cache(maxsize=1)
+def _puppet_skeleton() -> Skeleton:
+    """:meth:`Skeleton.puppet` (a frozen dataclass), read and built once: ~2 ms per pose."""
+    return Skeleton.puppet()
+
+
+@one_blas_thread
+def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None = None, palette: Palette | None = None,
+                         observations=None, options: PuppetOptions = DEFAULT, view_names=None, angles_deg=None,
+                         root2world=None, progress: Callable[[int, int], None] | None = None,
+                         source: dict | None = None, files=None, skeleton: Skeleton | None = None,
+                         detections: Sequence[ViewResult] | None = None) -> PuppetResult:
+    """The whole pipeline on a rig's photos (or on already identified 2D markers).
+
+    BLAS (NumPy's and SciPy's) runs on one thread during the call (``threadpoolctl``; the
+    caller's setting is restored afterwards): the pipeline's matrices are small, and on a busy
+    machine OpenBLAS's threads made the pose fit 15x slower.
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+        The camera of every view (puppet frame).
+    images : sequence of n_views BGR images, optional
+        The photos. Without ``observations`` they are detected and identified; with them only
+        the fill test reads them.
+    markerset : MarkerSet, optional
+        Default :meth:`MarkerSet.puppet`.
+    palette : Palette, optional
+        Reference colours in marker-set order; default the marker set's colours.
+    observations : array_like, shape (n_views, n_markers, 2), optional
+        Identified pixels (e.g. a project's markers with the user's edits); skips detection.
+    options : PuppetOptions
+    view_names, angles_deg : sequences, optional
+        Per view; default the camera names and None.
+    root2world : array_like, shape (4, 4), optional
+        Pelvis frame; default the skeleton's rest frame (the puppet on the turntable axis).
+    progress : callable(done, total), optional
+        Called after each detected view.
+    source : dict, optional
+        Where the photos came from (kept in the result).
+    files : sequence of str, optional
+        The photo of every view (kept in the result).
+    skeleton : Skeleton, optional
+        Default :meth:`Skeleton.puppet`; the marker set's bones must be in it.
+    detections : sequence of n_views ViewResult, optional
+        The views already detected in ``images`` with this palette and ``options``
+        (:func:`~stillcap.pipelines.puppet.stages.detect_view`; :func:`analyse_puppet` detects
+        while it decodes); skips detection.
+    """
+    markerset = markerset or MarkerSet.puppet()
+    options = _options_for(options, markerset)
+    skeleton = skeleton or _puppet_skeleton()
+    markerset.check_skeleton(skeleton)
+    if palette is None:
+        palette = Palette.from_markerset(markerset)
+    elif tuple(palette.names) != tuple(markerset.names):
+        raise ValueError(f"palette names {list(palette.names)} differ from the marker set's {list(markerset.names)}")
+    n = len(rig)
+    if images is not None:
+        images = list(images)
+        if len(images) != n:
+            raise ValueError(f"need one image per view ({n}), got {len(images)}")
+        for cam, img in zip(rig, images):
+            h, w = np.asarray(img).shape[:2]
+            if (w, h) != tuple(cam.image_size):
+                raise ValueError(f"view {cam.name!r}: image is {w}x{h} px, its camera is "
+                                 f"{cam.image_size[0]}x{cam.image_size[1]} px")
+    timings = {}
+    views = None
+    radii = None
+    if observations is None:
+        if images is None:
+            raise ValueError("give images (to detect markers in) or observations")
+        t0 = time.perf_counter()
+        if detections is not None:
+            views = list(detections)
+            if len(views) != n:
+                raise ValueError(f"need one detection per view ({n}), got {len(views)}")
+        else:
+            # 1-2. candidates photo by photo, then all photos named by colour together
+            cands, t_det = find_beads(images, options, progress)
+            views = identify_beads(images, cands, t_det, palette, options)
+        obs = np.stack([v.identification.points for v in views]) if views else np.zeros((0, len(markerset), 2))
+        radii = np.stack([v.identification.radii for v in views]) if views else None
+        timings["detect_identify"] = (time.perf_counter() - t0 if detections is None
+                                      else float(sum(v.time_s for v in views)))
+    else:
+        obs = np.asarray(observations, float)
+    # 3. triangulation (and re-identification after the 3D markers)
+    t0 = time.perf_counter()
+    solve, raw_obs = triangulate_beads(rig, obs, markerset, images, options, radii, views)
+    timings["triangulate"] = time.perf_counter() - t0
+    # 4. the pose
+    t0 = time.perf_counter()
+    fit = pose_skeleton(rig, skeleton, markerset, solve, root2world, options)
+    timings["pose"] = time.perf_counter() - t0
+    return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
+                        list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
+                        options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs)
+
+
+def capture_markerset(folder, cap=None) -> MarkerSet:
+    """The marker set a puppet capture shows: its ``markerset`` entry (the whole marker set, as
+    ``stillcap studio puppet`` writes it, or a built-in name); captures without one show the
+    thesis's 16 beads. ``cap``: the capture already loaded from ``folder``."""
+    if cap is None:
+        from stillcap.io.capture import Capture
+
+        cap = Capture.load(folder)
+    entry = (cap.meta or {}).get("markerset", "puppet-16")
+    if not isinstance(entry, (str, dict)):
+        raise ValueError(f"capture {folder}: 'markerset' must be a built-in name or a marker set, got {entry!r}")
+    try:
+        markerset = MarkerSet.resolve(entry) if isinstance(entry, dict) or entry in BUILTIN_MARKERSETS else None
+    except ValueError as e:
+        raise ValueError(f"capture {folder}: {e}") from None
+    if markerset is None:
+        raise ValueError(f"capture {folder}: unknown marker set {entry!r} (built-in: {', '.join(BUILTIN_MARKERSETS)})")
+    return markerset
+
+
+
+def _capture_inputs(folder: Path):
+    """A puppet capture's pieces: ``(capture, rig, view names, angles, files, markerset)`` (the
+    marker set: :func:`capture_markerset`)."""
+    from stillcap.io.capture import Capture
+
+    cap = Capture.load(folder)
+    if cap.kind != "puppet":
+        raise ValueError(f"capture {folder} is of kind {cap.kind!r}, not 'puppet' (make one with stillcap studio puppet)")
+    if not cap.images:
+        raise ValueError(f"capture {folder} has no images")
+    cams, names, angles, files = [], [], [], []
+    for im in cap.images:
+        c = cap.rig[im.camera]
+        cams.append(c)
+        names.append(c.name)
+        a = (im.meta or {}).get("angle_deg")
+        angles.append(None if a is None else float(a))
+        files.append(im.file)
+    rig = Rig(cams, cap.rig.world)
+    markerset = capture_markerset(folder, cap)
+    return cap, rig, names, angles, files, markerset
+
+
+@one_blas_thread
+def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette | None = None,
+                     progress: Callable[[int, int], None] | None = None,
+                     workers: int = 2) -> tuple[PuppetResult, list]:
+    """The pipeline on a capture folder of kind ``puppet`` (``stillcap studio puppet``).
+
+    With ``workers`` >= 2 a second thread decodes the photos and makes each one's photo-wide
+    detection inputs (:func:`~stillcap.detect.beads.prepare_view`: bright region, grey image,
+    half-resolution contrast map; OpenCV calls and large NumPy operations, which release the
+    GIL) while this one finds the candidates of each photo as soon as it is ready, so that work
+    hides behind the detection when a second core is free; then every photo's candidates are
+    named by colour together (:func:`~stillcap.detect.beads.identify_views`). The result is the
+    same as with ``workers=1`` (decode all, then :func:`~stillcap.pipelines.puppet.stages.detect_view` each). Detecting whole photos
+    on two threads was measured slower on the benchmark's two shared cores (the candidate
+    search is mostly small NumPy calls that hold the GIL).
+    Timings: ``read`` is the capture's loading plus the time spent waiting for decoded photos.
+    BLAS runs on one thread during the call (see :func:`analyse_puppet_views`).
+
+    Returns
+    -------
+    result : PuppetResult
+    images : list of ndarray
+        The decoded photos (for overlays).
+    """
+    folder = Path(folder)
+    t0 = time.perf_counter()
+    cap, rig, names, angles, files, markerset = _capture_inputs(folder)
+    options = _options_for(options, markerset)
+    detections = None
+    if workers <= 1 or len(cap.images) <= 1:
+        images = [cap.read_image(im) for im in cap.images]
+        t_read = time.perf_counter() - t0
+    else:
+        t_read = time.perf_counter() - t0
+        if palette is None:  # analyse_puppet_views's default: the marker set's reference colours
+            palette = Palette.from_markerset(markerset)
+        images, detections = [], []
+
+        def read(entry):  # the second thread: decode, and the photo-wide part of the detection
+            img = cap.read_image(entry)
+            return img, _prepare(img, options)
+
+        candidates, t_det, idents = [], [], []
+
+        def name(upto):  # the photos found so far but not yet named, named by colour together
+            if upto > len(idents):
+                t = time.perf_counter()
+                new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
+                                     options.identify)
+                share = (time.perf_counter() - t) / len(new)
+                for j in range(len(idents), upto):
+                    t_det[j] += share
+                idents.extend(new)
+
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            pending = [pool.submit(read, im) for im in cap.images]
+            stolen = {}
+            try:
+                for k, fut in enumerate(pending):
+                    if not fut.done():
+                        name(k)  # while the other thread still decodes: name what was found
+                    t1 = time.perf_counter()
+                    # still waiting: decode a photo the other thread has not started (the last
+                    # one), here, so that both threads decode while this one has nothing to detect
+                    while k not in stolen and not fut.done():
+                        j = next((j for j in range(len(pending) - 1, k, -1)
+                                  if j not in stolen and pending[j].cancel()), None)
+                        if j is None:
+                            break
+                        stolen[j] = read(cap.images[j])
+                    img, prepared = stolen.pop(k) if k in stolen else fut.result()
+                    t2 = time.perf_counter()
+                    t_read += t2 - t1
+                    images.append(img)
+                    candidates.append(find_bead_candidates(img, options.detector, options.radius_range,
+                                                           options.n_circles, options.roi, options.coarse,
+                                                           prepared=prepared))
+                    t_det.append(time.perf_counter() - t2)
+                    if progress is not None:
+                        progress(k + 1, len(pending))
+            finally:
+                for fut in pending:
+                    fut.cancel()
+        # every photo's candidates named by colour (identify_views: the same identification as
+        # detect_view's per photo; the photos named together share its small-matrix calls)
+        name(len(images))
+        detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
+    res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options, view_names=names,
+                               angles_deg=angles, progress=None if detections is not None else progress,
+                               source={"type": "capture", "path": str(folder)}, files=files, detections=detections)
+    res.timings_s = {"read": t_read, **res.timings_s}
+    return res, images
+
+
+
+def _analyse_project(project, options: PuppetOptions = DEFAULT, palette: Palette | None = None, redetect: bool = False,
+                     progress: Callable[[int, int], None] | None = None, save: bool = True) -> tuple[PuppetResult, list]:
+    """Detect markers in a project's photos, store them, and reconstruct.
+
+    Views without detections (all views with ``redetect``) are detected and identified; their
+    detections replace the stored ones (the user's edits stay and still apply) and the project
+    is saved (``save``). The 3D markers come from every view's effective markers (detections
+    with edits), as :meth:`Project.reconstruct` would, plus the fill test.
+
+    Parameters
+    ----------
+    project : Project or path
+    """
+    from stillcap.io.project import Project
+
+    if not isinstance(project, Project):
+        project = Project.load(project)
+    if not project.views:
+        raise ValueError(f"project {project.root} has no views yet (add photos with stillcap puppet add)")
+    pal = palette or Palette.from_markerset(project.markerset)
+    options = _options_for(options, project.markerset)
+    t0 = time.perf_counter()
+    images = [project.read_image(v) for v in project.views]
+    t_read = time.perf_counter() - t0
+    todo = [k for k, v in enumerate(project.views) if redetect or not v.detected]
+    t0 = time.perf_counter()
+    views: list = [None] * len(images)
+    for i, k in enumerate(todo):
+        vr = detect_view(images[k], pal, options)
+        views[k] = vr
+        project.set_detections(k, vr.identification.as_dict())
+        if progress is not None:
+            progress(i + 1, len(todo))
+    t_det = time.perf_counter() - t0
+    if todo and save:
+        project.save()
+    res, _ = _reconstruct_project(project, options, images=images)
+    res.views = views if all(v is not None for v in views) else None
+    res.timings_s = {"read": t_read, "detect_identify": t_det, **{k: v for k, v in res.timings_s.items()}}
+    return res, images
+
+
+def _reconstruct_project(project, options: PuppetOptions = DEFAULT, images=None) -> tuple[PuppetResult, list]:
+    """3D markers and pose from a project's stored markers (detections with the user's edits),
+    and the photos.
+
+    ``images`` (the decoded photos, view order) enable the fill test; default: read them.
+    """
+    from stillcap.io.project import Project
+
+    if not isinstance(project, Project):
+        project = Project.load(project)
+    names, pts, rig = project.observations()
+    if images is None:
+        images = [project.read_image(v) for v in project.views]
+    res = analyse_puppet_views(rig, images, markerset=project.markerset, observations=pts, options=options,
+                               view_names=[v.name for v in project.views],
+                               angles_deg=[v.angle_deg for v in project.views],
+                               source={"type": "project", "path": str(project.root)},
+                               files=[v.image for v in project.views])
+    return res, images
+
+
+
+
+def analyse_puppet(capture, options: PuppetOptions | None = None, *, palette: Palette | None = None,
+                   progress: Callable[[int, int], None] | None = None, redetect: bool = False, detect: bool = True,
+                   save: bool = True, workers: int = 2) -> tuple[PuppetResult, list]:
+    """The puppet pipeline (SPEC J3) on a capture folder or a puppet project: the beads found and
+    named by colour in every photo, triangulated, and the skeleton posed on them.
+
+    Parameters
+    ----------
+    capture : path or Project
+        A capture folder of kind ``puppet`` (``capture.json``, e.g. from ``stillcap studio
+        puppet``), or a puppet project (its folder, ``project.json``, or a loaded
+        :class:`~stillcap.io.project.Project`).
+    options : PuppetOptions, optional
+        Default :data:`~stillcap.pipelines.puppet.DEFAULT`; the number of candidate circles is
+        raised to the marker set's size.
+    palette : Palette, optional
+        Reference colours in marker-set order; default the marker set's colours.
+    progress : callable(done, total), optional
+        Called after each detected view.
+    redetect : bool
+        Projects: detect every view again (the user's edits still apply); by default only the
+        views without detections are detected.
+    detect : bool
+        Projects: False uses only the stored markers (detections with edits), detecting nothing.
+    save : bool
+        Projects: save the new detections into the project.
+    workers : int
+        Capture folders: with 2 or more a second thread decodes the photos while this one
+        detects (the same result as with 1).
+
+    Returns
+    -------
+    result : PuppetResult
+    images : list of ndarray
+        The decoded photos, view order (for overlays).
+
+    Raises
+    ------
+    ValueError
+        A folder that is neither a capture folder nor a project, a capture of another kind, a
+        project without views.
+
+    Examples
+    --------
+    >>> from stillcap.pipelines.puppet import analyse_puppet, with_options
+    >>> result, photos = analyse_puppet("capture", with_options(detector="thesis"))  # doctest: +SKIP
+    >>> result.missing  # markers identified in fewer than two views  # doctest: +SKIP
+    ()
+    """
+    from stillcap.io.project import Project
+
+    options = DEFAULT if options is None else options
+    if not isinstance(capture, Project):
+        folder = Path(capture)
+        if not folder.exists():
+            raise ValueError(f"folder {folder} does not exist")
+        if not folder.is_dir():
+            raise ValueError(f"{folder} is not a folder (give a capture folder or a stillcap project)")
+        if not (folder / "project.json").is_file():
+            if not (folder / "capture.json").is_file():
+                raise ValueError(f"{folder} is neither a capture folder (capture.json) nor a stillcap project "
+                                 "(project.json)")
+            if not detect:
+                raise ValueError(f"{folder} is a capture folder, which stores no markers (detect=False is for "
+                                 "projects)")
+            return _analyse_capture(folder, options, palette, progress, workers)
+    if not detect:
+        return _reconstruct_project(capture, options)
+    return _analyse_project(capture, options, palette, redetect, progress, save)

@@ -1,0 +1,227 @@
+"""The puppet pipeline's stages, in order (each a plain function over arrays and dataclasses):
+
+1. :func:`find_beads`        bead candidates in every photo (``detect.beads``: template or thesis)
+2. :func:`identify_beads`    the candidates named by colour, all photos together
+   (:func:`detect_view` does 1 and 2 for one photo)
+3. :func:`triangulate_beads` 3D markers (:func:`solve_markers`: fill test, view-pair consensus),
+                             then the candidates named after the 3D markers
+                             (:func:`~stillcap.detect.beads.reidentify`) and the renamed markers
+                             solved again
+4. :func:`pose_skeleton`     joint rotations within the limits, the markers seen once as rays
+                             (:func:`~stillcap.body.puppet_pose.fit_pose`)
+
+:func:`~stillcap.pipelines.puppet.analyse_puppet_views` runs them in this order.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+
+from stillcap.body.markerset import MarkerSet
+from stillcap.body.puppet_pose import PoseFit, fit_pose
+from stillcap.body.skeleton import Skeleton
+from stillcap.camera import Rig
+from stillcap.detect.beads import (PreparedView, ViewResult, bead_fill_views, detect_beads, expected_radius_px,
+                                   find_bead_candidates, identify_views, prepare_view, reidentify)
+from stillcap.detect.palette import Palette
+from stillcap.geometry.triangulate import StackedViews, Triangulation, triangulate_markers, view_pair_errors
+from stillcap.pipelines.puppet.options import DEFAULT, PuppetOptions
+from stillcap.pipelines.puppet.result import MarkerSolve
+
+__all__ = ["find_beads", "identify_beads", "triangulate_beads", "pose_skeleton", "detect_view", "solve_markers"]
+
+
+# --- stages 1 and 2: detection and identification per photo ---------------------------------
+def detect_view(image, palette: Palette, options: PuppetOptions = DEFAULT, region=None,
+                prepared: PreparedView | None = None) -> ViewResult:
+    """:func:`stillcap.detect.beads.detect_beads` with the options' ``detector``, ``identify``,
+    ``radius_range``, ``n_circles`` and ``roi``: the bead candidates of one photo, named by colour.
+    ``region``: the photo's :func:`~stillcap.detect.beads.roi_box` if already computed;
+    ``prepared``: its :func:`~stillcap.detect.beads.prepare_view` with these options (:func:`_prepare`)."""
+    return detect_beads(image, palette, options.detector, options.identify, options.radius_range,
+                        options.n_circles, options.roi, options.coarse, region, prepared)
+
+
+def _prepare(image, options: PuppetOptions = DEFAULT) -> PreparedView:
+    """:func:`~stillcap.detect.beads.prepare_view` with the options' detector, radii, roi and coarse."""
+    return prepare_view(image, options.detector, options.radius_range, options.roi, options.coarse)
+
+
+
+def find_beads(images, options: PuppetOptions = DEFAULT,
+               progress: Callable[[int, int], None] | None = None) -> tuple[list, list]:
+    """Stage 1: the bead candidates of every photo (:func:`~stillcap.detect.beads.find_bead_candidates`
+    with the options' detector, radii, count, roi and coarse), and the seconds each took.
+    ``progress(done, total)`` is called after each photo."""
+    cands, t_det = [], []
+    n = len(images)
+    for k, img in enumerate(images):
+        t1 = time.perf_counter()
+        cands.append(find_bead_candidates(img, options.detector, options.radius_range, options.n_circles,
+                                          options.roi, options.coarse))
+        t_det.append(time.perf_counter() - t1)
+        if progress is not None:
+            progress(k + 1, n)
+    return cands, t_det
+
+
+def identify_beads(images, candidates, seconds, palette: Palette, options: PuppetOptions = DEFAULT) -> list:
+    """Stage 2: every photo's candidates named by colour (:func:`~stillcap.detect.beads.identify_views`:
+    :func:`detect_view`'s identification, its small matrices computed for all photos at once); one
+    :class:`~stillcap.detect.beads.ViewResult` per photo, its time the photo's ``seconds`` plus its
+    share of the identification."""
+    n = len(images)
+    t1 = time.perf_counter()
+    idents = identify_views(images, candidates, palette, options.identify)
+    share = (time.perf_counter() - t1) / max(n, 1)
+    return [ViewResult(c, i, t + share) for c, i, t in zip(candidates, idents, seconds)]
+
+
+# --- stage 3: triangulation --------------------------------------------------------------------
+def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, options: PuppetOptions = DEFAULT,
+                  bead_radius_m: float = 0.003, radii_px=None) -> MarkerSolve:
+    """Triangulate identified markers, leaving out partly hidden beads and disagreeing views.
+
+    1. A first triangulation (``outlier_px`` = 2 px consensus) gives each marker's depth, so
+       its expected radius in every photo.
+    2. With ``images`` and ``options.use_fill``: :func:`~stillcap.detect.beads.bead_fill` of every observation;
+       where a marker has two or more whole views (see :class:`~stillcap.pipelines.puppet.PuppetOptions`), only those are
+       used.
+    3. The final triangulation (``options.triangulation``, ``options.outlier_px``); markers
+       with fewer than two agreeing views are NaN. A marker the final step loses but the first
+       had (its whole views disagree) keeps the first estimate.
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+        The camera of every view (a turntable's virtual cameras).
+    points_2d : array_like, shape (n_views, n_markers, 2)
+        Identified pixels, NaN where a view did not identify a marker.
+    names : sequence of str, length n_markers
+    images : sequence of n_views images, optional
+        The photos, for the fill test.
+    options : PuppetOptions
+    bead_radius_m : float
+        Bead radius, metres (the thesis's beads: 3 mm).
+    radii_px : array_like, shape (n_views, n_markers), optional
+        Detected radii, used where a marker has no first 3D point.
+    """
+    x = np.asarray(points_2d, float)
+    if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2 or x.shape[1] != len(names):
+        raise ValueError(f"points_2d must have shape ({len(rig)}, {len(names)}, 2), got {x.shape}")
+    method = options.triangulation
+    refine = method == "dlt"
+    seen = np.isfinite(x[..., 0]) & np.isfinite(x[..., 1])
+    fill = np.full(seen.shape, np.nan)
+    partial = np.zeros(seen.shape, bool)
+    good = seen.copy()
+    x_used = x
+    first = pair_err = views = None
+    if images is not None and options.use_fill:
+        images = list(images)
+        if len(images) != len(rig):
+            raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
+        views = StackedViews(rig, x) if method == "dlt" else None
+        pair_err = ((views.pair_errors() if views is not None else view_pair_errors(rig, x, method))
+                    if len(rig) >= 3 and x.shape[1] else None)
+        first = triangulate_markers(rig, x, method, refine, 2.0, pair_errors=pair_err, views=views)
+        r_exp = expected_radius_px(rig, first.points, bead_radius_m)
+        if radii_px is not None:
+            r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
+        r_exp = np.where(np.isfinite(r_exp), r_exp, 0.5 * sum(options.radius_range) + 0.7)
+        fill = bead_fill_views(images, np.where(seen[..., None], x, np.nan), r_exp)
+        with np.errstate(invalid="ignore"):
+            best = np.nanmax(np.where(seen, fill, -np.inf), axis=0)
+            # whole: fill above min_fill, or (when the marker has a whole view at all) close to
+            # its best view's fill (beads that look smaller or dimmer in every view)
+            good = seen & ((fill >= options.min_fill)
+                           | ((fill >= options.fill_ratio * best[None]) & (best[None] >= options.min_fill)))
+        enough = good.sum(axis=0) >= 2
+        partial = seen & ~good & enough[None]
+        x_used = np.where(partial[..., None], np.nan, x)
+    tri = triangulate_markers(rig, x_used, method, refine, options.outlier_px, pair_errors=pair_err, views=views)
+    points, used = tri.points.copy(), tri.used.copy()
+    lost = ~np.all(np.isfinite(points), axis=1)
+    if first is not None and lost.any():
+        back = lost & np.all(np.isfinite(first.points), axis=1)
+        points[back] = first.points[back]
+        used[:, back] = first.used[:, back]
+        partial[:, back] = False
+    err = np.where(used, tri.errors_px, np.nan)
+    if first is not None:
+        err = np.where(used & ~np.isfinite(err), first.errors_px, err)
+    sq = np.where(used, err, 0.0) ** 2
+    k = used.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.where(k >= 2, np.sqrt(np.nansum(sq, axis=0) / k), np.nan)
+    outlier = seen & ~used & ~partial
+    return MarkerSolve(tuple(names), points, x, used, fill, partial, outlier, rms, tri, good)
+
+
+def _replace_markers(solve: MarkerSolve, cols: np.ndarray, sub: MarkerSolve, observations) -> MarkerSolve:
+    """``solve`` with the markers ``cols`` taken from ``sub`` (solved on their own) and the
+    observations replaced."""
+    def put(a, b, axis):
+        a = np.array(a, copy=True)
+        if axis == 0:
+            a[cols] = b
+        else:
+            a[:, cols] = b
+        return a
+
+    t, ts = solve.triangulation, sub.triangulation
+    tri = Triangulation(put(t.points, ts.points, 0), put(t.reproj_error_px, ts.reproj_error_px, 0),
+                        put(t.errors_px, ts.errors_px, 1), put(t.used, ts.used, 1))
+    whole = None if solve.whole is None or sub.whole is None else put(solve.whole, sub.whole, 1)
+    return MarkerSolve(solve.names, put(solve.points, sub.points, 0), np.asarray(observations, float),
+                       put(solve.used, sub.used, 1), put(solve.fill, sub.fill, 1), put(solve.partial, sub.partial, 1),
+                       put(solve.outlier, sub.outlier, 1), put(solve.reproj_error_px, sub.reproj_error_px, 0), tri, whole)
+
+
+
+def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, images=None,
+                      options: PuppetOptions = DEFAULT, radii_px=None,
+                      views: Sequence[ViewResult] | None = None) -> tuple[MarkerSolve, np.ndarray | None]:
+    """Stage 3: the 3D markers (:func:`solve_markers`); with ``views`` (the detections) and
+    ``options.reidentify``, the candidates named after the 3D markers
+    (:func:`~stillcap.detect.beads.reidentify`) and the markers it renamed solved again.
+
+    Returns
+    -------
+    solve : MarkerSolve
+    raw_observations : ndarray, shape (n_views, n_markers, 2), or None
+        The colour-only identification when the re-identification ran.
+    """
+    obs = observations
+    bead_r = 0.5 * float(np.mean([m.diameter for m in markerset.markers]))
+    solve = solve_markers(rig, obs, markerset.names, images, options, bead_radius_m=bead_r, radii_px=radii_px)
+    raw_obs = None
+    if views is not None and options.reidentify:
+        raw_obs = obs
+        final = reidentify(rig, solve.points, views, bead_r, options.reid_gate, options.reid_colour)
+        same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
+        if not same.all():
+            # solve_markers treats every marker on its own (its views' consensus, fill test and
+            # fallback look at that marker only), so only the re-identified markers are solved
+            # again (with no detected radii, as a full second solve would use)
+            cols = np.flatnonzero(~same)
+            sub = solve_markers(rig, final[:, cols], [markerset.names[c] for c in cols], images, options,
+                                bead_radius_m=bead_r, radii_px=None)
+            solve = _replace_markers(solve, cols, sub, final)
+    return solve, raw_obs
+
+
+# --- stage 4: the pose -------------------------------------------------------------------------
+def pose_skeleton(rig: Rig, skeleton: Skeleton, markerset: MarkerSet, solve: MarkerSolve, root2world=None,
+                  options: PuppetOptions = DEFAULT) -> PoseFit:
+    """Stage 4: the skeleton posed on the 3D markers (:func:`~stillcap.body.puppet_pose.fit_pose`)."""
+    # markers without a 3D point (seen in one view, or their views disagree) still constrain the
+    # pose: their final identification's rays, less sure the less of the bead shows (fill);
+    # fit_pose rejects those its fit leaves > 5 sigma off
+    from stillcap.body.puppet_pose import MarkerRays
+
+    rays = MarkerRays.from_views(rig, solve.observations, ~solve.ok, fill=solve.fill)
+    return fit_pose(skeleton, markerset, solve.points, root2world, marker_sigma_m=options.marker_sigma_m,
+                    rays=rays if len(rays) else None)
