@@ -484,6 +484,21 @@ def view_pair_errors(rig: Rig, x: np.ndarray, method: str) -> np.ndarray:
 
 
 
+class _PairErrors:
+    """The robust model of :func:`triangulate_markers`: the residuals of every view-pair
+    hypothesis computed beforehand, shape (n_views, n_pairs, n_markers); hypothesis ``h`` is the
+    pair's index."""
+
+    def __init__(self, errors):
+        self.errors = errors
+
+    def estimate(self, h):
+        return h
+
+    def residuals(self, h):
+        return self.errors[:, h]
+
+
 def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, outlier_px: float | None,
                          pair_errors: np.ndarray | None = None, views: StackedViews | None = None) -> Triangulation:
     """:func:`triangulate_markers` on a checked array. ``pair_errors``: :func:`view_pair_errors` of
@@ -502,17 +517,11 @@ def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, out
     else:
         both = seen[pairs[:, 0]] & seen[pairs[:, 1]]  # pairs whose hypothesis x still has
         err = np.where(both[None], pair_errors, np.nan)
-    with np.errstate(invalid="ignore"):
-        inl = seen[:, None] & (err <= outlier_px)  # (nv, n_pairs, n)
-    count = inl.sum(axis=0)
-    score = np.where(inl, err, 0.0).sum(axis=0)
-    # the shared rule, pairs in order: a pair wins over the best so far with more inliers, or as
-    # many (>= 2) with a smaller summed error; with fewer than 2 the first of the most wins
-    best_count = count.max(axis=0)
-    cand = count == best_count[None]
-    key = np.where(cand & (best_count[None] >= 2), score, np.where(cand, 0.0, np.inf))
-    win = np.argmin(key, axis=0)
-    mask = np.where(best_count[None] > 0, inl[:, win, np.arange(n)], seen)
+    # the shared consensus (stillcap.geometry.robust), each view pair a hypothesis whose residuals
+    # were computed above for all pairs at once; views that x does not have are not judged
+    found = consensus(_PairErrors(np.where(seen[:, None], err, np.nan)), range(len(pairs)), outlier_px,
+                      min_inliers=2)
+    mask = np.where(found.best >= 0, found.inliers, seen)
     if fast:
         # views.x may hold more observations than x (x leaves some out): only x's are used
         X, errors = views.solve(mask & seen, refine)
