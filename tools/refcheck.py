@@ -13,7 +13,7 @@ keeps behaviour gives the same dump.
 
 ``renders``/``dump`` take an optional name prefix to run a part. ``compare`` checks the records
 the second folder has. Numbers compare within 1e-12 (relative to max(1, |a|)); text and file hashes exactly (rendered
-JSON files by their numbers). Keys that
+JSON files by their numbers). Renders run on one thread (see ONE_THREAD). Keys that
 hold wall-clock times are left out.
 """
 
@@ -66,8 +66,14 @@ ANALYSES = [
 ]
 
 
-def _run(args: list[str], log: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, COLUMNS="200", NO_COLOR="1", TERM="dumb")
+#: One thread for OpenCV and BLAS: the studio's calibration of a rendered rig is then the same,
+#: digit for digit, from run to run (with threads it varies in the last digits).
+ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              "OPENCV_FOR_THREADS_NUM": "1"}
+
+
+def _run(args: list[str], log: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, COLUMNS="200", NO_COLOR="1", TERM="dumb", **(env or {}))
     p = subprocess.run(STILLCAP + args, capture_output=True, text=True, env=env)
     log.write_text(f"$ stillcap {' '.join(args)}\nexit {p.returncode}\n--- stderr\n{p.stderr}")
     return p
@@ -83,9 +89,7 @@ def render(kept: Path) -> None:
 
 
 def _hash_tree(folder: Path) -> dict:
-    """Every file's SHA-256, but JSON files' contents: the studio's calibration of a rendered
-    rig varies in the last digits between runs of the same code (OpenCV's threads), so JSON
-    numbers are compared within the tolerance, images byte for byte."""
+    """Every file's SHA-256, but JSON files' contents (numbers compared within the tolerance)."""
     return {str(f.relative_to(folder)): json.loads(f.read_text()) if f.suffix == ".json"
             else hashlib.sha256(f.read_bytes()).hexdigest()
             for f in sorted(folder.rglob("*")) if f.is_file()}
@@ -99,7 +103,7 @@ def renders(out: Path, only: str | None = None) -> None:
         if only and not name.startswith(only):
             continue
         shutil.rmtree(folder / name, ignore_errors=True)
-        p = _run(["studio", *args, "--out", str(folder / name)], out / f"render-{name}.log")
+        p = _run(["studio", *args, "--out", str(folder / name)], out / f"render-{name}.log", ONE_THREAD)
         (out / f"render-{name}.json").write_text(json.dumps({"exit": p.returncode, "files": _hash_tree(folder / name)}, indent=1))
         print(f"render {name}: exit {p.returncode}", flush=True)
     shutil.rmtree(folder, ignore_errors=True)
