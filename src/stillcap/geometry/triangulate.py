@@ -210,6 +210,22 @@ def triangulate(cameras, points_2d, method: str = "dlt", refine: bool = True,
         point to tell which view is wrong).
     min_views : int
         Points with fewer usable views come back as NaN.
+
+    Examples
+    --------
+    Three cameras on a circle look at the origin; the second point is not seen by the third:
+
+    >>> import numpy as np
+    >>> from stillcap.camera import Camera, Rig, look_at
+    >>> rig = Rig([Camera.from_intrinsics(f"cam{i}", 1000, 1000, 639.5, 479.5, (1280, 960),
+    ...                                   world2cam=look_at((3 * np.cos(a), 3 * np.sin(a), 1), (0, 0, 0)))
+    ...            for i, a in enumerate([0.0, 1.5, 3.0])])
+    >>> X = np.array([[0.1, -0.2, 0.3], [0.0, 0.0, 0.0]])
+    >>> x = np.stack([cam.project(X) for cam in rig])   # (n_cams, N, 2) pixels
+    >>> x[2, 1] = np.nan
+    >>> tri = triangulate(rig, x)
+    >>> np.round(tri.points, 6).tolist(), tri.n_views.tolist()
+    ([[0.1, -0.2, 0.3], [0.0, 0.0, 0.0]], [3, 2])
     """
     cams = _cameras(cameras)
     x = as_array(points_2d, (len(cams), None, 2), "points_2d")

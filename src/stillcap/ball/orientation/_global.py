@@ -462,6 +462,20 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
     -------
     SpinResult
         ``method="global"``; ``success`` False with a message when there are too few markers.
+
+    Examples
+    --------
+    Eight flashes at 80 Hz of the seed's ball spinning at 1,543 rpm, seen from two directions,
+    marker directions with 0.5 deg of noise:
+
+    >>> import numpy as np
+    >>> from stillcap.ball.orientation import fit_spin, simulate_observations
+    >>> times = np.arange(8) / 80.0
+    >>> obs = simulate_observations(times, np.eye(3), [0.0, -150.0, 60.0], [[1, 0, 0], [0, 1, 0]],
+    ...                             noise_deg=0.5, rng=1)
+    >>> res = fit_spin(times, obs)
+    >>> bool(res.success), round(res.spin_rpm), np.round(res.axis, 2).tolist()
+    (True, 1542, [-0.0, -0.93, 0.37])
     """
     t_start = _time.perf_counter()
     layout = _default_layout(layout)

@@ -376,10 +376,16 @@ def analyse_puppet(capture, options: PuppetOptions | None = None, *, palette: Pa
 
     Examples
     --------
-    >>> from stillcap.pipelines.puppet import analyse_puppet, with_options
-    >>> result, photos = analyse_puppet("capture", with_options(detector="thesis"))  # doctest: +SKIP
-    >>> result.missing  # markers identified in fewer than two views  # doctest: +SKIP
-    ()
+    Twelve turntable photos of the studio's puppet written as a capture folder, then analysed
+    (``with_options(detector="thesis")`` would run the thesis's own chain):
+
+    >>> import tempfile
+    >>> from stillcap.studio.puppet import puppet_scene
+    >>> capture, photos = puppet_scene(rng=0).to_capture(".jpg")
+    >>> folder = capture.save(tempfile.mkdtemp(), photos)
+    >>> result, photos = analyse_puppet(folder)
+    >>> len(result.names), result.missing   # markers, and those identified in fewer than two views
+    (16, ())
     """
     from stillcap.io.project import Project
 
