@@ -12,7 +12,7 @@ front (gibbous), from a little behind (crescent), and overlapping images (spacin
 radii, one silhouette). The Hough refinement gets the true radius, as the stereo pipeline
 provides it from the triangulated centre (its radius error there is ~0.1 px). "toward light":
 the mean signed centre error along the light's direction in the image (a lit limb pulls the
-Hough centre toward the light); "+ shading": ``refine_centers(shading=True)``, the lit-sphere
+Hough centre toward the light); "+ shading": ``refine_ball_centers(shading=True)``, the lit-sphere
 shading correction the stereo pipeline applies to partly lit balls.
 The stereo rows run the whole pipeline (``ball_centers_stereo``) on the seed's front pair
 (0.8 m vertical baseline, 3.5 m away, lens distortion on one camera).
@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from detect.test_ball import (FLIGHT, R_BALL, baseball_markers, draw_balls,  # noqa: E402
                               draw_balls_camera, flight_balls, front_pair)
 
-from stillcap.detect.ball import detect_balls, refine_centers  # noqa: E402  # noqa: E402
+from stillcap.detect.ball import detect_balls, refine_ball_centers  # noqa: E402  # noqa: E402
 from stillcap.ball.stereo import ball_centers_stereo  # noqa: E402
 from stillcap.detect.ball_markers import detect_ball_markers  # noqa: E402
 
@@ -105,10 +105,10 @@ def main(argv=None):
             flags.extend(det.flags)
             e_ell.append(np.linalg.norm(det.centers[m[ok]] - balls[ok, :2], axis=1))
             t = time.process_time()
-            ref = refine_centers(img, det.centers[m[ok]], balls[ok, 2])
+            ref = refine_ball_centers(img, det.centers[m[ok]], balls[ok, 2])
             t_ref.append(time.process_time() - t)
             e_h.append(np.linalg.norm(ref.centers - balls[ok, :2], axis=1))
-            shaded = refine_centers(img, det.centers[m[ok]], balls[ok, 2], shading=True)
+            shaded = refine_ball_centers(img, det.centers[m[ok]], balls[ok, 2], shading=True)
             e_s.append(np.linalg.norm(shaded.centers - balls[ok, :2], axis=1))
             if toward is not None:
                 b_h.append((ref.centers - balls[ok, :2]) @ toward)

@@ -26,9 +26,10 @@ from rich.table import Table
 from scipy.optimize import linear_sum_assignment
 
 from stillcap.body.markerset import MarkerSet
-from stillcap.detect.circles import METHODS, find_circles, random_bead_scene
+from stillcap.detect.circles import METHODS, find_circles
 from stillcap.detect.identify import RECOMMENDED, THESIS, calibrate_palette, identify_markers
 from stillcap.detect.palette import Palette, propose_palette
+from stillcap.studio.beads import random_bead_scene
 
 CONDITIONS = {
     "dark limbs": dict(),

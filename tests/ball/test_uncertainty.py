@@ -213,7 +213,8 @@ def test_lit_phase_from_the_detected_silhouette():
     import cv2
 
     from stillcap.ball.uncertainty import lit_phase_from_area
-    from stillcap.detect.ball import _lit_sphere_image, detect_balls
+    from stillcap.detect.ball import detect_balls
+    from stillcap.detect.ball._shading import _lit_sphere_image
 
     rng = np.random.default_rng(3)
     r = 20.0

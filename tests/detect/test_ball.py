@@ -1,4 +1,4 @@
-"""Ball detection (silhouettes, ellipses, known-radius Hough, stereo) on photos drawn here.
+"""Ball detection (silhouettes, ellipses, known-radius Hough) on photos drawn here.
 
 The drawing is a small exact sphere renderer: every sub-pixel sample (``ss`` x ``ss`` per pixel)
 gets the normal of the sphere it sees (orthographic for balls given in pixels, ray-cast through a
@@ -16,11 +16,10 @@ import numpy as np
 import pytest
 
 from stillcap.camera import Camera, look_at
-from stillcap.detect.ball import BallFlag, detect_balls, foreground_mask, refine_centers, sphere_outline_px
-from stillcap.ball.stereo import ball_centers_stereo
+from stillcap.detect.ball import BallFlag, detect_balls, foreground_mask, refine_ball_centers, sphere_outline_px
 
 # --------------------------------------------------------------------------------------------
-# drawing (also used by test_ball_markers.py and benchmarks/bench_ball_detect.py)
+# drawing (also used by test_ball_markers.py, tests/ball/test_stereo.py and benchmarks/bench_ball_detect.py)
 # --------------------------------------------------------------------------------------------
 #: linear RGB albedos of the marker types (the studio's baseball palette) and their shapes
 MARKER_ALBEDO_RGB = {"red": (0.80, 0.04, 0.03), "blue": (0.03, 0.10, 0.80),
@@ -287,7 +286,7 @@ def test_full_balls_with_markers_ellipse_and_hough_centres():
         idx, d = nearest(det.centers, balls[:, :2])
         assert sorted(idx) == list(range(8))
         assert np.all(np.abs(det.radii_px[idx] - balls[:, 2] - 1.0) < 1.0)  # the blurred rim adds ~1.6 px
-        ref = refine_centers(img, det.centers[idx], balls[:, 2])
+        ref = refine_ball_centers(img, det.centers[idx], balls[:, 2])
         assert np.all(ref.ok) and np.all(ref.scores > 0.9)
         errs_e.append(d)
         errs_h.append(np.linalg.norm(ref.centers - balls[:, :2], axis=1))
@@ -312,7 +311,7 @@ def test_partly_lit_balls_hough_beats_ellipse(light, hough_mean, hough_max):
     assert d_ell.mean() > 3.0
     toward = (det.centers[idx] - balls[:, :2]) @ np.array(light[:2]) / np.linalg.norm(light[:2])
     assert np.all(toward > 1.0)
-    ref = refine_centers(img, det.centers[idx], balls[:, 2])
+    ref = refine_ball_centers(img, det.centers[idx], balls[:, 2])
     d_h = np.linalg.norm(ref.centers - balls[:, :2], axis=1)
     assert np.all(ref.ok)
     assert d_h.mean() < hough_mean and d_h.max() < hough_max
@@ -332,7 +331,7 @@ def test_shading_correction_removes_the_half_moon_bias_toward_the_light(light):
         det = detect_balls(img)
         idx, _ = nearest(det.centers, balls[:, :2])
         for shading in (False, True):
-            ref = refine_centers(img, det.centers[idx], balls[:, 2], shading=shading)
+            ref = refine_ball_centers(img, det.centers[idx], balls[:, 2], shading=shading)
             assert np.all(ref.ok)
             along[shading] += list((ref.centers - balls[:, :2]) @ u)
     before, after = np.mean(along[False]), np.mean(along[True])
@@ -347,8 +346,8 @@ def test_shading_correction_leaves_full_discs_alone():
     img, balls = photo(3)
     det = detect_balls(img)
     idx, _ = nearest(det.centers, balls[:, :2])
-    on = refine_centers(img, det.centers[idx], balls[:, 2], shading=True)
-    off = refine_centers(img, det.centers[idx], balls[:, 2], shading=False)
+    on = refine_ball_centers(img, det.centers[idx], balls[:, 2], shading=True)
+    off = refine_ball_centers(img, det.centers[idx], balls[:, 2], shading=False)
     assert np.all(on.scores > 0.7)
     np.testing.assert_array_equal(on.centers, off.centers)
 
@@ -364,7 +363,7 @@ def test_overlapping_ball_images_are_split():
     assert len(set(det.contour_index)) == 1
     idx, d = nearest(det.centers, balls[:, :2])
     assert sorted(idx) == list(range(8)) and d.max() < 0.6
-    ref = refine_centers(img, det.centers[idx], balls[:, 2])
+    ref = refine_ball_centers(img, det.centers[idx], balls[:, 2])
     assert np.linalg.norm(ref.centers - balls[:, :2], axis=1).max() < 0.6
 
 
@@ -384,7 +383,7 @@ def test_overlapping_half_moons_are_split_at_their_distance_maxima():
     assert list(merged) == [False, True, True, False, False]
     assert np.all(det.has(BallFlag.PARTIAL)) and not np.any(det.has(BallFlag.SPLIT))
     assert np.all(d > 4)
-    ref = refine_centers(img, det.centers[idx], 25.0)
+    ref = refine_ball_centers(img, det.centers[idx], 25.0)
     assert np.all(ref.ok) and np.linalg.norm(ref.centers - balls[:, :2], axis=1).max() < 0.4
     # alone (fewer than 3 silhouettes to compare with) the pair is one partly lit ball
     alone = detect_balls(img[95:205])
@@ -396,7 +395,7 @@ def test_thin_crescent_is_one_ball():
     img, balls = photo(2, light=(0.6, 0.0, 0.8))
     det = detect_balls(img)
     assert len(det) == 8 and np.all(det.flags == BallFlag.PARTIAL)
-    ref = refine_centers(img, det.centers, balls[:, 2])
+    ref = refine_ball_centers(img, det.centers, balls[:, 2])
     assert np.all(ref.ok) and np.linalg.norm(ref.centers - balls[:, :2], axis=1).max() < 1.0
 
 
@@ -423,7 +422,7 @@ def test_background_photo_and_clutter():
     assert len(det) == 3
     _, d = nearest(det.centers, balls[:, :2])
     assert d.max() < 0.5
-    ref = refine_centers(img, det.centers, det.radii_px, background=noisy(bg))
+    ref = refine_ball_centers(img, det.centers, det.radii_px, background=noisy(bg))
     assert np.linalg.norm(ref.centers - balls[:, :2], axis=1).max() < 0.5
     assert len(detect_balls(img)) != 3  # without it, the lit background is foreground
 
@@ -451,8 +450,8 @@ def test_grey_and_float_images_give_the_same_balls():
     assert len(a) == len(b) == len(c) == 8
     assert np.abs(a.centers - c.centers).max() < 1e-6
     assert np.abs(a.centers - b.centers).max() < 0.2
-    r1 = refine_centers(img, a.centers, balls[:, 2])
-    r2 = refine_centers(img.astype(np.float64), a.centers, balls[:, 2])
+    r1 = refine_ball_centers(img, a.centers, balls[:, 2])
+    r2 = refine_ball_centers(img.astype(np.float64), a.centers, balls[:, 2])
     assert np.abs(r1.centers - r2.centers).max() < 1e-3
 
 
@@ -466,7 +465,8 @@ def test_silhouettes_thresholded_around_candidates_are_the_full_frame_ones(open_
     resolution: the contours must be those of the whole-frame mask, also for balls cut by the
     border, balls whose boxes overlap, a thin spur the half-resolution image misses (its box
     must grow) and with a background photo."""
-    from stillcap.detect.ball import _clean_contours, _foreground_contours, _raw_mask
+    from stillcap.detect.ball._foreground import _raw_mask
+    from stillcap.detect.ball._silhouettes import _clean_contours, _foreground_contours
 
     balls = np.array([[30.0, 40.0, 24.0], [200.0, 150.0, 25.0], [256.0, 160.0, 22.0], [590.0, 280.0, 26.0],
                       [420.0, 60.0, 20.0]])
@@ -488,7 +488,8 @@ def test_half_resolution_search_image_on_even_and_odd_sizes(size):
     """The half-resolution search image samples every 2nd row as a view where the height is
     even, else resizes the whole photo: the silhouettes are the whole-frame ones either way,
     also for balls cut by the bottom and right edges."""
-    from stillcap.detect.ball import _clean_contours, _foreground_contours, _raw_mask
+    from stillcap.detect.ball._foreground import _raw_mask
+    from stillcap.detect.ball._silhouettes import _clean_contours, _foreground_contours
 
     H, W = size
     balls = np.array([[60.0, 50.0, 22.0], [300.0, 150.0, 25.0], [W - 5.0, 120.0, 20.0], [450.0, H - 4.0, 21.0]])
@@ -502,7 +503,7 @@ def test_half_resolution_search_image_on_even_and_odd_sizes(size):
 def test_robust_level_is_the_subsample_histogram_median_and_mad():
     """Median and MAD of a uint8 channel from its strided subsample's histogram (cv2.calcHist)
     are the lower middle values of the sorted subsample and of its absolute deviations."""
-    from stillcap.detect.ball import _robust_level
+    from stillcap.detect.ball._foreground import _robust_level
 
     rng = np.random.default_rng(1)
     for shape, lo, hi in (((1000, 1300), 0, 12), ((480, 640), 3, 40), ((7, 9), 0, 256), ((2000, 2000), 100, 104)):
@@ -522,7 +523,7 @@ def test_robust_level_is_the_subsample_histogram_median_and_mad():
 def test_robust_levels_of_a_photo_are_those_of_its_channels(size):
     """All channels' levels at once (a resized subsample where the step, a power of 2, divides
     the size; else channel by channel) are each channel's own."""
-    from stillcap.detect.ball import _robust_level, _robust_levels
+    from stillcap.detect.ball._foreground import _robust_level, _robust_levels
 
     rng = np.random.default_rng(4)
     img = rng.integers(0, 30, (*size, 3)).astype(np.uint8)
@@ -536,7 +537,7 @@ def test_robust_levels_of_a_photo_are_those_of_its_channels(size):
 def test_robust_levels_from_the_half_resolution_image_are_the_photos(size):
     """The levels taken from the silhouette search's half-resolution image (the same pixels)
     equal those of the photo; a small image of another size is not used."""
-    from stillcap.detect.ball import _mask_limits, _robust_levels, _subsample
+    from stillcap.detect.ball._foreground import _mask_limits, _robust_levels, _subsample
 
     rng = np.random.default_rng(5)
     img = rng.integers(0, 30, (*size, 3)).astype(np.uint8)
@@ -555,7 +556,7 @@ def test_robust_levels_from_the_half_resolution_image_are_the_photos(size):
 def test_grid_peak_scores_every_candidate_of_its_grid(start):
     """_grid_peak builds the outline maps from the grid's distinct rows and columns; its scores
     are _score's of the full list of candidates (x + DX, y + DY) in row-major order."""
-    from stillcap.detect.ball import _gradient, _grid_offsets, _grid_peak, _score, _template
+    from stillcap.detect.ball._hough import _gradient, _grid_offsets, _grid_peak, _score, _template
 
     yy, xx = np.mgrid[0:80, 0:84]
     img = (np.hypot(xx - 41.2, (yy - 40.6) * 1.1) < 15).astype(np.float32)
@@ -578,7 +579,7 @@ def test_grid_peak_scores_every_candidate_of_its_grid(start):
 
 
 def test_percentile_is_numpys():
-    from stillcap.detect.ball import _percentile
+    from stillcap.detect.ball._hough import _percentile
 
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 10, 37, 184, 1000):
@@ -589,7 +590,7 @@ def test_percentile_is_numpys():
 
 
 # --------------------------------------------------------------------------------------------
-# steps 3-5: projected outline, stereo
+# step 3: projected outline (stereo: tests/ball/test_stereo.py)
 # --------------------------------------------------------------------------------------------
 def test_sphere_outline_is_the_apparent_circle_on_axis_and_an_ellipse_off_axis():
     cam = Camera.from_intrinsics("c", 1000, 1000, 999.5, 749.5, (2000, 1500))
@@ -618,8 +619,8 @@ def test_exact_outline_template_finds_the_projected_centre():
     det = detect_balls(img)
     assert len(det) == 1
     cen, outl, rad = sphere_outline_px(cam, C, 0.1)
-    exact = refine_centers(img, det.centers, rad, outlines=outl - cen[:, None])
-    circle = refine_centers(img, det.centers, rad)
+    exact = refine_ball_centers(img, det.centers, rad, outlines=outl - cen[:, None])
+    circle = refine_ball_centers(img, det.centers, rad)
     e_exact = np.linalg.norm(exact.centers - cen, axis=1)[0]
     e_circle = np.linalg.norm(circle.centers - cen, axis=1)[0]
     assert e_exact < 0.3 and e_circle > 2.0
@@ -631,45 +632,14 @@ def test_refined_start_skips_the_coarse_grid_and_finds_the_same_centre(light):
     the centre the full coarse-to-fine search finds, also for half moons."""
     balls = np.array([[80.0, 90.0, 28.0], [220.3, 95.6, 29.0], [360.7, 88.2, 27.5]])
     img, _ = draw_balls((180, 440), balls, light=light, rng=5)
-    first = refine_centers(img, balls[:, :2] + [[1.5, -1.0]], balls[:, 2])
+    first = refine_ball_centers(img, balls[:, :2] + [[1.5, -1.0]], balls[:, 2])
     assert first.ok.all()
     start = first.centers + [[0.4, -0.3]]
-    full = refine_centers(img, start, balls[:, 2], search_px=3.0)
-    quick = refine_centers(img, start, balls[:, 2], search_px=3.0, start_refined=True)
+    full = refine_ball_centers(img, start, balls[:, 2], search_px=3.0)
+    quick = refine_ball_centers(img, start, balls[:, 2], search_px=3.0, start_refined=True)
     assert quick.ok.all()
     assert np.abs(quick.centers - full.centers).max() < 1e-9
     assert np.linalg.norm(quick.centers - balls[:, :2], axis=1).max() < 0.3
-
-
-@pytest.mark.parametrize("light, max_mm, init_min_mm", [(None, 1.0, 0.0), ((1.0, 0.0, 0.0), 1.0, 5.0)])
-def test_stereo_pair_recovers_3d_centres(light, max_mm, init_min_mm):
-    """The front pair (camera b with lens distortion) sees 8 balls; 3D error well below 1 mm.
-    Lit from the side (half moons), the ellipse centres triangulate ~6-12 mm off, the refined
-    centres still well below 1 mm."""
-    a, b = front_pair()
-    ia = draw_balls_camera(a, FLIGHT, R_BALL, light_world=light, rng=11)
-    ib = draw_balls_camera(b, FLIGHT, R_BALL, light_world=light, rng=12)
-    res = ball_centers_stereo(a, ia, b, ib, R_BALL)
-    assert len(res) == 8 and np.all(res.ok)
-    order = np.argsort(res.points_3d[:, 0])
-    err = np.linalg.norm(res.points_3d[order] - FLIGHT, axis=1)
-    err0 = np.linalg.norm(res.points_3d_initial[order] - FLIGHT, axis=1)
-    assert err.max() * 1e3 < max_mm
-    assert err0.mean() * 1e3 >= init_min_mm
-    assert np.all(res.reproj_error_px < 0.2)
-    # projected radius: f R / distance on the axis; off-axis the outline is an ellipse, its
-    # semi-axes about f R / (d cos) and f R / (d cos^2) of the field angle (13% more at 23 deg)
-    r_axis = 2400 * R_BALL / np.linalg.norm(FLIGHT - a.center, axis=1)
-    assert np.all((res.radius_px[order, 0] > r_axis) & (res.radius_px[order, 0] < 1.2 * r_axis))
-    # raw and undistorted centres: the same for the pinhole camera a, not for b
-    assert np.allclose(res.centers_a, res.centers_a_undistorted)
-    assert np.abs(res.centers_b - res.centers_b_undistorted).max() > 1.0
-    assert np.linalg.norm(res.centers_a[order] - a.project(FLIGHT), axis=1).max() < 0.5
-    assert np.all((res.flags & BallFlag.SIZE_MISMATCH) == 0)
-    # the detections carry the refined centres
-    assert np.allclose(res.detections_a.centers[res.pairs[:, 0]], res.centers_a)
-    if light is not None:
-        assert np.all(res.flags & BallFlag.PARTIAL)
 
 
 # --------------------------------------------------------------------------------------------
@@ -680,19 +650,15 @@ def test_empty_images_and_no_centres():
     det = detect_balls(black)
     assert len(det) == 0 and det.centers.shape == (0, 2) and det.ellipses.shape == (0, 5)
     assert len(detect_balls(np.full((50, 60), 255, np.uint8))) == 0  # all white: all background
-    ref = refine_centers(black, np.zeros((0, 2)), np.zeros(0))
+    ref = refine_ball_centers(black, np.zeros((0, 2)), np.zeros(0))
     assert len(ref) == 0 and ref.centers.shape == (0, 2)
-    a, b = front_pair()
-    z = np.zeros((1920, 2560, 3), np.uint8)
-    res = ball_centers_stereo(a, z, b, z, R_BALL)
-    assert len(res) == 0 and res.points_3d.shape == (0, 3) and res.pairs.shape == (0, 2)
 
 
 def test_refinement_failure_is_flagged_not_guessed():
     img, balls = photo(4, markers=False)
     start = np.array([[balls[0, 0], balls[0, 1] - 3 * balls[0, 2]], [700.0, 600.0],  # dark, empty
                       [np.nan, np.nan], balls[1, :2]])
-    ref = refine_centers(img, start, [25.0, 25.0, 25.0, np.nan], search_px=5.0)
+    ref = refine_ball_centers(img, start, [25.0, 25.0, 25.0, np.nan], search_px=5.0)
     assert np.all(~ref.ok)
     assert np.all(ref.flags & BallFlag.REFINE_FAILED)
     assert np.allclose(ref.centers, start, equal_nan=True)  # the start comes back, flagged
@@ -701,12 +667,12 @@ def test_refinement_failure_is_flagged_not_guessed():
 def test_with_refined_and_has():
     img, balls = photo(6, markers=False)
     det = detect_balls(img)
-    ref = refine_centers(img, det.centers, det.radii_px)
+    ref = refine_ball_centers(img, det.centers, det.radii_px)
     both = det.with_refined(ref)
     assert np.allclose(both.centers, ref.centers) and np.allclose(both.ellipse_centers, det.ellipse_centers)
     assert np.all(np.isfinite(both.scores)) and np.all(np.isnan(det.scores))
     with pytest.raises(ValueError, match="refined has 0 centres for 8 detections"):
-        det.with_refined(refine_centers(img, np.zeros((0, 2)), np.zeros(0)))
+        det.with_refined(refine_ball_centers(img, np.zeros((0, 2)), np.zeros(0)))
 
 
 def test_bad_input_names_the_shape():
@@ -716,21 +682,13 @@ def test_bad_input_names_the_shape():
     with pytest.raises(ValueError, match=r"background must have the image's shape \(50, 60, 3\), got \(50, 61, 3\)"):
         detect_balls(img, background=np.zeros((50, 61, 3), np.uint8))
     with pytest.raises(ValueError, match=r"centers must have shape \(N, 2\), got \(3, 3\)"):
-        refine_centers(img, np.zeros((3, 3)), 10.0)
+        refine_ball_centers(img, np.zeros((3, 3)), 10.0)
     with pytest.raises(ValueError, match=r"radius_px must have shape \(2,\), got \(3,\)"):
-        refine_centers(img, np.zeros((2, 2)), np.ones(3))
+        refine_ball_centers(img, np.zeros((2, 2)), np.ones(3))
     with pytest.raises(ValueError, match=r"outlines must have shape \(2, M, 2\) with M >= 8, got \(2, 5, 2\)"):
-        refine_centers(img, np.zeros((2, 2)), 10.0, outlines=np.zeros((2, 5, 2)))
+        refine_ball_centers(img, np.zeros((2, 2)), 10.0, outlines=np.zeros((2, 5, 2)))
     with pytest.raises(ValueError, match="must hold numbers"):
         detect_balls(np.zeros((5, 5), object))
-    a, b = front_pair()
-    with pytest.raises(ValueError, match=r"img_a is 60x50 px, camera 'front_low' is 2560x1920 px"):
-        ball_centers_stereo(a, img, b, img, R_BALL)
-    z = np.zeros((1920, 2560, 3), np.uint8)
-    with pytest.raises(ValueError, match="ball_radius_m must be a positive number of metres"):
-        ball_centers_stereo(a, z, b, z, -1.0)
-    with pytest.raises(ValueError, match="stillcap Camera"):
-        ball_centers_stereo("a", z, b, z, R_BALL)
 
 
 @pytest.mark.parametrize("phase_deg", [40.0, 100.0])
@@ -738,7 +696,8 @@ def test_lit_sphere_supersampled_near_the_limb_only_keeps_the_limb(phase_deg):
     """The shading model rendered with supersampling only in a band at the limb (what
     _shading_bias uses, for speed) equals the fully supersampled one in the band and outside the
     ball, and its blurred limb gradient is the same: it cannot move the Hough peak."""
-    from stillcap.detect.ball import _gradient, _lit_sphere_image
+    from stillcap.detect.ball._hough import _gradient
+    from stillcap.detect.ball._shading import _lit_sphere_image
 
     a = np.radians(phase_deg)
     light = (np.sin(a) * 0.8, np.sin(a) * 0.6, np.cos(a))

@@ -8,8 +8,8 @@ import pytest
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.detect.beads import DETECTORS, IDENTIFIERS, bead_fill, bead_fill_views, detect_beads
-from stillcap.detect.circles import draw_beads, random_bead_scene
 from stillcap.detect.palette import Palette
+from stillcap.studio.beads import draw_beads, random_bead_scene
 
 
 def _fill_one_by_one(image, centers, radii_px):

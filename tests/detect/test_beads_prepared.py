@@ -13,8 +13,8 @@ from stillcap.detect.beads import (
     identify_views,
     prepare_view,
 )
-from stillcap.detect.circles import random_bead_scene
 from stillcap.detect.palette import Palette
+from stillcap.studio.beads import random_bead_scene
 
 PAL = Palette.from_markerset(MarkerSet.puppet())
 

@@ -6,15 +6,14 @@ from skimage.filters import threshold_isodata
 from stillcap.body.markerset import MarkerSet
 from stillcap.detect.circles import (
     METHODS,
-    draw_beads,
     find_circles,
     grey_image,
     isodata_threshold,
     outline,
-    random_bead_scene,
-    refine_centers,
+    refine_bead_centers,
 )
 from stillcap.detect.palette import Palette
+from stillcap.studio.beads import draw_beads, random_bead_scene
 
 PAL = Palette.from_markerset(MarkerSet.puppet())
 
@@ -121,10 +120,10 @@ def test_refinement_converges_and_keeps_false_starts():
     c = np.array([[30.4, 25.7], [60.0, 30.0]])
     img = np.clip(draw_beads(c, [6, 6], [[0.7, 0.7, 0.2]] * 2, size=(60, 90), background=0.03) * 255, 0, 255)
     start = c + [[1.2, -0.8], [0.0, 0.0]]
-    out = refine_centers(img.astype(np.uint8), np.r_[start, [[80.0, 50.0]]], [6, 6, 6])
+    out = refine_bead_centers(img.astype(np.uint8), np.r_[start, [[80.0, 50.0]]], [6, 6, 6])
     assert np.abs(out[:2] - c).max() < 0.05
     assert np.allclose(out[2], [80, 50])  # nothing there: left where it was
-    assert refine_centers(img, np.zeros((0, 2)), np.zeros(0)).shape == (0, 2)
+    assert refine_bead_centers(img, np.zeros((0, 2)), np.zeros(0)).shape == (0, 2)
 
 
 def test_radius_range_and_n_are_respected(scenes):
@@ -159,7 +158,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="radius_range"):
         find_circles(np.zeros((5, 5)), radius_range=(7, 5))
     with pytest.raises(ValueError, match=r"centers must have shape \(N, 2\), got \(3,\)"):
-        refine_centers(np.zeros((5, 5)), [1, 2, 3], [1])
+        refine_bead_centers(np.zeros((5, 5)), [1, 2, 3], [1])
     with pytest.raises(ValueError, match=r"mask must have shape \(H, W\)"):
         outline(np.zeros((2, 2, 2)))
     with pytest.raises(ValueError, match="n_beads"):
@@ -171,7 +170,8 @@ def test_contrast_map_is_filter2d_of_the_disc_kernels(scenes):
     (to float32 rounding), on the whole image and inside boxes."""
     import cv2
 
-    from stillcap.detect.circles import _disc_kernel, contrast_map
+    from stillcap.detect.circles import contrast_map
+    from stillcap.detect.circles._template import _disc_kernel
 
     radii = np.array([5.0, 6.0, 7.0])
     for sc in scenes[:3]:
@@ -195,7 +195,7 @@ def test_contrast_map_is_filter2d_of_the_disc_kernels(scenes):
 def test_local_maxima_keep_the_first_pixel_of_a_plateau():
     """Equal maxima within md of each other: only the first in raster order stays (as the
     plain loop over all maxima did); equal maxima farther apart both stay."""
-    from stillcap.detect.circles import _local_maxima
+    from stillcap.detect.circles._template import _local_maxima
 
     C = np.zeros((40, 50), np.float32)
     C[10, 10] = C[10, 12] = C[12, 11] = 9.0  # one plateau of three pixels within md = 3
@@ -207,9 +207,9 @@ def test_local_maxima_keep_the_first_pixel_of_a_plateau():
 
 
 def test_grey_median_and_grey_image_shortcuts_are_exact(scenes):
-    """grey_image of a uint8 photo and the histogram median refine_centers gets are exactly
+    """grey_image of a uint8 photo and the histogram median refine_bead_centers gets are exactly
     the float32 channel mean and np.median of it."""
-    from stillcap.detect.circles import _median_grey
+    from stillcap.detect.circles._thesis import _median_grey
 
     rng = np.random.default_rng(0)
     for sc in scenes[:3]:
@@ -244,7 +244,7 @@ def test_contrast_at_is_the_contrast_map(scenes):
     climb reads) equals the contrast map there, borders included."""
     import cv2
 
-    from stillcap.detect.circles import _contrast_at, _contrast_stack, _kernel_stack
+    from stillcap.detect.circles._template import _contrast_at, _contrast_stack, _kernel_stack
 
     radii = (5.0, 6.0, 7.0)
     g = grey_image(scenes[0].image)[40:200, 30:260]

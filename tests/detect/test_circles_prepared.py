@@ -9,10 +9,10 @@ from stillcap.detect.circles import (
     find_circles,
     grey_image,
     prepare_template,
-    random_bead_scene,
-    refine_centers,
+    refine_bead_centers,
 )
 from stillcap.detect.palette import Palette
+from stillcap.studio.beads import random_bead_scene
 
 PAL = Palette.from_markerset(MarkerSet.puppet())
 
@@ -65,7 +65,7 @@ def test_prepared_inputs_must_fit(scenes):
 
 
 def _refine_one_by_one(grey, centers, radii, iterations=3, background=None):
-    """refine_centers's definition, circle by circle with np.hypot: intensity-weighted centroid
+    """refine_bead_centers's definition, circle by circle with np.hypot: intensity-weighted centroid
     of the pixels within r + 1.5 (power-diagram split with neighbours closer than r_i + r_j + 3),
     weights grey minus the larger of the background and the median of the ring r + 1 .. r + 3.5
     (leaving out pixels within r_j + 1 of a neighbour); a move larger than r is undone."""
@@ -88,7 +88,7 @@ def _refine_one_by_one(grey, centers, radii, iterations=3, background=None):
                     dj = np.hypot(xs - c[j, 0], ys - c[j, 1])
                     inside &= d / r[i] <= dj / r[j]
                     ring &= dj > r[j] + 1.0
-            # with a ring, the weights in the grey image's float32, as refine_centers has them
+            # with a ring, the weights in the grey image's float32, as refine_bead_centers has them
             if ring.any():
                 wgt = np.clip(g32 - np.maximum(np.float32(bg), np.median(g32[ring])), 0, None) * inside
             else:
@@ -105,7 +105,7 @@ def _refine_one_by_one(grey, centers, radii, iterations=3, background=None):
     return c
 
 
-def test_refine_centers_is_the_per_circle_definition(scenes):
+def test_refine_bead_centers_is_the_per_circle_definition(scenes):
     """Beads inside the photo, cut by its border (windows read through the replicated border)
     and touching each other: the per-circle centroids, to rounding."""
     sc = scenes[1]
@@ -117,7 +117,7 @@ def test_refine_centers_is_the_per_circle_definition(scenes):
     # a touching pair
     c = np.concatenate([c, [[100.0, 100.0], [111.5, 101.0]]])
     r = np.concatenate([r, [6.0, 6.0]])
-    got = refine_centers(grey, c, r)
+    got = refine_bead_centers(grey, c, r)
     want = _refine_one_by_one(grey, c, r, background=float(np.median(grey)))
     # float32 sums in another order: ~3e-5 px apart; one pixel more or less in a mask moves a
     # centre by ~1e-3 px or more

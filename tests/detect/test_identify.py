@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.detect.circles import draw_beads, find_circles, random_bead_scene
+from stillcap.detect.circles import find_circles
 from stillcap.detect.identify import (
     RECOMMENDED,
     THESIS,
@@ -16,6 +16,7 @@ from stillcap.detect.identify import (
 )
 from stillcap.body.markerset import MarkerSet
 from stillcap.detect.palette import Palette, color_distance, hsb_distance, rgb_to_hsb
+from stillcap.studio.beads import draw_beads, random_bead_scene
 
 PAL = Palette.from_markerset(MarkerSet.puppet())
 

@@ -6,7 +6,7 @@ import pytest
 from skimage.color import rgb2lab
 
 from stillcap.body.markerset import MarkerSet
-from stillcap.detect.circles import find_circles, random_bead_scene
+from stillcap.detect.circles import find_circles
 from stillcap.detect.identify import (
     RECOMMENDED,
     THESIS,
@@ -16,6 +16,7 @@ from stillcap.detect.identify import (
     identify_markers_views,
 )
 from stillcap.detect.palette import Palette, rgb_to_lab
+from stillcap.studio.beads import random_bead_scene
 
 PAL = Palette.from_markerset(MarkerSet.puppet())
 FIELDS = ("points", "distances", "candidate", "rejected", "colors", "cost", "gains", "radii")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import stillcap.report.hand as hand_report
+import stillcap.report.hand._animation as hand_animation
 from stillcap.body import Animation
 from stillcap.report.hand import (
     animation_frame_times,
@@ -150,7 +150,7 @@ def test_mp4_where_ffmpeg_exists(tmp_path, studio):
 
 
 def test_mp4_without_ffmpeg_names_what_to_install(tmp_path, studio, monkeypatch):
-    monkeypatch.setattr(hand_report, "find_ffmpeg", lambda: None)
+    monkeypatch.setattr(hand_animation, "find_ffmpeg", lambda: None)
     with pytest.raises(ImportError, match="pip install imageio-ffmpeg"):
         _gif(tmp_path, studio, name="hand.mp4")
     assert list(tmp_path.iterdir()) == []

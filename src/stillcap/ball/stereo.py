@@ -3,7 +3,7 @@
 Per photo the detector (:mod:`stillcap.detect.ball`) finds silhouettes; here the ellipse centres
 are matched by epipolar geometry and triangulated, the known-radius outline of each approximate
 3D centre is projected into both views, the image centres are refined against it
-(:func:`stillcap.detect.ball.refine_centers`) and triangulated again.
+(:func:`stillcap.detect.ball.refine_ball_centers`) and triangulated again.
 """
 
 from __future__ import annotations
@@ -13,8 +13,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stillcap.camera import Camera
-from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, _check_image, detect_balls,
-                                  refine_centers, sphere_outline_px)
+from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
+                                  sphere_outline_px)
+from stillcap.detect.ball._foreground import _check_image
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
 
@@ -104,7 +105,7 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         which a match is flagged ``SIZE_MISMATCH`` (a wrong match triangulates at a wrong depth).
     shading : bool
         Correct the last round's centres for the shading of a lit sphere
-        (:func:`refine_centers`' ``shading``), in both views of every match where either
+        (:func:`refine_ball_centers`' ``shading``), in both views of every match where either
         silhouette is flagged ``PARTIAL`` (a correction in one view only moves the depth).
     **detect_kwargs
         Passed to :func:`detect_balls` (``min_area``, ``threshold``, ...).
@@ -152,8 +153,8 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         # (both views of a match, where either silhouette is a half moon: a correction in one view
         # only would move the triangulated depth)
         sh = part if shading and it == iterations - 1 else False
-        ref_a = refine_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0, shading=sh)
-        ref_b = refine_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0, shading=sh)
+        ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0, shading=sh)
+        ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0, shading=sh)
         ca, cb = ref_a.centers, ref_b.centers
         tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))  # the last round's is the result
         X = tri.points

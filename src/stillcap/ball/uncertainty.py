@@ -15,7 +15,7 @@
   (:func:`spin_decay_slope`).
 
 **The shading bias.** The known-radius Hough centre of a lit lambertian sphere sits off the true centre along the lit
-direction (:func:`stillcap.detect.ball._shading_bias`); ``refine_centers(shading=...)`` removes
+direction (:func:`stillcap.detect.ball._shading._shading_bias`); ``refine_ball_centers(shading=...)`` removes
 that offset for partly lit (``PARTIAL``) balls with a model of the ball (phase angle read from
 the image, lens blur ``psf_px``). What it leaves is the model's own error: this module sizes it
 from the same model, rendered and Hough-refined with the detector's functions, under the
@@ -46,20 +46,21 @@ __all__ = ["ANGLE_KEYS", "calibration_modes", "centre_bias_modes", "lit_bias_mod
 #: Metric keys that are angles (their spread is taken on the circle).
 ANGLE_KEYS = ("spin_axis_deg", "movement_axis_deg")
 
-#: refinement smoothing of :func:`stillcap.detect.ball.refine_centers` (its ``sigma``)
+#: refinement smoothing of :func:`stillcap.detect.ball.refine_ball_centers` (its ``sigma``)
 _REFINE_SIGMA = 0.7
 
 
 @functools.lru_cache(maxsize=4096)
 def _offset_cached(phase_deg: int, radius_q: int, blur_q: int) -> float:
-    from stillcap.detect import ball as B
+    from stillcap.detect.ball._hough import _template
+    from stillcap.detect.ball._shading import _lit_sphere_image, _model_peak
 
     alpha, r, blur = np.radians(phase_deg), radius_q / 4.0, blur_q / 100.0
     n = int(2 * r + 20)
     m = max(24, int(np.ceil(2 * np.pi * r)))
     th = np.linspace(0, 2 * np.pi, m, endpoint=False)
     off = r * np.stack([np.cos(th), np.sin(th)], axis=1)
-    nrm, wt = B._template(off)
+    nrm, wt = _template(off)
     wt = (wt / wt.sum()).astype(np.float32)
     tpl = tuple(a.astype(np.float32) for a in (off[:, 0], off[:, 1], nrm[:, 0], nrm[:, 1])) + (wt,)
     light = (np.sin(alpha), 0.0, np.cos(alpha))
@@ -69,8 +70,8 @@ def _offset_cached(phase_deg: int, radius_q: int, blur_q: int) -> float:
     # ball's Hough peak by up to ~0.05 px even where the shading is symmetric (a full disc)
     for sub in ((0.0, 0.0), (0.5, 0.25), (0.25, 0.5), (0.75, 0.75)):
         c = np.array([n / 2 + sub[0], n / 2 + sub[1]])
-        img = cv2.GaussianBlur(B._lit_sphere_image((n, n), c, np.eye(2) * r, light), (0, 0), blur)
-        res.append(B._model_peak(img, c, tpl, 0.0, step, kf)[0] - c[0])
+        img = cv2.GaussianBlur(_lit_sphere_image((n, n), c, np.eye(2) * r, light), (0, 0), blur)
+        res.append(_model_peak(img, c, tpl, 0.0, step, kf)[0] - c[0])
     return float(np.mean(res))
 
 

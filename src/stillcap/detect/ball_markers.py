@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
-from stillcap.detect.ball import _percentile
+from stillcap.detect.ball._hough import _percentile
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
            "detect_ball_markers", "classify_shape"]

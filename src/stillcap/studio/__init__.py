@@ -2,7 +2,8 @@
 
 Scene model in :mod:`stillcap.studio.scene`, renderer in :mod:`stillcap.studio.renderer`, sensor
 in :mod:`stillcap.studio.sensor`, ball marker sets in :mod:`stillcap.studio.markers` and ready-made
-scenarios (chessboard sets, marker scenes) in :mod:`stillcap.studio.scenes`. See ``docs/studio.md``.
+scenarios (chessboard sets, marker scenes) in :mod:`stillcap.studio.scenes`. Drawn (not ray-cast)
+bead photos for the bead detector are in :mod:`stillcap.studio.beads`. See ``docs/studio.md``.
 """
 
 from stillcap.studio.renderer import render, render_radiance

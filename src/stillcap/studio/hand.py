@@ -48,8 +48,9 @@ from stillcap.geometry.marker_points import lit_sphere_centroids
 from stillcap.io.capture import Capture, CaptureImage
 from stillcap.files.jsonable import from_jsonable
 from stillcap.studio.pitch import (AMBIENT, DEFAULT_VARIATION, PRESETS, ROOM, ReleaseState, ReleaseVariation,
-                                   _ball_poses, _check_size, _in_view, ball_sphere,
-                                   field_look_at, release_state)
+                                   ball_sphere, field_look_at, release_state)
+from stillcap.studio.pitch._rig import _check_size, _in_view
+from stillcap.studio.pitch._truth import _ball_poses
 from stillcap.studio.puppet import marker_visibility
 from stillcap.studio.renderer import _hit, render
 from stillcap.studio.scene import Capsule, Exposure, Flash, PointLight, Scene, Sphere

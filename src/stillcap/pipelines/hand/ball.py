@@ -139,7 +139,7 @@ def _position_sigma(cams, X, used, pixel_sigma):
 def _refine_in_all_views(rig, white, X, ball_radius_m):
     """Centres (n_cams, K, 2) of the balls ``X`` (K, 3) refined in every camera whose photo holds
     their whole projected disc (NaN elsewhere, where the centre is NaN or the refinement fails)."""
-    from stillcap.detect.ball import refine_centers, sphere_outline_px
+    from stillcap.detect.ball import refine_ball_centers, sphere_outline_px
 
     n_cams, K = len(rig), len(X)
     out = np.full((n_cams, K, 2), np.nan)
@@ -153,8 +153,8 @@ def _refine_in_all_views(rig, white, X, ball_radius_m):
                   & (outl[..., 0].max(1) < W - 2) & (outl[..., 1].max(1) < H - 2))
         if not inside.any():
             continue
-        ref = refine_centers(white[ci], p[inside], r[inside], np.maximum(2.0, 0.15 * r[inside]),
-                             outl[inside] - p[inside][:, None])
+        ref = refine_ball_centers(white[ci], p[inside], r[inside], np.maximum(2.0, 0.15 * r[inside]),
+                                  outl[inside] - p[inside][:, None])
         c = np.where((ref.flags[:, None] & int(BallFlag.REFINE_FAILED)) == 0, ref.centers, np.nan)
         idx = np.flatnonzero(ok)[inside]
         out[ci, idx] = c
