@@ -4,9 +4,9 @@ studio's multi-exposure hand captures, with and without the half-lit centroid co
     python benchmarks/bench_hand_markers.py [--seeds 5] [--first 0] [--size 2560x1920] [--supersample 3]
 
 Per seed: one hand capture (4 cameras, 4-5 flashes, the true rig), JPEG 92 encoded and decoded
-as the CLI writes it; blobs by ``find_colour_markers`` with the ball discs of every flash
+as the CLI writes it; blobs by ``find_color_markers`` with the ball discs of every flash
 excluded (the pitch pipeline finds them; here their truth); 3D points by
-``triangulate_colour_markers`` with the strobe's position (corrected) and without (raw).
+``triangulate_color_markers`` with the strobe's position (corrected) and without (raw).
 
 Columns:
 - ``vis2``: truth markers (of all flashes) whose centre is visible in 2+ cameras;
@@ -34,9 +34,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from stillcap.body.hand import HAND_COLOURS
-from stillcap.detect.colour_markers import find_colour_markers
-from stillcap.geometry.marker_points import triangulate_colour_markers
+from stillcap.body.hand import HAND_COLORS
+from stillcap.detect.color_markers import find_color_markers
+from stillcap.geometry.marker_points import triangulate_color_markers
 from stillcap.studio.hand import hand_capture
 
 
@@ -50,9 +50,9 @@ def ball_discs(cam, truth, grow_px=2.0):
 def score(mp, truth, rig):
     """Errors (mm) of the points against the nearest same-colour truth marker, and flags."""
     T = truth.markers.reshape(-1, 3)
-    tc = np.tile(np.array(truth.marker_colours), len(truth.markers))
+    tc = np.tile(np.array(truth.marker_colors), len(truth.markers))
     d = np.linalg.norm(mp.points[:, None] - T[None], axis=2)
-    d = np.where(mp.colours[:, None] == tc[None], d, np.inf)
+    d = np.where(mp.colors[:, None] == tc[None], d, np.inf)
     nearest = d.argmin(axis=1) if len(mp) else np.zeros(0, int)
     err = (d.min(axis=1) if len(mp) else np.zeros(0)) * 1000
     cov = truth.markers_coverage.reshape(len(rig), -1)
@@ -87,12 +87,12 @@ def main(argv=None):
         images = [cv2.imdecode(j, cv2.IMREAD_COLOR) for j in jpgs]
         t_dec = time.perf_counter() - t0
         t0 = time.perf_counter()
-        blobs = [find_colour_markers(im, HAND_COLOURS, exclude=ball_discs(cam, tr)) for cam, im in zip(rig, images)]
+        blobs = [find_color_markers(im, HAND_COLORS, exclude=ball_discs(cam, tr)) for cam, im in zip(rig, images)]
         t_det = time.perf_counter() - t0
         t0 = time.perf_counter()
-        mp = triangulate_colour_markers(rig, hc.rig.pairs, blobs, light_position=hc.rig.light.position)
+        mp = triangulate_color_markers(rig, hc.rig.pairs, blobs, light_position=hc.rig.light.position)
         t_tri = time.perf_counter() - t0
-        raw = triangulate_colour_markers(rig, hc.rig.pairs, blobs)
+        raw = triangulate_color_markers(rig, hc.rig.pairs, blobs)
         err, clean, vis2, found = score(mp, tr, rig)
         err_r, clean_r, _, _ = score(raw, tr, rig)
         ok, ok_r = err <= 3.0, err_r <= 3.0

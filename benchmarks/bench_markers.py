@@ -45,14 +45,14 @@ def main(argv=None):
             t_pipe.append(time.perf_counter() - t)
             tr = scene.truth
             idx = [i for i, k in enumerate(tr.ball_kinds) if k == "marker"]
-            centres = tr.ball_centers[idx]
-            colour = [tr.ball_names[i].rstrip("0123456789") for i in idx]
+            centers = tr.ball_centers[idx]
+            color = [tr.ball_names[i].rstrip("0123456789") for i in idx]
             expected += int((np.isfinite(tr.ball_centers_px[:, idx, 0]).sum(axis=0) >= 2).sum())
             for lab, p, e in zip(rec.labels, rec.points, rec.triangulation.reproj_error_px):
-                d = np.linalg.norm(centres - p, axis=1)
+                d = np.linalg.norm(centers - p, axis=1)
                 i = int(d.argmin())
                 found += 1
-                wrong += colour[i] != lab or d[i] > 5e-3
+                wrong += color[i] != lab or d[i] > 5e-3
                 errs.append(d[i] * 1e3)
                 reproj.append(e)
     errs = np.array(errs)

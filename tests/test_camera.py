@@ -53,9 +53,9 @@ def test_rays_pass_through_the_point():
 def test_look_at_keeps_up_up_and_right_right():
     # regression: look_at once built cameras rolled by 180 degrees (upside-down images)
     cam = Camera.from_intrinsics("c", 800, 800, 320, 240, (640, 480), world2cam=look_at((0, -5, 1), (0, 0, 1)))
-    centre = cam.project([0, 0, 1])
-    assert cam.project([0, 0, 2])[1] < centre[1]      # world up is up in the image
-    assert cam.project([1, 0, 1])[0] > centre[0]      # world +x is to the right, seen from -y
+    center = cam.project([0, 0, 1])
+    assert cam.project([0, 0, 2])[1] < center[1]      # world up is up in the image
+    assert cam.project([1, 0, 1])[0] > center[0]      # world +x is to the right, seen from -y
     np.testing.assert_allclose(np.linalg.det(cam.R), 1.0)
 
 

@@ -190,24 +190,24 @@ def test_global_fit_with_single_camera_rays():
     w = axis * rpm / RPM_PER_RAD_S
     R0 = Rotation.random(random_state=rng).as_matrix()
     times = np.arange(k) / 80.0
-    centres = np.array([[0.0, 18.0 - 30 * t, 1.7] for t in times])
+    centers = np.array([[0.0, 18.0 - 30 * t, 1.7] for t in times])
     cam = np.array([3.5, 17.5, 1.2])
     r = LAYOUT.radius
     fl, ty, orig, dirs = [], [], [], []
     for i, t in enumerate(times):
         Rk = Rotation.from_rotvec(w * t).as_matrix() @ R0
-        to_cam = (cam - centres[i]) / np.linalg.norm(cam - centres[i])
+        to_cam = (cam - centers[i]) / np.linalg.norm(cam - centers[i])
         for j, m in enumerate(LAYOUT.directions @ Rk.T):
             if m @ to_cam > np.cos(np.radians(75)):
-                X = centres[i] + r * m
+                X = centers[i] + r * m
                 ray = X - cam
                 ray = ray / np.linalg.norm(ray) + rng.normal(scale=3e-4, size=3)  # ~1 px
                 fl.append(i)
                 ty.append(LAYOUT.types[j])
                 orig.append(cam)
                 dirs.append(ray)
-    centres_meas = centres + rng.normal(scale=3e-4, size=centres.shape)
-    obs = MarkerObservations.from_rays(fl, ty, orig, dirs, centres_meas)
+    centers_meas = centers + rng.normal(scale=3e-4, size=centers.shape)
+    obs = MarkerObservations.from_rays(fl, ty, orig, dirs, centers_meas)
     res = fit_spin(times, obs)
     assert res.success and 0.5 < res.rms_deg < 5
     e_rate, e_axis = res.angle_errors_deg(w)

@@ -60,13 +60,13 @@ def test_ball_in_hand_and_bad_shapes():
 @pytest.mark.parametrize("seed", range(6))
 def test_number_flashes_across_a_gap(seed):
     """Issue 5 bug: numbering by spacing broke on a missed flash; the hand numbers it right."""
-    from stillcap.ball.flashes import number_flashes
+    from stillcap.ball.flashes import number_flashes_from_hand
 
     rel, t, B, T, t0 = _flashes(seed)
     flash = np.rint(t * 75).astype(int)
     for drop in range(1, len(t) - 1):
         keep = np.arange(len(t)) != drop
-        fn = number_flashes(B[keep], t, T, strobe_hz=75)
+        fn = number_flashes_from_hand(B[keep], t, T, strobe_hz=75)
         assert fn.success and np.array_equal(fn.flash, flash[keep]), (drop, fn.flash, flash[keep])
 
 
@@ -75,14 +75,14 @@ def test_number_flashes_when_the_first_flash_has_no_hand_pose(seed):
     """Issue 5 bug: the pipeline's first flash often lacks its back-of-hand markers (no pose),
     and numbering failed ('no flash numbering puts 2+ leading ball positions at one point of the
     hand') although the ball was held there; it now leads the held run unchecked."""
-    from stillcap.ball.flashes import number_flashes
+    from stillcap.ball.flashes import number_flashes_from_hand
 
     rel, t, B, T, t0 = _flashes(seed)
     held = t < t0
     if held.sum() < 3:
         pytest.skip("needs three held flashes")
     flash = np.rint(t * 75).astype(int)
-    fn = number_flashes(B, t[1:], T[1:], strobe_hz=75)
+    fn = number_flashes_from_hand(B, t[1:], T[1:], strobe_hz=75)
     assert fn.success and np.array_equal(fn.flash, flash), (fn.flash, flash, fn.message)
 
 

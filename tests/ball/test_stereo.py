@@ -12,7 +12,7 @@ from stillcap.detect.ball import BallFlag
 
 
 @pytest.mark.parametrize("light, max_mm, init_min_mm", [(None, 1.0, 0.0), ((1.0, 0.0, 0.0), 1.0, 5.0)])
-def test_stereo_pair_recovers_3d_centres(light, max_mm, init_min_mm):
+def test_stereo_pair_recovers_3d_centers(light, max_mm, init_min_mm):
     """The front pair (camera b with lens distortion) sees 8 balls; 3D error well below 1 mm.
     Lit from the side (half moons), the ellipse centres triangulate ~6-12 mm off, the refined
     centres still well below 1 mm."""

@@ -8,9 +8,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from stillcap.body import MarkerSet, Pose, Skeleton
-from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLOURS, SCALE_GROUPS, fit_hand, hand_dofs,
-                                hand_markerset, hand_pose, hand_skeleton, marker_colours, personalise_hand,
-                                same_colour_min_distance, scale_groups, scale_hand)
+from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLORS, SCALE_GROUPS, fit_hand, hand_dofs,
+                                hand_markerset, hand_pose, hand_skeleton, marker_colors, personalise_hand,
+                                same_color_min_distance, scale_groups, scale_hand)
 
 
 @pytest.fixture(scope="module")
@@ -47,7 +47,7 @@ def test_files_round_trip(hand, tmp_path):
     sk2 = Skeleton.load(sk.save(tmp_path / "h.json", length_unit="mm"))
     ms2 = MarkerSet.load(ms.save(tmp_path / "m.json", length_unit="mm"))
     assert np.allclose(sk2.offsets, sk.offsets) and np.allclose(ms2.offsets, ms.offsets)
-    assert marker_colours(ms2) == marker_colours(ms)
+    assert marker_colors(ms2) == marker_colors(ms)
 
 
 def test_rest_pose_forward_kinematics(hand):
@@ -114,22 +114,22 @@ def test_marker_placement_three_per_digit(hand):
     assert all(abs(m.diameter - 0.010) < 1e-9 for m in ms.markers)
 
 
-def test_colour_rule_four_colours_far_apart(hand):
+def test_color_rule_four_colors_far_apart(hand):
     sk, ms = hand
-    cols = marker_colours(ms)
-    assert set(cols) == set(HAND_COLOURS) and sorted(np.unique(cols, return_counts=True)[1]) == [4, 4, 5, 5]
-    best = same_colour_min_distance(ms)
+    cols = marker_colors(ms)
+    assert set(cols) == set(HAND_COLORS) and sorted(np.unique(cols, return_counts=True)[1]) == [4, 4, 5, 5]
+    best = same_color_min_distance(ms)
     assert best > 0.035  # the nearest two same-colour markers are 38 mm apart at rest
     # better than any of 2000 random balanced assignments, and no swap of two colours improves it
     rng = np.random.default_rng(1)
     base = np.array(cols)
     for _ in range(2000):
-        assert same_colour_min_distance(ms, colours=rng.permutation(base)) <= best + 1e-12
+        assert same_color_min_distance(ms, colors=rng.permutation(base)) <= best + 1e-12
     for i, j in itertools.combinations(range(18), 2):
         if base[i] != base[j]:
             c = base.copy()
             c[i], c[j] = c[j], c[i]
-            assert same_colour_min_distance(ms, colours=c) <= best + 1e-12
+            assert same_color_min_distance(ms, colors=c) <= best + 1e-12
     # neighbouring markers on one digit never share a colour; the back of the hand shows three colours
     for d in DIGITS:
         c = [cols[k] for k, n in enumerate(ms.names) if n.startswith(d + ".")]

@@ -31,7 +31,7 @@ def puppet():
     return Skeleton.puppet(), MarkerSet.puppet()
 
 
-def test_sixteen_markers_with_spec_colours(puppet):
+def test_sixteen_markers_with_spec_colors(puppet):
     skel, ms = puppet
     assert sorted(ms.names) == sorted(SPEC_HSB)
     for m in ms.markers:

@@ -80,7 +80,7 @@ def _neighbour_distance(ms, rgb):
     return min(out)
 
 
-def test_new_colours_are_the_proposal_and_far_from_the_thesis_colours():
+def test_new_colors_are_the_proposal_and_far_from_the_thesis_colors():
     import itertools
 
     ms = MarkerSet.puppet("puppet-20")

@@ -26,7 +26,7 @@ def make_camera(name="cam", fx=800.0, fy=805.0, cx=330.0, cy=245.0, dist=(-0.2, 
 def board_poses(cam: Camera, obj: np.ndarray, n: int, rng, depth=(0.35, 0.7), tilt_deg=40.0, margin=20,
                 spread=0.45):
     """``n`` board2cam poses with every point of ``obj`` at least ``margin`` px inside the image."""
-    centre = obj.mean(axis=0)
+    center = obj.mean(axis=0)
     w, h = cam.image_size
     out = []
     while len(out) < n:
@@ -34,7 +34,7 @@ def board_poses(cam: Camera, obj: np.ndarray, n: int, rng, depth=(0.35, 0.7), ti
         R = R.as_matrix()
         z = rng.uniform(*depth)
         c = np.r_[rng.uniform(-spread, spread, 2) * z, z]
-        T = pose_matrix(R, c - R @ centre)
+        T = pose_matrix(R, c - R @ center)
         px = cam.with_pose(T).project(obj)
         if np.all(np.isfinite(px)) and px[:, 0].min() > margin and px[:, 1].min() > margin \
                 and px[:, 0].max() < w - margin and px[:, 1].max() < h - margin:
@@ -89,11 +89,11 @@ def synthetic_rig(n_cams=4, n_instants=14, noise_px=0.3, rng=0, square=0.06, nam
     R0 = np.column_stack([[1, 0, 0], [0, 0, -1], [0, 1, 0]]).astype(float)  # board facing -y, rows down
     views = {c.name: [] for c in cams}
     b2w_true = []
-    centre = obj.mean(axis=0)
+    center = obj.mean(axis=0)
     for _ in range(n_instants):
         R = Rotation.from_rotvec(rng.uniform(-0.45, 0.45, 3)).as_matrix() @ R0
         p = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(0.8, 1.2)])
-        T = pose_matrix(R, p - R @ centre)
+        T = pose_matrix(R, p - R @ center)
         b2w_true.append(T)
         for c in cams:
             px = c.project(obj @ T[:3, :3].T + T[:3, 3])

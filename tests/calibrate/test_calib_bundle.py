@@ -7,7 +7,7 @@ from stillcap.calibrate import calibrate_rig, calibrate_rig_from_points, rig_ima
 from stillcap.camera import Camera
 
 
-def _centre_errors(rig, truth):
+def _center_errors(rig, truth):
     """Distances (m) between calibrated centres and true centres expressed in rig camera 0's frame."""
     W0 = truth[rig.names[0]].world2cam
     return np.array([np.linalg.norm(c.center - (W0[:3, :3] @ truth[c.name].center + W0[:3, 3])) for c in rig])
@@ -18,12 +18,12 @@ def rig4(synth):
     return synth.synthetic_rig(n_cams=4, n_instants=14, noise_px=0.3, rng=0)
 
 
-def test_bundle_adjustment_recovers_centres_and_beats_initialisation(rig4):
+def test_bundle_adjustment_recovers_centers_and_beats_initialisation(rig4):
     truth = {c.name: c for c in rig4.cameras}
     res = calibrate_rig_from_points(rig4.views, cameras=truth)
     assert res.success and res.rig.names == ["cam0", "cam1", "cam2", "cam3"]
     np.testing.assert_allclose(res.rig[0].world2cam, np.eye(4), atol=1e-12)
-    err, err0 = _centre_errors(res.rig, truth), _centre_errors(res.initial_rig, truth)
+    err, err0 = _center_errors(res.rig, truth), _center_errors(res.initial_rig, truth)
     assert err.max() < 0.003  # metres, cameras 2.2 m from the board
     assert err.sum() < 0.6 * err0.sum()
     assert res.rms_px < res.initial_rms_px and 0.35 < res.rms_px < 0.5  # 0.3 px noise per axis
@@ -41,7 +41,7 @@ def test_camera_order_is_kept_and_first_is_world(rig4):
     res = calibrate_rig_from_points({k: rig4.views[k] for k in order}, cameras=truth)
     assert res.rig.names == order
     np.testing.assert_allclose(res.rig["cam2"].world2cam, np.eye(4), atol=1e-12)
-    assert _centre_errors(res.rig, truth).max() < 0.003
+    assert _center_errors(res.rig, truth).max() < 0.003
     # relative geometry does not depend on the order
     ref = calibrate_rig_from_points(rig4.views, cameras=truth).rig
     rel = res.rig["cam3"].world2cam @ np.linalg.inv(res.rig["cam1"].world2cam)
@@ -72,7 +72,7 @@ def test_refine_intrinsics_from_a_poor_start(synth):
     for c, t in zip(res.rig, s.cameras):
         assert abs(c.K[0, 0] / t.K[0, 0] - 1) < 0.006
     truth = {c.name: c for c in s.cameras}
-    assert _centre_errors(res.rig, truth).max() < 0.015 < _centre_errors(fixed.rig, truth).max()
+    assert _center_errors(res.rig, truth).max() < 0.015 < _center_errors(fixed.rig, truth).max()
 
 
 def test_robust_to_a_few_gross_outliers(rig4):
@@ -89,7 +89,7 @@ def test_robust_to_a_few_gross_outliers(rig4):
             views[k].append(v)
     truth = {c.name: c for c in rig4.cameras}
     res = calibrate_rig_from_points(views, cameras=truth)
-    assert _centre_errors(res.rig, truth).max() < 0.005
+    assert _center_errors(res.rig, truth).max() < 0.005
 
 
 def test_rig_bad_input(rig4):

@@ -53,8 +53,8 @@ def test_calibration_object_detection_and_pose(synth):
     cam = synth.make_camera(fx=1000, fy=1000, cx=400, cy=300, dist=(0, 0, 0, 0, 0), size=(800, 600))
     # Look from the printed side of every face (board z axes point away from the camera).
     away = sum(np.asarray(F)[:3, 2] for F in obj.face2object)
-    centre = np.mean([p.mean(axis=0) for p in obj.object_points()], axis=0)
-    o2c = look_at(centre - 0.55 * away / np.linalg.norm(away), centre, up=(0.1, 0.2, 1.0))
+    center = np.mean([p.mean(axis=0) for p in obj.object_points()], axis=0)
+    o2c = look_at(center - 0.55 * away / np.linalg.norm(away), center, up=(0.1, 0.2, 1.0))
     img = None
     for face, F in zip(obj.faces, obj.face2object):
         img = synth.render_plane(face.texture(64), face.extent, o2c @ np.asarray(F), cam, img)

@@ -275,7 +275,7 @@ FLIGHT = np.array([[-1.5 + 0.42 * k, 0.05 * k, 1.6 - 0.01 * k * k] for k in rang
 # --------------------------------------------------------------------------------------------
 # steps 1-2: silhouettes and ellipses
 # --------------------------------------------------------------------------------------------
-def test_full_balls_with_markers_ellipse_and_hough_centres():
+def test_full_balls_with_markers_ellipse_and_hough_centers():
     """Lit from the camera (the front pair): 8 ball images, both centre estimates sub-pixel."""
     errs_e, errs_h = [], []
     for seed in range(2):
@@ -608,7 +608,7 @@ def test_sphere_outline_is_the_apparent_circle_on_axis_and_an_ellipse_off_axis()
         sphere_outline_px(cam, [[0, 0, 1]], 0.0)
 
 
-def test_exact_outline_template_finds_the_projected_centre():
+def test_exact_outline_template_finds_the_projected_center():
     """A big, near, off-axis ball in a wide lens: its image is an ellipse whose middle is ~3 px
     from the image of the sphere centre. The exact projected outline as Hough template finds the
     latter; a circle finds neither."""
@@ -627,7 +627,7 @@ def test_exact_outline_template_finds_the_projected_centre():
 
 
 @pytest.mark.parametrize("light", [(0.0, 0.0, -1.0), (1.0, 0.0, 0.0)])
-def test_refined_start_skips_the_coarse_grid_and_finds_the_same_centre(light):
+def test_refined_start_skips_the_coarse_grid_and_finds_the_same_center(light):
     """From a refined centre (a later round of ball_centers_stereo) the 0.5 px grid alone finds
     the centre the full coarse-to-fine search finds, also for half moons."""
     balls = np.array([[80.0, 90.0, 28.0], [220.3, 95.6, 29.0], [360.7, 88.2, 27.5]])
@@ -645,7 +645,7 @@ def test_refined_start_skips_the_coarse_grid_and_finds_the_same_centre(light):
 # --------------------------------------------------------------------------------------------
 # empty and bad input
 # --------------------------------------------------------------------------------------------
-def test_empty_images_and_no_centres():
+def test_empty_images_and_no_centers():
     black = np.zeros((120, 160, 3), np.uint8)
     det = detect_balls(black)
     assert len(det) == 0 and det.centers.shape == (0, 2) and det.ellipses.shape == (0, 5)
@@ -702,12 +702,12 @@ def test_lit_sphere_supersampled_near_the_limb_only_keeps_the_limb(phase_deg):
     a = np.radians(phase_deg)
     light = (np.sin(a) * 0.8, np.sin(a) * 0.6, np.cos(a))
     A = np.array([[14.0, 1.5], [1.5, 12.5]])  # an off-axis (elliptical) outline
-    centre = np.array([30.3, 28.7])
-    full = _lit_sphere_image((60, 62), centre, A, light)
+    center = np.array([30.3, 28.7])
+    full = _lit_sphere_image((60, 62), center, A, light)
     band = 4.0 * 0.86 + 4.0
-    part = _lit_sphere_image((60, 62), centre, A, light, band_px=band)
+    part = _lit_sphere_image((60, 62), center, A, light, band_px=band)
     yy, xx = np.mgrid[0:60, 0:62]
-    q = np.linalg.solve(A, np.stack([xx.ravel() - centre[0], yy.ravel() - centre[1]]))
+    q = np.linalg.solve(A, np.stack([xx.ravel() - center[0], yy.ravel() - center[1]]))
     rho = np.hypot(*q).reshape(60, 62)
     near = rho > 1.0 - band / np.linalg.svd(A, compute_uv=False)[0]
     assert np.array_equal(full[near], part[near])

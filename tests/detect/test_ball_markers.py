@@ -135,7 +135,7 @@ def test_half_moon_dark_side_is_not_a_black_marker():
     assert np.all(m.centers[:, 0] > balls[m.ball_index, 0] - 2.0)
 
 
-def test_custom_palette_same_colour_told_apart_by_shape():
+def test_custom_palette_same_color_told_apart_by_shape():
     """Two black types (disc and square) and a yellow triangle: shape decides between the blacks."""
     pal = {"dot": ((0.02, 0.02, 0.02), "disc"), "box": ((0.02, 0.02, 0.02), "square"),
            "yellow": ((0.8, 0.7, 0.02), "triangle")}

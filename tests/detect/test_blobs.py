@@ -13,7 +13,7 @@ def draw(centers, colors, size=(480, 640), radius=6, ss=8):
     return cv2.resize(big, (size[1], size[0]), interpolation=cv2.INTER_AREA).astype(np.uint8)
 
 
-def test_centroids_are_subpixel_and_colours_classified():
+def test_centroids_are_subpixel_and_colors_classified():
     rng = np.random.default_rng(0)
     centers = rng.uniform([30, 30], [610, 450], (12, 2))
     centers = (np.round((centers + 0.5) * 8 - 0.5) + 0.5) / 8 - 0.5  # where draw() really puts them

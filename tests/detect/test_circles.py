@@ -59,7 +59,7 @@ def test_grey_and_isodata_threshold():
     assert isodata_threshold(np.full((5, 5), 7.0)) == np.inf
 
 
-def test_drawn_beads_are_centred_where_asked():
+def test_drawn_beads_are_centered_where_asked():
     c = np.array([[20.3, 17.8]])
     img = draw_beads(c, [6.0], [[0.8, 0.5, 0.3]], size=(40, 40), background=0.0)
     g = img.mean(axis=2)

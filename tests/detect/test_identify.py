@@ -107,7 +107,7 @@ def test_lighting_changes_greedy_hsb_vs_assignment(lit_scenes):
     assert r_th < r_as and w_th > w_as
 
 
-def test_calibration_recovers_drawn_colours():
+def test_calibration_recovers_drawn_colors():
     # "T-pose" photos in this studio's light (dimmer, bluish): the thesis's colours are off.
     wb = np.array([0.9, 1.0, 1.1]) * 0.85
     drawn = np.clip(PAL.rgb * wb, 0, 1)

@@ -49,7 +49,7 @@ def test_views_at_once_are_each_view_alone(photos, preset):
     assert many[0].n_found >= 14 and many[3].n_found == 0
 
 
-def test_colour_sets_with_nan_rows(photos):
+def test_color_sets_with_nan_rows(photos):
     rng = np.random.default_rng(2)
     cols = [rng.uniform(0, 1, (9, 3)), np.full((3, 3), np.nan), rng.uniform(0, 1, (0, 3)), PAL.rgb * 0.9]
     cols[0][4] = np.nan

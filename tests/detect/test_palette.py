@@ -51,7 +51,7 @@ def test_min_distance_and_apply_to_markerset():
     assert ms.names == MarkerSet.puppet().names
 
 
-def test_proposed_palette_is_more_distinct_than_the_thesis_colours():
+def test_proposed_palette_is_more_distinct_than_the_thesis_colors():
     thesis, _ = Palette.from_markerset(MarkerSet.puppet()).min_distance("ciede2000")
     prop = propose_palette(16, rng=0, restarts=3)
     pal = prop.palette

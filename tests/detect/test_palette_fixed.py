@@ -7,7 +7,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.detect.palette import Palette, color_distance, propose_palette
 
 
-def test_new_colours_keep_away_from_the_fixed_ones():
+def test_new_colors_keep_away_from_the_fixed_ones():
     thesis = Palette.from_markerset(MarkerSet.puppet())
     prop = propose_palette(4, rng=0, fixed=thesis, restarts=4, lightness_weight=0.5)
     new = prop.palette
@@ -39,7 +39,7 @@ def test_fixed_as_an_array_and_name_clash():
         propose_palette(1, fixed=np.zeros((2, 4)))
 
 
-def test_min_grey_keeps_dim_colours_out():
+def test_min_grey_keeps_dim_colors_out():
     dim = propose_palette(6, rng=0, restarts=2)
     assert dim.palette.rgb.mean(axis=1).min() < 0.4  # saturated reds and blues are dim in a grey image
     bright = propose_palette(6, rng=0, restarts=2, min_grey=0.48)

@@ -6,20 +6,20 @@ import json
 import numpy as np
 import pytest
 
-from stillcap.body.hand import HAND_COLOURS
-from stillcap.detect.colour_markers import find_colour_markers
+from stillcap.body.hand import HAND_COLORS
+from stillcap.detect.color_markers import find_color_markers
 from stillcap.geometry.marker_points import (MarkerPoints, lit_sphere_centroids, lit_sphere_offsets,
-                                             triangulate_colour_markers)
+                                             triangulate_color_markers)
 from stillcap.studio.hand import hand_capture, hand_rig, lit_centroids
 
-COLOURS = np.array(["red", "yellow", "green", "blue"])
+COLORS = np.array(["red", "yellow", "green", "blue"])
 
 
 class Blobs:
     """Minimal blobs: centers and colours (what the triangulation needs)."""
 
-    def __init__(self, centers, colours):
-        self.centers, self.colours = np.asarray(centers, float), list(colours)
+    def __init__(self, centers, colors):
+        self.centers, self.colors = np.asarray(centers, float), list(colors)
 
 
 @pytest.fixture(scope="module")
@@ -27,7 +27,7 @@ def rig():
     return hand_rig((1280, 960))
 
 
-def lit_observations(hrig, points, colours, rng, drop=0.0):
+def lit_observations(hrig, points, colors, rng, drop=0.0):
     """Blobs at the lit-sphere centroids of ``points`` in every camera (shuffled), a share
     ``drop`` of them hidden."""
     out = []
@@ -35,7 +35,7 @@ def lit_observations(hrig, points, colours, rng, drop=0.0):
         px = lit_sphere_centroids(cam, points, 0.005, hrig.light.position)
         keep = rng.random(len(points)) >= drop
         order = rng.permutation(np.flatnonzero(keep))
-        out.append(Blobs(px[order], colours[order]))
+        out.append(Blobs(px[order], colors[order]))
     return out
 
 
@@ -46,7 +46,7 @@ def hand_cloud(hrig, n, rng):
         p = hrig.aim + rng.uniform([-0.35, -0.3, -0.35], [0.35, 0.3, 0.35])
         if all(np.linalg.norm(p - q) > 0.012 for q in pts):
             pts.append(p)
-    return np.array(pts), COLOURS[rng.integers(0, 4, n)]
+    return np.array(pts), COLORS[rng.integers(0, 4, n)]
 
 
 def test_offsets_match_the_studio_model(rig):
@@ -79,11 +79,11 @@ def test_exact_recovery_with_bias_correction(rig):
     rng = np.random.default_rng(2)
     pts, cols = hand_cloud(rig, 40, rng)
     blobs = lit_observations(rig, pts, cols, rng)
-    mp = triangulate_colour_markers(rig.rig, rig.pairs, blobs, light_position=rig.light.position)
-    raw = triangulate_colour_markers(rig.rig, rig.pairs, blobs)
+    mp = triangulate_color_markers(rig.rig, rig.pairs, blobs, light_position=rig.light.position)
+    raw = triangulate_color_markers(rig.rig, rig.pairs, blobs)
     for res, bound in ((mp, 2e-5), (raw, None)):
         d = np.linalg.norm(res.points[:, None] - pts[None], axis=2)
-        d = np.where(res.colours[:, None] == cols[None], d, np.inf).min(axis=1)
+        d = np.where(res.colors[:, None] == cols[None], d, np.inf).min(axis=1)
         if bound is None:
             assert np.median(d) > 1e-3  # the half-lit bias: ~2.5 mm toward the strobe
         else:
@@ -109,7 +109,7 @@ def hand_clusters(hrig, rng, n_hands=5):
             if all(np.linalg.norm(p - q) > 0.012 for q in pts):
                 pts.append(p)
                 k += 1
-    return np.array(pts), COLOURS[rng.integers(0, 4, len(pts))]
+    return np.array(pts), COLORS[rng.integers(0, 4, len(pts))]
 
 
 def test_ambiguities_resolved_by_the_other_pair(rig):
@@ -123,13 +123,13 @@ def test_ambiguities_resolved_by_the_other_pair(rig):
 
     def wrong(res):
         d = np.linalg.norm(res.points[:, None] - pts[None], axis=2)
-        return int(np.sum(np.where(res.colours[:, None] == cols[None], d, np.inf).min(axis=1) > 0.003))
+        return int(np.sum(np.where(res.colors[:, None] == cols[None], d, np.inf).min(axis=1) > 0.003))
 
-    both = triangulate_colour_markers(rig.rig, rig.pairs, blobs, **kw)
+    both = triangulate_color_markers(rig.rig, rig.pairs, blobs, **kw)
     n_alone = 0
     for p, ab in rig.pairs.items():
         own = [b if c.name in ab else Blobs(np.zeros((0, 2)), []) for c, b in zip(rig.rig, blobs)]
-        n_alone += wrong(triangulate_colour_markers(rig.rig, {p: ab}, own, **kw))
+        n_alone += wrong(triangulate_color_markers(rig.rig, {p: ab}, own, **kw))
     assert n_alone >= 3  # measured: 5
     assert wrong(both) == 0
     assert len(both) >= 75  # measured: 81 of 90 (15 % of the blobs hidden)
@@ -138,12 +138,12 @@ def test_ambiguities_resolved_by_the_other_pair(rig):
 def test_to_dict_and_empty(rig):
     rng = np.random.default_rng(4)
     pts, cols = hand_cloud(rig, 8, rng)
-    mp = triangulate_colour_markers(rig.rig, rig.pairs, lit_observations(rig, pts, cols, rng, drop=0.3),
+    mp = triangulate_color_markers(rig.rig, rig.pairs, lit_observations(rig, pts, cols, rng, drop=0.3),
                                     light_position=rig.light.position)
     d = json.loads(json.dumps(mp.to_dict()))
     assert len(d["points"]) == len(mp) and len(d["pixels"]) == 4 and d["cameras"] == rig.rig.names
     assert all(isinstance(v, int) for row in d["blob_index"] for v in row)
-    empty = triangulate_colour_markers(rig.rig, rig.pairs, [Blobs(np.zeros((0, 2)), [])] * 4)
+    empty = triangulate_color_markers(rig.rig, rig.pairs, [Blobs(np.zeros((0, 2)), [])] * 4)
     assert isinstance(empty, MarkerPoints) and len(empty) == 0 and empty.pixels.shape == (4, 0, 2)
     sub = mp.select(mp.n_views >= 3)
     assert np.all(sub.n_views >= 3) and sub.pixels.shape[1] == len(sub)
@@ -152,19 +152,19 @@ def test_to_dict_and_empty(rig):
 def test_bad_input(rig):
     b = [Blobs(np.zeros((0, 2)), [])] * 4
     with pytest.raises(ValueError, match="one entry per camera"):
-        triangulate_colour_markers(rig.rig, rig.pairs, b[:3])
+        triangulate_color_markers(rig.rig, rig.pairs, b[:3])
     with pytest.raises(ValueError, match="pair 'x' must name two different cameras"):
-        triangulate_colour_markers(rig.rig, {"x": ("left_outer", "nope")}, b)
+        triangulate_color_markers(rig.rig, {"x": ("left_outer", "nope")}, b)
     with pytest.raises(ValueError, match=r"centers must have shape \(N, 2\), got \(3, 3\)"):
-        triangulate_colour_markers(rig.rig, rig.pairs, [Blobs(np.zeros((3, 3)), "rgb")] + b[1:])
+        triangulate_color_markers(rig.rig, rig.pairs, [Blobs(np.zeros((3, 3)), "rgb")] + b[1:])
     with pytest.raises(ValueError, match="3 centers but 2 colours"):
-        triangulate_colour_markers(rig.rig, rig.pairs, [Blobs(np.zeros((3, 2)), "rg")] + b[1:])
+        triangulate_color_markers(rig.rig, rig.pairs, [Blobs(np.zeros((3, 2)), "rg")] + b[1:])
     with pytest.raises(ValueError, match=r"light_position must have shape \(3,\)"):
-        triangulate_colour_markers(rig.rig, rig.pairs, b, light_position=[1, 2])
+        triangulate_color_markers(rig.rig, rig.pairs, b, light_position=[1, 2])
     with pytest.raises(ValueError, match="unknown cameras"):
-        triangulate_colour_markers(rig.rig, rig.pairs, {"cam9": b[0]})
+        triangulate_color_markers(rig.rig, rig.pairs, {"cam9": b[0]})
     with pytest.raises(ValueError, match="rig must be a Rig"):
-        triangulate_colour_markers(list(rig.rig), rig.pairs, b)
+        triangulate_color_markers(list(rig.rig), rig.pairs, b)
     with pytest.raises(ValueError, match=r"centres must have shape \(N, 3\)"):
         lit_sphere_offsets(rig.rig[0], [[1.0, 2.0]], 0.005, rig.light.position)
 
@@ -178,23 +178,23 @@ def studio():
     for cam, img in zip(rig, hc.images):
         c = tr.ball2world[:, :3, 3]
         r = cam.K[0, 0] * tr.ball["radius"] / cam.world_to_cam(c)[:, 2] + 2.0
-        blobs.append(find_colour_markers(img, HAND_COLOURS, exclude=(cam.project(c), r)))
+        blobs.append(find_color_markers(img, HAND_COLORS, exclude=(cam.project(c), r)))
     return hc, blobs
 
 
 def errors_mm(mp, truth):
     """Per point: distance to the nearest truth marker of its colour (mm) and that marker."""
     T = truth.markers.reshape(-1, 3)
-    tc = np.tile(np.array(truth.marker_colours), len(truth.markers))
-    d = np.where(mp.colours[:, None] == tc[None], np.linalg.norm(mp.points[:, None] - T[None], axis=2), np.inf)
+    tc = np.tile(np.array(truth.marker_colors), len(truth.markers))
+    d = np.where(mp.colors[:, None] == tc[None], np.linalg.norm(mp.points[:, None] - T[None], axis=2), np.inf)
     return d.min(axis=1) * 1000, d.argmin(axis=1)
 
 
 def test_studio_markers_in_3d(studio):
     hc, blobs = studio
     tr, rig = hc.truth, hc.rig.rig
-    mp = triangulate_colour_markers(rig, hc.rig.pairs, blobs, light_position=hc.rig.light.position)
-    raw = triangulate_colour_markers(rig, hc.rig.pairs, blobs)
+    mp = triangulate_color_markers(rig, hc.rig.pairs, blobs, light_position=hc.rig.light.position)
+    raw = triangulate_color_markers(rig, hc.rig.pairs, blobs)
     err, nearest = errors_mm(mp, tr)
     err_raw, nearest_raw = errors_mm(raw, tr)
     # every marker isolated and wholly seen by both cameras of a pair comes back within 1 mm

@@ -24,8 +24,8 @@ def test_rig_extrinsics_from_shared_board_views():
     assert res.success and res.rms_px < 0.2
     T0 = rig[0].world2cam
     for true, got in zip(rig, res.rig):
-        centre = (T0 @ np.append(true.center, 1))[:3]
-        assert np.linalg.norm(got.center - centre) < 2e-3
+        center = (T0 @ np.append(true.center, 1))[:3]
+        assert np.linalg.norm(got.center - center) < 2e-3
 
 
 def test_badly_detected_views_are_left_out_and_named():

@@ -56,17 +56,17 @@ def test_release_from_detected_positions(capture, balls):
 def test_numbering_from_hand_across_a_missed_flash(capture, balls):
     """Issue 5 bug: the spacing numbered the flashes wrongly across a gap (the arm speeds up);
     the hand numbers them right with a ball image removed."""
-    from stillcap.ball.flashes import number_flashes
+    from stillcap.ball.flashes import number_flashes_from_hand
 
     tr = capture.truth
     t = tr.times - tr.times[0]
     for drop in range(1, len(balls) - 1):
         keep = np.arange(len(balls)) != drop
-        fn = number_flashes(balls.positions[keep], t, tr.root2world, strobe_hz=75)
+        fn = number_flashes_from_hand(balls.positions[keep], t, tr.root2world, strobe_hz=75)
         assert fn.success and np.array_equal(fn.flash, balls.flash_index[keep]), (drop, fn.flash)
         assert np.allclose(fn.times, t[keep])
     # without a hand there is no held run: failure, said
-    fn = number_flashes(balls.positions, t[:1], tr.root2world[:1], strobe_hz=75)
+    fn = number_flashes_from_hand(balls.positions, t[:1], tr.root2world[:1], strobe_hz=75)
     assert not fn.success and "hand poses" in fn.message
 
 

@@ -14,14 +14,14 @@ def test_marker_balls_recovered(seed):
     rec = reconstruct_markers(rig, scene.images)
     t = scene.truth
     idx = [i for i, k in enumerate(t.ball_kinds) if k == "marker"]
-    centres = t.ball_centers[idx]
-    colour = [t.ball_names[i].rstrip("0123456789") for i in idx]
+    centers = t.ball_centers[idx]
+    color = [t.ball_names[i].rstrip("0123456789") for i in idx]
     seen2 = (np.isfinite(t.ball_centers_px[:, idx, 0]).sum(axis=0) >= 2).sum()
     assert len(rec.labels) == seen2  # every ball seen twice, nothing else (white balls ignored)
     for lab, p in zip(rec.labels, rec.points):
-        d = np.linalg.norm(centres - p, axis=1)
+        d = np.linalg.norm(centers - p, axis=1)
         i = int(d.argmin())
-        assert colour[i] == lab
+        assert color[i] == lab
         # silhouette centres of unevenly lit, lens-blurred balls carry ~0.3 px of bias:
         # about 0.6 mm at 2.5 m (measured in benchmarks/bench_markers.py)
         assert d[i] < 1.5e-3

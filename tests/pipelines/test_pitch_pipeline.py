@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.ball.flashes import order_flashes
+from stillcap.ball.flashes import number_flashes_from_spacing
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
 from stillcap.report.pitch import POSITION_COLUMNS, write_report
@@ -228,11 +228,11 @@ def test_order_flashes_with_missed_flashes():
     k_true = np.array([0, 1, 2, 4, 5, 8, 9])
     pts = np.outer(k_true * 0.35, [0.05, -1.0, 0.0]) + rng.normal(0, 0.001, (7, 3))
     perm = rng.permutation(7)
-    order, k, spacing = order_flashes(pts[perm], (0, -1, 0), 80.0)
+    order, k, spacing = number_flashes_from_spacing(pts[perm], (0, -1, 0), 80.0)
     assert np.array_equal(perm[order], np.arange(7)) and np.array_equal(k, k_true)
     assert abs(spacing - 0.35 * np.linalg.norm([0.05, 1, 0])) < 0.002
     # flying the other way: the order reverses
-    order, k, _ = order_flashes(pts[perm], (0, 1, 0), 80.0)
+    order, k, _ = number_flashes_from_spacing(pts[perm], (0, 1, 0), 80.0)
     assert np.array_equal(perm[order], np.arange(7)[::-1]) and k[-1] == 9
 
 

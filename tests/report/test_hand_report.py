@@ -88,7 +88,7 @@ def test_a_still_hand_gives_still_pictures(tmp_path, studio):
     assert max(_changed(frames[0], f) for f in frames[1:]) < 0.001  # measured <= 0.0002
 
 
-def test_glove_markers_in_their_colours_and_flash_frames_highlighted(tmp_path, studio):
+def test_glove_markers_in_their_colors_and_flash_frames_highlighted(tmp_path, studio):
     t = studio["anim"].times
     flash = t[6] + 0.0002  # at 2 ms per video frame, the nearest is frame 3
     kw = {"size": (400, 300), "slowdown": 20}
@@ -182,7 +182,7 @@ def test_animation_bad_input(tmp_path, studio):
     with pytest.raises(ValueError, match=r"markers must be MarkerTrajectories or have shape \(25, M, 3\)"):
         write_hand_animation(tmp_path / "x.gif", a, markers=np.zeros((24, 18, 3)))
     with pytest.raises(ValueError, match="one colour per marker"):
-        write_hand_animation(tmp_path / "x.gif", a, markers=studio["markers"], marker_colours=["red"])
+        write_hand_animation(tmp_path / "x.gif", a, markers=studio["markers"], marker_colors=["red"])
     with pytest.raises(ValueError, match="view must be one of"):
         write_hand_animation(tmp_path / "x.gif", a, view="under")
     with pytest.raises(ValueError, match="slowdown must be"):
@@ -200,9 +200,9 @@ def test_animation_more_bad_input(tmp_path, studio):
         write_hand_animation(tmp_path / "x.gif", a, ball_times=bt[::-1], ball_positions=bp)
     with pytest.raises(ValueError, match="ball_times must be finite"):
         write_hand_animation(tmp_path / "x.gif", a, ball_times=np.where(bt == bt[3], np.nan, bt), ball_positions=bp)
-    colours = ["red"] * 17 + ["no-such-colour"]
+    colors = ["red"] * 17 + ["no-such-colour"]
     with pytest.raises(ValueError, match="marker_colours: 'no-such-colour' is not a colour name or RGB triple"):
-        write_hand_animation(tmp_path / "x.gif", a, markers=studio["markers"], marker_colours=colours)
+        write_hand_animation(tmp_path / "x.gif", a, markers=studio["markers"], marker_colors=colors)
     with pytest.raises(ValueError, match=r"size must be at least 64 x 64 pixels, got \(32, 240\)"):
         write_hand_animation(tmp_path / "x.gif", a, size=(32, 240))
     with pytest.raises(ValueError, match=r"size must be \(width, height\) in pixels"):

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.body.hand import hand_markerset, hand_skeleton, marker_colours
+from stillcap.body.hand import hand_markerset, hand_skeleton, marker_colors
 from stillcap.cli import main
 from stillcap.io.capture import Capture
 from stillcap.studio.hand import (CAMERA_NAMES, MARKER_RADIUS, WINDOW_S, HandTruth, hand_capture, hand_motion,
@@ -75,7 +75,7 @@ def test_flashes_and_truth_shapes(small):
     assert np.array_equal(tr.held, tr.times < tr.release.t0)
     assert tr.markers.shape == (tr.n, 18, 3) and tr.markers_px.shape == (4, tr.n, 18, 2)
     assert tr.marker_names == list(hand_markerset().names)
-    assert tr.marker_colours == marker_colours(hand_markerset())
+    assert tr.marker_colors == marker_colors(hand_markerset())
     # labelled markers = the marker set on the truth pose; angles = the local rotations
     sk, ms = hand_skeleton(), hand_markerset()
     from stillcap.body.skeleton import Pose
@@ -102,14 +102,14 @@ def test_truth_pixels_are_projections(small):
         assert np.allclose(cam.project(tr.ball2world[bv, :3, 3]), tr.ball_px[ci][bv])
 
 
-def _blob_centroid(I, centre, rho):
+def _blob_centroid(I, center, rho):
     """Chroma-weighted centroid of the connected blob under a marker in the chroma image ``I``."""
     h = int(np.ceil(rho)) + 4
-    x0, y0 = int(round(centre[0])) - h, int(round(centre[1])) - h
+    x0, y0 = int(round(center[0])) - h, int(round(center[1])) - h
     win = I[y0:y0 + 2 * h + 1, x0:x0 + 2 * h + 1]
     _, lab = cv2.connectedComponents((win >= 3).astype(np.uint8), connectivity=8)
     yy, xx = np.mgrid[y0:y0 + 2 * h + 1, x0:x0 + 2 * h + 1]
-    disc = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 <= rho ** 2
+    disc = (xx - center[0]) ** 2 + (yy - center[1]) ** 2 <= rho ** 2
     ids, counts = np.unique(lab[disc & (lab > 0)], return_counts=True)
     w = np.where(lab == ids[np.argmax(counts)], win, 0)
     return np.array([(w * xx).sum(), (w * yy).sum()]) / w.sum()

@@ -83,7 +83,7 @@ def test_small_images_keep_the_field_of_view():
 
 
 # --- truth against the images ----------------------------------------------------------------
-def test_true_centres_are_where_the_balls_are_rendered(ideal):
+def test_true_centers_are_where_the_balls_are_rendered(ideal):
     checked = 0
     for cam in ideal.rig.rig:
         sil = _silhouettes(ideal, cam)

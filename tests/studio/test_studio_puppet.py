@@ -49,7 +49,7 @@ def test_every_marker_is_seen_twice_in_the_tpose(tpose):
     assert seen[0].all()  # from the front, every bead shows
 
 
-def test_visible_bead_pixel_is_its_blob_centre(tpose):
+def test_visible_bead_pixel_is_its_blob_center(tpose):
     rad = render_radiance(tpose.rig[0], tpose.view_scene(0), supersample=5)
     tr = tpose.truth
     px = tr.markers_px[0]

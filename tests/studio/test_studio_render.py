@@ -41,7 +41,7 @@ def flat_ball_scene(centers, radius=0.03, albedo=1.0):
     return Scene(balls, Exposure.single([T(c) for c in centers], ambient=1.0))
 
 
-def test_silhouette_centroid_is_projected_centre(cam):
+def test_silhouette_centroid_is_projected_center(cam):
     rng = np.random.default_rng(1)
     for _ in range(6):
         c = np.array([rng.uniform(-0.3, 0.3), rng.uniform(-0.2, 0.2), rng.uniform(1.2, 2.0)])
@@ -165,7 +165,7 @@ def test_normalized_grid_matches_pixels_to_normalized():
     assert np.abs(err).max() < 1e-3
 
 
-def test_marker_centre_and_shapes(cam):
+def test_marker_center_and_shapes(cam):
     d = np.array([0.0, 0.0, -1.0])  # faces the camera with the identity ball pose
     c = np.array([0.0, 0.0, 1.0])
     areas = {}

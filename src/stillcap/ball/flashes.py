@@ -3,19 +3,19 @@
 Two ways, for two kinds of capture; both give a flash index per ball position, counted along
 the flight, with gaps where flashes were missed:
 
-- :func:`order_flashes` (the pitch pipeline, and the hand capture without hand poses): the
+- :func:`number_flashes_from_spacing` (the pitch pipeline, and the hand capture without hand poses): the
   positions are ordered along the flight direction and each gap counted in flashes from the
   spacing (``round(gap / base spacing)``). It needs nothing but the positions and trusts the
   ball's speed to be nearly constant across a gap (a pitch in flight: drag changes it by ~10 %
   over the whole flight).
-- :func:`number_flashes` (the hand capture): the positions, already in time order, are mapped
+- :func:`number_flashes_from_hand` (the hand capture): the positions, already in time order, are mapped
   onto the flashes of the hand's poses so that the leading ones sit at one point of the hand
   and the rest leave it along the hold point's path. An accelerating arm fools the spacing; the
   hand does not. It returns ``success=False`` when no map has a held run, and the caller falls
-  back to :func:`order_flashes`.
+  back to :func:`number_flashes_from_spacing`.
 
 :func:`flight_axis` and :func:`off_flight_path` are the pitch pipeline's helpers around
-:func:`order_flashes`: the flight's principal direction, and the stray detections off it.
+:func:`number_flashes_from_spacing`: the flight's principal direction, and the stray detections off it.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.ball.release import hold_point_path
 
-__all__ = ["FlashNumbers", "flight_axis", "number_flashes", "off_flight_path", "order_flashes"]
+__all__ = ["FlashNumbers", "flight_axis", "number_flashes_from_hand", "off_flight_path", "number_flashes_from_spacing"]
 
 
 def flight_axis(points: np.ndarray) -> np.ndarray:
@@ -58,7 +58,7 @@ def off_flight_path(points: np.ndarray, direction: np.ndarray, tol_m: float = 0.
     return bad
 
 
-def order_flashes(points, direction, strobe_hz: float, expected_spacing_m: float | None = None):
+def number_flashes_from_spacing(points, direction, strobe_hz: float, expected_spacing_m: float | None = None):
     """Order a pair's 3D ball positions along the flight and give each its flash index.
 
     Parameters
@@ -105,7 +105,7 @@ def order_flashes(points, direction, strobe_hz: float, expected_spacing_m: float
 
 @dataclass
 class FlashNumbers:
-    """Flash of each ball position, from the hand poses (:func:`number_flashes`).
+    """Flash of each ball position, from the hand poses (:func:`number_flashes_from_hand`).
 
     Attributes
     ----------
@@ -131,7 +131,7 @@ class FlashNumbers:
     message: str = ""
 
 
-def number_flashes(ball_positions, hold_times, root2world, *, strobe_hz: float, hold_tol_m: float = 0.012,
+def number_flashes_from_hand(ball_positions, hold_times, root2world, *, strobe_hz: float, hold_tol_m: float = 0.012,
                    hold_sigma_m: float = 0.004, free_sigma_m: float = 0.03, min_held: int = 2,
                    max_after: int = 3) -> FlashNumbers:
     """Number the ball's flashes by the hand poses instead of by the ball's spacing.

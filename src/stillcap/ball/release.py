@@ -23,7 +23,7 @@ first flash of the window).
 Flags: ``held_seen`` (some flash holds the ball), ``released_seen`` (some flash shows it free);
 without both there is no release time (NaN) and ``message`` says why. Nothing here imports the
 studio. The ball's flashes are numbered from the hand poses by
-:func:`stillcap.ball.flashes.number_flashes` (on the hold-point path of :func:`hold_point_path`).
+:func:`stillcap.ball.flashes.number_flashes_from_hand` (on the hold-point path of :func:`hold_point_path`).
 """
 
 from __future__ import annotations

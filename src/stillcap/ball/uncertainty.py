@@ -5,7 +5,7 @@
   :func:`shading_residual_lookup`, :func:`lit_phase_from_area` (below).
 - **Error modes of a stereo pair's positions**: how its triangulated positions move with each
   camera's focal-length error (:func:`calibration_modes`), a shared shift of one camera's ball
-  centres (:func:`centre_bias_modes`), or the bias the shading correction leaves
+  centres (:func:`center_bias_modes`), or the bias the shading correction leaves
   (:func:`lit_geometry`, :func:`lit_bias_modes`, :func:`remaining_bias_modes`); the random
   centre error (:func:`pixel_sigma`); each image's covariance from them
   (:func:`position_covariances`). ``docs/pitch.md``, "Uncertainties".
@@ -38,7 +38,7 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import BallFlag
 from stillcap.geometry.triangulate import triangulate
 
-__all__ = ["ANGLE_KEYS", "calibration_modes", "centre_bias_modes", "lit_bias_modes", "lit_geometry",
+__all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "lit_bias_modes", "lit_geometry",
            "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
            "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "speed_sigma",
            "spin_decay_slope"]
@@ -314,7 +314,7 @@ def pixel_sigma(reproj_error_px, default_px: float = 0.1) -> float:
     return s if s > 0 else default_px
 
 
-def centre_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
+def center_bias_modes(cams, centers_px, sigma_px: float, trend: bool = False):
     """How a pair's triangulated positions move with a systematic shift of one camera's ball
     centres: one mode per camera and image axis, the same shift for all its ball images; with
     ``trend`` also one mode per camera and axis whose shift changes linearly along the pair's
@@ -590,8 +590,8 @@ def metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release_
         i_plus = np.r_[1:1 + n_th, 1 + 2 * n_th:1 + 2 * n_th + n_w]
         i_minus = np.r_[1 + n_th:1 + 2 * n_th, 1 + 2 * n_th + n_w:1 + 2 * (n_th + n_w)]
 
-        def spread(k, a, centre):
-            if centre is None or not np.isfinite(a[0]):
+        def spread(k, a, center):
+            if center is None or not np.isfinite(a[0]):
                 return None
             fp, fm = a[i_plus], a[i_minus]
             ok_p, ok_m = np.isfinite(fp), np.isfinite(fm)
@@ -612,12 +612,12 @@ def metrics_sigma(fit: ReferenceFit, spin_meas, spin_cov, model, t_rel, release_
             spins = rng.multivariate_normal(spin_meas, c_spin, size=n_samples, method="eigh")
         vals, nine_vals = _metrics_of_states(fit, th, spins, model, t_rel, release_y_m, nominal, keys, nine_keys)
 
-        def spread(k, a, centre):
+        def spread(k, a, center):
             a = a[np.isfinite(a)]
-            if len(a) < 2 or centre is None:
+            if len(a) < 2 or center is None:
                 return None
             if k in ANGLE_KEYS:
-                a = wrap(k, a - centre)
+                a = wrap(k, a - center)
             return float(np.std(a, ddof=1))
 
     out = {k: spread(k, vals[k], nom.get(k)) for k in keys}

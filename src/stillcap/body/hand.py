@@ -15,8 +15,8 @@ abduct, PIPs, DIPs, thumb MCP and IP are hinges (flexion only), the thumb CMC ha
 
 Markers (``data/hand_markers.json``): 3 on the back of the hand (carried by the root), per
 digit one over each of its two distal joints and one on the nail; 4 colours
-(:data:`HAND_COLOURS`), assigned so that same-colour markers are as far apart as possible
-(:func:`same_colour_min_distance`).
+(:data:`HAND_COLORS`), assigned so that same-colour markers are as far apart as possible
+(:func:`same_color_min_distance`).
 
 Fitting (:func:`fit_hand`) is a least-squares fit of the root pose and the 21 joint angles
 (and, for :func:`personalise_hand`, six scale factors: palm and each digit) to measured
@@ -41,9 +41,9 @@ from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.skeleton import Joint, Pose, Skeleton
 from stillcap.files.jsonfile import read_package_json
 
-__all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLOURS", "SCALE_GROUPS", "HandFit", "fit_hand", "fit_hand_poses", "hand_dofs",
-           "hand_markerset", "hand_pose", "hand_skeleton", "marker_colours", "personalise_hand", "scale_groups",
-           "scale_hand", "same_colour_min_distance"]
+__all__ = ["BACK_MARKERS", "DIGITS", "HAND_COLORS", "SCALE_GROUPS", "HandFit", "fit_hand", "fit_hand_poses", "hand_dofs",
+           "hand_markerset", "hand_pose", "hand_skeleton", "marker_colors", "personalise_hand", "scale_groups",
+           "scale_hand", "same_color_min_distance"]
 
 #: Digits, thumb first.
 DIGITS = ("thumb", "index", "middle", "ring", "little")
@@ -53,7 +53,7 @@ SCALE_GROUPS = ("palm",) + DIGITS
 #: The three back-of-hand markers (they fix the root's pose).
 BACK_MARKERS = ("back.1", "back.2", "back.3")
 #: The glove's marker colours: name -> HSB in [0, 1] (hue in turns); luminous, hues far apart.
-HAND_COLOURS = {"red": (0.0, 0.85, 1.0), "yellow": (0.15, 0.85, 1.0), "green": (0.38, 0.85, 1.0),
+HAND_COLORS = {"red": (0.0, 0.85, 1.0), "yellow": (0.15, 0.85, 1.0), "green": (0.38, 0.85, 1.0),
                 "blue": (0.62, 0.85, 1.0)}
 
 
@@ -71,11 +71,11 @@ def hand_markerset() -> MarkerSet:
     return MarkerSet.from_dict(data, source=source)
 
 
-def marker_colours(markerset: MarkerSet) -> list[str]:
-    """The colour name (:data:`HAND_COLOURS`) of each marker: the one with the nearest HSB
+def marker_colors(markerset: MarkerSet) -> list[str]:
+    """The colour name (:data:`HAND_COLORS`) of each marker: the one with the nearest HSB
     (hue periodic)."""
-    names = list(HAND_COLOURS)
-    ref = np.array([HAND_COLOURS[n] for n in names])
+    names = list(HAND_COLORS)
+    ref = np.array([HAND_COLORS[n] for n in names])
     out = []
     for m in markerset.markers:
         d = np.abs(ref - np.array(m.hsb))
@@ -84,7 +84,7 @@ def marker_colours(markerset: MarkerSet) -> list[str]:
     return out
 
 
-def same_colour_min_distance(markerset: MarkerSet, pose: Pose | None = None, colours=None) -> float:
+def same_color_min_distance(markerset: MarkerSet, pose: Pose | None = None, colors=None) -> float:
     """Smallest distance (m) between two markers of the same colour, in ``pose`` (default rest).
 
     ``colours`` (a colour name per marker) replaces the marker set's own colours, to compare
@@ -92,7 +92,7 @@ def same_colour_min_distance(markerset: MarkerSet, pose: Pose | None = None, col
     """
     pose = pose or Pose.rest(hand_skeleton())
     pts = markerset.positions(pose)
-    cols = np.asarray(marker_colours(markerset) if colours is None else list(colours))
+    cols = np.asarray(marker_colors(markerset) if colors is None else list(colors))
     if len(cols) != len(pts):
         raise ValueError(f"colours must have {len(pts)} entries, got {len(cols)}")
     best = np.inf

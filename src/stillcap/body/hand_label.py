@@ -1,7 +1,7 @@
 """Automatic labelling of the glove's markers in one multi-exposure capture (SPEC J2, issue 5).
 
 Input: unlabelled 3D marker points of all flashes mixed, ``points`` (N, 3) in the field frame
-(metres) and their glove colour names ``colours`` (N,) (:data:`stillcap.body.hand.HAND_COLOURS`).
+(metres) and their glove colour names ``colours`` (N,) (:data:`stillcap.body.hand.HAND_COLORS`).
 Output: :class:`HandLabels`, the points grouped into flashes, ordered in time, each labelled with
 a marker of the hand model (:func:`~stillcap.body.hand.hand_markerset`). See
 ``docs/hand-labelling.md``.
@@ -47,8 +47,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array, as_positive, as_rng
-from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLOURS, fit_hand, hand_markerset,
-                                hand_skeleton, marker_colours)
+from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLORS, fit_hand, hand_markerset,
+                                hand_skeleton, marker_colors)
 from stillcap.body.kinematics import rigid_alignment
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Pose, Skeleton
@@ -125,7 +125,7 @@ class HandLabels:
     """
 
     marker_names: list
-    marker_colours: list
+    marker_colors: list
     order: np.ndarray
     times: np.ndarray
     strobe_hz: float
@@ -139,7 +139,7 @@ class HandLabels:
     rms: np.ndarray
     fits: list
     points: np.ndarray
-    colours: np.ndarray
+    colors: np.ndarray
     skeleton: Skeleton = field(repr=False)
     markerset: MarkerSet = field(repr=False)
 
@@ -171,7 +171,7 @@ class HandLabels:
         return to_jsonable({
             "kind": "hand-labels", "frame": "field", "units": {"length": "m", "time": "s (since the first flash found)"},
             "strobe_hz": self.strobe_hz, "marker_names": list(self.marker_names),
-            "marker_colours": list(self.marker_colours), "n_points": len(self.points),
+            "marker_colours": list(self.marker_colors), "n_points": len(self.points),
             "flashes": {"order": self.order, "times_s": self.times, "point_index": self.point_index,
                         "markers": self.positions, "reconstructed": self.reconstructed,
                         "skipped": list(self.skipped), "rms_mm": self.rms * 1000, "root2world": self.root2world,
@@ -198,11 +198,11 @@ class _HandModel:
     def __init__(self, skeleton: Skeleton, markerset: MarkerSet, step_deg: float):
         self.skeleton, self.markerset = skeleton, markerset
         self.frames = markerset.bone_frames(skeleton)
-        self.colours = np.asarray(marker_colours(markerset))
+        self.colors = np.asarray(marker_colors(markerset))
         self.back = np.array([markerset.index(n) for n in BACK_MARKERS])
         if np.any(self.frames[self.back] != skeleton.root):
             raise ValueError(f"the back-of-hand markers {list(BACK_MARKERS)} must ride on the root joint")
-        if len(set(self.colours[self.back])) != 3:
+        if len(set(self.colors[self.back])) != 3:
             raise ValueError("the back-of-hand markers must have three different colours")
         self.back_model = markerset.offsets[self.back]
         self.digits = []
@@ -253,11 +253,11 @@ class _HandModel:
 # --------------------------------------------------------------------------------------------
 # Labelling
 # --------------------------------------------------------------------------------------------
-def _triplets(points, colours, avail, model: _HandModel, tol):
+def _triplets(points, colors, avail, model: _HandModel, tol):
     """Candidate back-of-hand triplets: point indices (K, 3) in BACK_MARKERS order."""
     bm = model.back_model
     dist = {(a, b): np.linalg.norm(bm[a] - bm[b]) for a, b in ((0, 1), (0, 2), (1, 2))}
-    idx = [np.flatnonzero(avail & (colours == model.colours[b])) for b in model.back]
+    idx = [np.flatnonzero(avail & (colors == model.colors[b])) for b in model.back]
     out = []
     for i in idx[0]:
         d1 = np.linalg.norm(points[idx[1]] - points[i], axis=1)
@@ -275,14 +275,14 @@ def _root_pose(model: _HandModel, points, triplet) -> np.ndarray:
     return rigid_alignment(model.back_model, points[triplet]).model2world
 
 
-def _grid_match(model: _HandModel, r2w, points, colours, avail, gate, prior=None):
+def _grid_match(model: _HandModel, r2w, points, colors, avail, gate, prior=None):
     """Best grid pose per digit for a root pose: ``(labels {marker: point}, angles (n_joints, 3),
     n matched digit markers, cost)``."""
     R, t = r2w[:3, :3], r2w[:3, 3]
     near = avail & (np.linalg.norm(points - t, axis=1) < REACH_M)
     trees = {}
-    for c in np.unique(model.colours):
-        sel = np.flatnonzero(near & (colours == c))
+    for c in np.unique(model.colors):
+        sel = np.flatnonzero(near & (colors == c))
         trees[c] = (cKDTree(points[sel]), sel) if len(sel) else None
     labels, angles, n, cost = {}, np.zeros((model.skeleton.n_joints, 3)), 0, 0.0
     for dig in model.digits:
@@ -296,7 +296,7 @@ def _grid_match(model: _HandModel, r2w, points, colours, avail, gate, prior=None
         hits = np.full((len(grid), len(dig.markers)), -1)
         dists = np.full((len(grid), len(dig.markers)), np.inf)
         for k, m in enumerate(dig.markers):
-            tr = trees[model.colours[m]]
+            tr = trees[model.colors[m]]
             if tr is None:
                 logw += _LOG_MISS
                 continue
@@ -326,7 +326,7 @@ def _grid_match(model: _HandModel, r2w, points, colours, avail, gate, prior=None
     return labels, angles, n, cost
 
 
-def _assign(model: _HandModel, predicted, points, colours, avail, gate, fixed):
+def _assign(model: _HandModel, predicted, points, colors, avail, gate, fixed):
     """Optimal assignment of points to predicted markers (colour a hard constraint, a dummy
     column per marker at the gate's cost); ``fixed`` {marker: point} are kept."""
     m = len(predicted)
@@ -336,7 +336,7 @@ def _assign(model: _HandModel, predicted, points, colours, avail, gate, fixed):
     rows = np.array([i for i in range(m) if i not in fixed], int)
     big = 1e6
     d2 = np.sum((predicted[rows][:, None] - points[cand][None]) ** 2, axis=-1)
-    ok = (model.colours[rows][:, None] == colours[cand][None]) & (d2 < gate ** 2)
+    ok = (model.colors[rows][:, None] == colors[cand][None]) & (d2 < gate ** 2)
     cost = np.concatenate([np.where(ok, d2, big), np.where(np.eye(len(rows), dtype=bool), gate ** 2, big)], axis=1)
     r, c = linear_sum_assignment(cost)
     out = dict(fixed)
@@ -353,17 +353,17 @@ def _fit_labels(model: _HandModel, points, labels, initial: Pose):
     return fit_hand(model.skeleton, model.markerset, pos, initial=initial), pos
 
 
-def _label_flash(model, points, colours, avail, triplet, prior_angles, grid_gate, gate, max_iter=4):
+def _label_flash(model, points, colors, avail, triplet, prior_angles, grid_gate, gate, max_iter=4):
     """Labels and fit of one hand from its back-of-hand triplet."""
     r2w = _root_pose(model, points, triplet)
-    labels, angles, _, _ = _grid_match(model, r2w, points, colours, avail, grid_gate, prior_angles)
+    labels, angles, _, _ = _grid_match(model, r2w, points, colors, avail, grid_gate, prior_angles)
     fixed = {int(b): int(p) for b, p in zip(model.back, triplet)}
     labels = {**{k: v for k, v in labels.items() if v not in fixed.values()}, **fixed}
     initial = Pose(model.skeleton, np.eye(4), Rotation.from_euler("XYZ", angles, degrees=True).as_matrix())
     fit, pos = _fit_labels(model, points, labels, initial)
     for _ in range(max_iter):
         pred = model.markerset.positions(fit.pose)
-        new = _assign(model, pred, points, colours, avail, gate, fixed)
+        new = _assign(model, pred, points, colors, avail, gate, fixed)
         if new == labels:
             break
         labels = new
@@ -371,21 +371,21 @@ def _label_flash(model, points, colours, avail, triplet, prior_angles, grid_gate
     return labels, fit, pos
 
 
-def _check_inputs(points, colours, reprojection_px):
+def _check_inputs(points, colors, reprojection_px):
     pts = as_array(points, (None, 3), "points")
-    cols = np.asarray(colours, dtype=object)
+    cols = np.asarray(colors, dtype=object)
     if cols.shape != (len(pts),):
         raise ValueError(f"colours must have shape ({len(pts)},) like points, got {cols.shape}")
-    bad = sorted({str(c) for c in cols} - set(HAND_COLOURS))
+    bad = sorted({str(c) for c in cols} - set(HAND_COLORS))
     if bad:
-        raise ValueError(f"colours must be names in {sorted(HAND_COLOURS)}, got {bad}")
+        raise ValueError(f"colours must be names in {sorted(HAND_COLORS)}, got {bad}")
     rep = None
     if reprojection_px is not None:
         rep = as_array(reprojection_px, (len(pts),), "reprojection_px")
     return pts, cols.astype(str), rep
 
 
-def label_hand_markers(points, colours, *, strobe_hz: float, skeleton: Skeleton | None = None,
+def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton | None = None,
                        markerset: MarkerSet | None = None, throw_direction=(0.0, -1.0, 0.0), reprojection_px=None,
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
@@ -397,7 +397,7 @@ def label_hand_markers(points, colours, *, strobe_hz: float, skeleton: Skeleton 
     points : array_like, shape (N, 3)
         Marker positions of all flashes mixed (field frame, metres); rows with NaN are ignored.
     colours : array_like of str, shape (N,)
-        Each point's glove colour (a name of :data:`~stillcap.body.hand.HAND_COLOURS`).
+        Each point's glove colour (a name of :data:`~stillcap.body.hand.HAND_COLORS`).
     strobe_hz : float
         The strobe; flash ``k`` in time order is at ``k / strobe_hz`` after the first.
     skeleton, markerset : optional
@@ -417,7 +417,7 @@ def label_hand_markers(points, colours, *, strobe_hz: float, skeleton: Skeleton 
     -------
     HandLabels
     """
-    pts, cols, rep = _check_inputs(points, colours, reprojection_px)
+    pts, cols, rep = _check_inputs(points, colors, reprojection_px)
     strobe_hz = float(strobe_hz)
     if not (np.isfinite(strobe_hz) and strobe_hz > 0):
         raise ValueError(f"strobe_hz must be finite and > 0, got {strobe_hz}")
@@ -492,10 +492,10 @@ def label_hand_markers(points, colours, *, strobe_hz: float, skeleton: Skeleton 
             mem = left[cl == c]
             if len(mem) < MIN_SKIPPED_POINTS:
                 continue
-            found = sorted({str(x) for x in cols[mem]} & set(model.colours[model.back]))
+            found = sorted({str(x) for x in cols[mem]} & set(model.colors[model.back]))
             flashes.append((float(pts[mem].mean(axis=0) @ throw), None, None, mem,
                             f"no back-of-hand triplet ({', '.join(BACK_MARKERS)}: colours "
-                            f"{', '.join(model.colours[model.back])} at the model's distances) among its "
+                            f"{', '.join(model.colors[model.back])} at the model's distances) among its "
                             f"{len(mem)} points (back colours present: {', '.join(found) or 'none'})"))
     flashes.sort(key=lambda f: f[0])
 
@@ -520,7 +520,7 @@ def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, del
     unassigned = np.array([i for i in range(len(pts)) if i not in used and np.all(np.isfinite(pts[i]))], int)
     rms = np.array([np.nan if f is None else f.rms for f in fits])
     order = np.arange(n)
-    return HandLabels(list(model.markerset.names), list(model.colours), order, order / strobe_hz, strobe_hz,
+    return HandLabels(list(model.markerset.names), list(model.colors), order, order / strobe_hz, strobe_hz,
                       point_index, positions, np.array([f is not None for f in fits], bool), list(skipped),
                       [np.asarray(x, int) for x in members], unassigned, np.asarray(deleted, int), rms, list(fits),
                       pts, cols, model.skeleton, model.markerset)
@@ -622,7 +622,7 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
     ms = labels.markerset
     model = _HandModel.__new__(_HandModel)  # only the cheap parts are needed here
     model.skeleton, model.markerset = labels.skeleton, ms
-    model.colours = np.asarray(labels.marker_colours)
+    model.colors = np.asarray(labels.marker_colors)
     pi = labels.point_index.copy()
     deleted = set(labels.deleted.tolist())
     members = [set(m.tolist()) for m in labels.members]
@@ -663,7 +663,7 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
             fits[k] = None
             miss = [BACK_MARKERS[j] for j in range(3) if pi[k, back[j]] < 0]
             skipped[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}"
-    return _build(model, labels.points, labels.colours, labels.strobe_hz, pi, fits, skipped,
+    return _build(model, labels.points, labels.colors, labels.strobe_hz, pi, fits, skipped,
                   [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int))
 
 
@@ -690,11 +690,11 @@ def hand_points_from_truth(truth, *, noise_m: float = 0.0005, drop: float = 0.05
     keep = vis & (rng.random(vis.shape) >= drop)
     f, mk = np.nonzero(keep)
     pts = truth.markers[f, mk] + rng.normal(0, noise_m, (len(f), 3))
-    cols = np.asarray(truth.marker_colours)[mk]
+    cols = np.asarray(truth.marker_colors)[mk]
     allm = truth.markers.reshape(-1, 3)
     lo, hi = allm.min(axis=0) - 0.03, allm.max(axis=0) + 0.03
     sp = rng.uniform(lo, hi, (n_spurious, 3))
-    spc = rng.choice(sorted(HAND_COLOURS), n_spurious)
+    spc = rng.choice(sorted(HAND_COLORS), n_spurious)
     pts = np.concatenate([pts, sp])
     cols = np.concatenate([cols, spc])
     f = np.concatenate([f, np.full(n_spurious, -1)])

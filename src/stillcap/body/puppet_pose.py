@@ -282,7 +282,7 @@ def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(np.outer(angles_rad, axis)).as_matrix()
 
 
-def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, centre,
+def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, center,
                   sd, rays: MarkerRays | None = None, ray_sigma_px: float = 1.0) -> np.ndarray:
     """A start for :func:`fit_pose`, joint by joint from the root (degrees, (n_joints, 3)).
 
@@ -325,10 +325,10 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
                     R0 = Rotation.align_vectors(a[None], b[None])[0].as_matrix()
                     cands = _rotations_about(a, phis) @ R0
         if cands is None:
-            ang[j] = np.where(locked, lo[j], centre[j])
+            ang[j] = np.where(locked, lo[j], center[j])
         else:
             e, viol = euler_within_limits(cands, np.where(np.isfinite(lim[j]), lim[j], np.nan))
-            cost = 100.0 * viol + np.sum(((e - centre[j]) / sd[j]) ** 2, axis=1)
+            cost = 100.0 * viol + np.sum(((e - center[j]) / sd[j]) ** 2, axis=1)
             if rays is not None and len(cands) > 1:
                 for r in np.flatnonzero(frames[rays.marker] == j):
                     bead = origin[j] + np.einsum("ij,cjk,k->ci", Wp, cands, offs[rays.marker[r]])  # (n_cands, 3)
@@ -421,10 +421,10 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     lo = np.where(np.isnan(lim[..., 0]), -np.inf, lim[..., 0])
     hi = np.where(np.isnan(lim[..., 1]), np.inf, lim[..., 1])
     free = hi > lo  # (n, 3)
-    centre = np.clip(0.0, lo, hi)
+    center = np.clip(0.0, lo, hi)
     width = np.where(np.isfinite(hi - lo), 0.5 * (hi - lo), 180.0)
     sd = np.maximum(width, 5.0)
-    starts = [_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd, active, ray_sigma_px)]
+    starts = [_start_angles(skeleton, markerset, pts, r2w, lo, hi, center, sd, active, ray_sigma_px)]
     for other in ((initial,) if initial is not None else ()) + (thesis,):
         a0 = np.clip(skeleton.limit_angles_deg(other.local_rotations), lo, hi)
         starts.append(np.where(np.isfinite(lo) & ~free, lo, a0))
@@ -478,7 +478,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             parts = [((m[:len(mf)] - meas) / marker_sigma_m).ravel()]
             if nr:
                 parts.append(np.einsum("rki,ri->rk", B, m[len(mf):] - ray_set.origin).ravel())
-            parts.append(((a - centre) / sd)[free])
+            parts.append(((a - center) / sd)[free])
             return np.concatenate(parts)
 
         def jacobian(x):
@@ -546,7 +546,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             fun, jac = problem(cur, sig[keep])
             cands = [best.x, np.clip(starts[0][free], *inner)]
             if cur is not None:
-                cands[1] = np.clip(_start_angles(skeleton, markerset, pts, r2w, lo, hi, centre, sd, cur,
+                cands[1] = np.clip(_start_angles(skeleton, markerset, pts, r2w, lo, hi, center, sd, cur,
                                                  ray_sigma_px)[free], *inner)
             best = min((least_squares(fun, c, jac=jac, **opts) for c in cands), key=lambda r: r.cost)
     a = unpack(best.x)

@@ -49,9 +49,9 @@ def markers(
     truth = cap.truth if cap.truth and cap.truth.get("kind") == "markers" else None
     if truth is not None:
         balls = [b for b in truth["balls"] if b["kind"] == "marker"]
-        centres = np.array([b["center"] for b in balls], float).reshape(-1, 3)
+        centers = np.array([b["center"] for b in balls], float).reshape(-1, 3)
         for m, p in zip(result["markers"], rec.points):
-            d = np.linalg.norm(centres - p, axis=1)
+            d = np.linalg.norm(centers - p, axis=1)
             m["true_ball"], m["error_mm"] = balls[int(d.argmin())]["name"], float(d.min() * 1e3)
     if out is not None:
         write_text(out, json.dumps(result, indent=2) + "\n")

@@ -50,15 +50,15 @@ def load_palette(path: Path | None, markerset=None):
     markerset = markerset or MarkerSet.puppet()
     try:
         d = json.loads(Path(path).read_text(encoding="utf-8"))
-        colours = {c["name"]: c["rgb"] for c in d["colors"]}
+        colors = {c["name"]: c["rgb"] for c in d["colors"]}
     except FileNotFoundError:
         raise ValueError(f"palette file {path} does not exist") from None
     except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
         raise ValueError(f"palette file {path}: not a palette ({{\"colors\": [{{\"name\", \"rgb\"}}]}}): {e}") from None
-    missing = [n for n in markerset.names if n not in colours]
+    missing = [n for n in markerset.names if n not in colors]
     if missing:
         raise ValueError(f"palette file {path} lacks the markers {missing}")
-    return Palette(markerset.names, np.array([colours[n] for n in markerset.names], float))
+    return Palette(markerset.names, np.array([colors[n] for n in markerset.names], float))
 
 
 def _print_result(res, title: str) -> None:

@@ -379,7 +379,7 @@ def expected_radius_px(rig: Rig, points: np.ndarray, bead_radius_m: float) -> np
 
 
 def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: float = 0.003,
-               gate_radius: float = 0.6, colour_factor: float = 2.0) -> np.ndarray:
+               gate_radius: float = 0.6, color_factor: float = 2.0) -> np.ndarray:
     """Name each view's bead candidates after the 3D markers: the identification consistent
     with the reconstruction.
 
@@ -387,7 +387,7 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
     shifted by the light, a limb edge), and misses some. Once the markers are triangulated,
     every marker with a 3D point projects into every view: the candidate within
     ``gate_radius`` x its projected bead radius (at least 2 px) of that projection, and whose
-    colour is within ``colour_factor`` x the identification's acceptance distance of the
+    colour is within ``color_factor`` x the identification's acceptance distance of the
     marker's reference, is that marker (:func:`scipy.optimize.linear_sum_assignment` over
     pixel distance / gate + colour distance / colour gate, each candidate used once); a marker
     whose projection matches no candidate is left unidentified (hidden in that view). Markers
@@ -401,7 +401,7 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
     views : sequence of ViewResult, length n_views
         Candidates and colour distances (:func:`detect_beads`).
     bead_radius_m : float
-    gate_radius, colour_factor : float
+    gate_radius, color_factor : float
         Pixel gate as a share of the projected bead radius; colour gate as a multiple of the
         identification's ``max_distance``.
 
@@ -431,7 +431,7 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
             proj = cam.project(np.where(have[:, None], X, np.nan))
             d = np.linalg.norm(cand[:, None, :] - proj[None], axis=2)  # (n_cand, k)
             gate = np.maximum(2.0, gate_radius * r_exp[v])[None]
-            cgate = colour_factor * float(ident.max_distance)
+            cgate = color_factor * float(ident.max_distance)
             col = np.asarray(ident.cost, float).reshape(len(cand), k)
             with np.errstate(invalid="ignore"):
                 ok = (d <= gate) & (col <= cgate) & have[None]

@@ -40,7 +40,7 @@ __all__ = [
     "RECOMMENDED",
     "SAMPLERS",
     "THESIS",
-    "ColourCalibration",
+    "ColorCalibration",
     "Identification",
     "calibrate_palette",
     "greedy_match",
@@ -605,7 +605,7 @@ def identify_markers_views(images, centers, palette: Palette, radii=None, method
 
 # -- colour calibration ------------------------------------------------------------------------
 @dataclass(eq=False)
-class ColourCalibration:
+class ColorCalibration:
     """Result of :func:`calibrate_palette`.
 
     Attributes
@@ -628,7 +628,7 @@ class ColourCalibration:
 
 
 def calibrate_palette(images, points, palette: Palette, radii=None, sampler: str = "patch",
-                      radius: float = 6.0) -> ColourCalibration:
+                      radius: float = 6.0) -> ColorCalibration:
     """Reference colours measured from photos (the thesis's T-pose calibration).
 
     The thesis measured every marker in twelve T-pose photos (30-degree turntable steps) and
@@ -653,7 +653,7 @@ def calibrate_palette(images, points, palette: Palette, radii=None, sampler: str
 
     Returns
     -------
-    ColourCalibration
+    ColorCalibration
     """
     images = list(images)
     points = list(points)
@@ -688,4 +688,4 @@ def calibrate_palette(images, points, palette: Palette, radii=None, sampler: str
         if len(s):
             rgb[k] = s.mean(axis=0)
             spread[k] = float(np.sqrt(np.mean(color_distance(s, rgb[k][None], "ciede2000") ** 2)))
-    return ColourCalibration(palette.with_colors(np.clip(rgb, 0, 1)), n, spread, arrays)
+    return ColorCalibration(palette.with_colors(np.clip(rgb, 0, 1)), n, spread, arrays)

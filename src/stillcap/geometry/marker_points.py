@@ -9,7 +9,7 @@ Two parts:
   weighted by ``max(n.l, 0) / d_light^2`` times its foreshortening toward the camera (visible
   side only). The studio's truth (:func:`stillcap.studio.hand.lit_centroids`) is this model
   plus occlusion by other bodies.
-- **Triangulation** (:func:`triangulate_colour_markers`): per stereo pair, every same-colour
+- **Triangulation** (:func:`triangulate_color_markers`): per stereo pair, every same-colour
   blob pair near each other's epipolar line is a candidate; each candidate is triangulated and
   checked in the other cameras (a same-colour blob where it should appear confirms it); an
   optimal one-to-one assignment (``scipy.optimize.linear_sum_assignment``, with the option of
@@ -33,7 +33,7 @@ from stillcap.geometry.epipolar import epipolar_distances
 from stillcap.geometry.triangulate import triangulate
 
 __all__ = ["MarkerPoints", "lit_sphere_centroids", "lit_sphere_offsets", "lit_sphere_samples",
-           "sphere_directions", "triangulate_colour_markers"]
+           "sphere_directions", "triangulate_color_markers"]
 
 
 def sphere_directions(n: int) -> np.ndarray:
@@ -56,7 +56,7 @@ def _directions(n: int) -> np.ndarray:
     return _SAMPLES[n]
 
 
-def lit_sphere_samples(camera: Camera, centres, radius: float, light_position,
+def lit_sphere_samples(camera: Camera, centers, radius: float, light_position,
                        n_samples: int = 1200) -> tuple[np.ndarray, np.ndarray]:
     """Surface points of spheres and their image weights (radiance times foreshortening).
 
@@ -79,9 +79,9 @@ def lit_sphere_samples(camera: Camera, centres, radius: float, light_position,
         ``max(n.l, 0) / d_light^2`` times ``max(n.v, 0)`` (``l`` toward the light, ``v``
         toward the camera); zero on the far side or the dark side.
     """
-    c = np.atleast_2d(np.asarray(centres, float))
+    c = np.atleast_2d(np.asarray(centers, float))
     if c.ndim != 2 or c.shape[1] != 3:
-        raise ValueError(f"centres must have shape (N, 3), got {np.shape(centres)}")
+        raise ValueError(f"centres must have shape (N, 3), got {np.shape(centers)}")
     light = as_array(light_position, (3,), "light_position")
     if not (np.isfinite(radius) and radius > 0):
         raise ValueError(f"radius must be positive, got {radius}")
@@ -107,7 +107,7 @@ def _weighted_centroids(camera: Camera, points: np.ndarray, weights: np.ndarray)
         return np.stack([np.bincount(row, w * px[:, 0], n), np.bincount(row, w * px[:, 1], n)], axis=1) / sw[:, None]
 
 
-def lit_sphere_centroids(camera: Camera, centres, radius: float, light_position, n_samples: int = 1200,
+def lit_sphere_centroids(camera: Camera, centers, radius: float, light_position, n_samples: int = 1200,
                          weights=None) -> np.ndarray:
     """Radiance-weighted centroid of the image of lambertian spheres lit by a point light.
 
@@ -128,16 +128,16 @@ def lit_sphere_centroids(camera: Camera, centres, radius: float, light_position,
     ndarray, shape (N, 2)
         Distorted pixels; NaN for a sphere with no lit visible surface.
     """
-    pts, w = lit_sphere_samples(camera, centres, radius, light_position, n_samples)
+    pts, w = lit_sphere_samples(camera, centers, radius, light_position, n_samples)
     if weights is not None:
         w = weights(pts, w)
     return _weighted_centroids(camera, pts, w)
 
 
-def lit_sphere_offsets(camera: Camera, centres, radius: float, light_position, n_samples: int = 300) -> np.ndarray:
+def lit_sphere_offsets(camera: Camera, centers, radius: float, light_position, n_samples: int = 300) -> np.ndarray:
     """Lit-image centroid minus the projected centre (pixels), shape (N, 2): the bias of a blob
     centroid as the marker's position. NaN where the sphere shows no lit surface."""
-    c = np.atleast_2d(np.asarray(centres, float))
+    c = np.atleast_2d(np.asarray(centers, float))
     return lit_sphere_centroids(camera, c, radius, light_position, n_samples) - camera.project(c)
 
 
@@ -146,7 +146,7 @@ def lit_sphere_offsets(camera: Camera, centres, radius: float, light_position, n
 # --------------------------------------------------------------------------------------------
 @dataclass
 class MarkerPoints:
-    """3D markers from coloured blobs (see :func:`triangulate_colour_markers`).
+    """3D markers from coloured blobs (see :func:`triangulate_color_markers`).
 
     Attributes
     ----------
@@ -162,7 +162,7 @@ class MarkerPoints:
         The blob centroids used (observed, uncorrected); NaN where a camera did not see the
         point.
     blob_index : ndarray of int, shape (n_cams, N)
-        Index of the blob in that camera's :class:`~stillcap.detect.colour_markers.ColourBlobs`,
+        Index of the blob in that camera's :class:`~stillcap.detect.color_markers.ColorBlobs`,
         -1 where unused.
     pairs : ndarray of str, shape (N,)
         The stereo pair(s) whose matching made the point, ``"left"``, ``"right"`` or
@@ -181,7 +181,7 @@ class MarkerPoints:
     """
 
     points: np.ndarray
-    colours: np.ndarray
+    colors: np.ndarray
     n_views: np.ndarray
     reprojection_px: np.ndarray
     pixels: np.ndarray
@@ -207,7 +207,7 @@ class MarkerPoints:
 
     def select(self, keep) -> MarkerPoints:
         keep = np.asarray(keep)
-        return MarkerPoints(self.points[keep], self.colours[keep], self.n_views[keep], self.reprojection_px[keep],
+        return MarkerPoints(self.points[keep], self.colors[keep], self.n_views[keep], self.reprojection_px[keep],
                             self.pixels[:, keep], self.blob_index[:, keep], self.pairs[keep], self.ambiguous[keep],
                             list(self.cameras), self.bias_corrected, self.flux_ratio[:, keep])
 
@@ -223,7 +223,7 @@ class MarkerPoints:
             return None if isinstance(x, float) and not np.isfinite(x) else x
 
         return {"cameras": list(self.cameras), "bias_corrected": bool(self.bias_corrected),
-                "points": nan_none(clean(self.points)), "colours": [str(c) for c in self.colours],
+                "points": nan_none(clean(self.points)), "colours": [str(c) for c in self.colors],
                 "n_views": self.n_views.astype(int).tolist(), "reprojection_px": nan_none(clean(self.reprojection_px)),
                 "pixels": nan_none(clean(self.pixels)), "blob_index": self.blob_index.astype(int).tolist(),
                 "pairs": [str(p) for p in self.pairs], "ambiguous": self.ambiguous.astype(bool).tolist(),
@@ -238,12 +238,12 @@ class MarkerPoints:
 
 def _blob_arrays(blobs, name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     try:
-        centers, colours = blobs.centers, blobs.colours
+        centers, colors = blobs.centers, blobs.colors
     except AttributeError:
         raise ValueError(f"blobs of {name} must have .centers (N, 2) and .colours (N,), "
                          f"got {type(blobs).__name__}") from None
     c = as_array(centers, (None, 2), f"blobs of {name}: centers")
-    col = np.asarray(list(colours), object)
+    col = np.asarray(list(colors), object)
     if len(col) != len(c):
         raise ValueError(f"blobs of {name}: {len(c)} centers but {len(col)} colours")
     flux = getattr(blobs, "flux", None)
@@ -271,7 +271,7 @@ def _solve(cams: list, obs: np.ndarray, light, radius: float, iterations: int):
     return X, corr, tri.reproj_error_px, tri.errors_px
 
 
-def _flux_ratios(cams, X, bidx, flux, colours, radius, light) -> np.ndarray:
+def _flux_ratios(cams, X, bidx, flux, colors, radius, light) -> np.ndarray:
     """Blob flux over the model's (sum of the lit-sphere sample weights times the pixels per
     unit area, (f / z)^2), normalised by the median per camera and colour (per colour over all
     cameras when a camera has fewer than 4 of that colour). Shape (n_cams, N); NaN where unused."""
@@ -288,8 +288,8 @@ def _flux_ratios(cams, X, bidx, flux, colours, radius, light) -> np.ndarray:
         with np.errstate(invalid="ignore", divide="ignore"):
             raw[k, use] = flux[k][bidx[k, use]] / pred
     out = np.full_like(raw, np.nan)
-    for c in np.unique(colours):
-        sel = colours == c
+    for c in np.unique(colors):
+        sel = colors == c
         allv = raw[:, sel]
         ref_all = np.nanmedian(allv) if np.isfinite(allv).any() else np.nan
         for k in range(nc):
@@ -299,7 +299,7 @@ def _flux_ratios(cams, X, bidx, flux, colours, radius, light) -> np.ndarray:
     return out
 
 
-def triangulate_colour_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blobs_per_camera, *,
+def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blobs_per_camera, *,
                                light_position=None, radius_m: float = 0.005, max_epipolar_px: float | None = None,
                                confirm_px: float | None = None, merge_mm: float = 4.0,
                                max_reprojection_px: float | None = None, iterations: int = 2,
@@ -311,7 +311,7 @@ def triangulate_colour_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blo
     rig : Rig
     pairs : mapping of str to (camera a, camera b)
         Stereo pairs by name, e.g. ``{"left": ("left_outer", "left_inner"), ...}``.
-    blobs_per_camera : sequence (rig order) or mapping (by camera name) of ColourBlobs
+    blobs_per_camera : sequence (rig order) or mapping (by camera name) of ColorBlobs
         Anything with ``centers`` (N, 2) and ``colours`` (N,) per camera; cameras missing from
         a mapping saw nothing.
     light_position : array_like, shape (3,), optional
@@ -513,7 +513,7 @@ def triangulate_colour_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blo
     for m, g in enumerate(merged):
         for k, j in g["views"].items():
             x[k, m], bidx[k, m] = obs[k][j], j
-    colours = np.array([g["colour"] for g in merged], dtype=object).astype(str)
+    colors = np.array([g["colour"] for g in merged], dtype=object).astype(str)
     X, corr, rms, err = _solve(cams, x, light, radius_m, iterations)
     # views that disagree: consensus over view pairs (RANSAC in ``triangulate``) on the
     # corrected observations of points with 3+ views
@@ -531,7 +531,7 @@ def triangulate_colour_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blo
     if light is not None and min_flux_ratio is not None:
         # partly hidden blobs: less light than the lit-sphere model predicts; drop such views
         # while two or more fully seen ones remain
-        ratio = _flux_ratios(cams, X, bidx, flux, colours, radius_m, light)
+        ratio = _flux_ratios(cams, X, bidx, flux, colors, radius_m, light)
         low = (bidx >= 0) & ~(ratio >= min_flux_ratio)
         n_good = ((bidx >= 0) & ~low).sum(axis=0)
         drop = low & (n_good >= 2)[None]
@@ -541,10 +541,10 @@ def triangulate_colour_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blo
     # a point whose views still disagree is no marker (two views of different markers)
     X[~(rms <= max_rep)] = np.nan
     ratio = np.where(bidx >= 0, ratio, np.nan)
-    order = np.lexsort((np.nan_to_num(np.nanmin(x[..., 0], axis=0)), colours))
+    order = np.lexsort((np.nan_to_num(np.nanmin(x[..., 0], axis=0)), colors))
     ok = np.all(np.isfinite(X), axis=1)[order]
     order = order[ok]
-    return MarkerPoints(X[order], colours[order], (bidx[:, order] >= 0).sum(axis=0), rms[order], x[:, order],
+    return MarkerPoints(X[order], colors[order], (bidx[:, order] >= 0).sum(axis=0), rms[order], x[:, order],
                         bidx[:, order], np.array([merged[m]["pairs"] for m in order]).astype(str),
                         np.array([merged[m]["ambiguous"] for m in order], bool), names, light is not None,
                         ratio[:, order])

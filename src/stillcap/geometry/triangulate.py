@@ -140,7 +140,7 @@ def _midpoint(world2cams: np.ndarray, xn: np.ndarray, mask: np.ndarray) -> np.nd
     eq = _Normal3(xn.shape[1])
     for P, x, m in zip(world2cams, xn, mask):
         R, t = P[:, :3], P[:, 3]
-        centre = -R.T @ t
+        center = -R.T @ t
         xs, ys = np.where(m, x[:, 0], 0.0), np.where(m, x[:, 1], 0.0)
         norm = np.sqrt(xs * xs + ys * ys + 1.0)
         # two unit normals of the ray (camera frame): (1, 0, -x) and (-xy, 1+x^2, -y) orthonormalised
@@ -149,7 +149,7 @@ def _midpoint(world2cams: np.ndarray, xn: np.ndarray, mask: np.ndarray) -> np.nd
         n2 = np.cross(d.T, n1.T).T
         for nc in (n1, n2):
             nw = R.T @ nc * m  # normal in the world frame (3, N)
-            eq.add_rows(nw, nw.T @ centre)
+            eq.add_rows(nw, nw.T @ center)
     return eq.solve()
 
 

@@ -64,7 +64,7 @@ def overlay_view(image, result, view: int, scale: int = 2) -> np.ndarray:
         return int(round((p[0] + 0.5) * s - 0.5)), int(round((p[1] + 0.5) * s - 0.5))
 
     m = result.markers
-    colours = _marker_bgr(result.markerset)
+    colors = _marker_bgr(result.markerset)
     if result.views is not None and result.views[view] is not None:
         c = result.views[view].circles
         for p, r in zip(c.centers, c.radii):
@@ -74,7 +74,7 @@ def overlay_view(image, result, view: int, scale: int = 2) -> np.ndarray:
         p = m.observations[view, k]
         if not np.all(np.isfinite(p)):
             continue
-        col = tuple(int(v) for v in colours[k])
+        col = tuple(int(v) for v in colors[k])
         r = int(round(7 * s))
         if m.used[view, k]:
             cv2.circle(out, px(p), r, col, 2, cv2.LINE_AA)
@@ -157,14 +157,14 @@ def plot_markers_3d(result, path, truth=None) -> Path:
         Also draw the true bead centres (hollow circles).
     """
     m = result.markers
-    colours = np.asarray(result.markerset.rgb)
+    colors = np.asarray(result.markerset.rgb)
     fig = plt.figure(figsize=(13, 4.2))
     top = float(np.nanmax(m.points[:, 1])) if m.ok.any() else 0.2
     for i, (az, label) in enumerate(_SIDES):
         ax = fig.add_subplot(1, 4, i + 1, projection="3d")
         ax.plot([0, 0], [0, 0], [0, max(top, 0.2) * 1.05], "k--", lw=0.8, label="turn axis")
         ok = m.ok
-        ax.scatter(*_xzy(m.points[ok]), c=colours[ok], s=36, edgecolors="k", linewidths=0.4, depthshade=False,
+        ax.scatter(*_xzy(m.points[ok]), c=colors[ok], s=36, edgecolors="k", linewidths=0.4, depthshade=False,
                    label="triangulated")
         if truth is not None:
             ax.scatter(*_xzy(truth.marker_positions), s=70, facecolors="none", edgecolors="0.5", linewidths=0.6,
@@ -186,16 +186,16 @@ def plot_markers_3d(result, path, truth=None) -> Path:
     return Path(path)
 
 
-def _bones(ax, pose, style, colour, label):
+def _bones(ax, pose, style, color, label):
     pos = pose.positions
     first = True
     for j, p in enumerate(pose.skeleton.parents):
         if p < 0:
             continue
         seg = np.stack([pos[p], pos[j]])
-        ax.plot(*_xzy(seg), style, color=colour, lw=1.6 if style == "-" else 1.0, label=label if first else None)
+        ax.plot(*_xzy(seg), style, color=color, lw=1.6 if style == "-" else 1.0, label=label if first else None)
         first = False
-    ax.scatter(*_xzy(pos), s=8, color=colour, depthshade=False)
+    ax.scatter(*_xzy(pos), s=8, color=color, depthshade=False)
 
 
 def plot_skeleton_3d(result, path, truth=None, thesis: bool = True) -> Path:

@@ -28,8 +28,8 @@ def plot_rig_demo(res, path) -> Path:
         ax.set_title(f"{res.calibrated_rig[k].name}: rendered photo, matched markers")
         ax.set_axis_off()
     ax = fig.add_subplot(1, 3, 3, projection="3d")
-    centres = np.array([c.center for c in res.calibrated_rig])
-    ax.scatter(*centres.T, marker="^", s=60, c="k", label="calibrated cameras")
+    centers = np.array([c.center for c in res.calibrated_rig])
+    ax.scatter(*centers.T, marker="^", s=60, c="k", label="calibrated cameras")
     for c in res.calibrated_rig:
         axis = c.R[2] * 0.4
         ax.plot(*np.stack([c.center, c.center + axis]).T, "k-", lw=0.8)
@@ -39,7 +39,7 @@ def plot_rig_demo(res, path) -> Path:
     err = res.marker_errors_m * 1e3
     ax.set_title(f"{len(err)} markers, mean error {err.mean():.2f} mm (camera-0 frame, m)")
     ax.legend(fontsize=7, loc="upper left")
-    allp = np.concatenate([centres, res.true_points_cam0.reshape(-1, 3)])
+    allp = np.concatenate([centers, res.true_points_cam0.reshape(-1, 3)])
     ax.set_box_aspect(np.ptp(allp, axis=0) + 1e-3)
     fig.tight_layout()
     with atomic_path(path) as tmp:

@@ -151,9 +151,9 @@ def draw_beads(centers, radii, colors_rgb, size=(480, 640), limbs_behind=(), lim
         inside = (d <= R).astype(np.float32)
         shade, spec = _shade(d, R, ambient, specular)
         albedo = np.asarray(rgb, np.float32)[::-1] / _patch_norm(R, ambient)
-        colour = np.clip(shade[..., None] * albedo + spec[..., None], 0, 1) * inside[..., None]
+        color = np.clip(shade[..., None] * albedo + spec[..., None], 0, 1) * inside[..., None]
         ny, nx = y1 - y0, x1 - x0
-        _over(canvas, y0, y1, x0, x1, _down(inside, ny, nx), _down(colour.astype(np.float32), ny, nx))
+        _over(canvas, y0, y1, x0, x1, _down(inside, ny, nx), _down(color.astype(np.float32), ny, nx))
     for p0, p1, width, grey in limbs_front:
         _draw_limb(canvas, np.asarray(p0, float), np.asarray(p1, float), float(width), grey)
     return canvas

@@ -40,7 +40,7 @@ from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array, as_rng
 from stillcap.ball.physics import flight_model
-from stillcap.body.hand import hand_markerset, hand_pose, hand_skeleton, marker_colours
+from stillcap.body.hand import hand_markerset, hand_pose, hand_skeleton, marker_colors
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.camera import Camera, Rig, pose_matrix
@@ -461,7 +461,7 @@ class HandTruth:
     cameras: list
     pairs: dict
     marker_names: list
-    marker_colours: list
+    marker_colors: list
     joint_names: list
     light: dict = field(default_factory=dict)
 
@@ -480,7 +480,7 @@ class HandTruth:
              "release": self.release.to_dict(), "preset": self.preset, "strobe_hz": self.strobe_hz,
              "shutter_s": self.shutter_s, "first_flash_s": self.first_flash_s, "n_flashes": self.n_flashes,
              "window_s": list(self.window_s), "cameras": list(self.cameras), "pairs": {k: list(v) for k, v in self.pairs.items()},
-             "marker_names": list(self.marker_names), "marker_colours": list(self.marker_colours),
+             "marker_names": list(self.marker_names), "marker_colours": list(self.marker_colors),
              "joint_names": list(self.joint_names), "ball": self.ball, "light": self.light}
         d["flashes"] = {k: getattr(self, k) for k in self._ARRAYS}
         d["flashes"]["times_s"] = d["flashes"].pop("times")
@@ -509,7 +509,7 @@ class HandTruth:
         return cls(ReleaseState.from_dict(d["release"]), d["preset"], float(d["strobe_hz"]), float(d["shutter_s"]),
                    float(d["first_flash_s"]), int(d["n_flashes"]), tuple(d["window_s"]), **arr, ball=d["ball"],
                    cameras=list(d["cameras"]), pairs={k: tuple(v) for k, v in d["pairs"].items()},
-                   marker_names=list(d["marker_names"]), marker_colours=list(d["marker_colours"]),
+                   marker_names=list(d["marker_names"]), marker_colors=list(d["marker_colours"]),
                    joint_names=list(d["joint_names"]), light=d.get("light", {}))
 
 
@@ -562,7 +562,7 @@ class HandCapture:
         return cap, dict(zip(files, self.images))
 
 
-def lit_centroids(cam: Camera, centres, radius: float, light_position, occluders=None, own=None) -> np.ndarray:
+def lit_centroids(cam: Camera, centers, radius: float, light_position, occluders=None, own=None) -> np.ndarray:
     """Where the blob of a lambertian sphere lit by a point light appears: the radiance-weighted
     centroid of its image (pixels (N, 2)), for spheres at ``centres`` (N, 3).
 
@@ -575,7 +575,7 @@ def lit_centroids(cam: Camera, centres, radius: float, light_position, occluders
     body2world)`` pairs) hide the surface points behind them, except the body ``own[i]`` (the
     sphere itself) for sphere ``i``.
     """
-    c = np.atleast_2d(np.asarray(centres, float))
+    c = np.atleast_2d(np.asarray(centers, float))
 
     def hide(pts, w):
         sel = w > 0
@@ -634,9 +634,9 @@ def _truth_per_camera(cam: Camera, placed_per_flash: list, marker_idx: list, bal
     # painted ball markers facing the camera
     nb = len(layout)
     normals = np.einsum("kab,mb->kma", ball2world[:, :3, :3], layout.directions)
-    centres = pos[:, None] + ball_radius * normals
-    facing = np.einsum("kma,kma->km", normals, cam.center - centres) > 0
-    bm = cam.project(centres.reshape(-1, 3)).reshape(n, nb, 2)
+    centers = pos[:, None] + ball_radius * normals
+    facing = np.einsum("kma,kma->km", normals, cam.center - centers) > 0
+    bm = cam.project(centers.reshape(-1, 3)).reshape(n, nb, 2)
     bm = np.where((facing & bvis[:, None])[..., None], bm, np.nan)
     return {"markers_px": mpx, "markers_lit_px": lit, "markers_visible": vis, "markers_coverage": cov, "markers_isolated": iso,
             "ball_px": np.where(bvis[:, None], bpx, np.nan), "ball_visible": bvis, "ball_radius_px": brad,
@@ -737,7 +737,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
         np.stack([p.positions for p in poses]), np.stack([markerset.positions(p) for p in poses]),
         stack["markers_px"], stack["markers_lit_px"], stack["markers_visible"], stack["markers_coverage"], stack["markers_isolated"],
         b2w, stack["ball_px"], stack["ball_visible"], stack["ball_radius_px"], stack["ball_markers_px"],
-        ball_info, hrig.rig.names, dict(hrig.pairs), list(markerset.names), marker_colours(markerset),
+        ball_info, hrig.rig.names, dict(hrig.pairs), list(markerset.names), marker_colors(markerset),
         list(skeleton.names), {"position": hrig.light.position, "intensity": hrig.light.intensity})
 
     sensor = sensor or Sensor()

@@ -46,12 +46,12 @@ class RigDemoResult:
         T0 = self.true_rig[0].world2cam
         rows = []
         for t, c in zip(self.true_rig, self.calibrated_rig):
-            centre = (T0 @ np.append(t.center, 1.0))[:3]
+            center = (T0 @ np.append(t.center, 1.0))[:3]
             rows.append({"camera": t.name,
                          "fx_true": t.K[0, 0], "fx": c.K[0, 0], "fy_true": t.K[1, 1], "fy": c.K[1, 1],
                          "cx_true": t.K[0, 2], "cx": c.K[0, 2], "cy_true": t.K[1, 2], "cy": c.K[1, 2],
                          "k1_true": t.dist[0], "k1": c.dist[0],
-                         "centre_error_mm": 1e3 * float(np.linalg.norm(c.center - centre)),
+                         "centre_error_mm": 1e3 * float(np.linalg.norm(c.center - center)),
                          "intrinsics_rms_px": self.intrinsics_rms_px[t.name]})
         return rows
 
@@ -112,11 +112,11 @@ def run_rig_demo(seed: int = 0, n_cameras: int = 4, board_views: int = 12, n_bal
     truth = scene.truth
     T0 = true_rig[0].world2cam
     idx = [i for i, k in enumerate(truth.ball_kinds) if k == "marker"]
-    centres = truth.ball_centers[idx] @ T0[:3, :3].T + T0[:3, 3]
+    centers = truth.ball_centers[idx] @ T0[:3, :3].T + T0[:3, 3]
     names = [truth.ball_names[i] for i in idx]
-    nearest = [int(np.argmin(np.linalg.norm(centres - p, axis=1))) for p in rec.points]
+    nearest = [int(np.argmin(np.linalg.norm(centers - p, axis=1))) for p in rec.points]
     result = RigDemoResult(true_rig, cal.rig, {r.camera.name: r.rms_px for r in intr}, cal.rms_px, rec,
-                           centres[nearest].reshape(-1, 3), [names[i] for i in nearest], scene.images, timings)
+                           centers[nearest].reshape(-1, 3), [names[i] for i in nearest], scene.images, timings)
     if out is not None:
         out = Path(out)
         for s, cam in zip(sets, true_rig):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from stillcap._progress import report_progress
 from stillcap._checks import as_rng
 from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
 from stillcap.camera import Camera, Rig, look_at, pose_matrix
@@ -41,11 +42,6 @@ def nominal_camera(camera: Camera) -> Camera:
     w, h = camera.image_size
     return Camera.from_intrinsics(camera.name, float(w), float(w), (w - 1) / 2, (h - 1) / 2, (w, h),
                                   world2cam=camera.world2cam)
-
-
-def _progress(cb, i, n):
-    if cb is not None:
-        cb(i, n)
 
 
 # --- chessboards -----------------------------------------------------------------------------
@@ -196,7 +192,7 @@ def chessboard_set(camera: Camera | None = None, n_views: int = 15, target=None,
         images.append(render(camera, scene, sensor, rng, supersample))
         corners.append(probe.project(_target_points(target) @ T[:3, :3].T + T[:3, 3]))
         poses.append(T)
-        _progress(progress, i + 1, n_views)
+        report_progress(progress, i + 1, n_views)
     return ChessboardSet(camera, target, np.array(poses), images, corners)
 
 
@@ -290,7 +286,7 @@ def rig_board_set(rig: Rig, n_instants: int = 12, target=None, rng=None, sensor:
                 board2cam = cam.world2cam @ T
                 img = render(cam, target_scene(cam, target, board2cam, rng, supersample), sensor, rng, supersample)
             images[cam.name].append(img)
-            _progress(progress, k * len(rig) + i + 1, total)
+            report_progress(progress, k * len(rig) + i + 1, total)
     return RigBoardSet(rig, target, np.array(poses), images)
 
 
@@ -523,7 +519,7 @@ def marker_scene(rig: Rig | None = None, n_balls: int = 10, rng=None, sensor: Se
             ok &= np.all(np.isfinite(px), axis=1) & np.all((px >= -0.5) & (px <= [W - 0.5, H - 0.5]), axis=1)
             out[ci, ok] = px[ok]
         images.append(render(cam, scene, sensor, rng, supersample))
-        _progress(progress, ci + 1, len(rig))
+        report_progress(progress, ci + 1, len(rig))
     truth = MarkerTruth(names, kinds, radii, poses, np.array([b.albedo for b in bodies]).reshape(-1, 3),
                         m_names, m_shapes, np.array(m_ball, int), np.array(m_cols).reshape(-1, 3), m_ctr,
                         rig.names, bpx, mpx)

@@ -22,7 +22,7 @@ def _outline_affine(off: np.ndarray) -> np.ndarray:
     return (V * np.sqrt(np.maximum(ev, 1e-12))) @ V.T
 
 
-def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px: float | None = None,
+def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px: float | None = None,
                       q=None) -> np.ndarray:
     """Radiance (unit albedo) of a lambertian sphere lit from the direction ``light``
     (unit 3-vector in the frame (x right, y down, z toward the camera)), seen orthographically
@@ -48,14 +48,14 @@ def _lit_sphere_image(shape, centre, A: np.ndarray, light, ss: int = 3, band_px:
         return np.where(r2 < 1.0, np.maximum(qx * lx + qy * ly + qz * lz, 0.0), 0.0)
 
     if band_px is None:
-        ys = (np.arange(h)[:, None] + o[None, :]).ravel() - centre[1]
-        xs = (np.arange(w)[:, None] + o[None, :]).ravel() - centre[0]
+        ys = (np.arange(h)[:, None] + o[None, :]).ravel() - center[1]
+        xs = (np.arange(w)[:, None] + o[None, :]).ravel() - center[0]
         qx = Ai[0, 0] * xs[None, :] + Ai[0, 1] * ys[:, None]
         qy = Ai[1, 0] * xs[None, :] + Ai[1, 1] * ys[:, None]
         return rad_of(qx, qy).reshape(h, ss, w, ss).mean(axis=(1, 3)).astype(np.float32)
     if q is None:
         yy, xx = np.mgrid[0:h, 0:w]
-        q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - centre[0], yy - centre[1]]).astype(float))
+        q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - center[0], yy - center[1]]).astype(float))
     sv = np.linalg.svd(A, compute_uv=False)  # the outline's semi-axes (px)
     r2 = q[0] ** 2 + q[1] ** 2
     # a pixel within band_px of the limb lies beyond 1 - band / (largest semi-axis) in these
@@ -98,7 +98,7 @@ def _phase_from_centroid(m: float) -> float:
     return float(np.interp(m, table, alpha))
 
 
-def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, power: float,
+def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
                   blur: float, fine_step: float) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
@@ -115,7 +115,7 @@ def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, pow
     """
     # the outline's own middle: off axis the image of the sphere centre is not the middle of
     # its (elongated) outline; the shading is modelled about the middle, orthographically
-    mid = centre + off.mean(axis=0)
+    mid = center + off.mean(axis=0)
     A = _outline_affine(off - off.mean(axis=0))
     Ai = np.linalg.inv(A)
     h, w = lin.shape
@@ -141,7 +141,7 @@ def _shading_bias(lin: np.ndarray, centre: np.ndarray, off: np.ndarray, tpl, pow
     band = 4.0 * blur + 4.0
     model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=band, q=q), (0, 0), blur)
     kf = max(2, int(round(0.3 / fine_step)))
-    return np.array(_model_peak(model, centre, tpl, power, fine_step, kf)) - centre
+    return np.array(_model_peak(model, center, tpl, power, fine_step, kf)) - center
 
 
 def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:

@@ -10,10 +10,10 @@ Wiring only; every step is a stage of its own module (``docs/hand-pipeline.md`` 
    from all views; its discs are masked out of the marker search so that its painted markers
    are not taken for glove markers.
 3. **Markers** (:func:`~stillcap.pipelines.hand.stages.find_glove_markers`,
-   :func:`stillcap.detect.colour_markers.find_colour_markers`): colour intervals, connected
+   :func:`stillcap.detect.color_markers.find_color_markers`): colour intervals, connected
    regions above a minimum size, centroids.
 4. **3D markers** (:func:`~stillcap.pipelines.hand.stages.triangulate_glove_markers`,
-   :func:`stillcap.geometry.marker_points.triangulate_colour_markers`): epipolar matching per
+   :func:`stillcap.geometry.marker_points.triangulate_color_markers`): epipolar matching per
    stereo pair, triangulation, a marker seen by both pairs merged; with the strobe's position
    known (``capture.json`` meta ``strobe_position_m`` or the option), the half-lit centroid bias
    is removed.

@@ -13,7 +13,7 @@ from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
 from stillcap.pipelines.hand.stages import (find_ball, find_glove_markers, fit_poses, label_markers, release_and_spin,
                                             triangulate_glove_markers)
-from stillcap.pipelines.progress import report_progress
+from stillcap._progress import report_progress
 
 __all__ = ["analyse_hand"]
 

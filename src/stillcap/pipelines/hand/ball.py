@@ -15,8 +15,8 @@ Wiring only (``docs/hand-ball.md``):
    rejection (:func:`stillcap.geometry.triangulate.triangulate`, ``outlier_px``).
 4. **Order and flashes**: positions sorted along the throw (field frame: toward -y). With the
    hand's poses (``hand=(hold_times, root2world)``) the flashes are numbered from the hand
-   (:func:`stillcap.ball.flashes.number_flashes`), on the hand's clock; without them from the
-   spacing (:func:`stillcap.ball.flashes.order_flashes`: a missed flash leaves a gap, but an
+   (:func:`stillcap.ball.flashes.number_flashes_from_hand`), on the hand's clock; without them from the
+   spacing (:func:`stillcap.ball.flashes.number_flashes_from_spacing`: a missed flash leaves a gap, but an
    accelerating arm can fool it), time of flash ``k`` ``k / strobe_hz`` from the first ball.
    The hand pipeline finds the ball first (its discs mask the glove-marker search) and numbers
    its flashes once the hand poses exist.
@@ -273,7 +273,7 @@ def hand_ball_positions(capture, pairs: dict | str | None = "all", *, images=Non
     hand : (hold_times, root2world), optional
         The hand's poses per reconstructed flash (``hold_times`` (n,) s, flash ``k`` at
         ``k / strobe_hz``; ``root2world`` (n, 4, 4)). Given, the flashes are numbered from the
-        hand (:func:`stillcap.ball.flashes.number_flashes`) and ``times`` / ``flash_index`` are
+        hand (:func:`stillcap.ball.flashes.number_flashes_from_hand`) and ``times`` / ``flash_index`` are
         on the hand's clock; without it (or when that fails, see ``messages``) they come from
         the ball's spacing with the first ball position at 0.
 
@@ -373,17 +373,17 @@ def hand_ball_positions(capture, pairs: dict | str | None = "all", *, images=Non
     if not good.all():
         messages.append(f"{int((~good).sum())} ball image(s) not triangulated")
     # order along the throw and flash indices
-    from stillcap.ball.flashes import order_flashes
+    from stillcap.ball.flashes import number_flashes_from_spacing
     Xg = X[good]
     idx_good = np.flatnonzero(good)
-    order, k, spacing = order_flashes(Xg, np.asarray(direction, float), strobe_hz)
+    order, k, spacing = number_flashes_from_spacing(Xg, np.asarray(direction, float), strobe_hz)
     sel = idx_good[order]
     times = k / float(strobe_hz)
     if hand is not None:
-        from stillcap.ball.flashes import number_flashes
+        from stillcap.ball.flashes import number_flashes_from_hand
 
         hold_times, root2world = hand
-        fn = number_flashes(X[sel], hold_times, root2world, strobe_hz=strobe_hz)
+        fn = number_flashes_from_hand(X[sel], hold_times, root2world, strobe_hz=strobe_hz)
         if fn.success:
             k, times = fn.flash, fn.times
             messages.append(fn.message)

@@ -29,7 +29,7 @@ class HandResult:
     capture : Capture
     strobe_hz : float
     pairs : list of str
-    blobs : list of ColourBlobs
+    blobs : list of ColorBlobs
         Coloured blobs per camera (rig order).
     points : MarkerPoints
         Unlabelled 3D markers of all flashes.
@@ -102,7 +102,7 @@ class HandResult:
         d = {"kind": "hand", "frame": self.capture.rig.world,
              "units": {"length": "m", "time": "s (after the first flash with the hand)", "angle": "deg"},
              "strobe_hz": self.strobe_hz, "pairs": self.pairs, "marker_names": list(lab.marker_names),
-             "marker_colours": list(lab.marker_colours), "joint_names": list(self.skeleton.names),
+             "marker_colours": list(lab.marker_colors), "joint_names": list(self.skeleton.names),
              "flashes": flashes, "points": self.points.to_dict(),
              "scales": None if seq is None else seq.scales,
              "ball": None if self.balls is None else self.balls.to_dict(),

@@ -4,10 +4,10 @@ plain function over arrays and dataclasses that appends what went wrong to ``mes
 1. :func:`find_ball`            the white ball's centre per flash from all views
                                 (:func:`~stillcap.pipelines.hand.ball.hand_ball_positions`)
 2. :func:`find_glove_markers`   colour intervals, connected regions, centroids, the ball's discs
-                                masked out (:func:`~stillcap.detect.colour_markers.find_colour_markers`)
+                                masked out (:func:`~stillcap.detect.color_markers.find_color_markers`)
 3. :func:`triangulate_glove_markers`  epipolar matching per stereo pair, triangulation, the
                                 half-lit centroid bias removed
-                                (:func:`~stillcap.geometry.marker_points.triangulate_colour_markers`)
+                                (:func:`~stillcap.geometry.marker_points.triangulate_color_markers`)
 4. :func:`label_markers`        3D markers clustered into hand poses per flash and labelled
                                 (:func:`~stillcap.body.hand_label.label_hand_markers`)
 5. :func:`fit_poses`            hand poses per flash and the animation between them
@@ -26,13 +26,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from stillcap.ball.flashes import number_flashes
+from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
-from stillcap.body.hand import HAND_COLOURS
+from stillcap.body.hand import HAND_COLORS
 from stillcap.body.hand_label import HandLabels, label_hand_markers
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
-from stillcap.detect.colour_markers import ColourBlobs, find_colour_markers
-from stillcap.geometry.marker_points import MarkerPoints, triangulate_colour_markers
+from stillcap.detect.color_markers import ColorBlobs, find_color_markers
+from stillcap.geometry.marker_points import MarkerPoints, triangulate_color_markers
 from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ball_spin
 from stillcap.pipelines.hand.options import HandOptions
 
@@ -63,10 +63,10 @@ def find_glove_markers(images, balls: HandBalls | None) -> list:
     blobs = []
     for i, img in enumerate(images):
         if img is None:
-            blobs.append(ColourBlobs.empty())
+            blobs.append(ColorBlobs.empty())
             continue
         exclude = balls.ball_discs_px(i) if balls is not None and len(balls) else None
-        blobs.append(find_colour_markers(img, HAND_COLOURS, exclude=exclude))
+        blobs.append(find_color_markers(img, HAND_COLORS, exclude=exclude))
     return blobs
 
 
@@ -79,7 +79,7 @@ def triangulate_glove_markers(rig, pairs: dict, blobs: list, light, options: Han
     ValueError
         No glove marker seen by both cameras of a pair.
     """
-    points = triangulate_colour_markers(rig, pairs, blobs, light_position=light, radius_m=options.marker_radius_m)
+    points = triangulate_color_markers(rig, pairs, blobs, light_position=light, radius_m=options.marker_radius_m)
     doubtful = points.partly_hidden & points.ambiguous
     if doubtful.any():
         # a partly hidden blob whose match no third view confirmed: on the benchmark these are
@@ -94,7 +94,7 @@ def triangulate_glove_markers(rig, pairs: dict, blobs: list, light, options: Han
 
 def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list) -> HandLabels:
     """Stage 4: the 3D markers labelled per flash (manual overrides from ``options.overrides``)."""
-    labels = label_hand_markers(points.points, points.colours, strobe_hz=strobe_hz,
+    labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz,
                                 reprojection_px=points.reprojection_px, overrides=options.overrides)
     for k, why in enumerate(labels.skipped):
         if why:
@@ -145,10 +145,10 @@ def release_and_spin(rig, balls: HandBalls | None, sequence: HandSequence | None
 
 
 def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, messages: list) -> HandBalls:
-    """Renumber the ball's flashes from the hand poses (:func:`stillcap.ball.flashes.number_flashes`):
+    """Renumber the ball's flashes from the hand poses (:func:`stillcap.ball.flashes.number_flashes_from_hand`):
     the ball was found before the hand (its discs mask the glove-marker search), numbered from
     its spacing, which a missed flash of an accelerating arm gets wrong."""
-    fn = number_flashes(balls.positions, hold_times, root2world, strobe_hz=strobe_hz)
+    fn = number_flashes_from_hand(balls.positions, hold_times, root2world, strobe_hz=strobe_hz)
     if not fn.success:
         messages.append(f"ball: {fn.message}; flashes numbered from the ball's spacing")
         return balls

@@ -61,7 +61,7 @@ class PitchOptions:
         shift, shared by all positions of the pair, goes into every reported uncertainty.
         Default 2.5e-4: the RMS focal error of ``calibrate_pitch_rig`` against the true rig
         (0.015-0.025 %). 0 leaves calibration error out.
-    centre_bias_px : float or None
+    center_bias_px : float or None
         1-sigma per image coordinate of a systematic error of the refined ball centres shared by
         all ball images of one camera (the strobe lights the ball from one side). None (default):
         the bias the detector's shading correction leaves, per ball image from its lit phase and
@@ -96,7 +96,7 @@ class PitchOptions:
     rng: object = 0
     sigma_method: str = "linear"
     calibration_focal_sigma: float = 2.5e-4
-    centre_bias_px: float | None = None
+    center_bias_px: float | None = None
     workers: int = 2
     processes: int = 0
 
@@ -130,4 +130,4 @@ class PitchOptions:
                 "ball_radius_m": self.ball_radius_m, "release_y_ft": self.release_y_ft,
                 "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
-                "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.centre_bias_px}
+                "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px}

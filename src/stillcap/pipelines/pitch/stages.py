@@ -12,7 +12,7 @@ reports to one :class:`StageLog` (messages, timings, progress):
    epipolar matching, approximate triangulation, projected radius, known-radius Hough refinement
    (half moons included), final triangulation. Matches whose refinement failed, whose size
    disagrees with the projected radius or which the image border cuts are dropped.
-2. **Number flashes** (:func:`number_flashes`; :func:`stillcap.ball.flashes.order_flashes`): the
+2. **Number flashes** (:func:`number_flashes`; :func:`stillcap.ball.flashes.number_flashes_from_spacing`): the
    3D positions of a pair are ordered along the flight (off-path detections dropped); the flash
    index ``k`` of each comes from the spacing (``round(spacing / base spacing)``, a missed flash
    leaves a gap); the pair's own clock is ``k / strobe_hz`` from its first ball image. The first
@@ -58,20 +58,20 @@ from typing import NamedTuple
 import numpy as np
 
 from stillcap.ball.fit import FitPriors, ReferenceFit, fit_reference_trajectory
-from stillcap.ball.flashes import flight_axis, off_flight_path, order_flashes
+from stillcap.ball.flashes import flight_axis, number_flashes_from_spacing, off_flight_path
 from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_tilt, pitch_metrics_from_flight,
                                    spin_axis_deg, spin_efficiency)
 from stillcap.ball.orientation import SpinResult
 from stillcap.ball.physics import cross_plane, simulate
 from stillcap.ball.stereo import StereoBalls
-from stillcap.ball.uncertainty import (calibration_modes, centre_bias_modes, metrics_sigma, pixel_sigma,
+from stillcap.ball.uncertainty import (calibration_modes, center_bias_modes, metrics_sigma, pixel_sigma,
                                        position_covariances, remaining_bias_modes, speed_sigma, spin_decay_slope)
 from stillcap.detect.ball import BallFlag
 from stillcap.io.capture import Capture, StereoPairSpec, board_points_world
 from stillcap.pipelines.pitch.options import PitchOptions
 from stillcap.pipelines.pitch.result import PairResult
 from stillcap.pipelines.pitch.spin import spin_stage
-from stillcap.pipelines.progress import report_progress
+from stillcap._progress import report_progress
 
 __all__ = ["BallImages", "MeasuredSpin", "MetricsWithSigma", "PositionsFit", "StageLog", "find_balls",
            "fit_flight", "markers_and_spin", "metrics_and_uncertainty", "number_flashes", "refit_with_spin",
@@ -194,7 +194,7 @@ def find_balls(specs: list, jobs, radius_m: float, where: str, log: StageLog) ->
 
 def number_flashes(cap: Capture, raw: list, options: PitchOptions, where: str, log: StageLog) -> list:
     """2. The flight direction, each pair's positions in flight order with their flash indices
-    (:func:`stillcap.ball.flashes.order_flashes`; off-path detections dropped), the pairs in
+    (:func:`stillcap.ball.flashes.number_flashes_from_spacing`; off-path detections dropped), the pairs in
     flight order and the reference clock.
 
     Returns
@@ -239,7 +239,7 @@ def number_flashes(cap: Capture, raw: list, options: PitchOptions, where: str, l
             idx, P = idx[~off], P[~off]
             n_drop += int(off.sum())
         exp_s = None if options.expected_speed_mph is None else options.expected_speed_mph * MPH / sp.strobe_hz
-        order, k, spacing = order_flashes(P, direction, sp.strobe_hz, exp_s)
+        order, k, spacing = number_flashes_from_spacing(P, direction, sp.strobe_hz, exp_s)
         n_drop += len(idx) - len(order)
         sel = idx[order]
         pr = PairResult(sp.name, sp.cameras, sp.strobe_hz, k, st.points_3d[sel],
@@ -330,7 +330,7 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         off0.append(cr.time if cr.success else float((p.positions[0] - p0) @ v_two / (v_two @ v_two)))
     # each position's error covariance shape from its pair's triangulation geometry: a pixel
     # error of sigma_px (the pair's sqrt(2) x RMS reprojection error) on each centre, mapped to
-    # 3-D through the re-triangulation (the four centre_bias_modes, one image at a time). A
+    # 3-D through the re-triangulation (the four center_bias_modes, one image at a time). A
     # stereo pair sees depth 3-6x worse than across its view; an isotropic fit pooled the
     # depth scatter of one pair with the small cross-view scatter of the rest and reported
     # direction sigmas ~1.7x too small (docs/pitch.md, "Uncertainties")
@@ -338,7 +338,7 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
-        d = centre_bias_modes(p._cams, p.centers_px, pixel_sigma(p.reproj_error_px))  # (4, K, 3)
+        d = center_bias_modes(p._cams, p.centers_px, pixel_sigma(p.reproj_error_px))  # (4, K, 3)
         pos_cov[pidx_a == i] = np.einsum("mki,mkj->kij", d, d)
     fit_kw = dict(model=model, t0=0.0, method=options.fit_method, position_sigma=options.position_sigma_m,
                   time_groups=groups_a if g else None, time_offsets=np.array(off0) if g else None,
@@ -354,14 +354,14 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
             continue
         board = None if calib is None else [board_points_world(calib, p.name, c.name) for c in p._cams]
         m = calibration_modes(p._cams, p.centers_px, board, options.calibration_focal_sigma)
-        sb = options.centre_bias_px
+        sb = options.center_bias_px
         if sb is None and p.stereo is not None:
             # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
             mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px)
         else:
             if sb is None:
                 sb = pixel_sigma(p.reproj_error_px, default_px=0.0)
-            mb = centre_bias_modes(p._cams, p.centers_px, sb, trend=True)
+            mb = center_bias_modes(p._cams, p.centers_px, sb, trend=True)
         m = mb if m is None else np.concatenate([m, mb])
         if not np.any(m):
             continue

@@ -72,7 +72,7 @@ class PuppetOptions:
     roi: bool = True
     reidentify: bool = True
     reid_gate: float = 0.6
-    reid_colour: float = 2.0
+    reid_color: float = 2.0
     coarse: bool = True
 
     def __post_init__(self):
@@ -95,7 +95,7 @@ class PuppetOptions:
                 "n_circles": self.n_circles, "triangulation": self.triangulation, "outlier_px": self.outlier_px,
                 "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
                 "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
-                "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_colour,
+                "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_color,
                 "coarse": self.coarse}
 
 

@@ -15,7 +15,7 @@ from stillcap._checks import as_array, as_positive  # noqa: E402
 from stillcap.ball.layout import BASEBALL_RADIUS as _BALL_RADIUS  # noqa: E402
 from stillcap.body.skeleton import Animation  # noqa: E402
 from stillcap.files.atomic import atomic_path  # noqa: E402
-from stillcap.report.hand._common import (ANIMATION_FORMATS, _DIGIT_COLOURS, Progress, _bone_groups,  # noqa: E402
+from stillcap.report.hand._common import (ANIMATION_FORMATS, _DIGIT_COLORS, Progress, _bone_groups,  # noqa: E402
                                           _interp, _marker_input, _marker_rgb, _segments, _size, _time_text,
                                           _times, _view, animation_frame_times, find_ffmpeg)
 
@@ -24,7 +24,7 @@ from stillcap.report.hand._common import (ANIMATION_FORMATS, _DIGIT_COLOURS, Pro
 # animation
 # --------------------------------------------------------------------------------------------
 def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_positions=None, keyframe_times=None,
-                         markers=None, marker_colours=None, fps: float = 25.0, slowdown: float = 40.0,
+                         markers=None, marker_colors=None, fps: float = 25.0, slowdown: float = 40.0,
                          view="behind", follow: bool = False, size=(640, 480), dpi: int = 100,
                          release_time_s: float | None = None, title: str = "hand", ball_radius: float = _BALL_RADIUS,
                          progress: Progress | None = None) -> Path:
@@ -46,7 +46,7 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
     markers : MarkerTrajectories or array_like, shape (n_frames, M, 3), optional
         Glove markers (m, NaN = unseen); an array has one row per animation frame.
     marker_colours : sequence, optional
-        One colour per marker: a glove colour name (:data:`~stillcap.body.hand.HAND_COLOURS`),
+        One colour per marker: a glove colour name (:data:`~stillcap.body.hand.HAND_COLORS`),
         a matplotlib colour name or an RGB triple. Default: the glove's colours when the markers
         are named like the hand marker set, else grey.
     fps : float
@@ -112,7 +112,7 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
         bt, bp, ball = None, None, None
     if markers is not None:
         mt, mp, mnames = _marker_input(markers, animation)
-        mrgb = _marker_rgb(mnames, marker_colours)
+        mrgb = _marker_rgb(mnames, marker_colors)
         mvid = _interp(mt, mp, t_vid)
     else:
         mvid = mrgb = None
@@ -156,7 +156,7 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
         half = 0.5 * max(float(ext_hand), 0.05) * 1.5 + ball_radius
     else:
         half = 0.5 * max(float(np.ptp(allp, axis=0).max()), 0.05) * 1.08 + ball_radius
-    fixed_centre = 0.5 * (allp.min(axis=0) + allp.max(axis=0))
+    fixed_center = 0.5 * (allp.min(axis=0) + allp.max(axis=0))
 
     fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     ax = fig.add_axes((0.0, 0.0, 1.0, 0.9), projection="3d")
@@ -173,7 +173,7 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
     skel = animation.skeleton
     groups = _bone_groups(skel)
     clip = {"axlim_clip": True} if follow else {}  # the moving cube hides what leaves it
-    bone_lines = {g: ax.plot([], [], [], "-", lw=2.0, color=_DIGIT_COLOURS.get(g, "0.25"), solid_capstyle="round",
+    bone_lines = {g: ax.plot([], [], [], "-", lw=2.0, color=_DIGIT_COLORS.get(g, "0.25"), solid_capstyle="round",
                              **clip)[0] for g in groups}
     joint_dots = ax.plot([], [], [], "o", ms=2.5, color="0.1", ls="none", **clip)[0]
     marker_lines = []
@@ -192,12 +192,12 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
     unit_sphere = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)])
     sphere = [None]
 
-    def set_limits(centre):
-        ax.set_xlim(centre[0] - half, centre[0] + half)
-        ax.set_ylim(centre[1] - half, centre[1] + half)
-        ax.set_zlim(centre[2] - half, centre[2] + half)
+    def set_limits(center):
+        ax.set_xlim(center[0] - half, center[0] + half)
+        ax.set_ylim(center[1] - half, center[1] + half)
+        ax.set_zlim(center[2] - half, center[2] + half)
 
-    set_limits(fixed_centre)
+    set_limits(fixed_center)
 
     def draw(k: int):
         pos = joints[k]
@@ -229,7 +229,7 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
                 ghost_lines.append(ax.plot([gb[0]], [gb[1]], [gb[2]], "o", ms=6, mfc="none", color="0.5", **clip))
         if follow:
             c = np.nanmean(pos, axis=0)
-            set_limits(c if np.all(np.isfinite(c)) else fixed_centre)
+            set_limits(c if np.all(np.isfinite(c)) else fixed_center)
         text = f"{title}: {_time_text(t_vid[k], release_time_s)}"
         if k in key_frame:
             heading.set_text(f"{text}   FLASH {key_frame[k] + 1}")

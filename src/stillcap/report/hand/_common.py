@@ -13,7 +13,7 @@ from matplotlib.colors import to_rgb
 from scipy.interpolate import interp1d
 
 from stillcap._checks import as_array, as_positive
-from stillcap.body.hand import DIGITS, HAND_COLOURS, hand_dofs, hand_markerset
+from stillcap.body.hand import DIGITS, HAND_COLORS, hand_dofs, hand_markerset
 from stillcap.body.markerset import MarkerTrajectories
 from stillcap.body.skeleton import Animation, Skeleton
 
@@ -28,7 +28,7 @@ VIEWS = {
     "top": (89.0, -90.0),  # from above, home plate at the bottom
 }
 _AXIS_NAMES = ("twist", "flexion", "abduction")  # intrinsic XYZ Euler axes of the hand's limits
-_DIGIT_COLOURS = {"thumb": "tab:purple", "index": "tab:blue", "middle": "tab:green", "ring": "tab:orange",
+_DIGIT_COLORS = {"thumb": "tab:purple", "index": "tab:blue", "middle": "tab:green", "ring": "tab:orange",
                   "little": "tab:brown"}
 
 Progress = Callable[[int, int, str], None]
@@ -109,22 +109,22 @@ def _interp(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray
     return interp1d(times, values, axis=0, bounds_error=False, fill_value=np.nan, assume_sorted=True)(at)
 
 
-def _marker_rgb(names: Sequence[str], colours) -> np.ndarray:
+def _marker_rgb(names: Sequence[str], colors) -> np.ndarray:
     """RGB in [0, 1] per marker: from ``colours`` (glove colour names, matplotlib names or RGB),
     else the hand marker set's colours when the names are its names, else grey."""
     n = len(names)
-    if colours is None:
+    if colors is None:
         ms = hand_markerset()
         if set(names) <= set(ms.names):
             return ms.rgb[[ms.index(nm) for nm in names]]
         return np.full((n, 3), 0.5)
-    colours = list(colours)
-    if len(colours) != n:
-        raise ValueError(f"marker_colours must have one colour per marker ({n}), got {len(colours)}")
+    colors = list(colors)
+    if len(colors) != n:
+        raise ValueError(f"marker_colours must have one colour per marker ({n}), got {len(colors)}")
     out = []
-    for c in colours:
-        if isinstance(c, str) and c in HAND_COLOURS:
-            out.append(colorsys.hsv_to_rgb(*HAND_COLOURS[c]))
+    for c in colors:
+        if isinstance(c, str) and c in HAND_COLORS:
+            out.append(colorsys.hsv_to_rgb(*HAND_COLORS[c]))
         else:
             try:
                 out.append(to_rgb(c))

@@ -64,7 +64,7 @@ def _flash_angles(flashes: Sequence[Mapping], nj: int) -> np.ndarray | None:
 
 def write_hand_report(folder, *, skeleton: Skeleton | None = None, animation: Animation | None = None,
                       flashes: Sequence[Mapping] = (), release: Mapping | None = None, ball_times=None,
-                      ball_positions=None, markers=None, marker_colours=None, truth: Mapping | None = None,
+                      ball_positions=None, markers=None, marker_colors=None, truth: Mapping | None = None,
                       release_time_s: float | None = None, animation_format: str = ".gif",
                       animation_options: Mapping | None = None, title: str = "Hand report",
                       messages: Sequence[str] = (), progress: Progress | None = None) -> dict[str, Path]:
@@ -132,7 +132,7 @@ def write_hand_report(folder, *, skeleton: Skeleton | None = None, animation: An
         opts.setdefault("release_time_s", release_time_s)
         paths["animation"] = write_hand_animation(
             out / f"hand{fmt.lower()}", animation, ball_times=ball_times, ball_positions=ball_positions,
-            keyframe_times=ftimes if len(ftimes) else None, markers=markers, marker_colours=marker_colours,
+            keyframe_times=ftimes if len(ftimes) else None, markers=markers, marker_colors=marker_colors,
             progress=progress, **opts)
 
     fang = _flash_angles(flashes, skel.n_joints) if skel is not None else None

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from stillcap._progress import report_progress
 from stillcap._checks import as_array, as_rng
 from stillcap.calibrate.detect import detect_target
 from stillcap.calibrate.surveyed import calibrate_camera_from_surveyed_boards
@@ -111,11 +112,6 @@ class PitchCalibration:
         }
 
 
-def _progress(cb, done, total, label):
-    if cb is not None:
-        cb(done, total, label)
-
-
 def calibrate_pitch_rig(pitch: PitchRig, rng=None, n_views: int = 5, sensor: Sensor | None = None,
                         supersample: int = 3,
                         progress: Callable[[int, int, str], None] | None = None) -> PitchCalibration:
@@ -175,7 +171,7 @@ def calibrate_pitch_rig(pitch: PitchRig, rng=None, n_views: int = 5, sensor: Sen
         label = f"calibrating {cam.name}"
         base = done
         cb = chessboard_set(cam, n_views, CALIBRATION_BOARD, rng, sensor, supersample,
-                            progress=lambda i, n, _b=base, _l=label: _progress(progress, _b + i, total, _l))
+                            progress=lambda i, n, _b=base, _l=label: report_progress(progress, _b + i, total, _l))
         done += n_views
         views = [detect_target(im, CALIBRATION_BOARD, name=f"close-up {i}") for i, im in enumerate(cb.images)]
         field_views = []
@@ -184,7 +180,7 @@ def calibrate_pitch_rig(pitch: PitchRig, rng=None, n_views: int = 5, sensor: Sen
             det = detect_target(render(cam, scene, sensor, rng, supersample), FIELD_BOARD, name=f"field spot {k}")
             field_views.append((k, T, det))
             done += 1
-            _progress(progress, done, total, label)
+            report_progress(progress, done, total, label)
         camera, info = calibrate_camera_from_surveyed_boards(cam.name, cam.image_size, views, field_views)
         cams.append(camera)
         infos.append(info)

@@ -9,12 +9,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._progress import report_progress
 from stillcap._checks import as_rng
 from stillcap.ball.metrics import pitch_metrics_from_flight
 from stillcap.ball.physics import cross_plane, flight_model
 from stillcap.camera import Rig
 from stillcap.io.capture import Capture, CaptureImage
-from stillcap.studio.pitch._calibration import (FRONT_BOARD_SPOTS, PitchCalibration, _corridor_points, _progress,
+from stillcap.studio.pitch._calibration import (FRONT_BOARD_SPOTS, PitchCalibration, _corridor_points,
                                                 calibrate_pitch_rig, rig_reprojection_error)
 from stillcap.studio.pitch._release import DEFAULT_PRESET, DEFAULT_VARIATION, END_Y, PRESETS, PitchPreset, \
     ReleaseVariation, release_state
@@ -207,15 +208,15 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     images = []
     for i, cam in enumerate(rig.rig):
         images.append(render(cam, scenes[rig.pair_of(cam.name).name], sensor, r_render, supersample))
-        _progress(progress, i + 1, total, f"rendering {cam.name}")
+        report_progress(progress, i + 1, total, f"rendering {cam.name}")
 
     calibration, capture_rig = None, rig.rig
     if calibrate:
         calibration = calibrate_pitch_rig(
             rig, r_calib, calibration_views, sensor, supersample,
-            progress=lambda i, n, label: _progress(progress, len(rig.rig) + i, total, label))
+            progress=lambda i, n, label: report_progress(progress, len(rig.rig) + i, total, label))
         capture_rig = calibration.rig
         truth.calibration_error = rig_reprojection_error(
             rig.rig, capture_rig, {c.name: _corridor_points(rig.pair_of(c.name).name) for c in rig.rig})
-    _progress(progress, total, total, "done")
+    report_progress(progress, total, total, "done")
     return PitchCapture(rig, images, truth, capture_rig, calibration, scenes, bool(known_flash_times))

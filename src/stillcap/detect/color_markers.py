@@ -1,11 +1,11 @@
 """Luminous coloured markers (the hand glove's) in multi-exposure photos: colour intervals,
 connected regions, sub-pixel centroids, merged-blob splitting.
 
-The glove's markers (:data:`stillcap.body.hand.HAND_COLOURS`, given by the caller) are saturated spheres of four
+The glove's markers (:data:`stillcap.body.hand.HAND_COLORS`, given by the caller) are saturated spheres of four
 hues far apart on a black glove in a dark room; the only other saturated things in a hand
 photo are the ball's painted markers, which an ``exclude`` mask (the ball discs) removes.
 
-Method (:func:`find_colour_markers`):
+Method (:func:`find_color_markers`):
 
 1. HSV of the photo (OpenCV). A pixel is *core* for colour ``c`` if its hue is within
    ``hue_tol`` of ``c``'s reference hue, its saturation at least ``min_saturation`` and its
@@ -38,9 +38,9 @@ from skimage.feature import peak_local_max
 from skimage.segmentation import watershed
 
 
-__all__ = ["CLIPPED", "MERGED", "SPLIT", "ColourBlobs", "disc_mask", "find_colour_markers"]
+__all__ = ["CLIPPED", "MERGED", "SPLIT", "ColorBlobs", "disc_mask", "find_color_markers"]
 
-#: Blob flags (bit field in :attr:`ColourBlobs.flags`).
+#: Blob flags (bit field in :attr:`ColorBlobs.flags`).
 #: ``MERGED``: area or shape of two or more discs that could not be split;
 #: ``SPLIT``: one part of a region split into several markers (its centroid is less sure);
 #: ``CLIPPED``: touches the image border or the excluded area (its centroid may be cut).
@@ -48,7 +48,7 @@ MERGED, SPLIT, CLIPPED = 1, 2, 4
 
 
 @dataclass
-class ColourBlobs:
+class ColorBlobs:
     """Coloured blobs found in one photo.
 
     Attributes
@@ -73,13 +73,13 @@ class ColourBlobs:
     """
 
     centers: np.ndarray
-    colours: list
+    colors: list
     areas: np.ndarray
     mean_hsb: np.ndarray
     flags: np.ndarray
     roundness: np.ndarray
     flux: np.ndarray = None
-    colour_names: list = field(default_factory=list)
+    color_names: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.flux is None:
@@ -91,27 +91,27 @@ class ColourBlobs:
     @property
     def codes(self) -> np.ndarray:
         """Colour of each blob as an index into :attr:`colour_names`, shape (N,)."""
-        idx = {c: i for i, c in enumerate(self.colour_names)}
-        return np.array([idx[c] for c in self.colours], int)
+        idx = {c: i for i, c in enumerate(self.color_names)}
+        return np.array([idx[c] for c in self.colors], int)
 
-    def select(self, keep) -> ColourBlobs:
+    def select(self, keep) -> ColorBlobs:
         """The blobs where ``keep`` (bool mask or indices) holds."""
         keep = np.asarray(keep)
         if keep.dtype == bool:
             keep = np.flatnonzero(keep)
-        return ColourBlobs(self.centers[keep], [self.colours[i] for i in keep], self.areas[keep],
+        return ColorBlobs(self.centers[keep], [self.colors[i] for i in keep], self.areas[keep],
                            self.mean_hsb[keep], self.flags[keep], self.roundness[keep], self.flux[keep],
-                           list(self.colour_names))
+                           list(self.color_names))
 
     def to_dict(self) -> dict:
-        return {"centers": self.centers.tolist(), "colours": list(self.colours), "areas": self.areas.tolist(),
+        return {"centers": self.centers.tolist(), "colours": list(self.colors), "areas": self.areas.tolist(),
                 "mean_hsb": self.mean_hsb.tolist(), "flags": self.flags.tolist(),
-                "roundness": self.roundness.tolist(), "flux": self.flux.tolist(), "colour_names": list(self.colour_names)}
+                "roundness": self.roundness.tolist(), "flux": self.flux.tolist(), "colour_names": list(self.color_names)}
 
     @classmethod
-    def empty(cls, colour_names=()) -> ColourBlobs:
+    def empty(cls, color_names=()) -> ColorBlobs:
         return cls(np.zeros((0, 2)), [], np.zeros(0, int), np.zeros((0, 3)), np.zeros(0, int), np.zeros(0),
-                   np.zeros(0), list(colour_names))
+                   np.zeros(0), list(color_names))
 
 
 def disc_mask(shape, centers, radii, grow_px: float = 0.0) -> np.ndarray:
@@ -181,11 +181,11 @@ def _hue_distance(h, ref) -> np.ndarray:
     return np.minimum(d, 1.0 - d)
 
 
-def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int = 4,
+def find_color_markers(image, colors: Mapping[str, tuple], *, min_area_px: int = 4,
                         max_area_px: int | None = 5000, exclude=None, hue_tol: float = 0.06,
                         min_saturation: float = 0.5, min_brightness: float = 0.25, grow_px: int = 1,
                         weighting: str = "linear-chroma", encoding: str = "srgb", split: bool = True,
-                        merged_area: float = 1.7, merged_roundness: float = 0.6) -> ColourBlobs:
+                        merged_area: float = 1.7, merged_roundness: float = 0.6) -> ColorBlobs:
     """Find the coloured markers of ``colours`` in a photo.
 
     Parameters
@@ -195,7 +195,7 @@ def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int
     colours : mapping of str to (hue, saturation, brightness)
         Reference colours, HSB in [0, 1] (hue in turns); only the hue is used to classify, the
         saturation and brightness minima are ``min_saturation`` and ``min_brightness``.
-        The glove's are :data:`stillcap.body.hand.HAND_COLOURS`.
+        The glove's are :data:`stillcap.body.hand.HAND_COLORS`.
     min_area_px, max_area_px : int
         Core area limits of a region (pixels) before any split; ``max_area_px=None``: no limit.
     exclude : ndarray of bool, shape (H, W), or (centers (N, 2), radii (N,)), optional
@@ -222,14 +222,14 @@ def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int
 
     Returns
     -------
-    ColourBlobs
+    ColorBlobs
     """
     img = np.asarray(image)
     if img.ndim != 3 or img.shape[2] != 3:
         raise ValueError(f"image must have shape (H, W, 3) (BGR), got {img.shape}")
     if img.dtype != np.uint8:
         raise ValueError(f"image must be uint8, got {img.dtype}")
-    if not isinstance(colours, Mapping) or len(colours) == 0:
+    if not isinstance(colors, Mapping) or len(colors) == 0:
         raise ValueError("colours must be a non-empty mapping name -> (hue, saturation, brightness)")
     if weighting not in ("linear-chroma", "chroma", "brightness", "binary"):
         raise ValueError(f"weighting must be 'linear-chroma', 'chroma', 'brightness' or 'binary', got {weighting!r}")
@@ -237,8 +237,8 @@ def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int
         raise ValueError(f"encoding must be 'srgb' or 'linear', got {encoding!r}")
     if not 0 < hue_tol < 0.5:
         raise ValueError(f"hue_tol must be in (0, 0.5) turns, got {hue_tol}")
-    names = list(colours)
-    refs = np.array([float(np.asarray(colours[n], float).reshape(-1)[0]) for n in names]) % 1.0
+    names = list(colors)
+    refs = np.array([float(np.asarray(colors[n], float).reshape(-1)[0]) for n in names]) % 1.0
     h_img, w_img = img.shape[:2]
     excl = _exclusion(exclude, (h_img, w_img))
 
@@ -254,7 +254,7 @@ def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int
         cls_full[excl] = 0
     union = cv2.bitwise_and(bright_full, cv2.compare(cls_full, 0, cv2.CMP_GT))
     if not union.any():
-        return ColourBlobs.empty(names)
+        return ColorBlobs.empty(names)
     # everything below works on the bounding box of the candidate pixels (a hand photo's
     # markers fill a fraction of it), with a margin for the grown rims
     bx, by, bw, bh = cv2.boundingRect(union)
@@ -308,7 +308,7 @@ def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int
                 regions.append((int(ci), x + sx, y + sy, sw, sh, int(sa), sub[sy:sy + sh, sx:sx + sw] == j))
     regions = [r for r in regions if r[5] >= min_area_px and (max_area_px is None or r[5] <= max_area_px)]
     if not regions:
-        return ColourBlobs.empty(names)
+        return ColorBlobs.empty(names)
     median_area = float(np.median([r[5] for r in regions]))
 
     out_c, out_col, out_area, out_hsb, out_flag, out_round, out_flux = [], [], [], [], [], [], []
@@ -355,8 +355,8 @@ def find_colour_markers(image, colours: Mapping[str, tuple], *, min_area_px: int
             out_flag.append(flag)
             out_round.append(_roundness(part, xx, yy) if len(parts) > 1 else rnd)
     if not out_c:
-        return ColourBlobs.empty(names)
-    return ColourBlobs(np.array(out_c, float), out_col, np.array(out_area, int), np.array(out_hsb, float),
+        return ColorBlobs.empty(names)
+    return ColorBlobs(np.array(out_c, float), out_col, np.array(out_area, int), np.array(out_hsb, float),
                        np.array(out_flag, int), np.array(out_round, float), np.array(out_flux, float), names)
 
 

@@ -5,9 +5,9 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.body.hand import HAND_COLOURS
-from stillcap.detect.colour_markers import (CLIPPED, MERGED, SPLIT, ColourBlobs, disc_mask,
-                                            find_colour_markers)
+from stillcap.body.hand import HAND_COLORS
+from stillcap.detect.color_markers import (CLIPPED, MERGED, SPLIT, ColorBlobs, disc_mask,
+                                            find_color_markers)
 from stillcap.studio.hand import hand_capture
 
 
@@ -25,15 +25,15 @@ def ball_discs(cam, truth, grow_px=2.0):
 def centroid_errors(capture, **kw):
     """Distance of the nearest blob to every isolated marker's lit centroid, and colour hits."""
     tr = capture.truth
-    cols = np.array(tr.marker_colours)
+    cols = np.array(tr.marker_colors)
     errs, right = [], []
     for ci, (cam, img) in enumerate(zip(capture.rig.rig, capture.images)):
-        b = find_colour_markers(img, HAND_COLOURS, exclude=ball_discs(cam, tr), **kw)
+        b = find_color_markers(img, HAND_COLORS, exclude=ball_discs(cam, tr), **kw)
         k, m = np.nonzero(tr.markers_isolated[ci])
         d = np.linalg.norm(b.centers[None] - tr.markers_lit_px[ci, k, m][:, None], axis=2)
         j = d.argmin(axis=1)
         errs += list(d[np.arange(len(j)), j])
-        right += [b.colours[jj] == c for jj, c in zip(j, cols[m])]
+        right += [b.colors[jj] == c for jj, c in zip(j, cols[m])]
     return np.array(errs), np.array(right)
 
 
@@ -58,10 +58,10 @@ def test_ball_paint_is_excluded(capture):
     tr = capture.truth
     inside_without, inside_with = 0, 0
     for cam, img in zip(capture.rig.rig, capture.images):
-        centres, radii = ball_discs(cam, tr, grow_px=0.0)
-        inner = disc_mask(img.shape, centres, radii - 1.0)
+        centers, radii = ball_discs(cam, tr, grow_px=0.0)
+        inner = disc_mask(img.shape, centers, radii - 1.0)
         for exclude, counter in ((None, "without"), (ball_discs(cam, tr), "with")):
-            b = find_colour_markers(img, HAND_COLOURS, exclude=exclude)
+            b = find_color_markers(img, HAND_COLORS, exclude=exclude)
             xy = np.round(b.centers).astype(int)
             n = int(inner[xy[:, 1], xy[:, 0]].sum())
             if counter == "without":
@@ -75,9 +75,9 @@ def test_ball_paint_is_excluded(capture):
 def test_exclude_mask_and_discs_agree(capture):
     img, cam = capture.images[1], capture.rig.rig[1]
     discs = ball_discs(cam, capture.truth)
-    a = find_colour_markers(img, HAND_COLOURS, exclude=discs)
-    b = find_colour_markers(img, HAND_COLOURS, exclude=disc_mask(img.shape, *discs))
-    assert np.allclose(a.centers, b.centers) and a.colours == b.colours
+    a = find_color_markers(img, HAND_COLORS, exclude=discs)
+    b = find_color_markers(img, HAND_COLORS, exclude=disc_mask(img.shape, *discs))
+    assert np.allclose(a.centers, b.centers) and a.colors == b.colors
     assert np.any(a.flags & CLIPPED)  # markers on the held ball touch its disc
 
 
@@ -100,13 +100,13 @@ def _draw(discs, size=(120, 200), ss=8):
     return cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA)
 
 
-def test_touching_same_colour_markers_are_split():
+def test_touching_same_color_markers_are_split():
     red, yellow = (25, 25, 230), (25, 215, 230)
     singles = [(20 + 25 * i, 20, 4.0, red) for i in range(5)] + [(20 + 25 * i, 90, 4.0, yellow) for i in range(5)]
     pair = [(60.3, 55.2, 4.0, red), (68.7, 55.6, 4.0, red)]  # 8.4 px apart: touching
     img = _draw(singles + pair)
-    b = find_colour_markers(img, HAND_COLOURS)
-    assert len(b) == 12 and sorted(set(b.colours)) == ["red", "yellow"]
+    b = find_color_markers(img, HAND_COLORS)
+    assert len(b) == 12 and sorted(set(b.colors)) == ["red", "yellow"]
     single = b.flags == 0
     assert single.sum() == 10
     truth = np.array([d[:2] for d in singles])
@@ -116,33 +116,33 @@ def test_touching_same_colour_markers_are_split():
     d = np.linalg.norm(parts[:, None] - np.array([p[:2] for p in pair])[None], axis=2).min(axis=1)
     assert d.max() < 0.6  # a split part loses its neighbour's rim: a few tenths of a pixel
     # not split on request: one blob flagged merged
-    b2 = find_colour_markers(img, HAND_COLOURS, split=False)
+    b2 = find_color_markers(img, HAND_COLORS, split=False)
     assert len(b2) == 11 and np.sum((b2.flags & MERGED) > 0) == 1
 
 
-def test_colours_are_told_apart_and_dark_noise_ignored():
+def test_colors_are_told_apart_and_dark_noise_ignored():
     rng = np.random.default_rng(0)
     discs = [(30 + 35 * i, 40, 3.5, tuple(int(v) for v in cv2.cvtColor(
         np.uint8([[[int(h * 180), 217, 240]]]), cv2.COLOR_HSV2BGR)[0, 0])) for i, (h, _, _) in
-        enumerate(HAND_COLOURS.values())]
+        enumerate(HAND_COLORS.values())]
     img = _draw(discs)
     img = np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
-    b = find_colour_markers(img, HAND_COLOURS)
-    assert b.colours == list(HAND_COLOURS)
+    b = find_color_markers(img, HAND_COLORS)
+    assert b.colors == list(HAND_COLORS)
     assert np.abs(b.centers - np.array([d[:2] for d in discs])).max() < 0.1
     assert np.all(np.abs((b.mean_hsb[:, 0] - [0.0, 0.15, 0.38, 0.62] + 0.5) % 1 - 0.5) < 0.02)
 
 
 def test_empty_and_bad_input():
-    b = find_colour_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLOURS)
-    assert isinstance(b, ColourBlobs) and len(b) == 0 and b.centers.shape == (0, 2)
+    b = find_color_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLORS)
+    assert isinstance(b, ColorBlobs) and len(b) == 0 and b.centers.shape == (0, 2)
     with pytest.raises(ValueError, match=r"shape \(H, W, 3\).*\(10, 12\)"):
-        find_colour_markers(np.zeros((10, 12), np.uint8), HAND_COLOURS)
+        find_color_markers(np.zeros((10, 12), np.uint8), HAND_COLORS)
     with pytest.raises(ValueError, match="uint8"):
-        find_colour_markers(np.zeros((10, 12, 3)), HAND_COLOURS)
+        find_color_markers(np.zeros((10, 12, 3)), HAND_COLORS)
     with pytest.raises(ValueError, match="weighting"):
-        find_colour_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLOURS, weighting="mean")
+        find_color_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLORS, weighting="mean")
     with pytest.raises(ValueError, match="exclude mask must have shape"):
-        find_colour_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLOURS, exclude=np.zeros((3, 3), bool))
+        find_color_markers(np.zeros((10, 12, 3), np.uint8), HAND_COLORS, exclude=np.zeros((3, 3), bool))
     with pytest.raises(ValueError, match="colours"):
-        find_colour_markers(np.zeros((10, 12, 3), np.uint8), colours={})
+        find_color_markers(np.zeros((10, 12, 3), np.uint8), colors={})
