@@ -71,3 +71,26 @@ def test_no_inlier_anywhere_says_so():
 def test_no_hypothesis_is_an_error():
     with pytest.raises(ValueError, match="at least one hypothesis"):
         consensus(Table([[0.0]]), [], 1.0)
+
+
+class TableOfAll(Table):
+    """The same residuals, judged all at once."""
+
+    def residuals_of_all(self, hypotheses):
+        return self.rows[hypotheses]
+
+
+@pytest.mark.parametrize("tie_break", [True, False])
+@pytest.mark.parametrize("min_inliers", [1, 2, 3])
+def test_all_at_once_is_the_same_as_one_by_one(tie_break, min_inliers):
+    """Random residual tables with many ties: both ways pick the same hypothesis and inliers."""
+    rng = np.random.default_rng(min_inliers)
+    for _ in range(50):
+        rows = rng.choice([0.0, 0.5, 1.0, 2.0, np.nan], size=(rng.integers(1, 8), 4, 6))
+        a = consensus(Table(rows), range(len(rows)), 1.0, min_inliers=min_inliers, tie_break=tie_break)
+        b = consensus(TableOfAll(rows), range(len(rows)), 1.0, min_inliers=min_inliers, tie_break=tie_break)
+        assert np.array_equal(a.best, b.best) and np.array_equal(a.inliers, b.inliers)
+        assert np.array_equal(a.n_inliers, b.n_inliers) and np.array_equal(a.cost, b.cost)
+        # and the rule: the winner has the most inliers
+        counts = (rows <= 1.0).sum(axis=1)
+        assert np.array_equal(a.n_inliers, counts.max(axis=0))

@@ -28,7 +28,9 @@ __all__ = ["RobustModel", "Consensus", "consensus"]
 
 
 class RobustModel(Protocol):
-    """What :func:`consensus` needs of a model."""
+    """What :func:`consensus` needs of a model. A model whose residuals are cheaper for all
+    hypotheses at once may also define ``residuals_of_all(hypotheses)``, shape
+    (n_hypotheses, n_data, *batch): the loop then judges them in one step, by the same rule."""
 
     def estimate(self, hypothesis) -> Any:
         """Parameters from one hypothesis (a minimal subset of the data)."""
@@ -93,24 +95,42 @@ def consensus(model: RobustModel, hypotheses: Iterable, threshold: float, *, min
     >>> int(found.best), found.inliers.tolist()
     (1, [True, True, True, False])
     """
-    best = best_count = best_cost = inliers = None
-    for index, hypothesis in enumerate(hypotheses):
-        r = np.asarray(model.residuals(model.estimate(hypothesis)), float)
-        inl = (r <= threshold) if inclusive else (r < threshold)  # NaN: never an inlier
-        count = inl.sum(axis=0)
-        cost = np.where(inl, r, 0.0).sum(axis=0)
-        if best is None:
-            best = np.full(count.shape, -1)
-            best_count = np.zeros(count.shape, int)
-            best_cost = np.full(count.shape, np.inf)
-            inliers = np.zeros(inl.shape, bool)
-        better = count > best_count
-        if tie_break:
-            better |= (count == best_count) & (count >= min_inliers) & (cost < best_cost)
-        best = np.where(better, index, best)
-        best_count = np.where(better, count, best_count)
-        best_cost = np.where(better, cost, best_cost)
-        inliers = np.where(better, inl, inliers)  # better (batch) broadcasts over the data axis
-    if best is None:
+    hypotheses = list(hypotheses)
+    if not hypotheses:
         raise ValueError("consensus needs at least one hypothesis")
-    return Consensus(best, inliers, best_count, best_cost)
+    if hasattr(model, "residuals_of_all"):
+        steps = [(0, model.residuals_of_all(hypotheses))]
+    else:
+        steps = ((i, np.asarray(model.residuals(model.estimate(h)), float)[None]) for i, h in enumerate(hypotheses))
+    found = None
+    for start, r in steps:
+        r = np.asarray(r, float)
+        inl = (r <= threshold) if inclusive else (r < threshold)  # NaN: never an inlier
+        count = inl.sum(axis=1)
+        cost = np.where(inl, r, 0.0).sum(axis=1)
+        index = np.broadcast_to(np.arange(start, start + len(r)).reshape((-1,) + (1,) * (count.ndim - 1)),
+                                count.shape)
+        if found is not None:  # the best so far comes first, so that it wins ties
+            count = np.concatenate([found.n_inliers[None], count])
+            cost = np.concatenate([found.cost[None], cost])
+            inl = np.concatenate([found.inliers[None], inl])
+            index = np.concatenate([found.best[None], index])
+        w = _winner(count, cost, min_inliers, tie_break)
+        n = _take(count, w)
+        found = Consensus(np.where(n > 0, _take(index, w), -1), _take(inl, w) & (n > 0), n,
+                          np.where(n > 0, _take(cost, w), np.inf))
+    return found
+
+
+def _winner(count, cost, min_inliers, tie_break):
+    """Index along the first axis of the best hypothesis of each problem: the most inliers; among
+    as many (at least ``min_inliers``), the smallest cost; then the first."""
+    most = count.max(axis=0)
+    cost_key = np.where(count >= min_inliers, cost, 0.0) if tie_break else np.zeros(cost.shape)
+    return np.argmin(np.where(count == most, cost_key, np.inf), axis=0)
+
+
+def _take(a, w):
+    """``a[w[b], ..., b]`` for every problem ``b`` (``a``: (n_hypotheses, [n_data,] *batch))."""
+    idx = np.asarray(w).reshape((1,) * (a.ndim - np.ndim(w)) + np.shape(w))
+    return np.take_along_axis(a, idx, axis=0)[0]

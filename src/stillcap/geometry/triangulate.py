@@ -514,6 +514,9 @@ class _PairErrors:
     def residuals(self, h):
         return self.errors[:, h]
 
+    def residuals_of_all(self, hypotheses):
+        return np.moveaxis(self.errors[:, hypotheses], 1, 0)  # (n_pairs, n_views, n_markers)
+
 
 def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, outlier_px: float | None,
                          pair_errors: np.ndarray | None = None, views: StackedViews | None = None) -> Triangulation:

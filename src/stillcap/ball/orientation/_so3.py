@@ -137,6 +137,9 @@ class _RotationGroup:
     def residuals(self, i):
         return self.angles[i]
 
+    def residuals_of_all(self, hypotheses):
+        return self.angles[hypotheses]
+
 
 def _consensus_rotations(Rs, tol):
     """Index set of the largest group of rotations within ``tol`` (rad) of one of them (the first

@@ -296,9 +296,9 @@ def _pair_truth(pair: StrobePair, rig: Rig, release: ReleaseState, t_end: float,
         to_cam /= np.linalg.norm(to_cam, axis=1, keepdims=True)
         phase[ci] = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", to_cam, to_light), -1, 1)))
         normals = np.einsum("kab,mb->kma", poses[:, :3, :3], layout.directions)  # (n, m, 3)
-        centers = pos[:, None] + r * normals
-        facing = np.einsum("kma,kma->km", normals, cam.center - centers) > 0
-        mp = cam.project(centers.reshape(-1, 3)).reshape(n, nm, 2)
+        marker_centers = pos[:, None] + r * normals
+        facing = np.einsum("kma,kma->km", normals, cam.center - marker_centers) > 0
+        mp = cam.project(marker_centers.reshape(-1, 3)).reshape(n, nm, 2)
         keep = facing & ok[:, None]
         mpx[ci][keep] = mp[keep]
     return PairTruth(pair.name, list(pair.cameras), hz, pair.shutter_s, float(first_flash_s), n_flashes,
