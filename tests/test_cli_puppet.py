@@ -211,7 +211,12 @@ def test_puppet_demo_and_its_summary(tmp_path, capsys):
     res = puppet_demo(tmp_path / "demo", 0)
     for name in EXPORTS + ("result.json",):
         assert (tmp_path / "demo" / name).stat().st_size > 100, name
-    rows = {r[1]: r[2] for r in puppet_summary(res)}
-    assert rows["beads identified wrong"].startswith("0 of ")
-    assert float(rows["marker 3D error, RMS"].split()[0]) < 0.3
-    assert float(rows["bone direction error, RMS (bones the beads fix)"].split()[0]) < 0.5
+    assert (tmp_path / "demo" / "report.html").stat().st_size > 1000
+    rows = {r.quantity: r for r in puppet_summary(res)}
+    wrong = rows["identifications wrong (of all, per view and bead)"]
+    assert wrong.measured == f"0 of {res.comparison.identified}" and wrong.met is True
+    assert float(rows["marker 3D error, RMS"].measured.split()[0]) < 0.3
+    assert float(rows["bone direction error, RMS (bones the beads fix)"].measured.split()[0]) < 0.5
+    # forearms and shins carry one bead of puppet-16: 20+ deg against the 0.5 deg goal, shown as missed
+    one_bead = rows["bone direction error, RMS (forearms, shins: one bead)"]
+    assert float(one_bead.measured.split()[0]) > 5 and one_bead.met is False

@@ -80,7 +80,7 @@ def test_number_flashes_when_the_first_flash_has_no_hand_pose(seed):
     rel, t, B, T, t0 = _flashes(seed)
     held = t < t0
     if held.sum() < 3:
-        pytest.skip("needs three held flashes")
+        pytest.skip(f"seed {seed}'s synthetic delivery has {int(held.sum())} held flashes; this case needs three")
     flash = np.rint(t * 75).astype(int)
     fn = number_flashes_from_hand(B, t[1:], T[1:], strobe_hz=75)
     assert fn.success and np.array_equal(fn.flash, flash), (fn.flash, flash, fn.message)
@@ -91,7 +91,7 @@ def test_release_when_the_first_flash_has_no_hand_pose(seed):
     """Issue 5 bug: with no pose at the first flash the release reported 'never held'."""
     rel, t, B, T, t0 = _flashes(seed)
     if (t < t0).sum() < 3:
-        pytest.skip("needs three held flashes")
+        pytest.skip(f"seed {seed}'s synthetic delivery has {int((t < t0).sum())} held flashes; this case needs three")
     r = estimate_release(t, B, t[1:], T[1:], strobe_hz=75, position_sigma_m=0.001)
     assert r.success and r.held[0] and r.held_seen and r.released_seen, r.message
     assert abs(r.t_release - t0) < 1e-3

@@ -299,3 +299,40 @@ def test_report_without_animation_plots_flash_angles(tmp_path, studio):
         write_hand_report(tmp_path / "x", skeleton=sk, flashes=[{"rms_mm": 1.0}])
     with pytest.raises(ValueError, match="animation_format"):
         write_hand_report(tmp_path / "x", animation_format="avi")
+
+
+def test_the_animation_frames_the_hand_not_the_ball_flight(studio, tmp_path, monkeypatch):
+    """The GIF showed the hand as a tiny cluster in an empty box: its limits took in the ball's
+    whole flight. They now hold the hand (joints and markers) over the take with a margin, with
+    equal scales on the three axes."""
+    from stillcap.report.hand import animation_limits
+
+    joints = studio["anim"].positions
+    markers = studio["markers"].points
+    center, half = animation_limits(joints, markers)
+    hand = np.concatenate([joints.reshape(-1, 3), markers.reshape(-1, 3)])
+    hand = hand[np.all(np.isfinite(hand), axis=1)]
+    size = np.max(np.ptp(joints, axis=1))  # the hand's largest extent in one frame
+    assert np.all(hand >= center - half) and np.all(hand <= center + half)  # every joint and marker inside
+    margin = half - 0.5 * np.ptp(hand, axis=0)
+    assert np.allclose(margin, 0.25 * size + hand_animation._BALL_RADIUS)  # the same margin on every axis
+    # the GIF's axes are these limits, with a ball that flies 2 m on (clipped, it does not set them)
+    figs = []
+    real_close = hand_animation.plt.close
+    monkeypatch.setattr(hand_animation.plt, "close", lambda fig: figs.append(fig))
+    t, p = studio["ball_t"], studio["ball_p"].copy()
+    p[-1] += (0.0, -2.0, 0.0)
+    write_hand_animation(tmp_path / "a.gif", studio["anim"], ball_times=t, ball_positions=p,
+                         markers=studio["markers"], size=SIZE)
+    (fig,) = figs
+    ax = fig.axes[0]
+    lims = np.array([ax.get_xlim3d(), ax.get_ylim3d(), ax.get_zlim3d()])
+    real_close(fig)
+    assert np.allclose(lims[:, 0], center - half) and np.allclose(lims[:, 1], center + half)
+    aspect = np.asarray(ax.get_box_aspect())
+    assert np.allclose(aspect / aspect.max(), half / half.max())  # equal scales: the box has the data's shape
+    # the follow view: a cube around the hand's size
+    _, cube = animation_limits(joints, markers, follow=True)
+    assert np.allclose(cube, cube[0]) and cube[0] == pytest.approx(0.75 * size + hand_animation._BALL_RADIUS)
+    with pytest.raises(ValueError, match="every joint position is NaN"):
+        animation_limits(np.full((3, 4, 3), np.nan))

@@ -8,7 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from stillcap.cli._progress import progress
 
 console = Console()
 
@@ -41,34 +42,30 @@ def hand_demo(out: Path, seed: int, *, preset: str = "seed-4seam", image_size=(2
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder")
     console.rule(f"[bold]stillcap demo: a pitcher's gloved hand around release ({preset}), 4 cameras, one strobe")
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("rendering", total=4)
-        hc = hand_capture(seed, preset=preset, image_size=image_size,
-                          progress=lambda i, n, label: bar.update(task, completed=i, total=n, description=label))
+    with progress("hand demo: rendering", total=4) as bar:
+        hc = hand_capture(seed, preset=preset, image_size=image_size, progress=bar)
+        bar.stage("hand demo: writing the capture")
         cap, images = hc.to_capture(".jpg")
         cap.save(out / "capture", images, jpeg_quality=92)
-        bar.update(task, description="analysing", total=None, completed=0)
-        res = analyse_hand(Capture.load(out / "capture"),
-                           progress=lambda i, n, label: bar.update(task, completed=i, total=n, description=label))
-    res.truth = compare_with_capture(res)
+        bar.stage("hand demo: analysing")
+        res = analyse_hand(Capture.load(out / "capture"), progress=bar)
+        bar.stage("hand demo: comparing with the truth")
+        res.truth = compare_with_capture(res)
     tr = hc.truth
     console.print(f"true delivery: {tr.n} flashes at {tr.strobe_hz:g} Hz, release {tr.release.speed_mph:.1f} mph; "
                   "rig: the true cameras")
     print_hand_result(res)
     console.print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in res.timings_s.items()))
-    write_text(out / "hand.json", dumps_json(res.to_dict()) + "\n")
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), console=console,
-                  transient=True) as bar:
-        task = bar.add_task("writing the animation", total=None)
+    with progress("hand demo: writing the report") as bar:
+        write_text(out / "hand.json", dumps_json(res.to_dict()) + "\n")
         paths = write_result_report(res, out / "report", truth_arrays=None if res.truth is None
-                                    else truth_arrays(res.capture.truth),
-                                    progress=lambda i, n, label: bar.update(task, completed=i, total=n))
-    written = []
-    for name in EXPORTS:
-        if res.animation is None and not name.endswith(".c3d"):
-            continue
-        written.append(export(out / name, res).name)
+                                    else truth_arrays(res.capture.truth), progress=bar)
+        written = []
+        for name in EXPORTS:
+            if res.animation is None and not name.endswith(".c3d"):
+                continue
+            bar.stage(f"hand demo: exporting {name}")
+            written.append(export(out / name, res).name)
     console.print(f"capture, hand.json, {', '.join(written)} written to [bold]{out}[/]; report in "
                   f"[bold]{paths['html']}[/]")
     return res

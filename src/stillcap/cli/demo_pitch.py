@@ -8,10 +8,10 @@ from __future__ import annotations
 from pathlib import Path
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from stillcap.cli._format import num as _f
+from stillcap.cli._progress import progress
 
 console = Console()
 
@@ -58,20 +58,18 @@ def pitch_demo(out: Path, seed: int, *, preset: str = "seed-4seam", calibrate: b
 
     out = Path(out)
     console.rule(f"[bold]stillcap demo: a {preset} pitch photographed by two strobed stereo pairs")
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("rendering", total=None)
-        pc = pitch_capture(preset, seed, calibrate=calibrate, image_size=image_size,
-                           progress=lambda i, n, label: bar.update(task, completed=i, total=n, description=label))
+    with progress("pitch demo: rendering") as bar:
+        pc = pitch_capture(preset, seed, calibrate=calibrate, image_size=image_size, progress=bar)
+        bar.stage("pitch demo: writing the capture")
         cap, images = pc.to_capture()
         cap.save(out / "capture", images)
         truth = pc.truth
         release_y_ft = truth.metrics.get("release_pos_y_ft")
         opts = PitchOptions(spin_method=spin_method, physics=physics or truth.model, release_y_ft=release_y_ft)
-        bar.update(task, description="analysing", total=None, completed=0)
+        bar.stage("pitch demo: analysing")
         loaded = Capture.load(out / "capture")
-        res = analyse_pitch(loaded, opts,
-                            progress=lambda i, n, label: bar.update(task, completed=i, total=n, description=label))
+        res = analyse_pitch(loaded, opts, progress=bar)
+        bar.stage("pitch demo: comparing with the truth")
         add_truth_comparison(res, loaded.truth)
     rel = truth.release
     console.print(f"true pitch: {rel.speed_mph:.1f} mph, {rel.spin_rpm:.0f} rpm, {truth.metrics.get('spin_tilt')}; rig "
@@ -106,7 +104,8 @@ def pitch_demo(out: Path, seed: int, *, preset: str = "seed-4seam", calibrate: b
     for name, o in offs.items():
         console.print(f"clock offset of pair {name}: {o['fitted_s'] * 1e3:.3f} ms, error {o['error_ms']:+.3f} ms "
                       f"(1 sigma {o['sigma_ms']:.3f} ms)")
-    paths = write_report(res, out / "report")
+    with progress("pitch demo: writing the report"):
+        paths = write_report(res, out / "report")
     console.print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in res.timings_s.items()))
     console.print(f"capture in [bold]{out / 'capture'}[/], report in [bold]{paths['html']}[/]")
     return res

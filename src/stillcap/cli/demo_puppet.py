@@ -8,7 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from stillcap.cli._progress import progress
 
 console = Console()
 
@@ -20,7 +21,7 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
     """Render the thesis's turntable photos of a random puppet pose, reconstruct, compare, export.
 
     Writes ``out/capture`` (the 12 rendered JPEG photos, rig and truth), ``out/result.json``,
-    ``out/overlays/*.png``, ``out/markers_3d.png``, ``out/skeleton_3d.png`` and the exports
+    ``out/report.html``, ``out/overlays/*.png``, ``out/markers_3d.png``, ``out/skeleton_3d.png`` and the exports
     ``pose.dae``, ``pose.bvh``, ``pose.glb``, ``markers.c3d``.
 
     Parameters
@@ -51,23 +52,25 @@ def puppet_demo(out: Path, seed: int, pose: str | None = None) -> Path:
         raise ValueError(f"--out {out} exists and is not a folder")
     spec = pose or f"random:{seed}"
     console.rule(f"[bold]stillcap demo: puppet on a turntable ({spec}), 12 webcam photos -> 3D markers -> pose")
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
-        task = bar.add_task("rendering views", total=12)
-        scene = puppet_scene(pose=spec, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
-                             progress=lambda i, n: bar.update(task, completed=i, total=n))
+    with progress("puppet demo: rendering views", total=12) as bar:
+        scene = puppet_scene(pose=spec, rng=seed, sensor=webcam_sensor(jpeg_quality=None), progress=bar)
+        bar.stage("puppet demo: writing the capture")
         cap, images = scene.to_capture(".jpg")
         cap.save(out / "capture", images, jpeg_quality=85)
-        task2 = bar.add_task("detecting beads", total=len(images))
-        res, photos = analyse_puppet(out / "capture", progress=lambda i, n: bar.update(task2, completed=i, total=n))
-    res.comparison = compare_with_capture(res, out / "capture")
+        bar.stage("puppet demo: detecting beads", total=len(images))
+        res, photos = analyse_puppet(out / "capture", progress=bar)
+        bar.stage("puppet demo: comparing with the truth")
+        res.comparison = compare_with_capture(res, out / "capture")
     _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} rendered photos "
                        "(puppet frame)")
     t = res.timings_s
     console.print("time: " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))
-    write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
-    write_report(res, photos, out, scene.truth)
-    for name in EXPORTS:
-        export(out / name, res)
-    console.print(f"capture, result.json, overlays, 3D plots and {', '.join(EXPORTS)} written to [bold]{out}[/]")
+    with progress("puppet demo: writing the report") as bar:
+        write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
+        write_report(res, photos, out, scene.truth, progress=bar)
+        for name in EXPORTS:
+            bar.stage(f"puppet demo: exporting {name}")
+            export(out / name, res)
+    console.print(f"capture, result.json, report.html, overlays, 3D plots and {', '.join(EXPORTS)} written to "
+                  f"[bold]{out}[/]")
     return res

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from stillcap.cli._format import num as _f, print_notes, right_table
+from stillcap.cli._progress import progress
 
 console = Console()
 
@@ -65,7 +66,8 @@ def hand(
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
-    res = analyse_hand(capture, opts)
+    with progress("analysing the hand") as bar:
+        res = analyse_hand(capture, opts, progress=bar)
     from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
 
     res.truth = compare_with_capture(res)  # a studio capture: compared with its truth
@@ -87,8 +89,9 @@ def hand(
     if report is not None:
         from stillcap.report.hand import write_result_report
 
-        written.append(write_result_report(res, report, truth_arrays=None if res.truth is None
-                                           else truth_arrays(res.capture.truth))["html"])
+        with progress("writing the report") as bar:
+            written.append(write_result_report(res, report, truth_arrays=None if res.truth is None
+                                               else truth_arrays(res.capture.truth), progress=bar)["html"])
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         return
@@ -108,12 +111,15 @@ def print_hand_result(res) -> None:
                   f"({int(np.sum(pts.n_views > 2))} seen by both pairs); strobe {res.strobe_hz:g} Hz")
     t = right_table(f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)",
                     ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"))
+    t.caption = "no pose: the reason in short; in full in the notes above and in --json (labels.skipped)" \
+        if any(lab.skipped) else None
     held = res.ball_held()
     for k in range(lab.n_flashes):
         o = int(lab.order[k])
         ball = {True: "held", False: "free"}.get(held.get(o), "-")
         t.add_row(str(o), _f(lab.times[k] * 1e3, 1), f"{int(np.sum(lab.point_index[k] >= 0))} / {len(lab.marker_names)}",
-                  _f(lab.rms[k] * 1e3, 2), "yes" if lab.reconstructed[k] else f"[red]no[/] ({lab.skipped[k]})", ball)
+                  _f(lab.rms[k] * 1e3, 2), "yes" if lab.reconstructed[k] else f"[red]no[/]: {short_reason(lab.skipped[k])}",
+                  ball)
     console.print(t)
     if res.sequence is not None:
         from stillcap.body.hand import hand_dofs
@@ -141,6 +147,15 @@ def print_hand_result(res) -> None:
                       + (" (ambiguous: one strobe cannot tell them apart)" if res.spin.ambiguous else ""))
     if res.truth is not None:
         print_hand_comparison(res.truth)
+
+
+def short_reason(why: str, width: int = 40) -> str:
+    """A flash's no-pose reason for a table cell: its first clause (up to a parenthesis, colon or
+    semicolon), at most ``width`` characters; the full text is in the notes and the JSON."""
+    import re
+
+    head = re.split(r" \(|: |; ", why or "", maxsplit=1)[0].strip() or "-"
+    return head if len(head) <= width else head[: width - 3].rstrip() + "..."
 
 
 def print_hand_comparison(cmp: dict) -> None:

@@ -9,6 +9,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.cli._progress import progress
+
 console = Console()
 
 
@@ -33,18 +35,21 @@ def markers(
 
     cap = Capture.load(capture)
     images = []
-    for cam in cap.rig:
-        shots = cap.images_of(cam.name)
-        if not shots:
-            raise ValueError(f"capture {capture}: camera {cam.name!r} has no photo")
-        images.append(cap.read_image(shots[0]))
+    with progress("reading photos", total=len(cap.rig)) as bar:
+        for cam in cap.rig:
+            shots = cap.images_of(cam.name)
+            if not shots:
+                raise ValueError(f"capture {capture}: camera {cam.name!r} has no photo")
+            images.append(cap.read_image(shots[0]))
+            bar(len(images), item=cam.name)
     pal = None
     if palette is not None:
         try:
             pal = {str(k): tuple(float(c) for c in v) for k, v in json.loads(Path(palette).read_text()).items()}
         except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
             raise ValueError(f"palette file {palette}: {e}") from None
-    rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px)
+    with progress("finding and triangulating markers"):
+        rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px)
     result = rec.to_dict()
     truth = cap.truth if cap.truth and cap.truth.get("kind") == "markers" else None
     if truth is not None:

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from stillcap.cli._format import num as _f, print_notes, right_table
+from stillcap.cli._progress import progress
 
 console = Console()
 
@@ -73,15 +74,17 @@ def pitch(
             raise ValueError("--csv takes one capture; with several, --report DIR writes positions.csv per capture")
         _session(captures, opts, report, as_json)
         return
-    cap = Capture.load(captures[0])
-    res = add_truth_comparison(analyse_pitch(cap, opts), cap.truth)
+    with progress("analysing the pitch") as bar:
+        cap = Capture.load(captures[0])
+        res = add_truth_comparison(analyse_pitch(cap, opts, progress=bar), cap.truth)
     written = []
     if csv_file is not None:
         from stillcap.report.pitch import write_positions_csv
         written.append(write_positions_csv(res, csv_file))
     if report is not None:
         from stillcap.report.pitch import write_report
-        written.append(write_report(res, report)["html"])
+        with progress("writing the report"):
+            written.append(write_report(res, report)["html"])
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         return

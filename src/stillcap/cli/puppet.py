@@ -102,25 +102,13 @@ def _print_result(res, title: str) -> None:
 
 def print_comparison(cmp) -> None:
     """The comparison with the truth, as a table."""
+    from stillcap.report.puppet_html import comparison_rows
+
     t = Table(title="Compared with the truth (truth.json)")
     t.add_column("quantity")
     t.add_column("value", justify="right")
-    t.add_row("identified right (% of visible beads)", f"{cmp.right_pct:.1f} %  ({cmp.right_visible} of {cmp.visible})")
-    t.add_row("identified wrong (% of identifications)",
-              f"{cmp.wrong_pct:.2f} %  ({cmp.wrong}; used in 3D: {cmp.wrong_used})")
-    t.add_row("markers seen in 2+ views, recovered", f"{cmp.recovered_seen_twice} of {cmp.seen_twice}")
-    t.add_row("3D marker error RMS / max", f"{cmp.marker_rms_mm():.3f} / {cmp.marker_max_mm():.3f} mm")
-    for g in cmp.bone_groups:
-        rms, mx = cmp.bone_stats(g)
-        trms, tmx = cmp.bone_stats(g, thesis=True)
-        t.add_row(f"bone direction, {g} ({', '.join(cmp.bone_groups[g])})",
-                  f"{rms:.2f} / {mx:.2f} deg (thesis {trms:.2f} / {tmx:.2f})")
-    rms, mx = cmp.joint_stats()
-    trms, tmx = cmp.joint_stats(thesis=True)
-    t.add_row("joint position, all joints", f"{rms:.2f} / {mx:.2f} mm (thesis {trms:.2f} / {tmx:.2f})")
-    for g in cmp.joint_groups:
-        rms, mx = cmp.joint_stats(g)
-        t.add_row(f"joint position, {g}", f"{rms:.2f} / {mx:.2f} mm")
+    for row in comparison_rows(cmp):
+        t.add_row(*row)
     console.print(t)
 
 
@@ -134,9 +122,12 @@ def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = T
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
-    write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
-    files = write_report(res, images, out, truth, overlays=overlays)
-    console.print(f"wrote result.json, {len(files) - 2} overlays, markers_3d.png and skeleton_3d.png to [bold]{out}[/]")
+    with progress("writing the report") as bar:
+        write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
+        files = write_report(res, images, out, truth, overlays=overlays, progress=bar)
+    n_overlays = sum(f.parent.name == "overlays" for f in files)
+    console.print(f"wrote result.json, report.html, {n_overlays} overlays, markers_3d.png and skeleton_3d.png to "
+                  f"[bold]{out}[/]")
 
 
 def _truth_of(folder: Path):
@@ -183,9 +174,8 @@ def run(
 
         markerset = capture_markerset(folder)
     pal = load_palette(palette, markerset)
-    with progress("detecting beads", console) as update:
-        res, images = analyse_puppet(folder, settings, palette=pal, redetect=redetect,
-                                     progress=lambda i, n: update(i, n))
+    with progress("detecting beads") as update:
+        res, images = analyse_puppet(folder, settings, palette=pal, redetect=redetect, progress=update)
     if res.source.get("type") == "capture":  # a studio capture: compared with its truth
         from stillcap.studio.compare.puppet import compare_with_capture
 
@@ -358,7 +348,8 @@ def reconstruct(
     from stillcap.io.project import dumps_json
     from stillcap.pipelines.puppet import analyse_puppet
 
-    res, images = analyse_puppet(project, detect=False)
+    with progress("triangulating and posing"):
+        res, images = analyse_puppet(project, detect=False)
     if out is not None:
         _write_outputs(res, images, out)
     if as_json:
@@ -460,7 +451,8 @@ def calibrate_palette_cmd(
     from stillcap.files.atomic import write_text
     from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
 
-    res, images = analyse_puppet(folder, DEFAULT)
+    with progress("detecting beads") as update:
+        res, images = analyse_puppet(folder, DEFAULT, progress=update)
     pts = [np.where(res.markers.used[k][:, None], res.markers.observations[k], np.nan) for k in range(len(images))]
     from stillcap.detect.palette import Palette
 

@@ -32,7 +32,8 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 def _save(capture, images, out: Path, jpeg: int | None) -> None:
-    capture.save(out, images, jpeg_quality=jpeg or 95)
+    with progress(f"writing {len(images)} images"):
+        capture.save(out, images, jpeg_quality=jpeg or 95)
     console.print(f"wrote {len(images)} images to [bold]{out}[/] (capture.json, rig.json, truth.json)")
 
 
@@ -62,7 +63,7 @@ def chessboard(
     else:
         cols, rows = parse_pattern(pattern or "9x6")
         target = Chessboard(cols, rows, (square_mm or 25.0) / 1000)
-    with progress("rendering views", console, total=views) as update:
+    with progress("rendering views", total=views) as update:
         result = chessboard_set(camera, n_views=views, target=target, rng=seed,
                                 progress=lambda i, n: update(i))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
@@ -89,7 +90,7 @@ def markers(
 
     rng = np.random.default_rng(seed)
     rig = marker_rig(cameras, _parse_size(size), rng=rng)
-    with progress("rendering cameras", console, total=cameras) as update:
+    with progress("rendering cameras", total=cameras) as update:
         result = marker_scene(rig, balls, rng, n_marked=marked, progress=lambda i, n: update(i))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
@@ -121,7 +122,7 @@ def puppet(
     markerset.check_skeleton(Skeleton.puppet())
     _check_out(out, force)
     rig = turntable_rig(views, step_deg)
-    with progress("rendering views", console, total=views) as update:
+    with progress("rendering views", total=views) as update:
         # the webcam's JPEG compression happens once, when the capture is written
         result = puppet_scene(rig, pose, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
                               progress=lambda i, n: update(i), markerset=markerset)
@@ -158,7 +159,6 @@ def pitch(
     """A pitched, marked baseball photographed by the seed's two strobed stereo pairs (front 80 Hz,
     back 50 Hz); the rig is calibrated from rendered board photos; truth = flight, orientation per
     flash, true pixels and pitch metrics."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
     from stillcap.studio.pitch import DEFAULT_VARIATION, PRESETS, pitch_capture
@@ -175,14 +175,11 @@ def pitch(
     if preset not in PRESETS:
         raise ValueError(f"unknown --preset {preset!r}; known: {', '.join(PRESETS)}")
     _check_out(out, force)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as prog:
-        task = prog.add_task("pitch", total=None)
+    with progress("rendering") as update:
         result = pitch_capture(preset, seed, calibrate=not no_calibrate, speed_mph=speed_mph, spin_rpm=spin_rpm,
                                spin_axis_deg=spin_axis_deg, front_hz=front_hz, back_hz=back_hz, model=model,
                                variation=None if no_variation else DEFAULT_VARIATION, image_size=_parse_size(size),
-                               known_flash_times=known_flash_times,
-                               progress=lambda i, n, label: prog.update(task, completed=i, total=n, description=label))
+                               known_flash_times=known_flash_times, progress=update)
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
     tr = result.truth
@@ -216,7 +213,7 @@ def hand(
     from stillcap.studio.hand import hand_capture
 
     _check_out(out, force)
-    with progress("rendering cameras", console, total=4) as update:
+    with progress("rendering cameras", total=4) as update:
         result = hand_capture(seed, preset=preset, image_size=_parse_size(size),
                               progress=lambda i, n, label: update(i, n))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")

@@ -8,7 +8,8 @@
   360-degree view), missing markers listed.
 - :func:`plot_skeleton_3d`: the fitted skeleton (and the thesis's, and the truth when known)
   from four sides.
-- :func:`write_report`: all of them into a folder.
+- :func:`write_report`: all of them into a folder, with ``report.html``
+  (:mod:`stillcap.report.puppet_html`).
 
 Every file is written atomically (:func:`stillcap.files.atomic.atomic_path`); matplotlib runs
 with the Agg backend (no display needed).
@@ -128,12 +129,25 @@ def _azimuth(turn_deg: float) -> float:
     return -90.0 - turn_deg
 
 
-def _frame_axes(ax, pts, title):
+def _frame_axes(ax, pts, title, turn_deg: float = 0.0):
+    """A cube around ``pts`` (equal aspect), ticks in mm (four per axis at most); the axis that
+    points at the viewer (seen end-on, its ticks would pile up) keeps its grid but no labels."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
     ax.set_title(title, fontsize=9)
-    ax.set_xlabel("x (m)", fontsize=7)
-    ax.set_ylabel("-z (m)", fontsize=7)
-    ax.set_zlabel("y (m)", fontsize=7)
-    ax.tick_params(labelsize=6)
+    mm = FuncFormatter(lambda v, _: f"{v * 1e3:.0f}")
+    axes = ((ax.xaxis, "x (mm)"), (ax.yaxis, "-z (mm)"), (ax.zaxis, "y (mm)"))
+    a = np.radians(_azimuth(turn_deg))
+    end_on = ax.yaxis if abs(np.sin(a)) > abs(np.cos(a)) else ax.xaxis
+    for axis, label in axes:
+        axis.set_major_locator(MaxNLocator(4))
+        axis.set_major_formatter(mm)
+        axis.set_label_text("" if axis is end_on else label, fontsize=7)
+        if axis is end_on:
+            axis.set_ticklabels([])
+    ax.zaxis.set_rotate_label(False)  # upright from every side (matplotlib turns it upside down on the left)
+    ax.zaxis.label.set_rotation(90)
+    ax.tick_params(labelsize=6, pad=0)
     pts = np.asarray(pts)[np.all(np.isfinite(pts), axis=1)]
     if len(pts):
         q = np.stack(_xzy(pts), axis=1)
@@ -173,11 +187,11 @@ def plot_markers_3d(result, path, truth=None) -> Path:
             for name, p in zip(np.array(m.names)[ok], m.points[ok]):
                 ax.text(*_xzy(p), " " + name, fontsize=5)
         ax.view_init(elev=10, azim=_azimuth(az))
-        _frame_axes(ax, m.points if truth is None else np.vstack([m.points, truth.marker_positions]), label)
+        _frame_axes(ax, m.points if truth is None else np.vstack([m.points, truth.marker_positions]), label, az)
         if i == 0:
             ax.legend(fontsize=6, loc="upper left")
     miss = ", ".join(result.missing) or "none"
-    fig.suptitle(f"3D markers (puppet frame, m): {int(m.ok.sum())} of {len(m.names)}; "
+    fig.suptitle(f"3D markers (puppet frame, y up, mm): {int(m.ok.sum())} of {len(m.names)}; "
                  f"seen in fewer than 2 views: {miss}", fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
@@ -227,11 +241,11 @@ def plot_skeleton_3d(result, path, truth=None, thesis: bool = True) -> Path:
         ax.scatter(*_xzy(m.points[ok]), c=np.asarray(result.markerset.rgb)[ok], s=18, edgecolors="k",
                    linewidths=0.3, depthshade=False)
         ax.view_init(elev=10, azim=_azimuth(az))
-        _frame_axes(ax, np.vstack(pts), label)
+        _frame_axes(ax, np.vstack(pts), label, az)
         if i == 0:
             ax.legend(fontsize=6, loc="upper left")
     fit = result.fit
-    fig.suptitle(f"skeleton (puppet frame, m): fit RMS {fit.rms_m * 1e3:.2f} mm over {fit.n_markers} markers",
+    fig.suptitle(f"skeleton (puppet frame, y up, mm): fit RMS {fit.rms_m * 1e3:.2f} mm over {fit.n_markers} markers",
                  fontsize=10)
     fig.tight_layout()
     with atomic_path(path) as tmp:
@@ -240,8 +254,9 @@ def plot_skeleton_3d(result, path, truth=None, thesis: bool = True) -> Path:
     return Path(path)
 
 
-def write_report(result, images, out, truth=None, overlays: bool = True) -> list[Path]:
-    """Overlays of every view (``out/overlays/<view>.png``), ``markers_3d.png``, ``skeleton_3d.png``.
+def write_report(result, images, out, truth=None, overlays: bool = True, progress=None) -> list[Path]:
+    """Overlays of every view (``out/overlays/<view>.png``), ``markers_3d.png``, ``skeleton_3d.png``
+    and ``report.html`` (:func:`stillcap.report.puppet_html.write_html`, linking them).
 
     Parameters
     ----------
@@ -251,18 +266,34 @@ def write_report(result, images, out, truth=None, overlays: bool = True) -> list
     out : path
         Folder (created).
     truth : PuppetTruth, optional
+    overlays : bool
+    progress : callable(done, total, label), optional
+        Called after each file.
 
     Returns
     -------
     list of Path
-        The files written.
+        The files written, ``report.html`` last.
     """
+    from stillcap.report.puppet_html import write_html
+
     out = Path(out)
     files = []
-    if overlays and images is not None:
-        for k, img in enumerate(images):
-            name = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in str(result.view_names[k]))
-            files.append(write_image(out / "overlays" / f"{k:02d}_{name}.png", overlay_view(img, result, k)))
+    n_over = len(images) if overlays and images is not None else 0
+    total = n_over + 3
+
+    def done(label):
+        if progress is not None:
+            progress(len(files), total, label)
+
+    for k in range(n_over):
+        name = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in str(result.view_names[k]))
+        files.append(write_image(out / "overlays" / f"{k:02d}_{name}.png", overlay_view(images[k], result, k)))
+        done(f"overlay {k + 1} of {n_over}")
     files.append(plot_markers_3d(result, out / "markers_3d.png", truth))
+    done("markers_3d.png")
     files.append(plot_skeleton_3d(result, out / "skeleton_3d.png", truth))
+    done("skeleton_3d.png")
+    files.append(write_html(result, out, files))
+    done("report.html")
     return files

@@ -22,9 +22,9 @@ Where it is: :mod:`._animation` (the animation), :mod:`._angles` (the joint-angl
 """
 
 from stillcap.report.hand._angles import plot_joint_angles
-from stillcap.report.hand._animation import write_hand_animation
+from stillcap.report.hand._animation import animation_limits, write_hand_animation
 from stillcap.report.hand._common import ANIMATION_FORMATS, VIEWS, animation_frame_times, dof_labels, find_ffmpeg
 from stillcap.report.hand._report import write_hand_report, write_result_report
 
-__all__ = ["ANIMATION_FORMATS", "VIEWS", "animation_frame_times", "dof_labels", "find_ffmpeg", "plot_joint_angles",
+__all__ = ["ANIMATION_FORMATS", "VIEWS", "animation_frame_times", "animation_limits", "dof_labels", "find_ffmpeg", "plot_joint_angles",
            "write_hand_animation", "write_hand_report", "write_result_report"]

@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib import animation as mpl_animation  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
 
 from stillcap._checks import as_array, as_positive  # noqa: E402
 from stillcap.ball.layout import BASEBALL_RADIUS as _BALL_RADIUS  # noqa: E402
@@ -23,6 +24,39 @@ from stillcap.report.hand._common import (ANIMATION_FORMATS, _DIGIT_COLORS, Prog
 # --------------------------------------------------------------------------------------------
 # animation
 # --------------------------------------------------------------------------------------------
+def animation_limits(joints, markers=None, *, ball_radius: float = _BALL_RADIUS,
+                     follow: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The animation's axes: ``(center, half_size)``, each shape (3,), metres.
+
+    Fixed (``follow`` False): the hand's extent (joints and markers) over the whole take, plus
+    a quarter of the hand's size and the ball's radius on each side; the ball is not included
+    (it flies on out of the box, clipped: framing its whole flight made the hand a tiny cluster
+    in an empty box). ``follow``: a cube of the hand's largest extent in one frame times 1.5,
+    plus the ball's radius (its centre moves with the hand; ``center`` is then the take's).
+
+    Parameters
+    ----------
+    joints : ndarray, shape (n_frames, n_joints, 3)
+    markers : ndarray, shape (n_frames, n_markers, 3), optional
+        NaN where unseen.
+    """
+    every = [np.asarray(joints, float).reshape(-1, 3)]
+    if markers is not None:
+        every.append(np.asarray(markers, float).reshape(-1, 3))
+    hand = np.concatenate(every)
+    hand = hand[np.all(np.isfinite(hand), axis=1)]
+    if not len(hand):
+        raise ValueError("nothing to draw: every joint position is NaN")
+    with np.errstate(invalid="ignore"):
+        size = np.nanmax(np.nanmax(joints, axis=1) - np.nanmin(joints, axis=1))
+    size = max(float(size) if np.isfinite(size) else 0.0, 0.05)
+    if follow:
+        half = np.full(3, 0.5 * size * 1.5 + ball_radius)
+    else:
+        half = 0.5 * np.ptp(hand, axis=0) + 0.25 * size + ball_radius
+    return 0.5 * (hand.min(axis=0) + hand.max(axis=0)), half
+
+
 def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_positions=None, keyframe_times=None,
                          markers=None, marker_colors=None, fps: float = 25.0, slowdown: float = 40.0,
                          view="behind", follow: bool = False, size=(640, 480), dpi: int = 100,
@@ -58,9 +92,10 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
     view : str or (float, float)
         A name of :data:`VIEWS` or ``(elevation, azimuth)`` in degrees.
     follow : bool
-        False: fixed limits around everything over the whole take. True: a cube of fixed size
-        (the hand's largest extent plus a margin) centred on the hand in each frame, to see
-        the fingers.
+        False: fixed limits around the hand (joints and markers) over the whole take, plus a
+        margin, with equal scales on the three axes; the ball is drawn where it is inside them.
+        True: a cube of fixed size (the hand's largest extent plus a margin) centred on the
+        hand in each frame, to see the fingers.
     size : (int, int)
         Width and height in pixels (even numbers for MP4).
     dpi : int
@@ -139,32 +174,19 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
         writer = mpl_animation.PillowWriter(fps=fps)
         rc = {}
 
-    # limits: a cube (equal aspect) fixed over the take, or of fixed size following the hand
-    hand_pts = joints.reshape(-1, 3)
-    every = [hand_pts]
-    if ball is not None:
-        every.append(bp)
-    if mvid is not None:
-        every.append(mvid.reshape(-1, 3))
-    allp = np.concatenate(every)
-    allp = allp[np.all(np.isfinite(allp), axis=1)]
-    if not len(allp):
-        raise ValueError("nothing to draw: every joint position is NaN")
-    if follow:
-        with np.errstate(invalid="ignore"):
-            ext_hand = np.nanmax(np.nanmax(joints, axis=1) - np.nanmin(joints, axis=1))
-        half = 0.5 * max(float(ext_hand), 0.05) * 1.5 + ball_radius
-    else:
-        half = 0.5 * max(float(np.ptp(allp, axis=0).max()), 0.05) * 1.08 + ball_radius
-    fixed_center = 0.5 * (allp.min(axis=0) + allp.max(axis=0))
+    fixed_center, half_box = animation_limits(joints, mvid, ball_radius=ball_radius, follow=follow)
 
     fig = plt.figure(figsize=(w / dpi, h / dpi), dpi=dpi)
     ax = fig.add_axes((0.0, 0.0, 1.0, 0.9), projection="3d")
     ax.view_init(elev=elev, azim=azim)
-    ax.set_box_aspect((1, 1, 1), zoom=1.1)  # equal aspect; zoom fills the figure
+    ax.set_box_aspect(tuple(half_box / half_box.max()), zoom=1.12)  # equal aspect; zoom fills the figure
     ax.set_xlabel("x (m)", fontsize=7)
-    ax.set_ylabel("y (m)", fontsize=7)
-    ax.set_zlabel("z (m)", fontsize=7)
+    ax.set_ylabel("y (m)", fontsize=7, labelpad=8)
+    ax.set_zlabel("z (m)", fontsize=7, labelpad=8)
+    ax.zaxis.set_rotate_label(False)  # upright (matplotlib turns it upside down on the left)
+    ax.zaxis.label.set_rotation(90)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):  # few ticks: a narrow side of the box shows no overlapping labels
+        axis.set_major_locator(MaxNLocator(4))
     ax.tick_params(labelsize=6)
     heading = fig.text(0.5, 0.955, "", ha="center", va="center", fontsize=10)
     fig.text(0.5, 0.91, "field frame, metres" + (f"; {slowdown:g}x slower" if slowdown != 1 else ""),
@@ -172,7 +194,7 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
 
     skel = animation.skeleton
     groups = _bone_groups(skel)
-    clip = {"axlim_clip": True} if follow else {}  # the moving cube hides what leaves it
+    clip = {"axlim_clip": True}  # the box hides what leaves it (the ball after release)
     bone_lines = {g: ax.plot([], [], [], "-", lw=2.0, color=_DIGIT_COLORS.get(g, "0.25"), solid_capstyle="round",
                              **clip)[0] for g in groups}
     joint_dots = ax.plot([], [], [], "o", ms=2.5, color="0.1", ls="none", **clip)[0]
@@ -193,9 +215,9 @@ def write_hand_animation(path, animation: Animation, *, ball_times=None, ball_po
     sphere = [None]
 
     def set_limits(center):
-        ax.set_xlim(center[0] - half, center[0] + half)
-        ax.set_ylim(center[1] - half, center[1] + half)
-        ax.set_zlim(center[2] - half, center[2] + half)
+        ax.set_xlim(center[0] - half_box[0], center[0] + half_box[0])
+        ax.set_ylim(center[1] - half_box[1], center[1] + half_box[1])
+        ax.set_zlim(center[2] - half_box[2], center[2] + half_box[2])
 
     set_limits(fixed_center)
 
