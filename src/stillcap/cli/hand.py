@@ -111,15 +111,15 @@ def print_hand_result(res) -> None:
                   f"({int(np.sum(pts.n_views > 2))} seen by both pairs); strobe {res.strobe_hz:g} Hz")
     t = right_table(f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)",
                     ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"))
-    t.caption = "no pose: the reason in short; in full in the notes above and in --json (labels.skipped)" \
+    t.caption = "no pose: the reason in short (in full in the notes and in --json)" \
         if any(lab.skipped) else None
     held = res.ball_held()
     for k in range(lab.n_flashes):
         o = int(lab.order[k])
         ball = {True: "held", False: "free"}.get(held.get(o), "-")
+        pose = "yes" if lab.reconstructed[k] else f"[red]no[/]: {short_reason(lab.skipped[k])}"
         t.add_row(str(o), _f(lab.times[k] * 1e3, 1), f"{int(np.sum(lab.point_index[k] >= 0))} / {len(lab.marker_names)}",
-                  _f(lab.rms[k] * 1e3, 2), "yes" if lab.reconstructed[k] else f"[red]no[/]: {short_reason(lab.skipped[k])}",
-                  ball)
+                  _f(lab.rms[k] * 1e3, 2), pose, ball)
     console.print(t)
     if res.sequence is not None:
         from stillcap.body.hand import hand_dofs
