@@ -52,6 +52,10 @@ def test_puppet_run_json_and_outputs(capture, result_json, capsys):
     assert len(list((folder / "overlays").glob("*.png"))) == 6
     for f in ("markers_3d.png", "skeleton_3d.png"):
         assert cv2.imread(str(folder / f)) is not None
+    # and report.html, linking the plots and every overlay
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    for f in ["markers_3d.png", "skeleton_3d.png"] + [f"overlays/{p.name}" for p in (folder / "overlays").glob("*.png")]:
+        assert f"src='{f}'" in page, f
     # the table
     code, out, _ = run(["puppet", "run", capture, "--identify", "thesis"], capsys)
     assert code == 0 and "markers from 6 views" in out and "Compared with the truth" in out
