@@ -47,9 +47,10 @@ def animation_limits(joints, markers=None, *, ball_radius: float = _BALL_RADIUS,
     hand = hand[np.all(np.isfinite(hand), axis=1)]
     if not len(hand):
         raise ValueError("nothing to draw: every joint position is NaN")
-    with np.errstate(invalid="ignore"):
-        size = np.nanmax(np.nanmax(joints, axis=1) - np.nanmin(joints, axis=1))
-    size = max(float(size) if np.isfinite(size) else 0.0, 0.05)
+    j = np.asarray(joints, float)
+    seen = j[np.isfinite(j).all(axis=2).any(axis=1)]  # frames with a joint (an all-NaN one has no size)
+    size = float(np.nanmax(np.nanmax(seen, axis=1) - np.nanmin(seen, axis=1))) if len(seen) else 0.0
+    size = max(size if np.isfinite(size) else 0.0, 0.05)
     if follow:
         half = np.full(3, 0.5 * size * 1.5 + ball_radius)
     else:
