@@ -331,9 +331,11 @@ def calibrate_stereo_from_detections(pairs: Sequence[tuple[str, Detection, Detec
         raise ValueError("no stereo pair shows the target in both images: "
                          + "; ".join(f"{k} ({v})" for k, v in skipped.items()))
     flags = cv2.CALIB_FIX_INTRINSIC if fix_intrinsics else cv2.CALIB_USE_INTRINSIC_GUESS
+    # K and dist are input/output arguments: OpenCV writes the refined values into the arrays it
+    # is given. Copies keep the single-camera results (and cameras the caller passed) unchanged.
     rms, K1, d1, K2, d2, R, T, E, F, _, _, per_view = cv2.stereoCalibrateExtended(
-        obj, il, ir, left_cam.K, left_cam.dist, right_cam.K, right_cam.dist, left_cam.image_size,
-        None, None, flags=flags)
+        obj, il, ir, left_cam.K.copy(), left_cam.dist.copy(), right_cam.K.copy(), right_cam.dist.copy(),
+        left_cam.image_size, None, None, flags=flags)
     T = np.ravel(T).astype(float)
     cl = Camera(names[0], K1, np.ravel(d1)[:5], np.eye(4), left_cam.image_size)
     cr = Camera(names[1], K2, np.ravel(d2)[:5], pose_matrix(R, T), right_cam.image_size)

@@ -79,6 +79,11 @@ def _print_camera(res) -> None:
     out_console.print("  dist (k1 k2 p1 p2 k3): " + " ".join(f"{v:.5f}" for v in s["dist"]))
 
 
+def _camera_dict(c) -> dict:
+    return {"fx": _f(c.K[0, 0]), "fy": _f(c.K[1, 1]), "cx": _f(c.K[0, 2]), "cy": _f(c.K[1, 2]),
+            "dist": [_f(v) for v in c.dist]}
+
+
 def _summary(res) -> dict:
     s = res.summary()
     for k in ("rms_px", "fx", "fy", "cx", "cy"):
@@ -151,6 +156,8 @@ def stereo(
              "baseline": _f(res.baseline), "left": _summary(res.left), "right": _summary(res.right),
              "pairs_used": res.pairs_used, "pairs_skipped": res.pairs_skipped,
              "per_pair_rms_px": {k: [_f(a), _f(b)] for k, (a, b) in res.per_pair_rms_px.items()}}
+        if refine_intrinsics:  # the stereo fit's intrinsics; "left"/"right" stay the single-camera results
+            d["refined"] = {"rms_px": _f(res.rms_px), **{c.name: _camera_dict(c) for c in res.rig}}
         typer.echo(json.dumps(d, indent=2))
         return
     for r in (res.left, res.right):
@@ -158,6 +165,11 @@ def stereo(
         _print_camera(r)
     out_console.print(f"stereo: RMS {res.rms_px:.3f} px over {len(res.pairs_used)} pairs "
                       f"({'intrinsics refined' if refine_intrinsics else 'intrinsics fixed'})")
+    if refine_intrinsics:
+        out_console.print("  intrinsics refined in the stereo fit (px; the tables above are each camera alone):")
+        for c in res.rig:
+            out_console.print(f"    {c.name} fx {c.K[0, 0]:.2f}  fy {c.K[1, 1]:.2f}  cx {c.K[0, 2]:.2f}  "
+                              f"cy {c.K[1, 2]:.2f}  dist " + " ".join(f"{v:.5f}" for v in c.dist))
     for k, why in res.pairs_skipped.items():
         out_console.print(f"  [yellow]pair {k} skipped: {why}")
     out_console.print("  T = (" + ", ".join(f"{v:.4f}" for v in res.T) + f"), baseline {res.baseline:.4f} "
