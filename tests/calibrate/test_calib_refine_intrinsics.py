@@ -19,13 +19,13 @@ def test_refined_stereo_leaves_single_camera_results_alone(synth):
     alone_r = calibrate_from_detections([b for _, _, b in pairs], "right")
     res = calibrate_stereo_from_detections(pairs, fix_intrinsics=False)
     # the single-camera results hold exactly what intrinsics calibration returned ...
-    # (to 1e-9: OpenCV's calibrateCamera varies in the last digits from run to run)
+    # (to 1e-6: OpenCV's calibrateCamera varies in the 8th digit from run to run)
     for got, alone in ((res.left, alone_l), (res.right, alone_r)):
-        np.testing.assert_allclose(got.camera.K, alone.camera.K, rtol=1e-9)
-        np.testing.assert_allclose(got.camera.dist, alone.camera.dist, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(got.camera.K, alone.camera.K, rtol=1e-6)
+        np.testing.assert_allclose(got.camera.dist, alone.camera.dist, rtol=1e-6, atol=1e-7)
         # ... and the refined K, far from it, appears only in the refined rig
         refined = res.rig[got.camera.name].K
-        assert abs(refined[0, 0] - alone.camera.K[0, 0]) > 1e-3
+        assert abs(refined[0, 0] - alone.camera.K[0, 0]) > 0.05, refined[0, 0] - alone.camera.K[0, 0]
 
 
 def test_refined_stereo_leaves_given_cameras_alone(synth):
