@@ -119,7 +119,7 @@ def calibrate_intrinsics_from_points(object_points_list, image_points_list, imag
     if len(names) != n:
         raise ValueError(f"got {len(names)} names for {n} views")
     if n < min_views:
-        raise ValueError(f"intrinsic calibration needs at least {min_views} views, got {n}"
+        raise ValueError(f"camera {camera_name!r}: intrinsic calibration needs at least {min_views} views, got {n}"
                          + (f" ({', '.join(names)})" if names else ""))
     w, h = (int(v) for v in image_size)
     flags_given = flags
@@ -183,9 +183,9 @@ def calibrate_from_detections(detections: Sequence[Detection], camera_name: str 
         raise ValueError(f"camera {camera_name!r}: target not found in any of the {len(detections)} images: "
                          + "; ".join(f"{k} ({v})" for k, v in skipped.items()))
     if len(good) < min_views:
-        raise ValueError(f"camera {camera_name!r}: target found in only {len(good)} images "
-                         f"({', '.join(d.name for d in good)}), need {min_views}; skipped: "
-                         + "; ".join(f"{k} ({v})" for k, v in skipped.items()))
+        raise ValueError(f"camera {camera_name!r}: target found in only {len(good)} image{'s' * (len(good) != 1)} "
+                         f"({', '.join(d.name for d in good)}), need {min_views}"
+                         + ("; skipped: " + "; ".join(f"{k} ({v})" for k, v in skipped.items()) if skipped else ""))
     res = calibrate_intrinsics_from_points([d.object_points for d in good], [d.image_points for d in good],
                                            detections[0].image_size, [d.name for d in good], camera_name,
                                            flags, K_guess, min_views)

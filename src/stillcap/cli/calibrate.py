@@ -38,7 +38,7 @@ def _target(pattern: str, square: float, charuco: bool, squares: str, marker: fl
 
     from stillcap.calibrate import CharucoTarget, Chessboard, parse_pattern
 
-    if not square > 0:
+    if not 0 < square < float("inf"):
         raise ValueError(f"--square must be a positive length in metres, got {square}")
     if not charuco:
         cols, rows = parse_pattern(pattern)
@@ -47,6 +47,8 @@ def _target(pattern: str, square: float, charuco: bool, squares: str, marker: fl
         sx, sy = (int(v) for v in squares.lower().split("x"))
     except ValueError:
         raise ValueError(f"--squares must look like 7x5, got {squares!r}") from None
+    if not (2 <= sx <= 100 and 2 <= sy <= 100):
+        raise ValueError(f"--squares must be from 2x2 to 100x100, got {squares!r}")
     d = getattr(cv2.aruco, dictionary.upper(), None)
     if not dictionary.upper().startswith("DICT_") or not isinstance(d, int):
         raise ValueError(f"unknown ArUco dictionary {dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_250, DICT_6X6_1000)")
