@@ -9,7 +9,7 @@ from support import run_cli
 
 
 def one_line(capsys, args, match):
-    code, out, err = run_cli(args, capsys)
+    code, _, err = run_cli(args, capsys)
     lines = [s for s in err.splitlines() if s.strip()]
     assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
     assert lines[0].startswith("error: ") and match in " ".join(err.split()), err

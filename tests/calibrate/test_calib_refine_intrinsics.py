@@ -14,7 +14,7 @@ from support import run_cli
 
 
 def test_refined_stereo_leaves_single_camera_results_alone(synth):
-    left, right, pairs = synth.stereo_detections(np.random.default_rng(7), noise=0.3)
+    _, _, pairs = synth.stereo_detections(np.random.default_rng(7), noise=0.3)
     alone_l = calibrate_from_detections([a for _, a, _ in pairs], "left")
     alone_r = calibrate_from_detections([b for _, _, b in pairs], "right")
     res = calibrate_stereo_from_detections(pairs, fix_intrinsics=False)
@@ -79,7 +79,7 @@ def test_no_solver_writes_into_the_callers_arrays(synth):
     # intrinsics refined. None may change them.
     from stillcap.calibrate import calibrate_intrinsics_from_points, calibrate_rig_from_points, pose_from_points
 
-    left, right, pairs = synth.stereo_detections(np.random.default_rng(3), noise=0.2)
+    left, _, pairs = synth.stereo_detections(np.random.default_rng(3), noise=0.2)
     before = _arrays([left])
     pose_from_points(left, pairs[0][1].object_points, pairs[0][1].image_points)
     _unchanged([left], before)
