@@ -110,10 +110,28 @@ def detection(name, obj, px, size=(640, 480)) -> Detection:
     return Detection(name, size, np.asarray(obj, float), np.asarray(px, float), np.arange(len(obj)))
 
 
+def stereo_detections(rng, n=10, noise=0.1):
+    """A stereo pair (left, right cameras) and ``n`` pairs ``(key, left Detection, right Detection)``
+    of a 9x6 board with ``noise`` px of Gaussian noise."""
+    from stillcap.calibrate.targets import Chessboard
+
+    obj = Chessboard(9, 6, 0.04).object_points()
+    left = make_camera("L")
+    right_pose = pose_matrix(Rotation.from_euler("y", -8, degrees=True).as_matrix(), [-0.12, 0.005, 0.01])
+    right = make_camera("R", fx=790, fy=792, cx=318, cy=250, dist=(-0.15, 0.02, 0, 0, 0), world2cam=right_pose)
+    pairs = []
+    for i, T in enumerate(board_poses(left, obj, n, rng, depth=(0.5, 0.9), spread=0.2)):
+        pl = project(left, T, obj, noise, rng)
+        pr = project(right, right_pose @ T, obj, noise, rng)
+        pairs.append((f"{i:02d}", detection(f"left{i:02d}", obj, pl), detection(f"right{i:02d}", obj, pr)))
+    return left, right, pairs
+
+
 @pytest.fixture(scope="session")
 def synth():
     return SimpleNamespace(make_camera=make_camera, board_poses=board_poses, project=project,
-                           render_plane=render_plane, synthetic_rig=synthetic_rig, detection=detection)
+                           render_plane=render_plane, synthetic_rig=synthetic_rig, detection=detection,
+                           stereo_detections=stereo_detections)
 
 
 @pytest.fixture(scope="session")

@@ -64,6 +64,9 @@ class BundleResult:
     success : bool
         ``least_squares`` reported convergence and the RMS is finite.
     message : str
+    per_observation_rms_px : ndarray, shape (n_observations,)
+        RMS of each observation (one camera at one instant) after the adjustment, in the order
+        given (NaN for an observation without finite points).
     """
 
     cameras: list[Camera]
@@ -74,6 +77,7 @@ class BundleResult:
     n_points: int
     success: bool
     message: str
+    per_observation_rms_px: np.ndarray | None = None
 
 
 def _pose_to_vec(T: np.ndarray) -> np.ndarray:
@@ -124,8 +128,8 @@ def bundle_adjust(cameras: Sequence[Camera], board2world, observations: Sequence
     n_b = len(B0)
     if not observations:
         raise ValueError("bundle_adjust: no observations")
-    cam_idx, b_idx, obj, img = [], [], [], []
-    for o in observations:
+    cam_idx, b_idx, obs_idx, obj, img = [], [], [], [], []
+    for k, o in enumerate(observations):
         if not (0 <= o.camera < n_cams and 0 <= o.instant < n_b):
             raise ValueError(f"observation refers to camera {o.camera} / instant {o.instant}, "
                              f"but there are {n_cams} cameras and {n_b} instants")
@@ -134,9 +138,10 @@ def bundle_adjust(cameras: Sequence[Camera], board2world, observations: Sequence
         keep = np.all(np.isfinite(q), axis=1)
         cam_idx.append(np.full(keep.sum(), o.camera))
         b_idx.append(np.full(keep.sum(), o.instant))
+        obs_idx.append(np.full(keep.sum(), k))
         obj.append(p[keep])
         img.append(q[keep])
-    cam_idx, b_idx = np.concatenate(cam_idx), np.concatenate(b_idx)
+    cam_idx, b_idx, obs_idx = np.concatenate(cam_idx), np.concatenate(b_idx), np.concatenate(obs_idx)
     obj, img = np.concatenate(obj), np.concatenate(img)
     n_pts = len(obj)
 
@@ -202,7 +207,10 @@ def bundle_adjust(cameras: Sequence[Camera], board2world, observations: Sequence
     out = [_camera_from(c, intr[i], w2c[i]) for i, c in enumerate(cams)]
     err2 = (sol.fun.reshape(-1, 2) ** 2).sum(axis=1)
     per_cam = np.array([np.sqrt(err2[m].mean()) if m.any() else np.nan for m in masks])
+    n_per_obs = np.bincount(obs_idx, minlength=len(observations))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_obs = np.sqrt(np.bincount(obs_idx, err2, minlength=len(observations)) / n_per_obs)
     rms = float(np.sqrt(err2.mean()))
     rms0 = float(np.sqrt((r0.reshape(-1, 2) ** 2).sum(axis=1).mean()))
     ok = bool(sol.success and np.isfinite(rms))
-    return BundleResult(out, b2w, rms, rms0, per_cam, n_pts, ok, str(sol.message))
+    return BundleResult(out, b2w, rms, rms0, per_cam, n_pts, ok, str(sol.message), per_obs)

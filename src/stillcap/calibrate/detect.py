@@ -82,6 +82,8 @@ def read_gray(image, name: str | None = None) -> np.ndarray:
     """
     if isinstance(image, (str, Path)):
         path = Path(image)
+        if path.is_dir():
+            raise ValueError(f"{path} is a folder, not an image file")
         if not path.is_file():
             raise ValueError(f"image file {path} does not exist")
         data = np.fromfile(path, np.uint8)  # imdecode: no warnings on stderr, unicode paths work

@@ -31,6 +31,7 @@ from stillcap.calibrate.bundle import Observation, bundle_adjust
 from stillcap.calibrate.detect import Detection, Progress, detect_target, detect_targets, image_name
 from stillcap.calibrate.intrinsics import (IntrinsicsResult, calibrate_from_detections,
                                            calibrate_intrinsics_from_points)
+from stillcap.calibrate.outliers import outlier_views
 from stillcap.camera import Camera, Rig, pose_matrix
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -154,6 +155,14 @@ class StereoResult:
     left, right : IntrinsicsResult or None
         The intrinsic calibrations made here (None when the camera was given).
     success : bool
+    outlier_pairs : list[str]
+        Pairs to drop: the pair's RMS (both images) stands far above the other pairs', or one of
+        its images is an outlier view of its camera's intrinsics (:mod:`stillcap.calibrate.outliers`).
+    pair_images : dict[str, tuple[str, str]]
+        Pair name -> (left image name, right image name).
+    without_outliers : StereoResult or None
+        The whole calibration again without the outlier pairs (None when there are none, or the
+        rest cannot be calibrated).
     """
 
     rig: Rig
@@ -169,6 +178,9 @@ class StereoResult:
     left: IntrinsicsResult | None = None
     right: IntrinsicsResult | None = None
     success: bool = True
+    outlier_pairs: list[str] = field(default_factory=list)
+    pair_images: dict[str, tuple[str, str]] = field(default_factory=dict)
+    without_outliers: StereoResult | None = None
 
 
 def _pair_key(name: str, word: str) -> str:
@@ -297,15 +309,18 @@ def calibrate_stereo(left_images: Sequence, right_images: Sequence, target, left
 def calibrate_stereo_from_detections(pairs: Sequence[tuple[str, Detection, Detection]],
                                      left_cam: Camera | None = None, right_cam: Camera | None = None,
                                      names: tuple[str, str] = ("left", "right"), fix_intrinsics: bool = True,
-                                     min_points: int = 6) -> StereoResult:
+                                     min_points: int = 6, check_outliers: bool = True) -> StereoResult:
     """Stereo calibration from detections: ``(pair_name, left_detection, right_detection)``.
 
     Cameras not given are first calibrated from all their detections. Only points seen in both
-    images of a pair (same ids) are used. See :func:`calibrate_stereo`.
+    images of a pair (same ids) are used. With ``check_outliers``, outlier pairs are flagged and
+    the calibration is made again without them (``outlier_pairs``, ``without_outliers``). See
+    :func:`calibrate_stereo`.
     """
     pairs = list(pairs)
     if not pairs:
         raise ValueError("stereo calibration needs at least one image pair, got none")
+    given = (left_cam, right_cam)
     lres = rres = None
     if left_cam is None:
         lres = calibrate_from_detections([a for _, a, _ in pairs], names[0])
@@ -331,16 +346,32 @@ def calibrate_stereo_from_detections(pairs: Sequence[tuple[str, Detection, Detec
         raise ValueError("no stereo pair shows the target in both images: "
                          + "; ".join(f"{k} ({v})" for k, v in skipped.items()))
     flags = cv2.CALIB_FIX_INTRINSIC if fix_intrinsics else cv2.CALIB_USE_INTRINSIC_GUESS
+    # K and dist are input/output arguments: OpenCV writes the refined values into the arrays it
+    # is given. Copies keep the single-camera results (and cameras the caller passed) unchanged.
     rms, K1, d1, K2, d2, R, T, E, F, _, _, per_view = cv2.stereoCalibrateExtended(
-        obj, il, ir, left_cam.K, left_cam.dist, right_cam.K, right_cam.dist, left_cam.image_size,
-        None, None, flags=flags)
+        obj, il, ir, left_cam.K.copy(), left_cam.dist.copy(), right_cam.K.copy(), right_cam.dist.copy(),
+        left_cam.image_size, None, None, flags=flags)
     T = np.ravel(T).astype(float)
     cl = Camera(names[0], K1, np.ravel(d1)[:5], np.eye(4), left_cam.image_size)
     cr = Camera(names[1], K2, np.ravel(d2)[:5], pose_matrix(R, T), right_cam.image_size)
     per = {k: (float(e[0]), float(e[1])) for k, e in zip(used, np.asarray(per_view).reshape(-1, 2))}
     ok = bool(np.isfinite(rms) and np.all(np.isfinite(T)))
-    return StereoResult(Rig([cl, cr]), float(rms), np.asarray(R, float), T, np.asarray(E, float),
-                        np.asarray(F, float), float(np.linalg.norm(T)), used, skipped, per, lres, rres, ok)
+    res = StereoResult(Rig([cl, cr]), float(rms), np.asarray(R, float), T, np.asarray(E, float),
+                       np.asarray(F, float), float(np.linalg.norm(T)), used, skipped, per, lres, rres, ok,
+                       pair_images={k: (a.name, b.name) for k, a, b in pairs})
+    if check_outliers:
+        # the pair's RMS over both images (the same points in each), and each camera's own outliers
+        flagged = set(outlier_views({k: float(np.sqrt((a * a + b * b) / 2)) for k, (a, b) in per.items()}))
+        odd = set(lres.outlier_views if lres else ()) | set(rres.outlier_views if rres else ())
+        res.outlier_pairs = [k for k, a, b in pairs if k in flagged or a.name in odd or b.name in odd]
+        if res.outlier_pairs:
+            try:
+                res.without_outliers = calibrate_stereo_from_detections(
+                    [p for p in pairs if p[0] not in res.outlier_pairs], *given, names, fix_intrinsics, min_points,
+                    check_outliers=False)
+            except ValueError:  # too few pairs left to calibrate: no comparison to offer
+                res.without_outliers = None
+    return res
 
 
 # --- N-camera rigs --------------------------------------------------------------------------
@@ -369,6 +400,15 @@ class RigResult:
         Camera -> {image: reason}.
     success : bool
     message : str
+    per_view_rms_px : dict[str, dict[str, float]]
+        Camera -> {instant (image name with :func:`calibrate_rig`): RMS after the adjustment}.
+    outlier_views : dict[str, dict[str, str]]
+        Camera -> {view to drop: why}: its RMS after the adjustment stands far above the camera's
+        other views, or it is an outlier of the camera's own intrinsic calibration
+        (:mod:`stillcap.calibrate.outliers`). Cameras without outliers are absent.
+    without_outliers : RigResult or None
+        The whole calibration again without the outlier views (None when there are none, or the
+        rest cannot be calibrated).
     """
 
     rig: Rig
@@ -382,6 +422,9 @@ class RigResult:
     images_skipped: dict[str, dict[str, str]]
     success: bool
     message: str = ""
+    per_view_rms_px: dict[str, dict[str, float]] = field(default_factory=dict)
+    outlier_views: dict[str, dict[str, str]] = field(default_factory=dict)
+    without_outliers: RigResult | None = None
 
 
 def _mean_pose(poses: Sequence[np.ndarray], robust: bool = False) -> np.ndarray:
@@ -427,7 +470,8 @@ def initial_rig_poses(names: Sequence[str], board2cam: Sequence[Mapping[int, np.
 def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, cameras=None,
                               instants: Sequence[str] | None = None, refine_intrinsics: bool = False,
                               loss: str = "soft_l1", f_scale: float = 1.0, min_views: int = 3,
-                              max_corner_px: float = 2.0, min_inlier_fraction: float = 0.8) -> RigResult:
+                              max_corner_px: float = 2.0, min_inlier_fraction: float = 0.8,
+                              check_outliers: bool = True) -> RigResult:
     """Calibrate N cameras from target correspondences at shared instants.
 
     Parameters
@@ -447,6 +491,8 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
         own view's board pose puts them are detection errors and left out; a view keeping fewer
         than ``min_inlier_fraction`` of its corners (a detection gone wrong, typically a board
         seen at a grazing angle) is left out whole and listed in ``images_skipped``.
+    check_outliers : flag outlier views and calibrate again without them (``outlier_views``,
+        ``without_outliers``).
 
     Returns
     -------
@@ -486,7 +532,8 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
                 raise ValueError(f"camera {nm!r}: no intrinsics given and no image_size to calibrate them")
             idx = sorted(seen)
             res = calibrate_intrinsics_from_points([seen[i][0] for i in idx], [seen[i][1] for i in idx], size,
-                                                   [instants[i] for i in idx], nm, min_views=min_views)
+                                                   [instants[i] for i in idx], nm, min_views=min_views,
+                                                   check_outliers=check_outliers)
             intr[nm] = res
             cam = res.camera
             b2c.append({i: res.board2cam[instants[i]] for i in idx})
@@ -512,9 +559,36 @@ def calibrate_rig_from_points(views: Mapping[str, Sequence], image_size=None, ca
     obs = [Observation(c, k, *inliers[nm][i]) for k, i in enumerate(used)
            for c, nm in enumerate(names) if i in b2c[c]]
     ba = bundle_adjust(cams0, b2w, obs, refine_intrinsics=refine_intrinsics, loss=loss, f_scale=f_scale)
-    return RigResult(Rig(ba.cameras), ba.rms_px, dict(zip(names, map(float, ba.per_camera_rms_px))),
-                     ba.initial_rms_px, Rig(cams0), intr, {instants[i]: T for i, T in zip(used, ba.board2world)},
-                     [instants[i] for i in used], rejected, ba.success, ba.message)
+    per_view = {nm: {} for nm in names}
+    for o, e in zip(obs, ba.per_observation_rms_px):
+        per_view[names[o.camera]][instants[used[o.instant]]] = float(e)
+    res = RigResult(Rig(ba.cameras), ba.rms_px, dict(zip(names, map(float, ba.per_camera_rms_px))),
+                    ba.initial_rms_px, Rig(cams0), intr, {instants[i]: T for i, T in zip(used, ba.board2world)},
+                    [instants[i] for i in used], rejected, ba.success, ba.message, per_view)
+    if check_outliers:
+        for nm in names:
+            why = {}
+            if nm in intr:
+                pi = intr[nm].per_image_rms_px
+                med = float(np.median(list(pi.values())))
+                why.update({k: f"{pi[k]:.3f} px in the camera's intrinsic calibration, {pi[k] / med:.1f}x the "
+                               f"median {med:.3f} px" for k in intr[nm].outlier_views})
+            med = float(np.median(list(per_view[nm].values())))
+            why.update({k: f"{per_view[nm][k]:.3f} px after the adjustment, {per_view[nm][k] / med:.1f}x the "
+                           f"median {med:.3f} px" for k in outlier_views(per_view[nm]) if k not in why})
+            if why:
+                res.outlier_views[nm] = {s: why[s] for s in instants if s in why}
+        if res.outlier_views:
+            drop = {nm: set(v) for nm, v in res.outlier_views.items()}
+            rest = {nm: [None if instants[i] in drop.get(nm, ()) else v for i, v in enumerate(views[nm])]
+                    for nm in names}
+            try:
+                res.without_outliers = calibrate_rig_from_points(
+                    rest, image_size, cameras, instants, refine_intrinsics, loss, f_scale, min_views,
+                    max_corner_px, min_inlier_fraction, check_outliers=False)
+            except ValueError:  # too few views left to calibrate: no comparison to offer
+                res.without_outliers = None
+    return res
 
 
 def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=None,
@@ -593,6 +667,14 @@ def calibrate_rig(images_per_camera: Mapping[str, Sequence], target, cameras=Non
     res.images_skipped = skipped
     for nm, ir in res.intrinsics.items():
         ir.images_skipped = skipped[nm]
+    index = {inst: i for i, inst in enumerate(instants)}
+
+    def label(nm, inst):  # the camera's own file name of an instant
+        i = index.get(inst)
+        return inst if i is None or lists[nm][i] is None else image_name(lists[nm][i], i)
+
+    res.per_view_rms_px = {nm: {label(nm, k): e for k, e in v.items()} for nm, v in res.per_view_rms_px.items()}
+    res.outlier_views = {nm: {label(nm, k): why for k, why in v.items()} for nm, v in res.outlier_views.items()}
     return res
 
 

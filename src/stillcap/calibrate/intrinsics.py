@@ -16,6 +16,7 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap.calibrate.detect import Detection, Progress, detect_targets
+from stillcap.calibrate.outliers import outlier_views
 from stillcap.camera import Camera, pose_matrix
 
 
@@ -38,6 +39,11 @@ class IntrinsicsResult:
         Pose of the target in each view used (target frame -> camera frame).
     success : bool
         OpenCV converged to finite values.
+    outlier_views : list[str]
+        Views whose RMS stands far above the others (:mod:`stillcap.calibrate.outliers`).
+    without_outliers : IntrinsicsResult or None
+        The calibration again without the outlier views (None when there are none, or too few
+        views would remain).
     """
 
     camera: Camera
@@ -47,14 +53,22 @@ class IntrinsicsResult:
     images_skipped: dict[str, str] = field(default_factory=dict)
     board2cam: dict[str, np.ndarray] = field(default_factory=dict)
     success: bool = True
+    outlier_views: list[str] = field(default_factory=list)
+    without_outliers: IntrinsicsResult | None = None
 
     def summary(self) -> dict:
-        """JSON-ready summary (pixels; ``dist`` = k1, k2, p1, p2, k3)."""
+        """JSON-ready summary (pixels; ``dist`` = k1, k2, p1, p2, k3); ``without_outliers`` holds
+        ``rms_px``, the intrinsics and ``images_used`` of the calibration without the outlier
+        views, or None."""
         K = self.camera.K
+        w = self.without_outliers
         return {"rms_px": self.rms_px, "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
                 "dist": self.camera.dist.tolist(), "image_size": list(self.camera.image_size),
                 "images_used": list(self.images_used), "images_skipped": dict(self.images_skipped),
-                "per_image_rms_px": dict(self.per_image_rms_px)}
+                "per_image_rms_px": dict(self.per_image_rms_px), "outlier_views": list(self.outlier_views),
+                "without_outliers": None if w is None else
+                {k: v for k, v in w.summary().items() if k in ("rms_px", "fx", "fy", "cx", "cy", "dist",
+                                                               "images_used")}}
 
 
 def reprojection_rms(camera: Camera, object_points, image_points, obj2cam) -> float:
@@ -73,7 +87,8 @@ def _is_planar(p: np.ndarray) -> bool:
 
 def calibrate_intrinsics_from_points(object_points_list, image_points_list, image_size,
                                      names: Sequence[str] | None = None, camera_name: str = "cam0",
-                                     flags: int = 0, K_guess=None, min_views: int = 3) -> IntrinsicsResult:
+                                     flags: int = 0, K_guess=None, min_views: int = 3,
+                                     check_outliers: bool = True) -> IntrinsicsResult:
     """Intrinsics from 2D-3D correspondences of several views (``cv2.calibrateCamera``).
 
     Parameters
@@ -90,6 +105,8 @@ def calibrate_intrinsics_from_points(object_points_list, image_points_list, imag
         Starting K (adds ``CALIB_USE_INTRINSIC_GUESS``). Needed by OpenCV for non-planar
         targets; without it, one is made from the image size (focal = image width).
     min_views : fewest views accepted.
+    check_outliers : flag outlier views and calibrate again without them
+        (``outlier_views``, ``without_outliers``).
 
     Returns
     -------
@@ -102,9 +119,10 @@ def calibrate_intrinsics_from_points(object_points_list, image_points_list, imag
     if len(names) != n:
         raise ValueError(f"got {len(names)} names for {n} views")
     if n < min_views:
-        raise ValueError(f"intrinsic calibration needs at least {min_views} views, got {n}"
+        raise ValueError(f"camera {camera_name!r}: intrinsic calibration needs at least {min_views} views, got {n}"
                          + (f" ({', '.join(names)})" if names else ""))
     w, h = (int(v) for v in image_size)
+    flags_given = flags
     obj, img = [], []
     for nm, o, p in zip(names, object_points_list, image_points_list):
         o = as_array(o, (None, 3), f"object points of {nm}")
@@ -128,7 +146,15 @@ def calibrate_intrinsics_from_points(object_points_list, image_points_list, imag
         poses[nm] = T
         per[nm] = reprojection_rms(camera, o, p.reshape(-1, 2), T)
     ok = bool(np.isfinite(rms) and np.all(np.isfinite(K)) and np.all(np.isfinite(dist)))
-    return IntrinsicsResult(camera, float(rms), per, names, {}, poses, ok)
+    res = IntrinsicsResult(camera, float(rms), per, names, {}, poses, ok)
+    if check_outliers:
+        res.outlier_views = outlier_views(per)
+        keep = [i for i, nm in enumerate(names) if nm not in res.outlier_views]
+        if res.outlier_views and len(keep) >= min_views:
+            res.without_outliers = calibrate_intrinsics_from_points(
+                [obj[i].reshape(-1, 3) for i in keep], [img[i].reshape(-1, 2) for i in keep], (w, h),
+                [names[i] for i in keep], camera_name, flags_given, K_guess, min_views, check_outliers=False)
+    return res
 
 
 def calibrate_from_detections(detections: Sequence[Detection], camera_name: str = "cam0",
@@ -157,9 +183,9 @@ def calibrate_from_detections(detections: Sequence[Detection], camera_name: str 
         raise ValueError(f"camera {camera_name!r}: target not found in any of the {len(detections)} images: "
                          + "; ".join(f"{k} ({v})" for k, v in skipped.items()))
     if len(good) < min_views:
-        raise ValueError(f"camera {camera_name!r}: target found in only {len(good)} images "
-                         f"({', '.join(d.name for d in good)}), need {min_views}; skipped: "
-                         + "; ".join(f"{k} ({v})" for k, v in skipped.items()))
+        raise ValueError(f"camera {camera_name!r}: target found in only {len(good)} image{'s' * (len(good) != 1)} "
+                         f"({', '.join(d.name for d in good)}), need {min_views}"
+                         + ("; skipped: " + "; ".join(f"{k} ({v})" for k, v in skipped.items()) if skipped else ""))
     res = calibrate_intrinsics_from_points([d.object_points for d in good], [d.image_points for d in good],
                                            detections[0].image_size, [d.name for d in good], camera_name,
                                            flags, K_guess, min_views)

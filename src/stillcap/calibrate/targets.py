@@ -19,6 +19,11 @@ import cv2
 import numpy as np
 
 
+#: Most inner corners (chessboard) or squares (ChArUco) along one side of a board: far more than
+#: any printed board, few enough that a typo (``9x66666``) does not send the detector searching.
+MAX_PER_SIDE = 100
+
+
 def parse_pattern(text: str) -> tuple[int, int]:
     """``"9x6"`` -> ``(9, 6)`` (inner corners along x, along y)."""
     try:
@@ -27,7 +32,24 @@ def parse_pattern(text: str) -> tuple[int, int]:
         raise ValueError(f"pattern must look like 9x6 (inner corners), got {text!r}") from None
     if cols < 2 or rows < 2:
         raise ValueError(f"pattern needs at least 2x2 inner corners, got {text!r}")
+    if cols > MAX_PER_SIDE or rows > MAX_PER_SIDE:
+        raise ValueError(f"pattern has at most {MAX_PER_SIDE} inner corners per side, got {text!r}")
     return cols, rows
+
+
+def _check_count(what: str, v, lo: int) -> None:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= MAX_PER_SIDE:
+        raise ValueError(f"{what} must be a whole number from {lo} to {MAX_PER_SIDE}, got {v!r}")
+
+
+def _check_length(what: str, v, hi: float = np.inf) -> None:
+    try:
+        ok = 0 < float(v) < hi
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        bound = f"between 0 and {hi:g}" if np.isfinite(hi) else "a positive finite length"
+        raise ValueError(f"{what} must be {bound} (metres), got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -38,6 +60,11 @@ class Chessboard:
     rows: int = 6
     square: float = 0.025
     margin: float = 1.0  # white border, in squares, around the (cols+1) x (rows+1) squares
+
+    def __post_init__(self):
+        _check_count("chessboard inner corners along x (cols)", self.cols, 2)
+        _check_count("chessboard inner corners along y (rows)", self.rows, 2)
+        _check_length("chessboard square", self.square)
 
     @property
     def pattern_size(self) -> tuple[int, int]:
@@ -77,6 +104,20 @@ class CharucoTarget:
     dictionary: int = cv2.aruco.DICT_5X5_250
     first_id: int = 0
     margin: float = 0.5  # white border, in squares
+
+    def __post_init__(self):
+        _check_count("ChArUco squares along x", self.squares_x, 2)
+        _check_count("ChArUco squares along y", self.squares_y, 2)
+        _check_length("ChArUco square", self.square)
+        _check_length("ChArUco marker", self.marker, hi=float(self.square))
+        try:
+            size = cv2.aruco.getPredefinedDictionary(self.dictionary).bytesList.shape[0]
+        except (cv2.error, TypeError, OverflowError):
+            raise ValueError(f"unknown ArUco dictionary {self.dictionary!r}") from None
+        n = (self.squares_x * self.squares_y) // 2
+        if self.first_id < 0 or self.first_id + n > size:
+            raise ValueError(f"a {self.squares_x}x{self.squares_y} ChArUco board needs {n} markers from id "
+                             f"{self.first_id}, but its dictionary holds {size}")
 
     def board(self) -> cv2.aruco.CharucoBoard:
         n = (self.squares_x * self.squares_y) // 2

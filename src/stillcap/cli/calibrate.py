@@ -38,7 +38,7 @@ def _target(pattern: str, square: float, charuco: bool, squares: str, marker: fl
 
     from stillcap.calibrate import CharucoTarget, Chessboard, parse_pattern
 
-    if not square > 0:
+    if not 0 < square < float("inf"):
         raise ValueError(f"--square must be a positive length in metres, got {square}")
     if not charuco:
         cols, rows = parse_pattern(pattern)
@@ -47,6 +47,8 @@ def _target(pattern: str, square: float, charuco: bool, squares: str, marker: fl
         sx, sy = (int(v) for v in squares.lower().split("x"))
     except ValueError:
         raise ValueError(f"--squares must look like 7x5, got {squares!r}") from None
+    if not (2 <= sx <= 100 and 2 <= sy <= 100):
+        raise ValueError(f"--squares must be from 2x2 to 100x100, got {squares!r}")
     d = getattr(cv2.aruco, dictionary.upper(), None)
     if not dictionary.upper().startswith("DICT_") or not isinstance(d, int):
         raise ValueError(f"unknown ArUco dictionary {dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_250, DICT_6X6_1000)")
@@ -65,18 +67,52 @@ def _intrinsics_table(title: str, res) -> Table:
     t.add_column("image")
     t.add_column("reprojection RMS (px)", justify="right")
     for name, e in res.per_image_rms_px.items():
-        t.add_row(name, f"{e:.3f}")
+        if name in res.outlier_views:
+            t.add_row(f"[red]{name}", f"[red]{e:.3f} outlier")
+        else:
+            t.add_row(name, f"{e:.3f}")
     for name, why in res.images_skipped.items():
         t.add_row(f"[yellow]{name}", f"[yellow]skipped: {why}")
     return t
 
 
-def _print_camera(res) -> None:
+def _print_camera(res, suggest: bool = True) -> None:
     s = res.summary()
     out_console.print(f"camera {res.camera.name}: RMS {s['rms_px']:.3f} px over {len(s['images_used'])} images, "
                       f"{s['image_size'][0]}x{s['image_size'][1]} px")
     out_console.print(f"  fx {s['fx']:.2f}  fy {s['fy']:.2f}  cx {s['cx']:.2f}  cy {s['cy']:.2f}  (px)")
     out_console.print("  dist (k1 k2 p1 p2 k3): " + " ".join(f"{v:.5f}" for v in s["dist"]))
+    _print_outlier_views(res, suggest)
+
+
+def _them(n: int) -> str:
+    return "it" if n == 1 else "them"
+
+
+def _print_outlier_views(res, suggest: bool = True) -> None:
+    """The outlier views of one camera, with the RMS and fx with and without them."""
+    import numpy as np
+
+    if not res.outlier_views:
+        return
+    med = float(np.median(list(res.per_image_rms_px.values())))
+    views = ", ".join(f"{k} ({res.per_image_rms_px[k]:.3f} px, {res.per_image_rms_px[k] / med:.1f}x the median "
+                      f"{med:.3f} px)" for k in res.outlier_views)
+    out_console.print(f"  [red]outlier view{'s' if len(res.outlier_views) > 1 else ''}:[/] {views}")
+    w = res.without_outliers
+    if w is None:
+        out_console.print("  too few views would remain to calibrate without "
+                          f"{_them(len(res.outlier_views))}; take more photos")
+        return
+    out_console.print(f"  without {_them(len(res.outlier_views))}: RMS {res.rms_px:.3f} -> {w.rms_px:.3f} px, "
+                      f"fx {res.camera.K[0, 0]:.2f} -> {w.camera.K[0, 0]:.2f}, "
+                      f"fy {res.camera.K[1, 1]:.2f} -> {w.camera.K[1, 1]:.2f}"
+                      + (f"; consider dropping {_them(len(res.outlier_views))} and calibrating again" if suggest else ""))
+
+
+def _camera_dict(c) -> dict:
+    return {"fx": _f(c.K[0, 0]), "fy": _f(c.K[1, 1]), "cx": _f(c.K[0, 2]), "cy": _f(c.K[1, 2]),
+            "dist": [_f(v) for v in c.dist]}
 
 
 def _summary(res) -> dict:
@@ -151,21 +187,54 @@ def stereo(
              "baseline": _f(res.baseline), "left": _summary(res.left), "right": _summary(res.right),
              "pairs_used": res.pairs_used, "pairs_skipped": res.pairs_skipped,
              "per_pair_rms_px": {k: [_f(a), _f(b)] for k, (a, b) in res.per_pair_rms_px.items()}}
+        w = res.without_outliers
+        d["outlier_pairs"] = res.outlier_pairs
+        d["outlier_files"] = [f for k in res.outlier_pairs for f in res.pair_images[k]]
+        d["without_outliers"] = None if w is None else {
+            "rms_px": _f(w.rms_px), "T": [_f(v) for v in w.T], "baseline": _f(w.baseline),
+            "left_rms_px": _f(w.left.rms_px), "right_rms_px": _f(w.right.rms_px), "pairs_used": w.pairs_used}
+        if refine_intrinsics:  # the stereo fit's intrinsics; "left"/"right" stay the single-camera results
+            d["refined"] = {"rms_px": _f(res.rms_px), **{c.name: _camera_dict(c) for c in res.rig}}
         typer.echo(json.dumps(d, indent=2))
         return
     for r in (res.left, res.right):
         out_console.print(_intrinsics_table(r.camera.name, r))
-        _print_camera(r)
+        _print_camera(r, suggest=False)  # a stereo pair is dropped whole: see the pair line
     out_console.print(f"stereo: RMS {res.rms_px:.3f} px over {len(res.pairs_used)} pairs "
                       f"({'intrinsics refined' if refine_intrinsics else 'intrinsics fixed'})")
+    if refine_intrinsics:
+        out_console.print("  intrinsics refined in the stereo fit (px; the tables above are each camera alone):")
+        for c in res.rig:
+            out_console.print(f"    {c.name} fx {c.K[0, 0]:.2f}  fy {c.K[1, 1]:.2f}  cx {c.K[0, 2]:.2f}  "
+                              f"cy {c.K[1, 2]:.2f}  dist " + " ".join(f"{v:.5f}" for v in c.dist))
     for k, why in res.pairs_skipped.items():
         out_console.print(f"  [yellow]pair {k} skipped: {why}")
     out_console.print("  T = (" + ", ".join(f"{v:.4f}" for v in res.T) + f"), baseline {res.baseline:.4f} "
                       "(unit of --square)")
     ang = np.degrees(np.arccos(np.clip((np.trace(res.R) - 1) / 2, -1, 1)))
     out_console.print(f"  R: rotation of {ang:.3f} deg")
+    _print_outlier_pairs(res)
     if out is not None:
         out_console.print(f"wrote {out}")
+
+
+def _print_outlier_pairs(res) -> None:
+    n = len(res.outlier_pairs)
+    if not n:
+        return
+    pairs = ", ".join(f"{k} ({', '.join(res.pair_images[k])}; RMS "
+                      + (" / ".join(f"{v:.3f}" for v in res.per_pair_rms_px[k]) + " px)" if k in res.per_pair_rms_px
+                         else "not used)") for k in res.outlier_pairs)
+    out_console.print(f"  [red]outlier pair{'s' if n > 1 else ''}:[/] {pairs}")
+    w = res.without_outliers
+    if w is None:
+        out_console.print(f"  too few pairs would remain to calibrate without {_them(n)}; take more photos")
+        return
+    out_console.print(f"  without {_them(n)}: stereo RMS {res.rms_px:.3f} -> {w.rms_px:.3f} px, "
+                      f"{w.rig.names[0]} {res.left.rms_px:.3f} -> {w.left.rms_px:.3f} px, "
+                      f"{w.rig.names[1]} {res.right.rms_px:.3f} -> {w.right.rms_px:.3f} px, "
+                      f"baseline {res.baseline:.4f} -> {w.baseline:.4f}; consider dropping "
+                      + ", ".join(f for k in res.outlier_pairs for f in res.pair_images[k]) + " and calibrating again")
 
 
 @app.command()
@@ -208,7 +277,12 @@ def rig(
                          "rms_px": _f(res.per_camera_rms_px[c.name])})
         d = {"rms_px": _f(res.rms_px), "initial_rms_px": _f(res.initial_rms_px),
              "per_camera_rms_px": {k: _f(v) for k, v in res.per_camera_rms_px.items()}, "cameras": cams,
-             "instants_used": res.instants_used, "images_skipped": res.images_skipped, "success": res.success}
+             "instants_used": res.instants_used, "images_skipped": res.images_skipped, "success": res.success,
+             "per_view_rms_px": {c: {k: _f(v) for k, v in pv.items()} for c, pv in res.per_view_rms_px.items()},
+             "outlier_views": res.outlier_views,
+             "without_outliers": None if res.without_outliers is None else {
+                 "rms_px": _f(res.without_outliers.rms_px),
+                 "per_camera_rms_px": {k: _f(v) for k, v in res.without_outliers.per_camera_rms_px.items()}}}
         typer.echo(json.dumps(d, indent=2))
         return
     t = Table(title=f"rig: {len(res.rig)} cameras, {len(res.instants_used)} shared instants")
@@ -225,5 +299,16 @@ def rig(
     for cam, sk in res.images_skipped.items():
         for img, why in sk.items():
             out_console.print(f"  [yellow]{cam}/{img} skipped: {why}")
+    odd = [f"{cam}/{img} ({why})" for cam, v in res.outlier_views.items() for img, why in v.items()]
+    if odd:
+        out_console.print(f"  [red]outlier view{'s' if len(odd) > 1 else ''}:[/] " + "; ".join(odd))
+        w = res.without_outliers
+        if w is None:
+            out_console.print(f"  too few views would remain to calibrate without {_them(len(odd))}; take more photos")
+        else:
+            out_console.print(f"  without {_them(len(odd))}: RMS {res.rms_px:.3f} -> {w.rms_px:.3f} px ("
+                              + ", ".join(f"{k} {res.per_camera_rms_px[k]:.3f} -> {v:.3f}"
+                                          for k, v in w.per_camera_rms_px.items())
+                              + f"); consider dropping {_them(len(odd))} and calibrating again")
     if out is not None:
         out_console.print(f"wrote {out}")
