@@ -90,7 +90,7 @@ def test_add_view_errors(tmp_path, project):
         project.add_view(tmp_path / "nope.jpg", angle_deg=90)
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not an image")
-    with pytest.raises(ValueError, match="could not be decoded"):
+    with pytest.raises(ValueError, match=r"bad.png is not an image"):
         project.add_view(bad, angle_deg=90)
     with pytest.raises(ValueError, match=r"320x240 px but the camera is 640x480"):
         project.add_view(photo(0, (320, 240)), angle_deg=90)
