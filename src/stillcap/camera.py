@@ -428,8 +428,8 @@ _Entry = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_TRANSL
 
 def _rig_version(v: int) -> int:
     if not 1 <= v <= RIG_VERSION:
-        raise PydanticCustomError("version", "rig file version {v} is not one this stillcap reads (1 to {max})",
-                                  {"v": v, "max": RIG_VERSION})
+        raise PydanticCustomError("version", "must be a rig file version this stillcap reads ({versions})",
+                                  {"versions": "1" if RIG_VERSION == 1 else f"1 to {RIG_VERSION}"})
     return v
 
 
@@ -459,10 +459,10 @@ class CameraEntry(Model):
             raise PydanticCustomError("rigid", "must be a rigid transform: its last row must be [0, 0, 0, 1]")
         R = np.array([r[:3] for r in rows[:3]])
         if not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(R) < 0:
-            raise PydanticCustomError(
+            raise PydanticCustomError(  # (the template takes no format specs: the numbers come as text)
                 "rigid", "must be a rigid transform: its rotation part (3x3) is not a proper rotation "
-                "(R R^T differs from I by {err:.2g}, det(R) = {det:.3g})",
-                {"err": float(np.abs(R @ R.T - np.eye(3)).max()), "det": float(np.linalg.det(R))})
+                "(R R^T differs from I by {err}, det(R) = {det})",
+                {"err": f"{np.abs(R @ R.T - np.eye(3)).max():.2g}", "det": f"{np.linalg.det(R):.3g}"})
         return rows
 
 

@@ -43,8 +43,8 @@ _Row4 = tuple[_Metres, _Metres, _Metres, _Metres]
 
 def _version(v: int) -> int:
     if not 1 <= v <= CAPTURE_VERSION:
-        raise PydanticCustomError("version", "capture file version {v} is not one this stillcap reads (1 to {max})",
-                                  {"v": v, "max": CAPTURE_VERSION})
+        raise PydanticCustomError("version", "must be a capture file version this stillcap reads ({versions})",
+                                  {"versions": "1" if CAPTURE_VERSION == 1 else f"1 to {CAPTURE_VERSION}"})
     return v
 
 

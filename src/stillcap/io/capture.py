@@ -121,7 +121,8 @@ class CaptureImage:
         source = where.strip().removesuffix(":").strip() or "capture"
         e = check_image_entry(d, source, prefix)
         try:
-            return cls(e.file, e.camera, e.strobe_hz, e.shutter_s, e.first_flash_s, e.n_flashes, dict(d.get("meta", {})))
+            file = safe_relpath(e.file, "", "capture folder")
+            return cls(file, e.camera, e.strobe_hz, e.shutter_s, e.first_flash_s, e.n_flashes, dict(d.get("meta", {})))
         except ValueError as err:
             raise ValueError(f"{source}: {'.'.join(map(str, (*prefix, 'file')))}: {err}") from None
 
