@@ -152,3 +152,9 @@ def test_cli_truncated_photo_exit_2(cap, capsys):
     p.write_bytes(p.read_bytes()[:-20])
     code, _, err = run_cli(["pitch", cap], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "cam_a.png is truncated" in err
+
+
+def test_cli_prints_square_brackets_as_they_are(cap, capsys):
+    _edit(cap, ("cameras", 0, "K", 1, 0), 3.0, "rig.json")
+    code, _, err = run_cli(["pitch", cap], capsys)
+    assert code == 2 and "cameras.0.K.1.0: must be 0 (K is [[fx, s, cx], [0, fy, cy], [0, 0, 1]]) (got 3.0)" in err
