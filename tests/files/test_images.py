@@ -99,3 +99,21 @@ def test_missing_and_unreadable_files_are_named(tmp_path):
     (tmp_path / "dir.png").mkdir()
     with pytest.raises(ValueError, match=r"dir.png does not exist"):
         check_image_file(tmp_path / "dir.png")
+
+
+def test_cli_calibration_and_project_photos_give_one_line(tmp_path, capsys):
+    from stillcap.io.project import Project
+    from support import run_cli
+
+    big = tmp_path / "big.png"
+    big.write_bytes(_png_claiming(60000, 60000))  # issue 15: a cv2.error in calibrate/intrinsics
+    code, _, err = run_cli(["calibrate", "intrinsics", big, "-p", "9x6"], capsys)
+    assert code == 2 and "big.png: its header claims 60000x60000 px" in err
+    assert len(err.strip().splitlines()) == 1
+    Project.create(tmp_path / "proj")
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(_jpeg(640, 480)[:-50])  # issue 15: a truncated JPEG was half used
+    for detect in ("--detect", "--no-detect"):
+        code, _, err = run_cli(["puppet", "add", tmp_path / "proj", cut, "--angle", "30", detect], capsys)
+        assert code == 2 and "cut.jpg is truncated (no JPEG end-of-image marker)" in err, err
+        assert len(err.strip().splitlines()) == 1

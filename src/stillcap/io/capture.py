@@ -158,6 +158,8 @@ class Capture:
         if not isinstance(self.kind, str) or not self.kind:
             raise ValueError(f"capture kind must be a non-empty string, got {self.kind!r}")
         self.images = list(self.images)
+        if not isinstance(self.meta, dict):
+            raise ValueError(f"capture meta must be a dict, got {self.meta!r}")
         clash = set(self.meta) & _RESERVED
         if clash:
             raise ValueError(f"capture meta must not use the reserved keys {sorted(clash)}")

@@ -33,7 +33,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import triangulate
 from stillcap.files.atomic import write_bytes, write_text
-from stillcap.files.images import decode_image, read_image
+from stillcap.files.images import check_image_file, decode_image, read_image
 from stillcap.files.jsonfile import read_json
 from stillcap.files.paths import resolve_inside, safe_relpath
 from stillcap.io.project._records import (BUILTIN_MARKERSETS, IMAGE_SUFFIXES, PHOTOS_DIR, PROJECT_FILE, PROJECT_FORMAT,
@@ -577,8 +577,10 @@ class Project:
                 p = resolve_inside(root, rel, f"{where}view {v.name!r}: {kind}")
                 if not p.is_file():
                     raise ValueError(f"{where}view {v.name!r}: {kind} {p} does not exist")
-                if not cv2.haveImageReader(str(p)):
-                    raise ValueError(f"{where}view {v.name!r}: {kind} {p} is not an image OpenCV can read")
+                try:  # header size and completeness, without decoding (files/images.py)
+                    check_image_file(p)
+                except ValueError as e:
+                    raise ValueError(f"{where}view {v.name!r}: {kind}: {e}") from None
         return project
 
 
