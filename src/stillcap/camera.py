@@ -15,16 +15,26 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any, Literal
 
 import cv2
 import numpy as np
+from pydantic import AfterValidator, Field, StrictInt, StrictStr, field_validator
+from pydantic_core import PydanticCustomError
 
 from stillcap._checks import as_array, as_points
 from stillcap.files.atomic import write_text
 from stillcap.files.jsonfile import read_json
+from stillcap.files.schema import Finite, Model, describe, validate
 
 RIG_FORMAT = "stillcap-rig"
 RIG_VERSION = 1
+#: Limits of the rig file's numbers (``docs/rig-format.md``).
+MAX_IMAGE_SIDE = 100_000  # pixels
+MAX_PIXEL_VALUE = 1e6  # |entries of K| (focal lengths, principal point, skew), pixels
+MAX_DISTORTION = 1e3  # |distortion coefficients|
+MAX_TRANSLATION = 1e9  # |world2cam translation|, in the file's units
+ROTATION_TOLERANCE = 1e-6  # |R R^T - I| (as Camera checks)
 
 
 def pose_matrix(R, t) -> np.ndarray:
@@ -91,7 +101,11 @@ class Camera:
         R = self.world2cam[:3, :3]
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             raise ValueError(f"camera {self.name!r}: world2cam rotation is not a proper rotation")
-        w, h = (int(v) for v in self.image_size)
+        try:
+            w, h = (int(v) for v in self.image_size)
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"camera {self.name!r}: image_size must be two whole numbers (width, height), "
+                             f"got {self.image_size!r}") from None
         if w <= 0 or h <= 0:
             raise ValueError(f"camera {self.name!r}: image_size must be positive, got {self.image_size}")
         self.image_size = (w, h)
@@ -258,12 +272,18 @@ class Camera:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "") -> Camera:
-        try:
-            return cls(str(d["name"]), d["K"], d.get("dist", [0] * 5), d.get("world2cam", np.eye(4)),
-                       tuple(d["image_size"]))
-        except KeyError as e:
-            raise ValueError(f"{where}camera entry is missing the key {e}") from None
+    def from_dict(cls, d: dict, where: str = "", *, prefix: tuple = ()) -> Camera:
+        """A camera from its rig-file entry (``docs/rig-format.md``), checked by the rig schema
+        (:class:`RigFile`): ``ValueError`` ``WHERE: KEY.PATH: ... [camera 'NAME']``.
+
+        ``where``: the file (and what holds the entry), e.g. ``"rig.json: "``; ``prefix``: the
+        entry's key path inside it."""
+        return _camera_entry(d, _source(where), prefix)
+
+
+def _source(where: str) -> str:
+    """``"rig.json: "`` (the prefix style of ``where`` arguments) as a message source ``"rig.json"``."""
+    return where.strip().removesuffix(":").strip() or "rig"
 
 
 class Rig:
@@ -313,23 +333,13 @@ class Rig:
         return write_text(path, json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "") -> Rig:
-        if not isinstance(d, dict) or d.get("format") != RIG_FORMAT:
-            raise ValueError(f"{where}not a stillcap rig file (expected \"format\": \"{RIG_FORMAT}\")")
-        if d.get("version", 1) > RIG_VERSION:
-            raise ValueError(f"{where}rig file version {d['version']} is newer than this stillcap reads ({RIG_VERSION})")
-        scale = {"m": 1.0, "mm": 1e-3, "cm": 1e-2}.get(d.get("units", "m"))
-        if scale is None:
-            raise ValueError(f"{where}unknown units {d.get('units')!r} (use m, cm or mm)")
-        cams = []
-        for i, cd in enumerate(d.get("cameras", [])):
-            c = Camera.from_dict(cd, f"{where}camera #{i}: ")
-            if scale != 1.0:
-                c.world2cam[:3, 3] *= scale
-            cams.append(c)
-        if not cams:
-            raise ValueError(f"{where}rig file lists no cameras")
-        return cls(cams, d.get("world", "world"))
+    def from_dict(cls, d: dict, where: str = "", *, prefix: tuple = ()) -> Rig:
+        """A rig from the content of a rig file (``docs/rig-format.md``), checked by the rig schema
+        (:class:`RigFile`): ``ValueError`` ``WHERE: KEY.PATH: ...`` for the first
+        problem (``where``: the file, e.g. ``"rig.json: "``; ``prefix``: the rig's key path when it
+        is embedded in another file)."""
+        cams, world = _rig_cameras(d, _source(where), prefix)
+        return cls(cams, world)
 
     @classmethod
     def load(cls, path) -> Rig:
@@ -395,3 +405,112 @@ class Rig:
         D = pick("distortion_coefficients", "dist_coeffs", "distCoeffs", "D", "dist")
         name = (names or ["cam0"])[0]
         return cls([Camera(name, K, np.zeros(5) if D is None else np.ravel(D), np.eye(4), size)])
+
+
+# --- the rig file's schema (docs/rig-format.md) -------------------------------------------
+def _exactly(value: float, why: str):
+    def check(v: float) -> float:
+        if v != value:
+            raise PydanticCustomError("exact", "must be {value} ({why})", {"value": value, "why": why})
+        return v
+    return AfterValidator(check)
+
+
+_K_FORM = "K is [[fx, s, cx], [0, fy, cy], [0, 0, 1]]"
+_Focal = Annotated[float, Field(strict=True, allow_inf_nan=False, gt=0, le=MAX_PIXEL_VALUE)]
+_Pixel = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_PIXEL_VALUE, le=MAX_PIXEL_VALUE)]
+_Zero = Annotated[Finite, _exactly(0, _K_FORM)]
+_One = Annotated[Finite, _exactly(1, _K_FORM)]
+_Coefficient = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_DISTORTION, le=MAX_DISTORTION)]
+_Side = Annotated[StrictInt, Field(ge=1, le=MAX_IMAGE_SIDE)]
+_Entry = Annotated[float, Field(strict=True, allow_inf_nan=False, ge=-MAX_TRANSLATION, le=MAX_TRANSLATION)]
+
+
+def _rig_version(v: int) -> int:
+    if not 1 <= v <= RIG_VERSION:
+        raise PydanticCustomError("version", "must be a rig file version this stillcap reads ({versions})",
+                                  {"versions": "1" if RIG_VERSION == 1 else f"1 to {RIG_VERSION}"})
+    return v
+
+
+class CameraEntry(Model):
+    """One camera of a rig file: ``name``, ``image_size``, ``K``, ``dist``, ``world2cam``."""
+
+    name: Annotated[StrictStr, Field(min_length=1)]
+    image_size: tuple[_Side, _Side]
+    K: tuple[tuple[_Focal, _Pixel, _Pixel], tuple[_Zero, _Focal, _Pixel], tuple[_Zero, _Zero, _One]]
+    dist: Annotated[list[_Coefficient], Field(max_length=14)] = [0.0] * 5
+    world2cam: Annotated[list[tuple[_Entry, _Entry, _Entry, _Entry]], Field(min_length=3, max_length=4)] = \
+        [(1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0)]
+
+    @field_validator("dist")
+    @classmethod
+    def _five_coefficients(cls, dist: list) -> list:
+        extra = [i for i, k in enumerate(dist) if i >= 5 and k != 0]
+        if extra:
+            raise PydanticCustomError("distortion", "only the 5-parameter distortion (k1, k2, p1, p2, k3) is "
+                                      "supported; coefficient {i} is {k}", {"i": extra[0], "k": dist[extra[0]]})
+        return dist
+
+    @field_validator("world2cam")
+    @classmethod
+    def _rigid(cls, rows: list) -> list:
+        if len(rows) == 4 and tuple(rows[3]) != (0.0, 0.0, 0.0, 1.0):
+            raise PydanticCustomError("rigid", "must be a rigid transform: its last row must be [0, 0, 0, 1]")
+        R = np.array([r[:3] for r in rows[:3]])
+        if not np.allclose(R @ R.T, np.eye(3), atol=ROTATION_TOLERANCE) or np.linalg.det(R) < 0:
+            raise PydanticCustomError(  # (the template takes no format specs: the numbers come as text)
+                "rigid", "must be a rigid transform: its rotation part (3x3) is not a proper rotation "
+                "(R R^T differs from I by {err}, det(R) = {det})",
+                {"err": f"{np.abs(R @ R.T - np.eye(3)).max():.2g}", "det": f"{np.linalg.det(R):.3g}"})
+        return rows
+
+
+class RigFile(Model):
+    """A rig file's top level: ``format``, ``version``, ``units``, ``world``, ``cameras``."""
+
+    format: Literal["stillcap-rig"]
+    version: Annotated[StrictInt, AfterValidator(_rig_version)] = 1
+    units: Literal["m", "cm", "mm"] = "m"
+    world: StrictStr = "world"
+    cameras: Annotated[list[dict[str, Any]], Field(min_length=1)]
+
+
+_UNIT_SCALE = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
+
+
+def _camera_entry(d, source: str, prefix: tuple = (), scale: float = 1.0) -> Camera:
+    """A camera from a rig-file entry ``d`` checked by :class:`CameraEntry` (``source``: the file,
+    ``prefix``: the entry's key path); the message names the camera when the entry has a name."""
+    name = d.get("name") if isinstance(d, dict) else None
+    if isinstance(name, str) and name:
+        source = f"{source}: camera {name!r}"
+    e = validate(CameraEntry, d, source, prefix)
+    rows = [list(r) for r in e.world2cam]
+    world2cam = np.array(rows if len(rows) == 4 else rows + [[0.0, 0.0, 0.0, 1.0]])
+    world2cam[:3, 3] *= scale
+    try:
+        return Camera(e.name, np.array(e.K), np.array(e.dist), world2cam, e.image_size)
+    except ValueError as err:  # Camera's own checks (the schema should have said it first)
+        raise ValueError(f"{source}: {'.'.join(map(str, prefix)) or '(the entry)'}: {err}") from None
+
+
+def _rig_cameras(d, source: str, prefix: tuple = ()) -> tuple[list[Camera], str]:
+    """The cameras and world-frame name of a rig file's content ``d``, checked by :class:`RigFile`
+    and :class:`CameraEntry`; ``ValueError`` ``SOURCE: KEY.PATH: ...`` for the first problem."""
+    if not isinstance(d, dict) or d.get("format") != RIG_FORMAT:
+        got = describe(d.get("format")) if isinstance(d, dict) else f"a JSON {type(d).__name__}"
+        path = ".".join(map(str, (*prefix, "format")))
+        raise ValueError(f"{source}: {path}: not a stillcap rig file (expected \"format\": \"{RIG_FORMAT}\", "
+                         f"got {got})")
+    rig = validate(RigFile, d, source, prefix)
+    scale = _UNIT_SCALE[rig.units]
+    cams = [_camera_entry(cd, source, (*prefix, "cameras", i), scale) for i, cd in enumerate(rig.cameras)]
+    first: dict[str, int] = {}
+    for i, c in enumerate(cams):
+        if c.name in first:
+            path = ".".join(map(str, (*prefix, "cameras", i, "name")))
+            raise ValueError(f"{source}: {path}: camera name {c.name!r} is used twice (also cameras.{first[c.name]}); "
+                             "names must be unique")
+        first[c.name] = i
+    return cams, rig.world

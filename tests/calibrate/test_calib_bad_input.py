@@ -28,8 +28,8 @@ def files(tmp_path_factory):
 
 def test_not_an_image(capsys, stereo_dir, files):
     left = sorted(stereo_dir.glob("left0*.jpg"))
-    one_line(capsys, ["calibrate", "intrinsics", *left, files / "text.jpg"], "cannot read image")
-    one_line(capsys, ["calibrate", "intrinsics", *left, files / "empty.png"], "empty.png: not an image or corrupt")
+    one_line(capsys, ["calibrate", "intrinsics", *left, files / "text.jpg"], "text.jpg is not an image")
+    one_line(capsys, ["calibrate", "intrinsics", *left, files / "empty.png"], "empty.png is empty")
     one_line(capsys, ["calibrate", "intrinsics", *left, files], f"{files} is a folder, not an image file")
     one_line(capsys, ["calibrate", "intrinsics", *left, files / "none.jpg"], "none.jpg does not exist")
 
@@ -118,7 +118,7 @@ def test_library_targets_check_their_numbers():
 
 def test_library_boundaries(stereo_dir, files):
     board = Chessboard(9, 6, 1.0)
-    with pytest.raises(ValueError, match="cannot read image .*text.jpg"):
+    with pytest.raises(ValueError, match="text.jpg is not an image"):
         calibrate_intrinsics([stereo_dir / "left01.jpg", files / "text.jpg"], board)
     with pytest.raises(ValueError, match="no partner for left01.jpg"):
         calibrate_stereo([stereo_dir / "left01.jpg"], [stereo_dir / "right02.jpg"], board)

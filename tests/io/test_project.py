@@ -90,7 +90,7 @@ def test_add_view_errors(tmp_path, project):
         project.add_view(tmp_path / "nope.jpg", angle_deg=90)
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not an image")
-    with pytest.raises(ValueError, match="could not be decoded"):
+    with pytest.raises(ValueError, match=r"bad.png is not an image"):
         project.add_view(bad, angle_deg=90)
     with pytest.raises(ValueError, match=r"320x240 px but the camera is 640x480"):
         project.add_view(photo(0, (320, 240)), angle_deg=90)
@@ -423,3 +423,18 @@ def test_reconstruct_with_too_few_views(tmp_path):
     p.add_view(photo(0), angle_deg=0, detections={"head.1": (300, 100)})
     m3 = p.reconstruct()
     assert len(m3.missing) == 16 and np.isnan(m3.points).all()
+
+
+def test_project_photos_are_checked_before_decoding(project):
+    # issue 15: a truncated or oversized photo of a project is named, at load and at read
+    path = project.root / project.views[1].image
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+    with pytest.raises(ValueError, match=r"view 'turn_030.0deg': photo: image file .*turn_030.0deg.png is truncated"):
+        Project.load(project.root)
+    with pytest.raises(ValueError, match=r"view 'turn_030.0deg': image file .*turn_030.0deg.png is truncated"):
+        project.read_image(1)
+    big = data[:16] + (60000).to_bytes(4, "big") * 2 + data[24:]  # IHDR claims 60000x60000 (its CRC now fails)
+    path.write_bytes(big)
+    with pytest.raises(ValueError, match=r"turn_030.0deg.png: its header claims 60000x60000 px"):
+        project.read_image(1)

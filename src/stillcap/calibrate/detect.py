@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
+from stillcap.files.images import read_image
 
 #: ``progress(done, total, name)``, called after each image of a long loop (for progress bars).
 Progress = Callable[[int, int, str], None]
@@ -81,16 +82,7 @@ def read_gray(image, name: str | None = None) -> np.ndarray:
         The file does not exist or cannot be decoded, or the array is not an image.
     """
     if isinstance(image, (str, Path)):
-        path = Path(image)
-        if path.is_dir():
-            raise ValueError(f"{path} is a folder, not an image file")
-        if not path.is_file():
-            raise ValueError(f"image file {path} does not exist")
-        data = np.fromfile(path, np.uint8)  # imdecode: no warnings on stderr, unicode paths work
-        img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
-        if img is None:
-            raise ValueError(f"cannot read image {path}: not an image or corrupt")
-        return img
+        return read_image(image, cv2.IMREAD_GRAYSCALE)  # size and completeness checked before decoding
     a = np.asarray(image)
     label = name or "image"
     if a.ndim == 3 and a.shape[2] in (3, 4):

@@ -253,16 +253,13 @@ def add(
     identify: str = typer.Option("recommended", "--identify", help="Identification (see puppet run)."),
 ):
     """Add a photo to a project (copied into photos/); its beads are detected and identified."""
-    import cv2
-
+    from stillcap.files.images import read_image
     from stillcap.io.project import Project
 
     p = Project.load(project)
     detections = None
     if detect:
-        img = cv2.imread(str(photo)) if photo.is_file() else None
-        if img is None:
-            raise ValueError(f"photo {photo} does not exist or is not an image")
+        img = read_image(photo)  # ValueError naming the photo: missing, too large, truncated, not an image
         detections = _detector_fn(p, _settings(detector, identify))(img)
     v = p.add_view(photo, angle_deg=angle, camera=camera, detections=detections, replace=replace)
     p.save()

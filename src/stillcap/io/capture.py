@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,14 +28,17 @@ import numpy as np
 
 from stillcap.camera import Rig
 from stillcap.files.atomic import atomic_path, write_text
+from stillcap.files.images import check_image_file, read_image as _read_image_file
 from stillcap.files.jsonfile import read_json
 from stillcap.files.jsonable import to_jsonable
 from stillcap.files.paths import resolve_inside, safe_relpath
+from stillcap.io._capture_schema import (
+    CAPTURE_FORMAT, CAPTURE_VERSION, KINDS, MAX_FLASHES, MAX_SECONDS, MAX_STROBE_HZ, TIMING as _TIMING, UNITS,
+    check_capture_file, check_image_entry)
 
-CAPTURE_FORMAT = "stillcap-capture"
-CAPTURE_VERSION = 1
-UNITS = {"length": "m", "time": "s", "frequency": "Hz", "angle": "rad"}
-_TIMING = ("strobe_hz", "shutter_s", "first_flash_s", "n_flashes")
+__all__ = ["CAPTURE_FORMAT", "CAPTURE_VERSION", "KINDS", "MAX_FLASHES", "MAX_SECONDS", "MAX_STROBE_HZ", "UNITS",
+           "CaptureImage", "Capture", "write_image", "target_to_dict", "target_from_dict", "board_points_world",
+           "StereoPairSpec", "stereo_pairs"]
 _RESERVED = {"format", "version", "kind", "units", "rig", "truth", "images"}
 
 
@@ -71,18 +75,29 @@ class CaptureImage:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        # the checks of the Python API (files are checked by the capture schema first)
         self.file = _safe_relpath(self.file, "image ")
-        for k in ("strobe_hz", "shutter_s", "first_flash_s"):
+        if not isinstance(self.camera, str):
+            raise ValueError(f"image {self.file!r}: camera must be a camera name (a string), got {self.camera!r}")
+        for k, top in (("strobe_hz", MAX_STROBE_HZ), ("shutter_s", MAX_SECONDS), ("first_flash_s", MAX_SECONDS)):
             v = getattr(self, k)
             if v is not None:
+                if not isinstance(v, numbers.Real) or isinstance(v, bool):
+                    raise ValueError(f"image {self.file!r}: {k} must be a number, got {v!r}")
                 v = float(v)
-                if not math.isfinite(v) or v < 0 or (k == "strobe_hz" and v == 0):
-                    raise ValueError(f"image {self.file!r}: {k} must be a finite number {'> 0' if k == 'strobe_hz' else '>= 0'}, got {v}")
+                if not math.isfinite(v) or v < 0 or (k == "strobe_hz" and v == 0) or v > top:
+                    raise ValueError(f"image {self.file!r}: {k} must be a finite number "
+                                     f"{'> 0' if k == 'strobe_hz' else '>= 0'} and <= {top:g}, got {v}")
                 setattr(self, k, v)
         if self.n_flashes is not None:
-            if int(self.n_flashes) != self.n_flashes or self.n_flashes < 0:
-                raise ValueError(f"image {self.file!r}: n_flashes must be a non-negative integer, got {self.n_flashes}")
-            self.n_flashes = int(self.n_flashes)
+            n = self.n_flashes
+            if (not isinstance(n, numbers.Real) or isinstance(n, bool) or not math.isfinite(n) or int(n) != n
+                    or not 0 <= n <= MAX_FLASHES):
+                raise ValueError(f"image {self.file!r}: n_flashes must be a whole number from 0 to {MAX_FLASHES}, "
+                                 f"got {n!r}")
+            self.n_flashes = int(n)
+        if not isinstance(self.meta, dict):
+            raise ValueError(f"image {self.file!r}: meta must be a dict, got {self.meta!r}")
 
     @property
     def flash_times(self) -> np.ndarray | None:
@@ -99,20 +114,17 @@ class CaptureImage:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "") -> CaptureImage:
-        if not isinstance(d, dict):
-            raise ValueError(f"{where}image entry must be an object, got {type(d).__name__}")
-        for key in ("file", "camera"):
-            if key not in d:
-                raise ValueError(f"{where}image entry is missing the key {key!r}")
-        unknown = set(d) - {"file", "camera", "meta", *_TIMING}
-        if unknown:
-            raise ValueError(f"{where}image entry has unknown keys {sorted(unknown)} "
-                             f"(timing keys carry their unit: {', '.join(_TIMING)})")
+    def from_dict(cls, d: dict, where: str = "", *, prefix: tuple = ()) -> CaptureImage:
+        """An image from its ``capture.json`` entry, checked by the capture schema: ``ValueError``
+        ``WHERE: KEY.PATH: ...`` (``where``: the file, e.g. ``"capture.json: "``; ``prefix``: the
+        entry's key path, e.g. ``("images", 3)``)."""
+        source = where.strip().removesuffix(":").strip() or "capture"
+        e = check_image_entry(d, source, prefix)
         try:
-            return cls(d["file"], str(d["camera"]), *(d.get(k) for k in _TIMING), dict(d.get("meta", {})))
-        except ValueError as e:
-            raise ValueError(f"{where}{e}") from None
+            file = safe_relpath(e.file, "", "capture folder")
+            return cls(file, e.camera, e.strobe_hz, e.shutter_s, e.first_flash_s, e.n_flashes, dict(d.get("meta", {})))
+        except ValueError as err:
+            raise ValueError(f"{source}: {'.'.join(map(str, (*prefix, 'file')))}: {err}") from None
 
 
 @dataclass
@@ -146,6 +158,8 @@ class Capture:
         if not isinstance(self.kind, str) or not self.kind:
             raise ValueError(f"capture kind must be a non-empty string, got {self.kind!r}")
         self.images = list(self.images)
+        if not isinstance(self.meta, dict):
+            raise ValueError(f"capture meta must be a dict, got {self.meta!r}")
         clash = set(self.meta) & _RESERVED
         if clash:
             raise ValueError(f"capture meta must not use the reserved keys {sorted(clash)}")
@@ -187,11 +201,7 @@ class Capture:
         decoded or its size differs from its camera's ``image_size``."""
         im = self._entry(image)
         path = self.path_of(im)
-        if not path.is_file():
-            raise ValueError(f"image file {path} does not exist")
-        img = cv2.imread(str(path), flags)
-        if img is None:
-            raise ValueError(f"image file {path} could not be decoded (not a PNG/JPEG image or corrupt)")
+        img = _read_image_file(path, flags)  # size and completeness checked before decoding
         w, h = self.rig[im.camera].image_size
         if img.shape[:2] != (h, w):
             raise ValueError(f"image file {path} is {img.shape[1]}x{img.shape[0]} px but camera "
@@ -241,7 +251,15 @@ class Capture:
 
     @classmethod
     def load(cls, path) -> Capture:
-        """Read and validate a capture folder (``path`` is the folder or its ``capture.json``)."""
+        """Read and validate a capture folder (``path`` is the folder or its ``capture.json``).
+
+        ``capture.json`` is checked by its schema (:class:`~stillcap.io._capture_schema.CaptureFile`,
+        :class:`~stillcap.io._capture_schema.ImageEntry`), the rig by the rig schema, then: each
+        image's camera is in the rig and its file stays inside the folder, exists, and is an image
+        whose header gives its camera's size (checked, not decoded: :mod:`stillcap.files.images`),
+        the ``pairs`` name cameras of the rig, and ``truth.json`` is an object. ``ValueError``
+        naming the file and the key path otherwise.
+        """
         root = Path(path)
         if root.name == "capture.json":
             root = root.parent
@@ -251,41 +269,51 @@ class Capture:
         if not cfile.is_file():
             raise ValueError(f"{cfile} does not exist: {root} is not a capture folder")
         d = read_json(cfile)
-        if not isinstance(d, dict) or d.get("format") != CAPTURE_FORMAT:
-            raise ValueError(f"{cfile}: not a stillcap capture (expected \"format\": \"{CAPTURE_FORMAT}\")")
-        if not isinstance(d.get("version"), int) or d["version"] > CAPTURE_VERSION:
-            raise ValueError(f"{cfile}: version {d.get('version')!r} is not one this stillcap reads (<= {CAPTURE_VERSION})")
-        units = d.get("units", UNITS)
-        if any(units.get(k, v) != v for k, v in UNITS.items()):
-            raise ValueError(f"{cfile}: units must be {UNITS}, got {units}")
-        if not isinstance(d.get("kind"), str):
-            raise ValueError(f"{cfile}: missing \"kind\" (what was captured)")
-        rig_file = root / _safe_relpath(d.get("rig", "rig.json"), f"{cfile}: rig: ")
-        if not rig_file.is_file():
-            raise ValueError(f"{cfile}: rig file {rig_file} does not exist")
-        rig = Rig.load(rig_file)
-        if not isinstance(d.get("images"), list):
-            raise ValueError(f"{cfile}: \"images\" must be a list")
-        images = [CaptureImage.from_dict(e, f"{cfile}: image #{i}: ") for i, e in enumerate(d["images"])]
+        c = check_capture_file(d, str(cfile))
         real_root = root.resolve()
-        for im in images:
+        rig_file = resolve_inside(root, c.rig, f"{cfile}: rig", "capture folder", real_root=real_root)
+        if not rig_file.is_file():
+            raise ValueError(f"{cfile}: rig: rig file {rig_file} does not exist")
+        rig = Rig.load(rig_file)
+        images = [CaptureImage.from_dict(e, f"{cfile}: ", prefix=("images", i)) for i, e in enumerate(c.images)]
+        seen: dict[str, int] = {}
+        for i, im in enumerate(images):
             if im.camera not in rig.names:
-                raise ValueError(f"{cfile}: image {im.file!r}: camera {im.camera!r} is not in the rig "
+                raise ValueError(f"{cfile}: images.{i}.camera: camera {im.camera!r} is not in the rig "
                                  f"{rig_file.name} (cameras: {rig.names})")
-            p = resolve_inside(root, im.file, f"{cfile}: image", "capture folder", real_root=real_root)
+            if im.file in seen:
+                raise ValueError(f"{cfile}: images.{i}.file: image {im.file!r} is listed twice (also images.{seen[im.file]})")
+            seen[im.file] = i
+            p = resolve_inside(root, im.file, f"{cfile}: images.{i}.file", "capture folder", real_root=real_root)
             if not p.is_file():
-                raise ValueError(f"{cfile}: image file {p} does not exist")
-            if not cv2.haveImageReader(str(p)):
-                raise ValueError(f"{cfile}: image file {p} is not an image OpenCV can read")
+                raise ValueError(f"{cfile}: images.{i}.file: image file {p} does not exist")
+            header = check_image_file(p)
+            w, h = rig[im.camera].image_size
+            if (header.width, header.height) not in ((w, h), (h, w)):  # (h, w): an EXIF turn, read_image decides
+                raise ValueError(f"image file {p} is {header.width}x{header.height} px but camera {im.camera!r} "
+                                 f"is {w}x{h} px")
+        in_pair: dict[str, str] = {}
+        for name, cams in (c.pairs or {}).items():
+            for j, cam in enumerate(cams):
+                if cam not in rig.names:
+                    raise ValueError(f"{cfile}: pairs.{name}.{j}: camera {cam!r} is not in the rig {rig_file.name} "
+                                     f"(cameras: {rig.names})")
+                if cam in in_pair:
+                    raise ValueError(f"{cfile}: pairs.{name}.{j}: camera {cam!r} is already in the pair "
+                                     f"{in_pair[cam]!r} (a camera belongs to one stereo pair)")
+                in_pair[cam] = name
         truth = None
-        if d.get("truth"):
-            tfile = root / _safe_relpath(d["truth"], f"{cfile}: truth: ")
+        if c.truth is not None:
+            tfile = resolve_inside(root, c.truth, f"{cfile}: truth", "capture folder", real_root=real_root)
             if not tfile.is_file():
-                raise ValueError(f"{cfile}: truth file {tfile} does not exist")
+                raise ValueError(f"{cfile}: truth: truth file {tfile} does not exist")
             truth = read_json(tfile)
+            if not isinstance(truth, dict):
+                raise ValueError(f"{tfile}: (the whole file): a truth file must be an object, "
+                                 f"got a JSON {type(truth).__name__}")
         meta = {k: v for k, v in d.items() if k not in _RESERVED}
         try:
-            return cls(d["kind"], rig, images, truth, meta, root)
+            return cls(c.kind, rig, images, truth, meta, root)
         except ValueError as e:
             raise ValueError(f"{cfile}: {e}") from None
 

@@ -33,6 +33,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import triangulate
 from stillcap.files.atomic import write_bytes, write_text
+from stillcap.files.images import check_image_file, decode_image, read_image
 from stillcap.files.jsonfile import read_json
 from stillcap.files.paths import resolve_inside, safe_relpath
 from stillcap.io.project._records import (BUILTIN_MARKERSETS, IMAGE_SUFFIXES, PHOTOS_DIR, PROJECT_FILE, PROJECT_FORMAT,
@@ -277,9 +278,10 @@ class Project:
             if suffix not in IMAGE_SUFFIXES:
                 raise ValueError(f"{what}: photo {src} is not a {'/'.join(IMAGE_SUFFIXES)} file")
             data = src.read_bytes()
-            arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-            if arr is None:
-                raise ValueError(f"{what}: photo {src} could not be decoded (not an image or corrupt)")
+            try:  # size and completeness checked before decoding
+                arr = decode_image(data, src, cv2.IMREAD_UNCHANGED)
+            except ValueError as e:
+                raise ValueError(f"{what}: {e}") from None
         h, w = arr.shape[:2]
         if (w, h) != tuple(size):
             raise ValueError(f"{what}: image is {w}x{h} px but the camera is {size[0]}x{size[1]} px")
@@ -429,9 +431,10 @@ class Project:
         path = self.image_path(v, processed)
         if not path.is_file():
             raise ValueError(f"view {v.name!r}: photo {path} does not exist")
-        img = cv2.imread(str(path), flags)
-        if img is None:
-            raise ValueError(f"view {v.name!r}: photo {path} could not be decoded (not an image or corrupt)")
+        try:  # size and completeness checked before decoding
+            img = read_image(path, flags)
+        except ValueError as e:
+            raise ValueError(f"view {v.name!r}: {e}") from None
         w, h = self.image_size(v)
         if img.shape[:2] != (h, w):
             raise ValueError(f"view {v.name!r}: photo {path} is {img.shape[1]}x{img.shape[0]} px "
@@ -574,8 +577,10 @@ class Project:
                 p = resolve_inside(root, rel, f"{where}view {v.name!r}: {kind}")
                 if not p.is_file():
                     raise ValueError(f"{where}view {v.name!r}: {kind} {p} does not exist")
-                if not cv2.haveImageReader(str(p)):
-                    raise ValueError(f"{where}view {v.name!r}: {kind} {p} is not an image OpenCV can read")
+                try:  # header size and completeness, without decoding (files/images.py)
+                    check_image_file(p)
+                except ValueError as e:
+                    raise ValueError(f"{where}view {v.name!r}: {kind}: {e}") from None
         return project
 
 
