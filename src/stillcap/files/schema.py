@@ -11,9 +11,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictInt, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, StrictInt, StrictStr, ValidationError
 
-__all__ = ["Finite", "Positive", "NonNegative", "Count", "PositiveCount", "Model", "validate", "describe"]
+__all__ = ["Finite", "Positive", "NonNegative", "Count", "PositiveCount", "Name", "Fraction", "Coordinate",
+           "MAX_COORDINATE", "Vec3", "Model", "ClosedModel", "validate", "describe"]
 
 #: A finite number (JSON integers are taken as floats; ``true``, ``NaN``, ``Infinity`` are not).
 Finite = Annotated[float, Field(strict=True, allow_inf_nan=False)]
@@ -25,6 +26,17 @@ NonNegative = Annotated[float, Field(strict=True, ge=0, allow_inf_nan=False)]
 Count = Annotated[StrictInt, Field(ge=0)]
 #: A whole number >= 1.
 PositiveCount = Annotated[StrictInt, Field(ge=1)]
+#: A non-empty string (a joint, marker, view or colour name).
+Name = Annotated[StrictStr, Field(min_length=1)]
+#: A finite number in [0, 1] (colour channels, hue in turns).
+Fraction = Annotated[float, Field(strict=True, ge=0, le=1, allow_inf_nan=False)]
+#: Largest magnitude of a coordinate or length in a file, in the file's own unit: larger values
+#: are typing errors, and would overflow when converted (a C3D file holds float32 millimetres).
+MAX_COORDINATE = 1e6
+#: A finite coordinate or length with ``|v| <= MAX_COORDINATE``.
+Coordinate = Annotated[float, Field(strict=True, ge=-MAX_COORDINATE, le=MAX_COORDINATE, allow_inf_nan=False)]
+#: A 3D point or vector of :data:`Coordinate`.
+Vec3 = tuple[Coordinate, Coordinate, Coordinate]
 
 
 class Model(BaseModel):
@@ -32,6 +44,13 @@ class Model(BaseModel):
     numbers, numbers are not strings."""
 
     model_config = ConfigDict(extra="allow", strict=False, allow_inf_nan=False)
+
+
+class ClosedModel(Model):
+    """A file model whose unknown keys are refused (formats where a misspelt key would be lost,
+    e.g. ``angle`` for ``angle_deg``)."""
+
+    model_config = ConfigDict(extra="forbid")
 
 
 def describe(value: Any, limit: int = 40) -> str:
