@@ -69,6 +69,8 @@ def validate(model: type[BaseModel], data: Any, source: str, prefix: tuple = ())
         first = e.errors(include_url=False)[0]
         path = ".".join(str(p) for p in (*prefix, *first["loc"])) or "(the whole file)"
         message = first["msg"][0].lower() + first["msg"][1:] if first["msg"] else "invalid"
+        if first["type"] == "extra_forbidden":
+            message = "unknown key (not part of the format; check its spelling)"
         got = f" (got {describe(first['input'])})" if first["type"] != "missing" else ""
         more = f"; {e.error_count() - 1} more problem(s)" if e.error_count() > 1 else ""
         raise ValueError(f"{source}: {path}: {message}{got}{more}") from None
