@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from stillcap.body.markerset import MarkerSet
+from stillcap.body.skeleton import Skeleton
 from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import triangulate
 from stillcap.files.atomic import write_bytes, write_text
@@ -543,6 +544,7 @@ class Project:
         if any(f.units.get(k, v) != v for k, v in UNITS.items()):
             raise ValueError(f"{where}units: must be {UNITS}, got {f.units!r}")
         markerset = _load_markerset(root, f.markerset, where, str(pfile))
+        markerset.check_skeleton(Skeleton.puppet())  # its bones are the puppet's (the skeleton projects pose)
         turntable = rig = rig_file = None
         if (f.turntable is None) == (f.rig is None):
             raise ValueError(f"{where}needs exactly one of \"turntable\" and \"rig\"")
