@@ -36,7 +36,7 @@ from stillcap.geometry.triangulate import triangulate
 from stillcap.files.atomic import write_bytes, write_text
 from stillcap.files.jsonfile import read_json
 from stillcap.files.paths import resolve_inside, safe_relpath
-from stillcap.files.schema import validate
+from stillcap.files.schema import MAX_COORDINATE, validate
 from stillcap.io.project._records import (BUILTIN_MARKERSETS, IMAGE_SUFFIXES, PHOTOS_DIR, PROJECT_FILE, PROJECT_FORMAT,
                                           PROJECT_VERSION, UNITS, Edit, Markers3D, ProjectFile, TurntableSetup, View,
                                           _check_xy, _file_stem, _format_angle, _same_angle, _view_from_entry,
@@ -217,8 +217,9 @@ class Project:
             if angle_deg is None or camera is not None:
                 raise ValueError("this is a turntable project: give angle_deg= (degrees), not camera=")
             angle_deg = float(angle_deg)
-            if not math.isfinite(angle_deg):
-                raise ValueError(f"angle_deg must be a finite number of degrees, got {angle_deg}")
+            if not (math.isfinite(angle_deg) and abs(angle_deg) <= MAX_COORDINATE):
+                raise ValueError(f"angle_deg must be a finite number of degrees within +-{MAX_COORDINATE:g}, "
+                                 f"got {angle_deg}")
             name = _format_angle(angle_deg)
             old = self.view_at(angle_deg)
             size = self.turntable.camera.image_size
