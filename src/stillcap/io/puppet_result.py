@@ -16,7 +16,7 @@ import numpy as np
 from stillcap.body.markerset import MarkerTrajectories
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.files.jsonfile import read_json
-from stillcap.files.schema import Coordinate, Finite, Model, Name, PositiveCount, Vec3, validate
+from stillcap.files.schema import Coordinate, Model, Name, PositiveCount, Vec3, validate
 
 __all__ = ["RESULT_FORMAT", "LoadedResult", "load_result"]
 
@@ -25,7 +25,7 @@ RESULT_FORMAT = "stillcap-puppet-result"
 #: How far a joint's stored ``position`` may lie from where the pose puts it (m).
 POSITION_TOL_M = 1e-6
 
-_Row3 = tuple[Finite, Finite, Finite]
+_Row3 = tuple[Coordinate, Coordinate, Coordinate]
 _Row4 = tuple[Coordinate, Coordinate, Coordinate, Coordinate]
 
 
