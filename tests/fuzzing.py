@@ -254,7 +254,7 @@ def read_project(folder: Path):
     from stillcap.io.project import Project
 
     p = Project.load(folder)
-    return p.observations()
+    return p.observations() if p.views else p
 
 
 @st.composite

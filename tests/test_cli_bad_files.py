@@ -176,3 +176,11 @@ def test_hand_reads_any_overrides(hand_capture_folder, tmp_path, capsys):
         check(["hand", hand_capture_folder, "--overrides", tmp_path / "ov.json", "--json"], capsys)
 
     prop()
+
+
+def test_names_from_files_are_not_rich_markup(tmp_path, capsys):
+    d = fuzzing.seed_overrides()
+    d["overrides"][0]["[/x]"] = 1
+    (tmp_path / "ov.json").write_text(json.dumps(d))
+    code, err = check(["hand", tmp_path / "missing-capture", "--overrides", tmp_path / "ov.json"], capsys)
+    assert code == 2 and "overrides.0.[/x]: unknown key" in err

@@ -11,6 +11,7 @@ import sys
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from stillcap.cli import calibrate, demo, markers, studio
 from stillcap.cli import export as export_cli, palette as palette_cli, puppet as puppet_cli
@@ -41,5 +42,5 @@ def main(argv=None) -> None:
         if e.code not in (0, None):
             raise
     except (ValueError, FileNotFoundError) as e:
-        err.print(f"[bold red]error:[/] {e}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)  # names from files are not markup
         sys.exit(2)
