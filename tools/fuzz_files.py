@@ -131,7 +131,8 @@ def main() -> int:
         if a.cli:
             def export_body(doc):
                 (tmp / "r.json").write_text(fuzzing.dumps(doc))
-                return cli(["export", tmp / "r.json", "--to", tmp / "o.c3d", "--to", tmp / "o.bvh", "--to", tmp / "o.json"])
+                return cli(["export", tmp / "r.json", "--to", tmp / "o.c3d", "--to", tmp / "o.bvh",
+                            "--to", tmp / "o.json"])
 
             campaign("cli export", fuzzing.json_files(fuzzing.seed_result()), export_body, n)
 

@@ -150,7 +150,9 @@ def _write(tmp_path, joints, name="bad.json"):
 
 def test_skeleton_file_errors_name_the_joint_and_file(tmp_path):
     p = _write(tmp_path, [{"name": "root", "parent": None}, {"name": "a", "parent": "nobody"}], "unknown.json")
-    with pytest.raises(ValueError, match=r"unknown\.json: joints\.1\.parent: joint 'a' has unknown parent 'nobody' \(joints: root, a\)$"):
+    with pytest.raises(ValueError,
+                       match=r"unknown\.json: joints\.1\.parent: joint 'a' has unknown parent 'nobody' \(joint"
+                              r"s: root, a\)$"):
         Skeleton.load(p)
     p = _write(tmp_path, [{"name": "root", "parent": None}, {"name": "a", "parent": "b"}, {"name": "b", "parent": "a"}], "cycle.json")
     with pytest.raises(ValueError, match=r"joint 'a' is in a cycle .* in .*cycle\.json"):

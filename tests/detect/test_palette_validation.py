@@ -22,9 +22,12 @@ def test_seeds_load(tmp_path):
 
 
 @pytest.mark.parametrize("data, message", [
-    ({"colors": [{"name": "a", "rgb": [0, 0, 1.5]}]}, r"pal.json: colors\.0\.rgb\.2: input should be less than or equal to 1"),
-    ({"colors": [{"name": "a", "rgb": [0, float("nan"), 1]}]}, r"pal.json: colors\.0\.rgb\.1: input should be a finite number"),
-    ({"colors": [{"name": "", "rgb": [0, 0, 1]}]}, r"pal.json: colors\.0\.name: string should have at least 1 character"),
+    ({"colors": [{"name": "a", "rgb": [0, 0, 1.5]}]},
+     r"pal.json: colors\.0\.rgb\.2: input should be less than or equal to 1"),
+    ({"colors": [{"name": "a", "rgb": [0, float("nan"), 1]}]},
+     r"pal.json: colors\.0\.rgb\.1: input should be a finite number"),
+    ({"colors": [{"name": "", "rgb": [0, 0, 1]}]},
+     r"pal.json: colors\.0\.name: string should have at least 1 character"),
     ({"colors": [{"name": "a", "rgb": [0, 0, 1]}, {"name": "a", "rgb": [1, 0, 1]}]},
      r"pal.json: colors\.1\.name: colour 'a' is listed twice"),
     ({"colors": []}, r"pal.json: colors: list should have at least 1 item"),

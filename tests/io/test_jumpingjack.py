@@ -122,7 +122,8 @@ def test_rig_projects_use_camera_names(tmp_path):
     q = import_jumpingjack(out, tmp_path / "again", rig=rig)
     assert [v.camera for v in q.views] == ["left", "right"]
     assert [v.markers for v in q.views] == [v.markers for v in p.views]
-    with pytest.raises(ValueError, match=r"stereo.juja: image #0 \('left'\): name 'left' is not a turn angle in degrees$"):
+    with pytest.raises(ValueError,
+        match=r"stereo.juja: image #0 \('left'\): name 'left' is not a turn angle in degrees$"):
         import_jumpingjack(out, tmp_path / "again2")
 
 

@@ -42,12 +42,14 @@ def test_the_seed_result_loads_and_exports(tmp_path):
     (lambda d: d["joints"][1].__setitem__("local_rotation", [[1, 0, 0], [0, 1, 0], [0, 0, float("nan")]]),
      r"result.json: joints\.1\.local_rotation\.2\.2: input should be a finite number"),
     (lambda d: d["joints"].pop(), r"result.json: joints: no entry for the skeleton's joints \['r-finger'\]"),
-    (lambda d: d["joints"].append(dict(d["joints"][0])), r"result.json: joints\.20\.name: joint 'root' is listed twice"),
+    (lambda d: d["joints"].append(dict(d["joints"][0])),
+     r"result.json: joints\.20\.name: joint 'root' is listed twice"),
     (lambda d: d["root2world"][3].__setitem__(3, 2), r"result.json: root2world: root2world must be rigid"),
     (lambda d: d["root2world"].pop(), r"result.json: root2world\.3: field required"),
     (lambda d: d["skeleton"]["joints"][3].__setitem__("offset", [0, "x", 0]),
      r"result.json: skeleton\.joints\.3\.offset\.1: input should be a valid number \(got 'x'\)"),
-    (lambda d: d["markers"].append(dict(d["markers"][0])), r"result.json: markers\.16\.name: marker 'head.1' is listed twice"),
+    (lambda d: d["markers"].append(dict(d["markers"][0])),
+     r"result.json: markers\.16\.name: marker 'head.1' is listed twice"),
     (lambda d: d.__setitem__("version", 2), r"result.json: result version 2 is newer"),
     (lambda d: d.__setitem__("format", "x"), r"result.json is not a stillcap puppet result"),
 ])
@@ -58,7 +60,8 @@ def test_bad_results_get_one_line(tmp_path, change, message):
 
 def test_exporters_get_no_infinite_or_huge_positions(tmp_path):
     traj = MarkerTrajectories.single(["a", "b"], [[0, 0, 0], [1e308, 1, 2]])
-    with pytest.raises(ValueError, match=r"cannot export: marker 'b' \(frame 0\) is at \[1e\+308, 1.0, 2.0\] m; positions "
+    with pytest.raises(ValueError,
+        match=r"cannot export: marker 'b' \(frame 0\) is at \[1e\+308, 1.0, 2.0\] m; positions "
                                          r"must be finite and within 1e\+06 m"):
         export(tmp_path / "m.c3d", traj)
     assert not (tmp_path / "m.c3d").exists()
