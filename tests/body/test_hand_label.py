@@ -162,20 +162,20 @@ def test_override_errors_name_the_entry(runs, tmp_path):
     k = int(np.flatnonzero(lab.reconstructed)[0])
     p = lab.points[lab.point_index[k, 0]]
     far = write_overrides(tmp_path / "far.json", [{"flash": k, "position_m": (p + 0.01).tolist(), "delete": True}])
-    with pytest.raises(ValueError, match=r"override 0 in .*far.json: no point within 3 mm"):
+    with pytest.raises(ValueError, match=r"far.json: overrides\.0: no point within 3 mm"):
         apply_label_overrides(lab, read_label_overrides(far))
     unknown = write_overrides(tmp_path / "u.json", [{"flash": k, "position_m": p.tolist(), "label": "pinky.nail"}])
-    with pytest.raises(ValueError, match=r"override 0 .*unknown marker 'pinky.nail'"):
+    with pytest.raises(ValueError, match=r"u.json: overrides\.0: unknown marker 'pinky.nail'"):
         apply_label_overrides(lab, read_label_overrides(unknown))
     bad_flash = write_overrides(tmp_path / "f.json", [{"flash": 99, "position_m": p.tolist(), "delete": True}])
-    with pytest.raises(ValueError, match=r"override 0 .*flash 99 is not one of"):
+    with pytest.raises(ValueError, match=r"f.json: overrides\.0: flash 99 is not one of"):
         apply_label_overrides(lab, read_label_overrides(bad_flash))
     both = write_overrides(tmp_path / "b.json", [{"flash": 0, "position_m": [0, 0, 0]},
                                                  {"flash": 0, "position_m": [0, 0, 0], "delete": True}])
-    with pytest.raises(ValueError, match=r"override 0 in .*either a 'label' or"):
+    with pytest.raises(ValueError, match=r"b.json: overrides\.0: needs either a 'label' or"):
         read_label_overrides(both)
     nopos = write_overrides(tmp_path / "p.json", [{"flash": 0, "position_m": [0, 0], "delete": True}])
-    with pytest.raises(ValueError, match=r"override 0 in .*position_m"):
+    with pytest.raises(ValueError, match=r"p.json: overrides\.0\.position_m\.2: field required$"):
         read_label_overrides(nopos)
     (tmp_path / "x.json").write_text('{"format": "other"}')
     with pytest.raises(ValueError, match="format 'stillcap-label-overrides'"):

@@ -87,16 +87,19 @@ def test_marker_set_file_round_trip_and_errors(puppet, tmp_path):
     data = ms.to_dict()
     data["markers"][0]["rgb"] = [1, 0, 0]
     (tmp_path / "rgb.json").write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"marker 'head.1' in .*rgb\.json: rgb .* disagrees with hsb"):
+    with pytest.raises(ValueError,
+                       match=r"rgb\.json: markers\.0\.rgb: marker 'head.1': rgb \[1\.0, 0\.0, 0\.0\] disagrees"
+                              r" with hsb"):
         MarkerSet.load(tmp_path / "rgb.json")
     data = ms.to_dict()
     data["bone_rules"][0]["to"] = "nose"
     (tmp_path / "rule.json").write_text(json.dumps(data))
-    with pytest.raises(ValueError, match=r"unknown marker 'nose' in .*rule\.json"):
+    with pytest.raises(ValueError,
+                       match=r"rule\.json: bone_rules\.0\.to: bone rule for 'head' names unknown marker 'nose'$"):
         MarkerSet.load(tmp_path / "rule.json")
     data = ms.to_dict()
     data["markers"][1]["name"] = data["markers"][0]["name"]
-    with pytest.raises(ValueError, match="duplicate marker name 'head.1'"):
+    with pytest.raises(ValueError, match=r"^<dict>: markers\.1\.name: duplicate marker name 'head.1'$"):
         MarkerSet.from_dict(data)
 
 

@@ -150,16 +150,18 @@ def _write(tmp_path, joints, name="bad.json"):
 
 def test_skeleton_file_errors_name_the_joint_and_file(tmp_path):
     p = _write(tmp_path, [{"name": "root", "parent": None}, {"name": "a", "parent": "nobody"}], "unknown.json")
-    with pytest.raises(ValueError, match=r"joint 'a' has unknown parent 'nobody' in .*unknown\.json"):
+    with pytest.raises(ValueError,
+                       match=r"unknown\.json: joints\.1\.parent: joint 'a' has unknown parent 'nobody' \(joint"
+                              r"s: root, a\)$"):
         Skeleton.load(p)
     p = _write(tmp_path, [{"name": "root", "parent": None}, {"name": "a", "parent": "b"}, {"name": "b", "parent": "a"}], "cycle.json")
     with pytest.raises(ValueError, match=r"joint 'a' is in a cycle .* in .*cycle\.json"):
         Skeleton.load(p)
     p = _write(tmp_path, [{"name": "root", "parent": None}, {"name": "a", "parent": "root"}, {"name": "a", "parent": "root"}], "dup.json")
-    with pytest.raises(ValueError, match=r"duplicate joint name 'a' in .*dup\.json"):
+    with pytest.raises(ValueError, match=r"dup\.json: joints\.2\.name: duplicate joint name 'a'$"):
         Skeleton.load(p)
     p = _write(tmp_path, [{"name": "root", "parent": None}, {"name": "a", "parent": "root", "offset": [1, 2]}], "offset.json")
-    with pytest.raises(ValueError, match=r"joint 'a' in .*offset\.json: offset of joint 'a' must have shape \(3,?\), got \(2,\)"):
+    with pytest.raises(ValueError, match=r"offset\.json: joints\.1\.offset\.2: field required$"):
         Skeleton.load(p)
     p = _write(tmp_path, [{"name": "r1", "parent": None}, {"name": "r2", "parent": None}], "roots.json")
     with pytest.raises(ValueError, match="exactly one root"):

@@ -1,6 +1,6 @@
 import pytest
 
-from stillcap.files.schema import Count, Finite, Model, Positive, PositiveCount, validate
+from stillcap.files.schema import ClosedModel, Count, Finite, Model, Positive, PositiveCount, validate
 
 
 class Cam(Model):
@@ -39,3 +39,24 @@ def test_the_whole_file_and_more_problems():
         validate(Rig, 5, "rig.json")
     with pytest.raises(ValueError, match=r"; 1 more problem\(s\)$"):
         validate(Rig, {"cameras": [{"fx": -1, "k": "x"}]}, "rig.json")
+
+
+def test_keys_from_a_file_stay_on_one_line():
+    class Open(Model):
+        data: dict[str, Positive]
+
+    with pytest.raises(ValueError) as e:
+        validate(Open, {"data": {"a\nb": -1}}, "f.json")
+    assert str(e.value) == "f.json: data.'a\\nb': input should be greater than 0 (got -1)"
+    with pytest.raises(ValueError) as e:
+        validate(Open, {"data": {"head.1": -1, "\x85": 1}}, "f.json")
+    assert str(e.value) == "f.json: data.head.1: input should be greater than 0 (got -1)"
+
+
+def test_unknown_keys_are_named():
+    class Closed(ClosedModel):
+        a: Count = 0
+
+    with pytest.raises(ValueError, match=r"^f.json: b: unknown key \(not part of the format; check its spelling\) "
+                                         r"\(got 1\)$"):
+        validate(Closed, {"b": 1}, "f.json")

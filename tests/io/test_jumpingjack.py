@@ -122,7 +122,8 @@ def test_rig_projects_use_camera_names(tmp_path):
     q = import_jumpingjack(out, tmp_path / "again", rig=rig)
     assert [v.camera for v in q.views] == ["left", "right"]
     assert [v.markers for v in q.views] == [v.markers for v in p.views]
-    with pytest.raises(ValueError, match=r"image 'left': name is not a turn angle"):
+    with pytest.raises(ValueError,
+        match=r"stereo.juja: image #0 \('left'\): name 'left' is not a turn angle in degrees$"):
         import_jumpingjack(out, tmp_path / "again2")
 
 
@@ -181,7 +182,7 @@ def test_file_attributes_must_stay_in_the_folder(tmp_path, src, message):
     f = tmp_path / "jj" / "t.juja"
     f.parent.mkdir()
     f.write_text(project_xml(src))
-    with pytest.raises(ValueError, match=rf"t.juja: image '0': .*{message}"):
+    with pytest.raises(ValueError, match=rf"t.juja: image #0 \('0'\): .*{message}"):
         read_jumpingjack(f)
 
 
@@ -223,15 +224,15 @@ def test_malformed_files(text, message):
 def test_import_errors_name_the_image(thesis_folder, tmp_path):
     f = thesis_folder / "t.juja"
     f.write_text(project_xml("my_project_0.jpg", marker='<marker name="nose" x="1" y="2"/>'))
-    with pytest.raises(ValueError, match=r"t.juja: image '0': .*unknown marker 'nose'"):
+    with pytest.raises(ValueError, match=r"t.juja: image #0 \('0'\): .*unknown marker 'nose'"):
         import_jumpingjack(f, tmp_path / "p")
     assert not (tmp_path / "p" / PROJECT_FILE).exists()  # a failed import leaves no project
     f.write_text(project_xml("missing.jpg"))
-    with pytest.raises(ValueError, match=r"t.juja: image '0': photo .*missing.jpg does not exist"):
+    with pytest.raises(ValueError, match=r"t.juja: image #0 \('0'\): photo .*missing.jpg does not exist"):
         import_jumpingjack(f, tmp_path / "p")
     cv2.imwrite(str(thesis_folder / "small.jpg"), photo(0, (320, 240)))
     f.write_text(project_xml("small.jpg"))
-    with pytest.raises(ValueError, match=r"image '0': .*320x240 px but the camera is 640x480"):
+    with pytest.raises(ValueError, match=r"t.juja: image #0 \('0'\): .*320x240 px but the camera is 640x480"):
         import_jumpingjack(f, tmp_path / "p")
     with pytest.raises(ValueError, match="does not exist"):
         read_jumpingjack(thesis_folder / "nothing.juja")

@@ -355,7 +355,8 @@ def test_damaged_project_files(project):
         Project.load(project.root)
     pfile.write_text(good)
     edit_json(project, lambda d: d["views"][0].__setitem__("angle", 5))
-    with pytest.raises(ValueError, match=r"view 'turn_000.0deg': unknown keys \['angle'\]"):
+    with pytest.raises(ValueError,
+        match=r"project.json: views\.0\.angle: unknown key \(not part of the format; check its spelling\) \(got 5\)$"):
         Project.load(project.root)
     pfile.write_text(good)
     edit_json(project, lambda d: d["views"][1].__setitem__("angle_deg", 0))

@@ -39,14 +39,16 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
+from pydantic import Field
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from stillcap._checks import as_array, as_positive, as_rng
+from stillcap._checks import as_array, as_rng
 from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLORS, fit_hand, hand_markerset,
                                 hand_skeleton, marker_colors)
 from stillcap.body.kinematics import rigid_alignment
@@ -54,6 +56,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Pose, Skeleton
 from stillcap.files.jsonable import to_jsonable
 from stillcap.files.jsonfile import read_json
+from stillcap.files.schema import ClosedModel, Model, Name, PositiveCount, Vec3, validate
 
 __all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "hand_points_from_truth", "label_hand_markers",
            "read_label_overrides"]
@@ -79,6 +82,27 @@ REACH_M = 0.30
 _LOG_MISS = -np.log(100.0)
 
 _OVERRIDES_FORMAT = "stillcap-label-overrides"
+_Tolerance = Field(None, strict=True, gt=0, le=1000, allow_inf_nan=False)
+
+
+class OverrideEntry(ClosedModel):
+    """One entry of a label overrides file's ``overrides``."""
+
+    flash: int = Field(strict=True, ge=0)
+    position_m: Vec3
+    label: Name | None = None
+    delete: bool = Field(False, strict=True)
+    tolerance_mm: float | None = _Tolerance
+    comment: Any = None
+
+
+class OverridesFile(Model):
+    """A label overrides file (``stillcap-label-overrides``, ``docs/hand-labelling.md``)."""
+
+    format: Literal["stillcap-label-overrides"] = _OVERRIDES_FORMAT
+    version: PositiveCount = 1
+    tolerance_mm: float | None = _Tolerance
+    overrides: list[OverrideEntry]
 
 
 # --------------------------------------------------------------------------------------------
@@ -571,32 +595,15 @@ def read_label_overrides(path) -> list[LabelOverride]:
     where = f"label overrides file {path}"
     if not isinstance(data, dict) or data.get("format", _OVERRIDES_FORMAT) != _OVERRIDES_FORMAT:
         raise ValueError(f"{where}: expected a JSON object with format {_OVERRIDES_FORMAT!r}")
-    entries = data.get("overrides")
-    if not isinstance(entries, list):
-        raise ValueError(f"{where}: needs an 'overrides' list")
-    tol = as_positive(data.get("tolerance_mm", 3.0), f"{where}: tolerance_mm") / 1000
+    f = validate(OverridesFile, data, where)
+    tol = (3.0 if f.tolerance_mm is None else f.tolerance_mm) / 1000
     out = []
-    for k, e in enumerate(entries):
-        name = f"override {k} in {path}"
-        if not isinstance(e, dict):
-            raise ValueError(f"{name} must be an object, got {type(e).__name__}")
-        unknown = set(e) - {"flash", "position_m", "label", "delete", "tolerance_mm", "comment"}
-        if unknown:
-            raise ValueError(f"{name} has unknown keys {sorted(unknown)}")
-        if not isinstance(e.get("flash"), int) or isinstance(e.get("flash"), bool):
-            raise ValueError(f"{name} needs an integer 'flash', got {e.get('flash')!r}")
-        try:
-            pos = as_array(e.get("position_m"), (3,), f"{name}: position_m")
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"{name} needs 'position_m' [x, y, z] in metres ({err})") from None
-        delete = bool(e.get("delete", False))
-        label = e.get("label")
-        if delete == (label is not None):
-            raise ValueError(f"{name} needs either a 'label' or \"delete\": true")
-        if label is not None and not isinstance(label, str):
-            raise ValueError(f"{name}: label must be a marker name, got {label!r}")
-        t = as_positive(e["tolerance_mm"], f"{name}: tolerance_mm") / 1000 if "tolerance_mm" in e else tol
-        out.append(LabelOverride(e["flash"], pos, label, delete, t, name))
+    for k, e in enumerate(f.overrides):
+        name = f"{where}: overrides.{k}"
+        if e.delete == (e.label is not None):
+            raise ValueError(f"{name}: needs either a 'label' or \"delete\": true (not both)")
+        t = tol if e.tolerance_mm is None else e.tolerance_mm / 1000
+        out.append(LabelOverride(e.flash, np.asarray(e.position_m, float), e.label, e.delete, t, name))
     return out
 
 

@@ -22,14 +22,16 @@ import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
+from pydantic import Field
 
 from stillcap._checks import as_array
 from stillcap.body.skeleton import LENGTH_UNITS, Animation, Pose, Skeleton
 from stillcap.files.atomic import write_text
 from stillcap.files.jsonfile import read_json, read_package_json
+from stillcap.files.schema import Coordinate, Fraction, Model, Name, PositiveCount, Vec3, validate
 
 __all__ = ["BUILTIN_MARKERSETS", "PUPPET_MARKERSETS", "BoneRule", "Marker", "MarkerSet", "MarkerTrajectories"]
 
@@ -40,6 +42,41 @@ PUPPET_MARKERSETS = {"puppet-16": "puppet_markers.json", "puppet-20": "puppet_ma
 #: Marker sets shipped with stillcap that :meth:`MarkerSet.builtin` loads by name (the hand's
 #: glove markers come with their own colour groups: :func:`stillcap.body.hand.hand_markers`).
 BUILTIN_MARKERSETS = dict(PUPPET_MARKERSETS)
+
+
+class MarkerEntry(Model):
+    """One entry of a marker-set file's ``markers`` (``docs/skeleton.md``)."""
+
+    name: Name
+    bone: Name
+    offset: Vec3
+    hsb: tuple[Fraction, Fraction, Fraction] = (0.0, 0.0, 1.0)
+    rgb: tuple[Fraction, Fraction, Fraction] | None = None
+    diameter: Coordinate | None = Field(None, gt=0)
+
+
+class BoneRuleEntry(Model):
+    """One entry of a marker-set file's ``bone_rules``."""
+
+    bone: Name
+    from_: Name | None = Field(None, alias="from")
+    to: Name | None = None
+    copy_: Name | None = Field(None, alias="copy")
+    cross: Name | None = None
+    axis: Vec3 | None = None
+    primary: bool = Field(False, strict=True)
+
+
+class MarkerSetFile(Model):
+    """A marker-set file (``stillcap-markerset``): the schema checked on load."""
+
+    format: Literal["stillcap-markerset"] = _FORMAT
+    version: PositiveCount = 1
+    name: str = "markers"
+    skeleton: str | None = None
+    length_unit: Literal["m", "cm", "mm"] = "m"
+    markers: list[MarkerEntry] = []
+    bone_rules: list[BoneRuleEntry] = []
 
 
 @dataclass(frozen=True, eq=False)
@@ -200,13 +237,16 @@ class MarkerSet:
 
     def check_skeleton(self, skeleton: Skeleton) -> None:
         """ValueError if a marker or rule names a bone the skeleton lacks (or its root)."""
-        for m in self.markers:
+        bones = ", ".join(n for n in skeleton.names if n != skeleton.names[skeleton.root])
+        for k, m in enumerate(self.markers):
             if m.bone not in skeleton or skeleton.index(m.bone) == skeleton.root:
-                raise ValueError(f"marker {m.name!r} is on bone {m.bone!r}, which skeleton {skeleton.name!r} lacks")
-        for r in self.rules:
-            for b in (r.bone, r.copy, r.cross):
+                raise ValueError(f"{self.source}: markers.{k}.bone: marker {m.name!r} is on bone {m.bone!r}, which "
+                                 f"skeleton {skeleton.name!r} lacks (bones: {bones})")
+        for k, r in enumerate(self.rules):
+            for key, b in (("bone", r.bone), ("copy", r.copy), ("cross", r.cross)):
                 if b is not None and (b not in skeleton or skeleton.index(b) == skeleton.root):
-                    raise ValueError(f"bone rule names bone {b!r}, which skeleton {skeleton.name!r} lacks")
+                    raise ValueError(f"{self.source}: bone_rules.{k}.{key}: bone rule names bone {b!r}, which "
+                                     f"skeleton {skeleton.name!r} lacks (bones: {bones})")
 
     def bone_frames(self, skeleton: Skeleton) -> np.ndarray:
         """Index of the joint whose frame carries each marker (its bone's start joint), shape (n_markers,)."""
@@ -255,43 +295,51 @@ class MarkerSet:
         return out
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "<dict>") -> "MarkerSet":
-        """Build a marker set from :meth:`to_dict` output; ValueError naming ``source`` on bad data."""
-        where = f" in {source}"
+    def from_dict(cls, data: dict, source: str = "<dict>", prefix: tuple = ()) -> "MarkerSet":
+        """Build a marker set from :meth:`to_dict` output; ValueError naming ``source`` and the
+        key path on bad data (``prefix``: the key path of ``data`` inside its file)."""
         if not isinstance(data, dict) or data.get("format", _FORMAT) != _FORMAT:
-            raise ValueError(f"not a marker-set file{where} (expected format {_FORMAT!r})")
-        unit = data.get("length_unit", "m")
-        if unit not in LENGTH_UNITS:
-            raise ValueError(f"length_unit{where} must be one of {sorted(LENGTH_UNITS)}, got {unit!r}")
-        s = LENGTH_UNITS[unit]
+            raise ValueError(f"{source}: {'.'.join(map(str, prefix)) or '(the whole file)'}: not a marker-set "
+                             f"file (expected format {_FORMAT!r})")
+        f = validate(MarkerSetFile, data, source, prefix)
+        s = LENGTH_UNITS[f.length_unit]
+
+        def at(*keys) -> str:
+            return f"{source}: {'.'.join(str(k) for k in (*prefix, *keys))}"
+
         markers = []
-        for k, d in enumerate(data.get("markers", [])):
-            name = d.get("name", f"#{k}") if isinstance(d, dict) else f"#{k}"
-            try:
-                m = Marker(
-                    name=d["name"],
-                    bone=d["bone"],
-                    offset=np.asarray(d["offset"], float) * s,
-                    hsb=d.get("hsb", (0.0, 0.0, 1.0)),
-                    diameter=float(d.get("diameter", 0.006 / s)) * s,
-                )
-            except (KeyError, TypeError, ValueError) as e:
-                raise ValueError(f"marker {name!r}{where}: {e!r}") from e
-            if "rgb" in d and np.abs(np.asarray(d["rgb"], float) - m.rgb).max() > 0.01:
-                raise ValueError(f"marker {name!r}{where}: rgb {d['rgb']} disagrees with hsb {list(m.hsb)}")
+        for k, d in enumerate(f.markers):
+            diameter = 0.006 if d.diameter is None else d.diameter * s
+            m = Marker(name=d.name, bone=d.bone, offset=np.asarray(d.offset, float) * s, hsb=d.hsb, diameter=diameter)
+            if d.rgb is not None and np.abs(np.asarray(d.rgb, float) - m.rgb).max() > 0.01:
+                raise ValueError(f"{at('markers', k, 'rgb')}: marker {d.name!r}: rgb {list(d.rgb)} disagrees with "
+                                 f"hsb {list(m.hsb)} (as rgb {[round(v, 4) for v in m.rgb]})")
+            if d.name in (x.name for x in markers):
+                raise ValueError(f"{at('markers', k, 'name')}: duplicate marker name {d.name!r}")
             markers.append(m)
-        rules = []
-        for d in data.get("bone_rules", []):
-            try:
-                rules.append(
-                    BoneRule(
-                        d["bone"], d.get("from"), d.get("to"), d.get("copy"), d.get("cross"), d.get("axis"),
-                        bool(d.get("primary", False)),
-                    )
-                )
-            except (KeyError, TypeError, ValueError) as e:
-                raise ValueError(f"bone rule {d!r}{where}: {e}") from e
-        return cls(tuple(markers), tuple(rules), str(data.get("name", "markers")), data.get("skeleton"), source)
+        names = {m.name for m in markers}
+        rules, defined = [], set()
+        for k, d in enumerate(f.bone_rules):
+            kinds = [d.from_ is not None and d.to is not None, d.copy_ is not None, d.cross is not None]
+            if sum(kinds) != 1 or (d.from_ is None) != (d.to is None):
+                raise ValueError(f"{at('bone_rules', k)}: bone rule for {d.bone!r} needs exactly one of from/to, "
+                                 "copy, cross+axis")
+            if d.bone in defined:
+                raise ValueError(f"{at('bone_rules', k, 'bone')}: two bone rules for bone {d.bone!r}")
+            for key, ref in (("from", d.from_), ("to", d.to)):
+                if ref is not None and ref not in names:
+                    raise ValueError(f"{at('bone_rules', k, key)}: bone rule for {d.bone!r} names unknown marker "
+                                     f"{ref!r}")
+            for key, src in (("copy", d.copy_), ("cross", d.cross)):
+                if src is not None and src not in defined:
+                    raise ValueError(f"{at('bone_rules', k, key)}: bone rule for {d.bone!r} uses bone {src!r} "
+                                     "before a rule defines it")
+            if d.cross is not None and (d.axis is None or not any(d.axis)):
+                raise ValueError(f"{at('bone_rules', k, 'axis')}: bone rule for {d.bone!r}: 'cross' needs a "
+                                 f"non-zero 'axis' [x, y, z] (got {d.axis})")
+            defined.add(d.bone)
+            rules.append(BoneRule(d.bone, d.from_, d.to, d.copy_, d.cross, d.axis, d.primary))
+        return cls(tuple(markers), tuple(rules), f.name, f.skeleton, source)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "MarkerSet":

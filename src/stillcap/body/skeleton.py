@@ -28,14 +28,16 @@ import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Annotated, Iterator, Literal, Sequence
 
 import numpy as np
+from pydantic import Field
 from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array
 from stillcap.files.atomic import write_text
 from stillcap.files.jsonfile import read_json, read_package_json
+from stillcap.files.schema import Finite, Model, Name, PositiveCount, Vec3, validate
 
 __all__ = [
     "Joint",
@@ -59,6 +61,27 @@ EULER_LIMIT_SEQUENCE = "XYZ"
 
 _FORMAT = "stillcap-skeleton"
 _ROT_TOL = 1e-6
+
+_Limit = tuple[Finite, Finite]
+
+
+class JointEntry(Model):
+    """One entry of a skeleton file's ``joints`` (``docs/skeleton.md``)."""
+
+    name: Name
+    parent: Name | None = None
+    offset: Vec3 = (0.0, 0.0, 0.0)
+    limits_deg: tuple[_Limit | None, _Limit | None, _Limit | None] | None = None
+
+
+class SkeletonFile(Model):
+    """A skeleton file (``stillcap-skeleton``): the schema checked on load."""
+
+    format: Literal["stillcap-skeleton"] = _FORMAT
+    version: PositiveCount = 1
+    name: str = "skeleton"
+    length_unit: Literal["m", "cm", "mm"] = "m"
+    joints: Annotated[list[JointEntry], Field(min_length=1)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -313,35 +336,28 @@ class Skeleton:
         return {"format": _FORMAT, "version": 1, "name": self.name, "length_unit": length_unit, "joints": joints}
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "<dict>") -> "Skeleton":
-        """Build a skeleton from :meth:`to_dict` output; ValueError naming ``source`` on bad data."""
-        where = f" in {source}"
-        if not isinstance(data, dict):
-            raise ValueError(f"skeleton data must be a JSON object{where}, got {type(data).__name__}")
-        fmt = data.get("format", _FORMAT)
-        if fmt != _FORMAT:
-            raise ValueError(f"not a skeleton file{where}: format is {fmt!r}, expected {_FORMAT!r}")
-        scale = _unit_scale(data.get("length_unit", "m"), f"length_unit{where}")
-        raw = data.get("joints")
-        if not isinstance(raw, list):
-            raise ValueError(f"skeleton data needs a 'joints' list{where}")
+    def from_dict(cls, data: dict, source: str = "<dict>", prefix: tuple = ()) -> "Skeleton":
+        """Build a skeleton from :meth:`to_dict` output; ValueError naming ``source`` and the key
+        path on bad data (``prefix``: the key path of ``data`` inside its file)."""
+        if isinstance(data, dict) and data.get("format", _FORMAT) != _FORMAT:
+            raise ValueError(f"{source}: {_path(prefix, 'format')}: not a skeleton file: format is "
+                             f"{data.get('format')!r}, expected {_FORMAT!r}")
+        f = validate(SkeletonFile, data, source, prefix)
+        scale = LENGTH_UNITS[f.length_unit]
+        names = [j.name for j in f.joints]
+        for k, j in enumerate(f.joints):
+            if j.name in names[:k]:
+                raise ValueError(f"{source}: {_path(prefix, 'joints', k, 'name')}: duplicate joint name {j.name!r}")
+            if j.parent is not None and j.parent not in names:
+                raise ValueError(f"{source}: {_path(prefix, 'joints', k, 'parent')}: joint {j.name!r} has unknown "
+                                 f"parent {j.parent!r} (joints: {', '.join(names)})")
         joints = []
-        for k, d in enumerate(raw):
-            if not isinstance(d, dict) or "name" not in d:
-                raise ValueError(f"joint {k} needs a 'name'{where}")
-            name = d["name"]
+        for k, j in enumerate(f.joints):
             try:
-                joints.append(
-                    Joint(
-                        name=name,
-                        parent=d.get("parent"),
-                        offset=np.asarray(d.get("offset", [0, 0, 0]), float) * scale,
-                        limits_deg=d.get("limits_deg"),
-                    )
-                )
-            except (ValueError, TypeError) as e:
-                raise ValueError(f"joint {name!r}{where}: {e}") from e
-        return cls(tuple(joints), name=str(data.get("name", "skeleton")), source=source)
+                joints.append(Joint(j.name, j.parent, np.asarray(j.offset, float) * scale, j.limits_deg))
+            except ValueError as e:
+                raise ValueError(f"{source}: {_path(prefix, 'joints', k)}: {e}") from None
+        return cls(tuple(joints), name=f.name, source=source)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Skeleton":
@@ -435,6 +451,11 @@ def _angles_within(rots: np.ndarray, lim: np.ndarray) -> tuple[np.ndarray, np.nd
     best = np.argmin(viol, axis=0)
     idx = np.arange(len(rots))
     return cands[best, idx], viol[best, idx]
+
+
+def _path(prefix: tuple, *keys) -> str:
+    """A key path ``a.0.b`` for messages."""
+    return ".".join(str(k) for k in (*prefix, *keys))
 
 
 def _unit_scale(unit, what: str) -> float:

@@ -42,5 +42,6 @@ def main(argv=None) -> None:
         if e.code not in (0, None):
             raise
     except (ValueError, FileNotFoundError) as e:
-        err.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)  # [x] is not markup
+        # escaped: names read from files are not rich markup ("[/x]" would crash the printing)
+        err.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
         sys.exit(2)

@@ -62,6 +62,10 @@ def hand(
         raise typer.BadParameter(f"{personalise!r} is not one of best, joint", param_hint="--personalise")
     if interpolation not in ("spline", "slerp"):
         raise typer.BadParameter(f"{interpolation!r} is not one of spline, slerp", param_hint="--interpolation")
+    if overrides is not None:  # a bad file is named before the analysis runs
+        from stillcap.body.hand_label import read_label_overrides
+
+        read_label_overrides(overrides)
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
     if not (np.isfinite(slow_motion) and slow_motion > 0):

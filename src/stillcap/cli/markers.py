@@ -33,6 +33,11 @@ def markers(
     from stillcap.io.capture import Capture
     from stillcap.pipelines.markers import reconstruct_markers
 
+    pal = None
+    if palette is not None:  # a bad file is named before the photos are read
+        from stillcap.detect.palette import read_bgr_palette
+
+        pal = read_bgr_palette(palette)
     cap = Capture.load(capture)
     images = []
     with progress("reading photos", total=len(cap.rig)) as bar:
@@ -42,12 +47,6 @@ def markers(
                 raise ValueError(f"capture {capture}: camera {cam.name!r} has no photo")
             images.append(cap.read_image(shots[0]))
             bar(len(images), item=cam.name)
-    pal = None
-    if palette is not None:
-        try:
-            pal = {str(k): tuple(float(c) for c in v) for k, v in json.loads(Path(palette).read_text()).items()}
-        except (OSError, json.JSONDecodeError, TypeError, ValueError) as e:
-            raise ValueError(f"palette file {palette}: {e}") from None
     with progress("finding and triangulating markers"):
         rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px)
     result = rec.to_dict()

@@ -26,17 +26,15 @@ def _kept_palette(keep: str):
     if not path.is_file():
         raise ValueError(f"--keep {keep!r} is neither 'puppet', a built-in marker set "
                          f"({', '.join(BUILTIN_MARKERSETS)}) nor an existing file")
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"--keep {path}: not valid JSON: {e}") from None
+    from stillcap.files.jsonfile import read_json
+
+    d = read_json(path, "--keep")
     if isinstance(d, dict) and d.get("format") == "stillcap-markerset":
-        return Palette.from_markerset(MarkerSet.from_dict(d, source=str(path)))
-    try:
-        return Palette([c["name"] for c in d["colors"]], [c["rgb"] for c in d["colors"]])
-    except (KeyError, TypeError, ValueError) as e:
-        raise ValueError(f"--keep {path}: neither a marker set nor a palette ({{\"colors\": [{{\"name\", \"rgb\"}}]}}): "
-                         f"{e}") from None
+        return Palette.from_markerset(MarkerSet.from_dict(d, source=f"--keep {path}"))
+    if not (isinstance(d, dict) and "colors" in d):
+        raise ValueError(f"--keep {path}: neither a marker set (\"format\": \"stillcap-markerset\") nor a palette "
+                         "({\"colors\": [{\"name\", \"rgb\"}]})")
+    return Palette.from_dict(d, source=f"--keep {path}")
 
 
 def palette(

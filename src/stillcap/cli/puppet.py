@@ -48,13 +48,10 @@ def load_palette(path: Path | None, markerset=None):
     from stillcap.detect.palette import Palette
 
     markerset = markerset or MarkerSet.puppet()
-    try:
-        d = json.loads(Path(path).read_text(encoding="utf-8"))
-        colors = {c["name"]: c["rgb"] for c in d["colors"]}
-    except FileNotFoundError:
-        raise ValueError(f"palette file {path} does not exist") from None
-    except (OSError, json.JSONDecodeError, KeyError, TypeError) as e:
-        raise ValueError(f"palette file {path}: not a palette ({{\"colors\": [{{\"name\", \"rgb\"}}]}}): {e}") from None
+    if not Path(path).is_file():
+        raise ValueError(f"palette file {path} does not exist")
+    pal = Palette.load(path)
+    colors = dict(zip(pal.names, pal.rgb))
     missing = [n for n in markerset.names if n not in colors]
     if missing:
         raise ValueError(f"palette file {path} lacks the markers {missing}")

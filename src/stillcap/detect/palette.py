@@ -21,11 +21,15 @@ from __future__ import annotations
 import colorsys
 import math
 from dataclasses import dataclass, replace
+from typing import Annotated
 
 import numpy as np
+from pydantic import Field, RootModel
 from skimage.color import hsv2rgb, rgb2hsv
 
 from stillcap._checks import as_array, as_rng
+from stillcap.files.jsonfile import read_json
+from stillcap.files.schema import Fraction, Model, Name, validate
 
 __all__ = [
     "METRICS",
@@ -225,6 +229,33 @@ def color_distance(a_rgb, b_rgb, metric: str = "ciede2000", lightness_weight: fl
     return _lab_pairwise(rgb_to_lab(a), rgb_to_lab(b), metric, lightness_weight)
 
 
+class PaletteColor(Model):
+    """One entry of a palette file's ``colors`` (``hex`` and ``hsb`` may be present; ``rgb`` is read)."""
+
+    name: Name
+    rgb: tuple[Fraction, Fraction, Fraction]
+
+
+class PaletteFile(Model):
+    """A palette file (``stillcap palette --json``, ``stillcap puppet calibrate-palette``)."""
+
+    colors: Annotated[list[PaletteColor], Field(min_length=1)]
+
+
+_Byte = Annotated[float, Field(strict=True, ge=0, le=255, allow_inf_nan=False)]
+
+
+class BGRPaletteFile(RootModel[Annotated[dict[Name, tuple[_Byte, _Byte, _Byte]], Field(min_length=1)]]):
+    """A marker-ball palette (``stillcap markers --palette``): ``{label: [b, g, r]}``, 0-255."""
+
+
+def read_bgr_palette(path) -> dict[str, tuple[float, float, float]]:
+    """``{label: (b, g, r)}`` (0-255) from a marker-ball palette file; ValueError naming the file
+    and the label on bad data."""
+    where = f"palette file {path}"
+    return {k: tuple(v) for k, v in validate(BGRPaletteFile, read_json(path, "palette file"), where).root.items()}
+
+
 @dataclass(frozen=True, eq=False)
 class Palette:
     """Named reference colours.
@@ -263,6 +294,22 @@ class Palette:
         """From OpenCV-order 8-bit colours, shape (K, 3), 0-255."""
         b = as_array(bgr, (len(names), 3), "bgr")
         return cls(names, np.clip(b[:, ::-1] / 255.0, 0, 1))
+
+    @classmethod
+    def from_dict(cls, data, source: str = "<palette>") -> "Palette":
+        """From :meth:`to_dict` output (``{"colors": [{"name", "rgb"}, ...]}``); ValueError naming
+        ``source`` and the key path on bad data."""
+        f = validate(PaletteFile, data, source)
+        names = [c.name for c in f.colors]
+        for k, n in enumerate(names):
+            if n in names[:k]:
+                raise ValueError(f"{source}: colors.{k}.name: colour {n!r} is listed twice")
+        return cls(names, np.array([c.rgb for c in f.colors], float))
+
+    @classmethod
+    def load(cls, path) -> "Palette":
+        """Read a palette file (:meth:`from_dict`)."""
+        return cls.from_dict(read_json(path, "palette file"), f"palette file {path}")
 
     @classmethod
     def from_markerset(cls, markerset) -> "Palette":

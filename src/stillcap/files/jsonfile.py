@@ -19,7 +19,13 @@ def read_json(path, what: str = ""):
         return json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ValueError(f"{name} does not exist") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+    except IsADirectoryError:
+        raise ValueError(f"{name} is a folder, not a JSON file") from None
+    except OSError as e:
+        raise ValueError(f"{name} cannot be read: {e.strerror or e}") from None
+    except RecursionError:
+        raise ValueError(f"{name} is not valid JSON: nested too deeply") from None
+    except ValueError as e:  # JSONDecodeError, UnicodeDecodeError, an integer of more than 4300 digits
         raise ValueError(f"{name} is not valid JSON: {e}") from None
 
 

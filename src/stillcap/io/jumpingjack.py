@@ -53,6 +53,7 @@ import defusedxml.ElementTree as DET
 from stillcap.body.markerset import MarkerSet
 from stillcap.camera import Rig
 from stillcap.files.atomic import atomic_path, write_bytes
+from stillcap.files.schema import MAX_COORDINATE
 from stillcap.io.project import Project, TurntableSetup, resolve_inside
 
 __all__ = ["JJ_SUFFIX", "MAX_XML_BYTES", "JJImage", "JJProjectFile", "read_jumpingjack", "parse_jumpingjack",
@@ -90,9 +91,10 @@ class JJImage:
         try:
             a = float(self.name)
         except ValueError:
-            raise ValueError(f"image {self.name!r}: name is not a turn angle in degrees") from None
-        if not math.isfinite(a):
-            raise ValueError(f"image {self.name!r}: turn angle must be finite")
+            raise ValueError(f"name {self.name!r} is not a turn angle in degrees") from None
+        if not (math.isfinite(a) and abs(a) <= MAX_COORDINATE):
+            raise ValueError(f"name {self.name!r}: the turn angle must be finite and within +-{MAX_COORDINATE:g} "
+                             "degrees")
         return a
 
 
@@ -185,8 +187,8 @@ def read_jumpingjack(path) -> JJProjectFile:
         raise ValueError(f"{path}: {size} bytes is too large for a JumpingJack project (limit {MAX_XML_BYTES})")
     jj = parse_jumpingjack(path.read_bytes(), str(path))
     jj.folder = path.parent
-    for im in jj.images:
-        where = f"{path}: image {im.name!r}"
+    for i, im in enumerate(jj.images):
+        where = f"{path}: image #{i} ({im.name!r})"
         p = resolve_inside(jj.folder, im.normal_src, f"{where}: normal_src")
         if not p.is_file():
             raise ValueError(f"{where}: photo {p} does not exist")
@@ -226,14 +228,14 @@ def import_jumpingjack(path, folder, *, turntable: TurntableSetup | None = None,
         name = jj.name[:-len(JJ_SUFFIX)] if jj.name.endswith(JJ_SUFFIX) else (jj.name or path.stem)
     project = Project.create(folder, turntable=turntable if rig is None else None, rig=rig,
                              markerset=markerset, name=name, save=False)
-    for im in jj.images:
-        key = {"camera": im.name} if rig is not None else {"angle_deg": im.angle_deg}
-        where = f"{path}: image {im.name!r}"
+    for i, im in enumerate(jj.images):
+        where = f"{path}: image #{i} ({im.name!r})"
         pro = None
         if im.pro_src is not None:
             p = resolve_inside(jj.folder, im.pro_src, f"{where}: pro_src")
             pro = p if p.is_file() else None  # a processed photo can be made again; its absence is no error
         try:
+            key = {"camera": im.name} if rig is not None else {"angle_deg": im.angle_deg}
             project.add_view(resolve_inside(jj.folder, im.normal_src, f"{where}: normal_src"),
                              detections=im.markers, processed=pro, **key)
         except ValueError as e:

@@ -13,6 +13,7 @@ import numpy as np
 
 from stillcap.body.markerset import MarkerTrajectories
 from stillcap.body.skeleton import Animation, Pose, Skeleton
+from stillcap.files.schema import MAX_COORDINATE
 
 __all__ = ["EXPORTERS", "ExportData", "as_export_data", "export", "register", "known_extensions"]
 
@@ -67,7 +68,36 @@ class ExportData:
 
 
 def as_export_data(result) -> ExportData:
-    """Normalise what a caller hands to :func:`export` into :class:`ExportData`."""
+    """Normalise what a caller hands to :func:`export` into :class:`ExportData`.
+
+    Every format gets finite data: joint positions and seen markers must be finite and within
+    :data:`~stillcap.files.schema.MAX_COORDINATE` metres (a marker at 1e308 m would become
+    infinity in a C3D file's float32 millimetres); ValueError naming the joint or marker otherwise.
+    """
+    return _check_finite(_normalise(result))
+
+
+def _check_finite(data: ExportData) -> ExportData:
+    if data.animation is not None:
+        anim = data.animation
+        pos = anim.positions
+        bad = ~(np.isfinite(pos) & (np.abs(pos) <= MAX_COORDINATE)).all(axis=-1)
+        if bad.any():
+            f, j = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(f"cannot export: joint {anim.skeleton.names[j]!r} (frame {f}) is at "
+                             f"{pos[f, j].tolist()} m; positions must be finite and within {MAX_COORDINATE:g} m")
+    if data.markers is not None:
+        pts = data.markers.points
+        with np.errstate(invalid="ignore"):
+            bad = (~np.isnan(pts) & ~(np.abs(pts) <= MAX_COORDINATE)).any(axis=-1)
+        if bad.any():
+            f, m = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(f"cannot export: marker {data.markers.names[m]!r} (frame {f}) is at {pts[f, m].tolist()} "
+                             f"m; positions must be finite and within {MAX_COORDINATE:g} m (NaN = not seen)")
+    return data
+
+
+def _normalise(result) -> ExportData:
     if isinstance(result, ExportData):
         return result
     if isinstance(result, Pose):
@@ -80,7 +110,7 @@ def as_export_data(result) -> ExportData:
     if isinstance(result, (tuple, list)):
         out = ExportData()
         for item in result:
-            part = as_export_data(item)
+            part = _normalise(item)
             if part.animation is not None:
                 if out.animation is not None:
                     raise ValueError("got two skeleton motions to export; pass one Pose or Animation")
@@ -105,7 +135,7 @@ def as_export_data(result) -> ExportData:
         None,
     )
     if motion is not None or markers is not None:
-        return as_export_data(tuple(x for x in (motion, markers) if x is not None))
+        return _normalise(tuple(x for x in (motion, markers) if x is not None))
     raise ValueError(
         "cannot export an object of type "
         f"{type(result).__name__}: pass a Pose, Animation, MarkerTrajectories or ExportData"

@@ -30,15 +30,17 @@ import cv2
 import numpy as np
 
 from stillcap.body.markerset import MarkerSet
+from stillcap.body.skeleton import Skeleton
 from stillcap.camera import RIG_FORMAT, Camera, Rig
 from stillcap.geometry.triangulate import triangulate
 from stillcap.files.atomic import write_bytes, write_text
 from stillcap.files.images import check_image_file, decode_image, read_image
 from stillcap.files.jsonfile import read_json
 from stillcap.files.paths import resolve_inside, safe_relpath
+from stillcap.files.schema import MAX_COORDINATE, validate
 from stillcap.io.project._records import (BUILTIN_MARKERSETS, IMAGE_SUFFIXES, PHOTOS_DIR, PROJECT_FILE, PROJECT_FORMAT,
-                                          PROJECT_VERSION, UNITS, _TOP_KEYS, Edit, Markers3D, TurntableSetup, View,
-                                          _check_xy, _file_stem, _format_angle, _same_angle, _view_from_dict,
+                                          PROJECT_VERSION, UNITS, Edit, Markers3D, ProjectFile, TurntableSetup, View,
+                                          _check_xy, _file_stem, _format_angle, _same_angle, _view_from_entry,
                                           dumps_json)
 
 
@@ -216,8 +218,9 @@ class Project:
             if angle_deg is None or camera is not None:
                 raise ValueError("this is a turntable project: give angle_deg= (degrees), not camera=")
             angle_deg = float(angle_deg)
-            if not math.isfinite(angle_deg):
-                raise ValueError(f"angle_deg must be a finite number of degrees, got {angle_deg}")
+            if not (math.isfinite(angle_deg) and abs(angle_deg) <= MAX_COORDINATE):
+                raise ValueError(f"angle_deg must be a finite number of degrees within +-{MAX_COORDINATE:g}, "
+                                 f"got {angle_deg}")
             name = _format_angle(angle_deg)
             old = self.view_at(angle_deg)
             size = self.turntable.camera.image_size
@@ -539,33 +542,24 @@ class Project:
         if not isinstance(d, dict) or d.get("format") != PROJECT_FORMAT:
             raise ValueError(f"{where}not a stillcap puppet project (expected \"format\": \"{PROJECT_FORMAT}\")")
         version = d.get("version")
-        if not isinstance(version, int) or isinstance(version, bool) or version < 1:
-            raise ValueError(f"{where}\"version\" must be a positive integer, got {version!r}")
-        if version > PROJECT_VERSION:
+        if isinstance(version, int) and not isinstance(version, bool) and version > PROJECT_VERSION:
             raise ValueError(f"{where}project version {version} is newer than this stillcap reads ({PROJECT_VERSION})")
-        unknown = set(d) - _TOP_KEYS
-        if unknown:
-            raise ValueError(f"{where}unknown keys {sorted(unknown)}")
-        units = d.get("units", UNITS)
-        if not isinstance(units, dict) or any(units.get(k, v) != v for k, v in UNITS.items()):
-            raise ValueError(f"{where}units must be {UNITS}, got {units!r}")
-        markerset = _load_markerset(root, d.get("markerset", "puppet-16"), where)
+        f = validate(ProjectFile, d, str(pfile))
+        if any(f.units.get(k, v) != v for k, v in UNITS.items()):
+            raise ValueError(f"{where}units: must be {UNITS}, got {f.units!r}")
+        markerset = _load_markerset(root, f.markerset, where, str(pfile))
+        markerset.check_skeleton(Skeleton.puppet())  # its bones are the puppet's (the skeleton projects pose)
         turntable = rig = rig_file = None
-        if ("turntable" in d) == ("rig" in d):
+        if (f.turntable is None) == (f.rig is None):
             raise ValueError(f"{where}needs exactly one of \"turntable\" and \"rig\"")
-        if "turntable" in d:
+        if f.turntable is not None:
             turntable = TurntableSetup.from_dict(d["turntable"], where)
         else:
             rig, rig_file = _load_rig(root, d["rig"], where)
-        views_d = d.get("views", [])
-        if not isinstance(views_d, list):
-            raise ValueError(f"{where}\"views\" must be a list")
-        views = [_view_from_dict(vd, where, i) for i, vd in enumerate(views_d)]
-        meta = d.get("meta", {})
-        if not isinstance(meta, dict):
-            raise ValueError(f"{where}\"meta\" must be an object")
-        name = d.get("name", root.name)
-        project = cls(root, markerset, turntable, rig, views, str(name), rig_file, meta)
+        views = [_view_from_entry(vd, where, i) for i, vd in enumerate(f.views)]
+        meta = f.meta
+        name = f.name if f.name is not None else root.name
+        project = cls(root, markerset, turntable, rig, views, name, rig_file, meta)
         try:
             project._validate()
         except ValueError as e:
@@ -584,7 +578,7 @@ class Project:
         return project
 
 
-def _load_markerset(root: Path, entry, where: str) -> MarkerSet:
+def _load_markerset(root: Path, entry, where: str, source: str) -> MarkerSet:
     if isinstance(entry, str):
         if entry not in BUILTIN_MARKERSETS:
             raise ValueError(f"{where}unknown built-in marker set {entry!r} (built-in: {sorted(BUILTIN_MARKERSETS)}; "
@@ -596,7 +590,7 @@ def _load_markerset(root: Path, entry, where: str) -> MarkerSet:
             raise ValueError(f"{where}marker-set file {path} does not exist")
         return MarkerSet.load(path)
     if isinstance(entry, dict) and entry.get("format") == "stillcap-markerset":
-        return MarkerSet.from_dict(entry, source=f"{where}markerset")
+        return MarkerSet.from_dict(entry, source=source, prefix=("markerset",))
     raise ValueError(f"{where}\"markerset\" must be a built-in name, {{\"file\": ...}} or an embedded marker set")
 
 

@@ -8,8 +8,10 @@ import json
 import math
 import re
 from dataclasses import dataclass, field
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import Field
 
 from stillcap.body.markerset import BUILTIN_MARKERSETS as _MARKERSET_NAMES
 from stillcap.body.markerset import MarkerSet
@@ -17,6 +19,7 @@ from stillcap.calibrate.turntable import THESIS_CX, THESIS_CY, THESIS_FX, THESIS
 from stillcap.camera import Camera
 from stillcap.geometry.triangulate import Triangulation
 from stillcap.files.paths import safe_relpath
+from stillcap.files.schema import MAX_COORDINATE, ClosedModel, Finite, Name, PositiveCount, Positive
 
 PROJECT_FORMAT = "stillcap-puppet-project"
 PROJECT_VERSION = 1
@@ -24,8 +27,53 @@ PROJECT_FILE = "project.json"
 PHOTOS_DIR = "photos"
 UNITS = {"angle": "deg", "pixel": "px", "length": "m"}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-_TOP_KEYS = {"format", "version", "name", "units", "markerset", "turntable", "rig", "views", "meta"}
-_VIEW_KEYS = {"name", "image", "processed", "angle_deg", "camera", "detected", "edits"}
+
+#: A turn angle in degrees (finite; beyond a million degrees is a typing error).
+_Angle = Annotated[float, Field(strict=True, ge=-MAX_COORDINATE, le=MAX_COORDINATE, allow_inf_nan=False)]
+
+
+class EditEntry(ClosedModel):
+    """One entry of a view's ``edits``."""
+
+    op: Literal["delete", "relabel", "move"]
+    marker: Name
+    to: Name | None = None
+    xy: tuple[Finite, Finite] | None = None
+
+
+class ViewEntry(ClosedModel):
+    """One entry of ``views`` (paths and markers are checked against the project after this)."""
+
+    name: Name
+    image: str
+    processed: str | None = None
+    angle_deg: _Angle | None = None
+    camera: Name | None = None
+    detected: dict[str, tuple[Finite, Finite]] = {}
+    edits: list[EditEntry] = []
+
+
+class TurntableEntry(ClosedModel):
+    """``turntable``: lengths carry their unit (the camera is read as a rig camera)."""
+
+    distance_m: Positive
+    height_m: Finite
+    camera: dict[str, Any]
+
+
+class ProjectFile(ClosedModel):
+    """``project.json``: the schema checked on load, before the project's own rules (paths inside
+    the folder, known markers and cameras, positions inside the photos)."""
+
+    format: Literal["stillcap-puppet-project"]
+    version: PositiveCount
+    name: str | None = None
+    units: dict[str, str] = {}
+    markerset: Any = "puppet-16"
+    turntable: TurntableEntry | None = None
+    rig: dict[str, Any] | None = None
+    views: list[ViewEntry] = []
+    meta: dict[str, Any] = {}
 
 #: Marker sets shipped with stillcap, by the name a project file may use: name -> a function
 #: making it (every :data:`stillcap.body.markerset.BUILTIN_MARKERSETS` entry, via :meth:`MarkerSet.builtin`).
@@ -305,39 +353,16 @@ class Markers3D:
         return {n: (tuple(float(v) for v in p) if ok else None) for n, p, ok in zip(self.names, self.points, self.ok)}
 
 
-def _view_from_dict(d, where: str, i: int) -> View:
-    if not isinstance(d, dict):
-        raise ValueError(f"{where}view #{i} must be an object, got {type(d).__name__}")
-    name = d.get("name")
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"{where}view #{i} needs a non-empty \"name\"")
-    where = f"{where}view {name!r}: "
-    unknown = set(d) - _VIEW_KEYS
-    if unknown:
-        raise ValueError(f"{where}unknown keys {sorted(unknown)} (angles carry their unit: angle_deg)")
-    if "image" not in d:
-        raise ValueError(f"{where}missing \"image\" (the photo's file)")
-    image = safe_relpath(d["image"], f"{where}image")
-    processed = safe_relpath(d["processed"], f"{where}processed") if d.get("processed") is not None else None
-    angle = d.get("angle_deg")
-    if angle is not None:
-        if isinstance(angle, bool) or not isinstance(angle, (int, float)) or not math.isfinite(angle):
-            raise ValueError(f"{where}angle_deg must be a finite number of degrees, got {angle!r}")
-        angle = float(angle)
-    camera = d.get("camera")
-    if camera is not None and not isinstance(camera, str):
-        raise ValueError(f"{where}camera must be a camera name, got {camera!r}")
-    det = d.get("detected", {})
-    if not isinstance(det, dict):
-        raise ValueError(f"{where}\"detected\" must be an object {{marker: [x, y]}}")
-    detected = {}
-    for k, xy in det.items():
-        numbers = isinstance(xy, list) and all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in xy)
-        if not (numbers and len(xy) == 2):
-            raise ValueError(f"{where}marker {k!r}: position must be [x, y] in pixels, got {xy!r}")
-        detected[k] = (float(xy[0]), float(xy[1]))
-    edits_d = d.get("edits", [])
-    if not isinstance(edits_d, list):
-        raise ValueError(f"{where}\"edits\" must be a list")
-    edits = [Edit.from_dict(e, f"{where}edit #{i}: ") for i, e in enumerate(edits_d)]
-    return View(name, image, angle, camera, detected, edits, processed)
+def _view_from_entry(d: ViewEntry, where: str, i: int) -> View:
+    """A :class:`View` from a validated ``views`` entry (its paths made safe)."""
+    at = f"{where}views.{i} (view {d.name!r}): "
+    image = safe_relpath(d.image, f"{where}view {d.name!r}: image")
+    processed = safe_relpath(d.processed, f"{where}view {d.name!r}: processed") if d.processed is not None else None
+    edits = []
+    for k, e in enumerate(d.edits):
+        try:
+            edits.append(Edit(e.op, e.marker, e.to, e.xy))
+        except ValueError as err:
+            raise ValueError(f"{at}edits.{k}: {err}") from None
+    detected = {k: (float(x), float(y)) for k, (x, y) in d.detected.items()}
+    return View(d.name, image, d.angle_deg, d.camera, detected, edits, processed)

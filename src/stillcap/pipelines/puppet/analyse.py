@@ -139,10 +139,9 @@ def capture_markerset(folder, cap=None) -> MarkerSet:
     entry = (cap.meta or {}).get("markerset", "puppet-16")
     if not isinstance(entry, (str, dict)):
         raise ValueError(f"capture {folder}: 'markerset' must be a built-in name or a marker set, got {entry!r}")
-    try:
-        markerset = MarkerSet.resolve(entry) if isinstance(entry, dict) or entry in BUILTIN_MARKERSETS else None
-    except ValueError as e:
-        raise ValueError(f"capture {folder}: {e}") from None
+    if isinstance(entry, dict):
+        return MarkerSet.from_dict(entry, source=str(Path(folder) / "capture.json"), prefix=("markerset",))
+    markerset = MarkerSet.builtin(entry) if entry in BUILTIN_MARKERSETS else None
     if markerset is None:
         raise ValueError(f"capture {folder}: unknown marker set {entry!r} (built-in: {', '.join(BUILTIN_MARKERSETS)})")
     return markerset
