@@ -97,7 +97,7 @@ def test_missing_and_unreadable_files_are_named(tmp_path):
     with pytest.raises(ValueError, match=r"image file .*nope.png does not exist"):
         read_image(tmp_path / "nope.png")
     (tmp_path / "dir.png").mkdir()
-    with pytest.raises(ValueError, match=r"dir.png does not exist"):
+    with pytest.raises(ValueError, match=r"dir.png is a folder, not an image file"):
         check_image_file(tmp_path / "dir.png")
 
 
