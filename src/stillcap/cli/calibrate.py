@@ -14,6 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.cli._outputs import Outputs, check
 from stillcap.cli._progress import progress
 
 app = typer.Typer(no_args_is_help=True, help="Calibrate cameras from chessboard or ChArUco photos.")
@@ -31,6 +32,16 @@ Marker = Annotated[float | None, typer.Option("--marker",
 Dict = Annotated[str, typer.Option("--dict", help="ChArUco: ArUco dictionary name, e.g. DICT_5X5_250.")]
 Out = Annotated[Path | None, typer.Option("--out", "-o", help="Write a stillcap rig JSON file.")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print the result as one JSON object on stdout.")]
+Force = Annotated[bool, typer.Option("--force", help="Overwrite an --out file stillcap did not write.")]
+
+
+def _save_rig(rig, out: Path | None) -> Outputs:
+    """Write the rig to ``--out``; the :class:`Outputs` whose ``finish`` the caller calls last."""
+    outputs = Outputs(lambda: json.dumps(rig.to_dict(), indent=2) + "\n", "rig.json")
+    if out is not None:
+        with outputs.writing(f"--out {out}"):
+            rig.save(out)
+    return outputs
 
 
 def _target(pattern: str, square: float, charuco: bool, squares: str, marker: float | None, dictionary: str):
@@ -94,7 +105,7 @@ def intrinsics(
     pattern: Pattern = "9x6", square: Square = 0.025, charuco: Charuco = False, squares: Squares = "7x5",
     marker: Marker = None, dictionary: Dict = "DICT_5X5_250",
     name: Annotated[str, typer.Option("--name", help="Camera name in the rig file.")] = "cam0",
-    out: Out = None, as_json: AsJson = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False,
 ):
     """Intrinsics (K, distortion k1 k2 p1 p2 k3) of one camera from board photos.
 
@@ -104,17 +115,19 @@ def intrinsics(
     from stillcap.camera import Rig
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    check(out, "file", "--out", force)
     with progress("detecting", err_console) as cb:
         res = calibrate_intrinsics(images, target, camera_name=name, progress=cb)
-    if out is not None:
-        Rig([res.camera]).save(out)
+    outputs = _save_rig(Rig([res.camera]), out)
     if as_json:
         typer.echo(json.dumps(_summary(res), indent=2))
+        outputs.finish(printed_json=True)
         return
     out_console.print(_intrinsics_table(name, res))
     _print_camera(res)
-    if out is not None:
+    if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
+    outputs.finish()
 
 
 @app.command()
@@ -128,7 +141,7 @@ def stereo(
     right_key: Annotated[str, typer.Option("--right-key", help="Word marking right-camera file names.")] = "right",
     refine_intrinsics: Annotated[bool, typer.Option(
         "--refine-intrinsics", help="Refine intrinsics in the stereo fit (default: fixed).")] = False,
-    out: Out = None, as_json: AsJson = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False,
 ):
     """Stereo pair: intrinsics of each camera, then R, T of right relative to left (left = world).
 
@@ -141,17 +154,18 @@ def stereo(
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
     left, right = split_stereo_images(images, (left_key, right_key))
+    check(out, "file", "--out", force)
     with progress("detecting", err_console) as cb:
         res = calibrate_stereo(left, right, target, names=(left_key, right_key), keys=(left_key, right_key),
                                fix_intrinsics=not refine_intrinsics, progress=cb)
-    if out is not None:
-        res.rig.save(out)
+    outputs = _save_rig(res.rig, out)
     if as_json:
         d = {"rms_px": _f(res.rms_px), "R": [[_f(v) for v in row] for row in res.R], "T": [_f(v) for v in res.T],
              "baseline": _f(res.baseline), "left": _summary(res.left), "right": _summary(res.right),
              "pairs_used": res.pairs_used, "pairs_skipped": res.pairs_skipped,
              "per_pair_rms_px": {k: [_f(a), _f(b)] for k, (a, b) in res.per_pair_rms_px.items()}}
         typer.echo(json.dumps(d, indent=2))
+        outputs.finish(printed_json=True)
         return
     for r in (res.left, res.right):
         out_console.print(_intrinsics_table(r.camera.name, r))
@@ -164,8 +178,9 @@ def stereo(
                       "(unit of --square)")
     ang = np.degrees(np.arccos(np.clip((np.trace(res.R) - 1) / 2, -1, 1)))
     out_console.print(f"  R: rotation of {ang:.3f} deg")
-    if out is not None:
+    if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
+    outputs.finish()
 
 
 @app.command()
@@ -181,7 +196,7 @@ def rig(
                              "repeat for several files.")] = None,
     refine_intrinsics: Annotated[bool, typer.Option("--refine-intrinsics",
                                                     help="Refine intrinsics in the bundle adjustment too.")] = False,
-    out: Out = None, as_json: AsJson = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False,
 ):
     """N-camera rig: intrinsics per camera, spanning-tree poses, then bundle adjustment.
 
@@ -194,11 +209,11 @@ def rig(
     target = _target(pattern, square, charuco, squares, marker, dictionary)
     images, instants = rig_images_from_folder(folder)
     known = {c.name: c for f in intrinsics_files or [] for c in Rig.load(f)} or None
+    check(out, "file", "--out", force)
     with progress("detecting", err_console) as cb:
         res = calibrate_rig(images, target, cameras=known, instants=instants, refine_intrinsics=refine_intrinsics,
                             progress=cb)
-    if out is not None:
-        res.rig.save(out)
+    outputs = _save_rig(res.rig, out)
     if as_json:
         cams = []
         for c in res.rig:
@@ -210,6 +225,7 @@ def rig(
              "per_camera_rms_px": {k: _f(v) for k, v in res.per_camera_rms_px.items()}, "cameras": cams,
              "instants_used": res.instants_used, "images_skipped": res.images_skipped, "success": res.success}
         typer.echo(json.dumps(d, indent=2))
+        outputs.finish(printed_json=True)
         return
     t = Table(title=f"rig: {len(res.rig)} cameras, {len(res.instants_used)} shared instants")
     for col in ("camera", "RMS (px)", "fx", "fy", "cx", "cy", "centre (unit of --square)", "skipped"):
@@ -225,5 +241,6 @@ def rig(
     for cam, sk in res.images_skipped.items():
         for img, why in sk.items():
             out_console.print(f"  [yellow]{cam}/{img} skipped: {why}")
-    if out is not None:
+    if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
+    outputs.finish()
