@@ -153,8 +153,8 @@ def stereo(
     from stillcap.calibrate.extrinsics import split_stereo_images
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
-    left, right = split_stereo_images(images, (left_key, right_key))
     check(out, "file", "--out", force)
+    left, right = split_stereo_images(images, (left_key, right_key))
     with progress("detecting", err_console) as cb:
         res = calibrate_stereo(left, right, target, names=(left_key, right_key), keys=(left_key, right_key),
                                fix_intrinsics=not refine_intrinsics, progress=cb)
@@ -207,9 +207,9 @@ def rig(
     from stillcap.camera import Rig
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    check(out, "file", "--out", force)
     images, instants = rig_images_from_folder(folder)
     known = {c.name: c for f in intrinsics_files or [] for c in Rig.load(f)} or None
-    check(out, "file", "--out", force)
     with progress("detecting", err_console) as cb:
         res = calibrate_rig(images, target, cameras=known, instants=instants, refine_intrinsics=refine_intrinsics,
                             progress=cb)

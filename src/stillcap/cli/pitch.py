@@ -195,8 +195,8 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
         for c in ("capture", "balls", "release mph", "spin rpm", "tilt", "IVB in", "HB in", "notes"):
             t.add_column(c, justify="right")
         for (cap, res, e), name in zip(results, names):
-            if res is None:
-                t.add_row(name, "-", "-", "-", "-", "-", "-", f"[red]{e}[/]")
+            if res is None:  # its one-line reason is printed above the table
+                t.add_row(name, "-", "-", "-", "-", "-", "-", "[red]failed[/]")
                 continue
             m, s = res.metrics, res.metrics_sigma
 

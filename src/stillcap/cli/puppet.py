@@ -182,9 +182,9 @@ def run(
     from stillcap.pipelines.puppet import analyse_puppet
 
     settings = _settings(detector, identify)
+    check(out, "folder", "--out", force, OUT_FILES)
     if not folder.exists():
         raise ValueError(f"folder {folder} does not exist")
-    check(out, "folder", "--out", force, OUT_FILES)
     markerset = None
     if (folder / "project.json").is_file():
         from stillcap.io.project import Project
