@@ -63,6 +63,11 @@ class Outputs:
         except OSError as e:
             self.failed.append((what, e))
 
+    def claim(self, folder: Path, names) -> None:
+        """Record the files about to be written in ``folder`` (``names``: relative paths or glob
+        patterns) as stillcap's, so that a report cut short is still recognised as stillcap's."""
+        record_outputs([Path(folder) / n for n in names], folder)
+
     def record(self, paths, root=None) -> None:
         """Record written files as stillcap outputs (:func:`stillcap.files.outputs.record_outputs`)."""
         record_outputs([p for p in paths if p is not None], root)

@@ -104,6 +104,7 @@ def hand(
         from stillcap.report.hand import write_result_report
 
         with outputs.writing(f"--report {report}"):
+            outputs.claim(report, REPORT_FILES)
             paths = write_result_report(res, report, truth_arrays=None if res.truth is None
                                         else truth_arrays(res.capture.truth))
             outputs.record(paths.values(), report)

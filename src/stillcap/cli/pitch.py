@@ -101,6 +101,7 @@ def pitch(
     if report is not None:
         from stillcap.report.pitch import write_report
         with outputs.writing(f"--report {report}"):
+            outputs.claim(report, REPORT_FILES)
             paths = write_report(res, report)
             outputs.record(paths.values(), report)
             written.append(paths["html"])
@@ -175,6 +176,7 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
                 if report is not None:
                     from stillcap.report.pitch import write_report
                     try:
+                        record_outputs([report / name / f for f in REPORT_FILES], report / name)
                         paths = write_report(res, report / name)
                         record_outputs(paths.values(), report / name)
                     except OSError as e:  # the result is kept in a temporary folder; the message says where

@@ -141,7 +141,7 @@ def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = T
     from stillcap.report.puppet import write_report
 
     with outputs.writing(f"--out {out}"):
-        out.mkdir(parents=True, exist_ok=True)
+        outputs.claim(out, OUT_FILES)
         outputs.record([write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")], out)
         files = write_report(res, images, out, truth, overlays=overlays)
         outputs.record(files, out)

@@ -14,7 +14,9 @@ A file is a **stillcap output** (and may be overwritten without ``--force``) whe
   stillcap, or
 - the manifest ``.stillcap-output.json`` of its folder (or of a folder up to two levels above)
   lists it: stillcap records there every file it writes into a folder a user named (report
-  folders, ``--out`` folders, the folder of a CSV, BVH or C3D file, ...).
+  folders, ``--out`` folders, the folder of a CSV, BVH or C3D file, ...). A report's folder
+  lists its file names (glob patterns such as ``overlays/*.png``) before they are written, so
+  that a report cut short (a full disk) is still recognised as stillcap's.
 
 :func:`record_outputs` writes the manifests; :func:`save_fallback` keeps a result whose output
 could not be written (a temporary folder).
@@ -22,6 +24,7 @@ could not be written (a temporary folder).
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
 import re
@@ -39,6 +42,7 @@ _MANIFEST_FORMAT = "stillcap-output"
 _SIGNATURES = (re.compile(rb'"format"\s*:\s*"stillcap-'), re.compile(rb"<authoring_tool>\s*stillcap\s*<"),
                re.compile(rb'"generator"\s*:\s*"stillcap"'))
 _HEAD_BYTES = 65536
+_GLOB = re.compile(r"[*?\[]")
 _LEVELS = 3  # a manifest lists files of its folder and of sub-folders up to two levels down
 
 
@@ -88,7 +92,10 @@ def _listed(path: Path) -> bool:
         if level >= _LEVELS:
             break
         m = _manifest(folder)
-        if m is not None and path.relative_to(folder).as_posix() in m["files"]:
+        if m is None:
+            continue
+        rel = path.relative_to(folder).as_posix()
+        if any(rel == f or (_GLOB.search(f) and fnmatch.fnmatchcase(rel, f)) for f in m["files"] if isinstance(f, str)):
             return True
     return False
 
@@ -147,8 +154,9 @@ def _check_folder(path: Path, option: str, force: bool, names) -> None:
             raise ValueError(f"{where} holds files stillcap did not write; pass --force to write into it")
         return
     for pattern in names:
-        for p in sorted(path.glob(pattern)) if any(c in pattern for c in "*?[") else [path / pattern]:
-            if p.is_dir() and not any(c in pattern for c in "*?["):
+        glob = bool(_GLOB.search(pattern))
+        for p in sorted(path.glob(pattern)) if glob else [path / pattern]:
+            if p.is_dir() and not glob:
                 raise ValueError(f"{where}: {p} is a folder where a file is written; remove or rename it")
             if p.is_file() and not is_stillcap_output(p):
                 raise ValueError(f"{where}: {p.relative_to(path).as_posix()} exists and was not written by "
