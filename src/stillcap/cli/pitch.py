@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import tempfile
+import textwrap
 from pathlib import Path
 
 import typer
@@ -145,7 +146,10 @@ def pitch(
 
 
 def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> None:
-    """Several captures: one result each (report sub-folders, a JSON list) and a summary table."""
+    """Several captures: one result each (report sub-folders, a JSON list) and a summary table.
+
+    Each result is dropped once its report is written: only its table row (or, with ``--json``,
+    its JSON text) is kept, so that memory stays flat over a long session."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from stillcap.files.outputs import record_outputs
@@ -157,7 +161,7 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
     if report is not None and len(set(names)) < len(names):
         raise ValueError("--report with several captures needs distinct folder names (one sub-folder each)")
     err = Console(stderr=True)
-    results, failed = [], []
+    kept, failed = [], []  # per capture: its JSON text (--json) or its table row
     fallback = None  # where the results of captures whose report could not be written go
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, transient=True) as bar:
@@ -169,50 +173,54 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
                 res = add_truth_comparison(analyse_pitch(loaded, opts), loaded.truth)
             except Exception as e:  # noqa: BLE001 - one bad capture must not end the session: name it, go on
                 failed.append(name)
-                results.append((cap, None, _problem(e)))
                 err.print(f"[red]{cap}:[/] {_problem(e)}", highlight=False, soft_wrap=True)
-            else:
-                results.append((cap, res, None))
-                if report is not None:
-                    from stillcap.report.pitch import write_report
+                kept.append(json.dumps({"capture": str(cap), "error": _problem(e)}, indent=1) if as_json
+                            else (name, "-", "-", "-", "-", "-", "-", "[red]failed[/]"))  # its reason is above
+                bar.advance(task)
+                continue
+            kept.append(json.dumps(res.to_dict(), indent=1, allow_nan=False) if as_json else _row(name, res))
+            if report is not None:
+                from stillcap.report.pitch import write_report
+                try:
+                    record_outputs([report / name / f for f in REPORT_FILES], report / name)
+                    paths = write_report(res, report / name)
+                    record_outputs(paths.values(), report / name)
+                except OSError as e:  # the result is kept in a temporary folder; the message says where
+                    failed.append(name)
                     try:
-                        record_outputs([report / name / f for f in REPORT_FILES], report / name)
-                        paths = write_report(res, report / name)
-                        record_outputs(paths.values(), report / name)
-                    except OSError as e:  # the result is kept in a temporary folder; the message says where
-                        failed.append(name)
-                        try:
-                            fallback = fallback or Path(tempfile.mkdtemp(prefix="stillcap-unsaved-"))
-                        except OSError:
-                            pass
-                        saved = save_fallback_in(fallback, f"{name}.pitch.json", res)
-                        err.print(f"[red]{cap}:[/] cannot write --report {report / name} ({oserror_text(e)}); "
-                                  f"{saved}", highlight=False, soft_wrap=True)
+                        fallback = fallback or Path(tempfile.mkdtemp(prefix="stillcap-unsaved-"))
+                    except OSError:
+                        pass
+                    saved = save_fallback_in(fallback, f"{name}.pitch.json", res)
+                    err.print(f"[red]{cap}:[/] cannot write --report {report / name} ({oserror_text(e)}); "
+                              f"{saved}", highlight=False, soft_wrap=True)
+            del res, loaded
             bar.advance(task)
-    if as_json:
-        print(json.dumps([r.to_dict() if r is not None else {"capture": str(c), "error": e} for c, r, e in results],
-                         indent=1, allow_nan=False))
+    if as_json:  # as json.dumps(list, indent=1) would print it
+        print("[\n" + ",\n".join(textwrap.indent(text, " ") for text in kept) + "\n]")
     else:
         t = Table(title=f"{len(captures)} pitches ({len(failed)} failed)")
         for c in ("capture", "balls", "release mph", "spin rpm", "tilt", "IVB in", "HB in", "notes"):
             t.add_column(c, justify="right")
-        for (cap, res, e), name in zip(results, names):
-            if res is None:  # its one-line reason is printed above the table
-                t.add_row(name, "-", "-", "-", "-", "-", "-", "[red]failed[/]")
-                continue
-            m, s = res.metrics, res.metrics_sigma
-
-            def pm(k, nd=1):  # the sigmas are small: one more digit
-                return f"{_f(getattr(m, k), nd)} ± {_f(s.get(k), nd + 1)}"
-            spin_ok = res.spin_available
-            t.add_row(name, str(len(res.times)), pm("release_speed_mph"), pm("spin_rate_rpm", 0) if spin_ok else "-",
-                      (m.spin_tilt or "-") if spin_ok else "-", pm("induced_vertical_break_in"),
-                      pm("horizontal_break_in"), str(len(res.messages)))
+        for row in kept:
+            t.add_row(*row)
         console.print(t)
         if report is not None:
             console.print(f"wrote one report per capture under [bold]{report}[/]")
     if failed:
         raise typer.Exit(2)
+
+
+def _row(name: str, res) -> tuple:
+    """The session table's row of one result."""
+    m, s = res.metrics, res.metrics_sigma
+
+    def pm(k, nd=1):  # the sigmas are small: one more digit
+        return f"{_f(getattr(m, k), nd)} ± {_f(s.get(k), nd + 1)}"
+    spin_ok = res.spin_available
+    return (name, str(len(res.times)), pm("release_speed_mph"), pm("spin_rate_rpm", 0) if spin_ok else "-",
+            (m.spin_tilt or "-") if spin_ok else "-", pm("induced_vertical_break_in"), pm("horizontal_break_in"),
+            str(len(res.messages)))
 
 
 def _problem(e: Exception) -> str:
