@@ -19,6 +19,15 @@ def fastball(tmp_path_factory):
     return studio_pitch(tmp_path_factory, "fastball")
 
 
+@pytest.fixture(autouse=True)
+def own_temp_folder(tmp_path, monkeypatch):
+    """Results saved because an output failed go to the test's own temporary folder."""
+    import tempfile
+
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+
+
 def _one_line(err: str) -> str:
     lines = err.strip().splitlines()
     assert len(lines) == 1, err
@@ -153,10 +162,6 @@ def test_write_failing_after_the_analysis_keeps_the_result(fastball, tmp_path, c
     import stillcap.report.pitch as report
 
     monkeypatch.setattr(report, "write_report", _enospc)
-    monkeypatch.setenv("TMPDIR", str(tmp_path / "tmp"))
-    (tmp_path / "tmp").mkdir()
-    import tempfile
-    monkeypatch.setattr(tempfile, "tempdir", None)  # TMPDIR read again
     code, out, err = run(["pitch", fastball, "--report", tmp_path / "rep", "--csv", tmp_path / "pos.csv"], capsys)
     assert code == 2
     assert "Pitch metrics" in out  # the printed result
@@ -317,6 +322,7 @@ def test_session_names_any_failure_and_a_lost_report(fastball, tmp_path, capsys,
     assert lines[1].startswith(f"{full}: cannot write --report {tmp_path / 'rep' / 'full'} (")
     saved = Path(lines[1].rsplit(" ", 1)[1])
     assert json.loads(saved.read_text())["format"] == "stillcap-pitch" and saved.name == "full.pitch.json"
+    assert saved.parent.parent == tmp_path / "tmp"
     d = json.loads(out)
     assert d[0]["error"] == "RuntimeError: a worker process died" and "metrics" in d[1] and "metrics" in d[2]
     assert (tmp_path / "rep" / "ok" / "report.html").is_file()
