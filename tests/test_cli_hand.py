@@ -36,6 +36,15 @@ def test_hand_tables_exports_and_report(capture, tmp_path, capsys):
     assert "Compared with the truth" in out and "labels right" in out and "release:" in out
     for f in ("h.bvh", "h.glb", "m.c3d", "rep/report.html", "rep/hand.gif", "rep/joint_angles.png", "rep/hand.json"):
         assert (tmp_path / f).stat().st_size > 100, f
+    # every file of the report is one the check before the analysis knows, and is recorded as stillcap's
+    from pathlib import Path
+
+    from stillcap.cli.hand import REPORT_FILES
+    from stillcap.files.outputs import MANIFEST, is_stillcap_output
+
+    written = {p.relative_to(tmp_path / "rep").as_posix() for p in (tmp_path / "rep").rglob("*")} - {MANIFEST}
+    assert all(any(Path(w).match(pat) for pat in REPORT_FILES) for w in written), written
+    assert all(is_stillcap_output(tmp_path / f) for f in ("h.bvh", "h.glb", "m.c3d", "rep/report.html"))
 
 
 @pytest.mark.parametrize("args, message", [

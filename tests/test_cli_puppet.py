@@ -61,6 +61,21 @@ def test_puppet_run_json_and_outputs(capture, result_json, capsys):
     assert code == 0 and "markers from 6 views" in out and "Compared with the truth" in out
 
 
+def test_run_out_files_are_known_and_recorded(result_json):
+    """Every file ``puppet run --out`` writes is one the check before the analysis knows, and is
+    recorded as stillcap's (a second run needs no --force)."""
+    from pathlib import Path
+
+    from stillcap.cli.puppet import OUT_FILES
+    from stillcap.files.outputs import MANIFEST, check_writable, is_stillcap_output
+
+    out = result_json.parent
+    written = [p for p in out.rglob("*") if p.is_file() and p.name != MANIFEST]
+    assert all(any(Path(p.relative_to(out).as_posix()).match(pat) for pat in OUT_FILES) for p in written), written
+    assert all(is_stillcap_output(p) for p in written)
+    check_writable(out, "folder", option="--out", names=OUT_FILES)
+
+
 def test_export_to_every_format(result_json, tmp_path, capsys):
     files = [tmp_path / n for n in ("pose.dae", "pose.bvh", "pose.gltf", "pose.glb", "markers.c3d", "m.csv", "m.json")]
     code, out, err = run(["export", result_json, *sum((["--to", f] for f in files), [])], capsys)

@@ -194,7 +194,7 @@ def _compare(a, b, where: str, out: list[str]) -> None:
 
 def compare(before: Path, after: Path) -> int:
     problems: list[str] = []
-    names = sorted(p.name for p in after.glob("*.json"))
+    names = sorted(p.name for p in after.glob("*.json") if not p.name.startswith("."))  # not the outputs manifest
     for name in names:
         if not (before / name).exists():
             problems.append(f"{name}: missing before")

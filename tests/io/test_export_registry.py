@@ -129,3 +129,19 @@ def test_markers_only_json_and_csv(tmp_path):
     doc = json.loads(ex.export(tmp_path / "m.json", traj).read_text())
     assert "motion" not in doc and doc["markers"]["positions_m"][0][1] is None
     assert ex.export(tmp_path / "m.csv", traj).read_text().count("\n") == 3
+
+
+@pytest.mark.parametrize("ext, signed", [(".dae", True), (".gltf", True), (".glb", True), (".json", True),
+                                         (".bvh", False), (".csv", False), (".c3d", False)])
+def test_exports_are_recognised_as_stillcap_outputs(motion, tmp_path, ext, signed):
+    """COLLADA, glTF, GLB and JSON say in their first bytes that stillcap wrote them; the others
+    are recognised by the manifest the CLI records them in (stillcap.files.outputs)."""
+    from stillcap.files.outputs import is_stillcap_output, record_outputs
+
+    if ext == ".c3d":
+        pytest.importorskip("ezc3d")
+    anim, markers, _ = motion
+    path = ex.export(tmp_path / f"motion{ext}", [anim, markers] if ext in (".json", ".csv", ".c3d") else anim)
+    assert is_stillcap_output(path) == signed
+    record_outputs([path])
+    assert is_stillcap_output(path)

@@ -2,7 +2,8 @@
 
 Each command group lives in its own module (``cli/calibrate.py``, ``cli/studio.py``, ...).
 Errors a user can fix (bad file, missing camera, bad option) are ``ValueError``s raised by the
-library; :func:`main` prints them in one red line and exits with status 2.
+library; :func:`main` prints them in one red line and exits with status 2, as it does a file
+that cannot be read or written (an ``OSError``: no permission, a full disk).
 """
 
 from __future__ import annotations
@@ -44,4 +45,9 @@ def main(argv=None) -> None:
     except (ValueError, FileNotFoundError) as e:
         # escaped: names read from files are not rich markup ("[/x]" would crash the printing)
         err.print(f"[bold red]error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+    except OSError as e:  # reading or writing a file failed (permission, full disk): the place, not a bug
+        from stillcap.cli._outputs import oserror_text
+
+        err.print(f"[bold red]error:[/] {oserror_text(e)}", highlight=False, soft_wrap=True)
         sys.exit(2)

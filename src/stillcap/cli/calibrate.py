@@ -14,6 +14,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.cli._outputs import Outputs, check
 from stillcap.cli._progress import progress
 
 app = typer.Typer(no_args_is_help=True, help="Calibrate cameras from chessboard or ChArUco photos.")
@@ -31,6 +32,16 @@ Marker = Annotated[float | None, typer.Option("--marker",
 Dict = Annotated[str, typer.Option("--dict", help="ChArUco: ArUco dictionary name, e.g. DICT_5X5_250.")]
 Out = Annotated[Path | None, typer.Option("--out", "-o", help="Write a stillcap rig JSON file.")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print the result as one JSON object on stdout.")]
+Force = Annotated[bool, typer.Option("--force", help="Overwrite an --out file stillcap did not write.")]
+
+
+def _save_rig(rig, out: Path | None) -> Outputs:
+    """Write the rig to ``--out``; the :class:`Outputs` whose ``finish`` the caller calls last."""
+    outputs = Outputs(lambda: json.dumps(rig.to_dict(), indent=2) + "\n", "rig.json")
+    if out is not None:
+        with outputs.writing(f"--out {out}"):
+            rig.save(out)
+    return outputs
 
 
 def _target(pattern: str, square: float, charuco: bool, squares: str, marker: float | None, dictionary: str):
@@ -130,7 +141,7 @@ def intrinsics(
     pattern: Pattern = "9x6", square: Square = 0.025, charuco: Charuco = False, squares: Squares = "7x5",
     marker: Marker = None, dictionary: Dict = "DICT_5X5_250",
     name: Annotated[str, typer.Option("--name", help="Camera name in the rig file.")] = "cam0",
-    out: Out = None, as_json: AsJson = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False,
 ):
     """Intrinsics (K, distortion k1 k2 p1 p2 k3) of one camera from board photos.
 
@@ -140,17 +151,19 @@ def intrinsics(
     from stillcap.camera import Rig
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    check(out, "file", "--out", force)
     with progress("detecting", err_console) as cb:
         res = calibrate_intrinsics(images, target, camera_name=name, progress=cb)
-    if out is not None:
-        Rig([res.camera]).save(out)
+    outputs = _save_rig(Rig([res.camera]), out)
     if as_json:
         typer.echo(json.dumps(_summary(res), indent=2))
+        outputs.finish(printed_json=True)
         return
     out_console.print(_intrinsics_table(name, res))
     _print_camera(res)
-    if out is not None:
+    if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
+    outputs.finish()
 
 
 @app.command()
@@ -164,7 +177,7 @@ def stereo(
     right_key: Annotated[str, typer.Option("--right-key", help="Word marking right-camera file names.")] = "right",
     refine_intrinsics: Annotated[bool, typer.Option(
         "--refine-intrinsics", help="Refine intrinsics in the stereo fit (default: fixed).")] = False,
-    out: Out = None, as_json: AsJson = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False,
 ):
     """Stereo pair: intrinsics of each camera, then R, T of right relative to left (left = world).
 
@@ -176,12 +189,12 @@ def stereo(
     from stillcap.calibrate.extrinsics import split_stereo_images
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    check(out, "file", "--out", force)
     left, right = split_stereo_images(images, (left_key, right_key))
     with progress("detecting", err_console) as cb:
         res = calibrate_stereo(left, right, target, names=(left_key, right_key), keys=(left_key, right_key),
                                fix_intrinsics=not refine_intrinsics, progress=cb)
-    if out is not None:
-        res.rig.save(out)
+    outputs = _save_rig(res.rig, out)
     if as_json:
         d = {"rms_px": _f(res.rms_px), "R": [[_f(v) for v in row] for row in res.R], "T": [_f(v) for v in res.T],
              "baseline": _f(res.baseline), "left": _summary(res.left), "right": _summary(res.right),
@@ -196,6 +209,7 @@ def stereo(
         if refine_intrinsics:  # the stereo fit's intrinsics; "left"/"right" stay the single-camera results
             d["refined"] = {"rms_px": _f(res.rms_px), **{c.name: _camera_dict(c) for c in res.rig}}
         typer.echo(json.dumps(d, indent=2))
+        outputs.finish(printed_json=True)
         return
     for r in (res.left, res.right):
         out_console.print(_intrinsics_table(r.camera.name, r))
@@ -214,8 +228,9 @@ def stereo(
     ang = np.degrees(np.arccos(np.clip((np.trace(res.R) - 1) / 2, -1, 1)))
     out_console.print(f"  R: rotation of {ang:.3f} deg")
     _print_outlier_pairs(res)
-    if out is not None:
+    if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
+    outputs.finish()
 
 
 def _print_outlier_pairs(res) -> None:
@@ -250,7 +265,7 @@ def rig(
                              "repeat for several files.")] = None,
     refine_intrinsics: Annotated[bool, typer.Option("--refine-intrinsics",
                                                     help="Refine intrinsics in the bundle adjustment too.")] = False,
-    out: Out = None, as_json: AsJson = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False,
 ):
     """N-camera rig: intrinsics per camera, spanning-tree poses, then bundle adjustment.
 
@@ -261,13 +276,13 @@ def rig(
     from stillcap.camera import Rig
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    check(out, "file", "--out", force)
     images, instants = rig_images_from_folder(folder)
     known = {c.name: c for f in intrinsics_files or [] for c in Rig.load(f)} or None
     with progress("detecting", err_console) as cb:
         res = calibrate_rig(images, target, cameras=known, instants=instants, refine_intrinsics=refine_intrinsics,
                             progress=cb)
-    if out is not None:
-        res.rig.save(out)
+    outputs = _save_rig(res.rig, out)
     if as_json:
         cams = []
         for c in res.rig:
@@ -284,6 +299,7 @@ def rig(
                  "rms_px": _f(res.without_outliers.rms_px),
                  "per_camera_rms_px": {k: _f(v) for k, v in res.without_outliers.per_camera_rms_px.items()}}}
         typer.echo(json.dumps(d, indent=2))
+        outputs.finish(printed_json=True)
         return
     t = Table(title=f"rig: {len(res.rig)} cameras, {len(res.instants_used)} shared instants")
     for col in ("camera", "RMS (px)", "fx", "fy", "cx", "cy", "centre (unit of --square)", "skipped"):
@@ -310,5 +326,6 @@ def rig(
                               + ", ".join(f"{k} {res.per_camera_rms_px[k]:.3f} -> {v:.3f}"
                                           for k, v in w.per_camera_rms_px.items())
                               + f"); consider dropping {_them(len(odd))} and calibrating again")
-    if out is not None:
+    if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
+    outputs.finish()

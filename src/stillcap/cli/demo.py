@@ -24,6 +24,7 @@ def demo(
     which: str = typer.Argument("all", help=f"Which demo: {', '.join(DEMOS)}, or all ({', '.join(ALL)})."),
     out: Path = typer.Option(Path("stillcap-demo"), "--out", help="Folder for the captures, results and plots."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the synthetic capture."),
+    force: bool = typer.Option(False, "--force", help="Write into a folder that holds files stillcap did not write."),
 ):
     """Render a synthetic capture, analyse it, print recovered vs true values, write plots.
 
@@ -49,6 +50,10 @@ def demo(
     """
     if which not in DEMOS + ("all",):
         raise ValueError(f"unknown demo {which!r}; choose one of {', '.join(DEMOS)} or all")
+    from stillcap.files.outputs import check_writable, mark_folder
+
+    check_writable(out, "folder", option="--out", force=force)  # empty, new, or a folder stillcap made
+    mark_folder(out)
     rows = []
     for name in ALL if which == "all" else (which,):
         if name == "rig":

@@ -7,6 +7,8 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
+from stillcap.cli._outputs import check
+
 console = Console()
 
 
@@ -44,6 +46,7 @@ def export(
                                   "DIR/result.json), a puppet project folder or a puppet capture folder."),
     to: list[Path] = typer.Option(..., "--to", help="File to write; the extension picks the format: "
                                   ".dae .bvh .gltf .glb .c3d .csv .json (repeat --to for several)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write."),
 ):
     """Export a puppet result: the pose (COLLADA, BVH, glTF) and the 3D markers (C3D, CSV, JSON).
 
@@ -55,7 +58,12 @@ def export(
     bad = [str(p) for p in to if p.suffix.lower() not in EXPORTERS]
     if bad:
         raise ValueError(f"cannot export to {', '.join(bad)}: unknown extension; known: {', '.join(known_extensions())}")
+    for path in to:
+        check(path, "file", "--to", force)
     data = load_exportable(result)
+    from stillcap.files.outputs import record_outputs
+
     for path in to:
         out = write(path, data)
+        record_outputs([out])
         console.print(f"wrote [bold]{out}[/]")

@@ -11,8 +11,12 @@ from rich.table import Table
 
 from stillcap.cli._format import num as _f, print_notes, right_table
 from stillcap.cli._progress import progress
+from stillcap.cli._outputs import Outputs, check
 
 console = Console()
+
+#: The files ``--report DIR`` writes (checked before the analysis: an existing one must be stillcap's).
+REPORT_FILES = ("report.html", "hand.json", "hand.gif", "joint_angles.png")
 
 
 def _point(text: str | None, name: str):
@@ -48,6 +52,7 @@ def hand(
     slow_motion: float = typer.Option(1.0, "--slow-motion", help="Stretch time in the exported animation "
                                       "(BVH, glTF, COLLADA) by this factor, e.g. 40 to play a 60 ms take in 2.4 s "
                                       "(Blender plays a 1000 fps take within one 24 fps frame otherwise)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --export)."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -70,38 +75,55 @@ def hand(
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
+    from stillcap.io.export import EXPORTERS, known_extensions
+
+    for path in export:
+        if path.suffix.lower() not in EXPORTERS:
+            raise ValueError(f"--export {path}: unknown extension {path.suffix.lower() or '(none)'!r}; "
+                             f"known: {', '.join(known_extensions())}")
+        check(path, "file", "--export", force)
+    check(report, "folder", "--report", force, REPORT_FILES)
     with progress("analysing the hand") as bar:
         res = analyse_hand(capture, opts, progress=bar)
     from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
 
     res.truth = compare_with_capture(res)  # a studio capture: compared with its truth
     written = []
+    outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "hand.json")
     for path in export:
         from stillcap.io.export import export as export_file
 
         motion = path.suffix.lower() in (".bvh", ".glb", ".gltf", ".dae")
         if res.animation is None and motion:
             raise ValueError(f"cannot write {path.name}: the capture gave fewer than two hand poses (no animation)")
-        if motion and slow_motion != 1.0:
-            from stillcap.body.skeleton import Animation
+        with outputs.writing(f"--export {path}"):
+            if motion and slow_motion != 1.0:
+                from stillcap.body.skeleton import Animation
 
-            an = res.animation
-            written.append(export_file(path, Animation(an.skeleton, (an.times - an.times[0]) * slow_motion,
-                                                       an.root2world, an.local_rotations)))
-        else:
-            written.append(export_file(path, res))
+                an = res.animation
+                written.append(export_file(path, Animation(an.skeleton, (an.times - an.times[0]) * slow_motion,
+                                                           an.root2world, an.local_rotations)))
+            else:
+                written.append(export_file(path, res))
+            outputs.record(written[-1:])
     if report is not None:
         from stillcap.report.hand import write_result_report
 
-        with progress("writing the report") as bar:
-            written.append(write_result_report(res, report, truth_arrays=None if res.truth is None
-                                               else truth_arrays(res.capture.truth), progress=bar)["html"])
+        with outputs.writing(f"--report {report}"):
+            outputs.claim(report, REPORT_FILES)
+            with progress("writing the report") as bar:
+                paths = write_result_report(res, report, truth_arrays=None if res.truth is None
+                                            else truth_arrays(res.capture.truth), progress=bar)
+            outputs.record(paths.values(), report)
+            written.append(paths["html"])
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
+        outputs.finish(printed_json=True)
         return
     print_hand_result(res)
     for w in written:
         console.print(f"wrote [bold]{w}[/]")
+    outputs.finish()
 
 
 def print_hand_result(res) -> None:

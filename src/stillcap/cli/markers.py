@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from stillcap.cli._progress import progress
+from stillcap.cli._outputs import Outputs, check
 
 console = Console()
 
@@ -21,6 +22,7 @@ def markers(
     max_px: float = typer.Option(2.0, "--max-px", help="Matching and outlier tolerance, pixels."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path = typer.Option(None, "--out", help="Also write the result as JSON to this file."),
+    force: bool = typer.Option(False, "--force", help="Overwrite a file stillcap did not write (--out)."),
 ):
     """Find coloured marker balls in every photo, match them across cameras, triangulate them.
 
@@ -33,6 +35,7 @@ def markers(
     from stillcap.io.capture import Capture
     from stillcap.pipelines.markers import reconstruct_markers
 
+    check(out, "file", "--out", force)
     pal = None
     if palette is not None:  # a bad file is named before the photos are read
         from stillcap.detect.palette import read_bgr_palette
@@ -57,10 +60,13 @@ def markers(
         for m, p in zip(result["markers"], rec.points):
             d = np.linalg.norm(centers - p, axis=1)
             m["true_ball"], m["error_mm"] = balls[int(d.argmin())]["name"], float(d.min() * 1e3)
+    outputs = Outputs(lambda: json.dumps(result, indent=2) + "\n", "markers.json")
     if out is not None:
-        write_text(out, json.dumps(result, indent=2) + "\n")
+        with outputs.writing(f"--out {out}"):
+            outputs.record([write_text(out, json.dumps(result, indent=2) + "\n")])
     if as_json:
         print(json.dumps(result, indent=2))
+        outputs.finish(printed_json=True)
         return
     t = Table(title=f"{len(rec.labels)} markers triangulated from {len(cap.rig)} cameras ({cap.rig.world} frame)")
     cols = ["label", "x mm", "y mm", "z mm", "views", "reproj px"] + (["true ball", "err mm"] if truth else [])
@@ -72,3 +78,4 @@ def markers(
             row += [m["true_ball"], f"{m['error_mm']:.3f}"]
         t.add_row(*row)
     console.print(t)
+    outputs.finish()

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import tempfile
+import textwrap
 from pathlib import Path
 
 import typer
@@ -11,8 +13,13 @@ from rich.table import Table
 
 from stillcap.cli._format import num as _f, print_notes, right_table
 from stillcap.cli._progress import progress
+from stillcap.cli._outputs import Outputs, check, oserror_text
 
 console = Console()
+
+#: The files ``--report DIR`` writes (checked before the analysis: an existing one must be stillcap's).
+REPORT_FILES = ("report.html", "pitch.json", "positions.csv", "metrics.csv", "side.png", "top.png", "spin.png",
+                "residuals.png")
 
 # The choices of --spin, --physics and --fit, written out so that the CLI starts without NumPy;
 # tests/test_cli_lazy.py checks them against the library's lists.
@@ -47,6 +54,7 @@ def pitch(
     processes: int = typer.Option(None, "--processes", min=0,
                                   help="Worker processes for the stereo pairs' work (0: threads). Default: 0 for "
                                        "one capture, 2 for several (the pool starts once, ~0.5 s, then is reused)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --csv)."),
 ):
     """Ball positions, release velocity, spin, reference trajectory and pitch metrics of a capture.
 
@@ -54,9 +62,14 @@ def pitch(
     (each photo with its strobe_hz). Every number is reported with its 1-sigma uncertainty.
     Exit status 2 with a one-line message for captures that cannot give a flight.
 
-    With several captures (a session): each is analysed in turn (a capture that fails is named
-    and skipped, exit status 2 at the end), ``--report DIR`` writes one sub-folder per capture,
-    ``--json`` prints a list, and one table sums up the session.
+    With several captures (a session): each is analysed in turn (a capture that fails, e.g. a
+    missing photo, a bad capture.json or a photo that does not decode, is named in one line and
+    skipped), ``--report DIR`` writes one sub-folder per capture, ``--json`` prints a list, one
+    table sums up the session, and the exit status is 2 when any capture failed.
+
+    The output locations are checked before the analysis (exit status 2 for one that cannot be
+    written); if writing fails afterwards, the result is saved in a temporary folder and the
+    message says where.
     """
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import TABLE1_COLUMNS, PitchOptions, analyse_pitch
@@ -67,26 +80,38 @@ def pitch(
     _choice("--fit", fit, FIT_CHOICES)
     if processes is None:
         processes = 0 if len(captures) == 1 else 2
+    if len(captures) > 1 and csv_file is not None:
+        raise ValueError("--csv takes one capture; with several, --report DIR writes positions.csv per capture")
+    check(csv_file, "file", "--csv", force)
+    session_names = [c.resolve().name or str(c) for c in captures]
+    check(report, "folder", "--report", force,
+          REPORT_FILES if len(captures) == 1 else [f"{n}/{f}" for n in session_names for f in REPORT_FILES])
     opts = PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
                         release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes)
     if len(captures) > 1:
-        if csv_file is not None:
-            raise ValueError("--csv takes one capture; with several, --report DIR writes positions.csv per capture")
         _session(captures, opts, report, as_json)
         return
     with progress("analysing the pitch") as bar:
         cap = Capture.load(captures[0])
         res = add_truth_comparison(analyse_pitch(cap, opts, progress=bar), cap.truth)
     written = []
+    outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "pitch.json")
     if csv_file is not None:
         from stillcap.report.pitch import write_positions_csv
-        written.append(write_positions_csv(res, csv_file))
+        with outputs.writing(f"--csv {csv_file}"):
+            written.append(write_positions_csv(res, csv_file))
+            outputs.record(written[-1:])
     if report is not None:
         from stillcap.report.pitch import write_report
-        with progress("writing the report"):
-            written.append(write_report(res, report)["html"])
+        with outputs.writing(f"--report {report}"):
+            outputs.claim(report, REPORT_FILES)
+            with progress("writing the report"):
+                paths = write_report(res, report)
+            outputs.record(paths.values(), report)
+            written.append(paths["html"])
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
+        outputs.finish(printed_json=True)
         return
     print_notes(res.messages)
     t = right_table(f"{len(res.times)} ball positions from {len(res.pairs)} stereo pair(s) ({res.frame} frame)",
@@ -120,12 +145,17 @@ def pitch(
         console.print("spin: unavailable (see notes)")
     for w in written:
         console.print(f"wrote [bold]{w}[/]")
+    outputs.finish()
 
 
 def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> None:
-    """Several captures: one result each (report sub-folders, a JSON list) and a summary table."""
+    """Several captures: one result each (report sub-folders, a JSON list) and a summary table.
+
+    Each result is dropped once its report is written: only its table row (or, with ``--json``,
+    its JSON text) is kept, so that memory stays flat over a long session."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from stillcap.files.outputs import record_outputs
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import analyse_pitch
     from stillcap.studio.compare.pitch import add_truth_comparison
@@ -134,7 +164,8 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
     if report is not None and len(set(names)) < len(names):
         raise ValueError("--report with several captures needs distinct folder names (one sub-folder each)")
     err = Console(stderr=True)
-    results, failed = [], []
+    kept, failed = [], []  # per capture: its JSON text (--json) or its table row
+    fallback = None  # where the results of captures whose report could not be written go
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, transient=True) as bar:
         task = bar.add_task("pitches", total=len(captures))
@@ -143,37 +174,77 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
             try:
                 loaded = Capture.load(cap)
                 res = add_truth_comparison(analyse_pitch(loaded, opts), loaded.truth)
-            except ValueError as e:  # this capture cannot give a flight: name it, go on with the others
+            except Exception as e:  # noqa: BLE001 - one bad capture must not end the session: name it, go on
                 failed.append(name)
-                results.append((cap, None, str(e)))
-                err.print(f"[red]{name}:[/] {e}", highlight=False, soft_wrap=True)
-            else:
-                results.append((cap, res, None))
-                if report is not None:
-                    from stillcap.report.pitch import write_report
-                    write_report(res, report / name)
+                err.print(f"[red]{cap}:[/] {_problem(e)}", highlight=False, soft_wrap=True)
+                kept.append(json.dumps({"capture": str(cap), "error": _problem(e)}, indent=1) if as_json
+                            else (name, "-", "-", "-", "-", "-", "-", "[red]failed[/]"))  # its reason is above
+                bar.advance(task)
+                continue
+            kept.append(json.dumps(res.to_dict(), indent=1, allow_nan=False) if as_json else _row(name, res))
+            if report is not None:
+                from stillcap.report.pitch import write_report
+                try:
+                    record_outputs([report / name / f for f in REPORT_FILES], report / name)
+                    paths = write_report(res, report / name)
+                    record_outputs(paths.values(), report / name)
+                except OSError as e:  # the result is kept in a temporary folder; the message says where
+                    failed.append(name)
+                    try:
+                        fallback = fallback or Path(tempfile.mkdtemp(prefix="stillcap-unsaved-"))
+                    except OSError:
+                        pass
+                    saved = save_fallback_in(fallback, f"{name}.pitch.json", res)
+                    err.print(f"[red]{cap}:[/] cannot write --report {report / name} ({oserror_text(e)}); "
+                              f"{saved}", highlight=False, soft_wrap=True)
+            del res, loaded
             bar.advance(task)
-    if as_json:
-        print(json.dumps([r.to_dict() if r is not None else {"capture": str(c), "error": e} for c, r, e in results],
-                         indent=1, allow_nan=False))
+    if as_json:  # as json.dumps(list, indent=1) would print it
+        print("[\n" + ",\n".join(textwrap.indent(text, " ") for text in kept) + "\n]")
     else:
         t = Table(title=f"{len(captures)} pitches ({len(failed)} failed)")
         for c in ("capture", "balls", "release mph", "spin rpm", "tilt", "IVB in", "HB in", "notes"):
             t.add_column(c, justify="right")
-        for (cap, res, e), name in zip(results, names):
-            if res is None:
-                t.add_row(name, "-", "-", "-", "-", "-", "-", f"[red]{e}[/]")
-                continue
-            m, s = res.metrics, res.metrics_sigma
-
-            def pm(k, nd=1):  # the sigmas are small: one more digit
-                return f"{_f(getattr(m, k), nd)} ± {_f(s.get(k), nd + 1)}"
-            spin_ok = res.spin_available
-            t.add_row(name, str(len(res.times)), pm("release_speed_mph"), pm("spin_rate_rpm", 0) if spin_ok else "-",
-                      (m.spin_tilt or "-") if spin_ok else "-", pm("induced_vertical_break_in"),
-                      pm("horizontal_break_in"), str(len(res.messages)))
+        for row in kept:
+            t.add_row(*row)
         console.print(t)
         if report is not None:
             console.print(f"wrote one report per capture under [bold]{report}[/]")
     if failed:
         raise typer.Exit(2)
+
+
+def _row(name: str, res) -> tuple:
+    """The session table's row of one result."""
+    m, s = res.metrics, res.metrics_sigma
+
+    def pm(k, nd=1):  # the sigmas are small: one more digit
+        return f"{_f(getattr(m, k), nd)} ± {_f(s.get(k), nd + 1)}"
+    spin_ok = res.spin_available
+    return (name, str(len(res.times)), pm("release_speed_mph"), pm("spin_rate_rpm", 0) if spin_ok else "-",
+            (m.spin_tilt or "-") if spin_ok else "-", pm("induced_vertical_break_in"), pm("horizontal_break_in"),
+            str(len(res.messages)))
+
+
+def _problem(e: Exception) -> str:
+    """One line for a capture that failed: the library's message, or the error's kind and text."""
+    if isinstance(e, OSError):
+        return oserror_text(e)
+    if isinstance(e, ValueError):
+        return str(e)
+    return f"{type(e).__name__}: {e}"
+
+
+def save_fallback_in(folder: Path | None, name: str, res) -> str:
+    """Save ``res`` as JSON in ``folder`` (or print it when even that fails); the end of the
+    message saying where it went."""
+    from stillcap.files.atomic import write_text
+
+    text = json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n"
+    try:
+        if folder is not None:
+            return f"the result is saved in {write_text(folder / name, text)}"
+    except OSError:
+        pass
+    print(text)
+    return "the result is printed on stdout as JSON"

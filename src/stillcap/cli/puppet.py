@@ -13,18 +13,24 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional, Tuple
+from typing import Annotated, Optional, Tuple
 
 import typer
 from rich.console import Console
 from rich.table import Table
 
+from stillcap.cli._outputs import Outputs, check
 from stillcap.cli._progress import progress
 
 app = typer.Typer(no_args_is_help=True, add_completion=False,
                   help="Puppet capture: turntable photos of a marked puppet -> 3D markers and a posed skeleton "
                        "(see docs/puppet.md), and puppet projects.")
 console = Console()
+
+#: The files ``--out DIR`` of ``run`` and ``reconstruct`` writes (checked before the analysis: an
+#: existing one must be stillcap's).
+OUT_FILES = ("result.json", "report.html", "markers_3d.png", "skeleton_3d.png", "overlays/*.png")
+Force = Annotated[bool, typer.Option("--force", help="Overwrite files stillcap did not write.")]
 
 
 def _settings(detector: str, identify: str):
@@ -109,22 +115,26 @@ def print_comparison(cmp) -> None:
     console.print(t)
 
 
-def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = True) -> None:
-    if out is None:
-        return
-    from stillcap.files.atomic import write_text
+def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = True) -> Outputs:
+    """Write ``--out``; the :class:`Outputs` whose ``finish`` the caller calls after printing."""
     from stillcap.io.project import dumps_json
+
+    outputs = Outputs(lambda: dumps_json(res.to_dict()) + "\n", "result.json")
+    if out is None:
+        return outputs
+    from stillcap.files.atomic import write_text
     from stillcap.report.puppet import write_report
 
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    with progress("writing the report") as bar:
-        write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")
-        files = write_report(res, images, out, truth, overlays=overlays, progress=bar)
-    n_overlays = sum(f.parent.name == "overlays" for f in files)
-    console.print(f"wrote result.json, report.html, {n_overlays} overlays, markers_3d.png and skeleton_3d.png to "
-                  f"[bold]{out}[/]")
+    with outputs.writing(f"--out {out}"):
+        outputs.claim(out, OUT_FILES)
+        with progress("writing the report") as bar:
+            outputs.record([write_text(out / "result.json", dumps_json(res.to_dict()) + "\n")], out)
+            files = write_report(res, images, out, truth, overlays=overlays, progress=bar)
+        outputs.record(files, out)
+        n_overlays = sum(f.parent.name == "overlays" for f in files)
+        console.print(f"wrote result.json, report.html, {n_overlays} overlays, markers_3d.png and skeleton_3d.png to "
+                      f"[bold]{out}[/]")
+    return outputs
 
 
 def _truth_of(folder: Path):
@@ -148,6 +158,7 @@ def run(
                                  "stillcap puppet calibrate-palette)."),
     redetect: bool = typer.Option(False, "--redetect", help="Projects: detect again in every view (the stored "
                                   "edits still apply); by default only views without detections are detected."),
+    force: Force = False,
 ):
     """Find, name and triangulate the beads in every photo and pose the skeleton.
 
@@ -158,6 +169,7 @@ def run(
     from stillcap.pipelines.puppet import analyse_puppet
 
     settings = _settings(detector, identify)
+    check(out, "folder", "--out", force, OUT_FILES)
     if not folder.exists():
         raise ValueError(f"folder {folder} does not exist")
     markerset = None
@@ -177,12 +189,14 @@ def run(
         from stillcap.studio.compare.puppet import compare_with_capture
 
         res.comparison = compare_with_capture(res, folder)
-    _write_outputs(res, images, out, _truth_of(folder) if out is not None else None)
+    outputs = _write_outputs(res, images, out, _truth_of(folder) if out is not None else None)
     if as_json:
         print(dumps_json(res.to_dict()))
+        outputs.finish(printed_json=True)
         return
     _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} views "
                        f"({settings.detector} + {settings.identify}; puppet frame)")
+    outputs.finish()
 
 
 # --- projects ---------------------------------------------------------------------------------
@@ -198,6 +212,7 @@ def new(
     from stillcap.camera import Rig
     from stillcap.io.project import Project, TurntableSetup
 
+    check(project, "folder", "PROJECT", names=("project.json",))
     if rig is not None:
         p = Project.create(project, rig=Rig.load(rig), name=name)
         what = f"rig project with cameras {', '.join(p.rig.names)}"
@@ -337,19 +352,22 @@ def reconstruct(
     project: Path = typer.Argument(..., help="Project folder."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path = typer.Option(None, "--out", help="Write result.json, overlays and 3D plots here."),
+    force: Force = False,
 ):
     """3D markers and the pose from the project's stored markers (detections with edits)."""
     from stillcap.io.project import dumps_json
     from stillcap.pipelines.puppet import analyse_puppet
 
+    check(out, "folder", "--out", force, OUT_FILES)
     with progress("triangulating and posing"):
         res, images = analyse_puppet(project, detect=False)
-    if out is not None:
-        _write_outputs(res, images, out)
+    outputs = _write_outputs(res, images, out)
     if as_json:
         print(dumps_json(res.to_dict()))
+        outputs.finish(printed_json=True)
         return
     _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} views")
+    outputs.finish()
 
 
 @app.command()
@@ -411,6 +429,7 @@ def import_jj(
     """Make a project from the thesis's JumpingJack file (photos and identified markers)."""
     from stillcap.io.jumpingjack import import_jumpingjack
 
+    check(project, "folder", "PROJECT", names=("project.json",))
     p = import_jumpingjack(juja, project)
     console.print(f"imported {len(p.views)} views into [bold]{p.root}[/]")
 
@@ -420,12 +439,22 @@ def export_jj(
     project: Path = typer.Argument(..., help="Project folder."),
     juja: Path = typer.Argument(..., help="The .juja file to write (photos are copied beside it)."),
     round_pixels: bool = typer.Option(False, "--round", help="Whole-pixel positions, as the thesis's program wrote."),
+    force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (the .juja file and "
+                               "the photos beside it)."),
 ):
     """Write a project as a JumpingJack .juja file (the thesis's format)."""
-    from stillcap.io.jumpingjack import export_jumpingjack
+    from stillcap.files.outputs import record_outputs
+    from stillcap.io.jumpingjack import JJ_SUFFIX, export_jumpingjack, exported_files
     from stillcap.io.project import Project
 
-    path = export_jumpingjack(Project.load(project), juja, round_pixels=round_pixels)
+    p = Project.load(project)
+    if juja.suffix.lower() != JJ_SUFFIX:
+        juja = juja.with_name(juja.name + JJ_SUFFIX)
+    check(juja, "file", "JUJA", force)
+    for f in exported_files(p, juja):
+        check(f, "file", "JUJA (a photo beside it)", force)
+    path = export_jumpingjack(p, juja, round_pixels=round_pixels)
+    record_outputs([path, *exported_files(p, path)])
     console.print(f"wrote [bold]{path}[/]")
 
 
@@ -433,6 +462,7 @@ def export_jj(
 def calibrate_palette_cmd(
     folder: Path = typer.Argument(..., help="T-pose photos: a capture folder or a project."),
     out: Path = typer.Option(..., "--out", help="Palette JSON to write (use it with puppet run --palette)."),
+    force: Force = False,
 ):
     """Measure the beads' reference colours from T-pose photos (the thesis's calibration).
 
@@ -445,13 +475,17 @@ def calibrate_palette_cmd(
     from stillcap.files.atomic import write_text
     from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
 
+    check(out, "file", "--out", force)
     with progress("detecting beads") as update:
         res, images = analyse_puppet(folder, DEFAULT, progress=update)
     pts = [np.where(res.markers.used[k][:, None], res.markers.observations[k], np.nan) for k in range(len(images))]
     from stillcap.detect.palette import Palette
 
     cal = calibrate_palette(images, pts, Palette.from_markerset(res.markerset), sampler="disc")
-    write_text(out, json.dumps(cal.palette.to_dict(), indent=1) + "\n")
+    text = json.dumps(cal.palette.to_dict(), indent=1) + "\n"
+    outputs = Outputs(lambda: text, "palette.json")
+    with outputs.writing(f"--out {out}"):
+        outputs.record([write_text(out, text)])
     t = Table(title=f"colours measured in {len(images)} photos")
     for c in ("marker", "reference", "measured", "photos", "spread dE00"):
         t.add_column(c, justify="right")
@@ -460,4 +494,6 @@ def calibrate_palette_cmd(
         t.add_row(n, ref.hex[k], cal.palette.hex[k], str(int(cal.n_samples[k])),
                   f"{cal.spread[k]:.2f}" if np.isfinite(cal.spread[k]) else "-")
     console.print(t)
-    console.print(f"wrote [bold]{out}[/]")
+    if not outputs.failed:
+        console.print(f"wrote [bold]{out}[/]")
+    outputs.finish()

@@ -8,6 +8,7 @@ import typer
 from rich.console import Console
 
 from stillcap.cli._progress import progress
+from stillcap.files.outputs import check_writable
 
 app = typer.Typer(no_args_is_help=True, add_completion=False,
                   help="Render synthetic captures with ground truth (see docs/studio.md).")
@@ -15,8 +16,7 @@ console = Console()
 
 
 def _check_out(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
+    check_writable(out, "folder", option="--out", force=True)  # a folder, writable; its content is checked here:
     if out.is_dir() and any(out.iterdir()) and not force:
         raise ValueError(f"--out {out} exists and is not empty (use --force to write into it)")
 

@@ -57,7 +57,7 @@ from stillcap.files.schema import MAX_COORDINATE
 from stillcap.io.project import Project, TurntableSetup, resolve_inside
 
 __all__ = ["JJ_SUFFIX", "MAX_XML_BYTES", "JJImage", "JJProjectFile", "read_jumpingjack", "parse_jumpingjack",
-           "jumpingjack_xml", "import_jumpingjack", "export_jumpingjack"]
+           "jumpingjack_xml", "import_jumpingjack", "export_jumpingjack", "exported_files"]
 
 JJ_SUFFIX = ".juja"
 #: Largest ``.juja`` file read (bytes); a real one is a few kilobytes.
@@ -272,6 +272,46 @@ def jumpingjack_xml(project: Project, file_names: dict | None = None, name: str 
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode").encode("utf-8") + b"\n"
 
 
+def _juja_path(path) -> Path:
+    path = Path(path)
+    return path if path.suffix.lower() == JJ_SUFFIX else path.with_name(path.name + JJ_SUFFIX)
+
+
+def _photo_plan(project: Project, path: Path) -> dict:
+    """``{view name: ((source, destination) or None for the photo, the same for the processed
+    photo)}`` of an export to the ``.juja`` file ``path`` (the thesis's naming)."""
+    folder, stem = path.parent, path.stem
+    plan: dict = {}
+    taken: set = set()
+    for v in project.views:
+        label = _fmt(v.angle_deg) if v.angle_deg is not None else v.camera
+        label = "".join(c if c.isalnum() or c in "._+-" else "_" for c in label)
+        files = []
+        for rel, tag in ((v.image, ""), (v.processed, "p")):
+            if rel is None:
+                files.append(None)
+                continue
+            src = project.image_path(v, processed=bool(tag))
+            if not src.is_file():
+                raise ValueError(f"view {v.name!r}: photo {src} does not exist")
+            out = f"{stem}_{label}{tag}{src.suffix.lower()}"
+            if out in taken:
+                raise ValueError(f"view {v.name!r}: its exported file name {out!r} clashes with another view's "
+                                 "(camera names that differ only in special characters)")
+            taken.add(out)
+            files.append((src, folder / out))
+        plan[v.name] = tuple(files)
+    return plan
+
+
+def exported_files(project: Project, path) -> list[Path]:
+    """The photo files :func:`export_jumpingjack` writes beside the ``.juja`` file ``path``
+    (not those that are already the project's own photos)."""
+    path = _juja_path(path)
+    return [dst for files in _photo_plan(project, path).values() for e in files if e is not None
+            for src, dst in [e] if not (dst.exists() and dst.resolve() == src.resolve())]
+
+
 def export_jumpingjack(project: Project, path, round_pixels: bool = False) -> Path:
     """Write a project as a JumpingJack ``.juja`` file with its photos beside it.
 
@@ -292,33 +332,17 @@ def export_jumpingjack(project: Project, path, round_pixels: bool = False) -> Pa
     Path
         The ``.juja`` file.
     """
-    path = Path(path)
-    if path.suffix.lower() != JJ_SUFFIX:
-        path = path.with_name(path.name + JJ_SUFFIX)
+    path = _juja_path(path)
     folder = path.parent
     folder.mkdir(parents=True, exist_ok=True)
-    stem = path.stem
-    names = {}
-    for v in project.views:
-        label = _fmt(v.angle_deg) if v.angle_deg is not None else v.camera
-        label = "".join(c if c.isalnum() or c in "._+-" else "_" for c in label)
-        files = []
-        for rel, tag in ((v.image, ""), (v.processed, "p")):
-            if rel is None:
-                files.append(None)
-                continue
-            src = project.image_path(v, processed=bool(tag))
-            if not src.is_file():
-                raise ValueError(f"view {v.name!r}: photo {src} does not exist")
-            out = f"{stem}_{label}{tag}{src.suffix.lower()}"
-            if any(out in f for f in names.values()):
-                raise ValueError(f"view {v.name!r}: its exported file name {out!r} clashes with another view's "
-                                 "(camera names that differ only in special characters)")
-            dst = folder / out
-            if not (dst.exists() and dst.resolve() == src.resolve()):
-                with atomic_path(dst) as tmp:
-                    shutil.copyfile(src, tmp)
-            files.append(out)
-        names[v.name] = tuple(files)
+    plan = _photo_plan(project, path)
+    for view in plan.values():
+        for entry in view:
+            if entry is not None:
+                src, dst = entry
+                if not (dst.exists() and dst.resolve() == src.resolve()):
+                    with atomic_path(dst) as tmp:
+                        shutil.copyfile(src, tmp)
+    names = {v: tuple(None if e is None else e[1].name for e in files) for v, files in plan.items()}
     write_bytes(path, jumpingjack_xml(project, names, path.name, round_pixels))
     return path
