@@ -18,7 +18,11 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
+#: The examples each property runs in the test suite (tools/fuzz_files.py runs more).
+CI = settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 # --- strategies ---------------------------------------------------------------------------------
 #: Numbers that break readers: huge, tiny, negative, non-finite, the wrong type.
@@ -288,3 +292,26 @@ def xml_mutations(draw, text: str):
     if draw(st.integers(0, 9)) == 0:
         out = out[:draw(st.integers(0, len(out)))]
     return out
+
+
+def written(tmp_path: Path, doc: dict, change: Callable, name: str) -> Path:
+    """``doc`` changed in place by ``change`` and written as ``tmp_path / name``."""
+    change(doc)
+    path = tmp_path / name
+    path.write_text(dumps(doc))
+    return path
+
+
+def check_any_file(tmp_path: Path, name: str) -> None:
+    """The property of format ``name``: any JSON file (and any mutation of its seed) loads, or is
+    refused in one line naming the file."""
+    fmt = FORMATS[name]
+
+    @CI
+    @given(json_files(fmt.seed(), fmt.frozen))
+    def prop(doc):
+        path = tmp_path / fmt.file_name
+        path.write_text(dumps(doc))
+        outcome(fmt.read, path)
+
+    prop()

@@ -1,20 +1,14 @@
 """Label overrides files (`stillcap hand --overrides`): one line naming the file and the entry."""
 
 import pytest
-from hypothesis import HealthCheck, given, settings
 
 import fuzzing
 from stillcap.body.hand_label import read_label_overrides
 
-CI = settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 
 def _with(tmp_path, fn):
-    d = fuzzing.seed_overrides()
-    fn(d)
-    path = tmp_path / "ov.json"
-    path.write_text(fuzzing.dumps(d))
-    return path
+    return fuzzing.written(tmp_path, fuzzing.seed_overrides(), fn, "ov.json")
 
 
 def test_the_seed_loads(tmp_path):
@@ -52,13 +46,4 @@ def test_a_folder_is_named(tmp_path):
 
 
 def test_any_file_loads_or_is_refused_in_one_line(tmp_path):
-    fmt = fuzzing.FORMATS["overrides"]
-
-    @CI
-    @given(fuzzing.json_files(fmt.seed(), fmt.frozen))
-    def prop(doc):
-        path = tmp_path / fmt.file_name
-        path.write_text(fuzzing.dumps(doc))
-        fuzzing.outcome(fmt.read, path)
-
-    prop()
+    fuzzing.check_any_file(tmp_path, "overrides")

@@ -4,13 +4,11 @@ the key path; arbitrary JSON and mutations of a valid file either load or are re
 import json
 
 import pytest
-from hypothesis import HealthCheck, given, settings
 
 import fuzzing
 from stillcap.body import Skeleton
 from stillcap.body.markerset import MarkerSet
 
-CI = settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 
 def _skeleton_with(tmp_path, fn):
@@ -108,13 +106,4 @@ def test_seeds_load():
 
 @pytest.mark.parametrize("name", ["skeleton", "markerset"])
 def test_any_file_loads_or_is_refused_in_one_line(tmp_path, name):
-    fmt = fuzzing.FORMATS[name]
-
-    @CI
-    @given(fuzzing.json_files(fmt.seed(), fmt.frozen))
-    def prop(doc):
-        path = tmp_path / fmt.file_name
-        path.write_text(fuzzing.dumps(doc))
-        fuzzing.outcome(fmt.read, path)
-
-    prop()
+    fuzzing.check_any_file(tmp_path, name)

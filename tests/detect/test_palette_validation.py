@@ -2,12 +2,10 @@
 --palette`): one line naming the file and the key path."""
 
 import pytest
-from hypothesis import HealthCheck, given, settings
 
 import fuzzing
 from stillcap.detect.palette import Palette, read_bgr_palette
 
-CI = settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 
 def _write(tmp_path, d, name="pal.json"):
@@ -51,13 +49,4 @@ def test_bad_ball_palettes_get_one_line(tmp_path, data, message):
 
 @pytest.mark.parametrize("name", ["palette", "bgr-palette"])
 def test_any_file_loads_or_is_refused_in_one_line(tmp_path, name):
-    fmt = fuzzing.FORMATS[name]
-
-    @CI
-    @given(fuzzing.json_files(fmt.seed(), fmt.frozen))
-    def prop(doc):
-        path = tmp_path / fmt.file_name
-        path.write_text(fuzzing.dumps(doc))
-        fuzzing.outcome(fmt.read, path)
-
-    prop()
+    fuzzing.check_any_file(tmp_path, name)

@@ -5,13 +5,13 @@ import json
 import shutil
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 
 import fuzzing
 from stillcap.io.jumpingjack import export_jumpingjack, import_jumpingjack, read_jumpingjack
 from stillcap.io.project import Project
 
-CI = settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
+CI = fuzzing.CI  # the suite's bound on examples
 
 
 @pytest.fixture(scope="module")

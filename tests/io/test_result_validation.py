@@ -3,7 +3,6 @@ finite, bounded numbers, or one line naming the file and the key path."""
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
 
 import fuzzing
 from stillcap.body import Skeleton
@@ -11,15 +10,10 @@ from stillcap.body.markerset import MarkerTrajectories
 from stillcap.io.export import as_export_data, export
 from stillcap.io.puppet_result import load_result
 
-CI = settings(max_examples=60, deadline=None, database=None, suppress_health_check=list(HealthCheck))
 
 
 def _result_with(tmp_path, fn):
-    d = fuzzing.seed_result()
-    fn(d)
-    path = tmp_path / "result.json"
-    path.write_text(fuzzing.dumps(d))
-    return path
+    return fuzzing.written(tmp_path, fuzzing.seed_result(), fn, "result.json")
 
 
 def test_the_seed_result_loads_and_exports(tmp_path):
@@ -77,13 +71,4 @@ def test_exporters_get_no_infinite_or_huge_positions(tmp_path):
 
 
 def test_any_result_loads_or_is_refused_in_one_line(tmp_path):
-    fmt = fuzzing.FORMATS["result"]
-
-    @CI
-    @given(fuzzing.json_files(fmt.seed(), fmt.frozen))
-    def prop(doc):
-        path = tmp_path / fmt.file_name
-        path.write_text(fuzzing.dumps(doc))
-        fuzzing.outcome(fmt.read, path)
-
-    prop()
+    fuzzing.check_any_file(tmp_path, "result")
