@@ -61,6 +61,13 @@ def test_puppet_run_json_and_outputs(capture, result_json, capsys):
     assert code == 0 and "markers from 6 views" in out and "Compared with the truth" in out
 
 
+def test_json_with_out_keeps_stdout_json(capture, tmp_path, capsys):
+    """--json --out: stdout is the JSON alone; the "wrote ..." line goes to stderr."""
+    code, out, err = run(["puppet", "run", capture, "--json", "--out", tmp_path / "o"], capsys)
+    assert code == 0 and json.loads(out)["format"] == "stillcap-puppet-result"
+    assert "wrote result.json" in err and (tmp_path / "o" / "result.json").is_file()
+
+
 def test_run_out_files_are_known_and_recorded(result_json):
     """Every file ``puppet run --out`` writes is one the check before the analysis knows, and is
     recorded as stillcap's (a second run needs no --force)."""

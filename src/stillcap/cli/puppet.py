@@ -115,8 +115,10 @@ def print_comparison(cmp) -> None:
     console.print(t)
 
 
-def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = True) -> Outputs:
-    """Write ``--out``; the :class:`Outputs` whose ``finish`` the caller calls after printing."""
+def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = True, say: Console = console
+                   ) -> Outputs:
+    """Write ``--out``; the :class:`Outputs` whose ``finish`` the caller calls after printing.
+    ``say``: where the "wrote ..." line goes (stderr when stdout carries JSON)."""
     from stillcap.io.project import dumps_json
 
     outputs = Outputs(lambda: dumps_json(res.to_dict()) + "\n", "result.json")
@@ -132,8 +134,8 @@ def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = T
             files = write_report(res, images, out, truth, overlays=overlays, progress=bar)
         outputs.record(files, out)
         n_overlays = sum(f.parent.name == "overlays" for f in files)
-        console.print(f"wrote result.json, report.html, {n_overlays} overlays, markers_3d.png and skeleton_3d.png to "
-                      f"[bold]{out}[/]")
+        say.print(f"wrote result.json, report.html, {n_overlays} overlays, markers_3d.png and skeleton_3d.png to "
+                  f"[bold]{out}[/]")
     return outputs
 
 
@@ -189,7 +191,8 @@ def run(
         from stillcap.studio.compare.puppet import compare_with_capture
 
         res.comparison = compare_with_capture(res, folder)
-    outputs = _write_outputs(res, images, out, _truth_of(folder) if out is not None else None)
+    outputs = _write_outputs(res, images, out, _truth_of(folder) if out is not None else None,
+                             say=Console(stderr=True) if as_json else console)  # stdout: the JSON only
     if as_json:
         print(dumps_json(res.to_dict()))
         outputs.finish(printed_json=True)
@@ -361,7 +364,7 @@ def reconstruct(
     check(out, "folder", "--out", force, OUT_FILES)
     with progress("triangulating and posing"):
         res, images = analyse_puppet(project, detect=False)
-    outputs = _write_outputs(res, images, out)
+    outputs = _write_outputs(res, images, out, say=Console(stderr=True) if as_json else console)
     if as_json:
         print(dumps_json(res.to_dict()))
         outputs.finish(printed_json=True)
