@@ -88,14 +88,18 @@ class FitPriors:
                         + [self.spin_axial_sigma] + [self.spin_transverse_sigma] * 2, float)
 
 
-def spin_basis(velocity) -> np.ndarray:
+def spin_basis(velocity, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     """Orthonormal columns ``(e_v, e_1, e_2)``: along ``velocity``, horizontal normal, upward normal.
 
-    ``e_1 = e_v x z`` (normalised; ``x`` if the velocity is vertical), ``e_2 = e_1 x e_v``.
+    ``e_1 = e_v x up`` (normalised; any normal of ``e_v`` if the velocity is along ``up``),
+    ``e_2 = e_1 x e_v``.
 
     Parameters
     ----------
     velocity : array_like, shape (3,)
+    up : array_like, shape (3,)
+        The world's up direction (default z; :func:`fit_reference_trajectory` uses the model's
+        ``-gravity``).
 
     Returns
     -------
@@ -106,9 +110,14 @@ def spin_basis(velocity) -> np.ndarray:
     if not n > 0:
         raise ValueError(f"velocity must be non-zero to build the spin basis, got {v}")
     ev = v / n
-    e1 = np.cross(ev, [0.0, 0.0, 1.0])
+    u = as_array(up, (3,), "up")
+    if not np.linalg.norm(u) > 0:
+        raise ValueError(f"up must be non-zero, got {u}")
+    e1 = np.cross(ev, u / np.linalg.norm(u))
     if np.linalg.norm(e1) < 1e-9:
-        e1 = np.array([1.0, 0.0, 0.0])
+        # velocity along up: the world axis least aligned with it, made normal to it (x for z)
+        e1 = np.eye(3)[int(np.argmin(np.abs(ev)))]
+        e1 = e1 - ev * (e1 @ ev)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(e1, ev)
     return np.stack([ev, e1, e2], axis=1)
@@ -490,6 +499,22 @@ def _spin_start(times, positions, model, max_rate: float = 600.0) -> np.ndarray:
     return rate * w_dir
 
 
+def _model_up(model) -> np.ndarray:
+    """The up direction of a model: against its ``gravity`` (a FlightModel's, or any model's
+    that has one); otherwise against the acceleration of a ball at rest without spin (gravity,
+    for any model implementing only ``AccelerationModel``); z when neither gives one."""
+    g = getattr(model, "gravity", None)
+    if g is None:
+        try:
+            g = model.acceleration(np.zeros(3), np.zeros(3), 0.0)
+        except (TypeError, ValueError, ArithmeticError):
+            g = None
+    g = np.asarray(g, float).reshape(-1) if g is not None else np.zeros(0)
+    if g.shape != (3,) or not np.all(np.isfinite(g)) or not np.linalg.norm(g) > 0:
+        return np.array([0.0, 0.0, 1.0])
+    return -g / np.linalg.norm(g)
+
+
 def _whitening(position_covariance, positions) -> np.ndarray:
     """Whitening matrices ``W_n`` (``W_n C_n W_n^T = I`` after the common normalisation of
     ``fit_reference_trajectory``'s ``position_covariance``), identity on unusable rows."""
@@ -603,7 +628,7 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     t0 = float(times[observed & (group_idx == 0)].min(initial=np.inf)) if t0 is None else float(t0)
     if not np.isfinite(t0):
         t0 = float(times[observed].min())
-    basis = spin_basis(v0)
+    basis = spin_basis(v0, _model_up(model))
     sigmas = np.concatenate([priors.vector(), np.full(n_off, np.inf)])
     free = np.ones(9 + n_off, bool)
     if spin is None:
@@ -619,7 +644,7 @@ def fit_reference_trajectory(times, positions, p0, v0, spin=None, model: FlightM
     if not fit_axial_spin:
         free[6] = False  # held at s_meas[0]: 0, or the measured spin's axial component
     # the seed model without a measured spin: fitted in (gyro angle, effective transverse spin)
-    gyro = spin is None and fit_axial_spin and model.kind == "seed" and np.linalg.norm(s_meas[1:]) > 0
+    gyro = spin is None and fit_axial_spin and getattr(model, "kind", None) == "seed" and np.linalg.norm(s_meas[1:]) > 0
     theta_meas = np.concatenate([p0, v0, _basis_to_gyro(s_meas) if gyro else s_meas, off0])
     weights = None if position_covariance is None else _whitening(position_covariance, positions)
     prob = _Problem(times, positions, group_idx, theta_meas, sigmas, free, basis, model, t0,

@@ -47,12 +47,16 @@ Where things are (private modules, the names below are the public face):
   :func:`flight_model`;
 - ``_integrate``: :func:`simulate`, :class:`Trajectory`, :func:`cross_plane`,
   :class:`PlaneCrossing`;
+- ``_balls``: :class:`BallModel`, :data:`BALLS`, :func:`ball_model` (softball, cricket, tennis,
+  table tennis and baseball presets from published coefficients, sources there and in
+  docs/flight.md);
 - ``_batch``: :func:`simulate_batch`, :class:`BatchTrajectory` (Runge-Kutta tableaux and steps,
   Hermite interpolation).
 """
 
 from stillcap.ball.physics._air import (G0, GRAVITY_FIELD, PLATE_FRONT_Y, RPM_PER_RAD_S, SEED_CD_POLY, AirProperties,
                                        Atmosphere, BallProperties, NathanCoefficients, saturation_vapour_pressure)
+from stillcap.ball.physics._balls import BALLS, BallModel, ball_model
 from stillcap.ball.physics._batch import BatchTrajectory, simulate_batch
 from stillcap.ball.physics._integrate import PlaneCrossing, Trajectory, cross_plane, simulate
 from stillcap.ball.physics._model import FLIGHT_MODELS, AccelerationModel, FlightModel, flight_model
@@ -60,4 +64,4 @@ from stillcap.ball.physics._model import FLIGHT_MODELS, AccelerationModel, Fligh
 __all__ = ["G0", "GRAVITY_FIELD", "PLATE_FRONT_Y", "RPM_PER_RAD_S", "SEED_CD_POLY", "AirProperties", "Atmosphere",
            "BallProperties", "NathanCoefficients", "saturation_vapour_pressure", "AccelerationModel", "FlightModel",
            "FLIGHT_MODELS", "flight_model", "Trajectory", "simulate", "PlaneCrossing", "cross_plane",
-           "BatchTrajectory", "simulate_batch"]
+           "BatchTrajectory", "simulate_batch", "BALLS", "BallModel", "ball_model"]
