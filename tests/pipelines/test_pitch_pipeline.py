@@ -104,6 +104,12 @@ def test_no_markers_still_gives_positions_and_velocity(tmp_path_factory):
     d = res.to_dict()
     assert d["spin"] is None and d["metrics"]["spin_rate_rpm"] is None and d["metrics"]["spin_axis_deg"] is None
     assert d["metrics"]["release_speed_mph"] > 50 and d["metrics_sigma"]["spin_rate_rpm"] is None
+    # the spin from flight is the reported spin, flagged as such (transverse: the seed model's total rate)
+    assert d["spin_source"] == "flight" and d["spin_reported"]["source"] == "flight" and d["spin_comparison"] is None
+    f = d["spin_from_flight"]
+    truth = Capture.load(root).truth
+    assert abs(f["spin_rpm"] - truth["spin_rpm"]) < max(4 * f["spin_sigma_rpm"], 20.0)
+    assert any("spin from flight alone" in m for m in res.messages)
     assert res.truth["mean_err_mm"] < 3.0 and abs(res.truth["speed_diff_mph_fitted"]) < 0.3
 
 

@@ -10,6 +10,7 @@ import numpy as np
 from stillcap.ball.fit import ReferenceFit
 from stillcap.ball.metrics import MPH, RPM_PER_RAD_S, PitchMetrics
 from stillcap.ball.orientation import MarkerObservations, SpinResult
+from stillcap.ball.spin_from_flight import FlightSpin, SpinComparison
 from stillcap.ball.stereo import StereoBalls
 from stillcap.ball.uncertainty import speed_sigma
 from stillcap.pipelines.pitch.options import PitchOptions
@@ -176,6 +177,12 @@ class PitchResult:
         set by the caller that holds one (the pipeline never reads a truth).
     spin_obs_times : ndarray, shape (M,) or None
         Reference-clock time of each marker observation of ``spin`` (plots).
+    flight_spin : FlightSpin or None
+        The spin the flight alone shows (positions-only fit; transverse, at ``t = 0``):
+        :mod:`stillcap.ball.spin_from_flight`.
+    spin_comparison : SpinComparison or None
+        With markers: the marker spin against ``flight_spin`` (chi-square, agreement, spin
+        efficiency from the two).
     """
 
     frame: str
@@ -199,6 +206,28 @@ class PitchResult:
     capture_root: str | None = None
     truth: dict | None = None
     spin_obs_times: np.ndarray | None = field(default=None, repr=False)
+    flight_spin: FlightSpin | None = field(default=None, repr=False)
+    spin_comparison: SpinComparison | None = field(default=None, repr=False)
+
+    @property
+    def spin_source(self) -> str | None:
+        """Where the reported spin comes from: ``"markers"``, ``"flight"`` (no markers: the
+        flight's transverse spin) or None."""
+        if self.spin_available:
+            return "markers"
+        return "flight" if self.flight_spin is not None else None
+
+    def spin_reported(self) -> dict | None:
+        """The spin the result reports, flagged with its source (``spin_reported`` in JSON)."""
+        if self.spin_available:
+            return {"source": "markers", "transverse_only": False, "spin": self.release.get("spin"),
+                    "spin_rpm": self.release.get("spin_rpm"), "spin_sigma_rpm": self.spin.sigma_rpm,
+                    "axis_sigma_deg": self.spin.sigma_axis_deg}
+        f = self.flight_spin
+        if f is None:
+            return None
+        return {"source": "flight", "transverse_only": True, "lift_from": f.lift_from, "spin": f.spin,
+                "spin_rpm": f.rate_rpm, "spin_sigma_rpm": f.rate_sigma_rpm, "axis_sigma_deg": f.axis_sigma_deg}
 
     @property
     def spin_available(self) -> bool:
@@ -248,6 +277,11 @@ class PitchResult:
             "messages": list(self.messages),
             "timings_s": self.timings_s,
         }
+        # added keys (spin from flight): the existing ones above keep their meaning
+        d["spin_source"] = self.spin_source
+        d["spin_reported"] = self.spin_reported()
+        d["spin_from_flight"] = None if self.flight_spin is None else self.flight_spin.to_dict()
+        d["spin_comparison"] = None if self.spin_comparison is None else self.spin_comparison.to_dict()
         if self.truth is not None:
             d["truth_comparison"] = self.truth
         return to_jsonable(d)

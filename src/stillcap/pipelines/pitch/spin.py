@@ -8,6 +8,9 @@ thread or in a worker process), the alias choice, and one spin over all pairs.
   and the flight's Magnus curvature (:mod:`stillcap.ball.alias`), then (``"global"``) all pairs'
   markers refitted together on the reference clock at that alias, or (``"seed"``) the best
   pair's per-flash fit moved to it.
+- :func:`flight_spin_stage`: the transverse spin the flight alone shows (the positions-only fit,
+  :mod:`stillcap.ball.spin_from_flight`), and with a marker spin the test of the two against
+  each other and the spin efficiency they give.
 """
 
 from __future__ import annotations
@@ -22,9 +25,10 @@ from stillcap.ball.markers import pair_marker_observations
 from stillcap.ball.metrics import RPM_PER_RAD_S
 from stillcap.ball.orientation import MarkerObservations, SpinResult, fit_spin, fit_spin_seed
 from stillcap.ball.physics import FlightModel
+from stillcap.ball.spin_from_flight import FlightSpin, SpinComparison, compare_spins, transverse_spin_from_fit
 from stillcap.pipelines.pitch.result import PairResult
 
-__all__ = ["pair_markers_and_spin", "spin_stage"]
+__all__ = ["pair_markers_and_spin", "spin_stage", "flight_spin_stage"]
 
 
 def pair_markers_and_spin(cams, imgs, pair: PairResult, types, layout, radius_m: float, max_px: float,
@@ -193,3 +197,23 @@ def _with_spin(res: SpinResult, w) -> SpinResult:
     n = float(np.linalg.norm(w))
     return _replace(res, spin=w.copy(), spin_rpm=n * RPM_PER_RAD_S, axis=w / n if n > 0 else np.full(3, np.nan),
                     message=f"{res.message}; alias chosen with both strobe rates and the flight curvature")
+
+
+def flight_spin_stage(fit_positions: ReferenceFit, model, spin_ok: bool, w0, cov0,
+                      messages: list) -> tuple[FlightSpin | None, SpinComparison | None]:
+    """The spin from the flight alone (the positions-only fit, no refit) and, with a marker spin
+    ``w0`` (covariance ``cov0``, both at ``t = 0`` of the reference clock like the fit's ``t0``),
+    their comparison. Without markers the flight spin is what the result reports as its spin
+    (flagged ``"source": "flight"``, transverse only): a message says so. A flight spin that
+    cannot be had (a failed fit) gives None and a message, never an error."""
+    try:
+        fs = transverse_spin_from_fit(fit_positions, model=model)
+    except (ValueError, np.linalg.LinAlgError) as e:
+        messages.append(f"spin from flight unavailable ({e})")
+        return None, None
+    if not spin_ok:
+        what = "total rate along the transverse axis" if fs.lift_from == "total" else "transverse spin only"
+        messages.append(f"spin from flight alone ({what}): {fs.rate_rpm:.0f} +- {fs.rate_sigma_rpm:.0f} rpm, axis "
+                        f"+- {fs.axis_sigma_deg:.1f} deg")
+        return fs, None
+    return fs, compare_spins(fs, w0, cov0)

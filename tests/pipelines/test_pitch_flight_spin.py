@@ -1,0 +1,38 @@
+"""The pitch pipeline's spin from flight on a kept studio capture with markers: both spins,
+their agreement, and the added JSON keys (the existing ones unchanged)."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stillcap.pipelines.pitch import analyse_pitch
+
+KEPT = Path("/tmp/kept/pitch-4seam-0")
+
+
+@pytest.fixture(scope="module")
+def kept(tmp_path_factory):
+    if not (KEPT / "capture.json").is_file():
+        pytest.skip(f"no kept studio capture at {KEPT}")
+    root = tmp_path_factory.mktemp("kept") / "pitch"
+    shutil.copytree(KEPT, root)
+    return root
+
+
+def test_marked_pitch_reports_both_spins_and_their_agreement(kept):
+    res = analyse_pitch(kept, n_samples=0)
+    d = res.to_dict()
+    truth = json.loads((kept / "truth.json").read_text())
+    assert d["spin_source"] == "markers" and d["spin_reported"]["source"] == "markers"
+    f = d["spin_from_flight"]
+    assert f["source"] == "flight" and f["transverse_only"] and f["lift_from"] == "total"  # the seed model
+    assert f["spin_sigma_rpm"] > 0 and f["axis_sigma_deg"] > 0
+    assert abs(f["spin_rpm"] - truth["spin_rpm"]) < max(4 * f["spin_sigma_rpm"], 10.0)
+    c = d["spin_comparison"]
+    assert c["agree"] and c["dof"] == 2 and c["axis_angle_deg"] < 2.0
+    # the seed model's lift follows the total rate: no efficiency from the flight
+    assert c["spin_efficiency"] is None
+    assert d["spin"] == d["spin_reported"]["spin"] and np.isclose(d["spin_rpm"], truth["spin_rpm"], atol=5)
