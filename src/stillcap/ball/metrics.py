@@ -452,6 +452,12 @@ def nine_parameter_metrics(nine, release_y_ft=None) -> dict:
                    release_extension_ft=RUBBER_Y_FT - ry,
                    plate_time_s=time_at_y(n, PLATE_FRONT_Y_FT) - t_rel)
         out.update(_statcast_movement_fields(sx, sz))
+    else:
+        nan = np.full(px.shape, np.nan)
+        for k in ("release_speed_mph", "release_pos_x_ft", "release_pos_y_ft", "release_pos_z_ft",
+                  "release_extension_ft", "plate_time_s"):
+            out[k] = nan
+        out.update(_statcast_movement_fields(nan, nan))
     return out
 
 
@@ -664,7 +670,7 @@ def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: floa
         "release_extension_ft": RUBBER_Y_FT - p_rel[:, 1],
         "plate_time_s": fit["t_ref"] + time_at_y(n9, PLATE_FRONT_Y_FT) - t_rel,
     }
-    out.update(nine_parameter_metrics(n9))
+    out.update({k: v for k, v in nine_parameter_metrics(n9).items() if k not in out})
     out.update(_statcast_movement_fields(*statcast_movement_in(n9, p_rel[:, 1])))
     nan = np.full(len(t), np.nan)
     spin_keys = ("spin_rate_rpm", "active_spin_rpm", "spin_efficiency", "gyro_angle_deg", "spin_axis_deg")
@@ -686,3 +692,31 @@ def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: floa
     out = {k: np.where(ok, v, np.nan) for k, v in out.items()}
     out["success"] = ok
     return out, nine
+
+
+def rapsodo_spin_break_in(speed_mph, release_angle_deg, horizontal_angle_deg, release_height_ft, release_side_ft,
+                          spin_rpm, spin_direction, gyro_deg, model=None, *, extension_ft: float = 6.0):
+    """Rapsodo's VB and HB (spin), inches, predicted from what Rapsodo measures at release.
+
+    The pitch is flown (``model``, default Nathan's) from ``y = 60.5 ft - extension_ft`` (Rapsodo
+    measures no extension: 6 ft assumed) with the speed, the release angles (vertical, positive
+    up; horizontal, positive toward +x), the release height and side (side positive toward -x,
+    the pitcher's right) and the spin vector (total rate, direction on the clock as Rapsodo
+    shows it, gyro degree: efficiency ``cos(gyro)``); VB/HB are its Statcast movement
+    (``rapsodo_vb_in``, ``rapsodo_hb_in``). No fitted constant: on the shared Rapsodo file this
+    gives VB within 1.44 in and HB within 0.33 in (median, ``docs/pitch-metrics.md``).
+
+    Returns
+    -------
+    vb_in, hb_in : float
+    """
+    from stillcap.ball.physics import FlightModel
+
+    model = FlightModel.nathan_model() if model is None else model
+    axis = parse_clock_deg(spin_direction) if isinstance(spin_direction, str) else float(spin_direction)
+    va, ha = math.radians(release_angle_deg), math.radians(horizontal_angle_deg)
+    v = speed_mph * MPH * np.array([math.cos(va) * math.sin(ha), -math.cos(va) * math.cos(ha), math.sin(va)])
+    p0 = np.array([-release_side_ft, RUBBER_Y_FT - extension_ft, release_height_ft]) * FT
+    w = spin_vector(spin_rpm, axis, v, efficiency=math.cos(math.radians(gyro_deg)))
+    m = pitch_metrics_from_flight(p0, v, w, model)
+    return m.rapsodo_vb_in, m.rapsodo_hb_in
