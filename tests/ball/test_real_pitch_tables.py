@@ -28,7 +28,7 @@ def test_statcast_pfx_spin_axis_and_plate_location_reproduce_the_file():
     tab = read_pitch_table(path)
     assert tab.kind == "statcast" and len(tab.rows) == 539  # one untracked row skipped
     m = table_metrics(tab)
-    med = lambda d: float(np.nanmedian(np.abs(d)))  # noqa: E731
+    med = lambda d: float(np.nanmedian(np.abs(d)))
     assert med(m["pfx_x_in"] - 12 * _col(path, "pfx_x", tab.rows)) < 0.1
     assert med(m["pfx_z_in"] - 12 * _col(path, "pfx_z", tab.rows)) < 0.1
     assert med((m["spin_axis_from_movement_deg"] - _col(path, "spin_axis", tab.rows) + 180) % 360 - 180) < 0.5

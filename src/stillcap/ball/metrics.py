@@ -41,11 +41,32 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from stillcap._checks import as_array
-from stillcap.ball.nine_parameter import (  # noqa: F401  (re-exported: the metrics' vocabulary)
-    FPS_PER_MPH, FT, G_FT, INCH, MPH, NINE_NAMES, PLATE_FRONT_Y_FT, RPM_PER_RAD_S, RUBBER_Y_FT, Y0_FT,
-    Y_MOVEMENT_START_FT, _nine, approach_angles_deg, movement_axis_deg, movement_in, nine_from_release,
-    nine_position_ft, nine_velocity_fps, parse_clock_deg, pitchfx_movement_in, plate_location_ft,
-    spin_acceleration_fps2, spin_axis_from_movement_deg, statcast_movement_in, time_at_y,
+from stillcap.ball.nine_parameter import (
+    FPS_PER_MPH,
+    FT,
+    G_FT,
+    INCH,
+    MPH,
+    NINE_NAMES,
+    PLATE_FRONT_Y_FT,
+    RPM_PER_RAD_S,
+    RUBBER_Y_FT,
+    Y0_FT,
+    Y_MOVEMENT_START_FT,
+    _nine,
+    approach_angles_deg,
+    movement_axis_deg,
+    movement_in,
+    nine_from_release,
+    nine_position_ft,
+    nine_velocity_fps,
+    parse_clock_deg,
+    pitchfx_movement_in,
+    plate_location_ft,
+    spin_acceleration_fps2,
+    spin_axis_from_movement_deg,
+    statcast_movement_in,
+    time_at_y,
 )
 
 

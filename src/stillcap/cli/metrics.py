@@ -29,7 +29,11 @@ def metrics(
 
     from stillcap.cli._outputs import Outputs, check
     from stillcap.cli._progress import progress
-    from stillcap.io.pitch_table import read_pitch_table, table_metrics, write_metrics_csv
+    from stillcap.io.pitch_table import (
+        read_pitch_table,
+        table_metrics,
+        write_metrics_csv,
+    )
 
     if not table.is_file():
         raise ValueError(f"{table}: no such file (a Statcast or PITCHf/x CSV export)")
@@ -43,7 +47,7 @@ def metrics(
         rec.update({k: (float(v[i]) if np.isfinite(v[i]) else None) for k, v in vals.items()})
         records.append(rec)
     result = {"file": str(table), "kind": tab.kind, "n_pitches": len(records), "pitches": records}
-    text = lambda: json.dumps(result, indent=1, allow_nan=False)  # noqa: E731
+    text = lambda: json.dumps(result, indent=1, allow_nan=False)
     outputs = Outputs(text, "metrics.json")
     if out is not None:
         with outputs.writing(f"--out {out}"):

@@ -22,7 +22,7 @@ import numpy as np
 from stillcap.ball.metrics import nine_parameter_metrics
 from stillcap.ball.nine_parameter import NINE_NAMES, Y0_FT, nine_from_release
 
-__all__ = ["PitchTable", "read_pitch_table", "table_metrics", "write_metrics_csv", "STATCAST_COLUMNS"]
+__all__ = ["STATCAST_COLUMNS", "PitchTable", "read_pitch_table", "table_metrics", "write_metrics_csv"]
 
 _FIT = ("vx0", "vy0", "vz0", "ax", "ay", "az")
 _RELEASE = ("release_pos_x", "release_pos_y", "release_pos_z")
