@@ -46,8 +46,8 @@ def test_pitchfx_dataclass_path_matches_vectorised(pitchfx):
     for row in pitchfx[::300]:
         m = PitchMetrics.from_nine_parameter(NineParameterFit.from_array(row[:9]))
         assert m.plate_x_ft == pytest.approx(row[9], abs=0.01)
-        assert m.pfx_z_in == pytest.approx(row[12], abs=0.1)
-        assert m.induced_vertical_break_in == m.pfx_z_in
+        assert m.pitchfx_pfx_z_in == pytest.approx(row[12], abs=0.1)
+        assert np.isnan(m.induced_vertical_break_in)  # Statcast's needs the release point
         assert m.start_speed_mph == pytest.approx(row[13], abs=0.06)
 
 
@@ -118,7 +118,7 @@ def test_pure_backspin_pitch():
     assert m.active_spin_rpm == pytest.approx(2300.0)
     assert m.gyro_angle_deg == pytest.approx(0.0, abs=1e-4)
     assert 8.0 < m.induced_vertical_break_in < 25.0
-    assert m.movement_axis_deg == pytest.approx(180.0, abs=3.0)
+    assert m.pitchfx_spin_dir_deg == pytest.approx(180.0, abs=3.0)
     assert m.release_speed_mph == pytest.approx(np.linalg.norm(V0) / 0.44704)
     assert m.release_extension_ft == pytest.approx(6.0)
     assert m.release_pos_x_ft == pytest.approx(-0.6 / FT)
@@ -157,7 +157,7 @@ def test_mirror_symmetry_left_and_right_handers():
     assert lft.plate_x_ft == pytest.approx(-r.plate_x_ft, abs=1e-9)
     assert lft.release_pos_x_ft == pytest.approx(-r.release_pos_x_ft)
     assert lft.spin_axis_deg == pytest.approx(360.0 - r.spin_axis_deg)
-    assert lft.movement_axis_deg == pytest.approx(360.0 - r.movement_axis_deg)
+    assert lft.pitchfx_spin_dir_deg == pytest.approx(360.0 - r.pitchfx_spin_dir_deg)
     assert (r.spin_tilt, lft.spin_tilt) == ("1:30", "10:30")
     assert lft.spin_efficiency == pytest.approx(r.spin_efficiency)
 
@@ -166,7 +166,7 @@ def test_arm_side_run_for_a_right_hander():
     w = spin_vector(2300.0, 215.0, V0)  # 1:10 tilt: movement up and toward third base (-x)
     m = pitch_metrics_from_flight(P0, V0, w, NATHAN)
     assert m.horizontal_break_in < -2.0 and m.induced_vertical_break_in > 8.0
-    assert 180.0 < m.movement_axis_deg < 240.0
+    assert 180.0 < m.pitchfx_spin_dir_deg < 240.0
 
 
 def test_metrics_from_sparse_measured_positions_with_gaps():

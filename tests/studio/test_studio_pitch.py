@@ -367,3 +367,14 @@ def test_bad_options_raise_clear_errors(kwargs, match):
         pitch_capture(preset, **kw)
     with pytest.raises(ValueError, match="spin_rpm must be a finite number >= 0"):
         ReleaseVariation(spin_rpm=-1)
+
+
+def test_truth_of_an_older_capture_keeps_pitchfx_movement_under_its_new_keys():
+    from stillcap.studio.compare.pitch import _current_metric_keys
+
+    old = {"movement_axis_deg": 200.0, "pfx_x_in": -5.0, "pfx_z_in": 9.0, "induced_vertical_break_in": 9.0,
+           "horizontal_break_in": -5.0, "plate_x_ft": 0.1}
+    new = _current_metric_keys(old)
+    assert new == {"pitchfx_spin_dir_deg": 200.0, "pitchfx_pfx_x_in": -5.0, "pitchfx_pfx_z_in": 9.0, "plate_x_ft": 0.1}
+    current = {"pitchfx_pfx_x_in": 1.0, "pfx_x_in": 2.0, "movement_axis_deg": 3.0}
+    assert _current_metric_keys(current) is current

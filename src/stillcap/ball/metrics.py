@@ -8,20 +8,27 @@ Field frame (PITCHf/x, Statcast): origin at the back tip of home plate, **y towa
 
 - 9-parameter fit: constant-acceleration model ``r(t) = r0 + v0 t + a t^2 / 2`` with ``t = 0`` at
   ``y = 50 ft`` (feet, seconds), :class:`NineParameterFit`.
-- plate location ``plate_x_ft, plate_z_ft`` (PITCHf/x ``px, pz``): the 9-parameter model at
-  ``y = 17/12 ft``.
-- movement ``pfx_x_in, pfx_z_in``: the deviation at the front of the plate from a pitch with no
-  spin-induced acceleration, over the flight from ``y = 40 ft``:
-  ``pfx_x = a_x T^2 / 2``, ``pfx_z = (a_z + 32.174) T^2 / 2`` with ``T`` the time from 40 ft to
-  17/12 ft, in inches. Induced vertical / horizontal break are these numbers (Statcast's
-  ``pfx_z``/``pfx_x`` in inches; catcher's view, +x = toward first base).
-- spin axis (Statcast, degrees): the direction of the spin-induced (Magnus) movement seen from
-  the catcher, measured counter-clockwise from +x, plus 90 deg; 180 = pure backspin (movement
-  straight up), 0 = pure topspin. As a clock tilt, 180 deg = "12:00" and every 30 deg is one
-  hour (210 deg = "1:00", a typical right-hander's fastball). The movement-based equivalent from
-  ``pfx`` (PITCHf/x ``spin_dir``) is ``movement_axis_deg``.
+- plate location ``plate_x_ft, plate_z_ft`` (PITCHf/x ``px, pz``, Statcast ``plate_x, plate_z``):
+  the 9-parameter model at ``y = 17/12 ft``.
+- Statcast movement ``pfx_x_in, pfx_z_in``: the movement caused by spin alone from release to
+  the front of the plate (9-parameter acceleration without gravity and without its component
+  along the release velocity, over the release-to-plate time), in inches; induced vertical break
+  and horizontal break (Statcast, TrackMan) are these numbers.
+- PITCHf/x movement ``pitchfx_pfx_x_in, pitchfx_pfx_z_in``: ``a_x T^2 / 2``,
+  ``(a_z + 32.174) T^2 / 2`` with ``T`` the time from ``y = 40 ft`` to 17/12 ft, and its axis
+  ``pitchfx_spin_dir_deg``.
+- spin axis (Statcast convention, degrees): ``spin_axis_deg`` observed from the spin vector (the
+  Magnus direction ``w x v`` seen from the catcher, counter-clockwise from +x, plus 90 deg),
+  ``spin_axis_from_movement_deg`` inferred from the Statcast movement (Statcast's
+  ``spin_axis``); 180 = pure backspin, 0 = pure topspin; as a clock tilt 180 deg = "12:00" and
+  every 30 deg is one hour (210 deg = "1:00"). ``spin_direction_clock`` is the observed axis
+  to the minute, as Rapsodo shows its spin direction.
 - spin efficiency: ``|w_perp| / |w|``, the share of the spin transverse to the release velocity
-  (only it moves the ball); ``active_spin_rpm = efficiency * spin_rate_rpm``.
+  (only it moves the ball); ``active_spin_rpm = efficiency * spin_rate_rpm``,
+  ``gyro_angle_deg = acos(efficiency)``.
+- Rapsodo VB/HB (spin): ``rapsodo_vb_in = pfx_z_in``, ``rapsodo_hb_in = -pfx_x_in`` (Rapsodo
+  gives the horizontal break from the pitcher's view).
+- approach angles at the front of the plate, release extension, time to plate.
 
 ``docs/pitch-metrics.md`` documents every field and JSON key.
 """
@@ -34,107 +41,33 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from stillcap._checks import as_array
-
-FT = 0.3048  #: metres per foot
-INCH = 0.0254  #: metres per inch
-MPH = 0.44704  #: m/s per mph
-FPS_PER_MPH = 5280.0 / 3600.0  #: ft/s per mph
-G_FT = 32.174  #: standard gravity, ft/s^2 (PITCHf/x)
-Y0_FT = 50.0  #: reference plane of the 9-parameter fit, ft
-Y_MOVEMENT_START_FT = 40.0  #: where PITCHf/x movement starts, ft
-PLATE_FRONT_Y_FT = 17.0 / 12.0  #: front edge of home plate, ft
-RUBBER_Y_FT = 60.5  #: front edge of the pitching rubber, ft
-RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
-
-NINE_NAMES = ("x0", "y0", "z0", "vx0", "vy0", "vz0", "ax", "ay", "az")
-
-
-# --------------------------------------------------------------------------------------------
-# 9-parameter model (vectorised over pitches: arrays of shape (..., 9), feet and seconds)
-# --------------------------------------------------------------------------------------------
-def _nine(nine) -> np.ndarray:
-    a = np.asarray(nine, float)
-    if a.ndim < 1 or a.shape[-1] != 9:
-        raise ValueError(f"nine-parameter array must have shape (..., 9), got {a.shape}")
-    return a
-
-
-def time_at_y(nine, y_ft):
-    """Time (s, from the 9-parameter reference ``t = 0``) at which the pitch reaches ``y_ft``.
-
-    Parameters
-    ----------
-    nine : array_like, shape (..., 9)
-        ``x0, y0, z0, vx0, vy0, vz0, ax, ay, az`` (ft, ft/s, ft/s^2).
-    y_ft : float or array_like, shape (...)
-
-    Returns
-    -------
-    ndarray, shape (...)
-        The root of ``y0 + vy0 t + ay t^2 / 2 = y`` continuous with ``(y - y0) / vy0`` (NaN if
-        the pitch never gets there).
-    """
-    n = _nine(nine)
-    a = 0.5 * n[..., 7]
-    b = n[..., 4]
-    c = n[..., 1] - np.asarray(y_ft, float)
-    disc = b * b - 4.0 * a * c
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q = -0.5 * (b + np.copysign(np.sqrt(disc), b))  # numerically stable quadratic root
-        return np.where(disc >= 0, c / q, np.nan)
-
-
-def nine_position_ft(nine, t):
-    """Position (ft), shape (..., 3), of the 9-parameter model at time ``t`` (s, shape (...))."""
-    n = _nine(nine)
-    t = np.asarray(t, float)[..., None]
-    return n[..., 0:3] + n[..., 3:6] * t + 0.5 * n[..., 6:9] * t * t
-
-
-def nine_velocity_fps(nine, t):
-    """Velocity (ft/s), shape (..., 3), of the 9-parameter model at time ``t`` (s)."""
-    n = _nine(nine)
-    return n[..., 3:6] + n[..., 6:9] * np.asarray(t, float)[..., None]
-
-
-def plate_location_ft(nine):
-    """PITCHf/x ``px, pz`` (ft): x and z at the front of the plate (``y = 17/12 ft``).
-
-    Parameters
-    ----------
-    nine : array_like, shape (..., 9)
-
-    Returns
-    -------
-    px, pz : ndarray, shape (...)
-    """
-    p = nine_position_ft(nine, time_at_y(nine, PLATE_FRONT_Y_FT))
-    return p[..., 0], p[..., 2]
-
-
-def movement_in(nine, y_start_ft: float = Y_MOVEMENT_START_FT):
-    """PITCHf/x movement ``pfx_x, pfx_z`` (inches) from ``y_start_ft`` to the front of the plate.
-
-    ``pfx_x = a_x T^2 / 2`` and ``pfx_z = (a_z + 32.174) T^2 / 2`` (gravity removed), ``T`` the
-    flight time from ``y_start_ft`` to ``y = 17/12 ft``.
-
-    Parameters
-    ----------
-    nine : array_like, shape (..., 9)
-
-    Returns
-    -------
-    pfx_x_in, pfx_z_in : ndarray, shape (...)
-    """
-    n = _nine(nine)
-    t = time_at_y(n, PLATE_FRONT_Y_FT) - time_at_y(n, y_start_ft)
-    half_t2_in = 0.5 * t * t * 12.0
-    return n[..., 6] * half_t2_in, (n[..., 8] + G_FT) * half_t2_in
-
-
-def movement_axis_deg(pfx_x, pfx_z):
-    """Movement-based spin axis (PITCHf/x ``spin_dir``): ``atan2(pfx_z, pfx_x) + 90``, 0..360."""
-    return np.mod(np.degrees(np.arctan2(pfx_z, pfx_x)) + 90.0, 360.0)
+from stillcap.ball.nine_parameter import (
+    FPS_PER_MPH,
+    FT,
+    G_FT,
+    INCH,
+    MPH,
+    NINE_NAMES,
+    PLATE_FRONT_Y_FT,
+    RPM_PER_RAD_S,
+    RUBBER_Y_FT,
+    Y0_FT,
+    Y_MOVEMENT_START_FT,
+    _nine,
+    approach_angles_deg,
+    movement_axis_deg,
+    movement_in,
+    nine_from_release,
+    nine_position_ft,
+    nine_velocity_fps,
+    parse_clock_deg,
+    pitchfx_movement_in,
+    plate_location_ft,
+    spin_acceleration_fps2,
+    spin_axis_from_movement_deg,
+    statcast_movement_in,
+    time_at_y,
+)
 
 
 @dataclass(frozen=True)
@@ -409,6 +342,9 @@ _NAN = float("nan")
 class PitchMetrics:
     """Standard metrics of one pitch; field names are the JSON keys (:meth:`to_dict`).
 
+    Each field names its unit and, where definitions differ between systems, whose definition
+    it follows (``docs/pitch-metrics.md`` gives the source of each).
+
     Attributes
     ----------
     release_speed_mph : float
@@ -416,7 +352,8 @@ class PitchMetrics:
     release_pos_x_ft, release_pos_y_ft, release_pos_z_ft : float
         Release point, field frame.
     release_extension_ft : float
-        ``60.5 ft - release_pos_y_ft`` (distance in front of the rubber).
+        ``60.5 ft - release_pos_y_ft`` (distance in front of the rubber; Statcast
+        ``release_extension``).
     start_speed_mph : float
         Speed at ``y = 50 ft`` (PITCHf/x ``start_speed``, 9-parameter model).
     spin_rate_rpm, active_spin_rpm : float
@@ -426,17 +363,27 @@ class PitchMetrics:
     gyro_angle_deg : float
         Angle between the spin axis and the velocity's normal plane, ``acos(efficiency)``.
     spin_axis_deg : float
-        Statcast spin axis from the spin vector (180 = backspin).
+        Statcast-convention spin axis observed from the spin vector (180 = backspin).
     spin_tilt : str
-        ``spin_axis_deg`` as a clock ("12:00" = backspin).
-    movement_axis_deg : float
-        Movement-based axis from ``pfx`` (PITCHf/x ``spin_dir``).
+        ``spin_axis_deg`` as a clock to 15 minutes ("12:00" = backspin).
+    spin_direction_clock : str
+        ``spin_axis_deg`` as a clock to the minute (Rapsodo's "spin direction").
+    spin_axis_from_movement_deg : float
+        Spin axis inferred from the Statcast movement (Statcast ``spin_axis``).
     pfx_x_in, pfx_z_in : float
-        PITCHf/x movement, inches (catcher's view).
+        Statcast movement: spin alone, release to the front of the plate, inches (catcher's view).
     induced_vertical_break_in, horizontal_break_in : float
-        Equal to ``pfx_z_in`` and ``pfx_x_in`` (Statcast naming).
+        Statcast / TrackMan induced vertical break and horizontal break: ``pfx_z_in``, ``pfx_x_in``.
+    rapsodo_vb_in, rapsodo_hb_in : float
+        Rapsodo VB and HB (spin): ``pfx_z_in`` and ``-pfx_x_in`` (pitcher's view).
+    pitchfx_pfx_x_in, pitchfx_pfx_z_in : float
+        PITCHf/x movement over the last 40 ft, inches.
+    pitchfx_spin_dir_deg : float
+        Axis from the PITCHf/x movement (PITCHf/x ``spin_dir``).
+    vertical_approach_angle_deg, horizontal_approach_angle_deg : float
+        At the front of the plate (negative VAA = descending; positive HAA = toward +x).
     plate_x_ft, plate_z_ft : float
-        PITCHf/x ``px, pz`` at the front of the plate.
+        PITCHf/x ``px, pz`` (Statcast ``plate_x, plate_z``) at the front of the plate.
     plate_time_s : float
         Flight time from release to the front of the plate.
     nine_parameter : NineParameterFit or None
@@ -456,11 +403,19 @@ class PitchMetrics:
     gyro_angle_deg: float = _NAN
     spin_axis_deg: float = _NAN
     spin_tilt: str = ""
-    movement_axis_deg: float = _NAN
+    spin_direction_clock: str = ""
+    spin_axis_from_movement_deg: float = _NAN
     pfx_x_in: float = _NAN
     pfx_z_in: float = _NAN
     induced_vertical_break_in: float = _NAN
     horizontal_break_in: float = _NAN
+    rapsodo_vb_in: float = _NAN
+    rapsodo_hb_in: float = _NAN
+    pitchfx_pfx_x_in: float = _NAN
+    pitchfx_pfx_z_in: float = _NAN
+    pitchfx_spin_dir_deg: float = _NAN
+    vertical_approach_angle_deg: float = _NAN
+    horizontal_approach_angle_deg: float = _NAN
     plate_x_ft: float = _NAN
     plate_z_ft: float = _NAN
     plate_time_s: float = _NAN
@@ -476,13 +431,60 @@ class PitchMetrics:
         return d
 
     @classmethod
-    def from_nine_parameter(cls, nine: NineParameterFit) -> "PitchMetrics":
-        """The metrics a 9-parameter model alone gives (plate location, movement, start speed)."""
-        px, pz = nine.plate_location_ft()
-        mx, mz = nine.movement_in()
-        return cls(start_speed_mph=nine.start_speed_mph, movement_axis_deg=float(movement_axis_deg(mx, mz)),
-                   pfx_x_in=mx, pfx_z_in=mz, induced_vertical_break_in=mz, horizontal_break_in=mx,
-                   plate_x_ft=px, plate_z_ft=pz, nine_parameter=nine, success=nine.success)
+    def from_nine_parameter(cls, nine: NineParameterFit, release_y_ft: float | None = None) -> "PitchMetrics":
+        """The metrics a 9-parameter model alone gives (plate location, movements, approach
+        angles, start speed; with ``release_y_ft`` the release-based ones as well: Statcast
+        movement and its axis, release speed and point, extension, time to plate)."""
+        vals = nine_parameter_metrics(nine.as_array(), release_y_ft)
+        out = cls(nine_parameter=nine, success=nine.success,
+                  **{k: float(v) for k, v in vals.items()})
+        return out
+
+
+def nine_parameter_metrics(nine, release_y_ft=None) -> dict:
+    """The metrics that follow from 9-parameter models alone, vectorised.
+
+    Parameters
+    ----------
+    nine : array_like, shape (..., 9)
+    release_y_ft : float or array_like, shape (...), optional
+        Where the pitch was released; without it the release-based metrics are NaN.
+
+    Returns
+    -------
+    dict
+        ``{field name of PitchMetrics: ndarray (...)}``.
+    """
+    n = _nine(nine)
+    px, pz = plate_location_ft(n)
+    mx, mz = movement_in(n)
+    vaa, haa = approach_angles_deg(n)
+    out = {"start_speed_mph": np.linalg.norm(n[..., 3:6], axis=-1) / FPS_PER_MPH,
+           "pitchfx_pfx_x_in": mx, "pitchfx_pfx_z_in": mz, "pitchfx_spin_dir_deg": movement_axis_deg(mx, mz),
+           "vertical_approach_angle_deg": vaa, "horizontal_approach_angle_deg": haa,
+           "plate_x_ft": px, "plate_z_ft": pz}
+    if release_y_ft is not None:
+        ry = np.broadcast_to(np.asarray(release_y_ft, float), px.shape)
+        sx, sz = statcast_movement_in(n, ry)
+        t_rel = time_at_y(n, ry)
+        p_rel = nine_position_ft(n, t_rel)
+        out.update(release_speed_mph=np.linalg.norm(nine_velocity_fps(n, t_rel), axis=-1) / FPS_PER_MPH,
+                   release_pos_x_ft=p_rel[..., 0], release_pos_y_ft=ry + 0.0, release_pos_z_ft=p_rel[..., 2],
+                   release_extension_ft=RUBBER_Y_FT - ry,
+                   plate_time_s=time_at_y(n, PLATE_FRONT_Y_FT) - t_rel)
+        out.update(_statcast_movement_fields(sx, sz))
+    else:
+        nan = np.full(px.shape, np.nan)
+        for k in ("release_speed_mph", "release_pos_x_ft", "release_pos_y_ft", "release_pos_z_ft",
+                  "release_extension_ft", "plate_time_s"):
+            out[k] = nan
+        out.update(_statcast_movement_fields(nan, nan))
+    return out
+
+
+def _statcast_movement_fields(sx, sz) -> dict:
+    return {"spin_axis_from_movement_deg": spin_axis_from_movement_deg(sx, sz), "pfx_x_in": sx, "pfx_z_in": sz,
+            "induced_vertical_break_in": sz, "horizontal_break_in": sx, "rapsodo_vb_in": sz, "rapsodo_hb_in": -sx}
 
 
 def pitch_metrics(times, positions, spin=None, *, velocities=None, release_time=None,
@@ -533,6 +535,9 @@ def pitch_metrics(times, positions, spin=None, *, velocities=None, release_time=
     out.release_pos_x_ft, out.release_pos_y_ft, out.release_pos_z_ft = map(float, p_rel / FT)
     out.release_extension_ft = RUBBER_Y_FT - out.release_pos_y_ft
     out.plate_time_s = float(nine.t_ref + time_at_y(n9, PLATE_FRONT_Y_FT) - t_rel)
+    sx, sz = statcast_movement_in(n9, out.release_pos_y_ft)
+    for k, v in _statcast_movement_fields(sx, sz).items():
+        setattr(out, k, float(v))
     if spin is not None:
         w = as_array(spin, (3,), "spin")
         out.spin_rate_rpm = spin_rate_rpm(w)
@@ -541,6 +546,7 @@ def pitch_metrics(times, positions, spin=None, *, velocities=None, release_time=
         out.gyro_angle_deg = float(np.degrees(np.arccos(np.clip(out.spin_efficiency, 0.0, 1.0))))
         out.spin_axis_deg = spin_axis_deg(w, v_rel)
         out.spin_tilt = clock_tilt(out.spin_axis_deg)
+        out.spin_direction_clock = clock_tilt(out.spin_axis_deg, resolution_min=1)
     return out
 
 
@@ -658,7 +664,7 @@ def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: floa
     -------
     metrics, nine : dict
         ``{name: (M,)}`` for the numeric fields of :class:`PitchMetrics` and for those of
-        :class:`NineParameterFit` (``spin_tilt``, ``message`` and ``nine_parameter`` left out),
+        :class:`NineParameterFit` (``spin_tilt``, ``spin_direction_clock``, ``message`` and ``nine_parameter`` left out),
         NaN where :func:`pitch_metrics` gives NaN (or ``None`` in ``to_dict``); ``success``
         as there. The same numbers as :func:`pitch_metrics` flight by flight, up to rounding.
     """
@@ -671,8 +677,6 @@ def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: floa
     n9, ok = fit["nine"], fit["success"]
     nine = {k: n9[:, i] for i, k in enumerate(NINE_NAMES)}
     nine.update(t_ref=fit["t_ref"], rms_residual_ft=fit["rms_residual_ft"])
-    px, pz = plate_location_ft(n9)
-    mx, mz = movement_in(n9)
     # release: each flight's first sample observed in all coordinates
     seen = np.all(np.isfinite(pos), axis=2) & np.isfinite(t)
     i = np.argmin(np.where(seen, t, np.inf), axis=1)
@@ -685,12 +689,10 @@ def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: floa
         "release_speed_mph": speed / MPH,
         "release_pos_x_ft": p_rel[:, 0], "release_pos_y_ft": p_rel[:, 1], "release_pos_z_ft": p_rel[:, 2],
         "release_extension_ft": RUBBER_Y_FT - p_rel[:, 1],
-        "start_speed_mph": np.linalg.norm(n9[:, 3:6], axis=1) / FPS_PER_MPH,
-        "movement_axis_deg": movement_axis_deg(mx, mz),
-        "pfx_x_in": mx, "pfx_z_in": mz, "induced_vertical_break_in": mz, "horizontal_break_in": mx,
-        "plate_x_ft": px, "plate_z_ft": pz,
         "plate_time_s": fit["t_ref"] + time_at_y(n9, PLATE_FRONT_Y_FT) - t_rel,
     }
+    out.update({k: v for k, v in nine_parameter_metrics(n9).items() if k not in out})
+    out.update(_statcast_movement_fields(*statcast_movement_in(n9, p_rel[:, 1])))
     nan = np.full(len(t), np.nan)
     spin_keys = ("spin_rate_rpm", "active_spin_rpm", "spin_efficiency", "gyro_angle_deg", "spin_axis_deg")
     if spins is None:
@@ -711,3 +713,31 @@ def pitch_metrics_batch(times, positions, spins=None, *, velocities, y0_ft: floa
     out = {k: np.where(ok, v, np.nan) for k, v in out.items()}
     out["success"] = ok
     return out, nine
+
+
+def rapsodo_spin_break_in(speed_mph, release_angle_deg, horizontal_angle_deg, release_height_ft, release_side_ft,
+                          spin_rpm, spin_direction, gyro_deg, model=None, *, extension_ft: float = 6.0):
+    """Rapsodo's VB and HB (spin), inches, predicted from what Rapsodo measures at release.
+
+    The pitch is flown (``model``, default Nathan's) from ``y = 60.5 ft - extension_ft`` (Rapsodo
+    measures no extension: 6 ft assumed) with the speed, the release angles (vertical, positive
+    up; horizontal, positive toward +x), the release height and side (side positive toward -x,
+    the pitcher's right) and the spin vector (total rate, direction on the clock as Rapsodo
+    shows it, gyro degree: efficiency ``cos(gyro)``); VB/HB are its Statcast movement
+    (``rapsodo_vb_in``, ``rapsodo_hb_in``). No fitted constant: on the shared Rapsodo file this
+    gives VB within 1.44 in and HB within 0.33 in (median, ``docs/pitch-metrics.md``).
+
+    Returns
+    -------
+    vb_in, hb_in : float
+    """
+    from stillcap.ball.physics import FlightModel
+
+    model = FlightModel.nathan_model() if model is None else model
+    axis = parse_clock_deg(spin_direction) if isinstance(spin_direction, str) else float(spin_direction)
+    va, ha = math.radians(release_angle_deg), math.radians(horizontal_angle_deg)
+    v = speed_mph * MPH * np.array([math.cos(va) * math.sin(ha), -math.cos(va) * math.cos(ha), math.sin(va)])
+    p0 = np.array([-release_side_ft, RUBBER_Y_FT - extension_ft, release_height_ft]) * FT
+    w = spin_vector(spin_rpm, axis, v, efficiency=math.cos(math.radians(gyro_deg)))
+    m = pitch_metrics_from_flight(p0, v, w, model)
+    return m.rapsodo_vb_in, m.rapsodo_hb_in

@@ -44,7 +44,7 @@ __all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "lit_bias_mod
            "spin_decay_slope"]
 
 #: Metric keys that are angles (their spread is taken on the circle).
-ANGLE_KEYS = ("spin_axis_deg", "movement_axis_deg")
+ANGLE_KEYS = ("spin_axis_deg", "spin_axis_from_movement_deg", "pitchfx_spin_dir_deg")
 
 #: refinement smoothing of :func:`stillcap.detect.ball.refine_ball_centers` (its ``sigma``)
 _REFINE_SIGMA = 0.7
@@ -491,7 +491,7 @@ def spin_decay_slope(fit: ReferenceFit, model: FlightModel, t_obs, t_ref: float)
 
 def _metric_keys(nominal: PitchMetrics):
     nom = nominal.to_dict()
-    keys = [k for k in nom if k not in ("nine_parameter", "success", "message", "spin_tilt")]
+    keys = [k for k in nom if k not in ("nine_parameter", "success", "message", "spin_tilt", "spin_direction_clock")]
     nine_keys = [k for k in (nom.get("nine_parameter") or {}) if k not in ("success", "n_points")]
     return nom, keys, nine_keys
 

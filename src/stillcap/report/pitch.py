@@ -42,7 +42,7 @@ POSITION_COLUMNS = ("pair", "camera_a", "camera_b", "strobe_hz", "flash_index", 
 _COV_ENTRIES = (("cov_xx_mm2", 0, 0), ("cov_yy_mm2", 1, 1), ("cov_zz_mm2", 2, 2), ("cov_xy_mm2", 0, 1),
                 ("cov_xz_mm2", 0, 2), ("cov_yz_mm2", 1, 2))
 #: Unit of each metric key (by suffix where the key names it).
-METRIC_UNITS = {"spin_efficiency": "0-1", "spin_tilt": "clock (h:mm)", "success": "", "message": ""}
+METRIC_UNITS = {"spin_efficiency": "0-1", "spin_tilt": "clock (h:mm)", "spin_direction_clock": "clock (h:mm)", "success": "", "message": ""}
 _PAIR_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple")
 
 

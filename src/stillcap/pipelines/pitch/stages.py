@@ -586,7 +586,7 @@ def _set_spin_metrics(metrics: PitchMetrics, w, v_rel) -> None:
     if w is None:
         metrics.spin_rate_rpm = metrics.active_spin_rpm = metrics.spin_efficiency = nan
         metrics.gyro_angle_deg = metrics.spin_axis_deg = nan
-        metrics.spin_tilt = ""
+        metrics.spin_tilt = metrics.spin_direction_clock = ""
         return
     w = np.asarray(w, float)
     metrics.spin_rate_rpm = float(np.linalg.norm(w) * RPM_PER_RAD_S)
@@ -595,3 +595,4 @@ def _set_spin_metrics(metrics: PitchMetrics, w, v_rel) -> None:
     metrics.gyro_angle_deg = float(np.degrees(np.arccos(np.clip(metrics.spin_efficiency, 0.0, 1.0))))
     metrics.spin_axis_deg = float(spin_axis_deg(w, v_rel))
     metrics.spin_tilt = clock_tilt(metrics.spin_axis_deg) if np.isfinite(metrics.spin_axis_deg) else ""
+    metrics.spin_direction_clock = clock_tilt(metrics.spin_axis_deg, resolution_min=1) if np.isfinite(metrics.spin_axis_deg) else ""

@@ -110,7 +110,7 @@ def compare_with_truth(result: PitchResult, truth: dict) -> dict:
     out["fit_spin_rate_diff_rpm"] = float((np.linalg.norm(result.fit.spin) - np.linalg.norm(tw)) * RPM_PER_RAD_S)
     out["true_speed_mph"] = float(np.linalg.norm(tv0) / MPH)
     out["true_spin_rpm"] = float(np.linalg.norm(tw) * RPM_PER_RAD_S)
-    tm = truth.get("metrics") or {}
+    tm = _current_metric_keys(truth.get("metrics") or {})
     ours = result.metrics.to_dict()
     diffs = {}
     for k, tv in tm.items():
@@ -130,4 +130,22 @@ def compare_with_truth(result: PitchResult, truth: dict) -> dict:
         "speed_mph": float(np.linalg.norm(result.fit.v0) / MPH),
         "spin_rpm": float(np.linalg.norm(w) * RPM_PER_RAD_S) if result.spin_available else None,
     }
+    return out
+
+
+#: metric keys of truths written before the Statcast movement (issue 14): old key -> today's
+_LEGACY_KEYS = {"movement_axis_deg": "pitchfx_spin_dir_deg", "pfx_x_in": "pitchfx_pfx_x_in",
+                "pfx_z_in": "pitchfx_pfx_z_in"}
+
+
+def _current_metric_keys(tm: dict) -> dict:
+    """A truth's metrics under today's keys: a capture rendered before the Statcast movement
+    holds PITCHf/x movement under ``pfx_x_in``/``pfx_z_in`` and the breaks (and
+    ``movement_axis_deg``); those go to the ``pitchfx_`` keys and the breaks are dropped."""
+    if "movement_axis_deg" not in tm or "pitchfx_pfx_x_in" in tm:
+        return tm
+    out = {k: v for k, v in tm.items() if k not in ("induced_vertical_break_in", "horizontal_break_in")}
+    for old, new in _LEGACY_KEYS.items():
+        if old in out:
+            out[new] = out.pop(old)
     return out
