@@ -1,25 +1,20 @@
-"""The pitch pipeline's spin from flight on a kept studio capture with markers: both spins,
-their agreement, and the added JSON keys (the existing ones unchanged)."""
+"""The pitch pipeline's spin from flight on a studio capture with markers: both spins, their
+agreement, and the added JSON keys (the existing ones unchanged)."""
 
 import json
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from stillcap.pipelines.pitch import analyse_pitch
-
-KEPT = Path("/tmp/kept/pitch-4seam-0")
+from stillcap.studio.pitch import pitch_capture
 
 
 @pytest.fixture(scope="module")
 def kept(tmp_path_factory):
-    if not (KEPT / "capture.json").is_file():
-        pytest.skip(f"no kept studio capture at {KEPT}")
-    root = tmp_path_factory.mktemp("kept") / "pitch"
-    shutil.copytree(KEPT, root)
-    return root
+    """A four-seam pitch rendered at 1280x960 through the true rig, saved as a capture folder."""
+    capture, photos = pitch_capture("seed-4seam", rng=0, calibrate=False, image_size=(1280, 960)).to_capture()
+    return capture.save(tmp_path_factory.mktemp("studio") / "pitch", photos)
 
 
 def test_marked_pitch_reports_both_spins_and_their_agreement(kept):
