@@ -3,8 +3,8 @@
 1. Simulated pitches (seed and Nathan models, 0.36 s at 200 Hz, noise at the pitch pipeline's
    position sigma 2 mm per coordinate): rate and axis error of the transverse spin against the
    truth, and how often the 95 % intervals (rate and axis) cover it.
-2. The kept studio pitch (/tmp/kept/pitch-4seam-0, if present): the pipeline's flight spin
-   against the truth and the marker spin.
+2. A studio pitch (seed-4seam, seed 0, 2560x1920 through the true rig, rendered here): the
+   pipeline's flight spin against the truth and the marker spin.
 3. The real table-tennis flights in ../shared/data/tt3d-flights: one free flight cut per file
    (breaks where the 3-sample velocity jumps by more than 1.5 m/s, or the ball is within 3 cm of
    the table, z < 0.03 m; 3 samples dropped beside each break; the longest run of >= 12), the
@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import glob
 import json
-import shutil
 import tempfile
 from pathlib import Path
 
@@ -64,13 +63,11 @@ def simulated(kind: str, n: int) -> dict:
 
 
 def kept_pitch() -> dict | None:
-    src = Path("/tmp/kept/pitch-4seam-0")
-    if not (src / "capture.json").is_file():
-        return None
     from stillcap.pipelines.pitch import analyse_pitch
+    from stillcap.studio.pitch import pitch_capture
     with tempfile.TemporaryDirectory() as tmp:
-        root = Path(tmp) / "pitch"
-        shutil.copytree(src, root)
+        capture, photos = pitch_capture("seed-4seam", rng=0, calibrate=False).to_capture()
+        root = capture.save(Path(tmp) / "pitch", photos)
         d = analyse_pitch(root, n_samples=0).to_dict()
         truth = json.loads((root / "truth.json").read_text())
     f, c = d["spin_from_flight"], d["spin_comparison"]
@@ -137,11 +134,8 @@ def main():
         print(f"  {kind:8s} {s['n']:4d} {s['median_rate_err_rpm']:13.1f} {s['median_axis_err_deg']:13.2f} "
               f"{s['covered_95']:12.0%}")
     k = kept_pitch()
-    if k is None:
-        print("kept studio pitch: /tmp/kept/pitch-4seam-0 absent")
-    else:
-        print("kept studio pitch (pipeline, seed model):", {a: (round(b, 3) if isinstance(b, float) else b)
-                                                             for a, b in k.items()})
+    print("studio pitch (pipeline, seed model):", {a: (round(b, 3) if isinstance(b, float) else b)
+                                                    for a, b in k.items()})
     if not TT3D.is_dir():
         print(f"tt3d flights: {TT3D} absent")
         return
