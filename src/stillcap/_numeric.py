@@ -1,4 +1,5 @@
-"""Small numeric helpers shared by the detectors' hot paths."""
+"""Small numeric helpers and constants shared across packages (exact medians for the detectors' hot
+paths, the rpm conversion)."""
 
 from __future__ import annotations
 
@@ -20,3 +21,7 @@ def median(a: np.ndarray) -> float:
         return float(np.partition(a, k)[k])
     p = np.partition(a, [k - 1, k])
     return float((p[k - 1] + p[k]) / 2)
+
+
+#: rpm per rad/s, the one conversion of spin rates (SI inside, rpm at the edges).
+RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)

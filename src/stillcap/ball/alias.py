@@ -45,7 +45,7 @@ from scipy.special import chdtri
 
 from stillcap._checks import as_array
 
-RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+from stillcap._numeric import RPM_PER_RAD_S  # noqa: E402 (the one definition)
 
 
 @dataclass(frozen=True, eq=False)

@@ -59,7 +59,7 @@ from stillcap.ball.physics import FlightModel, simulate, simulate_batch
 
 PARAM_NAMES = ("px", "py", "pz", "vx", "vy", "vz", "spin_axial", "spin_t1", "spin_t2")
 MPH = 0.44704
-RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+from stillcap._numeric import RPM_PER_RAD_S  # noqa: E402 (the one definition)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ Y0_FT = 50.0  #: reference plane of the 9-parameter fit, ft
 Y_MOVEMENT_START_FT = 40.0  #: where PITCHf/x movement starts, ft
 PLATE_FRONT_Y_FT = 17.0 / 12.0  #: front edge of home plate, ft
 RUBBER_Y_FT = 60.5  #: front edge of the pitching rubber, ft
-RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+from stillcap._numeric import RPM_PER_RAD_S  # noqa: E402,F401 (the one definition; re-exported)
 
 NINE_NAMES = ("x0", "y0", "z0", "vx0", "vy0", "vz0", "ax", "ay", "az")
 

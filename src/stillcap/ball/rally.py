@@ -36,7 +36,7 @@ from scipy.optimize import least_squares
 from stillcap._checks import as_array
 from stillcap.ball.fit import spin_basis
 
-RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+from stillcap._numeric import RPM_PER_RAD_S  # noqa: E402 (the one definition)
 
 _TIME_NAMES = ("t", "time", "timestamp", "times", "t_s", "time_s", "seconds")
 

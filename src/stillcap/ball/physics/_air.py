@@ -17,7 +17,7 @@ GRAVITY_FIELD = (0.0, 0.0, -G0)
 #: The front edge of home plate in the field frame, metres (y = 17/12 ft).
 PLATE_FRONT_Y = 17.0 / 12.0 * 0.3048
 
-RPM_PER_RAD_S = 60.0 / (2.0 * np.pi)
+from stillcap._numeric import RPM_PER_RAD_S  # noqa: E402,F401 (the one definition; re-exported)
 
 #: Seed C_D(Re) polynomial coefficients, lowest order first (SPEC J1 "Flight physics").
 SEED_CD_POLY = (2.23, -0.28342e-4, 0.13179e-9, -0.25083e-15, 0.17083e-21)
