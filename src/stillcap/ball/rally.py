@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
+from stillcap.files.table import number_cell
 from stillcap._checks import as_array
 from stillcap.ball.fit import spin_basis
 
@@ -78,13 +79,7 @@ def read_trajectory_csv(path) -> tuple[np.ndarray, np.ndarray]:
                     raise ValueError(f"{path}: row {r}, column {name!r}: empty time")
                 vals.append(math.nan)
                 continue
-            try:
-                v = float(cell)
-            except ValueError:
-                raise ValueError(f"{path}: row {r}, column {name!r}: {cell!r} is not a number") from None
-            if not math.isfinite(v):
-                raise ValueError(f"{path}: row {r}, column {name!r}: {cell!r} is not finite")
-            vals.append(v)
+            vals.append(number_cell(cell, f"{path}: row {r}, column {name!r}"))
         out.append(vals)
     a = np.array(out, float).reshape(-1, 4)
     a = a[np.all(np.isfinite(a), axis=1)]

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stillcap.files.table import number_cell
 from stillcap.ball.metrics import nine_parameter_metrics
 from stillcap.ball.nine_parameter import NINE_NAMES, Y0_FT, nine_from_release
 
@@ -125,13 +126,7 @@ def read_pitch_table(path, progress=None) -> PitchTable:
             continue  # not tracked
         nums = []
         for c, s in zip(need, cells):
-            try:
-                v = float(s)
-            except ValueError:
-                raise ValueError(f"{path}: row {r}, column {c}: {s!r} is not a number") from None
-            if not np.isfinite(v):
-                raise ValueError(f"{path}: row {r}, column {c}: {s!r} is not a finite number")
-            nums.append(v)
+            nums.append(number_cell(s, f"{path}: row {r}, column {c}"))
         vals.append(nums)
         ids.append({k: line[col[k]] for k in ID_COLUMNS if k in col and col[k] < len(line)})
         rows.append(r)
