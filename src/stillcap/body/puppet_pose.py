@@ -33,7 +33,7 @@ from stillcap.body.kinematics import bone_directions, normalised, pose_from_mark
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
 
-__all__ = ["MarkerRays", "PoseFit", "fit_pose", "frame_status"]
+__all__ = ["MarkerRays", "PoseFit", "fit_pose", "frame_status", "root_freedom"]
 
 
 def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
@@ -345,7 +345,8 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
 
 def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
              initial: Pose | None = None, marker_sigma_m: float = 0.2e-3, robust: bool = True,
-             rays: MarkerRays | None = None, ray_sigma_px: float = 1.0, ray_reject: float = 5.0) -> PoseFit:
+             rays: MarkerRays | None = None, ray_sigma_px: float = 1.0, ray_reject: float = 5.0,
+             root: str = "pinned") -> PoseFit:
     """Joint rotations that put the marker set's beads on the measured markers.
 
     The free joints' intrinsic XYZ Euler angles (:data:`~stillcap.body.skeleton.EULER_LIMIT_SEQUENCE`,
@@ -394,6 +395,12 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         less sure than a triangulated one's ~0.2 px).
     ray_reject : float
         Rays whose fitted residual exceeds this many sigma are rejected.
+    root : {"pinned", "translate", "free"}
+        ``"pinned"``: the root stays at ``root2world`` (the thesis's pelvis on the turntable
+        axis); ``"translate"``: its position is fitted too (a weak prior, 20 mm, toward
+        ``root2world``'s); ``"free"``: its position and rotation (the root joint's Euler angles,
+        whatever its limits, with the prior's 180 deg) are fitted. :func:`root_freedom` says
+        what the markers fix.
 
     Returns
     -------
@@ -404,6 +411,8 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     if pts.shape != (len(markerset), 3):
         raise ValueError(f"marker_positions must have shape ({len(markerset)}, 3), got {pts.shape}")
     r2w = skeleton.rest_root2world() if root2world is None else np.asarray(root2world, float)
+    if root not in ("pinned", "translate", "free"):
+        raise ValueError(f"root must be pinned, translate or free, got {root!r}")
     seen = np.all(np.isfinite(pts), axis=1)
     if rays is not None:
         if not isinstance(rays, MarkerRays):
@@ -420,7 +429,11 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     lim = skeleton.limits_deg
     lo = np.where(np.isnan(lim[..., 0]), -np.inf, lim[..., 0])
     hi = np.where(np.isnan(lim[..., 1]), np.inf, lim[..., 1])
+    if root == "free":  # the root's rotation fitted whatever its limits (the puppet's pelvis: locked)
+        lo[skeleton.root], hi[skeleton.root] = -np.inf, np.inf
     free = hi > lo  # (n, 3)
+    n_t = 3 if root != "pinned" else 0  # root translation parameters, after the angles
+    t_sd = 0.02  # metres: the translation's weak prior toward root2world's
     center = np.clip(0.0, lo, hi)
     width = np.where(np.isfinite(hi - lo), 0.5 * (hi - lo), 180.0)
     sd = np.maximum(width, 5.0)
@@ -448,14 +461,24 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
 
     def unpack(x):
         a = ang.copy()
-        a[free] = x
+        a[free] = x[:len(pidx)]
         return a
+
+    def root_of(x):
+        if not n_t:
+            return r2w
+        m = r2w.copy()
+        m[:3, 3] = x[len(pidx):]
+        return m
+
+    def pack(a):
+        return np.concatenate([a[free], r2w[:3, 3]]) if n_t else a[free]
 
     def model(x):
         a = unpack(x)
         Rx, Ry, Rz = _euler_matrices(a)
         local = Rx @ Ry @ Rz  # intrinsic XYZ
-        j2w = forward_kinematics(skeleton, r2w, local)
+        j2w = forward_kinematics(skeleton, root_of(x), local)
         return a, Rx, Ry, j2w
 
     def beads(j2w, idx):
@@ -479,23 +502,32 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             if nr:
                 parts.append(np.einsum("rki,ri->rk", B, m[len(mf):] - ray_set.origin).ravel())
             parts.append(((a - center) / sd)[free])
+            if n_t:
+                parts.append((x[len(pidx):] - r2w[:3, 3]) / t_sd)
             return np.concatenate(parts)
 
         def jacobian(x):
             _, Rx, Ry, j2w = model(x)
             m = beads(j2w, idx)
-            W = np.concatenate([r2w[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
+            r2w_x = root_of(x)
+            W = np.concatenate([r2w_x[None, :3, :3], j2w[:, :3, :3]])[parents[pj] + 1]  # parent world rotations
             # world axis of each Euler angle: x, then Rx y, then Rx Ry z (intrinsic XYZ)
             axes = np.where((pax == 0)[:, None], [1.0, 0.0, 0.0],
                             np.where((pax == 1)[:, None], Rx[pj][:, :, 1], (Rx[pj] @ Ry[pj])[:, :, 2]))
             u = np.einsum("pij,pj->pi", W, axes)
             d = np.cross(u[:, None, :], m[None] - j2w[pj, None, :3, 3]) * k_deg  # (n_params, n_points, 3)
             d = d * (moves * scale[None])[..., None]
-            J = np.zeros((n_rows + len(pidx), len(pidx)))
-            J[:n_res] = d[:, :len(mf)].reshape(len(pidx), n_res).T
+            npar = len(pidx) + n_t
+            J = np.zeros((n_rows + npar, npar))
+            J[:n_res, :len(pidx)] = d[:, :len(mf)].reshape(len(pidx), n_res).T
             if nr:
-                J[n_res:n_rows] = np.einsum("rki,pri->rkp", B, d[:, len(mf):]).reshape(2 * nr, len(pidx))
+                J[n_res:n_rows, :len(pidx)] = np.einsum("rki,pri->rkp", B, d[:, len(mf):]).reshape(2 * nr, len(pidx))
             J[prior_rows, np.arange(len(pidx))] = 1.0 / sd[pj, pax]
+            if n_t:  # moving the root moves every point by the same vector
+                J[:n_res, len(pidx):] = np.tile(np.eye(3), (len(mf), 1)) / marker_sigma_m
+                if nr:
+                    J[n_res:n_rows, len(pidx):] = B.reshape(2 * nr, 3)
+                J[n_rows + len(pidx) + np.arange(3), len(pidx) + np.arange(3)] = 1.0 / t_sd
             return J
 
         return residuals, jacobian
@@ -507,7 +539,8 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         spx = np.where(np.isfinite(ray_set.sigma_px), ray_set.sigma_px, ray_sigma_px)
         return spx * np.where(z > 1e-3, z, far) / ray_set.focal_px
 
-    lb, ub = lo[free], hi[free]
+    lb = np.concatenate([lo[free], np.full(n_t, -np.inf)])
+    ub = np.concatenate([hi[free], np.full(n_t, np.inf)])
     inner = (np.where(np.isfinite(lb), lb + 1e-9, lb), np.where(np.isfinite(ub), ub - 1e-9, ub))
     kw = dict(loss="soft_l1", f_scale=5.0) if robust else {}
     # tr_solver="exact": the dense trust-region solve (an SVD of the small Jacobian per step) is
@@ -524,11 +557,11 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     best = None
     with single_blas_thread():
         cur = active
-        sig = ray_sigmas(active, np.clip(starts[0][free], *inner)) if active is not None else np.zeros(0)
+        sig = ray_sigmas(active, np.clip(pack(starts[0]), *inner)) if active is not None else np.zeros(0)
         fun, jac = problem(cur, sig)
         n_data = n_res + 2 * (0 if cur is None else len(cur))
         for a0 in starts:  # the joint-by-joint start; the others only when it ends in a poor fit
-            r = least_squares(fun, np.clip(a0[free], *inner), jac=jac, **opts)
+            r = least_squares(fun, np.clip(pack(a0), *inner), jac=jac, **opts)
             if best is None or r.cost < best.cost:
                 best = r
             if np.max(np.abs(best.fun[:n_data]), initial=0.0) < 5.0:  # every marker and ray within 5 sigma
@@ -544,13 +577,14 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             keep[np.flatnonzero(bad)[np.argmax(off[bad])]] = False
             cur = active.subset(keep) if keep.any() else None
             fun, jac = problem(cur, sig[keep])
-            cands = [best.x, np.clip(starts[0][free], *inner)]
+            cands = [best.x, np.clip(pack(starts[0]), *inner)]
             if cur is not None:
-                cands[1] = np.clip(_start_angles(skeleton, markerset, pts, r2w, lo, hi, center, sd, cur,
-                                                 ray_sigma_px)[free], *inner)
+                cands[1] = np.clip(pack(_start_angles(skeleton, markerset, pts, r2w, lo, hi, center, sd, cur,
+                                                      ray_sigma_px)), *inner)
             best = min((least_squares(fun, c, jac=jac, **opts) for c in cands), key=lambda r: r.cost)
     a = unpack(best.x)
     local = Rotation.from_euler(EULER_LIMIT_SEQUENCE, a, degrees=True).as_matrix()
+    r2w = root_of(best.x)
     pose = Pose(skeleton, r2w, local)
     model_pts = markerset.positions(pose)
     res = np.full(len(markerset), np.nan)
@@ -566,3 +600,30 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         ray_px[use] = active.distances(model_pts) * active.focal_px / np.where(z > 1e-3, z, far)
     return PoseFit(pose, thesis, dirs, res, tres, bool(best.success), int(seen.sum()), time.perf_counter() - t0,
                    rays, ray_used, ray_px)
+
+
+def root_freedom(skeleton: Skeleton, markerset: MarkerSet) -> str:
+    """What the markers fix of the root's frame, as :func:`fit_pose`'s ``root``.
+
+    A joint frame with two or more beads not in line with its joint (``"full"``,
+    :func:`frame_status`) is a rigid body whose joint the beads place (up to a turn about the
+    beads' line, which the rest of the chain settles). ``"free"`` (position and rotation) when
+    the root frame is full itself, or when three or more of the root's child branches hold a
+    full frame (three joints round the root, not in one line, fix its frame); ``"translate"`` when
+    one or two do; ``"pinned"`` otherwise (nothing measures the root: it stays where the
+    caller puts it).
+    """
+    status = frame_status(skeleton, markerset)
+    r = skeleton.root
+    if status[skeleton.names[r]] == "full":
+        return "free"
+    branches = 0
+    for c in skeleton.children(r):
+        stack = [c]
+        while stack:
+            j = stack.pop()
+            if status[skeleton.names[j]] == "full":
+                branches += 1
+                break
+            stack.extend(skeleton.children(j))
+    return "free" if branches >= 3 else "translate" if branches >= 1 else "pinned"

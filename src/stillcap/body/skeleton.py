@@ -48,7 +48,11 @@ __all__ = [
     "LENGTH_UNITS",
     "EULER_LIMIT_SEQUENCE",
     "euler_within_limits",
+    "BUILTIN_SKELETONS",
 ]
+
+#: Skeletons shipped with stillcap that :meth:`Skeleton.builtin` loads by name.
+BUILTIN_SKELETONS = {"puppet": "puppet_skeleton.json"}
 
 #: Length units accepted in files, in metres per unit.
 LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
@@ -371,8 +375,42 @@ class Skeleton:
     @classmethod
     def puppet(cls) -> "Skeleton":
         """The thesis's 210 mm lay figure (``data/puppet_skeleton.json``), puppet frame, metres."""
-        data, source = read_package_json("puppet_skeleton.json")
+        return cls.builtin("puppet")
+
+    @classmethod
+    def builtin(cls, name: str) -> "Skeleton":
+        """A skeleton shipped with stillcap, by name (:data:`BUILTIN_SKELETONS`)."""
+        if name not in BUILTIN_SKELETONS:
+            raise ValueError(f"unknown built-in skeleton {name!r}; built-in: {', '.join(BUILTIN_SKELETONS)}")
+        data, source = read_package_json(BUILTIN_SKELETONS[name])
         return cls.from_dict(data, source=source)
+
+    @classmethod
+    def resolve(cls, spec: "Skeleton | str | os.PathLike | dict | None", default: str = "puppet") -> "Skeleton":
+        """A skeleton from whatever names one: a :class:`Skeleton` (returned as is), a built-in
+        name (``"puppet"``), the path of a skeleton JSON file, a :meth:`to_dict` dict, or None
+        for ``default``. A string is a built-in name if it is one, else a file path."""
+        if spec is None:
+            spec = default
+        if isinstance(spec, Skeleton):
+            return spec
+        if isinstance(spec, dict):
+            return cls.from_dict(spec, source="<embedded skeleton>")
+        if isinstance(spec, str) and spec in BUILTIN_SKELETONS:
+            return cls.builtin(spec)
+        if isinstance(spec, (str, os.PathLike)):
+            path = Path(spec)
+            if not path.is_file():
+                raise ValueError(f"skeleton {str(spec)!r} is neither a built-in ({', '.join(BUILTIN_SKELETONS)}) "
+                                 "nor an existing file")
+            return cls.load(path)
+        raise ValueError(f"a skeleton must be a Skeleton, a built-in name, a file or a dict, got {type(spec).__name__}")
+
+    def with_offsets(self, offsets, name: str | None = None) -> "Skeleton":
+        """A copy with other rest offsets (shape (n_joints, 3), metres), same names, parents and limits."""
+        off = as_array(offsets, (self.n_joints, 3), "offsets")
+        return Skeleton(tuple(Joint(j.name, j.parent, o, j.limits_deg) for j, o in zip(self.joints, off)),
+                        name=self.name if name is None else name, source=self.source)
 
 
 def _wrap_into(angle: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -67,6 +67,9 @@ class Project:
         If set, the rig lives in this file (relative to ``root``) instead of inside project.json.
     meta : dict
         Free JSON-serialisable notes.
+    skeleton : Skeleton, optional
+        The puppet's skeleton (key ``skeleton``: a built-in name, ``{"file": PATH}`` inside the
+        folder, or the file embedded); None: the built-in puppet.
     """
 
     root: Path
@@ -78,6 +81,8 @@ class Project:
     rig_file: str | None = None
     meta: dict = field(default_factory=dict)
     _stale_files: set = field(default_factory=set, repr=False)
+    skeleton: Skeleton | None = None
+    _skeleton_file: dict | None = field(default=None, repr=False)
 
     def __post_init__(self):
         self.root = Path(self.root)
@@ -85,6 +90,8 @@ class Project:
             raise ValueError("a project needs exactly one of turntable= and rig=")
         if not isinstance(self.markerset, MarkerSet):
             raise ValueError(f"markerset must be a MarkerSet, got {type(self.markerset).__name__}")
+        if self.skeleton is not None and not isinstance(self.skeleton, Skeleton):
+            raise ValueError(f"skeleton must be a Skeleton or None, got {type(self.skeleton).__name__}")
         if self.rig_file is not None:
             self.rig_file = safe_relpath(self.rig_file, "rig file")
         self.views = list(self.views)
@@ -463,6 +470,10 @@ class Project:
         """The JSON content of ``project.json``."""
         d = {"format": PROJECT_FORMAT, "version": PROJECT_VERSION, "name": self.name, "units": dict(UNITS),
              "markerset": self._markerset_entry()}
+        if self.skeleton is not None:
+            from stillcap.body.bodyfiles import body_entry_dict
+
+            d["skeleton"] = self._skeleton_file or body_entry_dict(self.skeleton)
         if self.turntable is not None:
             d["turntable"] = self.turntable.to_dict()
         else:
@@ -548,7 +559,14 @@ class Project:
         if any(f.units.get(k, v) != v for k, v in UNITS.items()):
             raise ValueError(f"{where}units: must be {UNITS}, got {f.units!r}")
         markerset = _load_markerset(root, f.markerset, where, str(pfile))
-        markerset.check_skeleton(Skeleton.puppet())  # its bones are the puppet's (the skeleton projects pose)
+        skeleton = skeleton_file = None
+        if d.get("skeleton") is not None:
+            from stillcap.body.bodyfiles import body_entry
+
+            skeleton = body_entry(d["skeleton"], "skeleton", root, str(pfile), str(pfile), "skeleton")
+            if isinstance(d["skeleton"], dict) and set(d["skeleton"]) == {"file"}:
+                skeleton_file = dict(d["skeleton"])
+        markerset.check_skeleton(skeleton or Skeleton.puppet())  # its bones are the skeleton's (it is posed)
         turntable = rig = rig_file = None
         if (f.turntable is None) == (f.rig is None):
             raise ValueError(f"{where}needs exactly one of \"turntable\" and \"rig\"")
@@ -559,7 +577,8 @@ class Project:
         views = [_view_from_entry(vd, where, i) for i, vd in enumerate(f.views)]
         meta = f.meta
         name = f.name if f.name is not None else root.name
-        project = cls(root, markerset, turntable, rig, views, name, rig_file, meta)
+        project = cls(root, markerset, turntable, rig, views, name, rig_file, meta, skeleton=skeleton)
+        project._skeleton_file = skeleton_file
         try:
             project._validate()
         except ValueError as e:

@@ -70,6 +70,7 @@ class ProjectFile(ClosedModel):
     name: str | None = None
     units: dict[str, str] = {}
     markerset: Any = "puppet-16"
+    skeleton: Any = None
     turntable: TurntableEntry | None = None
     rig: dict[str, Any] | None = None
     views: list[ViewEntry] = []

@@ -14,7 +14,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from stillcap._blas import one_blas_thread
-from stillcap.body.markerset import BUILTIN_MARKERSETS, MarkerSet
+from stillcap.body.markerset import MarkerSet
+from stillcap.body.bodyfiles import body_entry
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views
@@ -24,7 +25,7 @@ from stillcap.pipelines.puppet.result import PuppetResult
 from stillcap.pipelines.puppet.stages import (_prepare, detect_view, find_beads, identify_beads, pose_skeleton,
                                               triangulate_beads)
 
-__all__ = ["analyse_puppet", "analyse_puppet_views", "capture_markerset"]
+__all__ = ["analyse_puppet", "analyse_puppet_views", "capture_markerset", "capture_skeleton"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -130,27 +131,37 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
 
 def capture_markerset(folder, cap=None) -> MarkerSet:
     """The marker set a puppet capture shows: its ``markerset`` entry (the whole marker set, as
-    ``stillcap studio puppet`` writes it, or a built-in name); captures without one show the
-    thesis's 16 beads. ``cap``: the capture already loaded from ``folder``."""
+    ``stillcap studio puppet`` writes it, a built-in name, or ``{"file": PATH}`` inside the
+    folder: :func:`body_entry`); captures without one show the thesis's 16 beads. ``cap``: the
+    capture already loaded from ``folder``."""
     if cap is None:
         from stillcap.io.capture import Capture
 
         cap = Capture.load(folder)
     entry = (cap.meta or {}).get("markerset", "puppet-16")
-    if not isinstance(entry, (str, dict)):
-        raise ValueError(f"capture {folder}: 'markerset' must be a built-in name or a marker set, got {entry!r}")
-    if isinstance(entry, dict):
-        return MarkerSet.from_dict(entry, source=str(Path(folder) / "capture.json"), prefix=("markerset",))
-    markerset = MarkerSet.builtin(entry) if entry in BUILTIN_MARKERSETS else None
-    if markerset is None:
-        raise ValueError(f"capture {folder}: unknown marker set {entry!r} (built-in: {', '.join(BUILTIN_MARKERSETS)})")
-    return markerset
+    return body_entry(entry, "markerset", Path(folder), f"capture {folder}", str(Path(folder) / "capture.json"),
+                      "markerset")
+
+
+def capture_skeleton(folder, cap=None) -> Skeleton:
+    """The skeleton of a puppet capture: its ``skeleton`` entry (built-in name, ``{"file": PATH}``
+    inside the folder, or the whole skeleton file embedded: :func:`body_entry`); captures
+    without one: the built-in puppet (:meth:`Skeleton.puppet`)."""
+    if cap is None:
+        from stillcap.io.capture import Capture
+
+        cap = Capture.load(folder)
+    entry = (cap.meta or {}).get("skeleton")
+    if entry is None:
+        return _puppet_skeleton()
+    return body_entry(entry, "skeleton", Path(folder), f"capture {folder}", str(Path(folder) / "capture.json"),
+                      "skeleton")
 
 
 
 def _capture_inputs(folder: Path):
-    """A puppet capture's pieces: ``(capture, rig, view names, angles, files, markerset)`` (the
-    marker set: :func:`capture_markerset`)."""
+    """A puppet capture's pieces: ``(capture, rig, view names, angles, files, markerset, skeleton)``
+    (:func:`capture_markerset`, :func:`capture_skeleton`)."""
     from stillcap.io.capture import Capture
 
     cap = Capture.load(folder)
@@ -168,13 +179,15 @@ def _capture_inputs(folder: Path):
         files.append(im.file)
     rig = Rig(cams, cap.rig.world)
     markerset = capture_markerset(folder, cap)
-    return cap, rig, names, angles, files, markerset
+    skeleton = capture_skeleton(folder, cap)
+    return cap, rig, names, angles, files, markerset, skeleton
 
 
 @one_blas_thread
 def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette | None = None,
                      progress: Callable[[int, int], None] | None = None,
-                     workers: int = 2) -> tuple[PuppetResult, list]:
+                     workers: int = 2, markerset: MarkerSet | None = None,
+                     skeleton: Skeleton | None = None) -> tuple[PuppetResult, list]:
     """The pipeline on a capture folder of kind ``puppet`` (``stillcap studio puppet``).
 
     With ``workers`` >= 2 a second thread decodes the photos and makes each one's photo-wide
@@ -197,7 +210,9 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     """
     folder = Path(folder)
     t0 = time.perf_counter()
-    cap, rig, names, angles, files, markerset = _capture_inputs(folder)
+    cap, rig, names, angles, files, cap_markerset, cap_skeleton = _capture_inputs(folder)
+    markerset = markerset or cap_markerset
+    skeleton = skeleton or cap_skeleton
     options = _options_for(options, markerset)
     detections = None
     if workers <= 1 or len(cap.images) <= 1:
@@ -260,14 +275,16 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
         detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
     res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options, view_names=names,
                                angles_deg=angles, progress=None if detections is not None else progress,
-                               source={"type": "capture", "path": str(folder)}, files=files, detections=detections)
+                               source={"type": "capture", "path": str(folder)}, files=files, detections=detections,
+                               skeleton=skeleton)
     res.timings_s = {"read": t_read, **res.timings_s}
     return res, images
 
 
 
 def _analyse_project(project, options: PuppetOptions = DEFAULT, palette: Palette | None = None, redetect: bool = False,
-                     progress: Callable[[int, int], None] | None = None, save: bool = True) -> tuple[PuppetResult, list]:
+                     progress: Callable[[int, int], None] | None = None, save: bool = True,
+                     markerset: MarkerSet | None = None, skeleton: Skeleton | None = None) -> tuple[PuppetResult, list]:
     """Detect markers in a project's photos, store them, and reconstruct.
 
     Views without detections (all views with ``redetect``) are detected and identified; their
@@ -302,13 +319,14 @@ def _analyse_project(project, options: PuppetOptions = DEFAULT, palette: Palette
     t_det = time.perf_counter() - t0
     if todo and save:
         project.save()
-    res, _ = _reconstruct_project(project, options, images=images)
+    res, _ = _reconstruct_project(project, options, images=images, markerset=markerset, skeleton=skeleton)
     res.views = views if all(v is not None for v in views) else None
     res.timings_s = {"read": t_read, "detect_identify": t_det, **{k: v for k, v in res.timings_s.items()}}
     return res, images
 
 
-def _reconstruct_project(project, options: PuppetOptions = DEFAULT, images=None) -> tuple[PuppetResult, list]:
+def _reconstruct_project(project, options: PuppetOptions = DEFAULT, images=None, markerset: MarkerSet | None = None,
+                         skeleton: Skeleton | None = None) -> tuple[PuppetResult, list]:
     """3D markers and pose from a project's stored markers (detections with the user's edits),
     and the photos.
 
@@ -321,7 +339,11 @@ def _reconstruct_project(project, options: PuppetOptions = DEFAULT, images=None)
     names, pts, rig = project.observations()
     if images is None:
         images = [project.read_image(v) for v in project.views]
-    res = analyse_puppet_views(rig, images, markerset=project.markerset, observations=pts, options=options,
+    if markerset is not None and tuple(markerset.names) != tuple(project.markerset.names):
+        raise ValueError(f"marker set {markerset.source}: its markers {list(markerset.names)} differ from project "
+                         f"{project.root}'s {list(project.markerset.names)}")
+    res = analyse_puppet_views(rig, images, markerset=markerset or project.markerset, observations=pts, options=options,
+                               skeleton=skeleton or project.skeleton,
                                view_names=[v.name for v in project.views],
                                angles_deg=[v.angle_deg for v in project.views],
                                source={"type": "project", "path": str(project.root)},
@@ -333,7 +355,8 @@ def _reconstruct_project(project, options: PuppetOptions = DEFAULT, images=None)
 
 def analyse_puppet(capture, options: PuppetOptions | None = None, *, palette: Palette | None = None,
                    progress: Callable[[int, int], None] | None = None, redetect: bool = False, detect: bool = True,
-                   save: bool = True, workers: int = 2) -> tuple[PuppetResult, list]:
+                   save: bool = True, workers: int = 2, markerset: MarkerSet | None = None,
+                   skeleton: Skeleton | None = None) -> tuple[PuppetResult, list]:
     """The puppet pipeline (SPEC J3) on a capture folder or a puppet project: the beads found and
     named by colour in every photo, triangulated, and the skeleton posed on them.
 
@@ -360,6 +383,11 @@ def analyse_puppet(capture, options: PuppetOptions | None = None, *, palette: Pa
     workers : int
         Capture folders: with 2 or more a second thread decodes the photos while this one
         detects (the same result as with 1).
+    markerset, skeleton : MarkerSet, Skeleton, optional
+        The puppet's beads and skeleton (``puppet run --markers/--skeleton``) instead of those
+        the capture or project names (:func:`capture_markerset`, :func:`capture_skeleton`,
+        ``Project.skeleton``). A project's marker set may be replaced only by one with the same
+        marker names (its stored markers carry them).
 
     Returns
     -------
@@ -402,7 +430,8 @@ def analyse_puppet(capture, options: PuppetOptions | None = None, *, palette: Pa
             if not detect:
                 raise ValueError(f"{folder} is a capture folder, which stores no markers (detect=False is for "
                                  "projects)")
-            return _analyse_capture(folder, options, palette, progress, workers)
+            return _analyse_capture(folder, options, palette, progress, workers, markerset, skeleton)
+    body = {"markerset": markerset, "skeleton": skeleton}
     if not detect:
-        return _reconstruct_project(capture, options)
-    return _analyse_project(capture, options, palette, redetect, progress, save)
+        return _reconstruct_project(capture, options, **body)
+    return _analyse_project(capture, options, palette, redetect, progress, save, **body)

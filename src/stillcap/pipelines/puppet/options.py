@@ -56,6 +56,11 @@ class PuppetOptions:
     coarse : bool
         Template detector: find the contrast peaks at half resolution and climb each to its
         full-resolution maximum (faster); False: the full-resolution contrast map.
+    root : str
+        The root's (pelvis's) frame in the pose fit: ``"auto"`` (default: position and rotation
+        fitted when the marker set's beads fix them, :func:`~stillcap.body.puppet_pose.root_freedom`),
+        ``"pinned"`` (the skeleton's rest frame: the thesis's pelvis on the turntable axis),
+        ``"translate"`` or ``"free"`` (:func:`~stillcap.body.puppet_pose.fit_pose`).
     """
 
     detector: str = "template"
@@ -74,6 +79,7 @@ class PuppetOptions:
     reid_gate: float = 0.6
     reid_color: float = 2.0
     coarse: bool = True
+    root: str = "auto"
 
     def __post_init__(self):
         if self.detector not in DETECTORS:
@@ -84,6 +90,8 @@ class PuppetOptions:
             raise ValueError(f"unknown triangulation {self.triangulation!r}; choose dlt or midpoint")
         if self.pose not in ("fit", "thesis"):
             raise ValueError(f"unknown pose method {self.pose!r}; choose fit or thesis")
+        if self.root not in ("auto", "pinned", "translate", "free"):
+            raise ValueError(f"unknown root {self.root!r}; choose auto, pinned, translate or free")
         lo, hi = (float(v) for v in self.radius_range)
         if not 0 < lo <= hi:
             raise ValueError(f"radius_range must be 0 < min <= max pixels, got {self.radius_range}")
@@ -96,7 +104,7 @@ class PuppetOptions:
                 "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
                 "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
                 "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_color,
-                "coarse": self.coarse}
+                "coarse": self.coarse, "root": self.root}
 
 
 #: The measured best chain (``benchmarks/bench_puppet.py``).

@@ -220,8 +220,9 @@ def pose_skeleton(rig: Rig, skeleton: Skeleton, markerset: MarkerSet, solve: Mar
     # markers without a 3D point (seen in one view, or their views disagree) still constrain the
     # pose: their final identification's rays, less sure the less of the bead shows (fill);
     # fit_pose rejects those its fit leaves > 5 sigma off
-    from stillcap.body.puppet_pose import MarkerRays
+    from stillcap.body.puppet_pose import MarkerRays, root_freedom
 
     rays = MarkerRays.from_views(rig, solve.observations, ~solve.ok, fill=solve.fill)
+    root = root_freedom(skeleton, markerset) if options.root == "auto" else options.root
     return fit_pose(skeleton, markerset, solve.points, root2world, marker_sigma_m=options.marker_sigma_m,
-                    rays=rays if len(rays) else None)
+                    rays=rays if len(rays) else None, root=root)
