@@ -232,6 +232,8 @@ class PoseFit:
     ray_residuals_px : ndarray, shape (n_rays,)
         Distance of each ray's fitted model bead from the ray, in pixels at the bead's depth
         (NaN for rays of triangulated markers).
+    root : str
+        What was fitted of the root's frame (``fit_pose``'s ``root``).
     """
 
     pose: Pose
@@ -245,6 +247,7 @@ class PoseFit:
     rays: MarkerRays | None = None
     ray_used: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     ray_residuals_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    root: str = "pinned"
 
     @property
     def ray_markers(self) -> np.ndarray:
@@ -383,8 +386,8 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         The root's frame (puppet: the pelvis, fixed on the turntable axis); default rest.
     initial : Pose, optional
         Start instead of the thesis's pose.
-    marker_sigma_m : float
-        Expected marker error, metres.
+    marker_sigma_m : float or array_like, shape (n_markers,)
+        Expected marker error, metres (per marker: e.g. larger for partly hidden beads).
     robust : bool
         Soft-L1 loss (scale 5 sigma) instead of squares.
     rays : MarkerRays, optional
@@ -414,6 +417,10 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     if root not in ("pinned", "translate", "free"):
         raise ValueError(f"root must be pinned, translate or free, got {root!r}")
     seen = np.all(np.isfinite(pts), axis=1)
+    msig = np.broadcast_to(np.asarray(marker_sigma_m, float), (len(markerset),))
+    if not np.all(np.isfinite(msig) & (msig > 0)):
+        raise ValueError(f"marker_sigma_m must be > 0 metres, got {marker_sigma_m}")
+    sig_seen = msig[seen]
     if rays is not None:
         if not isinstance(rays, MarkerRays):
             raise ValueError(f"rays must be a MarkerRays, got {type(rays).__name__}")
@@ -493,12 +500,12 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         n_rows = n_res + 2 * nr
         prior_rows = n_rows + np.arange(len(pidx))
         moves = chain[np.concatenate([mf, rf])][:, pj].T  # (n_params, n_points): parameter moves the point
-        scale = np.concatenate([np.full(len(mf), 1.0 / marker_sigma_m), np.ones(nr)])
+        scale = np.concatenate([1.0 / sig_seen, np.ones(nr)])
 
         def residuals(x):
             a, _, _, j2w = model(x)
             m = beads(j2w, idx)
-            parts = [((m[:len(mf)] - meas) / marker_sigma_m).ravel()]
+            parts = [((m[:len(mf)] - meas) / sig_seen[:, None]).ravel()]
             if nr:
                 parts.append(np.einsum("rki,ri->rk", B, m[len(mf):] - ray_set.origin).ravel())
             parts.append(((a - center) / sd)[free])
@@ -524,7 +531,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
                 J[n_res:n_rows, :len(pidx)] = np.einsum("rki,pri->rkp", B, d[:, len(mf):]).reshape(2 * nr, len(pidx))
             J[prior_rows, np.arange(len(pidx))] = 1.0 / sd[pj, pax]
             if n_t:  # moving the root moves every point by the same vector
-                J[:n_res, len(pidx):] = np.tile(np.eye(3), (len(mf), 1)) / marker_sigma_m
+                J[:n_res, len(pidx):] = np.tile(np.eye(3), (len(mf), 1)) / np.repeat(sig_seen, 3)[:, None]
                 if nr:
                     J[n_res:n_rows, len(pidx):] = B.reshape(2 * nr, 3)
                 J[n_rows + len(pidx) + np.arange(3), len(pidx) + np.arange(3)] = 1.0 / t_sd
@@ -599,7 +606,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
         far = np.linalg.norm(r2w[:3, 3] - active.origin, axis=1)
         ray_px[use] = active.distances(model_pts) * active.focal_px / np.where(z > 1e-3, z, far)
     return PoseFit(pose, thesis, dirs, res, tres, bool(best.success), int(seen.sum()), time.perf_counter() - t0,
-                   rays, ray_used, ray_px)
+                   rays, ray_used, ray_px, root)
 
 
 def root_freedom(skeleton: Skeleton, markerset: MarkerSet) -> str:

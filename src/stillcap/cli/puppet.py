@@ -139,6 +139,24 @@ def _write_outputs(res, images, out: Path | None, truth=None, overlays: bool = T
     return outputs
 
 
+def _body_files(skeleton: Path | None, markers: Path | None) -> dict:
+    """``--skeleton`` and ``--markers`` read (ValueError naming the file), as analyse_puppet's keywords."""
+    from stillcap.body.markerset import MarkerSet
+    from stillcap.body.skeleton import Skeleton
+
+    out = {}
+    for key, path, cls, word in (("skeleton", skeleton, Skeleton, "--skeleton"),
+                                 ("markerset", markers, MarkerSet, "--markers")):
+        if path is None:
+            continue
+        if not path.is_file():
+            raise ValueError(f"{word} {path}: no such file")
+        out[key] = cls.load(path)
+    if "skeleton" in out and "markerset" in out:
+        out["markerset"].check_skeleton(out["skeleton"])
+    return out
+
+
 def _truth_of(folder: Path):
     from stillcap.studio.compare.puppet import capture_truth
 
@@ -160,6 +178,11 @@ def run(
                                  "stillcap puppet calibrate-palette)."),
     redetect: bool = typer.Option(False, "--redetect", help="Projects: detect again in every view (the stored "
                                   "edits still apply); by default only views without detections are detected."),
+    skeleton: Path = typer.Option(None, "--skeleton", help="The puppet's skeleton (a stillcap-skeleton JSON file, "
+                                  "e.g. from stillcap puppet calibrate-skeleton) instead of the capture's or "
+                                  "project's (default: the built-in puppet)."),
+    markers: Path = typer.Option(None, "--markers", help="The puppet's beads (a stillcap-markerset JSON file) "
+                                 "instead of the capture's or project's."),
     force: Force = False,
 ):
     """Find, name and triangulate the beads in every photo and pose the skeleton.
@@ -174,19 +197,20 @@ def run(
     check(out, "folder", "--out", force, OUT_FILES)
     if not folder.exists():
         raise ValueError(f"folder {folder} does not exist")
-    markerset = None
-    if (folder / "project.json").is_file():
+    body = _body_files(skeleton, markers)
+    markerset = body.get("markerset")
+    if markerset is None and (folder / "project.json").is_file():
         from stillcap.io.project import Project
 
         markerset = Project.load(folder).markerset
-    elif palette is not None and (folder / "capture.json").is_file():
+    elif markerset is None and palette is not None and (folder / "capture.json").is_file():
         # the capture's own marker set (puppet-20, a file's...), read as analyse_puppet reads it
         from stillcap.pipelines.puppet import capture_markerset
 
         markerset = capture_markerset(folder)
     pal = load_palette(palette, markerset)
     with progress("detecting beads") as update:
-        res, images = analyse_puppet(folder, settings, palette=pal, redetect=redetect, progress=update)
+        res, images = analyse_puppet(folder, settings, palette=pal, redetect=redetect, progress=update, **body)
     if res.source.get("type") == "capture":  # a studio capture: compared with its truth
         from stillcap.studio.compare.puppet import compare_with_capture
 

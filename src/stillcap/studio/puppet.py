@@ -28,6 +28,7 @@ and the visible fraction of each bead's disc (``coverage``: 1 for an unobstructe
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -96,12 +97,37 @@ def webcam_sensor(jpeg_quality: int | None = 85) -> Sensor:
 
 
 # --- the puppet as bodies -------------------------------------------------------------------
+def limbs_for(skeleton: Skeleton) -> tuple:
+    """:data:`PUPPET_LIMBS` sized for a puppet skeleton of other proportions (same joint names):
+    each capsule scaled by the length ratio of the bone it lies along (the joint's child whose
+    rest offset points most nearly its way)."""
+    base = _builtin_skeleton()
+    if skeleton is base or (skeleton.names == base.names and np.allclose(skeleton.offsets, base.offsets)):
+        return PUPPET_LIMBS
+    out = []
+    for name, joint, p0, p1, rad in PUPPET_LIMBS:
+        kids = base.children(joint)
+        ratio = 1.0
+        if kids:
+            d = p1 - p0
+            c = max(kids, key=lambda k: float(d @ base.offsets[k]) / (np.linalg.norm(base.offsets[k]) + 1e-12))
+            if base.bone_lengths[c] > 0:
+                ratio = skeleton.bone_lengths[skeleton.index(base.names[c])] / base.bone_lengths[c]
+        out.append((name, joint, p0 * ratio, p1 * ratio, rad))
+    return tuple(out)
+
+
+@functools.lru_cache(maxsize=1)
+def _builtin_skeleton() -> Skeleton:
+    return Skeleton.puppet()
+
+
 def _segments(pose: Pose, markerset: MarkerSet):
     """World segments of limbs and beads: starts (n, 3), ends (n, 3), radii (n,)."""
     j2w = pose.joint2world
     sk = pose.skeleton
     a, b, r = [], [], []
-    for _, joint, p0, p1, rad in PUPPET_LIMBS:
+    for _, joint, p0, p1, rad in limbs_for(sk):
         T = j2w[sk.index(joint)]
         a.append(T[:3, :3] @ p0 + T[:3, 3])
         b.append(T[:3, :3] @ p1 + T[:3, 3])
@@ -373,6 +399,9 @@ class PuppetTruth:
         a bead whose centre is hidden may still show an edge).
     source : dict
         Where the pose came from (:func:`pose_from_spec`): random seed, T-pose or BVH file + frame.
+    skeleton : Skeleton or None
+        The puppet's own skeleton when it is not the built-in one (another puppet:
+        :func:`stillcap.studio.puppet_variation.another_puppet`); written to ``truth.json``.
     """
 
     marker_names: list
@@ -389,6 +418,7 @@ class PuppetTruth:
     visible: np.ndarray
     coverage: np.ndarray
     source: dict = field(default_factory=dict)
+    skeleton: Skeleton | None = None
 
     @property
     def views_per_marker(self) -> np.ndarray:
@@ -396,11 +426,12 @@ class PuppetTruth:
         return self.visible.sum(axis=0)
 
     def pose(self, skeleton: Skeleton | None = None) -> Pose:
-        """The true pose of ``skeleton`` (default the puppet)."""
-        return Pose(skeleton or Skeleton.puppet(), self.root2world, self.local_rotations)
+        """The true pose of ``skeleton`` (default the puppet's own, else the built-in puppet)."""
+        return Pose(skeleton or self.skeleton or Skeleton.puppet(), self.root2world, self.local_rotations)
 
     def to_dict(self) -> dict:
-        return {
+        extra = {} if self.skeleton is None else {"skeleton": self.skeleton.to_dict("mm")}
+        return extra | {
             "kind": "puppet", "frame": "puppet",
             "units": {"length": "m", "pixels": "px (x, y), origin top-left pixel centre", "angle": "deg"},
             "source": dict(self.source),
@@ -429,7 +460,8 @@ class PuppetTruth:
                    np.array(d["angles_deg"], float).reshape(nv),
                    from_jsonable(d["markers_px"]).reshape(nv, nm, 2),
                    np.array(d["visible"], bool).reshape(nv, nm),
-                   np.array(d["coverage"], float).reshape(nv, nm), dict(d.get("source", {})))
+                   np.array(d["coverage"], float).reshape(nv, nm), dict(d.get("source", {})),
+                   Skeleton.from_dict(d["skeleton"], "truth.json", ("skeleton",)) if d.get("skeleton") else None)
 
 
 @dataclass
@@ -467,7 +499,7 @@ class PuppetScene:
 
 def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=None, sensor: Sensor | None = None,
                  supersample: int = 3, progress: Callable[[int, int], None] | None = None,
-                 markerset: MarkerSet | str | None = None) -> PuppetScene:
+                 markerset: MarkerSet | str | None = None, skeleton: Skeleton | None = None) -> PuppetScene:
     """Photograph the posed puppet from every view of a rig, with the truth.
 
     Parameters
@@ -490,6 +522,9 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
     markerset : MarkerSet or str, optional
         The beads: a :class:`MarkerSet` of the puppet skeleton, a built-in name (``"puppet-16"``,
         the default, or ``"puppet-20"``) or a marker-set file (:meth:`MarkerSet.resolve`).
+    skeleton : Skeleton, optional
+        The puppet's skeleton for a pose spec (another puppet's:
+        :func:`stillcap.studio.puppet_variation.another_puppet`); default the built-in puppet.
     """
     rng = as_rng(rng)
     markerset = MarkerSet.resolve(markerset)
@@ -498,7 +533,7 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
         raise ValueError(f"rig must be a stillcap Rig with at least one camera, got {rig!r}")
     sensor = sensor or webcam_sensor()
     if pose is None or isinstance(pose, str):
-        pose, source = pose_from_spec(pose or "random", rng, markerset=markerset)
+        pose, source = pose_from_spec(pose or "random", rng, markerset=markerset, skeleton=skeleton)
     elif isinstance(pose, Pose):
         source = {"type": "pose"}
     else:
@@ -524,5 +559,5 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
                         np.array([m.diameter for m in markerset.markers]),
                         list(pose.skeleton.names), pose.positions.copy(), pose.local_rotations.copy(),
                         pose.root2world.copy(), rig.names, np.array([turn_angle_deg(c) for c in rig]),
-                        px, vis, cov, source)
+                        px, vis, cov, source, None if limbs_for(pose.skeleton) is PUPPET_LIMBS else pose.skeleton)
     return PuppetScene(rig, Scene.still(placed), images, truth, markerset)

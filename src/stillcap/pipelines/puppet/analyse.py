@@ -16,6 +16,7 @@ import numpy as np
 from stillcap._blas import one_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
+from stillcap.body.puppet_checks import marker_noise_m, partly_hidden_checks, skeleton_checks
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views
@@ -124,9 +125,14 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     t0 = time.perf_counter()
     fit = pose_skeleton(rig, skeleton, markerset, solve, root2world, options)
     timings["pose"] = time.perf_counter() - t0
+    # 5. self-checks: does the skeleton fit the puppet (per bone), which beads are partly hidden
+    noise = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
+    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden)
+              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views))
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
                         list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
-                        options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs)
+                        options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs,
+                        checks)
 
 
 def capture_markerset(folder, cap=None) -> MarkerSet:

@@ -83,6 +83,13 @@ class MarkerSolve:
         return w.sum(axis=0)
 
     @property
+    def partly_hidden(self) -> np.ndarray:
+        """Recovered markers that fewer than two views show whole, shape (n_markers,): partly
+        hidden beads (or cut by the image border), whose points may be 1-2 mm off; never counted
+        as whole beads."""
+        return self.ok & (self.whole_views < 2)
+
+    @property
     def missing(self) -> tuple:
         """Markers without a 3D position (identified in fewer than two usable views): the
         thesis's red entries."""
@@ -127,6 +134,9 @@ class PuppetResult:
     raw_observations : ndarray, shape (n_views, n_markers, 2), or None
         The colour-only identification, before :func:`~stillcap.detect.beads.reidentify` named the candidates after
         the 3D markers (None when it did not run); ``markers.observations`` is the final one.
+    self_checks : list of SelfCheck
+        Per bone: does the skeleton match the puppet (:func:`~stillcap.body.puppet_checks.skeleton_checks`);
+        per partly hidden bead (:func:`~stillcap.body.puppet_checks.partly_hidden_checks`).
     """
 
     rig: Rig
@@ -142,6 +152,7 @@ class PuppetResult:
     comparison: object | None = None
     files: list | None = None
     raw_observations: np.ndarray | None = None
+    self_checks: list = field(default_factory=list)
 
     @property
     def names(self) -> tuple:
@@ -180,6 +191,12 @@ class PuppetResult:
                     for n, x, R in zip(sk.names, p.positions, p.local_rotations)]
 
         vecs = normalised(pose.bone_vectors())
+        from stillcap._selfcheck import checks_to_json
+        from stillcap.body.puppet_checks import bead_pair_directions
+
+        pairs = bead_pair_directions(self.markerset, m.points)
+        fitted_pairs = bead_pair_directions(self.markerset, self.markerset.positions(self.fit.pose))
+        hidden = m.partly_hidden
         d = {
             "format": RESULT_FORMAT, "version": 1, "kind": "puppet", "frame": self.rig.world,
             "units": {"length": "m", "pixels": "px (x, y), origin top-left pixel centre", "angle": "deg"},
@@ -187,14 +204,23 @@ class PuppetResult:
             "settings": self.options.to_dict(),
             "markers": [{"name": n, "position": p, "n_views": int(k), "whole_views": int(wv),
                          "identified_views": int(iv), "reproj_error_px": _num(e), "missing": p is None,
-                         "fit_residual_m": _num(r)}
-                        for n, p, k, wv, iv, e, r in zip(m.names, pts(m.points), m.n_views, m.whole_views,
-                                                         m.identified_views, m.reproj_error_px, self.fit.residuals_m)],
+                         "partly_hidden": bool(h), "fit_residual_m": _num(r)}
+                        for n, p, k, wv, iv, e, r, h in zip(m.names, pts(m.points), m.n_views, m.whole_views,
+                                                            m.identified_views, m.reproj_error_px,
+                                                            self.fit.residuals_m, hidden)],
             "missing": list(m.missing),
+            "partly_hidden": [n for n, h in zip(m.names, hidden) if h],
             "joints": joints(pose),
             "root2world": pose.root2world.tolist(),
             "bone_directions": {n: pts(vecs[j:j + 1])[0] for j, n in enumerate(sk.names) if sk.parents[j] >= 0
                                 and sk.bone_lengths[j] > 0},
+            # the thesis's model-free directions, beside the fitted pose: measured bead pairs, and
+            # the angle to the same pair of the fitted model's beads
+            "bead_pair_directions": {b: {"from": d["from"], "to": d["to"], "direction": pts(d["direction"][None])[0],
+                                         "fitted_angle_deg": _num(np.degrees(np.arccos(np.clip(
+                                             d["direction"] @ fitted_pairs[b]["direction"], -1.0, 1.0))))
+                                         if b in fitted_pairs else None}
+                                     for b, d in pairs.items()},
             "cameras": list(self.view_names),
             "angles_deg": [None if a is None else float(a) for a in self.angles_deg],
             "markers_px": [[[_num(c) for c in p] for p in v] for v in m.observations],  # as truth.json: [null, null]
@@ -210,7 +236,7 @@ class PuppetResult:
                       for v, (n, f, a) in enumerate(zip(self.view_names, self.files or [None] * len(self.view_names),
                                                         self.angles_deg))],
             "pose_fit": {"method": self.options.pose, "success": self.fit.success, "n_markers": self.fit.n_markers,
-                         "rms_m": _num(self.fit.rms_m),
+                         "rms_m": _num(self.fit.rms_m), "root": self.fit.root,
                          "frames": frame_status(sk, self.markerset)},
             "thesis": {"bone_directions": {b: pts(np.asarray(v)[None])[0] for b, v in self.fit.directions.items()},
                        "joints": joints(self.thesis_pose)},
@@ -218,6 +244,7 @@ class PuppetResult:
             "markerset": self.markerset.name,
             "camera_rig": self.rig.to_dict(),
             "timings_s": {k: float(v) for k, v in self.timings_s.items()},
+            "self_checks": checks_to_json(self.self_checks),
         }
         if self.comparison is not None:
             d["comparison"] = self.comparison.to_dict()

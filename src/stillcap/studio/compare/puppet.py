@@ -69,6 +69,9 @@ class PuppetComparison:
     raw_wrong: int = 0
     measured_bone_groups: dict = field(default_factory=dict)
     measured_joint_groups: dict = field(default_factory=dict)
+    partly_hidden: np.ndarray | None = None
+    truth_partly_hidden: np.ndarray | None = None
+    bead_pair_errors_deg: dict = field(default_factory=dict)
 
     @property
     def raw_wrong_pct(self) -> float:
@@ -90,9 +93,21 @@ class PuppetComparison:
         """Wrong identifications, % of all identifications."""
         return 100.0 * self.wrong / max(self.identified, 1)
 
-    def marker_rms_mm(self) -> float:
-        e = self.marker_errors_m[np.isfinite(self.marker_errors_m)]
+    def marker_rms_mm(self, which: str = "all") -> float:
+        """RMS 3D error of the recovered markers, mm: ``"all"``, ``"whole"`` (the markers the
+        result counts as whole beads) or ``"partly_hidden"`` (those it flags as partly hidden)."""
+        e = self.marker_errors_m
+        if which != "all":
+            ph = np.zeros(len(e), bool) if self.partly_hidden is None else self.partly_hidden
+            e = e[ph] if which == "partly_hidden" else e[~ph]
+        e = e[np.isfinite(e)]
         return float(np.sqrt(np.mean(e ** 2)) * 1e3) if len(e) else float("nan")
+
+    def bead_pair_stats(self) -> tuple[float, float]:
+        """(RMS, max) error of the bead-pair bone directions (the thesis's, model-free) against
+        the true direction between the same two beads, degrees."""
+        e = np.array([v for v in self.bead_pair_errors_deg.values() if np.isfinite(v)])
+        return (float(np.sqrt(np.mean(e ** 2))), float(e.max())) if len(e) else (float("nan"), float("nan"))
 
     def marker_max_mm(self) -> float:
         e = self.marker_errors_m[np.isfinite(self.marker_errors_m)]
@@ -129,6 +144,12 @@ class PuppetComparison:
                         "recovered_seen_twice": self.recovered_seen_twice,
                         "missing_seen_twice": list(self.missing_seen_twice),
                         "error_mm": {"rms": _num(self.marker_rms_mm()), "max": _num(self.marker_max_mm())},
+                        "whole_error_mm": {"rms": _num(self.marker_rms_mm("whole"))},
+                        "partly_hidden": {"flagged": [] if self.partly_hidden is None else
+                                          [int(k) for k in np.flatnonzero(self.partly_hidden)],
+                                          "truly_partly_hidden": [] if self.truth_partly_hidden is None else
+                                          [int(k) for k in np.flatnonzero(self.truth_partly_hidden)],
+                                          "error_mm": {"rms": _num(self.marker_rms_mm("partly_hidden"))}},
                         "errors_mm": [_num(e * 1e3) for e in self.marker_errors_m]},
             "bone_direction_error_deg": {
                 "fit": {g: stats(self.bone_stats(g)) for g in self.bone_groups},
@@ -137,7 +158,9 @@ class PuppetComparison:
                 "per_bone_thesis": {b: _num(v) for b, v in self.thesis_bone_errors_deg.items()},
                 "groups": {g: list(v) for g, v in self.bone_groups.items()},
                 "fit_measured": {g: stats(self.bone_stats(g, measured=True)) for g in self.measured_bone_groups},
-                "groups_measured": {g: list(v) for g, v in self.measured_bone_groups.items()}},
+                "groups_measured": {g: list(v) for g, v in self.measured_bone_groups.items()},
+                "bead_pairs": stats(self.bead_pair_stats()),
+                "per_bone_bead_pairs": {b: _num(v) for b, v in self.bead_pair_errors_deg.items()}},
             "joint_position_error_mm": {
                 "fit": {"all": stats(self.joint_stats())} | {g: stats(self.joint_stats(g)) for g in self.joint_groups},
                 "thesis": {"all": stats(self.joint_stats(thesis=True))}
@@ -219,23 +242,33 @@ def compare_with_truth(result: PuppetResult, truth) -> PuppetComparison:
     ok = result.markers.ok
     err = np.linalg.norm(result.markers.points - truth.marker_positions, axis=1)
     sk = result.pose.skeleton
-    tpose = truth.pose(sk)
-    tb = tpose.bone_vectors()
+    # the truth's own joints (another puppet's skeleton may differ from the result's)
+    tjp = np.asarray(truth.joint_positions, float)
+    if list(truth.joint_names) != list(sk.names):
+        raise ValueError("truth and result skeletons name different joints")
+    tb = np.where((sk.parents >= 0)[:, None], tjp - tjp[np.maximum(sk.parents, 0)], 0.0)
     fb, thb = result.pose.bone_vectors(), result.thesis_pose.bone_vectors()
     bone_groups, joint_groups = _groups(sk, result.markerset)
     measured_bones, measured_joints = _groups(sk, result.markerset, ok)
     names = [b for g in bone_groups.values() for b in g]
     fit_e = {b: _angle_deg(fb[sk.index(b)], tb[sk.index(b)]) for b in names}
     th_e = {b: _angle_deg(thb[sk.index(b)], tb[sk.index(b)]) for b in names}
-    je = np.linalg.norm(result.pose.positions - tpose.positions, axis=1)
-    tje = np.linalg.norm(result.thesis_pose.positions - tpose.positions, axis=1)
+    je = np.linalg.norm(result.pose.positions - tjp, axis=1)
+    tje = np.linalg.norm(result.thesis_pose.positions - tjp, axis=1)
+    from stillcap.body.puppet_checks import bead_pair_directions
+
+    true_pairs = bead_pair_directions(result.markerset, truth.marker_positions)
+    pair_e = {b: _angle_deg(d["direction"], true_pairs[b]["direction"])
+              for b, d in bead_pair_directions(result.markerset, result.markers.points).items() if b in true_pairs}
+    # truly partly hidden: fewer than two views show at least 90 % of the bead's silhouette
+    truth_ph = (truth.coverage >= 0.9).sum(axis=0) < 2
     return PuppetComparison(int(truth.visible.sum()), int(found.sum()), int(right.sum()),
                             int((right & truth.visible).sum()), int(wrong.sum()),
                             int((wrong & result.markers.used).sum()), int(seen2.sum()), int(ok.sum()),
                             int((ok & seen2).sum()), tuple(n for n, s, o in zip(result.names, seen2, ok) if s and not o),
                             np.where(ok, err, np.nan), fit_e, th_e, je, tje, bone_groups, joint_groups,
                             int(r_found.sum()), int((r_right & truth.visible).sum()), int(r_wrong.sum()),
-                            measured_bones, measured_joints)
+                            measured_bones, measured_joints, result.markers.partly_hidden.copy(), truth_ph, pair_e)
 
 
 

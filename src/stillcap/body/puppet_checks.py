@@ -1,0 +1,152 @@
+"""Does the skeleton match the puppet? Per-bone self-checks of a pose fit, and the thesis's
+model-free bead-pair bone directions beside it.
+
+A skeleton whose bone lengths or bead offsets differ from the puppet's cannot put every bead on
+its measurement: in a bent pose its beads sit off their 3D points by more than the triangulation
+noise, and the direction between two beads of one bone (measured, model-free: the thesis's
+bone rule ``from -> to``) disagrees with the direction between the same two model beads.
+:func:`skeleton_checks` compares both with what the noise allows, per bone, as
+:class:`~stillcap._selfcheck.SelfCheck` records (``subject`` = the bone).
+
+The noise of each 3D marker is ``sqrt(sigma_m^2 + (e_px * z / f)^2)``: the stated 3D error
+(``PuppetOptions.marker_sigma_m``) and the marker's own RMS reprojection error ``e_px`` at its
+depth ``z`` (``f``: focal length in pixels). Metres and degrees inside; the checks state mm and deg.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stillcap._selfcheck import SelfCheck
+from stillcap.body.kinematics import normalised
+from stillcap.body.markerset import MarkerSet
+
+__all__ = ["bead_pair_directions", "marker_noise_m", "skeleton_checks", "partly_hidden_checks", "ADVICE"]
+
+#: What to do when a bone's check fails.
+ADVICE = ("the skeleton does not match the puppet here: run `stillcap puppet calibrate-skeleton` on a rest-pose "
+          "capture and pass its file with --skeleton (and --markers)")
+
+#: A bone fails when its beads' RMS misfit exceeds this many noise sigmas (about the 99.9 %
+#: point of a 3-dof chi for one bead; the fit absorbs some of the misfit, so this is lenient).
+RESIDUAL_LIMIT_SIGMA = 3.5
+#: A bead pair's direction fails beyond this many of its noise sigmas.
+DIRECTION_LIMIT_SIGMA = 4.0
+
+
+def bead_pair_directions(markerset: MarkerSet, marker_positions) -> dict[str, dict]:
+    """The thesis's model-free bone directions: for each ``from -> to`` bone rule whose two beads
+    were measured, the unit vector between them and its 1-sigma angular noise.
+
+    Parameters
+    ----------
+    markerset : MarkerSet
+    marker_positions : array_like, shape (n_markers, 3)
+        Metres; NaN where unseen.
+
+    Returns
+    -------
+    dict
+        bone -> ``{"from": m1, "to": m2, "direction": (3,) ndarray, "distance_m": float}``.
+    """
+    pts = np.asarray(marker_positions, float)
+    out = {}
+    for r in markerset.rules:
+        if r.kind != "markers":
+            continue
+        a, b = pts[markerset.index(r.start)], pts[markerset.index(r.end)]
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            continue
+        out[r.bone] = {"from": r.start, "to": r.end, "direction": normalised(b - a),
+                       "distance_m": float(np.linalg.norm(b - a))}
+    return out
+
+
+def marker_noise_m(rig, points, reproj_error_px, sigma_m: float) -> np.ndarray:
+    """Expected error of each 3D marker, metres, shape (n_markers,) (see the module docstring)."""
+    pts = np.asarray(points, float)
+    e = np.asarray(reproj_error_px, float)
+    cams = list(rig)
+    if not cams:
+        return np.full(len(pts), sigma_m)
+    centers = np.array([c.center for c in cams])
+    f = np.mean([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in cams])
+    with np.errstate(invalid="ignore"):
+        z = np.linalg.norm(pts[:, None, :] - centers[None], axis=2).mean(axis=1)
+        px = np.where(np.isfinite(e) & np.isfinite(z), e * z / f, 0.0)
+    return np.sqrt(sigma_m ** 2 + px ** 2)
+
+
+def skeleton_checks(markerset: MarkerSet, fit, points, noise_m, exclude=None) -> list[SelfCheck]:
+    """Per-bone self-checks of a pose fit (see the module docstring).
+
+    Parameters
+    ----------
+    markerset : MarkerSet
+    fit : PoseFit
+        :func:`~stillcap.body.puppet_pose.fit_pose`'s result.
+    points : array_like, shape (n_markers, 3)
+        The measured markers, metres.
+    noise_m : array_like, shape (n_markers,)
+        Expected error of each (:func:`marker_noise_m`).
+    exclude : array_like of bool, shape (n_markers,), optional
+        Markers not to judge by (partly hidden beads: their own error is larger).
+
+    Returns
+    -------
+    list of SelfCheck
+        ``bone_residual`` (the RMS distance of the bone's beads from the fitted model beads, mm)
+        for every bone with a measured bead, and ``bead_pair_direction`` (the angle between the
+        measured and the fitted model's bead-pair direction, deg) for every measured bead pair.
+    """
+    pts = np.asarray(points, float)
+    noise = np.asarray(noise_m, float)
+    skip = np.zeros(len(markerset), bool) if exclude is None else np.asarray(exclude, bool)
+    model = markerset.positions(fit.pose)
+    res = np.linalg.norm(model - pts, axis=1)
+    checks = []
+    bones = []
+    for m in markerset.markers:
+        if m.bone not in bones:
+            bones.append(m.bone)
+    for bone in bones:
+        idx = [k for k, m in enumerate(markerset.markers) if m.bone == bone and np.isfinite(res[k]) and not skip[k]]
+        if not idx:
+            continue
+        rms = float(np.sqrt(np.mean(res[idx] ** 2)))
+        lim = RESIDUAL_LIMIT_SIGMA * float(np.sqrt(np.mean(noise[idx] ** 2)))
+        ok = rms <= lim
+        names = ", ".join(markerset.names[k] for k in idx)
+        msg = (f"beads {names} sit {rms * 1e3:.2f} mm RMS from the fitted skeleton's (noise allows "
+               f"{lim * 1e3:.2f} mm)")
+        checks.append(SelfCheck("bone_residual", ok, rms * 1e3, lim * 1e3, msg if ok else f"{msg}; {ADVICE}",
+                                bone, "mm"))
+    for bone, d in bead_pair_directions(markerset, pts).items():
+        i, j = markerset.index(d["from"]), markerset.index(d["to"])
+        if skip[i] or skip[j] or d["distance_m"] <= 0:
+            continue
+        md = normalised(model[j] - model[i])
+        ang = math.degrees(math.acos(float(np.clip(md @ d["direction"], -1.0, 1.0))))
+        sig = math.degrees(math.hypot(noise[i], noise[j]) / d["distance_m"])
+        lim = DIRECTION_LIMIT_SIGMA * sig
+        ok = ang <= lim
+        msg = (f"bead pair {d['from']} -> {d['to']} points {ang:.2f} deg from the fitted skeleton's "
+               f"(noise allows {lim:.2f} deg)")
+        checks.append(SelfCheck("bead_pair_direction", ok, ang, lim, msg if ok else f"{msg}; {ADVICE}", bone, "deg"))
+    return checks
+
+
+def partly_hidden_checks(names, recovered, whole_views) -> list[SelfCheck]:
+    """One failed ``bead_whole_views`` check per recovered marker that fewer than two views show
+    whole (partly hidden by a limb, or cut by the image border in every view but one): its 3D
+    point rests on off-centre views and may be 1-2 mm off, so it is not counted as a whole bead.
+    """
+    out = []
+    for n, ok, w in zip(names, recovered, whole_views):
+        if ok and w < 2:
+            out.append(SelfCheck("bead_whole_views", False, float(w), 2.0,
+                                 f"only {int(w)} view(s) show bead {n} whole (needs 2): it is partly hidden, its 3D "
+                                 "point may be 1-2 mm off and the pose weights it less; photograph it from a view "
+                                 "where no limb covers it", n, "views"))
+    return out
