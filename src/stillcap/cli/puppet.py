@@ -99,8 +99,37 @@ def _print_result(res, title: str) -> None:
     fit = res.fit
     console.print(f"pose ({res.options.pose}): markers fitted with RMS {fit.rms_m * 1e3:.3f} mm "
                   f"(thesis bone directions: {np.sqrt(np.nanmean(fit.thesis_residuals_m ** 2)) * 1e3:.2f} mm)")
+    _print_bead_pairs(res)
     if cmp is not None:
         print_comparison(cmp)
+    from stillcap.cli._selfchecks import print_failed_checks
+
+    print_failed_checks(getattr(res, "self_checks", []), "puppet")
+
+
+def _print_bead_pairs(res) -> None:
+    """The thesis's model-free bead-pair bone directions beside the fitted pose's."""
+    import numpy as np
+
+    from stillcap.body.kinematics import normalised
+    from stillcap.body.puppet_checks import bead_pair_directions
+
+    pairs = bead_pair_directions(res.markerset, res.markers.points)
+    if not pairs:
+        return
+    model = bead_pair_directions(res.markerset, res.markerset.positions(res.fit.pose))
+    vecs = normalised(res.pose.bone_vectors())
+    sk = res.pose.skeleton
+    t = Table(title="Bone directions: bead pairs (model-free, the thesis's) beside the fitted pose")
+    for c in ("bone", "beads", "bead pair x y z", "fitted bone x y z", "pair vs fitted pair deg"):
+        t.add_column(c, justify="right")
+    for b, d in pairs.items():
+        ang = (np.degrees(np.arccos(np.clip(d["direction"] @ model[b]["direction"], -1, 1))) if b in model
+               else float("nan"))
+        fitted = vecs[sk.index(b)] if b in sk else np.full(3, np.nan)
+        t.add_row(b, f"{d['from']} -> {d['to']}", " ".join(f"{v:+.3f}" for v in d["direction"]),
+                  " ".join(f"{v:+.3f}" for v in fitted), f"{ang:.2f}")
+    console.print(t)
 
 
 def print_comparison(cmp) -> None:
@@ -218,7 +247,10 @@ def run(
     outputs = _write_outputs(res, images, out, _truth_of(folder) if out is not None else None,
                              say=Console(stderr=True) if as_json else console)  # stdout: the JSON only
     if as_json:
+        from stillcap.cli._selfchecks import print_failed_checks
+
         print(dumps_json(res.to_dict()))
+        print_failed_checks(res.self_checks, "puppet")  # stderr
         outputs.finish(printed_json=True)
         return
     _print_result(res, f"{int(res.markers.ok.sum())} of {len(res.names)} markers from {len(res.rig)} views "
@@ -524,3 +556,63 @@ def calibrate_palette_cmd(
     if not outputs.failed:
         console.print(f"wrote [bold]{out}[/]")
     outputs.finish()
+
+
+@app.command("calibrate-skeleton")
+def calibrate_skeleton_cmd(
+    capture: Path = typer.Argument(..., help="A capture folder or project of the puppet in its rest pose (T-pose, "
+                                   "every joint at rest)."),
+    poses: list[Path] = typer.Option(None, "--pose", help="Further captures of the same puppet in other poses "
+                                     "(bent elbows and knees): they fix where the joints lie between the beads. "
+                                     "Repeat for several."),
+    out: Path = typer.Option(Path("skeleton.json"), "--out", help="Skeleton file to write (stillcap-skeleton)."),
+    markers_out: Path = typer.Option(None, "--markers-out", help="Marker-set file to write (default: OUT's name "
+                                     "with -markers, e.g. skeleton-markers.json)."),
+    skeleton: Path = typer.Option(None, "--skeleton", help="Template skeleton (joint names, limits, rest "
+                                  "directions); default the built-in puppet."),
+    markers: Path = typer.Option(None, "--markers", help="Template marker set (which bead is on which bone); "
+                                 "default the capture's."),
+    force: Force = False,
+):
+    """Estimate the puppet's bone lengths and bead offsets from a rest-pose capture and write a
+    skeleton file and a marker-set file (use them with puppet run --skeleton/--markers)."""
+    import numpy as np
+
+    from stillcap.body.puppet_calibrate import calibrate_skeleton
+    from stillcap.body.skeleton import Skeleton
+    from stillcap.pipelines.puppet import analyse_puppet
+
+    markers_out = markers_out or out.with_name(out.stem + "-markers.json")
+    check(out, "file", "--out", force)
+    check(markers_out, "file", "--markers-out", force)
+    body = _body_files(skeleton, markers)
+    template = body.get("skeleton") or Skeleton.puppet()
+
+    def beads(folder: Path):
+        if not folder.exists():
+            raise ValueError(f"capture {folder} does not exist")
+        with progress(f"detecting beads in {folder}") as update:
+            res, _ = analyse_puppet(folder, progress=update, markerset=body.get("markerset"), skeleton=template)
+        pts = res.markers.points.copy()
+        pts[res.markers.partly_hidden] = np.nan  # partly hidden beads: 1-2 mm off, not to calibrate on
+        return res.markerset, pts
+
+    markerset, rest = beads(capture)
+    others = [beads(p)[1] for p in (poses or [])]
+    cal = calibrate_skeleton(rest, template, markerset, others)
+    cal.skeleton.save(out, "mm")
+    cal.markerset.save(markers_out, "mm")
+    t = Table(title=f"{cal.skeleton.name}: bone lengths (from {cal.n_poses} capture(s))")
+    for c in ("bone", "template mm", "calibrated mm", "ratio"):
+        t.add_column(c, justify="right")
+    for j, n in enumerate(cal.skeleton.names):
+        if template.bone_lengths[j] > 0:
+            t.add_row(n, f"{template.bone_lengths[j] * 1e3:.1f}", f"{cal.skeleton.bone_lengths[j] * 1e3:.1f}",
+                      f"{cal.scales[j]:.3f}")
+    console.print(t)
+    console.print(f"beads fitted with RMS {cal.rms_m * 1e3:.3f} mm (per capture: "
+                  + ", ".join(f"{v * 1e3:.3f}" for v in cal.per_pose_rms_m) + " mm)")
+    if not poses:
+        console.print("[yellow]a rest pose alone places the beads but not where the joints lie between them; "
+                      "add --pose captures with bent joints to fix them[/]")
+    console.print(f"wrote [bold]{out}[/] and [bold]{markers_out}[/]")
