@@ -2,7 +2,7 @@
 that tests and benchmarks measure on puppets unlike the default (issue 12, part 6).
 
 :func:`another_puppet` draws, from a seed, a skeleton whose bones are each ``1 +- proportions``
-times the built-in puppet's (left and right alike, up to a 2 % asymmetry; the pelvis raised or
+times the built-in puppet's (left and right alike, up to a ``proportions / 15`` asymmetry; the pelvis raised or
 lowered so the feet stay on the platform), and a marker set with the same bead names, colours and
 rules whose beads are moved along their bones (``bead_shift_m``) and turned about them
 (``bead_turn_deg``), at the same height above the bone axis times ``1 +- bead_height``.
@@ -67,7 +67,8 @@ def another_puppet(rng=None, proportions: float = 0.15, bead_shift_m: float = 0.
         key = _side_key(name)
         if key not in factors:
             factors[key] = float(rng.uniform(1 - proportions, 1 + proportions))
-        scale[j] = factors[key] * float(rng.uniform(0.99, 1.01))  # a small left/right asymmetry
+        asym = proportions / 15.0  # a small left/right asymmetry: +-1 % at +-15 % proportions
+        scale[j] = factors[key] * float(rng.uniform(1 - asym, 1 + asym))
     off = base.offsets * scale[:, None]
     # the pelvis at the height that keeps the feet where the built-in puppet's are
     r = base.root

@@ -1,0 +1,117 @@
+"""Per-bone skeleton self-checks, bead-pair directions, the root's freedom and the calibration of
+a puppet's own skeleton (stillcap.body.puppet_checks, puppet_pose.root_freedom, puppet_calibrate),
+on puppets unlike the default (stillcap.studio.puppet_variation)."""
+
+import numpy as np
+import pytest
+
+from stillcap.body.markerset import MarkerSet
+from stillcap.body.puppet_calibrate import calibrate_skeleton
+from stillcap.body.puppet_checks import bead_pair_directions, partly_hidden_checks, skeleton_checks
+from stillcap.body.puppet_pose import fit_pose, root_freedom
+from stillcap.body.skeleton import Pose, Skeleton
+from stillcap.studio.puppet import random_pose
+from stillcap.studio.puppet_variation import another_puppet
+
+
+def _full_bone_error_deg(sk, fit_pose_, true_pose, bones=("l-knee", "r-knee", "upper-back", "l-elbow", "r-elbow",
+                                                         "l-shoulder", "r-shoulder")):
+    fb, tb = fit_pose_.bone_vectors(), true_pose.bone_vectors()
+    e = []
+    for b in bones:
+        j = sk.index(b)
+        c = fb[j] @ tb[j] / np.linalg.norm(fb[j]) / np.linalg.norm(tb[j])
+        e.append(np.degrees(np.arccos(np.clip(c, -1, 1))))
+    return float(np.sqrt(np.mean(np.square(e))))
+
+
+def test_another_puppet_is_seeded_and_within_its_proportions():
+    base = Skeleton.puppet()
+    a, ma = another_puppet(5)
+    b, mb = another_puppet(5)
+    assert np.array_equal(a.offsets, b.offsets) and np.array_equal(ma.offsets, mb.offsets)
+    c, _ = another_puppet(6)
+    assert not np.allclose(a.offsets, c.offsets)
+    ratio = a.bone_lengths[1:] / base.bone_lengths[1:]
+    assert np.all((ratio > 0.85 * 0.99) & (ratio < 1.15 * 1.01)) and np.ptp(ratio) > 0.05
+    assert ma.names == MarkerSet.puppet().names and not np.allclose(ma.offsets, MarkerSet.puppet().offsets)
+    same, ms0 = another_puppet(1, proportions=0, bead_shift_m=0, bead_turn_deg=0, bead_height=0)
+    assert np.allclose(same.offsets, base.offsets) and np.allclose(ms0.offsets, MarkerSet.puppet().offsets)
+
+
+def test_root_freedom_follows_what_the_beads_fix():
+    sk = Skeleton.puppet()
+    assert root_freedom(sk, MarkerSet.puppet()) == "free"
+    legs = MarkerSet(tuple(m for m in MarkerSet.puppet().markers if m.name.startswith("leg.L")))
+    assert root_freedom(sk, legs) == "translate"
+    assert root_freedom(sk, MarkerSet(())) == "pinned"
+
+
+def test_free_root_finds_a_puppet_standing_elsewhere():
+    sk, ms = Skeleton.puppet(), MarkerSet.puppet()
+    pose = random_pose(sk, 3, ms)
+    moved = pose.root2world.copy()
+    moved[:3, 3] += [0.004, -0.006, 0.003]
+    pts = ms.positions(Pose(sk, moved, pose.local_rotations))
+    pinned = fit_pose(sk, ms, pts, root="pinned")
+    free = fit_pose(sk, ms, pts, root="translate")
+    assert pinned.rms_m > 1e-3  # the pinned pelvis cannot reach the beads
+    assert free.rms_m < 1e-5 and np.allclose(free.pose.root2world[:3, 3], moved[:3, 3], atol=1e-5)
+    with pytest.raises(ValueError, match="root must be pinned, translate or free"):
+        fit_pose(sk, ms, pts, root="floating")
+
+
+def test_skeleton_checks_fire_per_bone_on_a_wrong_skeleton_and_pass_on_the_right_one():
+    sk, ms = another_puppet(2)
+    rng = np.random.default_rng(0)
+    pose = random_pose(sk, 21, ms)
+    pts = ms.positions(pose) + rng.normal(0, 0.05e-3, (len(ms), 3))
+    noise = np.full(len(ms), 0.1e-3)
+    right = skeleton_checks(ms, fit_pose(sk, ms, pts, root="free"), pts, noise)
+    assert right and all(c.passed for c in right)
+    wrong = skeleton_checks(MarkerSet.puppet(), fit_pose(Skeleton.puppet(), MarkerSet.puppet(), pts, root="free"),
+                            pts, noise)
+    bad = [c for c in wrong if not c.passed]
+    assert len({c.subject for c in bad}) >= 3  # several bones named
+    assert all("calibrate-skeleton" in c.message for c in bad)
+    assert {c.name for c in bad} <= {"bone_residual", "bead_pair_direction"}
+
+
+def test_bead_pair_directions_and_partly_hidden_checks():
+    ms = MarkerSet.puppet()
+    pts = ms.positions(Pose.rest(Skeleton.puppet()))
+    d = bead_pair_directions(ms, pts)
+    assert np.allclose(d["l-elbow"]["direction"], [1, 0, 0]) and d["l-elbow"]["from"] == "arm.L1"
+    pts[ms.index("arm.L1")] = np.nan
+    assert "l-elbow" not in bead_pair_directions(ms, pts)
+    checks = partly_hidden_checks(["a", "b", "c"], [True, True, False], [3, 1, 0])
+    assert [(c.subject, c.passed) for c in checks] == [("b", False)]
+
+
+def test_calibration_from_a_rest_pose_and_further_poses_fixes_the_bones():
+    sk, ms = another_puppet(0)
+    rng = np.random.default_rng(1)
+
+    def noisy(p):
+        return p + rng.normal(0, 0.05e-3, p.shape)
+
+    rest = noisy(ms.positions(Pose.rest(sk)))
+    others = [noisy(ms.positions(random_pose(sk, 100 + i, ms))) for i in range(3)]
+    only_rest = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet())
+    cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others)
+    assert cal.rms_m < 0.3e-3 and cal.n_poses == 4
+    test = random_pose(sk, 999, ms)
+    pts = noisy(ms.positions(test))
+    e_builtin = _full_bone_error_deg(sk, fit_pose(Skeleton.puppet(), MarkerSet.puppet(), pts, root="free").pose, test)
+    e_rest = _full_bone_error_deg(sk, fit_pose(only_rest.skeleton, only_rest.markerset, pts, root="free").pose, test)
+    e_cal = _full_bone_error_deg(sk, fit_pose(cal.skeleton, cal.markerset, pts, root="free").pose, test)
+    assert e_cal < e_rest < e_builtin
+    assert e_cal < 2.0
+    # the calibrated bones that beads bound come near the truth's lengths
+    for b in ("l-knee", "r-knee", "l-elbow", "r-elbow"):
+        j = sk.index(b)
+        assert abs(cal.skeleton.bone_lengths[j] - sk.bone_lengths[j]) < 1.5e-3
+    with pytest.raises(ValueError, match="rest_points must have shape"):
+        calibrate_skeleton(rest[:3], Skeleton.puppet(), MarkerSet.puppet())
+    with pytest.raises(ValueError, match="at least 3 recovered beads"):
+        calibrate_skeleton(np.full_like(rest, np.nan), Skeleton.puppet(), MarkerSet.puppet())
