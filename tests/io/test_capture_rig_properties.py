@@ -128,3 +128,11 @@ def test_the_base_capture_loads(folder):
     (folder / "capture.json").write_text(json.dumps(CAPTURE))
     cap = Capture.load(folder)
     assert cap.images[1].n_flashes == 4 and math.isclose(cap.meta["strobe_position_m"][2], 2.0)
+
+
+def test_unknown_key_with_a_line_break_is_quoted():
+    """Found by the property test above: an unknown image-entry key holding a line break broke the
+    one-line message; the key path quotes it as the validator's paths do."""
+    with pytest.raises(ValueError) as e:
+        CaptureImage.from_dict({"\n": 0}, "capture.json: ")
+    assert "\n" not in str(e.value) and "'\\n'" in str(e.value)

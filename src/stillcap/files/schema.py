@@ -59,7 +59,7 @@ def describe(value: Any, limit: int = 40) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-def _key(key: Any) -> str:
+def key_step(key: Any) -> str:
     """One step of a key path: as written when it is a plain printable name, else quoted (a key
     from a file may be empty or hold line breaks)."""
     text = str(key)
@@ -74,7 +74,7 @@ def validate(model: type[BaseModel], data: Any, source: str, prefix: tuple = ())
         return model.model_validate(data)
     except ValidationError as e:
         first = e.errors(include_url=False)[0]
-        path = ".".join(_key(p) for p in (*prefix, *first["loc"])) or "(the whole file)"
+        path = ".".join(key_step(p) for p in (*prefix, *first["loc"])) or "(the whole file)"
         message = first["msg"][0].lower() + first["msg"][1:] if first["msg"] else "invalid"
         if first["type"] == "extra_forbidden":
             message = "unknown key (not part of the format; check its spelling)"

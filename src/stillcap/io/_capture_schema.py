@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 from pydantic import AfterValidator, Field, StrictBool, StrictInt, StrictStr
 from pydantic_core import PydanticCustomError
 
-from stillcap.files.schema import Model, describe, validate
+from stillcap.files.schema import Model, describe, key_step, validate
 
 CAPTURE_FORMAT = "stillcap-capture"
 CAPTURE_VERSION = 1
@@ -126,7 +126,7 @@ def check_image_entry(d: Any, source: str, prefix: tuple = ()) -> ImageEntry:
     if isinstance(d, dict):
         unknown = sorted(set(d) - {"file", "camera", "meta", *TIMING}, key=str)
         if unknown:
-            path = ".".join(map(str, (*prefix, unknown[0])))
+            path = ".".join(map(key_step, (*prefix, unknown[0])))
             raise ValueError(f"{source}: {path}: image entry has unknown keys {unknown} "
                              f"(timing keys carry their unit: {', '.join(TIMING)})")
     e = validate(ImageEntry, d, source, prefix)
