@@ -42,14 +42,20 @@ from urllib.parse import parse_qs, urlencode
 
 from starlette.applications import Starlette
 from starlette.requests import Request
-from starlette.responses import HTMLResponse, JSONResponse, PlainTextResponse, RedirectResponse, Response
+from starlette.responses import (
+    HTMLResponse,
+    JSONResponse,
+    PlainTextResponse,
+    RedirectResponse,
+    Response,
+)
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 
 from stillcap.gui import jobs as jobs_module
 from stillcap.gui.context import GuiContext
 
-__all__ = ["create_app", "folder_kind", "STATIC_DIR", "MAX_UPLOAD_BYTES", "TOKEN_HEADER", "VIEW_MODULES"]
+__all__ = ["MAX_UPLOAD_BYTES", "STATIC_DIR", "TOKEN_HEADER", "VIEW_MODULES", "create_app", "folder_kind"]
 
 STATIC_DIR = Path(__file__).parent / "static"
 #: Largest request body accepted (a photo of a 24-megapixel camera is under 20 MB as JPEG).
