@@ -124,6 +124,8 @@ def open_page(b, url: str, size=(1400, 1000)):
     page = b.new_page(viewport={"width": size[0], "height": size[1]})
     page.errors = []
     page.on("pageerror", lambda e: page.errors.append(f"page error: {e}"))
-    page.on("console", lambda m: page.errors.append(f"console {m.type}: {m.text}") if m.type == "error" else None)
+    page.on("console", lambda m: page.errors.append(f"console {m.type}: {m.text}") if m.type == "error" and not m.text.startswith("Failed to load resource") else None)  # those: below, with the URL
+    page.on("response", lambda r: page.errors.append(f"HTTP {r.status} {r.url}")
+            if r.status >= 400 and not r.url.endswith("/favicon.ico") else None)
     page.goto(url)
     return page
