@@ -51,8 +51,7 @@ def test_pitch_result_page(pitch_root, chromium):
     with vs.serve(pitch_root) as (base, ctx):
         page = vs.open_page(chromium, f"{base}/pitch.html?token={vs.TOKEN}&item=report-b/pitch.json")
         page.wait_for_selector("#metrics-table tbody tr[data-key]", timeout=WAIT_MS)
-        page.wait_for_function("window.stillcapPitch && window.stillcapPitch.objectsOfKind('position').length > 0",
-                               timeout=WAIT_MS)
+        vs.wait_until(page, "window.stillcapPitch && window.stillcapPitch.objectsOfKind('position').length > 0")
         s = _scene(page)
         assert s["positions"] == n_pos and s["ellipsoids"] == n_pos and s["trajectories"] == 1 and s["cameras"] == 4
         # not blank: a cleared canvas has one colour and no variance
@@ -76,8 +75,7 @@ def test_pitch_result_page(pitch_root, chromium):
         n_balls = sum(1 for c in pair["centers_px"][i] if c[0] is not None)
         assert page.locator("#zoom-svg circle.ball").count() == n_balls
         assert page.locator("#zoom-svg text.flash").count() == n_balls
-        page.wait_for_function("document.getElementById('zoom-img').complete && document.getElementById('zoom-img').naturalWidth > 0",
-                               timeout=WAIT_MS)
+        vs.wait_until(page, "document.getElementById('zoom-img').complete && document.getElementById('zoom-img').naturalWidth > 0")
         # the plate view: the zone and the crossing
         assert page.locator("#plate-svg rect.zone").count() == 1 and page.locator("#plate-svg circle.crossing").count() == 1
         assert page.errors == []
@@ -90,7 +88,7 @@ def test_pitch_capture_analysed_in_the_page(pitch_root, chromium):
         assert page.locator("#metrics-table tbody tr[data-key]").count() == 0
         page.click("#analyse")
         page.wait_for_selector("#metrics-table tbody tr[data-key]", timeout=WAIT_MS)
-        page.wait_for_function("window.stillcapPitch.objectsOfKind('position').length > 0", timeout=WAIT_MS)
+        vs.wait_until(page, "window.stillcapPitch.objectsOfKind('position').length > 0")
         v = ctx.state["pitch"]["results"]["pitch-b"]["result"]
         s = _scene(page)
         assert s["positions"] == sum(len(p["positions"]) for p in v["pairs"]) > 10
@@ -99,8 +97,7 @@ def test_pitch_capture_analysed_in_the_page(pitch_root, chromium):
         # the session: both pitches compared, their flights overlaid
         page.click("#show-session")
         page.wait_for_selector("#session-table tbody tr[data-path='pitch-b'] td[data-key]", timeout=WAIT_MS)
-        page.wait_for_function("window.stillcapSession && window.stillcapSession.objectsOfKind('trajectory').length == 2",
-                               timeout=WAIT_MS)
+        vs.wait_until(page, "window.stillcapSession && window.stillcapSession.objectsOfKind('trajectory').length == 2")
         assert _scene(page, "stillcapSession")["stats"]["variance"] > 5
         speed = page.inner_text("#session-table tbody tr[data-path='pitch-b'] td[data-key='release_speed_mph']")
         assert speed.startswith(f"{v['metrics']['release_speed_mph']:.2f} ±")
@@ -118,7 +115,7 @@ def test_hand_relabel_saved_and_applied(tmp_path, chromium):
         view = ctx.state["hand"]["results"][""]["view"]
         k = next(f["flash"] for f in view["flashes"] if f["reconstructed"])
         page.select_option("#flash", str(k))
-        assert page.wait_for_function("window.stillcapHand.objectsOfKind('skeleton').length == 1", timeout=WAIT_MS)
+        assert vs.wait_until(page, "window.stillcapHand.objectsOfKind('skeleton').length == 1")
         s = page.evaluate("() => window.stillcapHand.frameStatistics()")
         assert s["variance"] > 5 and s["colours"] > 10, s
         rows = page.locator("#points-table tbody tr")

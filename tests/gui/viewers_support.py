@@ -129,3 +129,17 @@ def open_page(b, url: str, size=(1400, 1000)):
             if r.status >= 400 and not r.url.endswith("/favicon.ico") else None)
     page.goto(url)
     return page
+
+
+def wait_until(page, expression: str, timeout_s: float = 240.0):
+    """Poll ``expression`` (JavaScript, evaluated by the debugger protocol) until it is truthy;
+    its value. (``page.wait_for_function`` polls through ``eval``, which the pages' CSP refuses.)
+    The timeout only stops a hung test: nothing is timed."""
+    end = time.monotonic() + timeout_s
+    while True:
+        value = page.evaluate(expression)
+        if value:
+            return value
+        if time.monotonic() > end:
+            raise TimeoutError(f"still false after {timeout_s} s: {expression}")
+        time.sleep(0.1)

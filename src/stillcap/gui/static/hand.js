@@ -115,9 +115,7 @@ function selectFlash(k, { frame = false } = {}) {
   state.selected = null;
   $("flash").value = String(k);
   const f = state.view.flashes[k];
-  $("flash-name").textContent = `${f.order}`;
-  $("flash-info").textContent = `${fmt(f.time_s * 1e3, 1)} ms · ${f.points.filter((p) => p.label).length} labelled of ${f.points.length} points` +
-    (f.reconstructed ? ` · fit RMS ${fmt(f.rms_mm, 2)} mm` : ` · no pose: ${f.skipped}`);
+  flashHeader(f);
   showPoints();
   setTime(f.time_s, true, frame);
 }
@@ -136,9 +134,13 @@ function setTime(t, fromFlash = false, frame = false) {
   $("time-text").textContent = `${fmt(t * 1e3, 1)} ms` + (rel !== null && rel !== undefined ? ` (release ${t >= rel ? "+" : "−"}${fmt(Math.abs(t - rel) * 1e3, 1)} ms)` : "");
   drawScene(frame);
 }
-function selectFlashQuiet(k) {
-  const f = state.view.flashes[k];
+function flashHeader(f) {
   $("flash-name").textContent = `${f.order}`;
+  $("flash-info").textContent = `${fmt(f.time_s * 1e3, 1)} ms · ${f.points.filter((p) => p.label).length} labelled of ${f.points.length} points` +
+    (f.reconstructed ? ` · fit RMS ${fmt(f.rms_mm, 2)} mm` : ` · no pose: ${f.skipped}`);
+}
+function selectFlashQuiet(k) {
+  flashHeader(state.view.flashes[k]);
   state.selected = null;
   showPoints();
 }
