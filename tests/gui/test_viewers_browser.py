@@ -1,0 +1,145 @@
+"""The pitch and hand pages in a real browser (Debian's Chromium through Playwright, WebGL through
+SwiftShader): a pitch result and a pitch capture opened, the 3D view not blank and holding one
+mesh per measured position, the metrics table showing the result's numbers; a hand relabel made
+in the page, saved to the overrides file, read back, and applied by the hand pipeline."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))  # the shared test helper beside this file
+import viewers_support as vs  # noqa: E402
+
+pytestmark = pytest.mark.skipif(not vs.CHROMIUM.exists(), reason=f"{vs.CHROMIUM} is absent (apt install chromium)")
+WAIT_MS = 240_000  # only stops a hung test (a loaded machine): nothing is timed
+
+
+@pytest.fixture(scope="module")
+def pitch_root(tmp_path_factory):
+    from stillcap.io.capture import Capture
+    from stillcap.pipelines.pitch import analyse_pitch
+
+    root = tmp_path_factory.mktemp("browser-pitch")
+    cap = vs.render_pitch(root / "pitch-b", seed=3, preset="seed-curveball")
+    (root / "report-b").mkdir()
+    (root / "report-b" / "pitch.json").write_text(json.dumps(analyse_pitch(Capture.load(cap)).to_dict(),
+                                                            allow_nan=False))
+    return root
+
+
+@pytest.fixture(scope="module")
+def chromium():
+    with vs.browser() as b:
+        yield b
+
+
+def _scene(page, name="stillcapPitch"):
+    return page.evaluate(f"""() => ({{
+        positions: window.{name}.objectsOfKind('position').length,
+        ellipsoids: window.{name}.objectsOfKind('ellipsoid').length,
+        trajectories: window.{name}.objectsOfKind('trajectory').length,
+        cameras: window.{name}.objectsOfKind('camera').length,
+        stats: window.{name}.frameStatistics()}})""")
+
+
+def test_pitch_result_page(pitch_root, chromium):
+    d = json.loads((pitch_root / "report-b" / "pitch.json").read_text())
+    n_pos = sum(len(p["positions"]) for p in d["pairs"])
+    with vs.serve(pitch_root) as (base, ctx):
+        page = vs.open_page(chromium, f"{base}/pitch.html?token={vs.TOKEN}&item=report-b/pitch.json")
+        page.wait_for_selector("#metrics-table tbody tr[data-key]", timeout=WAIT_MS)
+        vs.wait_until(page, "window.stillcapPitch && window.stillcapPitch.objectsOfKind('position').length > 0")
+        s = _scene(page)
+        assert s["positions"] == n_pos and s["ellipsoids"] == n_pos and s["trajectories"] == 1 and s["cameras"] == 4
+        # not blank: a cleared canvas has one colour and no variance
+        assert s["stats"]["variance"] > 20 and s["stats"]["colours"] > 10, s["stats"]
+        # the view without its content is blank by the same measure (the check can fail)
+        blank = page.evaluate("""() => { const v = window.stillcapPitch.view; v.content.visible = false; v.render();
+            const s = window.stillcapPitch.frameStatistics(); v.content.visible = true; v.render(); return s; }""")
+        assert blank["variance"] < 1e-6 and blank["colours"] == 1
+        # the metrics table shows the result's numbers
+        cells = page.eval_on_selector_all("#metrics-table tbody tr[data-key]",
+                                          "rows => rows.map(r => [r.dataset.key, r.cells[1].textContent])")
+        shown = dict(cells)
+        for k in ("release_speed_mph", "spin_rate_rpm", "induced_vertical_break_in", "plate_x_ft", "spin_efficiency"):
+            assert shown[k] == f"{d['metrics'][k]:.3f}"
+        assert shown["spin_tilt"] == d["metrics"]["spin_tilt"]
+        # the photos: one overlay circle per detected ball, its flash number beside it
+        page.wait_for_selector("#thumbs figure", timeout=WAIT_MS)
+        cam = page.eval_on_selector("#thumbs figure.here", "f => f.dataset.file")
+        pair = next(p for p in d["pairs"] if Path(cam).stem in p["cameras"])
+        i = pair["cameras"].index(Path(cam).stem)
+        n_balls = sum(1 for c in pair["centers_px"][i] if c[0] is not None)
+        assert page.locator("#zoom-svg circle.ball").count() == n_balls
+        assert page.locator("#zoom-svg text.flash").count() == n_balls
+        vs.wait_until(page, "document.getElementById('zoom-img').complete && document.getElementById('zoom-img').naturalWidth > 0")
+        # the plate view: the zone and the crossing
+        assert page.locator("#plate-svg rect.zone").count() == 1 and page.locator("#plate-svg circle.crossing").count() == 1
+        assert page.errors == []
+
+
+def test_pitch_capture_analysed_in_the_page(pitch_root, chromium):
+    with vs.serve(pitch_root) as (base, ctx):
+        page = vs.open_page(chromium, f"{base}/pitch.html?token={vs.TOKEN}&item=pitch-b")
+        page.wait_for_selector("#analyse:not([hidden])", timeout=WAIT_MS)
+        assert page.locator("#metrics-table tbody tr[data-key]").count() == 0
+        page.click("#analyse")
+        page.wait_for_selector("#metrics-table tbody tr[data-key]", timeout=WAIT_MS)
+        vs.wait_until(page, "window.stillcapPitch.objectsOfKind('position').length > 0")
+        v = ctx.state["pitch"]["results"]["pitch-b"]["result"]
+        s = _scene(page)
+        assert s["positions"] == sum(len(p["positions"]) for p in v["pairs"]) > 10
+        assert s["stats"]["variance"] > 20
+        assert page.locator("#zoom-svg path.marker").count() > 0  # the painted markers found
+        # the session: both pitches compared, their flights overlaid
+        page.click("#show-session")
+        page.wait_for_selector("#session-table tbody tr[data-path='pitch-b'] td[data-key]", timeout=WAIT_MS)
+        vs.wait_until(page, "window.stillcapSession && window.stillcapSession.objectsOfKind('trajectory').length == 2")
+        assert _scene(page, "stillcapSession")["stats"]["variance"] > 5
+        speed = page.inner_text("#session-table tbody tr[data-path='pitch-b'] td[data-key='release_speed_mph']")
+        assert speed.startswith(f"{v['metrics']['release_speed_mph']:.2f} ±")
+        assert page.errors == []
+
+
+def test_hand_relabel_saved_and_applied(tmp_path, chromium):
+    from stillcap.body.hand_label import read_label_overrides
+    from stillcap.pipelines.hand import HandOptions, analyse_hand
+
+    root = vs.render_hand(tmp_path / "hand", seed=2)
+    with vs.serve(root) as (base, ctx):
+        page = vs.open_page(chromium, f"{base}/hand.html?token={vs.TOKEN}")
+        page.wait_for_selector("#points-table tbody tr", timeout=WAIT_MS)  # analysed on opening
+        view = ctx.state["hand"]["results"][""]["view"]
+        k = next(f["flash"] for f in view["flashes"] if f["reconstructed"])
+        page.select_option("#flash", str(k))
+        assert vs.wait_until(page, "window.stillcapHand.objectsOfKind('skeleton').length == 1")
+        s = page.evaluate("() => window.stillcapHand.frameStatistics()")
+        assert s["variance"] > 5 and s["colours"] > 10, s
+        rows = page.locator("#points-table tbody tr")
+        i = next(j for j in range(rows.count())
+                 if rows.nth(j).get_attribute("data-label") not in ("", "back.1", "back.2", "back.3"))
+        old = rows.nth(i).get_attribute("data-label")
+        new = "little.nail" if old != "little.nail" else "ring.nail"
+        page.select_option(f"#points-table select[data-index='{i}']", new)
+        page.click("#save")
+        page.wait_for_selector("#save:disabled", timeout=WAIT_MS)
+        point = view["flashes"][k]["points"][i]
+        assert page.errors == []
+    # the file the page wrote, read back by the hand pipeline's reader
+    path = root / "label-overrides.json"
+    raw = json.loads(path.read_text())
+    assert raw["format"] == "stillcap-label-overrides" and len(raw["overrides"]) == 1
+    read = read_label_overrides(path)
+    assert read[0].flash == k and read[0].label == new
+    np.testing.assert_allclose(read[0].position, point["position"], atol=1e-6)
+    # the hand pipeline run with it gives the point its new label (and without it, the old one)
+    def label_of(res):
+        lab = res.labels
+        p = int(np.argmin(np.linalg.norm(lab.points - np.asarray(point["position"]), axis=1)))
+        j = np.flatnonzero(lab.point_index[k] == p)
+        return lab.marker_names[int(j[0])] if len(j) else None
+    assert label_of(analyse_hand(root, HandOptions())) == old
+    assert label_of(analyse_hand(root, HandOptions(overrides=path))) == new
