@@ -1,3 +1,4 @@
 from stillcap.cli import main
 
-main()
+if __name__ == "__main__":  # not again in a spawned process (Dask, multiprocessing) that imports it
+    main()

@@ -29,8 +29,6 @@ def markers(
     One photo per camera of the capture's rig. With a synthetic capture (truth.json) the
     result is compared with the true ball centres.
     """
-    import numpy as np
-
     from stillcap.files.atomic import write_text
     from stillcap.io.capture import Capture
     from stillcap.pipelines.markers import reconstruct_markers
@@ -52,14 +50,8 @@ def markers(
             bar(len(images), item=cam.name)
     with progress("finding and triangulating markers"):
         rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px)
-    result = rec.to_dict()
+    result = result_with_truth(rec, cap.truth)
     truth = cap.truth if cap.truth and cap.truth.get("kind") == "markers" else None
-    if truth is not None:
-        balls = [b for b in truth["balls"] if b["kind"] == "marker"]
-        centers = np.array([b["center"] for b in balls], float).reshape(-1, 3)
-        for m, p in zip(result["markers"], rec.points):
-            d = np.linalg.norm(centers - p, axis=1)
-            m["true_ball"], m["error_mm"] = balls[int(d.argmin())]["name"], float(d.min() * 1e3)
     outputs = Outputs(lambda: json.dumps(result, indent=2) + "\n", "markers.json")
     if out is not None:
         with outputs.writing(f"--out {out}"):
@@ -79,3 +71,18 @@ def markers(
         t.add_row(*row)
     console.print(t)
     outputs.finish()
+
+
+def result_with_truth(rec, truth: dict | None) -> dict:
+    """``rec.to_dict()`` and, with a studio truth of kind markers, each marker's nearest true
+    ball and its distance (``true_ball``, ``error_mm``)."""
+    import numpy as np
+
+    result = rec.to_dict()
+    if truth and truth.get("kind") == "markers":
+        balls = [b for b in truth["balls"] if b["kind"] == "marker"]
+        centers = np.array([b["center"] for b in balls], float).reshape(-1, 3)
+        for m, p in zip(result["markers"], rec.points):
+            d = np.linalg.norm(centers - p, axis=1)
+            m["true_ball"], m["error_mm"] = balls[int(d.argmin())]["name"], float(d.min() * 1e3)
+    return result

@@ -1,0 +1,107 @@
+"""Speed of one capture: three ratios and their goals in one table (issue 16).
+
+1. ``Capture.load`` + ``analyse_pitch`` of one pitch capture (threads, the default options) vs
+   decoding its 4 JPEGs (``cv2.imread`` one after the other). Goal <= 2x.
+2. The CLI's wall time for that capture (``python -m stillcap pitch CAPTURE --json`` as a fresh
+   process: interpreter and imports included) vs 1. Goal <= 1.3x.
+3. The puppet end to end, loading included (a fresh process: ``analyse_puppet`` on the capture
+   folder, its first call, so every set-up it does once is counted; imports are not) vs decoding
+   its 12 JPEGs. Goal <= 4x. The same call again in that process (warm) is printed beside it.
+
+Every time is the best of ``--repeat`` runs (the least disturbed by other work). The captures are
+rendered by the studio into ``--cache`` once (a 2560x1920 JPEG pitch, a 640x480 JPEG puppet of 12
+views), so the benchmark needs no folder from elsewhere. Run it on a quiet machine: on a loaded
+one every ratio is distorted (the one-off costs of a fresh process suffer most).
+
+    python benchmarks/bench_speed.py [--cache DIR] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+
+from _timing import best_time
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+PUPPET_RUN = r"""
+import json, sys, time
+from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
+t = time.perf_counter(); analyse_puppet(sys.argv[1], DEFAULT); cold = time.perf_counter() - t
+t = time.perf_counter(); analyse_puppet(sys.argv[1], DEFAULT); warm = time.perf_counter() - t
+print(json.dumps({"cold": cold, "warm": warm}))
+"""
+
+
+def _env():
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
+
+
+def render(cache: Path) -> tuple[Path, Path]:
+    """The pitch and puppet captures of the benchmark (rendered once into ``cache``)."""
+    pitch, puppet = cache / "pitch-seed-4seam-1-jpg", cache / "puppet-16-0-jpg"
+    if not (pitch / "capture.json").is_file():
+        from stillcap.studio.pitch import pitch_capture
+
+        cap, images = pitch_capture("seed-4seam", 1, calibrate=False).to_capture(".jpg")
+        cap.save(pitch, images, jpeg_quality=95)
+    if not (puppet / "capture.json").is_file():
+        subprocess.run([sys.executable, "-m", "stillcap", "studio", "puppet", "--out", str(puppet), "--seed", "0"],
+                       check=True, env=_env(), capture_output=True)
+    return pitch, puppet
+
+
+def decode(folder: Path, repeat: int) -> float:
+    files = sorted(str(p) for p in (folder / "images").iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
+    return best_time(lambda: [cv2.imread(f) for f in files], repeat)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"))
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args(argv)
+    from stillcap.io.capture import Capture
+    from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
+
+    pitch, puppet = render(args.cache)
+    n_pitch = len(list((pitch / "images").iterdir()))
+    n_puppet = len(list((puppet / "images").iterdir()))
+    dec_pitch = decode(pitch, args.repeat)
+    analyse_pitch(Capture.load(pitch), PitchOptions())  # warm-up: first-call costs belong to row 2's process
+    api = best_time(lambda: analyse_pitch(Capture.load(pitch), PitchOptions()), args.repeat)
+
+    def cli():
+        subprocess.run([sys.executable, "-m", "stillcap", "pitch", str(pitch), "--json"], check=True, env=_env(),
+                       capture_output=True)
+    wall = best_time(cli, args.repeat)
+    dec_puppet = decode(puppet, args.repeat)
+    runs = []
+    for _ in range(args.repeat):
+        p = subprocess.run([sys.executable, "-c", PUPPET_RUN, str(puppet)], check=True, env=_env(),
+                           capture_output=True, text=True)
+        runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    cold, warm = min(r["cold"] for r in runs), min(r["warm"] for r in runs)
+    rows = [(f"analyse_pitch (load included, threads) vs decoding its {n_pitch} JPEGs", api, dec_pitch, 2.0),
+            ("`stillcap pitch CAPTURE --json` wall time vs analyse_pitch", wall, api, 1.3),
+            (f"puppet end to end, loading included (first call) vs decoding its {n_puppet} JPEGs", cold, dec_puppet, 4.0),
+            (f"  (the same call again in that process, for comparison)", warm, dec_puppet, None)]
+    load = os.getloadavg()
+    print(f"bench_speed: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}; "
+          f"best of {args.repeat}")
+    print(f"{'ratio':<86} {'time s':>8} {'ref s':>8} {'ratio':>6} {'goal':>6}  met")
+    for what, t, ref, goal in rows:
+        r = t / ref
+        met = "" if goal is None else ("yes" if r <= goal else "MISSED")
+        print(f"{what:<86} {t:8.3f} {ref:8.3f} {r:6.2f} {'' if goal is None else f'<= {goal:g}':>6}  {met}")
+
+
+if __name__ == "__main__":
+    main()
