@@ -73,7 +73,13 @@ def near_rotations(directions, tol_deg: float = 8.0) -> np.ndarray:
     if not len(src):
         return np.zeros((0, 3, 3))
     qs = _triad(d[i[dst]], d[j[dst]]) @ np.swapaxes(_triad(d[i[src]], d[j[src]]), -1, -2)
-    return qs[np.abs(qs - np.eye(3)).max(axis=(1, 2)) > 1e-6]
+    qs = qs[np.abs(qs - np.eye(3)).max(axis=(1, 2)) > 1e-6]
+    if not len(qs):
+        return qs
+    # many pairs suggest nearly the same rotation: one per cell of 0.05 in the matrix entries
+    # (~3 deg), so the separations are found to within about that (and a design runs in seconds)
+    _, first = np.unique(np.round(qs.reshape(len(qs), 9) / 0.05), axis=0, return_index=True)
+    return qs[np.sort(first)]
 
 
 @lru_cache(maxsize=4)
