@@ -140,7 +140,7 @@ class CurvatureMeasurement:
             Overrides the choice from ``model``.
         """
         if lift is None:
-            nathan = model is not None and getattr(model, "kind", "seed") == "nathan"
+            nathan = model is not None and getattr(model, "kind", "seed") in ("nathan", "ball")  # transverse lift
             lift = "transverse" if nathan else "total"
         basis = np.asarray(fit.spin_basis, float)
         s = np.asarray(fit.params[6:9], float)

@@ -121,6 +121,10 @@ class BallLayout:
         Angular size of a marker, rad (disc radius, square half-side, triangle circumradius).
     radius : float
         Ball radius, m.
+    type_sizes : tuple of float, length n_types, optional
+        Angular size of each type's markers, rad; empty (default): every type ``marker_size``.
+    name : str
+        The ball's name (a ball file's ``name``; ``"baseball"`` for the seed's).
     """
 
     directions: np.ndarray
@@ -131,6 +135,8 @@ class BallLayout:
     names: tuple = ()
     marker_size: float = DEFAULT_MARKER_SIZE
     radius: float = BASEBALL_RADIUS
+    type_sizes: tuple = ()
+    name: str = "baseball"
 
     def __post_init__(self):
         d = np.asarray(self.directions, float)
@@ -161,6 +167,11 @@ class BallLayout:
             raise ValueError(f"marker_size is an angle in radians in (0, pi/2), got {self.marker_size}")
         if not self.radius > 0:
             raise ValueError(f"radius must be positive, got {self.radius}")
+        sizes = tuple(float(v) for v in self.type_sizes)
+        if sizes and len(sizes) != nt:
+            raise ValueError(f"type_sizes must have {nt} entries, got {len(sizes)}")
+        if not all(0 < v < np.pi / 2 for v in sizes):
+            raise ValueError(f"type_sizes are angles in radians in (0, pi/2), got {sizes}")
         names = tuple(self.names)
         if not names:
             count: dict[int, int] = {}
@@ -179,6 +190,7 @@ class BallLayout:
         object.__setattr__(self, "type_shapes", tuple(self.type_shapes))
         object.__setattr__(self, "palette", pal)
         object.__setattr__(self, "names", names)
+        object.__setattr__(self, "type_sizes", sizes)
 
     # -- construction --------------------------------------------------------------------------
     @classmethod
@@ -207,6 +219,16 @@ class BallLayout:
         """Shape of each marker, length n."""
         return tuple(self.type_shapes[k] for k in self.types)
 
+    @property
+    def sizes_of_types(self) -> np.ndarray:
+        """Angular size of each type's markers, rad, shape (n_types,)."""
+        return np.array(self.type_sizes) if self.type_sizes else np.full(self.n_types, float(self.marker_size))
+
+    @property
+    def sizes(self) -> np.ndarray:
+        """Angular size of each marker, rad, shape (n,)."""
+        return self.sizes_of_types[self.types]
+
     @cached_property
     def centroid_depth(self) -> np.ndarray:
         """How far inside the ball a marker's image centroid lies, per type, as a fraction of the radius.
@@ -226,7 +248,9 @@ class BallLayout:
         ndarray, shape (n_types,)
             ``k`` per type index (the seed's markers: 0.0064 (triangle) to 0.0171 (square)).
         """
-        return np.array([_SHAPE_SECOND_MOMENT[s] for s in self.type_shapes]) * self.marker_size ** 2
+        if not self.type_sizes:
+            return np.array([_SHAPE_SECOND_MOMENT[s] for s in self.type_shapes]) * self.marker_size ** 2
+        return np.array([_SHAPE_SECOND_MOMENT[s] for s in self.type_shapes]) * self.sizes_of_types ** 2
 
     @property
     def colors(self) -> np.ndarray:

@@ -14,7 +14,7 @@ import typer
 from rich.console import Console
 from rich.markup import escape
 
-from stillcap.cli import batch as batch_cli, calibrate, demo, markers, studio
+from stillcap.cli import balls as balls_cli, batch as batch_cli, calibrate, demo, markers, studio
 from stillcap.cli import export as export_cli, palette as palette_cli, puppet as puppet_cli
 from stillcap.cli import flight as flight_cli, hand as hand_cli, metrics as metrics_cli, pitch as pitch_cli
 from stillcap.cli import gui as gui_cli
@@ -34,6 +34,7 @@ app.command("flight")(flight_cli.flight)
 app.command("metrics")(metrics_cli.metrics)
 app.command("gui")(gui_cli.gui)
 app.command("batch")(batch_cli.batch)
+app.add_typer(balls_cli.app, name="balls")
 
 err = Console(stderr=True)
 

@@ -44,7 +44,11 @@ def pitch(
     csv_file: Path = typer.Option(None, "--csv", help="Write the per-flash ball positions as CSV to this file."),
     spin: str = typer.Option("global", "--spin", help="Spin method: global (one constant spin fitted to all "
                              "flashes) or seed (the seed's per-flash Powell method)."),
-    physics: str = typer.Option("seed", "--physics", help="Flight model: seed or nathan."),
+    physics: str = typer.Option("seed", "--physics", help="Flight model of a ball that flies as a baseball: seed "
+                                "or nathan (other balls fly by their ball file's flight preset)."),
+    ball: str = typer.Option(None, "--ball", help="The ball: a built-in name (stillcap balls lists them) or a "
+                             "stillcap-ball file (docs/ball-format.md): radius, mass, flight and painted markers. "
+                             "Overrides capture.json's ball; default that, else the seed's baseball."),
     fit: str = typer.Option("least-squares", "--fit", help="Reference-trajectory optimiser: least-squares or "
                             "powell (the seed's)."),
     release_y_ft: float = typer.Option(None, "--release-y-ft", help="Evaluate release at this field y (ft); "
@@ -86,8 +90,13 @@ def pitch(
     session_names = [c.resolve().name or str(c) for c in captures]
     check(report, "folder", "--report", force,
           REPORT_FILES if len(captures) == 1 else [f"{n}/{f}" for n in session_names for f in REPORT_FILES])
+    ball_obj = None
+    if ball is not None:
+        from stillcap.ball.ballfile import load_ball
+        ball_obj = load_ball(ball, "--ball")
     opts = PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
-                        release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes)
+                        release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes,
+                        ball=ball_obj)
     if len(captures) > 1:
         _session(captures, opts, report, as_json)
         return
@@ -109,6 +118,8 @@ def pitch(
                 paths = write_report(res, report)
             outputs.record(paths.values(), report)
             written.append(paths["html"])
+    from stillcap.cli._selfchecks import print_failed_checks
+    print_failed_checks(res.self_checks)
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         outputs.finish(printed_json=True)

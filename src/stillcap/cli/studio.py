@@ -143,7 +143,9 @@ def pitch(
                                              "90 sidespin toward first base."),
     front_hz: float = typer.Option(80.0, "--front-hz", help="Front pair's strobe rate, Hz."),
     back_hz: float = typer.Option(50.0, "--back-hz", help="Back pair's strobe rate, Hz."),
-    model: str = typer.Option("seed", "--model", help="Flight model: seed or nathan."),
+    model: str = typer.Option("seed", "--model", help="Flight model of a ball flying as a baseball: seed or nathan."),
+    ball: str = typer.Option(None, "--ball", help="The ball to paint and throw: a built-in name (stillcap balls) or "
+                             "a stillcap-ball file; written into capture.json (ball). Default the seed's baseball."),
     no_variation: bool = typer.Option(False, "--no-variation", help="The exact preset pitch (no release scatter)."),
     no_calibrate: bool = typer.Option(False, "--no-calibrate",
                                       help="Write the true rig instead of calibrating it from rendered photos (fast)."),
@@ -174,10 +176,15 @@ def pitch(
         raise ValueError("--out is required (the capture folder to write)")
     if preset not in PRESETS:
         raise ValueError(f"unknown --preset {preset!r}; known: {', '.join(PRESETS)}")
+    ball_obj = None
+    if ball is not None:
+        from stillcap.ball.ballfile import load_ball
+        ball_obj = load_ball(ball, "--ball")
     _check_out(out, force)
     with progress("rendering") as update:
         result = pitch_capture(preset, seed, calibrate=not no_calibrate, speed_mph=speed_mph, spin_rpm=spin_rpm,
                                spin_axis_deg=spin_axis_deg, front_hz=front_hz, back_hz=back_hz, model=model,
+                               ball=ball_obj,
                                variation=None if no_variation else DEFAULT_VARIATION, image_size=_parse_size(size),
                                known_flash_times=known_flash_times, progress=update)
     cap, images = result.to_capture(".jpg" if jpeg else ".png")

@@ -38,7 +38,7 @@ from stillcap._checks import as_array
 from stillcap.detect.ball._hough import _percentile
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
-           "detect_ball_markers", "classify_shape"]
+           "detect_ball_markers", "classify_shape", "marker_color_class"]
 
 SHAPES = ("disc", "ring", "square", "triangle")
 _BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
@@ -246,6 +246,18 @@ def _hsv(bgr) -> tuple[float, float, float]:
     return float(h), float(s), float(v)
 
 
+def marker_color_class(color_bgr) -> tuple:
+    """How the detector finds a paint colour (BGR 0-255, as it looks fully lit): ``("chromatic",
+    hue_deg)`` (saturation >= 0.3: by hue), ``("dark", None)`` (value < 0.35: by darkness
+    relative to the ball) or ``(None, None)`` (white, grey: not told from a white ball)."""
+    h, s, v = _hsv(color_bgr)
+    if s >= 0.3:
+        return "chromatic", h
+    if v < 0.35:
+        return "dark", None
+    return None, None
+
+
 def _hull_mask(mask: np.ndarray) -> np.ndarray:
     """The filled convex hull (uint8 0/1) of the pixels of a boolean mask (>= 1 pixel).
 
@@ -335,10 +347,17 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     tlist = _types(types)
     chroma, dark = [], []
     for t in tlist:
+        kind, _ = marker_color_class(t.color_bgr)
         h, s, v = _hsv(t.color_bgr)
-        if s >= 0.3:
-            chroma.append((t, h, s))
-        elif v < 0.35:
+        if kind == "chromatic":
+            # types of one colour (hues within 1 deg) are one colour class told apart by shape, as
+            # the dark types are: (types, hue, saturation)
+            same = next((c for c in chroma if abs((c[1] - h + 180.0) % 360.0 - 180.0) < 1.0), None)
+            if same is None:
+                chroma.append(([t], h, s))
+            else:
+                same[0].append(t)
+        elif kind == "dark":
             dark.append(t)
         else:
             raise ValueError(f"marker type {t.name!r}: colour {t.color_bgr} is neither saturated nor dark; "
@@ -411,8 +430,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             weak = soft >= weak_membership
             core = hue_ok & (sat >= min_saturation)
             any_chroma = weak.any(axis=0)
-            for i, (t, _, _) in enumerate(chroma):
-                cand.append(([t], weak[i], core[i], soft[i]))
+            for i, (tl, _, _) in enumerate(chroma):
+                cand.append((tl, weak[i], core[i], soft[i]))
         else:
             any_chroma = np.zeros_like(disc)
         if dark:

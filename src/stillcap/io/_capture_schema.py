@@ -82,6 +82,7 @@ class CaptureFile(Model):
     strobe_position_m: tuple[_Metres, _Metres, _Metres] = None
     markerset: Annotated[Any, AfterValidator(_name_or_object)] = None
     skeleton: Annotated[Any, AfterValidator(_name_or_object)] = None
+    ball: Annotated[Any, AfterValidator(_name_or_object)] = None
     target: dict[str, Any] = None
     calibration: dict[str, Any] = None
 

@@ -36,7 +36,7 @@ from stillcap.io._capture_schema import (
     CAPTURE_FORMAT, CAPTURE_VERSION, KINDS, MAX_FLASHES, MAX_SECONDS, MAX_STROBE_HZ, TIMING as _TIMING, UNITS,
     check_capture_file, check_image_entry)
 
-__all__ = ["CAPTURE_FORMAT", "CAPTURE_VERSION", "KINDS", "MAX_FLASHES", "MAX_SECONDS", "MAX_STROBE_HZ", "UNITS",
+__all__ = ["capture_ball", "CAPTURE_FORMAT", "CAPTURE_VERSION", "KINDS", "MAX_FLASHES", "MAX_SECONDS", "MAX_STROBE_HZ", "UNITS",
            "CaptureImage", "Capture", "write_image", "target_to_dict", "target_from_dict", "board_points_world",
            "StereoPairSpec", "stereo_pairs"]
 _RESERVED = {"format", "version", "kind", "units", "rig", "truth", "images"}
@@ -316,6 +316,20 @@ class Capture:
             return cls(c.kind, rig, images, truth, meta, root)
         except ValueError as e:
             raise ValueError(f"{cfile}: {e}") from None
+
+
+def capture_ball(capture: Capture):
+    """The ball ``capture.json``'s ``ball`` key names (``docs/capture-folder.md``): a built-in
+    ball's name, a ball file's path inside the capture folder (kept inside it), or a ball file's
+    content; None without the key. ``ValueError`` naming ``capture.json``, the key and the
+    problem otherwise."""
+    from stillcap.ball.ballfile import resolve_ball
+
+    spec = capture.meta.get("ball")
+    if spec is None:
+        return None
+    where = f"{capture.root / 'capture.json'}: ball" if capture.root is not None else "capture.json: ball"
+    return resolve_ball(spec, capture.root, where)
 
 
 def write_image(path, image: np.ndarray, jpeg_quality: int = 95) -> Path:

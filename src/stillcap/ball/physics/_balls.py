@@ -114,6 +114,12 @@ class BallModel:
 
     # -- coefficients -------------------------------------------------------------------------
     @property
+    def kind(self) -> str:
+        """``"ball"``: lift from the transverse spin (as Nathan's model), no spin decay (what the
+        fits and the alias check ask of a model's ``kind``, beside FlightModel's "seed" and "nathan")."""
+        return "ball"
+
+    @property
     def radius(self) -> float:
         return 0.5 * self.diameter
 

@@ -8,13 +8,13 @@ import time as _time
 from collections.abc import Callable
 from pathlib import Path
 
-from stillcap.ball.layout import BallLayout
+from dataclasses import replace
+
 from stillcap.ball.markers import marker_types
-from stillcap.ball.physics import flight_model
-from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.io.capture import Capture, capture_ball, stereo_pairs
 from stillcap.pipelines.pitch.options import PitchOptions
 from stillcap.pipelines.pitch.result import PitchResult
-from stillcap.pipelines.pitch.spin import flight_spin_stage
+from stillcap.pipelines.pitch.spin import ball_layout_check, flight_spin_stage
 from stillcap.pipelines.pitch.stages import (StageLog, find_balls, fit_flight, markers_and_spin,
                                              metrics_and_uncertainty, number_flashes, refit_with_spin,
                                              start_markers_and_spin)
@@ -78,14 +78,18 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "pitch":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a pitch capture (capture.json \"kind\")")
-    layout = options.layout or BallLayout.seed(radius=options.ball_radius_m)
+    if options.ball is None and options.layout is None:
+        ball = capture_ball(cap)  # capture.json's "ball" (the CLI's --ball overrides it)
+        if ball is not None:
+            options = replace(options, ball=ball)
+    layout = options.marker_layout
     types = marker_types(layout)
-    model = flight_model(options.physics)
+    model = options.flight_model()
     timings: dict = {}
     specs, messages = stereo_pairs(cap)
     log = StageLog(messages, timings, progress, 2 * len(specs) + 3)
 
-    balls = find_balls(specs, jobs, options.ball_radius_m, where, log)
+    balls = find_balls(specs, jobs, options.radius_m, where, log)
     pairs = number_flashes(cap, balls, options, where, log)
     # each pair's markers and own spin need only its ball images: on the workers, while this
     # thread fits the flight
@@ -95,10 +99,12 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     fit = refit_with_spin(pairs, flight, spin, options, log)
     out = metrics_and_uncertainty(cap, pairs, flight, spin, fit, model, options, log)
     flight_spin, spin_cmp = flight_spin_stage(flight.fit, model, spin.ok, spin.w0, spin.cov0, log.messages)
+    checks = [c for c in (ball_layout_check(spin.spin, layout),) if c is not None]
 
     timings["total"] = _time.perf_counter() - t_all
     log.step(log.total, "done")
     return PitchResult(cap.rig.world, options, pairs, fit.times, flight.positions, flight.pair_index, flight.v_two,
                        out.v_two_sigma, fit, flight.fit, spin.spin, spin.alias, out.metrics, out.sigma, out.release,
                        out.table1, messages, timings, None if cap.root is None else str(cap.root),
-                       spin_obs_times=spin.obs_times, flight_spin=flight_spin, spin_comparison=spin_cmp)
+                       spin_obs_times=spin.obs_times, flight_spin=flight_spin, spin_comparison=spin_cmp,
+                       self_checks=checks)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from stillcap.ball.ballfile import Ball
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
-from stillcap.ball.physics import FLIGHT_MODELS
+from stillcap.ball.physics import FLIGHT_MODELS, flight_model
 
 __all__ = ["FIT_METHODS", "PHYSICS", "PitchOptions", "SIGMA_METHODS", "SPIN_METHODS"]
 
@@ -29,9 +30,15 @@ class PitchOptions:
         Flight model of the reference fit and the metrics.
     fit_method : {"least_squares", "powell"}
         Optimiser of the reference fit (Powell is the seed's).
-    ball_radius_m : float
+    ball : Ball or None
+        The ball (:class:`stillcap.ball.ballfile.Ball`, a ``stillcap-ball`` file or a built-in
+        ball): its radius, mass, flight coefficients and painted markers. Default: the capture's
+        ``ball`` key, else the seed's 12-marker baseball. ``layout`` and ``ball_radius_m``, when
+        given, override its markers and radius.
+    ball_radius_m : float or None
+        Ball radius, m; default the ball's (``layout``'s when only a layout is given).
     layout : BallLayout or None
-        The painted markers (default: the seed's 12-marker ball).
+        The painted markers (default: the ball's; the seed's 12-marker ball without one).
     release_y_ft : float or None
         Where "release" is evaluated: None = at the first ball image of the front pair (the
         photos do not show the hand); a value evaluates the fitted flight at that plane
@@ -86,8 +93,9 @@ class PitchOptions:
     spin_method: str = "global"
     physics: str = "seed"
     fit_method: str = "least_squares"
-    ball_radius_m: float = BASEBALL_RADIUS
+    ball_radius_m: float | None = None
     layout: BallLayout | None = None
+    ball: Ball | None = None
     release_y_ft: float | None = None
     expected_speed_mph: float | None = None
     position_sigma_m: float = 0.002
@@ -106,7 +114,9 @@ class PitchOptions:
         for name, allowed in (("spin_method", SPIN_METHODS), ("physics", PHYSICS), ("fit_method", FIT_METHODS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
-        if not (np.isfinite(self.ball_radius_m) and self.ball_radius_m > 0):
+        if self.ball is not None and not isinstance(self.ball, Ball):
+            raise ValueError(f"ball must be a stillcap.ball.ballfile.Ball, got {type(self.ball).__name__}")
+        if self.ball_radius_m is not None and not (np.isfinite(self.ball_radius_m) and self.ball_radius_m > 0):
             raise ValueError(f"ball_radius_m must be a positive number of metres, got {self.ball_radius_m}")
         if self.expected_speed_mph is not None and not self.expected_speed_mph > 0:
             raise ValueError(f"expected_speed_mph must be positive, got {self.expected_speed_mph}")
@@ -125,9 +135,53 @@ class PitchOptions:
         if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
             raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
 
+    @property
+    def radius_m(self) -> float:
+        """The ball radius used, m: ``ball_radius_m``, else the layout's or the ball's, else the
+        seed's baseball."""
+        if self.ball_radius_m is not None:
+            return float(self.ball_radius_m)
+        if self.layout is not None:
+            return float(self.layout.radius)
+        return float(self.ball.radius) if self.ball is not None else BASEBALL_RADIUS
+
+    @property
+    def marker_layout(self) -> BallLayout:
+        """The painted markers used: ``layout``, else the ball's, else the seed's (with the
+        radius :attr:`radius_m`)."""
+        if self.layout is not None:
+            return self.layout
+        if self.ball is not None:
+            lay = self.ball.layout
+            return lay if lay.radius == self.radius_m else replace(lay, radius=self.radius_m)
+        return BallLayout.seed(radius=self.radius_m)
+
+    def flight_model(self):
+        """The flight model: the ball's (:meth:`Ball.flight_model`, ``physics`` choosing between
+        the baseball models), or ``physics``'s baseball model without a ball."""
+        if self.ball is not None:
+            return self.ball.flight_model(self.physics)
+        return flight_model(self.physics)
+
+    @property
+    def flight_name(self) -> str:
+        """The flight model's name: ``physics`` for a ball flying as a baseball, else the
+        ball's flight preset (or ``"own coefficients"``)."""
+        if self.ball is None or self.ball.flight_preset == "baseball":
+            return self.physics
+        return self.ball.flight_name
+
     def to_dict(self) -> dict:
+        d = self._to_dict()
+        if self.ball is not None:  # (only then: results without a ball keep their keys)
+            d["ball"] = {"name": self.ball.name, "radius_m": self.ball.radius, "mass_kg": self.ball.mass,
+                         "flight": self.ball.flight_name, "markers": len(self.marker_layout),
+                         "source": self.ball.source}
+        return d
+
+    def _to_dict(self) -> dict:
         return {"spin_method": self.spin_method, "physics": self.physics, "fit_method": self.fit_method,
-                "ball_radius_m": self.ball_radius_m, "release_y_ft": self.release_y_ft,
+                "ball_radius_m": self.radius_m, "release_y_ft": self.release_y_ft,
                 "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
                 "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px}

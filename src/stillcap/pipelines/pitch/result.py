@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._selfcheck import checks_to_json
 from stillcap.ball.fit import ReferenceFit
 from stillcap.ball.metrics import MPH, RPM_PER_RAD_S, PitchMetrics
 from stillcap.ball.orientation import MarkerObservations, SpinResult
@@ -208,6 +209,7 @@ class PitchResult:
     spin_obs_times: np.ndarray | None = field(default=None, repr=False)
     flight_spin: FlightSpin | None = field(default=None, repr=False)
     spin_comparison: SpinComparison | None = field(default=None, repr=False)
+    self_checks: list = field(default_factory=list)
 
     @property
     def spin_source(self) -> str | None:
@@ -247,7 +249,7 @@ class PitchResult:
             "format": "stillcap-pitch", "version": 1, "kind": "pitch", "frame": self.frame,
             "units": {"length": "m", "time": "s (0 = first ball image of the front pair)", "spin": "rad/s",
                       "pixels": "px (x, y), origin top-left pixel centre"},
-            "capture": self.capture_root, "options": self.options.to_dict(), "model": self.options.physics,
+            "capture": self.capture_root, "options": self.options.to_dict(), "model": self.options.flight_name,
             "cameras": [c for p in self.pairs for c in p.cameras],
             "strobe_hz": {p.name: p.strobe_hz for p in self.pairs},
             "metrics": self.metrics.to_dict(),
@@ -282,6 +284,8 @@ class PitchResult:
         d["spin_reported"] = self.spin_reported()
         d["spin_from_flight"] = None if self.flight_spin is None else self.flight_spin.to_dict()
         d["spin_comparison"] = None if self.spin_comparison is None else self.spin_comparison.to_dict()
+        if self.self_checks:
+            d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth
         return to_jsonable(d)

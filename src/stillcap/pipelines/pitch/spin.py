@@ -20,6 +20,7 @@ import time as _time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from stillcap._selfcheck import SelfCheck
 from stillcap.ball.fit import ReferenceFit
 from stillcap.ball.markers import pair_marker_observations
 from stillcap.ball.metrics import RPM_PER_RAD_S
@@ -217,3 +218,29 @@ def flight_spin_stage(fit_positions: ReferenceFit, model, spin_ok: bool, w0, cov
                         f"+- {fs.axis_sigma_deg:.1f} deg")
         return fs, None
     return fs, compare_spins(fs, w0, cov0)
+
+
+#: Largest RMS angle, deg, between the observed marker directions and the fitted markers of the
+#: ball's layout (the spin fit's inliers) before the ``ball_layout`` self-check fails. Measured
+#: (docs/ball-format.md, "Checking the layout"): 0.9-2.7 deg with the ball's own layout on the
+#: studio's captures (1280-2560 px photos), 5-13 deg with another ball's layout.
+LAYOUT_RMS_LIMIT_DEG = 4.0
+
+
+def ball_layout_check(spin: SpinResult | None, layout) -> SelfCheck | None:
+    """Self-check ``ball_layout``: do the markers seen fit the ball's layout?
+
+    The spin fit rotates the layout onto the observed marker directions; with the wrong layout
+    (another ball, markers painted elsewhere, colours assigned differently) the best rotation
+    leaves large residuals. None when no spin was fitted."""
+    if spin is None or not spin.success or not spin.n_inliers:
+        return None
+    rms = float(spin.rms_deg)
+    share = 1.0 - spin.n_inliers / max(spin.n_observations, 1)
+    ok = bool(rms <= LAYOUT_RMS_LIMIT_DEG)
+    msg = (f"the {spin.n_inliers} markers the spin fit uses lie {rms:.1f} deg RMS from the {layout.name} layout's "
+           f"markers ({100 * share:.0f} % of the {spin.n_observations} observations left out)")
+    if not ok:
+        msg += (f"; more than {LAYOUT_RMS_LIMIT_DEG:g} deg: the painted markers do not match the ball's layout - "
+                "give the ball file of the ball photographed (--ball, capture.json ball); the spin is unreliable")
+    return SelfCheck("ball_layout", ok, rms, LAYOUT_RMS_LIMIT_DEG, msg, layout.name, "deg")

@@ -289,7 +289,7 @@ def start_markers_and_spin(pairs: list, jobs, types, layout, options: PitchOptio
     :func:`markers_and_spin`."""
     # the pair's own spin needs only its markers and flash indices, not the flight fit: it runs
     # in the same job, alongside the positions-only fit on the main thread
-    args = (types, layout, options.ball_radius_m, options.marker_epipolar_px, options.spin_method)
+    args = (types, layout, options.radius_m, options.marker_epipolar_px, options.spin_method)
     return [jobs.markers_and_spin(p, p._cams, p._imgs, *args) if len(p) else None for p in pairs]
 
 

@@ -55,7 +55,11 @@ def compare_with_truth(result: PitchResult, truth: dict) -> dict:
     """
     from stillcap.files.jsonable import from_jsonable
 
-    tmodel = flight_model(truth.get("model", "seed"))
+    if truth.get("model") == "ball":  # a ball of its own flight preset (studio pitch --ball)
+        from stillcap.ball.ballfile import Ball
+        tmodel = Ball.from_dict(truth["ball"]["file"], "truth.json: ball.file").flight_model()
+    else:
+        tmodel = flight_model(truth.get("model", "seed"))
     rel = truth["release"]
     tp0, tv0, tw = (np.asarray(rel[k], float) for k in ("p0", "v0", "spin"))
     t_rel = float(rel["t0_s"])

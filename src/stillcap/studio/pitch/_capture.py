@@ -5,7 +5,7 @@ file (calibrated from rendered photos or the true rig), assembled into a capture
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -65,6 +65,8 @@ class PitchCapture:
     calibration: PitchCalibration | None = None
     scenes: dict = field(default_factory=dict)
     known_flash_times: bool = False
+    #: The ball file's content when a ball was given (written into ``capture.json``'s ``ball``).
+    ball: dict | None = None
 
     @property
     def capture(self) -> Capture:
@@ -102,6 +104,8 @@ class PitchCapture:
         }
         if calibrated:
             meta["calibration"] = self.calibration.to_dict()
+        if self.ball is not None:
+            meta["ball"] = self.ball
         cap = Capture("pitch", self.capture_rig, imgs, self.truth.to_dict(), meta)
         return cap, dict(zip(files, self.images))
 
@@ -110,7 +114,7 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
                   speed_mph: float | None = None, spin_rpm: float | None = None,
                   spin_axis_deg: float | None = None, spin_efficiency: float | None = None,
                   release_m=None, target_m=None, front_hz: float = 80.0, back_hz: float = 50.0,
-                  palette: dict | None = None, model="seed",
+                  palette: dict | None = None, model="seed", ball=None,
                   variation: ReleaseVariation | None = DEFAULT_VARIATION, release_time_s: float | None = None,
                   image_size=(2560, 1920), sensor: Sensor | None = None, supersample: int = 3,
                   calibration_views: int = 5, known_flash_times: bool = False,
@@ -134,6 +138,11 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     palette : dict, optional
         Marker colours per type (linear RGB).
     model : "seed", "nathan" or FlightModel
+        For a ball flying as a baseball; another ball flies by its own flight preset.
+    ball : stillcap.ball.ballfile.Ball, optional
+        The ball to paint and throw (its markers, radius, mass and flight); default the seed's
+        baseball. The capture's ``capture.json`` then holds it (``ball``), so that the analysis
+        uses it.
     release_time_s : float, optional
         Release time after the shutters opened (default uniform in 0.2..0.3 s).
     image_size : (width, height)
@@ -162,9 +171,10 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
         raise ValueError(f"calibration needs at least 3 close-up views per camera, got {calibration_views}")
     seeds = rng.integers(0, 2 ** 63 - 1, size=4)
     r_pitch, r_time, r_render, r_calib = (np.random.default_rng(int(s)) for s in seeds)
-    flight = flight_model(model)
+    flight = flight_model(model) if ball is None or not isinstance(model, str) else ball.flight_model(model)
     rig = pitch_rig(front_hz, back_hz, image_size)
-    ball, layout = ball_sphere(palette)
+    painted = ball
+    ball, layout = ball_sphere(palette, layout=None if painted is None else painted.layout)
     supersample = int(supersample)
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
@@ -188,7 +198,8 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     overrides = {k: v for k, v in (("speed_mph", speed_mph), ("spin_rpm", spin_rpm), ("spin_axis_deg", spin_axis_deg),
                                    ("spin_efficiency", spin_efficiency), ("release_m", release_m),
                                    ("target_m", target_m)) if v is not None}
-    ball_info = {"radius": layout.radius, "albedo": np.asarray(ball.albedo), "marker_size": layout.marker_size,
+    ball_info = {"name": layout.name, "radius": layout.radius, "albedo": np.asarray(ball.albedo),
+                 "marker_size": layout.marker_size,
                  "palette": {k: list(v) for k, v in layout.palette.items()},
                  "markers": [{"name": n, "type": layout.type_names[t], "shape": s, "direction": d, "color": c}
                              for n, t, s, d, c in zip(layout.names, layout.types, layout.shapes,
@@ -219,4 +230,8 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
         truth.calibration_error = rig_reprojection_error(
             rig.rig, capture_rig, {c.name: _corridor_points(rig.pair_of(c.name).name) for c in rig.rig})
     report_progress(progress, total, total, "done")
-    return PitchCapture(rig, images, truth, capture_rig, calibration, scenes, bool(known_flash_times))
+    out = PitchCapture(rig, images, truth, capture_rig, calibration, scenes, bool(known_flash_times))
+    if painted is not None:
+        out.ball = replace(painted, layout=layout).to_dict()
+        truth.ball["file"] = out.ball  # the true ball (its flight for the comparison)
+    return out

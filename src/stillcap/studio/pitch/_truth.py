@@ -22,13 +22,14 @@ BALL_ALBEDO = (0.75, 0.75, 0.72)
 # --------------------------------------------------------------------------------------------
 # The ball and its flight
 # --------------------------------------------------------------------------------------------
-def _layout(palette):
-    """The 12-marker layout: :class:`stillcap.ball.layout.BallLayout` (the single source of truth)."""
+def _layout(palette, layout=None):
+    """The painted markers: ``layout`` (a ball file's, :class:`stillcap.ball.layout.BallLayout`),
+    default the seed's 12-marker layout, with ``palette``'s colours."""
     from stillcap.ball.layout import BallLayout
 
     if palette is not None and not isinstance(palette, dict):
         raise ValueError(f"palette must be a dict {{type name: linear RGB}}, got {type(palette).__name__}")
-    layout = BallLayout.seed()
+    layout = BallLayout.seed() if layout is None else layout
     if palette:
         unknown = set(palette) - set(layout.type_names)
         if unknown:
@@ -37,25 +38,28 @@ def _layout(palette):
     return layout
 
 
-def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO) -> tuple[Sphere, object]:
-    """The painted baseball to render and its layout.
+def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO, layout=None) -> tuple[Sphere, object]:
+    """The painted ball to render and its layout.
 
     Parameters
     ----------
     palette : dict, optional
         Linear-RGB colour per marker type (``{"blue": (0.1, 0.4, 1.0)}``); the rest keep the
-        default palette.
+        layout's.
     albedo : RGB
         The leather.
+    layout : BallLayout, optional
+        The ball's markers and radius (a ball file's); default the seed's baseball.
 
     Returns
     -------
     (Sphere, BallLayout)
     """
-    layout = _layout(palette)
-    markers = tuple(SphereMarker(d, s, layout.marker_size, 0.0, c, name=n)
-                    for d, s, c, n in zip(layout.directions, layout.shapes, layout.colors, layout.names))
-    return Sphere(layout.radius, albedo, markers, "baseball"), layout
+    layout = _layout(palette, layout)
+    markers = tuple(SphereMarker(d, s, z, 0.0, c, name=n)
+                    for d, s, z, c, n in zip(layout.directions, layout.shapes, layout.sizes, layout.colors,
+                                             layout.names))
+    return Sphere(layout.radius, albedo, markers, layout.name), layout
 
 
 def _turn_angle(release: ReleaseState, times: np.ndarray, model: FlightModel) -> np.ndarray:
