@@ -15,7 +15,7 @@ from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.pipelines.pitch.options import PitchOptions
 from stillcap.pipelines.pitch.result import PitchResult
 from stillcap.pipelines.pitch.spin import flight_spin_stage
-from stillcap.pipelines.pitch.stages import (StageLog, find_balls, fit_flight, markers_and_spin,
+from stillcap.pipelines.pitch.stages import (StageLog, check_and_inflate, find_balls, fit_flight, markers_and_spin,
                                              metrics_and_uncertainty, number_flashes, refit_with_spin,
                                              start_markers_and_spin)
 from stillcap.pipelines.pitch.workers import pair_jobs
@@ -93,12 +93,16 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     flight = fit_flight(cap, pairs, model, options, log)
     spin = markers_and_spin(pairs, marker_jobs, flight, model, layout, options, log)
     fit = refit_with_spin(pairs, flight, spin, options, log)
+    spin_messages: list = []  # (reported after the metrics' messages, as before the checks)
+    flight_spin, spin_cmp = flight_spin_stage(flight.fit, model, spin.ok, spin.w0, spin.cov0, spin_messages)
+    checks, fit = check_and_inflate(cap, pairs, flight, spin, fit, flight_spin, spin_cmp, model, options, log)
     out = metrics_and_uncertainty(cap, pairs, flight, spin, fit, model, options, log)
-    flight_spin, spin_cmp = flight_spin_stage(flight.fit, model, spin.ok, spin.w0, spin.cov0, log.messages)
+    messages.extend(spin_messages)
 
     timings["total"] = _time.perf_counter() - t_all
     log.step(log.total, "done")
     return PitchResult(cap.rig.world, options, pairs, fit.times, flight.positions, flight.pair_index, flight.v_two,
                        out.v_two_sigma, fit, flight.fit, spin.spin, spin.alias, out.metrics, out.sigma, out.release,
                        out.table1, messages, timings, None if cap.root is None else str(cap.root),
-                       spin_obs_times=spin.obs_times, flight_spin=flight_spin, spin_comparison=spin_cmp)
+                       spin_obs_times=spin.obs_times, flight_spin=flight_spin, spin_comparison=spin_cmp,
+                       self_checks=checks)

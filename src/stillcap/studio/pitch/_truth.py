@@ -22,13 +22,13 @@ BALL_ALBEDO = (0.75, 0.75, 0.72)
 # --------------------------------------------------------------------------------------------
 # The ball and its flight
 # --------------------------------------------------------------------------------------------
-def _layout(palette):
+def _layout(palette, radius=None):
     """The 12-marker layout: :class:`stillcap.ball.layout.BallLayout` (the single source of truth)."""
     from stillcap.ball.layout import BallLayout
 
     if palette is not None and not isinstance(palette, dict):
         raise ValueError(f"palette must be a dict {{type name: linear RGB}}, got {type(palette).__name__}")
-    layout = BallLayout.seed()
+    layout = BallLayout.seed() if radius is None else BallLayout.seed(radius=float(radius))
     if palette:
         unknown = set(palette) - set(layout.type_names)
         if unknown:
@@ -37,7 +37,7 @@ def _layout(palette):
     return layout
 
 
-def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO) -> tuple[Sphere, object]:
+def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO, radius=None) -> tuple[Sphere, object]:
     """The painted baseball to render and its layout.
 
     Parameters
@@ -47,12 +47,14 @@ def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO) -> tuple[Sphere
         default palette.
     albedo : RGB
         The leather.
+    radius : float, optional
+        Ball radius, m (default the baseball's).
 
     Returns
     -------
     (Sphere, BallLayout)
     """
-    layout = _layout(palette)
+    layout = _layout(palette, radius)
     markers = tuple(SphereMarker(d, s, layout.marker_size, 0.0, c, name=n)
                     for d, s, c, n in zip(layout.directions, layout.shapes, layout.colors, layout.names))
     return Sphere(layout.radius, albedo, markers, "baseball"), layout
@@ -207,6 +209,11 @@ class PitchTruth:
     calibration_error : dict or None
         Per camera, the calibrated rig against the true one (:func:`rig_reprojection_error` over
         the watched corridor); None when the true rig was written.
+    studio : dict or None
+        The photographic conditions the studio varied (``lights``, ``room_flash``, the sensor's
+        ``blur_px``, ``full_well``, ``read_noise``, ``white_balance``, ``jpeg_quality``,
+        ``ball_radius_m``); ``camera_response``: each camera's true response in the rig file's
+        forms (``"srgb"``, ``"linear"``, ``{"gamma": g}``, ``{"lut": [...]}``).
     """
 
     preset: dict
@@ -219,6 +226,7 @@ class PitchTruth:
     ball: dict
     cameras: list
     calibration_error: dict | None = None
+    studio: dict | None = None
 
     @property
     def spin(self) -> np.ndarray:
@@ -251,6 +259,9 @@ class PitchTruth:
             "pairs": [p.to_dict() for p in self.pairs],
             "metrics": self.metrics,
             "calibration_error": self.calibration_error,
+            **({} if self.studio is None else {
+                "studio": {k: v for k, v in self.studio.items() if k != "camera_response"},
+                "camera_response": self.studio.get("camera_response")}),
         }
 
     @classmethod
@@ -258,7 +269,8 @@ class PitchTruth:
         return cls(d["preset"], d["model"], ReleaseState.from_dict(d["release"]), float(d["plate_time_s"]),
                    float(d["end_time_s"]), [PairTruth.from_dict(p, len(d["ball"]["markers"])) for p in d["pairs"]],
                    d["metrics"], d["ball"],
-                   list(d["cameras"]), d.get("calibration_error"))
+                   list(d["cameras"]), d.get("calibration_error"),
+                   None if d.get("studio") is None else {**d["studio"], "camera_response": d.get("camera_response")})
 
 
 def _pair_truth(pair: StrobePair, rig: Rig, release: ReleaseState, t_end: float, first_flash_s: float,
