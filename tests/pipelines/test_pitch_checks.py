@@ -95,4 +95,4 @@ def test_pair_disagreement_and_the_inflation_factor():
     assert c2_off > 100 * c2
     checks = [SelfCheck("pair_agreement", False, 30.0, 16.3, "", "back")]
     assert disagreement_factor(checks) == pytest.approx(10.0)
-    assert disagreement_factor([SelfCheck("pair_agreement", True, 1.5, 16.3, "", "back")]) == 1.0
+    assert disagreement_factor([SelfCheck("pair_agreement", True, 15.0, 16.3, "", "back")]) == 1.0

@@ -266,12 +266,13 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
 
 def disagreement_factor(checks) -> float:
     """Variance factor (>= 1) for the flight's uncertainties from the pairs' disagreement: the
-    largest ``chi2 / 3`` of the ``pair_agreement`` checks. The fit's covariance already follows
+    largest ``chi2 / 3`` of the failed ``pair_agreement`` checks (a chi-square of 3 dof below
+    its 99.9 % quantile is no evidence of a disagreement: clean captures keep their sigmas). The fit's covariance already follows
     its residuals' scatter (``ReferenceFit.residual_scale``), and the spin's its own
     (``SpinResult.spin_covariance``); a pair's mean offset, which the joint fit partly absorbs in
     the clock offsets, is what neither sees."""
     f = 1.0
     for c in checks:
-        if c.name == "pair_agreement" and np.isfinite(c.value):
+        if c.name == "pair_agreement" and not c.passed and np.isfinite(c.value):
             f = max(f, float(c.value) / 3.0)
     return f
