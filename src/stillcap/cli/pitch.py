@@ -119,7 +119,8 @@ def pitch(
             outputs.record(paths.values(), report)
             written.append(paths["html"])
     from stillcap.cli._selfchecks import print_failed_checks
-    print_failed_checks(res.self_checks)
+
+    print_failed_checks(res.self_checks)  # on stderr: also beside --json
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         outputs.finish(printed_json=True)
@@ -185,6 +186,9 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
             try:
                 loaded = Capture.load(cap)
                 res = add_truth_comparison(analyse_pitch(loaded, opts), loaded.truth)
+                from stillcap.cli._selfchecks import print_failed_checks
+
+                print_failed_checks(res.self_checks, name)
             except Exception as e:  # noqa: BLE001 - one bad capture must not end the session: name it, go on
                 failed.append(name)
                 err.print(f"[red]{cap}:[/] {_problem(e)}", highlight=False, soft_wrap=True)

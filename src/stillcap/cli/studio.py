@@ -155,6 +155,18 @@ def pitch(
     known_flash_times: bool = typer.Option(False, "--known-flash-times",
                                            help="Write each image's first_flash_s and n_flashes (normally unknown: "
                                                 "the strobes run free)."),
+    lights: str = typer.Option("default", "--lights",
+                               help="Where the strobes stand: default, near (the cameras), side, behind (the cameras)."),
+    room_flash: float = typer.Option(0.0, "--room-flash", min=0.0,
+                                     help="A dark room lit a little by every flash: radiance each flash adds to the room."),
+    blur_px: float = typer.Option(0.5, "--blur-px", min=0.0, help="Lens blur (Gaussian sigma), px."),
+    noise: float = typer.Option(1.0, "--noise", min=0.0,
+                                help="Sensor noise relative to the default (shot and read noise; 0 = none)."),
+    white_balance: str = typer.Option("1,1,1", "--white-balance", help="Colour cast: R,G,B gains on the light."),
+    sensor_response: str = typer.Option("srgb", "--sensor-response",
+                                        help="The cameras' true response: srgb, linear, gamma:G or tone (sRGB with a "
+                                             "consumer S-shaped tone curve); recorded in truth.json camera_response."),
+    ball_radius_mm: float = typer.Option(None, "--ball-radius-mm", help="Ball radius, mm (default the baseball's)."),
     list_presets: bool = typer.Option(False, "--list-presets", help="List the pitch presets and exit."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
 ):
@@ -180,13 +192,18 @@ def pitch(
     if ball is not None:
         from stillcap.ball.ballfile import load_ball
         ball_obj = load_ball(ball, "--ball")
+    sensor = _pitch_sensor(sensor_response, blur_px, noise, white_balance, jpeg)
     _check_out(out, force)
     with progress("rendering") as update:
         result = pitch_capture(preset, seed, calibrate=not no_calibrate, speed_mph=speed_mph, spin_rpm=spin_rpm,
                                spin_axis_deg=spin_axis_deg, front_hz=front_hz, back_hz=back_hz, model=model,
                                ball=ball_obj,
                                variation=None if no_variation else DEFAULT_VARIATION, image_size=_parse_size(size),
-                               known_flash_times=known_flash_times, progress=update)
+                               known_flash_times=known_flash_times, progress=update, sensor=sensor, lights=lights,
+                               room_flash=room_flash,
+                               ball_radius_m=None if ball_radius_mm is None else ball_radius_mm / 1000.0)
+    if result.truth.studio is not None:
+        result.truth.studio["jpeg_quality"] = jpeg  # written below, at this quality
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
     tr = result.truth
@@ -202,6 +219,37 @@ def pitch(
                       "of the true rig")
         if not result.calibration.success:
             console.print("[yellow]warning:[/] a camera's board residuals exceed 1 px; see capture.json calibration")
+
+
+def _pitch_sensor(response: str, blur_px: float, noise: float, white_balance: str, jpeg):
+    """The studio sensor of ``studio pitch``'s options (a bad value: ValueError naming the option)."""
+    from stillcap.studio.sensor import Sensor
+
+    r = response.strip().lower()
+    tone = r == "tone"
+    if r in ("srgb", "tone"):
+        gamma = "srgb"
+    elif r == "linear":
+        gamma = 1.0
+    elif r.startswith("gamma:"):
+        try:
+            gamma = float(r.split(":", 1)[1])
+        except ValueError:
+            raise ValueError(f"--sensor-response {response!r}: gamma:G needs a number, e.g. gamma:2.2") from None
+        if not 0.5 <= gamma <= 4.0:
+            raise ValueError(f"--sensor-response {response!r}: the gamma must be between 0.5 and 4")
+    else:
+        raise ValueError(f"--sensor-response must be srgb, linear, gamma:G or tone, got {response!r}")
+    try:
+        wb = tuple(float(v) for v in white_balance.split(","))
+    except ValueError:
+        wb = ()
+    if len(wb) != 3 or min(wb) <= 0:
+        raise ValueError(f"--white-balance must be three positive gains R,G,B, got {white_balance!r}")
+    base = Sensor()
+    # the JPEG quality is applied when the capture is written (--jpeg); recorded in the truth here
+    return Sensor(full_well=None if noise == 0 else base.full_well / noise ** 2, read_noise=base.read_noise * noise,
+                  gamma=gamma, blur_px=blur_px, tone=tone, white_balance=wb, jpeg_quality=None)
 
 
 @app.command()

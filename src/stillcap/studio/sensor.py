@@ -4,8 +4,12 @@ Model, per pixel and channel, with ``x = gain * radiance`` as a fraction of full
 lens blurs the radiance with a Gaussian point-spread function (symmetric, so centres stay put);
 shot noise of variance ``x / full_well`` (Poisson, Gaussian approximation) plus read noise of
 standard deviation ``read_noise``; clip to [0, 1] (saturation); encode with the sRGB curve (or a
-power law); quantise to 8 bits; optionally round-trip through JPEG with OpenCV so the artefacts
-are real ones.
+power law), optionally followed by a consumer camera's S-shaped tone curve; quantise to 8 bits;
+optionally round-trip through JPEG with OpenCV so the artefacts are real ones. A white-balance
+cast scales the radiance per channel before the noise.
+
+:meth:`Sensor.response` gives the camera's true response in the rig file's forms (``"srgb"``,
+``"linear"``, ``{"gamma": g}``, ``{"lut": [256 linear values]}``) for the studio's truth.
 """
 
 from __future__ import annotations
@@ -29,14 +33,31 @@ def _gauss_lut() -> np.ndarray:
     return ndtri((np.arange(65536) + 0.5) / 65536).astype(np.float32)
 
 
-@lru_cache(maxsize=8)
-def _encode_lut(gamma) -> np.ndarray:
-    x = np.arange(_LEVELS) / (_LEVELS - 1)
+#: Steepness of the consumer tone curve (:func:`tone_curve`): about 1.5x the contrast at mid-grey.
+TONE_STRENGTH = 2.0
+
+
+def tone_curve(y) -> np.ndarray:
+    """A consumer camera's S-shaped tone curve on encoded values in [0, 1] (darker shadows,
+    brighter highlights; 0, 0.5 and 1 stay put): ``0.5 + 0.5 tanh(k (y - 0.5)) / tanh(k / 2)``."""
+    y = np.asarray(y, float)
+    return 0.5 + 0.5 * np.tanh(TONE_STRENGTH * (y - 0.5)) / np.tanh(TONE_STRENGTH / 2)
+
+
+def _encode(x, gamma, tone: bool) -> np.ndarray:
+    """Linear [0, 1] -> encoded [0, 1] (before quantisation)."""
+    x = np.asarray(x, float)
     if gamma == "srgb":
-        y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
+        y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.clip(x, 0, None) ** (1 / 2.4) - 0.055)
     else:
-        y = x ** (1 / float(gamma))
-    return np.round(y * 255).astype(np.uint8)
+        y = np.clip(x, 0, None) ** (1 / float(gamma))
+    return tone_curve(y) if tone else y
+
+
+@lru_cache(maxsize=8)
+def _encode_lut(gamma, tone: bool = False) -> np.ndarray:
+    x = np.arange(_LEVELS) / (_LEVELS - 1)
+    return np.round(_encode(x, gamma, tone) * 255).astype(np.uint8)
 
 
 def srgb_to_linear(image) -> np.ndarray:
@@ -63,6 +84,10 @@ class Sensor:
         If set, the image is JPEG-encoded and decoded with OpenCV at this quality.
     blur_px : float
         Standard deviation of the lens's Gaussian point-spread function in pixels (0 = none).
+    tone : bool
+        Follow the encoding with a consumer camera's S-shaped tone curve (:func:`tone_curve`).
+    white_balance : RGB
+        Per-channel gains on the radiance (a colour cast; ``(1, 1, 1)`` = neutral).
     """
 
     gain: float = 1.0
@@ -71,8 +96,14 @@ class Sensor:
     gamma: str | float = "srgb"
     jpeg_quality: int | None = None
     blur_px: float = 0.5
+    tone: bool = False
+    white_balance: tuple = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
+        wb = np.asarray(self.white_balance, float)
+        if wb.shape != (3,) or not np.all(np.isfinite(wb)) or np.any(wb <= 0):
+            raise ValueError(f"white_balance must be 3 positive RGB gains, got {self.white_balance!r}")
+        self.white_balance = tuple(float(v) for v in wb)
         if self.gamma != "srgb" and not (isinstance(self.gamma, (int, float)) and self.gamma > 0):
             raise ValueError(f"gamma must be 'srgb' or a positive number, got {self.gamma!r}")
         if self.jpeg_quality is not None and not 0 <= int(self.jpeg_quality) <= 100:
@@ -106,12 +137,13 @@ class Sensor:
         if self.blur_px > 0:
             rad = _blur(rad.astype(np.float32, copy=False), self.blur_px, detail_boxes)
         out = np.empty((h, w, 3), np.uint8)
-        lut8, glut = _encode_lut(self.gamma), _gauss_lut() if self.noisy else None
+        lut8, glut = _encode_lut(self.gamma, bool(self.tone)), _gauss_lut() if self.noisy else None
+        wb = np.asarray(self.white_balance[::-1], np.float32) * np.float32(self.gain)  # BGR gains
         inv_fw = np.float32(0 if self.full_well is None else 1 / self.full_well)
         rn2 = np.float32(self.read_noise ** 2)
         step = max(1, 262144 // max(w, 1))  # row chunks keep the temporaries in cache
         for y0 in range(0, h, step):
-            x = rad[y0:y0 + step, :, ::-1].astype(np.float32) * np.float32(self.gain)  # RGB -> BGR
+            x = rad[y0:y0 + step, :, ::-1].astype(np.float32) * wb  # RGB -> BGR
             if glut is not None:
                 z = glut[np.frombuffer(rng.bytes(2 * x.size), np.uint16).reshape(x.shape)]
                 sd = np.maximum(x, 0) * inv_fw
@@ -129,9 +161,29 @@ class Sensor:
 
     def linearize(self, image) -> np.ndarray:
         """Approximate inverse of the encoding: uint8 BGR -> linear BGR fraction of full scale."""
+        if self.tone:
+            return np.asarray(self.response_lut(), float)[np.asarray(image, np.uint8)]
         if self.gamma == "srgb":
             return srgb_to_linear(image)
         return (np.asarray(image, float) / 255.0) ** float(self.gamma)
+
+    def response_lut(self) -> list:
+        """The inverse of the encoding as 256 linear values, one per 8-bit code (increasing)."""
+        x = np.linspace(0.0, 1.0, 65537)
+        y = _encode(x, self.gamma, bool(self.tone)) * 255
+        # the code c is the encoded value's nearest integer: its linear value is where the curve crosses c
+        return [float(v) for v in np.interp(np.arange(256), y, x)]
+
+    def response(self):
+        """The camera's true response in the rig file's forms: ``"srgb"``, ``"linear"``,
+        ``{"gamma": g}`` or, with the tone curve, ``{"lut": [256 linear values]}``."""
+        if self.tone:
+            return {"lut": self.response_lut()}
+        if self.gamma == "srgb":
+            return "srgb"
+        if float(self.gamma) == 1.0:
+            return "linear"
+        return {"gamma": float(self.gamma)}
 
 
 def _blur(rad: np.ndarray, sigma: float, boxes) -> np.ndarray:

@@ -15,7 +15,7 @@ from stillcap.io.capture import Capture, capture_ball, stereo_pairs
 from stillcap.pipelines.pitch.options import PitchOptions
 from stillcap.pipelines.pitch.result import PitchResult
 from stillcap.pipelines.pitch.spin import ball_layout_check, flight_spin_stage
-from stillcap.pipelines.pitch.stages import (StageLog, find_balls, fit_flight, markers_and_spin,
+from stillcap.pipelines.pitch.stages import (StageLog, check_and_inflate, find_balls, fit_flight, markers_and_spin,
                                              metrics_and_uncertainty, number_flashes, refit_with_spin,
                                              start_markers_and_spin)
 from stillcap.pipelines.pitch.workers import pair_jobs
@@ -97,9 +97,12 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     flight = fit_flight(cap, pairs, model, options, log)
     spin = markers_and_spin(pairs, marker_jobs, flight, model, layout, options, log)
     fit = refit_with_spin(pairs, flight, spin, options, log)
+    spin_messages: list = []  # (reported after the metrics' messages, as before the checks)
+    flight_spin, spin_cmp = flight_spin_stage(flight.fit, model, spin.ok, spin.w0, spin.cov0, spin_messages)
+    checks, fit = check_and_inflate(cap, pairs, flight, spin, fit, flight_spin, spin_cmp, model, options, log)
     out = metrics_and_uncertainty(cap, pairs, flight, spin, fit, model, options, log)
-    flight_spin, spin_cmp = flight_spin_stage(flight.fit, model, spin.ok, spin.w0, spin.cov0, log.messages)
-    checks = [c for c in (ball_layout_check(spin.spin, layout),) if c is not None]
+    messages.extend(spin_messages)
+    checks += [c for c in (ball_layout_check(spin.spin, layout),) if c is not None]
 
     timings["total"] = _time.perf_counter() - t_all
     log.step(log.total, "done")

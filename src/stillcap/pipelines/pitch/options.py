@@ -76,6 +76,11 @@ class PitchOptions:
         "Coverage audit", fourth pass); a number: that many px per image axis and camera, a
         constant and a trend along the flight; 0 leaves it out. ``docs/pitch.md``,
         "Uncertainties".
+    center_sigma_px : float
+        Expected random error of a refined ball centre per image axis, px: the noise the
+        self-checks (:mod:`stillcap.pipelines.pitch.checks`) test the epipolar residuals and the
+        flight's chi-square against. Default 0.2 (the studio's photos give 0.05-0.1; real
+        lenses, motion blur and JPEG give more).
     workers : int
         Threads for the per-pair work: decoding the photos (while the calling thread finds the
         ball images of the pairs already decoded), markers and the pairs' own spin fits. The
@@ -105,6 +110,7 @@ class PitchOptions:
     sigma_method: str = "linear"
     calibration_focal_sigma: float = 2.5e-4
     center_bias_px: float | None = None
+    center_sigma_px: float = 0.2
     workers: int = 2
     processes: int = 0
 
@@ -132,6 +138,8 @@ class PitchOptions:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
         if int(self.processes) < 0:
             raise ValueError(f"processes must be >= 0, got {self.processes}")
+        if not (np.isfinite(self.center_sigma_px) and self.center_sigma_px > 0):
+            raise ValueError(f"center_sigma_px must be a positive number of pixels, got {self.center_sigma_px}")
         if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
             raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
 
@@ -184,4 +192,5 @@ class PitchOptions:
                 "ball_radius_m": self.radius_m, "release_y_ft": self.release_y_ft,
                 "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
-                "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px}
+                "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px,
+                "center_sigma_px": self.center_sigma_px}

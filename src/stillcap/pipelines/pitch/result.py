@@ -184,6 +184,9 @@ class PitchResult:
     spin_comparison : SpinComparison or None
         With markers: the marker spin against ``flight_spin`` (chi-square, agreement, spin
         efficiency from the two).
+    self_checks : list of SelfCheck
+        What the photos show against what the model expects
+        (:mod:`stillcap.pipelines.pitch.checks`); ``self_checks`` in JSON.
     """
 
     frame: str
@@ -284,8 +287,7 @@ class PitchResult:
         d["spin_reported"] = self.spin_reported()
         d["spin_from_flight"] = None if self.flight_spin is None else self.flight_spin.to_dict()
         d["spin_comparison"] = None if self.spin_comparison is None else self.spin_comparison.to_dict()
-        if self.self_checks:
-            d["self_checks"] = checks_to_json(self.self_checks)
+        d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth
         return to_jsonable(d)

@@ -73,7 +73,7 @@ from stillcap.pipelines.pitch.result import PairResult
 from stillcap.pipelines.pitch.spin import spin_stage
 from stillcap._progress import report_progress
 
-__all__ = ["BallImages", "MeasuredSpin", "MetricsWithSigma", "PositionsFit", "StageLog", "find_balls",
+__all__ = ["BallImages", "MeasuredSpin", "MetricsWithSigma", "PositionsFit", "StageLog", "check_and_inflate", "find_balls",
            "fit_flight", "markers_and_spin", "metrics_and_uncertainty", "number_flashes", "refit_with_spin",
            "start_markers_and_spin"]
 
@@ -559,6 +559,37 @@ def metrics_and_uncertainty(cap: Capture, pairs: list, flight: PositionsFit, mea
     table1["speed_sigma_mph"] = speed_sigma(fit.v0, fit.covariance[3:6, 3:6]) / MPH
     table1["spin_sigma_rpm"] = float(spin.sigma_rpm) if spin_ok else float("nan")
     return MetricsWithSigma(metrics, sigma, release, table1, v_two_sigma)
+
+
+def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured: MeasuredSpin,
+                      fit: ReferenceFit, flight_spin, spin_cmp, model, options: PitchOptions,
+                      log: StageLog) -> tuple[list, ReferenceFit]:
+    """5b. The self-checks (:mod:`stillcap.pipelines.pitch.checks`) and the flight's
+    uncertainties grown by the pairs' disagreement (``max(1, chi2 / 3)`` of the worst
+    ``pair_agreement`` check, on the fit's covariance and every pair's position covariances).
+
+    Returns ``(checks, fit)`` (failed checks are in the result's ``self_checks``, which the CLI
+    prints, not in its messages)."""
+    from stillcap.pipelines.pitch.checks import disagreement_factor, pitch_self_checks
+
+    t = _time.perf_counter()
+    for p in pairs:
+        p._check_cams = [cap.rig[c] for c in p.cameras]
+    try:
+        checks = pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model, options)
+    finally:
+        for p in pairs:
+            del p._check_cams
+    f = disagreement_factor(checks)
+    if f > 1.0:
+        fit = fit.with_extra_covariance((f - 1.0) * fit.covariance)
+        for p in pairs:
+            if p.position_covariance_m2 is not None:
+                p.position_covariance_m2 = p.position_covariance_m2 * f
+            p.position_sigma_m *= float(np.sqrt(f))
+        log.messages.append(f"the pairs disagree about the flight: its uncertainties scaled by {np.sqrt(f):.2f}")
+    log.timings["self_checks"] = _time.perf_counter() - t
+    return checks, fit
 
 
 # --------------------------------------------------------------------------------------------

@@ -53,10 +53,10 @@ from stillcap.studio.pitch._calibration import (BACK_BOARD_SPOTS, CALIBRATION_BO
 from stillcap.studio.pitch._capture import AMBIENT, ROOM, PitchCapture, pitch_capture
 from stillcap.studio.pitch._release import (DEFAULT_VARIATION, PRESETS, PitchPreset, ReleaseState, ReleaseVariation,
                                             release_state)
-from stillcap.studio.pitch._rig import PitchRig, StrobePair, field_look_at, pitch_rig
+from stillcap.studio.pitch._rig import LIGHT_PLACEMENTS, PitchRig, StrobePair, field_look_at, pitch_rig, place_lights
 from stillcap.studio.pitch._truth import PairTruth, PitchTruth, ball_sphere
 
-__all__ = ["AMBIENT", "BACK_BOARD_SPOTS", "CALIBRATION_BOARD", "DEFAULT_VARIATION", "FIELD_BOARD",
+__all__ = ["AMBIENT", "LIGHT_PLACEMENTS", "place_lights", "BACK_BOARD_SPOTS", "CALIBRATION_BOARD", "DEFAULT_VARIATION", "FIELD_BOARD",
            "FRONT_BOARD_SPOTS", "PRESETS", "ROOM", "PairTruth", "PitchCalibration", "PitchCapture", "PitchPreset",
            "PitchRig", "PitchTruth", "ReleaseState", "ReleaseVariation", "StrobePair", "ball_sphere",
            "calibrate_pitch_rig", "field_look_at", "pitch_capture", "pitch_rig", "release_state",

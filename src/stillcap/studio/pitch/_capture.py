@@ -19,7 +19,7 @@ from stillcap.studio.pitch._calibration import (FRONT_BOARD_SPOTS, PitchCalibrat
                                                 calibrate_pitch_rig, rig_reprojection_error)
 from stillcap.studio.pitch._release import DEFAULT_PRESET, DEFAULT_VARIATION, END_Y, PRESETS, PitchPreset, \
     ReleaseVariation, release_state
-from stillcap.studio.pitch._rig import PitchRig, _check_size, pitch_rig
+from stillcap.studio.pitch._rig import PitchRig, _check_size, pitch_rig, place_lights
 from stillcap.studio.pitch._truth import PitchTruth, _pair_truth, ball_sphere
 from stillcap.studio.renderer import render
 from stillcap.studio.scene import Backdrop, Exposure, Flash, Scene
@@ -118,7 +118,8 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
                   variation: ReleaseVariation | None = DEFAULT_VARIATION, release_time_s: float | None = None,
                   image_size=(2560, 1920), sensor: Sensor | None = None, supersample: int = 3,
                   calibration_views: int = 5, known_flash_times: bool = False,
-                  progress: Callable[[int, int, str], None] | None = None) -> PitchCapture:
+                  progress: Callable[[int, int, str], None] | None = None, lights: str = "default",
+                  room_flash: float = 0.0, ball_radius_m: float | None = None) -> PitchCapture:
     """Render a pitch photographed by the seed's rig, with the truth (module docstring).
 
     Parameters
@@ -148,7 +149,9 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     image_size : (width, height)
         Default 2560x1920; smaller 4:3 sizes keep the field of view (quick tests).
     sensor : Sensor, optional
-        Default ``Sensor()`` (noise); ``Sensor.ideal()`` for noise-free photos.
+        Default ``Sensor()`` (noise); ``Sensor.ideal()`` for noise-free photos. Its response,
+        blur, noise, white balance and JPEG quality are recorded in the truth (``studio``,
+        ``camera_response``).
     supersample : int
         Sub-pixel rays per axis at edges.
     calibration_views : int
@@ -157,6 +160,13 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
         Write ``first_flash_s`` and ``n_flashes`` per image (default: unknown, as with
         free-running strobes; the truth has them).
     progress : callable(done, total, label), optional
+    lights : {"default", "near", "side", "behind"}
+        Where each pair's strobe stands (:func:`~stillcap.studio.pitch.place_lights`).
+    room_flash : float
+        A dark room lit a little by every flash: each flash the strobe fires during the shutter
+        adds this much radiance to the room behind the ball (0 = the black room of the seed).
+    ball_radius_m : float, optional
+        Ball radius, m (default the baseball's); markers keep their angular size.
 
     Returns
     -------
@@ -172,9 +182,15 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     seeds = rng.integers(0, 2 ** 63 - 1, size=4)
     r_pitch, r_time, r_render, r_calib = (np.random.default_rng(int(s)) for s in seeds)
     flight = flight_model(model) if ball is None or not isinstance(model, str) else ball.flight_model(model)
-    rig = pitch_rig(front_hz, back_hz, image_size)
+    rig = place_lights(pitch_rig(front_hz, back_hz, image_size), lights)
+    if ball_radius_m is not None and not (np.isfinite(ball_radius_m) and 0.01 <= ball_radius_m <= 0.1):
+        raise ValueError(f"ball_radius_m must be between 0.01 and 0.1 m, got {ball_radius_m}")
+    if ball_radius_m is not None and ball is not None:
+        raise ValueError("give either ball (a ball file, with its radius) or ball_radius_m, not both")
+    if not (np.isfinite(room_flash) and room_flash >= 0):
+        raise ValueError(f"room_flash must be >= 0, got {room_flash}")
     painted = ball
-    ball, layout = ball_sphere(palette, layout=None if painted is None else painted.layout)
+    ball, layout = ball_sphere(palette, layout=None if painted is None else painted.layout, radius=ball_radius_m)
     supersample = int(supersample)
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
@@ -208,6 +224,11 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
                         "variation": None if variation is None else vars(variation).copy()},
                        flight.kind, release, float(plate.time), float(end.time), pairs, metrics, ball_info,
                        rig.rig.names)
+    truth.studio = {"lights": lights, "room_flash": float(room_flash), "ball_radius_m": float(layout.radius),
+                    "blur_px": float(sensor.blur_px), "full_well": sensor.full_well,
+                    "read_noise": float(sensor.read_noise), "white_balance": list(sensor.white_balance),
+                    "jpeg_quality": sensor.jpeg_quality, "gamma": sensor.gamma, "tone": bool(sensor.tone),
+                    "camera_response": {name: sensor.response() for name in rig.rig.names}}
 
     n_cal = (calibration_views + len(FRONT_BOARD_SPOTS)) * len(rig.rig) if calibrate else 0
     total = n_cal + len(rig.rig)
@@ -215,7 +236,8 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     for p, pt in zip(rig.pairs, pairs):
         flashes = [Flash([T], float(t)) for T, t, shown in zip(pt.ball2world, pt.times, pt.rendered) if shown]
         exposure = Exposure(flashes, AMBIENT, p.shutter_s, p.strobe_hz, pt.first_flash_s)
-        scenes[p.name] = Scene([ball], exposure, [p.light], backdrop=ROOM)
+        room = ROOM if room_flash == 0 else replace(ROOM, level=ROOM.level + room_flash * pt.n_flashes)
+        scenes[p.name] = Scene([ball], exposure, [p.light], backdrop=room)
     images = []
     for i, cam in enumerate(rig.rig):
         images.append(render(cam, scenes[rig.pair_of(cam.name).name], sensor, r_render, supersample))

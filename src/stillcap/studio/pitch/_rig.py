@@ -181,6 +181,55 @@ def pitch_rig(front_hz: float = 80.0, back_hz: float = 50.0, image_size=(2560, 1
     return PitchRig(Rig(cams, world="field"), pairs)
 
 
+#: Where a pair's strobe can stand (:func:`place_lights`).
+LIGHT_PLACEMENTS = ("default", "near", "side", "behind")
+#: What each pair watches (field frame, m): its strobe's light is aimed here.
+_PAIR_AIM = {"front": (PATH_X, FRONT_CENTER_Y, FRONT_AIM_Z), "back": BACK_AIM}
+
+
+def place_lights(rig: PitchRig, placement: str = "default") -> PitchRig:
+    """The rig with each pair's strobe moved (same irradiance where the pair looks).
+
+    Parameters
+    ----------
+    rig : PitchRig
+    placement : {"default", "near", "side", "behind"}
+        ``"default"``: the seed's (front strobe beside its pair, back strobe beside the
+        corridor: half moons); ``"near"``: 0.25 m beside the middle of the pair's cameras (full
+        discs, as a ring light); ``"side"``: 3 m to the side of the pair's line of sight,
+        level with the ball (half moons seen by both cameras); ``"behind"``: 1.5 m behind the
+        pair's cameras and 0.6 m above them (full discs, softer fall-off).
+        The intensity is scaled by the squared distance to the watched point, so the lit side
+        of the ball is as bright as with the default strobe.
+    """
+    if placement not in LIGHT_PLACEMENTS:
+        raise ValueError(f"light placement must be one of {', '.join(LIGHT_PLACEMENTS)}, got {placement!r}")
+    if placement == "default":
+        return rig
+    from dataclasses import replace
+
+    pairs = []
+    for p in rig.pairs:
+        aim = np.asarray(_PAIR_AIM.get(p.name, np.mean([rig.rig[c].center for c in p.cameras], axis=0)), float)
+        mid = np.mean([rig.rig[c].center for c in p.cameras], axis=0)
+        view = aim - mid
+        view /= np.linalg.norm(view)
+        up = np.array([0.0, 0.0, 1.0])
+        across = np.cross(view, up)
+        across /= np.linalg.norm(across)
+        if placement == "near":
+            pos = mid + 0.25 * across
+        elif placement == "side":
+            pos = aim + 3.0 * across
+        else:  # behind
+            pos = mid - 1.5 * view + 0.6 * up
+        d_old = np.linalg.norm(p.light.position - aim)
+        d_new = np.linalg.norm(pos - aim)
+        light = PointLight(pos, p.light.intensity * (d_new / d_old) ** 2, p.light.color)
+        pairs.append(replace(p, light=light))
+    return PitchRig(rig.rig, tuple(pairs))
+
+
 def _in_view(cam: Camera, points: np.ndarray, margin_px=0.0) -> tuple[np.ndarray, np.ndarray]:
     """Pixels ``(N, 2)`` of world points and whether each lies in front of the camera, inside
     its field of view and inside the image (-0.5 .. size - 0.5, widened by ``margin_px``, a

@@ -22,14 +22,15 @@ BALL_ALBEDO = (0.75, 0.75, 0.72)
 # --------------------------------------------------------------------------------------------
 # The ball and its flight
 # --------------------------------------------------------------------------------------------
-def _layout(palette, layout=None):
+def _layout(palette, layout=None, radius=None):
     """The painted markers: ``layout`` (a ball file's, :class:`stillcap.ball.layout.BallLayout`),
-    default the seed's 12-marker layout, with ``palette``'s colours."""
+    default the seed's 12-marker layout (at ``radius``, m, when given), with ``palette``'s colours."""
     from stillcap.ball.layout import BallLayout
 
     if palette is not None and not isinstance(palette, dict):
         raise ValueError(f"palette must be a dict {{type name: linear RGB}}, got {type(palette).__name__}")
-    layout = BallLayout.seed() if layout is None else layout
+    if layout is None:
+        layout = BallLayout.seed() if radius is None else BallLayout.seed(radius=float(radius))
     if palette:
         unknown = set(palette) - set(layout.type_names)
         if unknown:
@@ -38,7 +39,7 @@ def _layout(palette, layout=None):
     return layout
 
 
-def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO, layout=None) -> tuple[Sphere, object]:
+def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO, layout=None, radius=None) -> tuple[Sphere, object]:
     """The painted ball to render and its layout.
 
     Parameters
@@ -50,12 +51,14 @@ def ball_sphere(palette: dict | None = None, albedo=BALL_ALBEDO, layout=None) ->
         The leather.
     layout : BallLayout, optional
         The ball's markers and radius (a ball file's); default the seed's baseball.
+    radius : float, optional
+        Radius of the default baseball, m (a ``layout`` carries its own).
 
     Returns
     -------
     (Sphere, BallLayout)
     """
-    layout = _layout(palette, layout)
+    layout = _layout(palette, layout, radius)
     markers = tuple(SphereMarker(d, s, z, 0.0, c, name=n)
                     for d, s, z, c, n in zip(layout.directions, layout.shapes, layout.sizes, layout.colors,
                                              layout.names))
@@ -211,6 +214,11 @@ class PitchTruth:
     calibration_error : dict or None
         Per camera, the calibrated rig against the true one (:func:`rig_reprojection_error` over
         the watched corridor); None when the true rig was written.
+    studio : dict or None
+        The photographic conditions the studio varied (``lights``, ``room_flash``, the sensor's
+        ``blur_px``, ``full_well``, ``read_noise``, ``white_balance``, ``jpeg_quality``,
+        ``ball_radius_m``); ``camera_response``: each camera's true response in the rig file's
+        forms (``"srgb"``, ``"linear"``, ``{"gamma": g}``, ``{"lut": [...]}``).
     """
 
     preset: dict
@@ -223,6 +231,7 @@ class PitchTruth:
     ball: dict
     cameras: list
     calibration_error: dict | None = None
+    studio: dict | None = None
 
     @property
     def spin(self) -> np.ndarray:
@@ -255,6 +264,9 @@ class PitchTruth:
             "pairs": [p.to_dict() for p in self.pairs],
             "metrics": self.metrics,
             "calibration_error": self.calibration_error,
+            **({} if self.studio is None else {
+                "studio": {k: v for k, v in self.studio.items() if k != "camera_response"},
+                "camera_response": self.studio.get("camera_response")}),
         }
 
     @classmethod
@@ -262,7 +274,8 @@ class PitchTruth:
         return cls(d["preset"], d["model"], ReleaseState.from_dict(d["release"]), float(d["plate_time_s"]),
                    float(d["end_time_s"]), [PairTruth.from_dict(p, len(d["ball"]["markers"])) for p in d["pairs"]],
                    d["metrics"], d["ball"],
-                   list(d["cameras"]), d.get("calibration_error"))
+                   list(d["cameras"]), d.get("calibration_error"),
+                   None if d.get("studio") is None else {**d["studio"], "camera_response": d.get("camera_response")})
 
 
 def _pair_truth(pair: StrobePair, rig: Rig, release: ReleaseState, t_end: float, first_flash_s: float,

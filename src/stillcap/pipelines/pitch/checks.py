@@ -1,0 +1,278 @@
+"""The pitch pipeline's self-checks (issue 12, part 5): what the photos show against what the
+model expects, one :class:`stillcap._selfcheck.SelfCheck` per check and subject.
+
+Each check is a test of a statistic against the quantile (``1 - CHECK_P``) of its distribution
+when the model and the stated noise hold, so a clean capture fails a given check about once in a
+thousand; a failed check says which and why:
+
+- ``ball_epipolar`` (per pair): the ball centres' triangulation residuals against the expected
+  random centre error ``PitchOptions.center_sigma_px``: ``2 sum(e^2) / sigma^2`` (a two-view
+  reprojection residual sees half the variance of the epipolar distance) against chi-square(K).
+  A camera moved after calibration, a wrong rig or wrong lens distortion fail it.
+- ``marker_epipolar`` (per pair): the median epipolar distance of the markers matched across the
+  pair against half the matching gate (``marker_epipolar_px``): when the gate cuts the
+  distribution the matches are not trustworthy.
+- ``marker_matches``: markers triangulated across a pair per ball image, over all pairs (at
+  least 0.5; a wrong camera response or colour cast loses them).
+- ``flight_chi2``: the final reference fit's residuals against each position's covariance from
+  ``center_sigma_px`` through the pair's triangulation geometry (the depth along the lines of
+  sight included), chi-square(3N - parameters). Wrong physics, a wrong strobe rate, a wrong
+  flash order or positions biased differently along the flight fail it.
+- ``pair_agreement`` (per pair but the reference): the mean residual of the pair's positions in
+  the joint fit against its standard error (chi-square(3)): two pairs that disagree about where
+  the ball was (one pair's calibration or response) fail it.
+- ``spin_fit``: the marker spin fit's share of inliers (at least 70 %).
+- ``alias_margin``: the second-best spin alias's chi-square minus the best's (at least 9, a
+  likelihood ratio of 1 %), and the best consistent with the evidence.
+- ``spin_vs_flight``: the marker spin's transverse part against the flight's curvature
+  (:func:`stillcap.ball.spin_from_flight.compare_spins`): a reversed axis or a wrong alias.
+- ``missed_ball_images`` (per camera): flashes where the fitted flight puts the whole ball disc
+  inside the photo, within the span of flashes the pair photographed or next to it, and no
+  silhouette was found there (a dim first flash, a ball near the image edge).
+
+The uncertainties that go with them: the flight fit's covariance is scaled by its residuals
+(``ReferenceFit.residual_scale``) and the spin's by its own (``SpinResult.spin_covariance``);
+:func:`disagreement_factor` scales the flight's covariance (and the positions') further by the
+pairs' disagreement, ``max(1, chi2 / 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2 as _chi2
+
+from stillcap._selfcheck import SelfCheck
+from stillcap.ball.physics import simulate
+from stillcap.ball.uncertainty import center_bias_modes
+
+__all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images", "disagreement_factor"]
+
+#: False-alarm probability of each check on a capture where the model holds.
+CHECK_P = 1e-3
+#: Fewest markers triangulated across a pair per ball image.
+MIN_MARKERS_PER_IMAGE = 0.5
+#: Smallest share of the spin fit's marker observations that are inliers.
+MIN_SPIN_INLIERS = 0.7
+#: Smallest chi-square gap between the best spin alias and the runner-up (likelihood ratio 1 %).
+MIN_ALIAS_GAP = 9.2
+
+
+def _limit(dof: int) -> float:
+    return float(_chi2.ppf(1.0 - CHECK_P, max(int(dof), 1)))
+
+
+def _expected_covariances(pair, sigma_px: float) -> np.ndarray:
+    """Each position's covariance (m^2) from a random centre error of ``sigma_px`` per image axis."""
+    d = center_bias_modes(pair._check_cams, pair.centers_px, sigma_px)  # (4, K, 3), one image at a time
+    return np.einsum("mki,mkj->kij", d, d)
+
+
+def flight_chi2(fit, pairs, pair_index, sigma_px: float) -> tuple[float, int, dict]:
+    """Chi-square of the reference fit's residuals with the covariances of ``sigma_px`` centres.
+
+    Returns ``(chi2, dof, per-pair {i: (chi2 of the pair's mean residual, 3)})``."""
+    r = np.asarray(fit.residuals, float)
+    total, n = 0.0, 0
+    per_pair = {}
+    for i, p in enumerate(pairs):
+        sel = np.flatnonzero(pair_index == i)
+        if not len(sel) or getattr(p, "_check_cams", None) is None:
+            continue
+        C = _expected_covariances(p, sigma_px)
+        ri = r[sel]
+        ok = np.all(np.isfinite(ri), axis=1) & np.all(np.isfinite(C), axis=(1, 2))
+        if not ok.any():
+            continue
+        Ci = C[ok] + np.eye(3) * 1e-12
+        total += float(np.einsum("ki,ki->", ri[ok], np.linalg.solve(Ci, ri[ok][:, :, None])[:, :, 0]))
+        n += 3 * int(ok.sum())
+        per_pair[i] = pair_disagreement(ri[ok], Ci)
+    n_par = int(np.asarray(fit.covariance).shape[0])
+    return total, max(n - n_par, 1), per_pair
+
+
+def pair_disagreement(residuals, covariances) -> tuple[float, int]:
+    """Chi-square (3 dof) of a pair's mean residual against its standard error."""
+    K = len(residuals)
+    if K < 2:
+        return float("nan"), 3
+    m = residuals.mean(axis=0)
+    # the standard error from the scatter of the pair's own residuals and the stated noise,
+    # whichever is larger (a pair whose own scatter is large must not look disagreeing)
+    S = np.cov(residuals.T) / K
+    C = covariances.mean(axis=0) / K
+    W = S if np.trace(S) > np.trace(C) else C
+    return float(m @ np.linalg.solve(W + np.eye(3) * 1e-14, m)), 3
+
+
+def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2.0, extend: int = 2,
+                         span=None):
+    """Flashes of ``pair`` where the fitted flight puts the whole ball disc inside ``cam``'s photo
+    but no silhouette was found near it.
+
+    Flash indices from ``min(flash_index) - extend`` to ``max(flash_index) + extend`` (the
+    span the pair photographed and ``extend`` flashes either side), kept only where the flight
+    surely passed: ``span = (s_min, s_max)``, the stretch along the initial velocity between
+    the first and the last ball position any pair found (before it the ball may still be in the
+    hand, after it caught).
+
+    Returns
+    -------
+    list of (flash index, (x, y) px)
+    """
+    k = np.asarray(pair.flash_index, int)
+    if len(k) == 0:
+        return []
+    ks = np.arange(k.min() - extend, k.max() + extend + 1)
+    ks = ks[~np.isin(ks, k)]
+    if not len(ks):
+        return []
+    t = pair.time_offset_s + ks / pair.strobe_hz
+    tr = simulate(fit.p0, fit.v0, fit.spin, t, model, t0=fit.t0)
+    P = tr.positions
+    if span is not None:
+        u = np.asarray(fit.v0, float) / np.linalg.norm(fit.v0)
+        s_along = (P - fit.p0) @ u
+        keep = (s_along >= span[0]) & (s_along <= span[1])
+        ks, P = ks[keep], P[keep]
+        if not len(ks):
+            return []
+    pc = cam.world_to_cam(P)
+    px = cam.project(P)
+    r_m = float(np.nanmedian(pair.radius_px[which])) if np.any(np.isfinite(pair.radius_px[which])) else 20.0
+    rad = np.full(len(P), r_m)
+    W, H = cam.image_size
+    inside = ((pc[:, 2] > 0) & np.all(np.isfinite(px), axis=1)
+              & (px[:, 0] - rad >= margin_px) & (px[:, 0] + rad <= W - 1 - margin_px)
+              & (px[:, 1] - rad >= margin_px) & (px[:, 1] + rad <= H - 1 - margin_px))
+    det = pair.stereo.detections_a if which == 0 else pair.stereo.detections_b
+    found = np.asarray(det.centers, float).reshape(-1, 2) if det is not None else np.zeros((0, 2))
+    out = []
+    for kk, x, ok, rr in zip(ks, px, inside, rad):
+        if not ok:
+            continue
+        if len(found) and np.min(np.linalg.norm(found - x, axis=1)) < max(rr, 3.0):
+            continue  # a silhouette is there (found, maybe not matched or dropped)
+        out.append((int(kk), (float(x[0]), float(x[1]))))
+    return out
+
+
+def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model, options) -> list[SelfCheck]:
+    """Every self-check of one analysed pitch (module docstring), in a fixed order."""
+    checks: list[SelfCheck] = []
+    s_px = float(options.center_sigma_px)
+    for p in pairs:
+        K = len(p)
+        if K == 0:
+            continue
+        e = np.asarray(p.reproj_error_px, float)
+        e = e[np.isfinite(e)]
+        if len(e):
+            c2 = float(2.0 * np.sum(e ** 2) / s_px ** 2)
+            lim = _limit(len(e))
+            checks.append(SelfCheck(
+                "ball_epipolar", c2 <= lim, c2, lim,
+                f"ball centres miss their epipolar lines by {np.sqrt(np.mean(e ** 2)):.2f} px RMS, expected "
+                f"{s_px / np.sqrt(2):.2f} px (center_sigma_px {s_px:g})"
+                + ("" if c2 <= lim else ": a camera moved after calibration, or the rig or its lens distortion "
+                   "is wrong; recalibrate"), p.name, ""))
+        if p.observations is not None and p.n_markers_3d + p.n_markers_ray > 0 and np.isfinite(p.marker_reproj_px):
+            lim = 0.5 * float(options.marker_epipolar_px)
+            checks.append(SelfCheck(
+                "marker_epipolar", p.marker_reproj_px <= lim, float(p.marker_reproj_px), lim,
+                f"markers matched across the pair miss their epipolar lines by {p.marker_reproj_px:.2f} px "
+                f"(median; the matching gate is {options.marker_epipolar_px:g} px)"
+                + ("" if p.marker_reproj_px <= lim else ": the gate cuts the distribution, the rig is off"),
+                p.name, "px"))
+
+
+    n_img = sum(len(p) for p in pairs)
+    n_3d = sum(p.n_markers_3d for p in pairs)
+    if n_img:
+        per_image = n_3d / n_img
+        checks.append(SelfCheck(
+            "marker_matches", per_image >= MIN_MARKERS_PER_IMAGE, per_image, MIN_MARKERS_PER_IMAGE,
+            f"{n_3d} markers triangulated across the pairs over {n_img} ball images"
+            + ("" if per_image >= MIN_MARKERS_PER_IMAGE else ": too few for a trustworthy spin (check the camera "
+               "response, the white balance and the ball's marker colours)"), "", "per image"))
+
+    # the flight
+    c2, dof, per_pair = flight_chi2(fit, pairs, flight.pair_index, s_px)
+    lim = _limit(dof)
+    checks.append(SelfCheck(
+        "flight_chi2", c2 <= lim, c2 / dof, lim / dof,
+        f"the reference trajectory misses the positions by chi-square {c2:.0f} with {dof} degrees of freedom "
+        f"(centres at {s_px:g} px)"
+        + ("" if c2 <= lim else ": the flight model, a strobe rate, the flash order or the positions are wrong; "
+           "the uncertainties were scaled up by the misfit"), "", "chi2/dof"))
+    for i, (c2p, d) in per_pair.items():
+        if pairs[i].group == 0 or not np.isfinite(c2p):
+            continue
+        lim = _limit(d)
+        checks.append(SelfCheck(
+            "pair_agreement", c2p <= lim, c2p, lim,
+            f"pair {pairs[i].name!r} sits {np.linalg.norm(np.nanmean(fit.residuals[flight.pair_index == i], axis=0)) * 1e3:.1f} mm "
+            f"off the flight the pairs share (chi-square {c2p:.1f}, 3 dof)"
+            + ("" if c2p <= lim else ": the pairs disagree (calibration, camera response or ball size of one pair); "
+               "the uncertainties include the disagreement"), pairs[i].name, ""))
+
+    # the spin
+    spin = measured.spin
+    if spin is not None and spin.n_observations:
+        frac = spin.n_inliers / spin.n_observations
+        checks.append(SelfCheck(
+            "spin_fit", frac >= MIN_SPIN_INLIERS and bool(spin.success), frac, MIN_SPIN_INLIERS,
+            f"the spin explains {spin.n_inliers} of {spin.n_observations} marker observations "
+            f"({spin.rms_deg:.1f} deg RMS)"
+            + ("" if frac >= MIN_SPIN_INLIERS else ": markers misidentified or the ball layout is wrong"), "", ""))
+    alias = measured.alias
+    if alias is not None and len(alias.candidates) >= 1:
+        gap = (float(alias.candidates[1].chi2 - alias.best.chi2) if len(alias.candidates) >= 2 else float("inf"))
+        ok = gap >= MIN_ALIAS_GAP and bool(alias.consistent)
+        checks.append(SelfCheck(
+            "alias_margin", ok, gap, MIN_ALIAS_GAP,
+            f"the chosen spin alias ({alias.best.spin_rpm:.0f} rpm) beats the next "
+            + (f"({alias.candidates[1].spin_rpm:.0f} rpm) by chi-square {gap:.1f}" if len(alias.candidates) >= 2
+               else "(none)")
+            + ("" if alias.consistent else f"; the evidence disagrees with it (chi-square {alias.best.chi2:.1f}, "
+               f"{alias.dof} dof)")
+            + ("" if ok else ": the spin rate and axis may be a wrong alias; use two strobe rates"),
+            "", "chi2"))
+    if spin_cmp is not None:
+        checks.append(SelfCheck(
+            "spin_vs_flight", bool(spin_cmp.agree), float(spin_cmp.chi2), float(_chi2.ppf(1 - spin_cmp.alpha, spin_cmp.dof)),
+            f"the marker spin's transverse part and the flight's curvature differ by {spin_cmp.difference_rpm:.0f} rpm "
+            f"(axes {spin_cmp.axis_angle_deg:.0f} deg apart)"
+            + ("" if spin_cmp.agree else ": a wrong alias, a reversed axis or a wrong flight model"), "", "chi2"))
+
+    # ball images the flight says are there (only where the ball surely flew)
+    u = np.asarray(fit.v0, float) / np.linalg.norm(fit.v0)
+    along = [(p.positions - fit.p0) @ u for p in pairs if len(p)]
+    along = np.concatenate(along) if along else np.zeros(0)
+    span = (float(along.min()), float(along.max())) if len(along) else None
+    for p in pairs:
+        if not len(p) or p.stereo is None or getattr(p, "_check_cams", None) is None:
+            continue
+        for which, cam in enumerate(p._check_cams):
+            missed = expected_ball_images(fit, model, p, cam, which, span=span)
+            checks.append(SelfCheck(
+                "missed_ball_images", not missed, float(len(missed)), 0.0,
+                (f"{len(missed)} ball image(s) the fitted flight puts inside the photo were not found: "
+                 + ", ".join(f"flash {k} at ({x:.0f}, {y:.0f}) px" for k, (x, y) in missed[:4])
+                 + " (a dim flash, a ball near the edge, or a wrong flight)") if missed
+                else "every ball image the fitted flight puts inside the photo was found", cam.name, ""))
+    return checks
+
+
+def disagreement_factor(checks) -> float:
+    """Variance factor (>= 1) for the flight's uncertainties from the pairs' disagreement: the
+    largest ``chi2 / 3`` of the failed ``pair_agreement`` checks (a chi-square of 3 dof below
+    its 99.9 % quantile is no evidence of a disagreement: clean captures keep their sigmas). The fit's covariance already follows
+    its residuals' scatter (``ReferenceFit.residual_scale``), and the spin's its own
+    (``SpinResult.spin_covariance``); a pair's mean offset, which the joint fit partly absorbs in
+    the clock offsets, is what neither sees."""
+    f = 1.0
+    for c in checks:
+        if c.name == "pair_agreement" and not c.passed and np.isfinite(c.value):
+            f = max(f, float(c.value) / 3.0)
+    return f

@@ -1,0 +1,98 @@
+"""The pitch pipeline's self-checks (issue 12): each fires on a capture built to fail it and
+passes on a clean one; the flight's uncertainties grow with the pairs' disagreement."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from stillcap._selfcheck import SelfCheck, checks_from_json
+from stillcap.camera import Rig
+from stillcap.pipelines.pitch import analyse_pitch
+from stillcap.pipelines.pitch.checks import disagreement_factor, pair_disagreement
+from stillcap.studio.pitch import pitch_capture
+
+SIZE = (1280, 960)
+
+
+def _analyse(tmp_path, pc, name="c", **kw):
+    cap, photos = pc.to_capture()
+    folder = cap.save(tmp_path / name, photos)
+    return analyse_pitch(folder, **kw)
+
+
+def _failed(res):
+    return {(c.name, c.subject) for c in res.self_checks if not c.passed}
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return pitch_capture("seed-4seam", rng=1, calibrate=False, image_size=SIZE)
+
+
+def test_clean_capture_passes_every_check_and_json_keeps_them(tmp_path, clean):
+    res = _analyse(tmp_path, clean)
+    names = {c.name for c in res.self_checks}
+    assert {"ball_epipolar", "marker_matches", "flight_chi2", "pair_agreement", "spin_fit", "alias_margin",
+            "spin_vs_flight", "missed_ball_images"} <= names
+    assert _failed(res) == set()
+    back = checks_from_json(res.to_dict()["self_checks"])
+    assert back == res.self_checks
+
+
+def test_camera_moved_after_calibration_fails_the_epipolar_check(tmp_path, clean):
+    # turn front_top by 0.1 deg about its vertical axis (about 2.4 px at 1280 px) after the rig was written
+    cams = []
+    for c in clean.capture_rig:
+        if c.name == "front_top":
+            T = c.world2cam.copy()
+            T[:3, :3] = Rotation.from_euler("y", 0.1, degrees=True).as_matrix() @ T[:3, :3]
+            T[:3, 3] = Rotation.from_euler("y", 0.1, degrees=True).as_matrix() @ T[:3, 3]
+            c = replace(c, world2cam=T)
+        cams.append(c)
+    moved = replace(clean, capture_rig=Rig(cams, world="field"))
+    res = _analyse(tmp_path, moved)
+    assert ("ball_epipolar", "front") in _failed(res)
+    assert ("ball_epipolar", "back") not in _failed(res)
+    c = next(c for c in res.self_checks if c.name == "ball_epipolar" and c.subject == "front")
+    assert "camera moved" in c.message and c.value > c.limit
+
+
+def test_wrong_physics_fails_the_flight_chi2_and_grows_the_uncertainty(tmp_path):
+    pc = pitch_capture("mlb-4seam", rng=2, calibrate=False, image_size=SIZE, model="nathan")
+    right = _analyse(tmp_path, pc, "right", physics="nathan")
+    wrong = _analyse(tmp_path, pc, "wrong", physics="seed")
+    assert "flight_chi2" not in {n for n, _ in _failed(right)}
+    assert "flight_chi2" in {n for n, _ in _failed(wrong)}
+    # the pairs disagree under the wrong model: the speed's sigma grows with the misfit
+    assert wrong.table1["speed_sigma_mph"] > 3 * right.table1["speed_sigma_mph"]
+
+
+def test_a_ball_image_painted_out_is_reported_missing(tmp_path, clean):
+    tf = clean.truth.pair("front")
+    both = np.flatnonzero(tf.visible[0] & tf.visible[1])
+    i = int(both[len(both) // 2])
+    x, y = tf.centers_px[0, i]
+    r = tf.radius_px[0, i]
+    img = clean.images[0].copy()
+    cv2.circle(img, (int(round(x)), int(round(y))), int(np.ceil(r + 4)), (0, 0, 0), -1)
+    res = _analyse(tmp_path, replace(clean, images=[img] + list(clean.images[1:])))
+    assert ("missed_ball_images", "front_top") in _failed(res)
+    assert ("missed_ball_images", "front_bottom") not in _failed(res)
+
+
+def test_pair_disagreement_and_the_inflation_factor():
+    rng = np.random.default_rng(0)
+    C = np.broadcast_to(np.eye(3) * 1e-6, (10, 3, 3))
+    r = rng.normal(0, 1e-3, (10, 3))
+    c2, dof = pair_disagreement(r, C)
+    assert dof == 3 and c2 < 16
+    c2_off, _ = pair_disagreement(r + [0.01, 0, 0], C)
+    assert c2_off > 100 * c2
+    checks = [SelfCheck("pair_agreement", False, 30.0, 16.3, "", "back")]
+    assert disagreement_factor(checks) == pytest.approx(10.0)
+    assert disagreement_factor([SelfCheck("pair_agreement", True, 15.0, 16.3, "", "back")]) == 1.0
