@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._selfcheck import checks_to_json
 from stillcap.ball.fit import ReferenceFit
 from stillcap.ball.metrics import MPH, RPM_PER_RAD_S, PitchMetrics
 from stillcap.ball.orientation import MarkerObservations, SpinResult
@@ -183,6 +184,12 @@ class PitchResult:
     spin_comparison : SpinComparison or None
         With markers: the marker spin against ``flight_spin`` (chi-square, agreement, spin
         efficiency from the two).
+    self_checks : list of SelfCheck
+        What the photos show against what the model expects (``response``: the ball's shading
+        against each camera's response).
+    response : dict or None
+        The cameras' responses used and where they came from (rig, option, auto with its
+        estimates and evidence), and each camera's shading estimate.
     """
 
     frame: str
@@ -208,6 +215,8 @@ class PitchResult:
     spin_obs_times: np.ndarray | None = field(default=None, repr=False)
     flight_spin: FlightSpin | None = field(default=None, repr=False)
     spin_comparison: SpinComparison | None = field(default=None, repr=False)
+    self_checks: list = field(default_factory=list)
+    response: dict | None = None
 
     @property
     def spin_source(self) -> str | None:
@@ -282,6 +291,8 @@ class PitchResult:
         d["spin_reported"] = self.spin_reported()
         d["spin_from_flight"] = None if self.flight_spin is None else self.flight_spin.to_dict()
         d["spin_comparison"] = None if self.spin_comparison is None else self.spin_comparison.to_dict()
+        d["response"] = self.response
+        d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth
         return to_jsonable(d)
