@@ -150,6 +150,17 @@ class Response:
         keep = np.concatenate([[True], np.diff(lut) > 0])
         return np.interp(x, lut[keep], np.arange(256.0)[keep])
 
+    def as_srgb(self, image) -> np.ndarray:
+        """An 8-bit photo of this response re-encoded as the sRGB camera would have written it
+        (uint8, same shape; the photo itself for sRGB): for detectors whose colours are sRGB
+        references (bead and marker palettes)."""
+        a = np.asarray(image)
+        if self.kind == "srgb":
+            return a
+        if a.dtype != np.uint8:
+            a = np.clip(np.round(a), 0, 255).astype(np.uint8)
+        return _srgb_table(self)[a]
+
     @property
     def effective_gamma(self) -> float:
         """The power law closest to the curve (:func:`effective_gamma_of_lut`): 1 for linear,
@@ -241,9 +252,16 @@ def _linear_lut(r: Response) -> np.ndarray:
     return lut
 
 
-def parse_response_spec(text: str) -> Response | str:
+@functools.lru_cache(maxsize=32)
+def _srgb_table(r: Response) -> np.ndarray:
+    t = np.clip(np.round(255.0 * _srgb_encode(_linear_lut(r).astype(float))), 0, 255).astype(np.uint8)
+    t.flags.writeable = False
+    return t
+
+
+def parse_response_spec(text: str, option: str = "--response") -> Response | str:
     """A ``--response`` value: ``auto`` (returned as the string ``"auto"``), ``srgb``, ``linear``
-    or ``gamma:G``; ``ValueError`` naming the bad spec."""
+    or ``gamma:G``; ``ValueError`` naming the bad spec (and ``option``)."""
     s = str(text).strip().lower()
     if s in ("auto", "srgb", "linear"):
         return s if s == "auto" else Response(s)
@@ -254,9 +272,9 @@ def parse_response_spec(text: str) -> Response | str:
             g = None
         if g is not None and math.isfinite(g) and _MIN_GAMMA <= g <= _MAX_GAMMA:
             return Response.power(g)
-        raise ValueError(f"--response {text!r}: gamma:G needs a number G from {_MIN_GAMMA} to {_MAX_GAMMA} "
+        raise ValueError(f"{option} {text!r}: gamma:G needs a number G from {_MIN_GAMMA} to {_MAX_GAMMA} "
                          "(e.g. gamma:2.2)")
-    raise ValueError(f"--response {text!r}: expected auto, srgb, linear or gamma:G (e.g. gamma:2.2)")
+    raise ValueError(f"{option} {text!r}: expected auto, srgb, linear or gamma:G (e.g. gamma:2.2)")
 
 
 def check_response_option(response):

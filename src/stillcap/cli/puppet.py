@@ -21,6 +21,7 @@ from rich.table import Table
 
 from stillcap.cli._outputs import Outputs, check
 from stillcap.cli._progress import progress
+from stillcap.cli._response import RESPONSE_HELP, parse_response_option
 
 app = typer.Typer(no_args_is_help=True, add_completion=False,
                   help="Puppet capture: turntable photos of a marked puppet -> 3D markers and a posed skeleton "
@@ -161,6 +162,7 @@ def run(
     redetect: bool = typer.Option(False, "--redetect", help="Projects: detect again in every view (the stored "
                                   "edits still apply); by default only views without detections are detected."),
     force: Force = False,
+    response: str = typer.Option(None, "--response", help=RESPONSE_HELP + " (auto: not for the puppet yet)"),
 ):
     """Find, name and triangulate the beads in every photo and pose the skeleton.
 
@@ -171,6 +173,10 @@ def run(
     from stillcap.pipelines.puppet import analyse_puppet
 
     settings = _settings(detector, identify)
+    if response is not None:
+        from stillcap.pipelines.puppet import with_options
+
+        settings = with_options(settings, response=parse_response_option(response))
     check(out, "folder", "--out", force, OUT_FILES)
     if not folder.exists():
         raise ValueError(f"folder {folder} does not exist")

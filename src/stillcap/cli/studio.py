@@ -31,6 +31,29 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+CAMERA_RESPONSE_HELP = ("The cameras' response the photos are encoded with: srgb (default), linear or gamma:G; "
+                        "written into rig.json as each camera's 'response' (docs/camera-response.md).")
+
+
+def _sensor_response(text: str | None):
+    """``--camera-response`` as a :class:`stillcap.response.Response` (None: the sensor's default)."""
+    if text is None:
+        return None
+    from stillcap.response import Response, parse_response_spec
+
+    r = parse_response_spec(text, "--camera-response")
+    if not isinstance(r, Response):
+        raise ValueError(f"--camera-response {text!r}: the studio renders a stated response (srgb, linear or gamma:G)")
+    return r
+
+
+def _studio_sensor(response):
+    """The studio's default sensor with another encoding."""
+    from stillcap.studio.sensor import Sensor
+
+    return Sensor(gamma=response)
+
+
 def _save(capture, images, out: Path, jpeg: int | None) -> None:
     with progress(f"writing {len(images)} images"):
         capture.save(out, images, jpeg_quality=jpeg or 95)
@@ -110,6 +133,7 @@ def puppet(
     markers: str = typer.Option("puppet-16", "--markers",
                                 help="Marker set: puppet-16 (the thesis's 16 beads), puppet-20 (plus a second bead "
                                      "on each forearm and shin) or a marker-set JSON file. Stored in the capture."),
+    camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
 ):
     """The thesis's marked puppet on its turntable, photographed by the webcam; truth = pose, 3D
     beads and per-view bead pixels and visibility."""
@@ -120,11 +144,16 @@ def puppet(
 
     markerset = MarkerSet.resolve(markers)
     markerset.check_skeleton(Skeleton.puppet())
+    sensor = webcam_sensor(jpeg_quality=None)  # the webcam's JPEG compression happens once, when the capture is written
+    if (response := _sensor_response(camera_response)) is not None:
+        from dataclasses import replace
+
+        sensor = replace(sensor, gamma=response)
     _check_out(out, force)
     rig = turntable_rig(views, step_deg)
     with progress("rendering views", total=views) as update:
         # the webcam's JPEG compression happens once, when the capture is written
-        result = puppet_scene(rig, pose, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
+        result = puppet_scene(rig, pose, rng=seed, sensor=sensor,
                               progress=lambda i, n: update(i), markerset=markerset)
     cap, images = result.to_capture(".jpg")
     _save(cap, images, out, jpeg)
@@ -155,6 +184,7 @@ def pitch(
                                                 "the strobes run free)."),
     list_presets: bool = typer.Option(False, "--list-presets", help="List the pitch presets and exit."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+    camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
 ):
     """A pitched, marked baseball photographed by the seed's two strobed stereo pairs (front 80 Hz,
     back 50 Hz); the rig is calibrated from rendered board photos; truth = flight, orientation per
@@ -174,12 +204,14 @@ def pitch(
         raise ValueError("--out is required (the capture folder to write)")
     if preset not in PRESETS:
         raise ValueError(f"unknown --preset {preset!r}; known: {', '.join(PRESETS)}")
+    response = _sensor_response(camera_response)
     _check_out(out, force)
     with progress("rendering") as update:
         result = pitch_capture(preset, seed, calibrate=not no_calibrate, speed_mph=speed_mph, spin_rpm=spin_rpm,
                                spin_axis_deg=spin_axis_deg, front_hz=front_hz, back_hz=back_hz, model=model,
                                variation=None if no_variation else DEFAULT_VARIATION, image_size=_parse_size(size),
-                               known_flash_times=known_flash_times, progress=update)
+                               known_flash_times=known_flash_times, progress=update,
+                               sensor=None if response is None else _studio_sensor(response))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)
     tr = result.truth
@@ -206,15 +238,18 @@ def hand(
                              help="Image size WIDTHxHEIGHT (4:3; smaller keeps the field of view)."),
     jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+    camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
 ):
     """The pitcher's gloved hand with its 18 markers around release, photographed by 4 cameras
     behind the pitcher in a 75 Hz strobe's light; truth = marker positions, joint angles and the
     ball per flash (see docs/hand.md)."""
     from stillcap.studio.hand import hand_capture
 
+    response = _sensor_response(camera_response)
     _check_out(out, force)
     with progress("rendering cameras", total=4) as update:
         result = hand_capture(seed, preset=preset, image_size=_parse_size(size),
+                              sensor=None if response is None else _studio_sensor(response),
                               progress=lambda i, n, label: update(i, n))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)

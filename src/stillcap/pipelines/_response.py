@@ -21,7 +21,8 @@ from stillcap.detect.response import ResponseEstimate, estimate_response, respon
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.response import Response, check_response_option
 
-__all__ = ["apply_response", "pitch_response_checks", "pitch_auto_estimates"]
+__all__ = ["apply_response", "camera_estimates", "auto_rig", "auto_report", "response_checks",
+           "pitch_response_checks", "pitch_auto_estimates"]
 
 
 def _with_rig(cap: Capture, rig) -> Capture:
@@ -120,3 +121,46 @@ def pitch_response_checks(cap: Capture, pairs: list) -> tuple[list, dict]:
             found[name] = e.to_json()
             checks.append(response_check(e, cap.rig[name].response, subject=name))
     return checks, found
+
+
+def camera_estimates(names, images, centers_px, radius_px) -> dict:
+    """Each camera's :class:`ResponseEstimate` from its photo's ball images at known centres
+    ``(n_cams, K, 2)`` and radii ``(n_cams, K)`` (e.g. the hand capture's triangulated ball,
+    projected); cameras without a photo are left out."""
+    out = {}
+    for k, (name, img) in enumerate(zip(names, images)):
+        if img is None:
+            continue
+        c, r = np.asarray(centers_px[k], float), np.asarray(radius_px[k], float)
+        ok = np.all(np.isfinite(c), axis=1) & np.isfinite(r)
+        out[name] = estimate_response(img, c[ok], r[ok])
+    return out
+
+
+def auto_rig(rig, estimates: dict):
+    """The rig with each camera's estimated response where the photos tell another class than the
+    camera's (None when no camera changes)."""
+    chosen = {n: e.response() for n, e in estimates.items()
+              if e.ok and e.response_class != rig[n].response.response_class}
+    return rig.with_responses(chosen) if chosen else None
+
+
+def auto_report(rig_before, rig_after, estimates: dict) -> dict:
+    """The ``response`` report of an "auto" run from its estimates (as :func:`apply_response`'s)."""
+    msgs = []
+    for c in rig_after:
+        e = estimates.get(c.name)
+        if e is None:
+            continue
+        if e.ok:
+            msgs.append(f"response of {c.name}: {e.response_class} (effective gamma {e.gamma:.2f}), using "
+                        f"{c.response}; {e.evidence}")
+        else:
+            msgs.append(f"response of {c.name}: the photos cannot tell ({e.evidence}); kept the rig's ({c.response})")
+    return {"source": "auto", "cameras": {c.name: c.response.to_json() for c in rig_after},
+            "estimates": {k: v.to_json() for k, v in estimates.items()}, "messages": msgs}
+
+
+def response_checks(rig, estimates: dict) -> list:
+    """The ``response`` self-check of every camera with an estimate, against its response in ``rig``."""
+    return [response_check(e, rig[name].response, subject=name) for name, e in estimates.items()]

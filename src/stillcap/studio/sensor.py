@@ -18,6 +18,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from stillcap._checks import as_rng
+from stillcap.response import Response
 
 _LEVELS = 16384  # linear quantisation before the 8-bit LUT: < 1 code value steps in the darks
 
@@ -32,7 +33,9 @@ def _gauss_lut() -> np.ndarray:
 @lru_cache(maxsize=8)
 def _encode_lut(gamma) -> np.ndarray:
     x = np.arange(_LEVELS) / (_LEVELS - 1)
-    if gamma == "srgb":
+    if isinstance(gamma, Response):
+        y = gamma.encode(x) / 255.0
+    elif gamma == "srgb":
         y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
     else:
         y = x ** (1 / float(gamma))
@@ -57,8 +60,10 @@ class Sensor:
         Electrons at full scale (shot noise); None disables shot noise.
     read_noise : float
         Read-noise standard deviation as a fraction of full scale.
-    gamma : "srgb" or float
-        Output encoding: the sRGB curve or ``x ** (1 / gamma)`` (1.0 = linear).
+    gamma : "srgb", float or Response
+        Output encoding: the sRGB curve, ``x ** (1 / gamma)`` (1.0 = linear) or any camera
+        response (:class:`stillcap.response.Response`, e.g. a tone curve as a lookup table).
+        :attr:`response` is it as the rig file states it (the studio writes it there).
     jpeg_quality : int or None
         If set, the image is JPEG-encoded and decoded with OpenCV at this quality.
     blur_px : float
@@ -68,13 +73,14 @@ class Sensor:
     gain: float = 1.0
     full_well: float | None = 10000.0
     read_noise: float = 0.002
-    gamma: str | float = "srgb"
+    gamma: str | float | Response = "srgb"
     jpeg_quality: int | None = None
     blur_px: float = 0.5
 
     def __post_init__(self):
-        if self.gamma != "srgb" and not (isinstance(self.gamma, (int, float)) and self.gamma > 0):
-            raise ValueError(f"gamma must be 'srgb' or a positive number, got {self.gamma!r}")
+        if not isinstance(self.gamma, Response) and self.gamma != "srgb" \
+                and not (isinstance(self.gamma, (int, float)) and self.gamma > 0):
+            raise ValueError(f"gamma must be 'srgb', a positive number or a Response, got {self.gamma!r}")
         if self.jpeg_quality is not None and not 0 <= int(self.jpeg_quality) <= 100:
             raise ValueError(f"jpeg_quality must be in 0..100, got {self.jpeg_quality}")
         if self.read_noise < 0 or (self.full_well is not None and self.full_well <= 0):
@@ -86,6 +92,15 @@ class Sensor:
     def ideal(cls, gain: float = 1.0, gamma: str | float = "srgb", blur_px: float = 0.0) -> Sensor:
         """A noise-free sensor behind a perfectly sharp lens (for truth-consistency tests)."""
         return cls(gain=gain, full_well=None, read_noise=0.0, gamma=gamma, blur_px=blur_px)
+
+    @property
+    def response(self) -> Response:
+        """The encoding as a camera response (what the studio writes into the rig it saves)."""
+        if isinstance(self.gamma, Response):
+            return self.gamma
+        if self.gamma == "srgb":
+            return Response.srgb()
+        return Response.linear() if float(self.gamma) == 1.0 else Response.power(float(self.gamma))
 
     @property
     def noisy(self) -> bool:
@@ -129,6 +144,8 @@ class Sensor:
 
     def linearize(self, image) -> np.ndarray:
         """Approximate inverse of the encoding: uint8 BGR -> linear BGR fraction of full scale."""
+        if isinstance(self.gamma, Response):
+            return self.gamma.linearize(np.asarray(image, float)).astype(float)
         if self.gamma == "srgb":
             return srgb_to_linear(image)
         return (np.asarray(image, float) / 255.0) ** float(self.gamma)
@@ -159,3 +176,15 @@ def jpeg_roundtrip(image: np.ndarray, quality: int) -> np.ndarray:
     if not ok:
         raise ValueError("OpenCV could not JPEG-encode the image")
     return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+
+
+def consumer_tone_curve() -> Response:
+    """A consumer camera's JPEG tone curve, as a lookup table: the sRGB curve followed by an
+    S-shaped contrast boost (``0.7 t + 0.3 (1 - cos(pi t)) / 2`` of the sRGB value ``t``), the
+    shape cameras' "standard" picture styles give. Effective gamma about 2.0."""
+    t = np.arange(256) / 255.0
+    # invert code -> sRGB value t numerically (the S-curve is monotonic), then decode sRGB
+    grid = np.linspace(0, 1, 20001)
+    s_curve = 0.7 * grid + 0.3 * (1 - np.cos(np.pi * grid)) / 2
+    srgb_value = np.interp(t, s_curve, grid)
+    return Response.table(np.clip(srgb_to_linear(srgb_value * 255.0), 0, 1))

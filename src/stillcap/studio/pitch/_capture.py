@@ -219,4 +219,5 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
         truth.calibration_error = rig_reprojection_error(
             rig.rig, capture_rig, {c.name: _corridor_points(rig.pair_of(c.name).name) for c in rig.rig})
     report_progress(progress, total, total, "done")
+    capture_rig = capture_rig.with_responses(sensor.response)  # the rig written states the true response
     return PitchCapture(rig, images, truth, capture_rig, calibration, scenes, bool(known_flash_times))
