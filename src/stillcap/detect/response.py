@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
@@ -183,8 +184,17 @@ def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_sc
     # Again without the terminator's band: the lens blur spreads the lit side's light over the
     # shadow line, which a sharp lambertian model reads as a flatter curve (a side- or back-lit
     # ball's gamma came out ~15 % low with 0.6 px of blur).
+    # ... and without the dark markers: pixels well below the first fit, grown by a pixel (a
+    # marker's blurred rim), are paint, not shading (dark paint near the limb steepened the
+    # profile: linear balls came out 0.5-1.0 with the robust loss alone)
+    pred0, s0 = model(best.x)
+    res = 255.0 * (vv - pred0)
+    sigma = 1.4826 * float(np.median(np.abs(res)))
+    dark = np.zeros(sel.shape, np.uint8)
+    dark[sel] = res < -max(4.0 * sigma, 5.0)
+    dark = cv2.dilate(dark, np.ones((3, 3), np.uint8))[sel].astype(bool)
     band = terminator_px / r
-    keep = np.abs(N @ model(best.x)[1]) >= band
+    keep = (np.abs(N @ s0) >= band) & ~dark
     if keep.sum() >= _MIN_PIXELS:
         try:
             best = least_squares(resid, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale, max_nfev=200)

@@ -85,21 +85,27 @@ def _pair_estimates(cams, imgs, radius_m: float) -> tuple:
                  for k in range(2))
 
 
-def pitch_auto_estimates(cap: Capture, radius_m: float) -> dict:
+def pitch_auto_estimates(cap: Capture, radius_m: float, rounds: int = 3) -> dict:
     """``"auto"`` for a pitch: each camera's :class:`ResponseEstimate` from its stereo pair's ball
-    images. Two rounds: the balls refined with the rig's responses give a first estimate; where
-    it names another class, the balls are refined again with it and estimated again (the
-    shading fit needs the ball's centre and radius, which a wrong response biases slightly)."""
+    images. The shading fit needs the ball's centre and radius, which a wrong response biases
+    (and the bias pulls the estimate toward the response the balls were found with), so it
+    iterates: the balls refined with the rig's responses give a first estimate, the balls
+    refined with the estimated ones a second, and a third where a camera's class changed
+    between the two."""
     specs, _ = stereo_pairs(cap)
     out: dict = {}
     for sp in specs:
         cams = [cap.rig[c] for c in sp.cameras]
         imgs = [cap.read_image(im) for im in sp.images]
         est = _pair_estimates(cams, imgs, radius_m)
-        again = [c.with_response(e.response()) if e.ok and e.response_class != c.response.response_class else c
-                 for c, e in zip(cams, est)]
-        if any(a is not c for a, c in zip(again, cams)):
+        for k in range(1, int(rounds)):
+            if not all(e.ok for e in est):
+                break
+            again = [c.with_response(e.response()) for c, e in zip(cams, est)]
+            before = [e.response_class for e in est]
             est = _pair_estimates(again, imgs, radius_m)
+            if k >= 1 and [e.response_class for e in est] == before:
+                break
         out.update(dict(zip(sp.cameras, est)))
     return out
 
