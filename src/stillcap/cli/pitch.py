@@ -99,6 +99,7 @@ def pitch(
     with progress("analysing the pitch") as bar:
         cap = Capture.load(captures[0])
         res = add_truth_comparison(analyse_pitch(cap, opts, progress=bar), cap.truth)
+    print_failed_checks(res.self_checks, "pitch")  # on stderr, also with --json
     written = []
     outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "pitch.json")
     if csv_file is not None:
@@ -119,7 +120,6 @@ def pitch(
         outputs.finish(printed_json=True)
         return
     print_notes(res.messages)
-    print_failed_checks(res.self_checks, "pitch")
     t = right_table(f"{len(res.times)} ball positions from {len(res.pairs)} stereo pair(s) ({res.frame} frame)",
                     ("pair", "strobe Hz", "images", "clock offset s", "position sigma mm", "markers 3D / 1 cam"))
     for p in res.pairs:
