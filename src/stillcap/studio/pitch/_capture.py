@@ -220,4 +220,6 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
             rig.rig, capture_rig, {c.name: _corridor_points(rig.pair_of(c.name).name) for c in rig.rig})
     report_progress(progress, total, total, "done")
     capture_rig = capture_rig.with_responses(sensor.response)  # the rig written states the true response
+    if calibration is not None:
+        calibration.rig = capture_rig
     return PitchCapture(rig, images, truth, capture_rig, calibration, scenes, bool(known_flash_times))
