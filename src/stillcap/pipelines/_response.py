@@ -104,7 +104,7 @@ def pitch_auto_estimates(cap: Capture, radius_m: float, rounds: int = 3) -> dict
             again = [c.with_response(e.response()) for c, e in zip(cams, est)]
             before = [e.response_class for e in est]
             est = _pair_estimates(again, imgs, radius_m)
-            if k >= 1 and [e.response_class for e in est] == before:
+            if [e.response_class for e in est] == before:
                 break
         out.update(dict(zip(sp.cameras, est)))
     return out
