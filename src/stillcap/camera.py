@@ -13,19 +13,21 @@ A :class:`Rig` is an ordered list of named cameras (order is kept as given: neve
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import cv2
 import numpy as np
-from pydantic import AfterValidator, Field, StrictInt, StrictStr, field_validator
+from pydantic import AfterValidator, BeforeValidator, Field, StrictInt, StrictStr, field_validator
 from pydantic_core import PydanticCustomError
 
 from stillcap._checks import as_array, as_points
 from stillcap.files.atomic import write_text
 from stillcap.files.jsonfile import read_json
 from stillcap.files.schema import Finite, Model, describe, validate
+from stillcap.response import Response
 
 RIG_FORMAT = "stillcap-rig"
 RIG_VERSION = 1
@@ -78,6 +80,10 @@ class Camera:
     world2cam : array_like, shape (4, 4)
         Rigid transform from world to camera coordinates.
     image_size : (width, height) in pixels.
+    response : Response, str or dict
+        How the camera's 8-bit values relate to radiance (:class:`stillcap.response.Response`;
+        also its rig-file forms ``"srgb"``, ``"linear"``, ``{"gamma": g}``, ``{"lut": [...]}``).
+        Default sRGB.
     """
 
     name: str
@@ -85,6 +91,7 @@ class Camera:
     dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
     world2cam: np.ndarray = field(default_factory=lambda: np.eye(4))
     image_size: tuple[int, int] = (640, 480)
+    response: Response = field(default_factory=Response.srgb)
 
     def __post_init__(self):
         self.K = as_array(self.K, (3, 3), f"camera {self.name!r} K").copy()
@@ -109,13 +116,16 @@ class Camera:
         if w <= 0 or h <= 0:
             raise ValueError(f"camera {self.name!r}: image_size must be positive, got {self.image_size}")
         self.image_size = (w, h)
+        self.response = Response.from_json(self.response, f"camera {self.name!r}: response")
 
     # --- derived quantities -------------------------------------------------------------
     @classmethod
-    def from_intrinsics(cls, name, fx, fy, cx, cy, image_size, dist=None, world2cam=None) -> Camera:
+    def from_intrinsics(cls, name, fx, fy, cx, cy, image_size, dist=None, world2cam=None,
+                        response: Response | None = None) -> Camera:
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         return cls(name, K, np.zeros(5) if dist is None else dist,
-                   np.eye(4) if world2cam is None else world2cam, image_size)
+                   np.eye(4) if world2cam is None else world2cam, image_size,
+                   Response.srgb() if response is None else response)
 
     @property
     def R(self) -> np.ndarray:
@@ -145,7 +155,11 @@ class Camera:
         return self.K @ self.world2cam[:3]
 
     def with_pose(self, world2cam) -> Camera:
-        return Camera(self.name, self.K, self.dist, world2cam, self.image_size)
+        return Camera(self.name, self.K, self.dist, world2cam, self.image_size, self.response)
+
+    def with_response(self, response) -> Camera:
+        """The same camera with another response (a :class:`Response` or its rig-file form)."""
+        return Camera(self.name, self.K, self.dist, self.world2cam, self.image_size, response)
 
     # --- projection ---------------------------------------------------------------------
     def world_to_cam(self, points_world) -> np.ndarray:
@@ -269,6 +283,7 @@ class Camera:
             "K": self.K.tolist(),
             "dist": self.dist.tolist(),
             "world2cam": self.world2cam.tolist(),
+            "response": self.response.to_json(),
         }
 
     @classmethod
@@ -317,6 +332,14 @@ class Rig:
 
     def subset(self, names) -> Rig:
         return Rig([self[n] for n in names], self.world)
+
+    def with_responses(self, responses) -> Rig:
+        """The rig with other camera responses: one :class:`Response` for every camera, or a dict
+        camera name -> Response (cameras not in it keep theirs)."""
+        if isinstance(responses, dict):
+            return Rig([c.with_response(responses[c.name]) if c.name in responses else c for c in self.cameras],
+                       self.world)
+        return Rig([c.with_response(responses) for c in self.cameras], self.world)
 
     def project(self, points_world) -> np.ndarray:
         """Pixels of world points in every camera, ``(n_cams, N, 2)``."""
@@ -433,8 +456,18 @@ def _rig_version(v: int) -> int:
     return v
 
 
+def _response(value: Any) -> Response:
+    try:
+        return Response.from_json(value, "")
+    except ValueError as e:
+        # the schema's message adds "(got VALUE)" itself
+        why = re.sub(r",? got .*$", "", str(e).removeprefix(": "))
+        raise PydanticCustomError("response", "{why}", {"why": why}) from None
+
+
 class CameraEntry(Model):
-    """One camera of a rig file: ``name``, ``image_size``, ``K``, ``dist``, ``world2cam``."""
+    """One camera of a rig file: ``name``, ``image_size``, ``K``, ``dist``, ``world2cam``,
+    ``response`` (default ``"srgb"``: rigs written before the key existed read as sRGB)."""
 
     name: Annotated[StrictStr, Field(min_length=1)]
     image_size: tuple[_Side, _Side]
@@ -442,6 +475,7 @@ class CameraEntry(Model):
     dist: Annotated[list[_Coefficient], Field(max_length=14)] = [0.0] * 5
     world2cam: Annotated[list[tuple[_Entry, _Entry, _Entry, _Entry]], Field(min_length=3, max_length=4)] = \
         [(1.0, 0.0, 0.0, 0.0), (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0)]
+    response: Annotated[Any, BeforeValidator(_response)] = Response.srgb()
 
     @field_validator("dist")
     @classmethod
@@ -490,7 +524,7 @@ def _camera_entry(d, source: str, prefix: tuple = (), scale: float = 1.0) -> Cam
     world2cam = np.array(rows if len(rows) == 4 else rows + [[0.0, 0.0, 0.0, 1.0]])
     world2cam[:3, 3] *= scale
     try:
-        return Camera(e.name, np.array(e.K), np.array(e.dist), world2cam, e.image_size)
+        return Camera(e.name, np.array(e.K), np.array(e.dist), world2cam, e.image_size, e.response)
     except ValueError as err:  # Camera's own checks (the schema should have said it first)
         raise ValueError(f"{source}: {'.'.join(map(str, prefix)) or '(the entry)'}: {err}") from None
 

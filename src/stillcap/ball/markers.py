@@ -18,18 +18,21 @@ from stillcap.camera import Camera
 from stillcap.detect.ball_markers import BallMarkers, MarkerType, detect_ball_markers
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
+from stillcap.response import Response
 
 __all__ = ["marker_types", "pair_marker_observations"]
 
 
-def marker_types(layout: BallLayout | None = None) -> tuple:
-    """The detector's palette for a ball layout: each type's linear-RGB colour through a 2.2 gamma
-    (as a fully lit marker looks in a photo), BGR 0-255, with the type's shape."""
+def marker_types(layout: BallLayout | None = None, response: Response | None = None) -> tuple:
+    """The detector's palette for a ball layout: each type's linear-RGB colour encoded through
+    the camera's ``response`` (default sRGB; as a fully lit marker looks in that camera's
+    photos), BGR 0-255, with the type's shape."""
     layout = BallLayout.seed() if layout is None else layout
+    response = Response.srgb() if response is None else Response.from_json(response, "response")
     out = []
     for name, shape in zip(layout.type_names, layout.type_shapes):
         rgb = np.clip(np.asarray(layout.palette[name], float), 0.0, 1.0)
-        bgr = 255.0 * rgb[::-1] ** (1.0 / 2.2)
+        bgr = response.encode(rgb[::-1])
         out.append(MarkerType(name, tuple(np.round(bgr, 1)), shape))
     return tuple(out)
 
@@ -64,14 +67,16 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
         ``n_3d``, ``n_ray``, ``epipolar_px`` (median of the matches).
     """
     layout = BallLayout.seed() if layout is None else layout
-    types = marker_types(layout) if types is None else types
+    # the palette as each camera photographs it (its response), unless one is given for both
+    types_a = marker_types(layout, cam_a.response) if types is None else types
+    types_b = marker_types(layout, cam_b.response) if types is None else types
     P = np.asarray(positions, float)
     K = len(P)
     if K == 0:
         empty = MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
         return empty, [BallMarkers.empty(), BallMarkers.empty()], {"n_3d": 0, "n_ray": 0, "epipolar_px": np.nan}
-    ma = detect_ball_markers(img_a, centers_a, radius_a, types)
-    mb = detect_ball_markers(img_b, centers_b, radius_b, types)
+    ma = detect_ball_markers(img_a, centers_a, radius_a, types_a)
+    mb = detect_ball_markers(img_b, centers_b, radius_b, types_b)
     # The K balls' markers (sorted by ball), matched in one call (a call per ball cost more than
     # the matching): labelled by ball and type, a marker pairs only with one of the same ball
     # and type, and an optimal assignment of such independent blocks is each block's own.

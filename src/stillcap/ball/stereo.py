@@ -85,7 +85,8 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
     Parameters
     ----------
     cam_a, cam_b : Camera
-        Calibrated cameras (with distortion) of the pair.
+        Calibrated cameras (with distortion) of the pair; each photo is linearised through its
+        camera's ``response`` for the refinement.
     img_a, img_b : ndarray, shape (H, W, 3)
         Their raw photos (BGR ``uint8``).
     ball_radius_m : float
@@ -153,8 +154,10 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         # (both views of a match, where either silhouette is a half moon: a correction in one view
         # only would move the triangulated depth)
         sh = part if shading and it == iterations - 1 else False
-        ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0, shading=sh)
-        ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0, shading=sh)
+        ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0,
+                                    shading=sh, response=cam_a.response)
+        ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0,
+                                    shading=sh, response=cam_b.response)
         ca, cb = ref_a.centers, ref_b.centers
         tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))  # the last round's is the result
         X = tri.points

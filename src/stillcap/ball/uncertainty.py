@@ -298,7 +298,7 @@ def calibration_modes(cams, centers_px, board_points, focal_sigma: float):
         T = np.eye(4)
         T[:3, :3] = cv2.Rodrigues(rvec)[0]
         T[:3, 3] = tvec.ravel()
-        c2 = Camera(cam.name, K, cam.dist, T, cam.image_size)
+        c2 = Camera(cam.name, K, cam.dist, T, cam.image_size, cam.response)
         pair = [c2, cams[1]] if i == 0 else [cams[0], c2]
         out[i] = triangulate(pair, x).points - X0
     return out

@@ -98,7 +98,7 @@ def _camera_from(c: Camera, intr: np.ndarray | None, world2cam: np.ndarray) -> C
         return c.with_pose(world2cam)
     K = c.K.copy()
     K[0, 0], K[1, 1], K[0, 2], K[1, 2] = intr[:4]
-    return Camera(c.name, K, intr[4:], world2cam, c.image_size)
+    return Camera(c.name, K, intr[4:], world2cam, c.image_size, c.response)
 
 
 def bundle_adjust(cameras: Sequence[Camera], board2world, observations: Sequence[Observation],

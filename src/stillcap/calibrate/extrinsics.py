@@ -352,8 +352,8 @@ def calibrate_stereo_from_detections(pairs: Sequence[tuple[str, Detection, Detec
         obj, il, ir, left_cam.K.copy(), left_cam.dist.copy(), right_cam.K.copy(), right_cam.dist.copy(),
         left_cam.image_size, None, None, flags=flags)
     T = np.ravel(T).astype(float)
-    cl = Camera(names[0], K1, np.ravel(d1)[:5], np.eye(4), left_cam.image_size)
-    cr = Camera(names[1], K2, np.ravel(d2)[:5], pose_matrix(R, T), right_cam.image_size)
+    cl = Camera(names[0], K1, np.ravel(d1)[:5], np.eye(4), left_cam.image_size, left_cam.response)
+    cr = Camera(names[1], K2, np.ravel(d2)[:5], pose_matrix(R, T), right_cam.image_size, right_cam.response)
     per = {k: (float(e[0]), float(e[1])) for k, e in zip(used, np.asarray(per_view).reshape(-1, 2))}
     ok = bool(np.isfinite(rms) and np.all(np.isfinite(T)))
     res = StereoResult(Rig([cl, cr]), float(rms), np.asarray(R, float), T, np.asarray(E, float),

@@ -50,5 +50,5 @@ def turntable_rig(n_views: int = 12, step_deg: float = 30.0, distance: float = 0
     for i in range(n_views):
         deg = start_deg + i * step_deg
         cams.append(Camera(f"turn_{deg:05.1f}deg", camera.K, camera.dist,
-                           turntable_world2cam(np.radians(deg), distance, height), camera.image_size))
+                           turntable_world2cam(np.radians(deg), distance, height), camera.image_size, camera.response))
     return Rig(cams, world="puppet")

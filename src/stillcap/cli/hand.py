@@ -10,6 +10,8 @@ from rich.console import Console
 from rich.table import Table
 
 from stillcap.cli._format import num as _f, print_notes, right_table
+from stillcap.cli._response import RESPONSE_HELP, parse_response_option
+from stillcap.cli._selfchecks import print_failed_checks
 from stillcap.cli._progress import progress
 from stillcap.cli._outputs import Outputs, check
 
@@ -53,6 +55,7 @@ def hand(
                                       "(BVH, glTF, COLLADA) by this factor, e.g. 40 to play a 60 ms take in 2.4 s "
                                       "(Blender plays a 1000 fps take within one 24 fps frame otherwise)."),
     force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --export)."),
+    response: str = typer.Option(None, "--response", help=RESPONSE_HELP),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -72,7 +75,8 @@ def hand(
 
         read_label_overrides(overrides)
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
-                       personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
+                       personalise=personalise, frame_rate=frame_rate, interpolation=interpolation,
+                       response=parse_response_option(response))
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     from stillcap.io.export import EXPORTERS, known_extensions
@@ -131,6 +135,7 @@ def print_hand_result(res) -> None:
     import numpy as np
 
     print_notes(res.messages)
+    print_failed_checks(res.self_checks, "hand")
     lab = res.labels
     pts = res.points
     console.print(f"{len(pts)} glove markers in 3D from pairs {', '.join(res.pairs)} "

@@ -11,6 +11,7 @@ from rich.table import Table
 
 from stillcap.cli._progress import progress
 from stillcap.cli._outputs import Outputs, check
+from stillcap.cli._response import RESPONSE_HELP, parse_response_option
 
 console = Console()
 
@@ -23,6 +24,7 @@ def markers(
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path = typer.Option(None, "--out", help="Also write the result as JSON to this file."),
     force: bool = typer.Option(False, "--force", help="Overwrite a file stillcap did not write (--out)."),
+    response: str = typer.Option(None, "--response", help=RESPONSE_HELP + " (auto: not for markers yet)"),
 ):
     """Find coloured marker balls in every photo, match them across cameras, triangulate them.
 
@@ -33,6 +35,7 @@ def markers(
     from stillcap.io.capture import Capture
     from stillcap.pipelines.markers import reconstruct_markers
 
+    camera_response = parse_response_option(response)
     check(out, "file", "--out", force)
     pal = None
     if palette is not None:  # a bad file is named before the photos are read
@@ -49,7 +52,7 @@ def markers(
             images.append(cap.read_image(shots[0]))
             bar(len(images), item=cam.name)
     with progress("finding and triangulating markers"):
-        rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px)
+        rec = reconstruct_markers(cap.rig, images, pal, max_px=max_px, response=camera_response)
     result = result_with_truth(rec, cap.truth)
     truth = cap.truth if cap.truth and cap.truth.get("kind") == "markers" else None
     outputs = Outputs(lambda: json.dumps(result, indent=2) + "\n", "markers.json")

@@ -13,6 +13,8 @@ from rich.table import Table
 
 from stillcap.cli._format import num as _f, print_notes, right_table
 from stillcap.cli._progress import progress
+from stillcap.cli._response import RESPONSE_HELP, parse_response_option
+from stillcap.cli._selfchecks import print_failed_checks
 from stillcap.cli._outputs import Outputs, check, oserror_text
 
 console = Console()
@@ -59,6 +61,7 @@ def pitch(
                                   help="Worker processes for the stereo pairs' work (0: threads). Default: 0 for "
                                        "one capture, 2 for several (the pool starts once, ~0.5 s, then is reused)."),
     force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --csv)."),
+    response: str = typer.Option(None, "--response", help=RESPONSE_HELP),
 ):
     """Ball positions, release velocity, spin, reference trajectory and pitch metrics of a capture.
 
@@ -79,6 +82,7 @@ def pitch(
     from stillcap.pipelines.pitch import TABLE1_COLUMNS, PitchOptions, analyse_pitch
     from stillcap.studio.compare.pitch import add_truth_comparison
 
+    camera_response = parse_response_option(response)
     _choice("--spin", spin, SPIN_CHOICES)
     _choice("--physics", physics, PHYSICS_CHOICES)
     _choice("--fit", fit, FIT_CHOICES)
@@ -96,13 +100,14 @@ def pitch(
         ball_obj = load_ball(ball, "--ball")
     opts = PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
                         release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes,
-                        ball=ball_obj)
+                        ball=ball_obj, response=camera_response)
     if len(captures) > 1:
         _session(captures, opts, report, as_json)
         return
     with progress("analysing the pitch") as bar:
         cap = Capture.load(captures[0])
         res = add_truth_comparison(analyse_pitch(cap, opts, progress=bar), cap.truth)
+    print_failed_checks(res.self_checks, "pitch")  # on stderr, also with --json
     written = []
     outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "pitch.json")
     if csv_file is not None:
@@ -186,8 +191,6 @@ def _session(captures: list[Path], opts, report: Path | None, as_json: bool) -> 
             try:
                 loaded = Capture.load(cap)
                 res = add_truth_comparison(analyse_pitch(loaded, opts), loaded.truth)
-                from stillcap.cli._selfchecks import print_failed_checks
-
                 print_failed_checks(res.self_checks, name)
             except Exception as e:  # noqa: BLE001 - one bad capture must not end the session: name it, go on
                 failed.append(name)

@@ -21,6 +21,7 @@ from rich.table import Table
 
 from stillcap.cli._outputs import Outputs, check
 from stillcap.cli._progress import progress
+from stillcap.cli._response import RESPONSE_HELP, parse_response_option
 
 app = typer.Typer(no_args_is_help=True, add_completion=False,
                   help="Puppet capture: turntable photos of a marked puppet -> 3D markers and a posed skeleton "
@@ -213,6 +214,7 @@ def run(
     markers: Path = typer.Option(None, "--markers", help="The puppet's beads (a stillcap-markerset JSON file) "
                                  "instead of the capture's or project's."),
     force: Force = False,
+    response: str = typer.Option(None, "--response", help=RESPONSE_HELP + " (auto: not for the puppet yet)"),
 ):
     """Find, name and triangulate the beads in every photo and pose the skeleton.
 
@@ -223,6 +225,10 @@ def run(
     from stillcap.pipelines.puppet import analyse_puppet
 
     settings = _settings(detector, identify)
+    if response is not None:
+        from stillcap.pipelines.puppet import with_options
+
+        settings = with_options(settings, response=parse_response_option(response))
     check(out, "folder", "--out", force, OUT_FILES)
     if not folder.exists():
         raise ValueError(f"folder {folder} does not exist")

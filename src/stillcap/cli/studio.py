@@ -31,6 +31,33 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+CAMERA_RESPONSE_HELP = ("The cameras' response the photos are encoded with: srgb (default), linear, gamma:G or "
+                        "tone (sRGB with a consumer S-shaped tone curve); written into rig.json as each camera's "
+                        "'response' (docs/camera-response.md).")
+
+
+def _sensor_response(text: str | None):
+    """``--camera-response`` as a :class:`stillcap.response.Response` (None: the sensor's default)."""
+    if text is None:
+        return None
+    if text.strip().lower() == "tone":
+        return "tone"
+    from stillcap.response import Response, parse_response_spec
+
+    r = parse_response_spec(text, "--camera-response")
+    if not isinstance(r, Response):
+        raise ValueError(f"--camera-response {text!r}: the studio renders a stated response (srgb, linear, gamma:G "
+                         "or tone)")
+    return r
+
+
+def _studio_sensor(response):
+    """The studio's default sensor with another encoding."""
+    from stillcap.studio.sensor import Sensor
+
+    return Sensor(tone=True) if response == "tone" else Sensor(gamma=response)
+
+
 def _save(capture, images, out: Path, jpeg: int | None) -> None:
     with progress(f"writing {len(images)} images"):
         capture.save(out, images, jpeg_quality=jpeg or 95)
@@ -110,6 +137,7 @@ def puppet(
     markers: str = typer.Option("puppet-16", "--markers",
                                 help="Marker set: puppet-16 (the thesis's 16 beads), puppet-20 (plus a second bead "
                                      "on each forearm and shin) or a marker-set JSON file. Stored in the capture."),
+    camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
 ):
     """The thesis's marked puppet on its turntable, photographed by the webcam; truth = pose, 3D
     beads and per-view bead pixels and visibility."""
@@ -120,11 +148,16 @@ def puppet(
 
     markerset = MarkerSet.resolve(markers)
     markerset.check_skeleton(Skeleton.puppet())
+    sensor = webcam_sensor(jpeg_quality=None)  # the webcam's JPEG compression happens once, when the capture is written
+    if (response := _sensor_response(camera_response)) is not None:
+        from dataclasses import replace
+
+        sensor = replace(sensor, tone=True) if response == "tone" else replace(sensor, gamma=response)
     _check_out(out, force)
     rig = turntable_rig(views, step_deg)
     with progress("rendering views", total=views) as update:
         # the webcam's JPEG compression happens once, when the capture is written
-        result = puppet_scene(rig, pose, rng=seed, sensor=webcam_sensor(jpeg_quality=None),
+        result = puppet_scene(rig, pose, rng=seed, sensor=sensor,
                               progress=lambda i, n: update(i), markerset=markerset)
     cap, images = result.to_capture(".jpg")
     _save(cap, images, out, jpeg)
@@ -163,12 +196,10 @@ def pitch(
     noise: float = typer.Option(1.0, "--noise", min=0.0,
                                 help="Sensor noise relative to the default (shot and read noise; 0 = none)."),
     white_balance: str = typer.Option("1,1,1", "--white-balance", help="Colour cast: R,G,B gains on the light."),
-    sensor_response: str = typer.Option("srgb", "--sensor-response",
-                                        help="The cameras' true response: srgb, linear, gamma:G or tone (sRGB with a "
-                                             "consumer S-shaped tone curve); recorded in truth.json camera_response."),
     ball_radius_mm: float = typer.Option(None, "--ball-radius-mm", help="Ball radius, mm (default the baseball's)."),
     list_presets: bool = typer.Option(False, "--list-presets", help="List the pitch presets and exit."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+    camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
 ):
     """A pitched, marked baseball photographed by the seed's two strobed stereo pairs (front 80 Hz,
     back 50 Hz); the rig is calibrated from rendered board photos; truth = flight, orientation per
@@ -192,7 +223,7 @@ def pitch(
     if ball is not None:
         from stillcap.ball.ballfile import load_ball
         ball_obj = load_ball(ball, "--ball")
-    sensor = _pitch_sensor(sensor_response, blur_px, noise, white_balance, jpeg)
+    sensor = _pitch_sensor(_sensor_response(camera_response), blur_px, noise, white_balance)
     _check_out(out, force)
     with progress("rendering") as update:
         result = pitch_capture(preset, seed, calibrate=not no_calibrate, speed_mph=speed_mph, spin_rpm=spin_rpm,
@@ -221,25 +252,11 @@ def pitch(
             console.print("[yellow]warning:[/] a camera's board residuals exceed 1 px; see capture.json calibration")
 
 
-def _pitch_sensor(response: str, blur_px: float, noise: float, white_balance: str, jpeg):
-    """The studio sensor of ``studio pitch``'s options (a bad value: ValueError naming the option)."""
+def _pitch_sensor(response, blur_px: float, noise: float, white_balance: str):
+    """The studio sensor of ``studio pitch``'s options (``response``: :func:`_sensor_response`'s;
+    a bad value: ValueError naming the option)."""
     from stillcap.studio.sensor import Sensor
 
-    r = response.strip().lower()
-    tone = r == "tone"
-    if r in ("srgb", "tone"):
-        gamma = "srgb"
-    elif r == "linear":
-        gamma = 1.0
-    elif r.startswith("gamma:"):
-        try:
-            gamma = float(r.split(":", 1)[1])
-        except ValueError:
-            raise ValueError(f"--sensor-response {response!r}: gamma:G needs a number, e.g. gamma:2.2") from None
-        if not 0.5 <= gamma <= 4.0:
-            raise ValueError(f"--sensor-response {response!r}: the gamma must be between 0.5 and 4")
-    else:
-        raise ValueError(f"--sensor-response must be srgb, linear, gamma:G or tone, got {response!r}")
     try:
         wb = tuple(float(v) for v in white_balance.split(","))
     except ValueError:
@@ -249,7 +266,8 @@ def _pitch_sensor(response: str, blur_px: float, noise: float, white_balance: st
     base = Sensor()
     # the JPEG quality is applied when the capture is written (--jpeg); recorded in the truth here
     return Sensor(full_well=None if noise == 0 else base.full_well / noise ** 2, read_noise=base.read_noise * noise,
-                  gamma=gamma, blur_px=blur_px, tone=tone, white_balance=wb, jpeg_quality=None)
+                  gamma="srgb" if response in (None, "tone") else response, blur_px=blur_px,
+                  tone=response == "tone", white_balance=wb, jpeg_quality=None)
 
 
 @app.command()
@@ -261,15 +279,18 @@ def hand(
                              help="Image size WIDTHxHEIGHT (4:3; smaller keeps the field of view)."),
     jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+    camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
 ):
     """The pitcher's gloved hand with its 18 markers around release, photographed by 4 cameras
     behind the pitcher in a 75 Hz strobe's light; truth = marker positions, joint angles and the
     ball per flash (see docs/hand.md)."""
     from stillcap.studio.hand import hand_capture
 
+    response = _sensor_response(camera_response)
     _check_out(out, force)
     with progress("rendering cameras", total=4) as update:
         result = hand_capture(seed, preset=preset, image_size=_parse_size(size),
+                              sensor=None if response is None else _studio_sensor(response),
                               progress=lambda i, n, label: update(i, n))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)

@@ -37,6 +37,7 @@ from scipy import ndimage as ndi
 from skimage.feature import peak_local_max
 from skimage.segmentation import watershed
 
+from stillcap.response import Response
 
 __all__ = ["CLIPPED", "MERGED", "SPLIT", "ColorBlobs", "disc_mask", "find_color_markers"]
 
@@ -152,16 +153,6 @@ def disc_mask(shape, centers, radii, grow_px: float = 0.0) -> np.ndarray:
     return mask
 
 
-def _srgb_lut() -> np.ndarray:
-    # The sRGB decoding curve as a 256-entry table (IEC 61966-2-1). Written out because OpenCV
-    # and scikit-image only convert whole colour spaces, not the transfer curve alone.
-    v = np.arange(256) / 255.0
-    return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-_SRGB = _srgb_lut()
-
-
 def _exclusion(exclude, shape) -> np.ndarray | None:
     if exclude is None:
         return None
@@ -184,7 +175,7 @@ def _hue_distance(h, ref) -> np.ndarray:
 def find_color_markers(image, colors: Mapping[str, tuple], *, min_area_px: int = 4,
                         max_area_px: int | None = 5000, exclude=None, hue_tol: float = 0.06,
                         min_saturation: float = 0.5, min_brightness: float = 0.25, grow_px: int = 1,
-                        weighting: str = "linear-chroma", encoding: str = "srgb", split: bool = True,
+                        weighting: str = "linear-chroma", encoding="srgb", split: bool = True,
                         merged_area: float = 1.7, merged_roundness: float = 0.6) -> ColorBlobs:
     """Find the coloured markers of ``colours`` in a photo.
 
@@ -211,8 +202,8 @@ def find_color_markers(image, colors: Mapping[str, tuple], *, min_area_px: int =
     weighting : {"linear-chroma", "chroma", "brightness", "binary"}
         Pixel weights of the centroid: chroma in linear light (default), chroma of the encoded
         values, encoded brightness (max channel), or 1 per core pixel.
-    encoding : {"srgb", "linear"}
-        How the photo encodes light (for ``"linear-chroma"``).
+    encoding : Response, or its rig-file form ("srgb", "linear", {"gamma": g}, ...)
+        How the photo encodes light, the camera's response (for ``"linear-chroma"``).
     split : bool
         Split merged regions with several chroma maxima (watershed).
     merged_area, merged_roundness : float
@@ -233,8 +224,7 @@ def find_color_markers(image, colors: Mapping[str, tuple], *, min_area_px: int =
         raise ValueError("colours must be a non-empty mapping name -> (hue, saturation, brightness)")
     if weighting not in ("linear-chroma", "chroma", "brightness", "binary"):
         raise ValueError(f"weighting must be 'linear-chroma', 'chroma', 'brightness' or 'binary', got {weighting!r}")
-    if encoding not in ("srgb", "linear"):
-        raise ValueError(f"encoding must be 'srgb' or 'linear', got {encoding!r}")
+    table = Response.from_json(encoding, "encoding").to_linear_lut()
     if not 0 < hue_tol < 0.5:
         raise ValueError(f"hue_tol must be in (0, 0.5) turns, got {hue_tol}")
     names = list(colors)
@@ -268,7 +258,6 @@ def find_color_markers(image, colors: Mapping[str, tuple], *, min_area_px: int =
     lo = cv2.min(cv2.min(crop[..., 0], crop[..., 1]), crop[..., 2])
     if weighting == "linear-chroma":
         # the decoding curve is monotonic, so max and min commute with it
-        table = _SRGB if encoding == "srgb" else np.arange(256, dtype=np.float32) / 255.0
         wimg = table[hi] - table[lo]
     elif weighting == "chroma":
         wimg = (hi.astype(np.float32) - lo) / 255.0
@@ -282,7 +271,7 @@ def find_color_markers(image, colors: Mapping[str, tuple], *, min_area_px: int =
         if weighting == "brightness":
             floor = float(np.median(sub.max(axis=2))) / 255.0
         else:
-            t = _SRGB if weighting == "linear-chroma" and encoding == "srgb" else np.arange(256, dtype=np.float32) / 255.0
+            t = table if weighting == "linear-chroma" else np.arange(256, dtype=np.float32) / 255.0
             floor = float(np.median(t[sub.max(axis=2)] - t[sub.min(axis=2)]))
     h_c, w_c = cls.shape
 

@@ -13,19 +13,19 @@ from stillcap.camera import Rig
 from stillcap.detect.blobs import MARKER_BALL_COLORS, Blobs, classify_colors, find_blobs
 from stillcap.geometry.correspond import correspond
 from stillcap.geometry.triangulate import Triangulation, triangulate
+from stillcap.response import Response, check_response_option
 
 
-def default_palette() -> dict[str, tuple[float, float, float]]:
-    """The built-in marker-ball colours as they photograph (sRGB, BGR order, 0-255).
+def default_palette(response: Response | None = None) -> dict[str, tuple[float, float, float]]:
+    """The built-in marker-ball colours as they photograph (BGR order, 0-255) through a camera's
+    ``response`` (default sRGB).
 
     Only the hue and chroma matter much to :func:`classify_colors`, so the albedo is encoded
-    with the sRGB curve as if lit to full scale.
+    as if lit to full scale.
     """
-    def srgb8(lin):
-        lin = np.clip(np.asarray(lin, float), 0, 1)
-        return 255 * np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
-
-    return {name: tuple(float(v) for v in srgb8(rgb)[::-1]) for name, rgb in MARKER_BALL_COLORS.items()}
+    response = Response.srgb() if response is None else response
+    return {name: tuple(float(v) for v in response.encode(np.asarray(rgb, float))[::-1])
+            for name, rgb in MARKER_BALL_COLORS.items()}
 
 
 @dataclass
@@ -52,7 +52,7 @@ class MarkerReconstruction:
 
 def reconstruct_markers(rig: Rig, images, palette: dict | None = None, max_px: float = 2.0,
                         min_area: int = 12, max_color_distance: float = 40.0, min_chroma: float = 20.0,
-                        threshold_above_background: float = 12.0) -> MarkerReconstruction:
+                        threshold_above_background: float = 12.0, response=None) -> MarkerReconstruction:
     """Find, label, match and triangulate coloured marker balls.
 
     Parameters
@@ -63,10 +63,16 @@ def reconstruct_markers(rig: Rig, images, palette: dict | None = None, max_px: f
     max_px : epipolar / reprojection tolerance for matching and outlier rejection, pixels
     min_chroma : blobs less colourful than this (Lab chroma; white or grey balls) are ignored
     threshold_above_background : foreground = brighter than the median by this (0-255 units)
+    response : None (each camera's own, ``Camera.response``) or a Response for every camera: the
+        default palette as each camera photographs it (``docs/camera-response.md``)
     """
     if len(images) != len(rig):
         raise ValueError(f"need one image per camera ({len(rig)}), got {len(images)}")
-    palette = palette or default_palette()
+    response = check_response_option(response)
+    if response == "auto":
+        raise ValueError("response 'auto' is not available for marker captures yet; give srgb, linear or gamma:G")
+    if response is not None:
+        rig = rig.with_responses(response)
     blobs: list[Blobs] = []
     pts, labs = [], []
     for cam, img in zip(rig, images):
@@ -79,7 +85,8 @@ def reconstruct_markers(rig: Rig, images, palette: dict | None = None, max_px: f
         value = np.asarray(img).max(axis=2) if np.asarray(img).ndim == 3 else np.asarray(img)
         b = find_blobs(img, threshold=float(np.median(value)) + threshold_above_background,
                        min_area=min_area, centroid="silhouette")
-        lab = classify_colors(b.colors_bgr, list(palette.values()), list(palette), max_color_distance,
+        pal = palette or default_palette(cam.response)
+        lab = classify_colors(b.colors_bgr, list(pal.values()), list(pal), max_color_distance,
                               min_chroma=min_chroma)
         keep = np.array([x is not None for x in lab], bool)
         blobs.append(b)

@@ -32,7 +32,7 @@ scenario's business (:func:`stillcap.studio.pitch.calibrate_pitch_rig` shows how
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
@@ -741,6 +741,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
         list(skeleton.names), {"position": hrig.light.position, "intensity": hrig.light.intensity})
 
     sensor = sensor or Sensor()
+    hrig = replace(hrig, rig=hrig.rig.with_responses(sensor.response))  # the rig written states the true response
     images = []
     for i, cam in enumerate(hrig.rig):
         images.append(render(cam, scene, sensor, r_render, supersample))

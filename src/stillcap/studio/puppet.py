@@ -532,6 +532,7 @@ def puppet_scene(rig: Rig | None = None, pose: Pose | str | None = None, rng=Non
     if not isinstance(rig, Rig) or len(rig) == 0:
         raise ValueError(f"rig must be a stillcap Rig with at least one camera, got {rig!r}")
     sensor = sensor or webcam_sensor()
+    rig = rig.with_responses(sensor.response)  # the rig written with the capture states the true response
     if pose is None or isinstance(pose, str):
         pose, source = pose_from_spec(pose or "random", rng, markerset=markerset, skeleton=skeleton)
     elif isinstance(pose, Pose):

@@ -8,8 +8,9 @@ power law), optionally followed by a consumer camera's S-shaped tone curve; quan
 optionally round-trip through JPEG with OpenCV so the artefacts are real ones. A white-balance
 cast scales the radiance per channel before the noise.
 
-:meth:`Sensor.response` gives the camera's true response in the rig file's forms (``"srgb"``,
-``"linear"``, ``{"gamma": g}``, ``{"lut": [256 linear values]}``) for the studio's truth.
+:attr:`Sensor.response` gives the camera's true response (:class:`stillcap.response.Response`;
+``.to_json()`` in the rig file's forms ``"srgb"``, ``"linear"``, ``{"gamma": g}``,
+``{"lut": [256 linear values]}``): the studio writes it into the rig and the truth.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from stillcap._checks import as_rng
+from stillcap.response import Response
 
 _LEVELS = 16384  # linear quantisation before the 8-bit LUT: < 1 code value steps in the darks
 
@@ -47,7 +49,9 @@ def tone_curve(y) -> np.ndarray:
 def _encode(x, gamma, tone: bool) -> np.ndarray:
     """Linear [0, 1] -> encoded [0, 1] (before quantisation)."""
     x = np.asarray(x, float)
-    if gamma == "srgb":
+    if isinstance(gamma, Response):
+        y = gamma.encode(np.clip(x, 0, 1)) / 255.0
+    elif gamma == "srgb":
         y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.clip(x, 0, None) ** (1 / 2.4) - 0.055)
     else:
         y = np.clip(x, 0, None) ** (1 / float(gamma))
@@ -104,8 +108,9 @@ class Sensor:
         if wb.shape != (3,) or not np.all(np.isfinite(wb)) or np.any(wb <= 0):
             raise ValueError(f"white_balance must be 3 positive RGB gains, got {self.white_balance!r}")
         self.white_balance = tuple(float(v) for v in wb)
-        if self.gamma != "srgb" and not (isinstance(self.gamma, (int, float)) and self.gamma > 0):
-            raise ValueError(f"gamma must be 'srgb' or a positive number, got {self.gamma!r}")
+        if not isinstance(self.gamma, Response) and self.gamma != "srgb" \
+                and not (isinstance(self.gamma, (int, float)) and self.gamma > 0):
+            raise ValueError(f"gamma must be 'srgb', a positive number or a Response, got {self.gamma!r}")
         if self.jpeg_quality is not None and not 0 <= int(self.jpeg_quality) <= 100:
             raise ValueError(f"jpeg_quality must be in 0..100, got {self.jpeg_quality}")
         if self.read_noise < 0 or (self.full_well is not None and self.full_well <= 0):
@@ -163,6 +168,8 @@ class Sensor:
         """Approximate inverse of the encoding: uint8 BGR -> linear BGR fraction of full scale."""
         if self.tone:
             return np.asarray(self.response_lut(), float)[np.asarray(image, np.uint8)]
+        if isinstance(self.gamma, Response):
+            return self.gamma.linearize(np.asarray(image, float)).astype(float)
         if self.gamma == "srgb":
             return srgb_to_linear(image)
         return (np.asarray(image, float) / 255.0) ** float(self.gamma)
@@ -174,16 +181,17 @@ class Sensor:
         # the code c is the encoded value's nearest integer: its linear value is where the curve crosses c
         return [float(v) for v in np.interp(np.arange(256), y, x)]
 
-    def response(self):
-        """The camera's true response in the rig file's forms: ``"srgb"``, ``"linear"``,
-        ``{"gamma": g}`` or, with the tone curve, ``{"lut": [256 linear values]}``."""
+    @property
+    def response(self) -> Response:
+        """The camera's true response (what the studio writes into the rig it saves and into the
+        truth; ``.to_json()`` gives the rig file's form): with the tone curve, its lookup table."""
         if self.tone:
-            return {"lut": self.response_lut()}
+            return Response.table(self.response_lut())
+        if isinstance(self.gamma, Response):
+            return self.gamma
         if self.gamma == "srgb":
-            return "srgb"
-        if float(self.gamma) == 1.0:
-            return "linear"
-        return {"gamma": float(self.gamma)}
+            return Response.srgb()
+        return Response.linear() if float(self.gamma) == 1.0 else Response.power(float(self.gamma))
 
 
 def _blur(rad: np.ndarray, sigma: float, boxes) -> np.ndarray:
@@ -211,3 +219,15 @@ def jpeg_roundtrip(image: np.ndarray, quality: int) -> np.ndarray:
     if not ok:
         raise ValueError("OpenCV could not JPEG-encode the image")
     return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+
+
+def consumer_tone_curve() -> Response:
+    """A consumer camera's JPEG tone curve, as a lookup table: the sRGB curve followed by an
+    S-shaped contrast boost (``0.7 t + 0.3 (1 - cos(pi t)) / 2`` of the sRGB value ``t``), the
+    shape cameras' "standard" picture styles give. Effective gamma about 2.0."""
+    t = np.arange(256) / 255.0
+    # invert code -> sRGB value t numerically (the S-curve is monotonic), then decode sRGB
+    grid = np.linspace(0, 1, 20001)
+    s_curve = 0.7 * grid + 0.3 * (1 - np.cos(np.pi * grid)) / 2
+    srgb_value = np.interp(t, s_curve, grid)
+    return Response.table(np.clip(srgb_to_linear(srgb_value * 255.0), 0, 1))

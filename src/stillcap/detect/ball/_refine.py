@@ -3,8 +3,6 @@ radius on the linearised photo (:func:`refine_ball_centers`)."""
 
 from __future__ import annotations
 
-import functools
-
 import cv2
 import numpy as np
 
@@ -14,27 +12,20 @@ from stillcap.detect.ball._hough import (_gradient, _grid_peak, _percentile, _qu
                                          _score, _template)
 from stillcap.detect.ball._shading import _shading_bias
 from stillcap.detect.ball._types import BallFlag, RefinedCenters
+from stillcap.response import Response
 
 
-@functools.lru_cache(maxsize=8)
-def _gamma_lut(gamma: float) -> np.ndarray:
-    """8-bit value -> linear radiance ``(v / 255) ** gamma``, float32 (256,); cached (read-only)."""
-    lut = ((np.arange(256, dtype=np.float64) / 255.0) ** gamma).astype(np.float32)
-    lut.flags.writeable = False
-    return lut
-
-
-def _linear(a: np.ndarray, gamma: float) -> np.ndarray:
-    """Pixel values (8-bit scale) -> linear radiance 0-1, float32."""
-    if gamma == 1.0:
-        return a.astype(np.float32) / 255.0
+def _linear(a: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """Pixel values (8-bit scale) -> linear radiance 0-1, float32, through the response's table
+    ``lut`` (:meth:`stillcap.response.Response.to_linear_lut`; floats are interpolated)."""
     if a.dtype == np.uint8:
-        return _gamma_lut(gamma)[a]
-    return (np.clip(a.astype(np.float32), 0, 255) / 255.0) ** gamma
+        return lut[a]
+    c = np.clip(a.astype(np.float32), 0, 255)
+    return np.interp(c, np.arange(256, dtype=np.float32), lut).astype(np.float32)
 
 
-def _linear_max(a: np.ndarray, gamma: float) -> np.ndarray:
-    """Brightest channel of a crop in linear radiance (``_linear(a, gamma).max(axis=2)``).
+def _linear_max(a: np.ndarray, lut: np.ndarray) -> np.ndarray:
+    """Brightest channel of a crop in linear radiance (``_linear(a, lut).max(axis=2)``).
 
     The linearisation is monotonic, so the channel maximum is taken first on the 8-bit values
     (two ``np.maximum`` on channel views: ``max(axis=2)`` over 3 channels is a slow strided
@@ -45,14 +36,21 @@ def _linear_max(a: np.ndarray, gamma: float) -> np.ndarray:
         if a.dtype == np.uint8:
             a = np.maximum(np.maximum(a[:, :, 0], a[:, :, 1]), a[:, :, 2])
         else:
-            return _linear(a, gamma).max(axis=2)
-    if a.dtype == np.uint8 and gamma != 1.0:
-        return cv2.LUT(a, _gamma_lut(gamma))
-    return _linear(a, gamma)
+            return _linear(a, lut).max(axis=2)
+    if a.dtype == np.uint8:
+        return cv2.LUT(a, lut)
+    return _linear(a, lut)
+
+
+def _response_lut(response) -> np.ndarray:
+    """The code -> radiance table of ``response`` (a Response, its rig-file form, or None = sRGB)."""
+    if response is None:
+        return Response.srgb().to_linear_lut()
+    return Response.from_json(response, "response").to_linear_lut()
 
 
 def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None, background=None,
-                        gamma: float = 2.2, sigma: float = 0.7, power: float = 0.0, fine_step: float = 0.1,
+                        response: Response | None = None, sigma: float = 0.7, power: float = 0.0, fine_step: float = 0.1,
                         min_score: float = 0.2, min_edge: float = 0.004, start_refined: bool = False,
                         shading=False, psf_px: float = 0.5, shading_support: float = 0.7) -> RefinedCenters:
     """Refine ball centres by a circular Hough transform of known radius (step 4).
@@ -90,12 +88,13 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
         ``outlines_px - centers_px[:, None]``), used instead of circles.
     background : ndarray like ``image``, optional
         Photo of the empty scene, subtracted first.
-    gamma : float
-        The photo's encoding gamma: pixel values are linearised (``(v / 255) ** gamma``) before
-        the gradient. In gamma-encoded values a blurred edge is asymmetric and its gradient
-        peak lies outside the true limb (by ~0.3-0.6 px for a 0.6 px blur), which the lit half
-        of a half moon turns into a centre bias of the same size; in linear values it does not.
-        Use 1.0 for linear (raw) data.
+    response : Response, optional
+        The camera's response (:class:`stillcap.response.Response`; default sRGB): pixel values
+        are linearised through it before the gradient. In gamma-encoded values a blurred edge
+        is asymmetric and its gradient peak lies outside the true limb (by ~0.3-0.6 px for a
+        0.6 px blur), which the lit half of a half moon turns into a centre bias of the same
+        size; in linear values it does not. A wrong response biases the centres the same way
+        (``docs/camera-response.md``): pass the camera's own (``Camera.response``).
     sigma : float
         Gaussian smoothing (px) before the gradient.
     power : float
@@ -133,6 +132,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
     RefinedCenters
     """
     img = _check_image(image)
+    lut = _response_lut(response)
     c0 = as_array(centers, (None, 2), "centers")
     n = len(c0)
     if outlines is not None:
@@ -197,11 +197,11 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
             scores[i] = np.nan
             continue
         if background is not None:
-            crop = np.abs(_linear(img[ya:yb, xa:xb], gamma) - _linear(bg[ya:yb, xa:xb], gamma))
+            crop = np.abs(_linear(img[ya:yb, xa:xb], lut) - _linear(bg[ya:yb, xa:xb], lut))
             if crop.ndim == 3:
                 crop = crop.max(axis=2)
         else:
-            crop = _linear_max(img[ya:yb, xa:xb], gamma)
+            crop = _linear_max(img[ya:yb, xa:xb], lut)
         lin = crop
         if sigma > 0:
             crop = cv2.GaussianBlur(crop, (0, 0), sigma)

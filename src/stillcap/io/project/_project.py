@@ -186,7 +186,7 @@ class Project:
         if self.turntable is not None:
             return self.turntable.camera_at(v.angle_deg, v.name)
         c = self.rig[v.camera]
-        return Camera(v.name, c.K, c.dist, c.world2cam, c.image_size)
+        return Camera(v.name, c.K, c.dist, c.world2cam, c.image_size, c.response)
 
     def image_size(self, view) -> tuple[int, int]:
         """``(width, height)`` in pixels of the photos of ``view``'s camera."""

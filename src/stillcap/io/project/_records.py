@@ -168,7 +168,8 @@ class TurntableSetup:
         """The virtual camera of the photo taken at turn angle ``angle_deg`` (degrees)."""
         c = self.camera
         return Camera(name or _format_angle(angle_deg), c.K, c.dist,
-                      turntable_world2cam(math.radians(angle_deg), self.distance, self.height), c.image_size)
+                      turntable_world2cam(math.radians(angle_deg), self.distance, self.height), c.image_size,
+                      c.response)
 
     def to_dict(self) -> dict:
         cam = self.camera.to_dict()

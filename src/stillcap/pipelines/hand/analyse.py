@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import time as _time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from stillcap._checks import as_array
 from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.pipelines._response import apply_response, auto_report, auto_rig, camera_estimates, response_checks
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
 from stillcap.pipelines.hand.stages import (find_ball, find_glove_markers, fit_poses, label_markers, release_and_spin,
@@ -49,6 +51,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     elif kwargs:
         raise ValueError("give either options or keyword arguments, not both")
     cap = capture if isinstance(capture, Capture) else Capture.load(capture)
+    cap, response = apply_response(cap, None if options.response == "auto" else options.response)
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "hand":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a hand capture (capture.json \"kind\")")
@@ -82,12 +85,19 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     t = _time.perf_counter()
     report_progress(progress, 1, total, "ball")
     balls = find_ball(rig, images, strobe_hz, options, messages)
+    if options.response == "auto" and balls is not None and len(balls):  # the ball's shading, found again if
+        found = camera_estimates(rig.names, images, balls.centers_px, balls.radius_px)  # the class changes
+        rig_auto = auto_rig(rig, found)
+        if rig_auto is not None:
+            cap, rig = replace(cap, rig=rig_auto), rig_auto
+            balls = find_ball(rig, images, strobe_hz, options, messages)
+        response = auto_report(rig, rig, found)
     timings["ball"] = _time.perf_counter() - t
 
     # -- markers ------------------------------------------------------------------------------
     t = _time.perf_counter()
     report_progress(progress, 2, total, "glove markers")
-    blobs = find_glove_markers(images, balls)
+    blobs = find_glove_markers(images, balls, rig)
     timings["markers"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 3, total, "3D markers")
@@ -111,5 +121,8 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     timings["release"] = _time.perf_counter() - t
     report_progress(progress, total, total, "done")
     timings["total"] = _time.perf_counter() - t_all
+    checks = response_checks(rig, camera_estimates(rig.names, images, balls.centers_px, balls.radius_px)) \
+        if balls is not None and len(balls) else []
+    messages[:0] = response["messages"]
     return HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,
-                      messages, timings)
+                      messages, timings, self_checks=checks, response=response)

@@ -154,7 +154,7 @@ def _refine_in_all_views(rig, white, X, ball_radius_m):
         if not inside.any():
             continue
         ref = refine_ball_centers(white[ci], p[inside], r[inside], np.maximum(2.0, 0.15 * r[inside]),
-                                  outl[inside] - p[inside][:, None])
+                                  outl[inside] - p[inside][:, None], response=cam.response)
         c = np.where((ref.flags[:, None] & int(BallFlag.REFINE_FAILED)) == 0, ref.centers, np.nan)
         idx = np.flatnonzero(ok)[inside]
         out[ci, idx] = c

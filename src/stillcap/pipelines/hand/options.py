@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from stillcap.ball.layout import BASEBALL_RADIUS
+from stillcap.response import check_response_option
 
 __all__ = ["HandOptions"]
 
@@ -31,6 +32,10 @@ class HandOptions:
     marker_radius_m, ball_radius_m : float
     spin : bool
         Try the free ball's spin (needs two free-flight flashes with markers).
+    response : None, "auto", Response or str
+        The cameras' response (``docs/camera-response.md``): None each camera's own from the
+        rig; a Response (or ``"srgb"``, ``"linear"``, ``"gamma:2.2"``) for every camera;
+        ``"auto"`` estimated from the ball's shading.
     """
 
     strobe_position_m: tuple | None = None
@@ -41,8 +46,10 @@ class HandOptions:
     marker_radius_m: float = 0.005
     ball_radius_m: float = BASEBALL_RADIUS
     spin: bool = True
+    response: object = None
 
     def __post_init__(self):
+        self.response = check_response_option(self.response)
         if self.interpolation not in ("spline", "slerp"):
             raise ValueError(f"interpolation must be 'spline' or 'slerp', got {self.interpolation!r}")
         if self.personalise not in (None, "best", "joint"):

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._selfcheck import checks_to_json
 from stillcap.ball.release import Release
 from stillcap.body.hand_label import HandLabels
 from stillcap.body.hand_track import HandSequence
@@ -47,6 +48,10 @@ class HandResult:
         The comparison with the capture's truth file, for synthetic captures: set by the caller
         that has the truth (:func:`stillcap.studio.compare.hand.compare_with_capture`); the
         pipeline leaves it None.
+    self_checks : list of SelfCheck
+        ``response``: the ball's shading against each camera's response.
+    response : dict or None
+        The cameras' responses used and where they came from (rig, option, auto).
     """
 
     capture: Capture
@@ -63,6 +68,8 @@ class HandResult:
     messages: list = field(default_factory=list)
     timings_s: dict = field(default_factory=dict)
     truth: dict | None = None
+    self_checks: list = field(default_factory=list)
+    response: dict | None = None
 
     @property
     def skeleton(self):
@@ -109,6 +116,8 @@ class HandResult:
              "release": None if self.release is None else self.release.to_dict(),
              "spin": None if self.spin is None else _spin_dict(self.spin),
              "messages": list(self.messages), "timings_s": dict(self.timings_s)}
+        d["response"] = self.response
+        d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth
         return to_jsonable(d)

@@ -58,15 +58,17 @@ def find_ball(rig, images, strobe_hz: float, options: HandOptions, messages: lis
     return balls
 
 
-def find_glove_markers(images, balls: HandBalls | None) -> list:
-    """Stage 2: the coloured blobs of every camera (empty where a camera has no photo)."""
+def find_glove_markers(images, balls: HandBalls | None, rig=None) -> list:
+    """Stage 2: the coloured blobs of every camera (empty where a camera has no photo), in linear
+    light through each camera's response (``rig``; sRGB without one)."""
     blobs = []
     for i, img in enumerate(images):
         if img is None:
             blobs.append(ColorBlobs.empty())
             continue
         exclude = balls.ball_discs_px(i) if balls is not None and len(balls) else None
-        blobs.append(find_color_markers(img, HAND_COLORS, exclude=exclude))
+        blobs.append(find_color_markers(img, HAND_COLORS, exclude=exclude,
+                                        encoding="srgb" if rig is None else rig[i].response))
     return blobs
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 from dataclasses import replace
 
-from stillcap.ball.markers import marker_types
 from stillcap.io.capture import Capture, capture_ball, stereo_pairs
+from stillcap.pipelines._response import apply_response, pitch_auto_estimates, pitch_response_checks
 from stillcap.pipelines.pitch.options import PitchOptions
 from stillcap.pipelines.pitch.result import PitchResult
 from stillcap.pipelines.pitch.spin import ball_layout_check, flight_spin_stage
@@ -68,9 +68,21 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
     elif kwargs:
         raise ValueError("give either options or keyword arguments, not both")
     cap = capture if isinstance(capture, Capture) else Capture.load(capture)
+    if options.ball is None and options.layout is None:
+        ball = capture_ball(cap)  # capture.json's "ball" (the CLI's --ball overrides it)
+        if ball is not None:
+            options = replace(options, ball=ball)
+    # the cameras' responses: the rig's, the option's, or estimated from the photos ("auto")
+    cap, response = apply_response(cap, options.response, lambda c: pitch_auto_estimates(c, options.radius_m))
     # the per-pair work on threads, or in worker processes (options.processes > 0)
     with pair_jobs(cap, options.workers, options.processes) as jobs:
-        return _analyse(cap, options, jobs, progress, t_all)
+        result = _analyse(cap, options, jobs, progress, t_all)
+    # the response self-check: the ball's shading against the response used
+    checks, found = pitch_response_checks(cap, result.pairs)
+    result.self_checks.extend(checks)
+    result.response = {**response, "shading": found}
+    result.messages[:0] = response["messages"]
+    return result
 
 
 def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) -> PitchResult:
@@ -78,12 +90,8 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "pitch":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a pitch capture (capture.json \"kind\")")
-    if options.ball is None and options.layout is None:
-        ball = capture_ball(cap)  # capture.json's "ball" (the CLI's --ball overrides it)
-        if ball is not None:
-            options = replace(options, ball=ball)
     layout = options.marker_layout
-    types = marker_types(layout)
+    types = None  # the layout's palette as each camera photographs it (its response)
     model = options.flight_model()
     timings: dict = {}
     specs, messages = stereo_pairs(cap)

@@ -9,6 +9,7 @@ import numpy as np
 from stillcap.ball.ballfile import Ball
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
 from stillcap.ball.physics import FLIGHT_MODELS, flight_model
+from stillcap.response import check_response_option
 
 __all__ = ["FIT_METHODS", "PHYSICS", "PitchOptions", "SIGMA_METHODS", "SPIN_METHODS"]
 
@@ -93,6 +94,10 @@ class PitchOptions:
         for many captures in one process (benchmarks, batches), not for one (``docs/pitch.md``,
         "Timing"). The results are identical to the threads'. Needs a capture loaded from or
         saved to a folder; scripts that use it need an ``if __name__ == "__main__":`` guard.
+    response : None, "auto", Response or str
+        The cameras' response (``docs/camera-response.md``): None (default) each camera's own
+        from the rig; a :class:`~stillcap.response.Response` (or ``"srgb"``, ``"linear"``,
+        ``"gamma:2.2"``) for every camera; ``"auto"`` estimated from the ball's shading.
     """
 
     spin_method: str = "global"
@@ -113,8 +118,10 @@ class PitchOptions:
     center_sigma_px: float = 0.2
     workers: int = 2
     processes: int = 0
+    response: object = None
 
     def __post_init__(self):
+        object.__setattr__(self, "response", check_response_option(self.response))
         fm = self.fit_method.replace("-", "_") if isinstance(self.fit_method, str) else self.fit_method
         object.__setattr__(self, "fit_method", fm)
         for name, allowed in (("spin_method", SPIN_METHODS), ("physics", PHYSICS), ("fit_method", FIT_METHODS)):
@@ -193,4 +200,5 @@ class PitchOptions:
                 "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
                 "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px,
-                "center_sigma_px": self.center_sigma_px}
+                "center_sigma_px": self.center_sigma_px,
+                "response": self.response if self.response in (None, "auto") else self.response.to_json()}

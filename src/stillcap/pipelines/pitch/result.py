@@ -187,6 +187,9 @@ class PitchResult:
     self_checks : list of SelfCheck
         What the photos show against what the model expects
         (:mod:`stillcap.pipelines.pitch.checks`); ``self_checks`` in JSON.
+    response : dict or None
+        The cameras' responses used and where they came from (rig, option, auto with its
+        estimates and evidence), and each camera's shading estimate.
     """
 
     frame: str
@@ -213,6 +216,7 @@ class PitchResult:
     flight_spin: FlightSpin | None = field(default=None, repr=False)
     spin_comparison: SpinComparison | None = field(default=None, repr=False)
     self_checks: list = field(default_factory=list)
+    response: dict | None = None
 
     @property
     def spin_source(self) -> str | None:
@@ -287,6 +291,7 @@ class PitchResult:
         d["spin_reported"] = self.spin_reported()
         d["spin_from_flight"] = None if self.flight_spin is None else self.flight_spin.to_dict()
         d["spin_comparison"] = None if self.spin_comparison is None else self.spin_comparison.to_dict()
+        d["response"] = self.response
         d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth

@@ -9,6 +9,7 @@ import functools
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -26,6 +27,7 @@ from stillcap.pipelines.puppet.options import DEFAULT, PuppetOptions, _options_f
 from stillcap.pipelines.puppet.result import PuppetResult
 from stillcap.pipelines.puppet.stages import (_prepare, detect_view, find_beads, identify_beads, pose_skeleton,
                                               triangulate_beads)
+from stillcap.response import Response
 
 __all__ = ["analyse_puppet", "analyse_puppet_views", "capture_markerset", "capture_skeleton"]
 
@@ -97,6 +99,10 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
             if (w, h) != tuple(cam.image_size):
                 raise ValueError(f"view {cam.name!r}: image is {w}x{h} px, its camera is "
                                  f"{cam.image_size[0]}x{cam.image_size[1]} px")
+        # the beads' colours are sRGB references: each photo as an sRGB camera would have taken it
+        images = [(options.response or cam.response).as_srgb(img) for cam, img in zip(rig, images)]
+        if options.response is not None:
+            rig = rig.with_responses(options.response)
     timings = {}
     views = None
     radii = None
@@ -232,7 +238,8 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
         images, detections = [], []
 
         def read(entry):  # the second thread: decode, and the photo-wide part of the detection
-            img = cap.read_image(entry)
+            # as analyse_puppet_views sees a photo: re-encoded to sRGB through its camera's response
+            img = (options.response or cap.rig[entry.camera].response).as_srgb(cap.read_image(entry))
             return img, _prepare(img, options)
 
         candidates, t_det, idents = [], [], []
@@ -280,6 +287,8 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
         # detect_view's per photo; the photos named together share its small-matrix calls)
         name(len(images))
         detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
+    if detections is not None:  # the photos were re-encoded to sRGB as they were decoded: not again
+        rig, options = rig.with_responses(Response.srgb()), replace(options, response=None)
     res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options, view_names=names,
                                angles_deg=angles, progress=None if detections is not None else progress,
                                source={"type": "capture", "path": str(folder)}, files=files, detections=detections,

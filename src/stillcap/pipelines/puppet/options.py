@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.detect.beads import DETECTORS, IDENTIFIERS
+from stillcap.response import check_response_option
 
 __all__ = ["PuppetOptions", "DEFAULT", "THESIS_CHAIN", "with_options"]
 
@@ -61,6 +62,11 @@ class PuppetOptions:
         fitted when the marker set's beads fix them, :func:`~stillcap.body.puppet_pose.root_freedom`),
         ``"pinned"`` (the skeleton's rest frame: the thesis's pelvis on the turntable axis),
         ``"translate"`` or ``"free"`` (:func:`~stillcap.body.puppet_pose.fit_pose`).
+    response : None, Response or str
+        The cameras' response (``docs/camera-response.md``): None each view's camera's own from
+        the rig; a Response (or ``"srgb"``, ``"linear"``, ``"gamma:2.2"``) for every view. The
+        photos are re-encoded to sRGB through it before the beads' colours (sRGB references) are
+        compared. ``"auto"`` is not available for the puppet yet (its beads are too small).
     """
 
     detector: str = "template"
@@ -80,8 +86,13 @@ class PuppetOptions:
     reid_color: float = 2.0
     coarse: bool = True
     root: str = "auto"
+    response: object = None
 
     def __post_init__(self):
+        object.__setattr__(self, "response", check_response_option(self.response))
+        if self.response == "auto":
+            raise ValueError("response 'auto' is not available for puppet captures (the beads are too small to "
+                             "fit their shading); give srgb, linear or gamma:G")
         if self.detector not in DETECTORS:
             raise ValueError(f"unknown detector {self.detector!r}; choose one of {', '.join(DETECTORS)}")
         if self.identify not in IDENTIFIERS:

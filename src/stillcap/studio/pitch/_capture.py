@@ -228,7 +228,7 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
                     "blur_px": float(sensor.blur_px), "full_well": sensor.full_well,
                     "read_noise": float(sensor.read_noise), "white_balance": list(sensor.white_balance),
                     "jpeg_quality": sensor.jpeg_quality, "gamma": sensor.gamma, "tone": bool(sensor.tone),
-                    "camera_response": {name: sensor.response() for name in rig.rig.names}}
+                    "camera_response": {name: sensor.response.to_json() for name in rig.rig.names}}
 
     n_cal = (calibration_views + len(FRONT_BOARD_SPOTS)) * len(rig.rig) if calibrate else 0
     total = n_cal + len(rig.rig)
@@ -252,6 +252,9 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
         truth.calibration_error = rig_reprojection_error(
             rig.rig, capture_rig, {c.name: _corridor_points(rig.pair_of(c.name).name) for c in rig.rig})
     report_progress(progress, total, total, "done")
+    capture_rig = capture_rig.with_responses(sensor.response)  # the rig written states the true response
+    if calibration is not None:
+        calibration.rig = capture_rig
     out = PitchCapture(rig, images, truth, capture_rig, calibration, scenes, bool(known_flash_times))
     if painted is not None:
         out.ball = replace(painted, layout=layout).to_dict()

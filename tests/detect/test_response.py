@@ -1,0 +1,77 @@
+"""stillcap.detect.response: the response's effective gamma from the shading of lit spheres."""
+
+import cv2
+import numpy as np
+import pytest
+
+from stillcap.detect.response import MIN_SPHERES, ball_shading_gamma, estimate_response, response_check
+from stillcap.response import Response
+
+
+def sphere_photo(gamma, light=(0.3, -0.2, -0.93), r=18.0, size=64, albedo=0.8, ambient=0.0, blur=0.6,
+                 noise=0.0, rng=0, markers=True):
+    """A lambertian sphere (centre at the image centre, radius r) lit from ``light`` (camera frame,
+    z away from the camera), with dark and coloured marker spots, encoded with ``gamma``."""
+    rng = np.random.default_rng(rng)
+    s = np.asarray(light, float) / np.linalg.norm(light)
+    ss = 4  # supersampled
+    y, x = (np.mgrid[0:size * ss, 0:size * ss] + 0.5) / ss - 0.5
+    c = (size - 1) / 2
+    nx, ny = (x - c) / r, (y - c) / r
+    rho2 = nx * nx + ny * ny
+    inside = rho2 < 1
+    nz = -np.sqrt(np.clip(1 - rho2, 0, 1))
+    shade = np.clip(nx * s[0] + ny * s[1] + nz * s[2], 0, None)
+    a = np.full(shade.shape, albedo)
+    if markers:
+        for mx, my in rng.uniform(-0.5, 0.5, (3, 2)):
+            a[(nx - mx) ** 2 + (ny - my) ** 2 < 0.02] = 0.03
+    rad = np.where(inside, a * shade + ambient, 0.0)
+    rad = cv2.resize(rad, (size, size), interpolation=cv2.INTER_AREA)
+    if blur:
+        rad = cv2.GaussianBlur(rad, (0, 0), blur)
+    rad = np.clip(rad + noise * rng.standard_normal(rad.shape), 0, 1)
+    code = np.round(Response.from_json(gamma).encode(rad)).astype(np.uint8)
+    return np.repeat(code[:, :, None], 3, axis=2), np.array([c, c]), r
+
+
+@pytest.mark.parametrize("gamma, value", [("linear", 1.0), ({"gamma": 1.8}, 1.8), ("srgb", 2.14), ({"gamma": 2.6}, 2.6)])
+@pytest.mark.parametrize("light", [(0, 0, -1), (0.5, -0.3, -0.81), (-0.9, 0.1, -0.42), (0.95, 0.2, 0.24)])
+def test_recovers_the_effective_gamma(gamma, value, light):
+    img, c, r = sphere_photo(gamma, light, noise=0.002)
+    f = ball_shading_gamma(img, c, r)
+    assert f is not None
+    assert f["gamma"] == pytest.approx(value, rel=0.12)
+    assert np.dot(f["light"], np.asarray(light) / np.linalg.norm(light)) > 0.95
+
+
+def test_nothing_to_fit():
+    img, c, r = sphere_photo("srgb")
+    assert ball_shading_gamma(img, c, 2.5) is None  # too small
+    assert ball_shading_gamma(img, (5.0, 30.0), r) is None  # cut by the border
+    assert ball_shading_gamma(np.full((64, 64, 3), 120, np.uint8), c, r) is None  # flat: no shading
+
+
+def test_estimate_combines_and_says_when_it_cannot_tell():
+    photos = [sphere_photo("linear", light, rng=k) for k, light in
+              enumerate([(0, 0, -1), (0.4, 0.1, -0.9), (-0.3, 0.5, -0.8), (0.7, -0.2, -0.68)])]
+    e = estimate_response([p[0] for p in photos], [p[1][None] for p in photos], [p[2] for p in photos])
+    assert e.ok and e.response_class == "linear" and e.n_spheres == 4
+    assert e.response() == Response.linear()
+    assert "linear" in e.evidence and e.to_json()["class"] == "linear"
+    few = estimate_response([p[0] for p in photos[:MIN_SPHERES - 1]], [p[1][None] for p in photos[:2]],
+                            [p[2] for p in photos[:2]])
+    assert not few.ok and few.response() is None and "cannot tell" in few.evidence
+    check = response_check(few, Response.srgb(), "cam")
+    assert check.passed and "cannot tell" in check.message
+
+
+def test_check_fires_on_a_wrong_declaration_and_passes_on_the_right_one():
+    for true, wrong in (("linear", Response.srgb()), ("srgb", Response.linear()), ({"gamma": 2.6}, Response.linear())):
+        photos = [sphere_photo(true, light, rng=k) for k, light in
+                  enumerate([(0, 0, -1), (0.4, 0.1, -0.9), (-0.3, 0.5, -0.8)])]
+        e = estimate_response([p[0] for p in photos], [p[1][None] for p in photos], [p[2] for p in photos])
+        right = response_check(e, Response.from_json(true), "cam_0")
+        bad = response_check(e, wrong, "cam_0")
+        assert right.passed and right.name == "response" and right.subject == "cam_0"
+        assert not bad.passed and bad.value > bad.limit and "disagrees" in bad.message
