@@ -195,3 +195,13 @@ def test_ball_held_per_flash(result):
     held = result.ball_held()
     assert held and set(held) <= set(int(k) for k in result.labels.order)
     assert any(held.values()) and not all(held.values())  # held, then released
+
+
+def test_self_checks_pass_on_the_models_hand_and_are_in_the_json(result):
+    from stillcap._selfcheck import checks_from_json, failed_checks
+
+    names = {c.name for c in result.self_checks}
+    assert {"hand_scale", "marker_fit_residual", "finger_misfit", "unlabelled_markers"} <= names
+    assert failed_checks(result.self_checks) == []
+    d = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    assert checks_from_json(d["self_checks"]) == result.self_checks

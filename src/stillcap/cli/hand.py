@@ -88,6 +88,9 @@ def hand(
     from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
 
     res.truth = compare_with_capture(res)  # a studio capture: compared with its truth
+    from stillcap.cli._selfchecks import print_failed_checks
+
+    print_failed_checks(res.self_checks, "hand")
     written = []
     outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "hand.json")
     for path in export:

@@ -11,8 +11,8 @@ from stillcap._checks import as_array
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
-from stillcap.pipelines.hand.stages import (find_ball, find_glove_markers, fit_poses, label_markers, release_and_spin,
-                                            triangulate_glove_markers)
+from stillcap.pipelines.hand.stages import (check_hand, find_ball, find_glove_markers, fit_poses, label_markers,
+                                            release_and_spin, triangulate_glove_markers)
 from stillcap._progress import report_progress
 
 __all__ = ["analyse_hand"]
@@ -109,7 +109,8 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     report_progress(progress, 6, total, "release")
     balls, release, spin = release_and_spin(rig, balls, sequence, strobe_hz, pairs, images, options, messages)
     timings["release"] = _time.perf_counter() - t
+    checks = check_hand(labels, sequence, points)
     report_progress(progress, total, total, "done")
     timings["total"] = _time.perf_counter() - t_all
     return HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,
-                      messages, timings)
+                      messages, timings, self_checks=checks)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._selfcheck import checks_to_json
 from stillcap.ball.release import Release
 from stillcap.body.hand_label import HandLabels
 from stillcap.body.hand_track import HandSequence
@@ -43,6 +44,9 @@ class HandResult:
     spin : HandBallSpin or None
     messages : list of str
     timings_s : dict
+    self_checks : list of SelfCheck
+        What the markers show against what the hand model and the noise allow
+        (:func:`~stillcap.body.hand_checks.hand_self_checks`); JSON key ``self_checks``.
     truth : dict or None
         The comparison with the capture's truth file, for synthetic captures: set by the caller
         that has the truth (:func:`stillcap.studio.compare.hand.compare_with_capture`); the
@@ -62,6 +66,7 @@ class HandResult:
     spin: HandBallSpin | None
     messages: list = field(default_factory=list)
     timings_s: dict = field(default_factory=dict)
+    self_checks: list = field(default_factory=list)
     truth: dict | None = None
 
     @property
@@ -108,6 +113,7 @@ class HandResult:
              "ball": None if self.balls is None else self.balls.to_dict(),
              "release": None if self.release is None else self.release.to_dict(),
              "spin": None if self.spin is None else _spin_dict(self.spin),
+             "self_checks": checks_to_json(self.self_checks),
              "messages": list(self.messages), "timings_s": dict(self.timings_s)}
         if self.truth is not None:
             d["truth_comparison"] = self.truth

@@ -16,6 +16,9 @@ plain function over arrays and dataclasses that appends what went wrong to ``mes
 6. :func:`release_and_spin`     the ball's flashes on the hand's clock, the release
                                 (:func:`~stillcap.ball.release.estimate_release`) and the free
                                 ball's spin (:func:`~stillcap.pipelines.hand.ball.hand_ball_spin`)
+7. :func:`check_hand`           the self-checks: hand size, fit residuals per marker and digit
+                                against the noise, markers left unlabelled
+                                (:func:`~stillcap.body.hand_checks.hand_self_checks`)
 
 :func:`~stillcap.pipelines.hand.analyse_hand` runs them in this order.
 """
@@ -29,6 +32,7 @@ import numpy as np
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS
+from stillcap.body.hand_checks import hand_self_checks
 from stillcap.body.hand_label import HandLabels, label_hand_markers
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
@@ -37,7 +41,7 @@ from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ba
 from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
-           "release_and_spin"]
+           "release_and_spin", "check_hand"]
 
 #: Position uncertainty of fully seen and of partly hidden glove markers (m), as measured by
 #: ``benchmarks/bench_hand_markers.py`` (0.16 mm RMS and a few mm): the pose fit's weights.
@@ -153,3 +157,9 @@ def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, m
         messages.append(f"ball: {fn.message}; flashes numbered from the ball's spacing")
         return balls
     return replace(balls, flash_index=np.asarray(fn.flash, int), times=np.asarray(fn.times, float))
+
+
+def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints) -> list:
+    """Stage 7: the self-checks (:func:`~stillcap.body.hand_checks.hand_self_checks`), fully seen
+    markers against :data:`SEEN_SIGMA_M`."""
+    return hand_self_checks(labels, sequence, partly_hidden=points.partly_hidden, noise_m=SEEN_SIGMA_M)
