@@ -53,6 +53,12 @@ def hand(
                                       "(BVH, glTF, COLLADA) by this factor, e.g. 40 to play a 60 ms take in 2.4 s "
                                       "(Blender plays a 1000 fps take within one 24 fps frame otherwise)."),
     force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --export)."),
+    hand_model: str = typer.Option(None, "--hand-model", help="The person's hand model: a stillcap-skeleton file "
+                                   "or a built-in name (docs/hand.md); default capture.json hand_model, else "
+                                   "hand-right-adult."),
+    markers: str = typer.Option(None, "--markers", help="The glove's marker set: a stillcap-markerset file or a "
+                                "built-in name (docs/hand-markers.md); default capture.json hand_markers, else "
+                                "hand-18."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -71,8 +77,13 @@ def hand(
         from stillcap.body.hand_label import read_label_overrides
 
         read_label_overrides(overrides)
+    if hand_model is not None or markers is not None:  # bad files are named before the analysis runs
+        from stillcap.body.hand_files import load_hand
+
+        load_hand(hand_model, markers)
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
-                       personalise=personalise, frame_rate=frame_rate, interpolation=interpolation)
+                       personalise=personalise, frame_rate=frame_rate, interpolation=interpolation,
+                       hand_model=hand_model, hand_markers=markers)
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     from stillcap.io.export import EXPORTERS, known_extensions

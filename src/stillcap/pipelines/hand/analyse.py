@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from stillcap._checks import as_array
+from stillcap.body.hand_files import load_hand
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
@@ -52,6 +53,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "hand":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a hand capture (capture.json \"kind\")")
+    skeleton, markerset = _hand_of(cap, options)
     specs, messages = stereo_pairs(cap)
     rates = {sp.strobe_hz for sp in specs}
     if len(rates) != 1:
@@ -97,7 +99,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     # -- labels and poses ---------------------------------------------------------------------
     t = _time.perf_counter()
     report_progress(progress, 4, total, "labelling")
-    labels = label_markers(points, strobe_hz, options, messages)
+    labels = label_markers(points, strobe_hz, options, messages, skeleton, markerset)
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 5, total, "poses")
@@ -114,3 +116,21 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     timings["total"] = _time.perf_counter() - t_all
     return HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,
                       messages, timings, self_checks=checks)
+
+
+def _hand_of(cap: Capture, options: HandOptions):
+    """The hand model and marker set: the options' (any path), else capture.json's ``hand_model``
+    / ``hand_markers`` (paths inside the capture folder), else the built-in ones."""
+    refs, folders, whats = [], [], []
+    for opt, key, flag in ((options.hand_model, "hand_model", "--hand-model"),
+                           (options.hand_markers, "hand_markers", "--markers")):
+        if opt is not None:
+            refs.append(opt), folders.append(None), whats.append(flag)
+        else:
+            ref = cap.meta.get(key)
+            if ref is not None and not isinstance(ref, str):
+                raise ValueError(f"capture {cap.root}: capture.json \"{key}\" must be a file name or a built-in "
+                                 f"name, got {ref!r}")
+            refs.append(ref), folders.append(cap.root), whats.append(f"capture.json \"{key}\"")
+    return load_hand(refs[0], refs[1], model_folder=folders[0], markers_folder=folders[1], model_what=whats[0],
+                     markers_what=whats[1])

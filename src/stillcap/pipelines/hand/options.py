@@ -31,6 +31,11 @@ class HandOptions:
     marker_radius_m, ball_radius_m : float
     spin : bool
         Try the free ball's spin (needs two free-flight flashes with markers).
+    hand_model, hand_markers : str, path or None
+        The person's hand model (a ``stillcap-skeleton`` file or a built-in name) and glove
+        marker set (a ``stillcap-markerset`` file or a built-in name); default
+        ``capture.json``'s ``hand_model`` / ``hand_markers`` (paths inside the capture folder),
+        else the built-in ones (:mod:`stillcap.body.hand_files`, ``docs/hand.md``).
     """
 
     strobe_position_m: tuple | None = None
@@ -41,6 +46,8 @@ class HandOptions:
     marker_radius_m: float = 0.005
     ball_radius_m: float = BASEBALL_RADIUS
     spin: bool = True
+    hand_model: str | Path | None = None
+    hand_markers: str | Path | None = None
 
     def __post_init__(self):
         if self.interpolation not in ("spline", "slerp"):

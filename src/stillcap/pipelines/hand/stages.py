@@ -96,10 +96,13 @@ def triangulate_glove_markers(rig, pairs: dict, blobs: list, light, options: Han
     return points
 
 
-def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list) -> HandLabels:
-    """Stage 4: the 3D markers labelled per flash (manual overrides from ``options.overrides``)."""
-    labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz,
-                                reprojection_px=points.reprojection_px, overrides=options.overrides)
+def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list, skeleton=None,
+                  markerset=None) -> HandLabels:
+    """Stage 4: the 3D markers labelled per flash with the hand model ``skeleton`` and ``markerset``
+    (default the built-in ones; manual overrides from ``options.overrides``)."""
+    labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz, skeleton=skeleton,
+                                markerset=markerset, reprojection_px=points.reprojection_px,
+                                overrides=options.overrides)
     for k, why in enumerate(labels.skipped):
         if why:
             messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
