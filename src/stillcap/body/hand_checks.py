@@ -12,6 +12,8 @@ what the hand model and the triangulation noise allow (:class:`~stillcap._selfch
   noise; the message names the markers that are farthest off.
 - ``finger_misfit`` (one per digit, and the back of the hand): the same per digit; the message
   says on which finger the hand model does not match this hand and what to do.
+- ``partly_hidden_residual``: a labelled, partly hidden marker farther from the fitted model than
+  its own larger uncertainty (``hidden_noise_m``) allows: its label is doubtful.
 - ``unlabelled_markers``: the fraction of triangulated markers near a posed hand that got no
   label (points of flashes without a pose are counted in the flash's own no-pose note, not
   here).
@@ -54,7 +56,8 @@ def _group(name: str) -> str:
     return head if head in DIGITS else "back"
 
 
-def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float) -> list[SelfCheck]:
+def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float,
+                     hidden_noise_m: float | None = None) -> list[SelfCheck]:
     """The hand result's self-checks (module docstring).
 
     Parameters
@@ -66,6 +69,8 @@ def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float) ->
         Points whose centroid a partly hidden view shifted: left out of the residual checks.
     noise_m : float
         The triangulation noise per axis of a fully seen marker (m).
+    hidden_noise_m : float, optional
+        The same for a partly hidden marker (default 10 x ``noise_m``).
     """
     if not (np.isfinite(noise_m) and noise_m > 0):
         raise ValueError(f"noise_m must be a positive distance in metres, got {noise_m}")
@@ -114,6 +119,23 @@ def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float) ->
                    if ok else f"the hand model does not match this hand on {where} ({rms * 1e3:.2f} mm RMS, noise "
                    f"allows {limit * 1e3:.2f} mm): its bone lengths, marker heights or axes differ; {_FIX}")
             checks.append(SelfCheck("finger_misfit", ok, rms * 1e3, limit * 1e3, msg, g, "mm"))
+
+        if hidden.any():
+            hlim = RESIDUAL_FACTOR * np.sqrt(3.0) * (10 * noise_m if hidden_noise_m is None else hidden_noise_m)
+            full = np.array(sequence.residuals, float)
+            mask = (idx >= 0) & hidden[np.maximum(idx, 0)] & np.isfinite(full)
+            if mask.any():
+                worst = float(full[mask].max())
+                far = [(float(full[i, j]), names[j], int(labels.order[sequence.flashes[i]]))
+                       for i, j in zip(*np.nonzero(mask & (full > hlim)))]
+                ok = worst <= hlim
+                msg = (f"{int(mask.sum())} labelled partly hidden marker(s), the farthest {worst * 1e3:.1f} mm from the "
+                       f"fitted model (a partly hidden centroid allows {hlim * 1e3:.1f} mm)")
+                if not ok:
+                    msg += ("; doubtful labels: " + ", ".join(f"{n} in flash {o} ({v * 1e3:.1f} mm)" for v, n, o in
+                                                              sorted(far)[::-1][:4])
+                            + "; check them in the report and delete them if wrong (--overrides)")
+                checks.append(SelfCheck("partly_hidden_residual", ok, worst * 1e3, hlim * 1e3, msg, "", "mm"))
 
     # markers near a posed hand that got no label
     posed = np.flatnonzero(labels.reconstructed)

@@ -148,7 +148,8 @@ def print_hand_result(res) -> None:
     lab = res.labels
     pts = res.points
     console.print(f"{len(pts)} glove markers in 3D from pairs {', '.join(res.pairs)} "
-                  f"({int(np.sum(pts.n_views > 2))} seen by both pairs); strobe {res.strobe_hz:g} Hz")
+                  f"({int(np.sum(pts.n_views > 2))} seen by both pairs, {int(np.sum(pts.partly_hidden))} partly hidden: "
+                  f"listed apart in --json partly_hidden); strobe {res.strobe_hz:g} Hz")
     t = right_table(f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)",
                     ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"))
     t.caption = "no pose: the reason in short (in full in the notes and in --json)" \
@@ -205,8 +206,12 @@ def print_hand_comparison(cmp: dict) -> None:
     rows = [("flashes with a pose / with the back of the hand in 2+ cameras",
              f"{cmp['flashes_reconstructed']} / {cmp['flashes_back_seen_2plus']}"),
             ("labels right", f"{_f(cmp['labels_right_pct'], 2)} %  ({cmp['labels_right']} of {cmp['labels']})"),
-            ("markers seen in 2+ cameras, labelled right", f"{_f(cmp['markers_recovered_pct'], 1)} %"),
-            ("marker 3D error RMS / max", f"{_f(cmp['marker_rms_mm'], 3)} / {_f(cmp['marker_max_mm'], 3)} mm"),
+            ("markers seen in 2+ cameras, labelled right", f"{_f(cmp['markers_recovered_pct'], 1)} % fully seen + "
+             f"{_f(cmp.get('markers_recovered_partly_hidden_pct'), 1)} % partly hidden"),
+            ("marker 3D error RMS / max (fully seen)", f"{_f(cmp['marker_rms_mm'], 3)} / {_f(cmp['marker_max_mm'], 3)} mm"),
+            ("partly hidden markers: labelled right, 3D error RMS / max",
+             f"{cmp.get('partly_hidden_labels_right', 0)} of {cmp.get('partly_hidden_labels', 0)}, "
+             f"{_f(cmp.get('partly_hidden_rms_mm'), 2)} / {_f(cmp.get('partly_hidden_max_mm'), 2)} mm"),
             ("joint angles RMS / max", f"{_f(cmp['joint_angle_rms_deg'], 2)} / {_f(cmp['joint_angle_max_deg'], 2)} deg"),
             ("joint positions RMS", f"{_f(cmp['joint_rms_mm'], 2)} mm")]
     if "ball_mean_mm" in cmp:

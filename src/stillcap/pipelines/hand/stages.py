@@ -164,5 +164,6 @@ def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, m
 
 def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints) -> list:
     """Stage 7: the self-checks (:func:`~stillcap.body.hand_checks.hand_self_checks`), fully seen
-    markers against :data:`SEEN_SIGMA_M`."""
-    return hand_self_checks(labels, sequence, partly_hidden=points.partly_hidden, noise_m=SEEN_SIGMA_M)
+    markers against :data:`SEEN_SIGMA_M`, partly hidden ones against :data:`HIDDEN_SIGMA_M`."""
+    return hand_self_checks(labels, sequence, partly_hidden=points.partly_hidden, noise_m=SEEN_SIGMA_M,
+                            hidden_noise_m=HIDDEN_SIGMA_M)
