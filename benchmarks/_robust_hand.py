@@ -8,8 +8,9 @@ proportions, knuckle splay, thumb axis, marker heights, own motion, light and ca
 takes the studio truth of a throw (``hand_capture`` at 320x240: only the truth is used) and
 makes the 3D markers the triangulation would give (``hand_points_from_truth``: markers seen by
 2+ cameras, Gaussian noise 0.3 mm per axis, 3 spurious points, shuffled). Then the labelling
-(``label_hand_markers``) and the per-flash poses (``fit_hand_sequence``), or with ``adapted``
-the model adapted to the hand first (``stillcap.body.hand_adapt.label_and_adapt``).
+(``label_hand_markers``) and the per-flash poses (``fit_hand_sequence``), with the built-in
+model, with the hand's own model (as ``--hand-model`` / ``--markers`` give it), or with
+``adapted`` the model adapted to the hand first (``stillcap.body.hand_adapt.label_and_adapt``).
 
 What this measures: the labelling and the hand model, not the photos (no rendering, no
 detection or triangulation; the marker RMS is the noise put in). Metrics per condition:
@@ -35,7 +36,7 @@ from stillcap.studio.hand_variation import another_hand
 NOISE_M = 0.0003
 
 
-def _one(seed: int, person, adapted: bool) -> dict:
+def _one(seed: int, person, adapted: bool, own: bool = False) -> dict:
     truth = hand_capture(seed, image_size=(320, 240), supersample=1, person=person).truth
     d = hand_points_from_truth(truth, noise_m=NOISE_M, drop=0.0, n_spurious=3, rng=seed)
     if adapted:
@@ -43,6 +44,9 @@ def _one(seed: int, person, adapted: bool) -> dict:
 
         lab, _ = label_and_adapt(d["points"], d["colours"], strobe_hz=truth.strobe_hz, skeleton=hand_skeleton(),
                                  markerset=hand_markerset())
+    elif own:  # the hand's own model, as given with --hand-model / --markers
+        lab = label_hand_markers(d["points"], d["colours"], strobe_hz=truth.strobe_hz, skeleton=person.skeleton,
+                                 markerset=person.markerset)
     else:
         lab = label_hand_markers(d["points"], d["colours"], strobe_hz=truth.strobe_hz)
     fmap = []
@@ -79,13 +83,14 @@ CONDITIONS = {
 def rows(quick: bool = False) -> list[dict]:
     """One dict per condition (keys ``pipeline``, ``condition``, ``n`` and the metrics)."""
     n = 2 if quick else 8
-    conds = [(name, c["person"], False) for name, c in CONDITIONS.items()]
+    other = CONDITIONS["another hand (±15 % size, own proportions)"]["person"]
+    conds = [(name, c["person"], False, False) for name, c in CONDITIONS.items()]
+    conds.append(("another hand, its own model file (--hand-model, --markers)", other, False, True))
     if not quick:
-        conds.append(("another hand, model adapted to it", CONDITIONS["another hand (±15 % size, own proportions)"]
-                      ["person"], True))
+        conds.append(("another hand, model adapted to it", other, True, False))
     out = []
-    for name, person, adapted in conds:
-        rs = [_one(100 + s, person(100 + s), adapted) for s in range(n)]
+    for name, person, adapted, own in conds:
+        rs = [_one(100 + s, person(100 + s), adapted, own) for s in range(n)]
         given = sum(r["given"] for r in rs)
         err = np.concatenate([r["err"] for r in rs])
         ang = np.concatenate([r["ang"] for r in rs])
