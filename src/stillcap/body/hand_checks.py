@@ -3,6 +3,7 @@ what the hand model and the triangulation noise allow (:class:`~stillcap._selfch
 
 :func:`hand_self_checks` gives, in order:
 
+- ``model_adapted`` (only with ``adapted``): always fails, see :func:`hand_self_checks`.
 - ``hand_scale``: the hand's estimated size (:attr:`HandLabels.hand_scale`) far from the
   model's: the model and every labelling gate were scaled; a scaled model keeps the model's
   proportions, which another person's hand rarely has.
@@ -57,7 +58,7 @@ def _group(name: str) -> str:
 
 
 def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float,
-                     hidden_noise_m: float | None = None) -> list[SelfCheck]:
+                     hidden_noise_m: float | None = None, adapted: bool = False) -> list[SelfCheck]:
     """The hand result's self-checks (module docstring).
 
     Parameters
@@ -71,10 +72,20 @@ def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float,
         The triangulation noise per axis of a fully seen marker (m).
     hidden_noise_m : float, optional
         The same for a partly hidden marker (default 10 x ``noise_m``).
+    adapted : bool
+        The model was adapted to this capture (``--adapt-model``): the check ``model_adapted``
+        fails, because the residual checks can no longer tell a wrong model (an adapted model
+        absorbs the misfit into its marker places: on studio hands unlike the model they passed
+        with joint angles 3-11 deg off).
     """
     if not (np.isfinite(noise_m) and noise_m > 0):
         raise ValueError(f"noise_m must be a positive distance in metres, got {noise_m}")
     checks = []
+    if adapted:
+        checks.append(SelfCheck("model_adapted", False, 1.0, 0.0,
+                                "the hand model was adapted to this capture (--adapt-model, experimental): the fit "
+                                "residuals below cannot show a wrong model, and joint angles were 3-11 deg off on "
+                                f"studio hands unlike the model; {_FIX}", "", ""))
     s = float(labels.hand_scale)
     off = abs(s - 1.0)
     checks.append(SelfCheck(

@@ -59,6 +59,8 @@ def hand(
     markers: str = typer.Option(None, "--markers", help="The glove's marker set: a stillcap-markerset file or a "
                                 "built-in name (docs/hand-markers.md); default capture.json hand_markers, else "
                                 "hand-18."),
+    adapt_model: bool = typer.Option(False, "--adapt-model", help="Experimental: adapt the hand model to this "
+                                     "capture before labelling (docs/hand.md: it did not reach 2 deg on other hands)."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -83,7 +85,7 @@ def hand(
         load_hand(hand_model, markers)
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation,
-                       hand_model=hand_model, hand_markers=markers)
+                       hand_model=hand_model, hand_markers=markers, adapt_model=adapt_model)
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     from stillcap.io.export import EXPORTERS, known_extensions

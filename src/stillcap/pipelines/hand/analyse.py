@@ -13,7 +13,7 @@ from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
 from stillcap.pipelines.hand.stages import (check_hand, find_ball, find_glove_markers, fit_poses, label_markers,
-                                            release_and_spin, triangulate_glove_markers)
+                                            label_markers_adapted, release_and_spin, triangulate_glove_markers)
 from stillcap._progress import report_progress
 
 __all__ = ["analyse_hand"]
@@ -99,7 +99,10 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     # -- labels and poses ---------------------------------------------------------------------
     t = _time.perf_counter()
     report_progress(progress, 4, total, "labelling")
-    labels = label_markers(points, strobe_hz, options, messages, skeleton, markerset)
+    if options.adapt_model:  # experimental
+        labels, adapted = label_markers_adapted(points, strobe_hz, options, messages, skeleton, markerset)
+    else:
+        labels, adapted = label_markers(points, strobe_hz, options, messages, skeleton, markerset), False
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 5, total, "poses")
@@ -111,7 +114,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     report_progress(progress, 6, total, "release")
     balls, release, spin = release_and_spin(rig, balls, sequence, strobe_hz, pairs, images, options, messages)
     timings["release"] = _time.perf_counter() - t
-    checks = check_hand(labels, sequence, points)
+    checks = check_hand(labels, sequence, points, adapted)
     report_progress(progress, total, total, "done")
     timings["total"] = _time.perf_counter() - t_all
     return HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,

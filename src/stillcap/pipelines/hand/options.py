@@ -36,6 +36,9 @@ class HandOptions:
         marker set (a ``stillcap-markerset`` file or a built-in name); default
         ``capture.json``'s ``hand_model`` / ``hand_markers`` (paths inside the capture folder),
         else the built-in ones (:mod:`stillcap.body.hand_files`, ``docs/hand.md``).
+    adapt_model : bool
+        Experimental, off by default: adapt the hand model to the capture before labelling
+        (:func:`stillcap.body.hand_adapt.label_and_adapt`; ``docs/hand.md`` has what it gave).
     """
 
     strobe_position_m: tuple | None = None
@@ -48,6 +51,7 @@ class HandOptions:
     spin: bool = True
     hand_model: str | Path | None = None
     hand_markers: str | Path | None = None
+    adapt_model: bool = False
 
     def __post_init__(self):
         if self.interpolation not in ("spline", "slerp"):

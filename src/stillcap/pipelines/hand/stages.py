@@ -41,7 +41,7 @@ from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ba
 from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
-           "release_and_spin", "check_hand"]
+           "release_and_spin", "check_hand", "label_markers_adapted"]
 
 #: Position uncertainty of fully seen and of partly hidden glove markers (m), as measured by
 #: ``benchmarks/bench_hand_markers.py`` (0.16 mm RMS and a few mm): the pose fit's weights.
@@ -109,6 +109,24 @@ def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, 
     return labels
 
 
+def label_markers_adapted(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list,
+                          skeleton=None, markerset=None) -> tuple[HandLabels, bool]:
+    """Stage 4 with ``--adapt-model`` (experimental): ``(labels, adapted)``, the markers labelled
+    with the model adapted to this capture (:func:`stillcap.body.hand_adapt.label_and_adapt`)."""
+    from stillcap.body.hand import hand_markerset, hand_skeleton
+    from stillcap.body.hand_adapt import label_and_adapt
+
+    labels, adaptation = label_and_adapt(points.points, points.colors, strobe_hz=strobe_hz,
+                                         skeleton=skeleton or hand_skeleton(), markerset=markerset or hand_markerset(),
+                                         reprojection_px=points.reprojection_px, overrides=options.overrides)
+    if adaptation is None:
+        messages.append("--adapt-model: no flash with a pose to adapt the model to; the model was not adapted")
+    for k, why in enumerate(labels.skipped):
+        if why:
+            messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
+    return labels, adaptation is not None
+
+
 def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list):
     """Stage 5: ``(sequence, animation)``, the hand poses of the flashes with the three
     back-of-hand markers and the animation through them (None where there are too few)."""
@@ -162,8 +180,8 @@ def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, m
     return replace(balls, flash_index=np.asarray(fn.flash, int), times=np.asarray(fn.times, float))
 
 
-def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints) -> list:
+def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints, adapted: bool = False) -> list:
     """Stage 7: the self-checks (:func:`~stillcap.body.hand_checks.hand_self_checks`), fully seen
     markers against :data:`SEEN_SIGMA_M`, partly hidden ones against :data:`HIDDEN_SIGMA_M`."""
     return hand_self_checks(labels, sequence, partly_hidden=points.partly_hidden, noise_m=SEEN_SIGMA_M,
-                            hidden_noise_m=HIDDEN_SIGMA_M)
+                            hidden_noise_m=HIDDEN_SIGMA_M, adapted=adapted)
