@@ -7,8 +7,8 @@ through the true cameras (no calibration error: what is measured is the photos' 
 as a capture folder (PNG, or JPEG at the condition's quality) and analysed by
 ``analyse_pitch`` with its defaults, **with the truth declared where a user can declare it**:
 the ball radius (``PitchOptions.ball_radius_m``) and each camera's response (``rig.json``
-``response``, read by the detectors once the camera-response work is merged; until then the
-detector's fixed gamma 2.2 linearisation is used and the response rows also measure that).
+``response``, which the detectors read; ``benchmarks/bench_response_rates.py`` measures wrong
+declarations and ``auto``).
 
 Per capture the errors and coverage flags are those of ``bench_pitch.evaluate`` (positions:
 ``e^T C^-1 e <= chi2_3(95 %)`` per ball image; speed ``|d| <= 1.96 sigma``; direction 2-D

@@ -219,3 +219,31 @@ def test_studio_markers_in_3d(studio):
     # most markers seen by 2+ cameras are found
     vis2 = (tr.markers_visible.sum(axis=0) >= 2).ravel()
     assert np.mean(best[vis2] <= 3.0) > 0.75  # measured: 66 of 77
+
+
+def test_coincidental_confirmation_cannot_steal_a_match(rig):
+    """Issue 12: a wrong match of one pair "confirmed" by a blob in the other pair's camera that
+    belongs to another marker (which that pair triangulates itself) must not win over the right
+    match: the confirmation is found coincidental and the pair is assigned again."""
+    cams = list(rig.rig)
+    c0, c1, c2 = (c.center for c in cams[:3])
+    m1 = rig.aim.copy()
+    u = (c0 - m1) / np.linalg.norm(c0 - m1) + (c1 - m1) / np.linalg.norm(c1 - m1)
+    m2 = m1 + 0.05 * u / np.linalg.norm(u)  # in m1's epipolar plane of the left pair: both cross matches admissible
+    n = np.cross(c0 - m1, c1 - m1)
+    m2 = m2 + 0.0004 * n / np.linalg.norm(n)  # a little off it: the right matches are the closer ones
+    x0, x1 = cams[0].project(np.array([m1, m2])), cams[1].project(np.array([m1, m2]))
+    from stillcap.geometry.triangulate import triangulate
+
+    w = triangulate([cams[0], cams[1]], np.array([[x0[0]], [x1[1]]])).points[0]  # the wrong match's point
+    m3 = c2 + 1.25 * (w - c2)  # another marker on camera 2's ray through the wrong point
+    px = {k: [] for k in range(4)}
+    for k in (0, 1):
+        px[k] += [cams[k].project(m1[None])[0], cams[k].project(m2[None])[0]]
+    for k in (0, 2, 3):  # m3: seen by the right pair and one camera of the left pair
+        px[k].append(cams[k].project(m3[None])[0])
+    blobs = [Blobs(np.array(px[k]), ["red"] * len(px[k])) for k in range(4)]
+    res = triangulate_color_markers(rig.rig, rig.pairs, blobs)
+    truth = np.array([m1, m2, m3])
+    d = np.linalg.norm(res.points[:, None] - truth[None], axis=2).min(axis=0)
+    assert np.all(d < 0.002), d * 1000  # all three markers, none lost to the coincidental blob

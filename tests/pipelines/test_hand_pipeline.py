@@ -195,3 +195,29 @@ def test_ball_held_per_flash(result):
     held = result.ball_held()
     assert held and set(held) <= set(int(k) for k in result.labels.order)
     assert any(held.values()) and not all(held.values())  # held, then released
+
+
+def test_self_checks_pass_on_the_models_hand_and_are_in_the_json(result):
+    from stillcap._selfcheck import checks_from_json, failed_checks
+
+    names = {c.name for c in result.self_checks}
+    assert {"hand_scale", "marker_fit_residual", "finger_misfit", "unlabelled_markers"} <= names
+    assert failed_checks(result.self_checks) == []
+    d = json.loads(json.dumps(result.to_dict(), allow_nan=False))
+    assert checks_from_json(d["self_checks"]) == result.self_checks
+
+
+def test_partly_hidden_markers_are_listed_and_scored_apart(result):
+    hid = result.partly_hidden_markers()
+    assert [h["point"] for h in hid] == list(np.flatnonzero(result.points.partly_hidden))
+    assert len(hid) > 0  # the studio's fingers hide part of some markers
+    c = result.truth
+    # a partly hidden marker never counts as recovered with the fully seen ones
+    total = 100.0 * c["labels_right"] / c["markers_seen_2plus"]
+    assert c["markers_recovered_pct"] + c["markers_recovered_partly_hidden_pct"] == pytest.approx(total)
+    labelled = [h for h in hid if h["marker"] is not None]
+    assert c["partly_hidden_labels"] == len([h for h in labelled if h["flash"] is not None])
+    if c["partly_hidden_labels_right"]:
+        assert c["partly_hidden_rms_mm"] > c["marker_rms_mm"]
+    d = result.to_dict()
+    assert d["partly_hidden"] == hid

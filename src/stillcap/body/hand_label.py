@@ -69,6 +69,9 @@ GRID_GATE_M = 0.020
 GATE_M = 0.008
 #: Grid step of the per-digit search (degrees).
 GRID_STEP_DEG = 15.0
+#: Sizes relative to the model (lowest, highest) a hand may have: the back-of-hand triangle is
+#: searched at any size in this range, and the model and every gate scale with the size found.
+SIZE_RANGE = (0.75, 1.35)
 #: A hand needs this many markers (its 3 back markers included) to count.
 MIN_MARKERS = 6
 #: Single-linkage distance (m) grouping left-over points into a skipped flash, and the points
@@ -146,6 +149,10 @@ class HandLabels:
     colours : ndarray of str, shape (N,)
     skeleton : Skeleton
     markerset : MarkerSet
+        The hand the labels were made with (the model scaled to the hand's size).
+    hand_scale : float
+        The hand's size relative to the model given (estimated from its back-of-hand triangles
+        unless given).
     """
 
     marker_names: list
@@ -166,6 +173,7 @@ class HandLabels:
     colors: np.ndarray
     skeleton: Skeleton = field(repr=False)
     markerset: MarkerSet = field(repr=False)
+    hand_scale: float = 1.0
 
     @property
     def n_flashes(self) -> int:
@@ -200,7 +208,7 @@ class HandLabels:
                         "markers": self.positions, "reconstructed": self.reconstructed,
                         "skipped": list(self.skipped), "rms_mm": self.rms * 1000, "root2world": self.root2world,
                         "members": [m.tolist() for m in self.members]},
-            "unassigned": self.unassigned, "deleted": self.deleted,
+            "unassigned": self.unassigned, "deleted": self.deleted, "hand_scale": self.hand_scale,
         })
 
 
@@ -277,33 +285,47 @@ class _HandModel:
 # --------------------------------------------------------------------------------------------
 # Labelling
 # --------------------------------------------------------------------------------------------
-def _triplets(points, colors, avail, model: _HandModel, tol):
-    """Candidate back-of-hand triplets: point indices (K, 3) in BACK_MARKERS order."""
+def _triplets(points, colors, avail, model: _HandModel, tol, size_range=None):
+    """Candidate back-of-hand triplets: point indices (K, 3) in BACK_MARKERS order, and the size
+    of each relative to the model (K,).
+
+    ``size_range`` None: the sides must match the model's within ``tol`` (size 1). Given
+    ``(lo, hi)``: the triangle may be the model's scaled by any size in the range (least-squares
+    size from the three sides), each side within ``tol`` times the size: a hand larger or
+    smaller than the model is found all the same.
+    """
     bm = model.back_model
-    dist = {(a, b): np.linalg.norm(bm[a] - bm[b]) for a, b in ((0, 1), (0, 2), (1, 2))}
+    pairs = ((0, 1), (0, 2), (1, 2))
+    D = np.array([np.linalg.norm(bm[a] - bm[b]) for a, b in pairs])
+    lo, hi = (1.0, 1.0) if size_range is None else (float(size_range[0]), float(size_range[1]))
     idx = [np.flatnonzero(avail & (colors == model.colors[b])) for b in model.back]
-    out = []
+    out, sizes = [], []
     for i in idx[0]:
         d1 = np.linalg.norm(points[idx[1]] - points[i], axis=1)
         d2 = np.linalg.norm(points[idx[2]] - points[i], axis=1)
-        js = idx[1][np.abs(d1 - dist[0, 1]) < tol]
-        ks = idx[2][np.abs(d2 - dist[0, 2]) < tol]
+        js = idx[1][(d1 > lo * D[0] - tol * hi) & (d1 < hi * D[0] + tol * hi)]
+        ks = idx[2][(d2 > lo * D[1] - tol * hi) & (d2 < hi * D[1] + tol * hi)]
         for j in js:
             for k in ks:
-                if abs(np.linalg.norm(points[j] - points[k]) - dist[1, 2]) < tol:
+                d = np.array([np.linalg.norm(points[j] - points[i]), np.linalg.norm(points[k] - points[i]),
+                              np.linalg.norm(points[j] - points[k])])
+                s = 1.0 if size_range is None else float(np.clip(d @ D / (D @ D), lo, hi))
+                if np.all(np.abs(d - s * D) < tol * s):
                     out.append((i, j, k))
-    return np.array(out, int).reshape(-1, 3)
+                    sizes.append(s)
+    return np.array(out, int).reshape(-1, 3), np.array(sizes, float)
 
 
-def _root_pose(model: _HandModel, points, triplet) -> np.ndarray:
-    return rigid_alignment(model.back_model, points[triplet]).model2world
+def _root_pose(model: _HandModel, points, triplet, scale: float = 1.0) -> np.ndarray:
+    return rigid_alignment(scale * model.back_model, points[triplet]).model2world
 
 
-def _grid_match(model: _HandModel, r2w, points, colors, avail, gate, prior=None):
+def _grid_match(model: _HandModel, r2w, points, colors, avail, gate, prior=None, scale: float = 1.0):
     """Best grid pose per digit for a root pose: ``(labels {marker: point}, angles (n_joints, 3),
-    n matched digit markers, cost)``."""
+    n matched digit markers, cost)``; ``scale``: the hand is the model scaled by it (the gate too)."""
+    gate = gate * scale
     R, t = r2w[:3, :3], r2w[:3, 3]
-    near = avail & (np.linalg.norm(points - t, axis=1) < REACH_M)
+    near = avail & (np.linalg.norm(points - t, axis=1) < REACH_M * scale)
     trees = {}
     for c in np.unique(model.colors):
         sel = np.flatnonzero(near & (colors == c))
@@ -315,7 +337,7 @@ def _grid_match(model: _HandModel, r2w, points, colors, avail, gate, prior=None)
             pa = prior[dig.chain][None]
             grid = np.concatenate([grid, pa])
             local = np.concatenate([local, model.digit_markers(dig, pa)])
-        world = local @ R.T + t
+        world = (scale * local) @ R.T + t
         logw = np.zeros(len(grid))
         hits = np.full((len(grid), len(dig.markers)), -1)
         dists = np.full((len(grid), len(dig.markers)), np.inf)
@@ -395,6 +417,36 @@ def _label_flash(model, points, colors, avail, triplet, prior_angles, grid_gate,
     return labels, fit, pos
 
 
+def _accept(model, pts, cols, usable, cands, sizes, grid_gate, min_markers, roots=None) -> list:
+    """Candidate hands accepted greedily, best grid score first, each taking its points out of
+    play; candidate ``i`` is the model scaled by ``sizes[i]``."""
+    if roots is None:
+        roots = [_root_pose(model, pts, c, s) for c, s in zip(cands, sizes)]
+    avail = usable.copy()
+    accepted = []
+    alive = np.ones(len(cands), bool)
+    while alive.any():
+        best, best_key, best_pts = -1, None, None
+        for i in np.flatnonzero(alive):
+            if not avail[cands[i]].all():
+                alive[i] = False
+                continue
+            lab, _, n, cost = _grid_match(model, roots[i], pts, cols, avail, grid_gate, scale=sizes[i])
+            if n + 3 < min_markers:
+                alive[i] = False
+                continue
+            key = (n, -cost)
+            if best_key is None or key > best_key:
+                best, best_key, best_pts = i, key, list(lab.values())
+        if best < 0:
+            break
+        accepted.append(best)
+        alive[best] = False
+        avail[cands[best]] = False
+        avail[best_pts] = False
+    return accepted
+
+
 def _check_inputs(points, colors, reprojection_px):
     pts = as_array(points, (None, 3), "points")
     cols = np.asarray(colors, dtype=object)
@@ -413,7 +465,8 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        markerset: MarkerSet | None = None, throw_direction=(0.0, -1.0, 0.0), reprojection_px=None,
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
-                       min_markers: int = MIN_MARKERS) -> HandLabels:
+                       min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
+                       size_range=SIZE_RANGE) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -435,7 +488,15 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     overrides : path, or sequence of LabelOverride, optional
         Manual corrections applied at the end (:func:`apply_label_overrides`).
     triangle_tol_m, gate_m, grid_gate_m, grid_step_deg, min_markers
-        Tuning (module constants).
+        Tuning (module constants), in metres for a hand of the model's size: every gate is
+        multiplied by the hand's size.
+    hand_scale : float, optional
+        The hand's size relative to the model; default: estimated from the back-of-hand
+        triangles found (any size in ``size_range``). The model is scaled by it
+        (:func:`~stillcap.body.hand.scale_hand`) and so are the gates; the result's skeleton
+        and marker set are the scaled ones, and :attr:`HandLabels.hand_scale` says it.
+    size_range : (float, float)
+        Sizes relative to the model a hand may have (default :data:`SIZE_RANGE`).
 
     Returns
     -------
@@ -456,31 +517,27 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     if rep is not None and max_reprojection_px is not None:
         usable &= ~(rep > float(max_reprojection_px))
 
+    # 0. the hand's size: candidate triplets of any size in the range, accepted greedily by grid
+    # score with the model scaled to each; the median size of the accepted hands scales the model
+    # and every gate (a hand larger or smaller than the model is not lost to fixed mm gates)
+    if hand_scale is None:
+        cands, sizes = _triplets(pts, cols, usable, model, triangle_tol_m, size_range)
+        acc = _accept(model, pts, cols, usable, cands, sizes, grid_gate_m, min_markers)
+        hand_scale = float(np.median(sizes[acc])) if len(acc) else 1.0
+    hand_scale = float(hand_scale)
+    if not (np.isfinite(hand_scale) and hand_scale > 0):
+        raise ValueError(f"hand_scale must be a positive factor, got {hand_scale}")
+    if hand_scale != 1.0:
+        from stillcap.body.hand import scale_hand
+
+        skeleton, markerset = scale_hand(skeleton, markerset, hand_scale)
+        model = _HandModel(skeleton, markerset, grid_step_deg)
+        triangle_tol_m, gate_m, grid_gate_m = (v * hand_scale for v in (triangle_tol_m, gate_m, grid_gate_m))
+
     # 1-2. candidate hands from back-of-hand triplets, accepted greedily by grid score
-    avail = usable.copy()
-    cands = _triplets(pts, cols, avail, model, triangle_tol_m)
+    cands, _ = _triplets(pts, cols, usable, model, triangle_tol_m)
     roots = [_root_pose(model, pts, c) for c in cands]
-    accepted = []
-    alive = np.ones(len(cands), bool)
-    while alive.any():
-        best, best_key, best_pts = -1, None, None
-        for i in np.flatnonzero(alive):
-            if not avail[cands[i]].all():
-                alive[i] = False
-                continue
-            lab, _, n, cost = _grid_match(model, roots[i], pts, cols, avail, grid_gate_m)
-            if n + 3 < min_markers:
-                alive[i] = False
-                continue
-            key = (n, -cost)
-            if best_key is None or key > best_key:
-                best, best_key, best_pts = i, key, list(lab.values())
-        if best < 0:
-            break
-        accepted.append(best)
-        alive[best] = False
-        avail[cands[best]] = False
-        avail[best_pts] = False
+    accepted = _accept(model, pts, cols, usable, cands, np.ones(len(cands)), grid_gate_m, min_markers, roots)
 
     # 3. time order of the hands, by their points' centroid along the throw
     def centroid(i):
@@ -529,7 +586,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         for mk, p in (labels or {}).items():
             point_index[k, mk] = p
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
-                 [f[3] for f in flashes], np.array([], int))
+                 [f[3] for f in flashes], np.array([], int), hand_scale)
     if overrides is not None:
         if isinstance(overrides, (str, os.PathLike)):
             overrides = read_label_overrides(overrides)
@@ -537,7 +594,8 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     return out
 
 
-def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, deleted) -> HandLabels:
+def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, deleted,
+           hand_scale: float = 1.0) -> HandLabels:
     n, m = point_index.shape
     positions = np.where((point_index >= 0)[..., None], pts[np.maximum(point_index, 0)], np.nan)
     used = set(point_index[point_index >= 0].tolist()) | set(np.asarray(deleted).tolist())
@@ -547,7 +605,7 @@ def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, del
     return HandLabels(list(model.markerset.names), list(model.colors), order, order / strobe_hz, strobe_hz,
                       point_index, positions, np.array([f is not None for f in fits], bool), list(skipped),
                       [np.asarray(x, int) for x in members], unassigned, np.asarray(deleted, int), rms, list(fits),
-                      pts, cols, model.skeleton, model.markerset)
+                      pts, cols, model.skeleton, model.markerset, float(hand_scale))
 
 
 # --------------------------------------------------------------------------------------------
@@ -671,7 +729,7 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
             miss = [BACK_MARKERS[j] for j in range(3) if pi[k, back[j]] < 0]
             skipped[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}"
     return _build(model, labels.points, labels.colors, labels.strobe_hz, pi, fits, skipped,
-                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int))
+                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int), labels.hand_scale)
 
 
 # --------------------------------------------------------------------------------------------

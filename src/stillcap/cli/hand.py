@@ -56,6 +56,14 @@ def hand(
                                       "(Blender plays a 1000 fps take within one 24 fps frame otherwise)."),
     force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --export)."),
     response: str = typer.Option(None, "--response", help=RESPONSE_HELP),
+    hand_model: str = typer.Option(None, "--hand-model", help="The person's hand model: a stillcap-skeleton file "
+                                   "or a built-in name (docs/hand.md); default capture.json hand_model, else "
+                                   "hand-right-adult."),
+    markers: str = typer.Option(None, "--markers", help="The glove's marker set: a stillcap-markerset file or a "
+                                "built-in name (docs/hand-markers.md); default capture.json hand_markers, else "
+                                "hand-18."),
+    adapt_model: bool = typer.Option(False, "--adapt-model", help="Experimental: adapt the hand model to this "
+                                     "capture before labelling (docs/hand.md: it did not reach 2 deg on other hands)."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -74,9 +82,14 @@ def hand(
         from stillcap.body.hand_label import read_label_overrides
 
         read_label_overrides(overrides)
+    if hand_model is not None or markers is not None:  # bad files are named before the analysis runs
+        from stillcap.body.hand_files import load_hand
+
+        load_hand(hand_model, markers)
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation,
-                       response=parse_response_option(response))
+                       response=parse_response_option(response), hand_model=hand_model, hand_markers=markers,
+                       adapt_model=adapt_model)
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     from stillcap.io.export import EXPORTERS, known_extensions
@@ -92,6 +105,9 @@ def hand(
     from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
 
     res.truth = compare_with_capture(res)  # a studio capture: compared with its truth
+    from stillcap.cli._selfchecks import print_failed_checks
+
+    print_failed_checks(res.self_checks, "hand")
     written = []
     outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "hand.json")
     for path in export:
@@ -139,7 +155,8 @@ def print_hand_result(res) -> None:
     lab = res.labels
     pts = res.points
     console.print(f"{len(pts)} glove markers in 3D from pairs {', '.join(res.pairs)} "
-                  f"({int(np.sum(pts.n_views > 2))} seen by both pairs); strobe {res.strobe_hz:g} Hz")
+                  f"({int(np.sum(pts.n_views > 2))} seen by both pairs, {int(np.sum(pts.partly_hidden))} partly hidden: "
+                  f"listed apart in --json partly_hidden); strobe {res.strobe_hz:g} Hz")
     t = right_table(f"{lab.n_flashes} flashes with the hand ({int(lab.reconstructed.sum())} with a pose)",
                     ("flash", "time ms", "labelled", "fit RMS mm", "pose", "ball"))
     t.caption = "no pose: the reason in short (in full in the notes and in --json)" \
@@ -196,8 +213,12 @@ def print_hand_comparison(cmp: dict) -> None:
     rows = [("flashes with a pose / with the back of the hand in 2+ cameras",
              f"{cmp['flashes_reconstructed']} / {cmp['flashes_back_seen_2plus']}"),
             ("labels right", f"{_f(cmp['labels_right_pct'], 2)} %  ({cmp['labels_right']} of {cmp['labels']})"),
-            ("markers seen in 2+ cameras, labelled right", f"{_f(cmp['markers_recovered_pct'], 1)} %"),
-            ("marker 3D error RMS / max", f"{_f(cmp['marker_rms_mm'], 3)} / {_f(cmp['marker_max_mm'], 3)} mm"),
+            ("markers seen in 2+ cameras, labelled right", f"{_f(cmp['markers_recovered_pct'], 1)} % fully seen + "
+             f"{_f(cmp.get('markers_recovered_partly_hidden_pct'), 1)} % partly hidden"),
+            ("marker 3D error RMS / max (fully seen)", f"{_f(cmp['marker_rms_mm'], 3)} / {_f(cmp['marker_max_mm'], 3)} mm"),
+            ("partly hidden markers: labelled right, 3D error RMS / max",
+             f"{cmp.get('partly_hidden_labels_right', 0)} of {cmp.get('partly_hidden_labels', 0)}, "
+             f"{_f(cmp.get('partly_hidden_rms_mm'), 2)} / {_f(cmp.get('partly_hidden_max_mm'), 2)} mm"),
             ("joint angles RMS / max", f"{_f(cmp['joint_angle_rms_deg'], 2)} / {_f(cmp['joint_angle_max_deg'], 2)} deg"),
             ("joint positions RMS", f"{_f(cmp['joint_rms_mm'], 2)} mm")]
     if "ball_mean_mm" in cmp:

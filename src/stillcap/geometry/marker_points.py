@@ -299,6 +299,44 @@ def _flux_ratios(cams, X, bidx, flux, colors, radius, light) -> np.ndarray:
     return out
 
 
+def _assign_pair(pname, cand, obs, col, max_epi, vetoed) -> list:
+    """One stereo pair's optimal one-to-one matches (``linear_sum_assignment``): cost in [0, 1]
+    from the epipolar distance, minus one per confirmation not ``vetoed``; leaving a blob
+    unmatched costs 0.5 (so an admissible unconfirmed pair beats leaving both blobs alone, and
+    a confirmed pair beats any unconfirmed one)."""
+    a, b, ia, ib, X, ok, d, extra = cand
+    hits = {k: np.array([jj[q] if (pname, q, k) not in vetoed else -1 for q in range(len(ia))], int)
+            for k, jj in extra.items()}
+    support = np.zeros(len(ia))
+    for jj in hits.values():
+        support += jj >= 0
+    na, nb = len(obs[a]), len(obs[b])
+    cost_pairs = d[ia, ib] / max_epi - support
+    big = 1e6
+    C = np.full((na + nb, nb + na), big)
+    C[ia[ok], ib[ok]] = cost_pairs[ok]
+    C[np.arange(na), nb + np.arange(na)] = 0.5
+    C[na + np.arange(nb), np.arange(nb)] = 0.5
+    C[na:, nb:] = 0.0
+    rows, cols_ = linear_sum_assignment(C)
+    index = {(i, j): q for q, (i, j) in enumerate(zip(ia, ib))}
+    count_a = np.bincount(ia[ok], minlength=na)
+    count_b = np.bincount(ib[ok], minlength=nb)
+    out = []
+    for r, c_ in zip(rows, cols_):
+        if r >= na or c_ >= nb or C[r, c_] >= big:
+            continue
+        q = index[(r, c_)]
+        views = {a: int(r), b: int(c_)}
+        for k, jj in hits.items():
+            if jj[q] >= 0:
+                views[k] = int(jj[q])
+        amb = (count_a[r] > 1 or count_b[c_] > 1) and support[q] == 0
+        out.append({"views": views, "pair": pname, "ambiguous": bool(amb), "colour": col[a][r],
+                    "point": X[q], "support": support[q], "epi": d[r, c_], "cand": q})
+    return out
+
+
 def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blobs_per_camera, *,
                                light_position=None, radius_m: float = 0.005, max_epipolar_px: float | None = None,
                                confirm_px: float | None = None, merge_mm: float = 4.0,
@@ -385,7 +423,7 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
     max_rep = 1.0 * scale if max_reprojection_px is None else float(max_reprojection_px)
 
     # ---- 1. candidates per pair, triangulated and checked in the other cameras ----------------
-    hyps = []  # per chosen match: dict(view -> blob), pair name, ambiguous
+    cands = {}
     for pname, (a, b) in pair_idx.items():
         if len(obs[a]) == 0 or len(obs[b]) == 0:
             continue
@@ -402,7 +440,6 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
             z = cams[k].world_to_cam(np.where(ok[:, None], X, 0.0))[:, 2]
             ok &= z > min_depth_m
         # confirmation: a same-colour blob at the predicted centroid in each other camera
-        support = np.zeros(len(ia))
         extra = {}
         for k in range(nc):
             if k in (a, b) or len(obs[k]) == 0 or not ok.any():
@@ -414,35 +451,35 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
             dist = np.linalg.norm(pred[:, None] - obs[k][None], axis=2)
             dist = np.where(col[a][ia][:, None] == col[k][None, :], dist, np.inf)
             j = np.argmin(dist, axis=1)
-            hit = ok & (dist[np.arange(len(ia)), j] <= conf)
-            support += hit
-            extra[k] = np.where(hit, j, -1)
-        # assignment: cost in [0, 1] from the epipolar distance, minus one per confirmation;
-        # leaving a blob unmatched costs 0.5 (so an admissible unconfirmed pair beats leaving
-        # both blobs alone, and a confirmed pair beats any unconfirmed one)
-        na, nb = len(obs[a]), len(obs[b])
-        cost_pairs = d[ia, ib] / max_epi - support
-        big = 1e6
-        C = np.full((na + nb, nb + na), big)
-        C[ia[ok], ib[ok]] = cost_pairs[ok]
-        C[np.arange(na), nb + np.arange(na)] = 0.5
-        C[na + np.arange(nb), np.arange(nb)] = 0.5
-        C[na:, nb:] = 0.0
-        rows, cols_ = linear_sum_assignment(C)
-        cand = {(i, j): q for q, (i, j) in enumerate(zip(ia, ib))}
-        count_a = np.bincount(ia[ok], minlength=na)
-        count_b = np.bincount(ib[ok], minlength=nb)
-        for r, c_ in zip(rows, cols_):
-            if r >= na or c_ >= nb or C[r, c_] >= big:
-                continue
-            q = cand[(r, c_)]
-            views = {a: int(r), b: int(c_)}
-            for k, jj in extra.items():
-                if jj[q] >= 0:
-                    views[k] = int(jj[q])
-            amb = (count_a[r] > 1 or count_b[c_] > 1) and support[q] == 0
-            hyps.append({"views": views, "pair": pname, "ambiguous": bool(amb), "colour": col[a][r],
-                         "point": X[q], "support": support[q], "epi": d[r, c_]})
+            extra[k] = np.where(ok & (dist[np.arange(len(ia)), j] <= conf), j, -1)
+        cands[pname] = (a, b, ia, ib, X, ok, d, extra)
+
+    # ---- 1b. assignment per pair, again while a confirmation proves coincidental --------------
+    # A confirming blob that the other pair matched directly into a different 3D point (farther
+    # than merge_mm) belongs to another marker: the confirmation was a coincidence. It no longer
+    # counts, and the pairs are assigned again, so that a coincidental blob cannot make a wrong
+    # match win over the right one (issue 12: a flash lost to matching).
+    vetoed = set()  # (pair, candidate, camera)
+    for _ in range(4):
+        hyps = [h for pname, c in cands.items() for h in _assign_pair(pname, c, obs, col, max_epi, vetoed)]
+        direct = {}
+        for h in hyps:
+            for k in pair_idx[h["pair"]]:
+                direct[(k, h["views"][k])] = h
+        new = set()
+        for h in hyps:
+            own = {(k, h["views"][k]) for k in pair_idx[h["pair"]]}
+            for k, j in h["views"].items():
+                g = direct.get((k, j))
+                if k in pair_idx[h["pair"]] or g is None or np.linalg.norm(g["point"] - h["point"]) <= merge_mm / 1000.0:
+                    continue
+                # the other pair's point holds the blob; it is the blob's marker only when a view
+                # of this pair confirms it elsewhere than this match's own blobs
+                if any(kk in pair_idx[h["pair"]] and (kk, jj) not in own for kk, jj in g["views"].items()):
+                    new.add((h["pair"], h["cand"], k))
+        if new <= vetoed:
+            break
+        vetoed |= new
     if not hyps:
         return MarkerPoints.empty(names)
 

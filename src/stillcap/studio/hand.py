@@ -139,6 +139,7 @@ class HandMotion:
     throw_dir: np.ndarray
     skeleton: Skeleton
     flight_model: object
+    angle_offsets_deg: np.ndarray | None = None  # another person's own motion (studio.hand_variation)
 
     @property
     def omega(self) -> float:
@@ -176,6 +177,10 @@ class HandMotion:
         for name, keys in _KEYS.items():
             out[self.skeleton.index(name)] = PchipInterpolator(_KEY_T, np.array(keys, float), axis=0,
                                                                extrapolate=True)(tau)
+        if self.angle_offsets_deg is not None:
+            lim = self.skeleton.limits_deg
+            out = np.clip(out + self.angle_offsets_deg, np.nan_to_num(lim[..., 0], nan=-180),
+                          np.nan_to_num(lim[..., 1], nan=180))
         return out
 
     def pose(self, t: float) -> Pose:
@@ -340,7 +345,8 @@ def _nominal_aim() -> np.ndarray:
     return 0.5 * (pts.min(axis=0) + pts.max(axis=0))
 
 
-def hand_rig(image_size=(2560, 1920), strobe_hz: float = STROBE_HZ, shutter_s: float = SHUTTER_S) -> HandRig:
+def hand_rig(image_size=(2560, 1920), strobe_hz: float = STROBE_HZ, shutter_s: float = SHUTTER_S,
+             layout: dict | None = None, light_offset=None) -> HandRig:
     """The seed's hand rig: 4 cameras in a half circle behind and above the pitcher, two per side
     (stereo pairs ``left`` and ``right``), one strobe directly behind the pitcher.
 
@@ -350,6 +356,11 @@ def hand_rig(image_size=(2560, 1920), strobe_hz: float = STROBE_HZ, shutter_s: f
         4:3; the intrinsics scale with the width (same field of view).
     strobe_hz, shutter_s : float
         Seed: 75 Hz, 1 s.
+    layout : dict, optional
+        Camera name -> (azimuth deg, distance m, height m, focal px) replacing the seed's layout
+        (another studio's placement: :mod:`stillcap.studio.hand_variation`).
+    light_offset : array_like, shape (3,), optional
+        Moves the strobe from its seed place (m).
     """
     w, h = _check_size(image_size)
     strobe_hz, shutter_s = float(strobe_hz), float(shutter_s)
@@ -361,14 +372,16 @@ def hand_rig(image_size=(2560, 1920), strobe_hz: float = STROBE_HZ, shutter_s: f
     s = w / 2560.0
     cams = []
     for k, name in enumerate(CAMERA_NAMES):
-        az, dist, up, f = _LAYOUT[name]
+        az, dist, up, f = (layout or _LAYOUT)[name]
         a = np.radians(az)
         eye = aim + np.array([dist * np.sin(a), dist * np.cos(a), up])
         dx, dy = (3.0, -2.0) if k % 2 else (-4.0, 3.5)
         cams.append(Camera.from_intrinsics(name, f * s, f * s * (1.0002 if k % 2 else 0.9997), (w - 1) / 2 + dx * s,
                                            (h - 1) / 2 + dy * s, (w, h), dist=_DIST,
                                            world2cam=field_look_at(eye, aim, 0.4 * (k - 1.5))))
-    light = PointLight(aim + np.array([0.0, STROBE_BEHIND, STROBE_UP]), STROBE_INTENSITY)
+    light = PointLight(aim + np.array([0.0, STROBE_BEHIND, STROBE_UP]) + (0 if light_offset is None else
+                                                                         np.asarray(light_offset, float)),
+                       STROBE_INTENSITY)
     pairs = {"left": CAMERA_NAMES[:2], "right": CAMERA_NAMES[2:]}
     return HandRig(Rig(cams, world="field"), pairs, light, strobe_hz, shutter_s, aim)
 
@@ -647,6 +660,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
                  window_s=WINDOW_S, release_time_s: float | None = None,
                  variation: ReleaseVariation | None = DEFAULT_VARIATION, model="seed", palette: dict | None = None,
                  sensor: Sensor | None = None, supersample: int = 3, known_flash_times: bool = False,
+                 person=None,
                  progress: Callable[[int, int, str], None] | None = None) -> HandCapture:
     """Render the pitcher's hand around release with the truth (module docstring).
 
@@ -673,6 +687,9 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     known_flash_times : bool
         Write the strobe's phase and flash count per image.
     progress : callable(done, total, label), optional
+    person : HandVariation, optional
+        Another person's hand, motion, light and camera placement
+        (:func:`stillcap.studio.hand_variation.another_hand`); default the seed's.
 
     Returns
     -------
@@ -688,7 +705,8 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     if supersample < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
     r_pitch, r_time, r_render = (np.random.default_rng(int(s)) for s in rng.integers(0, 2 ** 63 - 1, size=3))
-    hrig = hand_rig(image_size, strobe_hz)
+    hrig = hand_rig(image_size, strobe_hz) if person is None else \
+        hand_rig(image_size, strobe_hz, layout=person.layout, light_offset=person.light_offset)
     t0 = float(r_time.uniform(0.2, 0.3)) if release_time_s is None else float(release_time_s)
     if not (np.isfinite(t0) and -w0 <= t0 <= hrig.shutter_s - w1):
         raise ValueError(f"release_time_s must leave the motion window inside the shutter "
@@ -696,8 +714,10 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     phase = float(r_time.uniform(0, 1 / hrig.strobe_hz))
     flight = flight_model(model)
     release = release_state(preset, r_pitch, variation=variation, model=flight, t0=t0)
-    skeleton, markerset = hand_skeleton(), hand_markerset()
+    skeleton, markerset = (hand_skeleton(), hand_markerset()) if person is None else (person.skeleton, person.markerset)
     motion = hand_motion(release, flight, skeleton)
+    if person is not None:
+        motion.angle_offsets_deg = person.angle_offsets_deg
     ball, layout = ball_sphere(palette)
 
     hz = hrig.strobe_hz

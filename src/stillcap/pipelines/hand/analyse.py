@@ -9,12 +9,13 @@ from dataclasses import replace
 from pathlib import Path
 
 from stillcap._checks import as_array
+from stillcap.body.hand_files import load_hand
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.pipelines._response import apply_response, auto_report, auto_rig, camera_estimates, response_checks
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
-from stillcap.pipelines.hand.stages import (find_ball, find_glove_markers, fit_poses, label_markers, release_and_spin,
-                                            triangulate_glove_markers)
+from stillcap.pipelines.hand.stages import (check_hand, find_ball, find_glove_markers, fit_poses, label_markers,
+                                            label_markers_adapted, release_and_spin, triangulate_glove_markers)
 from stillcap._progress import report_progress
 
 __all__ = ["analyse_hand"]
@@ -55,6 +56,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     where = f"capture {cap.root}" if cap.root is not None else "capture"
     if cap.kind != "hand":
         raise ValueError(f"{where} is a {cap.kind!r} capture, not a hand capture (capture.json \"kind\")")
+    skeleton, markerset = _hand_of(cap, options)
     specs, messages = stereo_pairs(cap)
     rates = {sp.strobe_hz for sp in specs}
     if len(rates) != 1:
@@ -107,7 +109,10 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     # -- labels and poses ---------------------------------------------------------------------
     t = _time.perf_counter()
     report_progress(progress, 4, total, "labelling")
-    labels = label_markers(points, strobe_hz, options, messages)
+    if options.adapt_model:  # experimental
+        labels, adapted = label_markers_adapted(points, strobe_hz, options, messages, skeleton, markerset)
+    else:
+        labels, adapted = label_markers(points, strobe_hz, options, messages, skeleton, markerset), False
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 5, total, "poses")
@@ -119,10 +124,29 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     report_progress(progress, 6, total, "release")
     balls, release, spin = release_and_spin(rig, balls, sequence, strobe_hz, pairs, images, options, messages)
     timings["release"] = _time.perf_counter() - t
+    checks = check_hand(labels, sequence, points, adapted)
     report_progress(progress, total, total, "done")
     timings["total"] = _time.perf_counter() - t_all
-    checks = response_checks(rig, camera_estimates(rig.names, images, balls.centers_px, balls.radius_px)) \
+    checks += response_checks(rig, camera_estimates(rig.names, images, balls.centers_px, balls.radius_px)) \
         if balls is not None and len(balls) else []
     messages[:0] = response["messages"]
     return HandResult(cap, strobe_hz, list(pairs), blobs, points, labels, sequence, animation, balls, release, spin,
                       messages, timings, self_checks=checks, response=response)
+
+
+def _hand_of(cap: Capture, options: HandOptions):
+    """The hand model and marker set: the options' (any path), else capture.json's ``hand_model``
+    / ``hand_markers`` (paths inside the capture folder), else the built-in ones."""
+    refs, folders, whats = [], [], []
+    for opt, key, flag in ((options.hand_model, "hand_model", "--hand-model"),
+                           (options.hand_markers, "hand_markers", "--markers")):
+        if opt is not None:
+            refs.append(opt), folders.append(None), whats.append(flag)
+        else:
+            ref = cap.meta.get(key)
+            if ref is not None and not isinstance(ref, str):
+                raise ValueError(f"capture {cap.root}: capture.json \"{key}\" must be a file name or a built-in "
+                                 f"name, got {ref!r}")
+            refs.append(ref), folders.append(cap.root), whats.append(f"capture.json \"{key}\"")
+    return load_hand(refs[0], refs[1], model_folder=folders[0], markers_folder=folders[1], model_what=whats[0],
+                     markers_what=whats[1])

@@ -36,6 +36,14 @@ class HandOptions:
         The cameras' response (``docs/camera-response.md``): None each camera's own from the
         rig; a Response (or ``"srgb"``, ``"linear"``, ``"gamma:2.2"``) for every camera;
         ``"auto"`` estimated from the ball's shading.
+    hand_model, hand_markers : str, path or None
+        The person's hand model (a ``stillcap-skeleton`` file or a built-in name) and glove
+        marker set (a ``stillcap-markerset`` file or a built-in name); default
+        ``capture.json``'s ``hand_model`` / ``hand_markers`` (paths inside the capture folder),
+        else the built-in ones (:mod:`stillcap.body.hand_files`, ``docs/hand.md``).
+    adapt_model : bool
+        Experimental, off by default: adapt the hand model to the capture before labelling
+        (:func:`stillcap.body.hand_adapt.label_and_adapt`; ``docs/hand.md`` has what it gave).
     """
 
     strobe_position_m: tuple | None = None
@@ -47,6 +55,9 @@ class HandOptions:
     ball_radius_m: float = BASEBALL_RADIUS
     spin: bool = True
     response: object = None
+    hand_model: str | Path | None = None
+    hand_markers: str | Path | None = None
+    adapt_model: bool = False
 
     def __post_init__(self):
         self.response = check_response_option(self.response)

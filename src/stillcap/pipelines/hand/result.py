@@ -44,6 +44,9 @@ class HandResult:
     spin : HandBallSpin or None
     messages : list of str
     timings_s : dict
+    self_checks : list of SelfCheck
+        What the markers show against what the hand model and the noise allow
+        (:func:`~stillcap.body.hand_checks.hand_self_checks`); JSON key ``self_checks``.
     truth : dict or None
         The comparison with the capture's truth file, for synthetic captures: set by the caller
         that has the truth (:func:`stillcap.studio.compare.hand.compare_with_capture`); the
@@ -67,6 +70,7 @@ class HandResult:
     spin: HandBallSpin | None
     messages: list = field(default_factory=list)
     timings_s: dict = field(default_factory=dict)
+    self_checks: list = field(default_factory=list)
     truth: dict | None = None
     self_checks: list = field(default_factory=list)
     response: dict | None = None
@@ -83,6 +87,26 @@ class HandResult:
         pts = np.full((n_frames, len(lab.marker_names), 3), np.nan)
         pts[lab.order] = lab.positions  # one frame per strobe period: missed flashes stay NaN
         return MarkerTrajectories(list(lab.marker_names), pts, self.strobe_hz)
+
+    def partly_hidden_markers(self) -> list[dict]:
+        """The partly hidden 3D markers (a view saw part of the marker, its centroid shifts by a few
+        mm; :attr:`MarkerPoints.partly_hidden`), listed apart from the fully seen ones: per point
+        its index in :attr:`points`, its smallest flux ratio, and its label (``flash``: the
+        flash number ``labels.order``, ``marker``) and fit residual (mm) when it got one."""
+        lab, seq = self.labels, self.sequence
+        flux = np.where(np.isfinite(self.points.flux_ratio), self.points.flux_ratio, np.inf).min(axis=0)
+        where = {int(p): (k, j) for (k, j), p in np.ndenumerate(lab.point_index) if p >= 0}
+        pose_of = {int(k): i for i, k in enumerate(seq.flashes)} if seq is not None else {}
+        out = []
+        for p in np.flatnonzero(self.points.partly_hidden):
+            k, j = where.get(int(p), (None, None))
+            r = None
+            if k is not None and k in pose_of and np.isfinite(seq.residuals[pose_of[k], j]):
+                r = float(seq.residuals[pose_of[k], j] * 1e3)
+            out.append({"point": int(p), "flux_ratio": float(flux[p]) if np.isfinite(flux[p]) else None,
+                        "flash": None if k is None else int(lab.order[k]),
+                        "marker": None if j is None else lab.marker_names[j], "fit_residual_mm": r})
+        return out
 
     def ball_held(self) -> dict:
         """``{flash number (labels.order): True if the ball is in the hand, False if free}`` for
@@ -115,6 +139,8 @@ class HandResult:
              "ball": None if self.balls is None else self.balls.to_dict(),
              "release": None if self.release is None else self.release.to_dict(),
              "spin": None if self.spin is None else _spin_dict(self.spin),
+             "partly_hidden": self.partly_hidden_markers(),
+             "self_checks": checks_to_json(self.self_checks),
              "messages": list(self.messages), "timings_s": dict(self.timings_s)}
         d["response"] = self.response
         d["self_checks"] = checks_to_json(self.self_checks)

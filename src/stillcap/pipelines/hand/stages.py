@@ -16,6 +16,9 @@ plain function over arrays and dataclasses that appends what went wrong to ``mes
 6. :func:`release_and_spin`     the ball's flashes on the hand's clock, the release
                                 (:func:`~stillcap.ball.release.estimate_release`) and the free
                                 ball's spin (:func:`~stillcap.pipelines.hand.ball.hand_ball_spin`)
+7. :func:`check_hand`           the self-checks: hand size, fit residuals per marker and digit
+                                against the noise, markers left unlabelled
+                                (:func:`~stillcap.body.hand_checks.hand_self_checks`)
 
 :func:`~stillcap.pipelines.hand.analyse_hand` runs them in this order.
 """
@@ -29,6 +32,7 @@ import numpy as np
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS
+from stillcap.body.hand_checks import hand_self_checks
 from stillcap.body.hand_label import HandLabels, label_hand_markers
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
@@ -37,7 +41,7 @@ from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ba
 from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
-           "release_and_spin"]
+           "release_and_spin", "check_hand", "label_markers_adapted"]
 
 #: Position uncertainty of fully seen and of partly hidden glove markers (m), as measured by
 #: ``benchmarks/bench_hand_markers.py`` (0.16 mm RMS and a few mm): the pose fit's weights.
@@ -94,14 +98,35 @@ def triangulate_glove_markers(rig, pairs: dict, blobs: list, light, options: Han
     return points
 
 
-def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list) -> HandLabels:
-    """Stage 4: the 3D markers labelled per flash (manual overrides from ``options.overrides``)."""
-    labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz,
-                                reprojection_px=points.reprojection_px, overrides=options.overrides)
+def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list, skeleton=None,
+                  markerset=None) -> HandLabels:
+    """Stage 4: the 3D markers labelled per flash with the hand model ``skeleton`` and ``markerset``
+    (default the built-in ones; manual overrides from ``options.overrides``)."""
+    labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz, skeleton=skeleton,
+                                markerset=markerset, reprojection_px=points.reprojection_px,
+                                overrides=options.overrides)
     for k, why in enumerate(labels.skipped):
         if why:
             messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
     return labels
+
+
+def label_markers_adapted(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list,
+                          skeleton=None, markerset=None) -> tuple[HandLabels, bool]:
+    """Stage 4 with ``--adapt-model`` (experimental): ``(labels, adapted)``, the markers labelled
+    with the model adapted to this capture (:func:`stillcap.body.hand_adapt.label_and_adapt`)."""
+    from stillcap.body.hand import hand_markerset, hand_skeleton
+    from stillcap.body.hand_adapt import label_and_adapt
+
+    labels, adaptation = label_and_adapt(points.points, points.colors, strobe_hz=strobe_hz,
+                                         skeleton=skeleton or hand_skeleton(), markerset=markerset or hand_markerset(),
+                                         reprojection_px=points.reprojection_px, overrides=options.overrides)
+    if adaptation is None:
+        messages.append("--adapt-model: no flash with a pose to adapt the model to; the model was not adapted")
+    for k, why in enumerate(labels.skipped):
+        if why:
+            messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
+    return labels, adaptation is not None
 
 
 def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list):
@@ -155,3 +180,10 @@ def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, m
         messages.append(f"ball: {fn.message}; flashes numbered from the ball's spacing")
         return balls
     return replace(balls, flash_index=np.asarray(fn.flash, int), times=np.asarray(fn.times, float))
+
+
+def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints, adapted: bool = False) -> list:
+    """Stage 7: the self-checks (:func:`~stillcap.body.hand_checks.hand_self_checks`), fully seen
+    markers against :data:`SEEN_SIGMA_M`, partly hidden ones against :data:`HIDDEN_SIGMA_M`."""
+    return hand_self_checks(labels, sequence, partly_hidden=points.partly_hidden, noise_m=SEEN_SIGMA_M,
+                            hidden_noise_m=HIDDEN_SIGMA_M, adapted=adapted)

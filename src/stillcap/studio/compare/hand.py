@@ -45,6 +45,13 @@ def compare_with_truth(result: HandResult, truth: dict) -> dict:
     offset to the truth's clock is the one that puts the result's flashes on truth flashes
     (the nearest back-of-hand position decides the first). Returns counts and errors in mm,
     deg, ms and mph (keys named with their units).
+
+    Partly hidden markers (:attr:`MarkerPoints.partly_hidden
+    <stillcap.geometry.marker_points.MarkerPoints.partly_hidden>`: a view saw part of the marker,
+    its centroid shifts) are scored apart: ``marker_rms_mm`` / ``marker_max_mm`` and
+    ``markers_recovered_pct`` count the fully seen ones only; ``partly_hidden_labels``,
+    ``partly_hidden_labels_right``, ``partly_hidden_rms_mm``, ``partly_hidden_max_mm`` and
+    ``markers_recovered_partly_hidden_pct`` the partly hidden ones.
     """
     from stillcap.body.hand import hand_dofs
 
@@ -76,22 +83,31 @@ def compare_with_truth(result: HandResult, truth: dict) -> dict:
         t_off = np.nan
     # labels and marker errors: a label is right when the true marker nearest its point (same
     # flash) is the one it names, within LABEL_TOLERANCE_M (farther: a spurious point)
-    n_lab = n_right = 0
-    errs = []
+    # partly hidden markers (a view saw part of the marker: its centroid shifts) are scored apart
+    # and never counted as recovered with the fully seen ones (issue 12, part 4)
+    hidden = result.points.partly_hidden if len(result.points) == len(lab.points) else np.zeros(len(lab.points), bool)
+    n_lab = n_right = n_hid = n_hid_right = 0
+    errs, hid_errs = [], []
     for k in range(lab.n_flashes):
         if match[k] < 0:
             n_lab += int(np.sum(lab.point_index[k] >= 0))
             continue
         T = tr["markers"][match[k]]
         for j in range(len(names)):
-            if lab.point_index[k, j] < 0:
+            pi = lab.point_index[k, j]
+            if pi < 0:
                 continue
             n_lab += 1
+            n_hid += bool(hidden[pi])
             d = np.linalg.norm(T - lab.positions[k, j], axis=1)
             if int(np.nanargmin(d)) == j and d[j] <= LABEL_TOLERANCE_M:
                 n_right += 1
-                errs.append(d[j])
-    errs = np.asarray(errs)
+                if hidden[pi]:
+                    n_hid_right += 1
+                    hid_errs.append(d[j])
+                else:
+                    errs.append(d[j])
+    errs, hid_errs = np.asarray(errs), np.asarray(hid_errs)
     # markers the truth shows in 2+ cameras, per matched flash
     seen2 = tr["visible"].sum(axis=0) >= 2
     n_seen2 = int(sum(seen2[j].sum() for j in match if j >= 0))
@@ -116,9 +132,14 @@ def compare_with_truth(result: HandResult, truth: dict) -> dict:
            "flash_match": match.tolist(), "clock_offset_s": float(t_off),
            "labels": n_lab, "labels_right": n_right,
            "labels_right_pct": 100.0 * n_right / n_lab if n_lab else None,
-           "markers_seen_2plus": n_seen2, "markers_recovered_pct": 100.0 * n_right / n_seen2 if n_seen2 else None,
+           "markers_seen_2plus": n_seen2,
+           "markers_recovered_pct": 100.0 * (n_right - n_hid_right) / n_seen2 if n_seen2 else None,
+           "markers_recovered_partly_hidden_pct": 100.0 * n_hid_right / n_seen2 if n_seen2 else None,
            "marker_rms_mm": float(np.sqrt(np.mean(errs ** 2)) * 1e3) if len(errs) else None,
            "marker_max_mm": float(errs.max() * 1e3) if len(errs) else None,
+           "partly_hidden_labels": n_hid, "partly_hidden_labels_right": n_hid_right,
+           "partly_hidden_rms_mm": float(np.sqrt(np.mean(hid_errs ** 2)) * 1e3) if len(hid_errs) else None,
+           "partly_hidden_max_mm": float(hid_errs.max() * 1e3) if len(hid_errs) else None,
            "joint_angle_rms_deg": float(np.sqrt(np.mean(ang_err ** 2))) if len(ang_err) else None,
            "joint_angle_max_deg": float(np.abs(ang_err).max()) if len(ang_err) else None,
            "joint_angles_compared": len(ang_err),

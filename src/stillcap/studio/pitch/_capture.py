@@ -23,6 +23,7 @@ from stillcap.studio.pitch._rig import PitchRig, _check_size, pitch_rig, place_l
 from stillcap.studio.pitch._truth import PitchTruth, _pair_truth, ball_sphere
 from stillcap.studio.renderer import render
 from stillcap.studio.scene import Backdrop, Exposure, Flash, Scene
+from stillcap.response import Response
 from stillcap.studio.sensor import Sensor
 
 
@@ -227,7 +228,7 @@ def pitch_capture(preset: str | PitchPreset = DEFAULT_PRESET, rng=None, *, calib
     truth.studio = {"lights": lights, "room_flash": float(room_flash), "ball_radius_m": float(layout.radius),
                     "blur_px": float(sensor.blur_px), "full_well": sensor.full_well,
                     "read_noise": float(sensor.read_noise), "white_balance": list(sensor.white_balance),
-                    "jpeg_quality": sensor.jpeg_quality, "gamma": sensor.gamma, "tone": bool(sensor.tone),
+                    "jpeg_quality": sensor.jpeg_quality, "gamma": sensor.gamma.to_json() if isinstance(sensor.gamma, Response) else sensor.gamma, "tone": bool(sensor.tone),
                     "camera_response": {name: sensor.response.to_json() for name in rig.rig.names}}
 
     n_cal = (calibration_views + len(FRONT_BOARD_SPOTS)) * len(rig.rig) if calibrate else 0

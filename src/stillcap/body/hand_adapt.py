@@ -1,0 +1,289 @@
+"""The hand model adapted to the person (issue 12, part 2): every bone's length and direction
+(per phalanx, the knuckles' splay, the thumb's axis) and every marker's place on its bone (its
+height over the skin included), estimated from the labelled markers of a capture together with
+the hand's poses.
+
+:func:`adapt_hand_model` is one regularised least-squares problem over all the flashes given:
+per flash the root pose and the 21 joint angles (as :func:`~stillcap.body.hand.fit_hand`), and
+shared by all flashes
+
+- the size of the back-of-hand triangle (one factor: the three markers define the hand frame,
+  so their shape is the model's and only its size is free);
+- the offset (3D) of every joint from its parent: per phalanx lengths, the knuckles' places on
+  the palm (splay) and the thumb's direction (its axis);
+- the offset (3D) of every digit marker on its bone: its height and place along the bone.
+
+Each shape parameter has a Gaussian prior centred on the model given (``joint_sigma`` of the
+bone's length plus 2 mm per component, ``marker_sigma_m`` per component for markers): what the
+poses in the capture do not fix (a joint that never bends, a point along a hinge's axis) stays
+near the model, what they fix follows the markers. The marker residuals use a soft-L1 loss so
+that a wrong label of a first labelling pass bends the model little.
+
+:func:`label_and_adapt` is the labelling the pipeline uses: label with the model scaled to the
+hand's size and wider gates (:func:`~stillcap.body.hand_label.label_hand_markers`), adapt the
+model to the labelled flashes, label again with the adapted model and the normal gates (scaled
+with the hand's size).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from stillcap._checks import as_array
+from stillcap.body.hand import BACK_MARKERS, DIGITS, hand_dofs
+from stillcap.body.kinematics import rigid_alignment
+from stillcap.body.markerset import Marker, MarkerSet
+from stillcap.body.skeleton import Joint, Pose, Skeleton
+
+__all__ = ["HandAdaptation", "adapt_hand_model", "label_and_adapt", "ADAPT_GATE_FACTOR"]
+
+#: The first labelling pass's assignment gate relative to the normal one: the model is not yet
+#: this hand's, so its markers may lie farther from their points.
+ADAPT_GATE_FACTOR = 1.75
+#: Assumed noise of a labelled 3D marker (m) for the weights of the adaptation's residuals.
+NOISE_M = 0.0005
+
+
+@dataclass(eq=False)
+class HandAdaptation:
+    """Result of :func:`adapt_hand_model`.
+
+    Attributes
+    ----------
+    skeleton, markerset : Skeleton, MarkerSet
+        The adapted hand.
+    poses : list of Pose
+        One per flash given (of :attr:`skeleton`).
+    residuals : ndarray, shape (n_flashes, n_markers)
+        Fitted-to-measured marker distance (m), NaN where unseen.
+    rms : float
+        RMS of the residuals (m).
+    n_flashes : int
+    success : bool
+    message : str
+    """
+
+    skeleton: Skeleton
+    markerset: MarkerSet
+    poses: list
+    residuals: np.ndarray
+    rms: float
+    n_flashes: int
+    success: bool
+    message: str = ""
+
+    def digit_rms(self) -> dict:
+        """RMS residual (m) of each digit's markers and of the back of the hand (NaN if unseen)."""
+        return _digit_rms(self.markerset, self.skeleton, self.residuals)
+
+
+def _digit_rms(markerset: MarkerSet, skeleton: Skeleton, residuals) -> dict:
+    frames = markerset.bone_frames(skeleton)
+    names = skeleton.names
+    res = np.asarray(residuals, float).reshape(-1, len(markerset))
+    out = {}
+    for d in ("back",) + DIGITS:
+        if d == "back":
+            sel = np.array([m.name in BACK_MARKERS for m in markerset.markers])
+        else:
+            sel = np.array([names[f].split("-")[0] == d and m.name not in BACK_MARKERS
+                            for m, f in zip(markerset.markers, frames)])
+        v = res[:, sel]
+        v = v[np.isfinite(v)]
+        out[d] = float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
+    return out
+
+
+def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, initial=None,
+                     joint_sigma: float = 0.12, marker_sigma_m: float = 0.004, noise_m: float = NOISE_M,
+                     regularise: float = 1e-4, max_nfev: int = 60) -> HandAdaptation:
+    """Adapt the hand model to the person from labelled markers of one or more flashes.
+
+    Parameters
+    ----------
+    skeleton, markerset : Skeleton, MarkerSet
+        The model to start from (e.g. scaled to the hand's size).
+    marker_positions : array_like, shape (n_flashes, n_markers, 3)
+        Labelled markers (m), NaN where unseen; every flash needs its back-of-hand markers.
+    initial : sequence of Pose, optional
+        A start per flash (default: the rest pose, the root from the back of the hand).
+    joint_sigma : float
+        Prior spread of each joint offset component: this share of the bone's length plus 2 mm.
+    marker_sigma_m : float
+        Prior spread of each marker offset component (m).
+    noise_m : float
+        Noise of the measured markers (m): weighs the data against the priors.
+    regularise : float
+        Pull of each angle toward its start (m per radian, as :func:`~stillcap.body.hand.fit_hand`).
+
+    Returns
+    -------
+    HandAdaptation
+    """
+    pts = as_array(marker_positions, (None, len(markerset), 3), "marker_positions")
+    F = len(pts)
+    if F == 0:
+        raise ValueError("adapting the hand model needs at least one flash, got 0")
+    markerset.check_skeleton(skeleton)
+    seen = np.all(np.isfinite(pts), axis=2)
+    back = np.array([markerset.index(b) for b in BACK_MARKERS])
+    if not seen[:, back].all():
+        raise ValueError("adapting the hand model needs the back-of-hand markers seen in every flash")
+    frames = markerset.bone_frames(skeleton)
+    root = skeleton.root
+    parents, order = skeleton.parents, skeleton.depth_first
+    J, M = skeleton.n_joints, len(markerset)
+    o0, m0 = skeleton.offsets.copy(), markerset.offsets.copy()
+    joints_free = np.array([i for i in range(J) if i != root])
+    # a bone the model lays along an axis of the hand frame (the fingers' phalanges along x)
+    # keeps that direction: it defines the joint's zero angle (a straight finger), and with one
+    # marker per phalanx a free direction would trade the angle for the marker's place
+    axial = np.array([np.count_nonzero(np.abs(o0[i]) > 1e-9) == 1 and parents[i] != root for i in joints_free])
+    comp_free = np.ones((len(joints_free), 3), bool)
+    comp_free[axial] = np.abs(o0[joints_free][axial]) > 1e-9
+    cf = comp_free.ravel()
+    mk_free = np.array([k for k in range(M) if k not in set(back.tolist())])
+    dofs = hand_dofs(skeleton)
+    nd = len(dofs)
+    dof_j = np.array([i for i, _ in dofs])
+    dof_a = np.array([a for _, a in dofs])
+    lim = np.radians(skeleton.limits_deg)
+    lo = np.array([lim[i, a, 0] if np.isfinite(lim[i, a, 0]) else -np.pi for i, a in dofs])
+    hi = np.array([lim[i, a, 1] if np.isfinite(lim[i, a, 1]) else np.pi for i, a in dofs])
+    nj_free = int(cf.sum())
+    ns = 1 + nj_free + 3 * len(mk_free)
+    npp = 6 + nd
+    sig_j = joint_sigma * np.linalg.norm(o0[joints_free], axis=1) + 0.002
+
+    # start: per flash, the root from the back of the hand, the angles from ``initial``
+    x0, a0s = [np.zeros(ns)], []
+    for k in range(F):
+        ang = np.zeros((J, 3))
+        if initial is not None and initial[k] is not None:
+            ang = np.radians(skeleton.limit_angles_deg(initial[k].local_rotations))
+        a = np.clip([ang[i, ax] for i, ax in dofs], lo + 1e-9, hi - 1e-9)
+        fit0 = rigid_alignment(m0[back], pts[k, back])
+        x0.append(np.concatenate([fit0.rotation.as_rotvec(), fit0.translation, a]))
+        a0s.append(a)
+    x0 = np.concatenate(x0)
+    a0s = np.array(a0s)
+
+    def shape(X):
+        P = len(X)
+        ls = X[:, 0]
+        joff = np.broadcast_to(o0, (P, J, 3)).copy()
+        dj = np.zeros((P, len(joints_free) * 3))
+        dj[:, cf] = X[:, 1:1 + nj_free]
+        joff[:, joints_free] = o0[joints_free][None] + dj.reshape(P, -1, 3)
+        moff = np.broadcast_to(m0, (P, M, 3)).copy()
+        moff[:, back] = m0[back][None] * np.exp(ls)[:, None, None]
+        moff[:, mk_free] = m0[mk_free][None] + X[:, 1 + nj_free:ns].reshape(P, -1, 3)
+        return joff, moff
+
+    def residuals(X):
+        P = len(X)
+        joff, moff = shape(X)
+        Y = X[:, ns:].reshape(P, F, npp)
+        R0 = Rotation.from_rotvec(Y[..., :3].reshape(-1, 3)).as_matrix().reshape(P, F, 3, 3)
+        ang = np.zeros((P, F, J, 3))
+        ang[:, :, dof_j, dof_a] = Y[..., 6:]
+        local = Rotation.from_euler("XYZ", ang.reshape(-1, 3)).as_matrix().reshape(P, F, J, 3, 3)
+        Rj = np.empty((P, F, J, 3, 3))
+        tj = np.empty((P, F, J, 3))
+        for i in order:
+            q = parents[i]
+            if q < 0:
+                Rj[:, :, i] = R0 @ local[:, :, i]
+                tj[:, :, i] = Y[..., 3:6]
+            else:
+                tj[:, :, i] = np.einsum("pfab,pb->pfa", Rj[:, :, q], joff[:, i]) + tj[:, :, q]
+                Rj[:, :, i] = Rj[:, :, q] @ local[:, :, i]
+        m = np.einsum("pfmab,pmb->pfma", Rj[:, :, frames], moff) + tj[:, :, frames]
+        data = ((m - pts[None]) / noise_m)[:, seen].reshape(P, -1)
+        prior_j = ((joff[:, joints_free] - o0[joints_free][None]) / sig_j[None, :, None]).reshape(P, -1)
+        prior_m = ((moff[:, mk_free] - m0[mk_free][None]) / marker_sigma_m).reshape(P, -1)
+        prior_s = X[:, :1] / 0.2
+        reg = (regularise / noise_m) * (Y[..., 6:] - a0s[None]).reshape(P, -1)
+        return np.concatenate([data, prior_j, prior_m, prior_s, reg], axis=1)
+
+    lb = np.concatenate([np.full(ns, -np.inf)] + [np.concatenate([np.full(6, -np.inf), lo]) for _ in range(F)])
+    ub = np.concatenate([np.full(ns, np.inf)] + [np.concatenate([np.full(6, np.inf), hi]) for _ in range(F)])
+    lb[0], ub[0] = np.log(0.7), np.log(1.4)
+
+    def fun(x):
+        return residuals(x[None])[0]
+
+    def jac(x):
+        # forward differences of all parameters in one vectorised call (as fit_hand)
+        h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
+        h = np.where(x + h > ub, -h, h)
+        Fm = residuals(np.vstack([x[None], x[None] + np.diag(h)]))
+        return ((Fm[1:] - Fm[0]) / h[:, None]).T
+
+    x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
+    # SciPy's soft-L1 loss (f_scale 3 noise sigmas) applies to every row: it also softens the
+    # priors beyond 3 sigmas, which only matters for a model far off
+    sol = least_squares(fun, x0, jac=jac, bounds=(lb, ub), x_scale="jac", loss="soft_l1", f_scale=3.0,
+                        xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+    joff, moff = shape(sol.x[None])
+    joints = tuple(Joint(j.name, j.parent, o, j.limits_deg) for j, o in zip(skeleton.joints, joff[0]))
+    sk = Skeleton(joints, name=skeleton.name, source=f"{skeleton.source} (adapted)")
+    markers = tuple(Marker(m.name, m.bone, o, m.hsb, m.diameter) for m, o in zip(markerset.markers, moff[0]))
+    ms = MarkerSet(markers, markerset.rules, markerset.name, markerset.skeleton_name, markerset.source)
+    poses, res = [], np.full((F, M), np.nan)
+    for k in range(F):
+        y = sol.x[ns + k * npp: ns + (k + 1) * npp]
+        r2w = np.eye(4)
+        r2w[:3, :3] = Rotation.from_rotvec(y[:3]).as_matrix()
+        r2w[:3, 3] = y[3:6]
+        ang = np.zeros((J, 3))
+        ang[dof_j, dof_a] = y[6:]
+        p = Pose(sk, r2w, Rotation.from_euler("XYZ", ang).as_matrix())
+        poses.append(p)
+        d = np.linalg.norm(ms.positions(p) - pts[k], axis=1)
+        res[k] = np.where(seen[k], d, np.nan)
+    rms = float(np.sqrt(np.nanmean(res ** 2)))
+    return HandAdaptation(sk, ms, poses, res, rms, F, bool(sol.success), str(sol.message))
+
+
+def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, markerset: MarkerSet,
+                    adapt: bool = True, reprojection_px=None, overrides=None, hand_scale: float | None = None,
+                    min_flashes: int = 1):
+    """Label a capture's markers with the model adapted to the person.
+
+    1. :func:`~stillcap.body.hand_label.label_hand_markers` with the model scaled to the hand's
+       size (estimated) and the assignment gate widened by :data:`ADAPT_GATE_FACTOR`;
+    2. :func:`adapt_hand_model` on the reconstructed flashes;
+    3. labelled again with the adapted model, the normal gates times the hand's size.
+
+    Returns
+    -------
+    labels : HandLabels
+        Of the adapted hand (its ``skeleton`` and ``markerset``) when adapted.
+    adaptation : HandAdaptation or None
+        None when not adapted (``adapt`` False or fewer than ``min_flashes`` flashes with a pose).
+    """
+    from stillcap.body.hand_label import GATE_M, GRID_GATE_M, TRIANGLE_TOL_M, label_hand_markers
+
+    kw = dict(strobe_hz=strobe_hz, reprojection_px=reprojection_px)
+    if not adapt:
+        return label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, overrides=overrides,
+                                  hand_scale=hand_scale, **kw), None
+    first = label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, hand_scale=hand_scale,
+                               gate_m=GATE_M * ADAPT_GATE_FACTOR, **kw)
+    rec = np.flatnonzero(first.reconstructed)
+    if len(rec) < min_flashes:
+        return label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, overrides=overrides,
+                                  hand_scale=first.hand_scale, **kw), None
+    ad = adapt_hand_model(first.skeleton, first.markerset, first.positions[rec],
+                          initial=[first.fits[k].pose for k in rec])
+    s = first.hand_scale
+    labels = label_hand_markers(points, colors, skeleton=ad.skeleton, markerset=ad.markerset, hand_scale=1.0,
+                                overrides=overrides, triangle_tol_m=TRIANGLE_TOL_M * s, gate_m=GATE_M * s,
+                                grid_gate_m=GRID_GATE_M * s, **kw)
+    labels.hand_scale = s
+    return labels, ad
