@@ -22,8 +22,9 @@ class SelfCheck:
     name : str
         What is checked, snake_case (``"epipolar_residual"``, ``"flight_chi2"``, ``"response"``).
     passed : bool
-    value : float
-        The observed statistic (in the unit ``unit`` names).
+    value : float or None
+        The observed statistic (in the unit ``unit`` names); None when the photos could not give it
+        (the check then passes and ``message`` says why it could not be made).
     limit : float
         The largest value the model allows (``passed`` is ``value <= limit`` unless the check
         says otherwise in ``message``).
@@ -37,7 +38,7 @@ class SelfCheck:
 
     name: str
     passed: bool
-    value: float
+    value: float | None
     limit: float
     message: str
     subject: str = ""

@@ -40,7 +40,7 @@ def test_linear_camera_with_its_own_response(linear_pitch):
     assert len(checks) == 4 and all(c.passed for c in checks)
     d = res.to_dict()
     assert d["response"]["source"] == "rig" and d["response"]["cameras"]["front_top"] == "linear"
-    assert {c["name"] for c in d["self_checks"]} == {"response"}
+    assert "response" in {c["name"] for c in d["self_checks"]}  # beside the pipeline's other checks
 
 
 def test_wrong_declaration_fires_the_check(linear_pitch):

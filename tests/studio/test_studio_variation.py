@@ -34,9 +34,9 @@ def test_tone_curve_is_an_s_curve_and_its_lut_inverts_the_encoding():
     x = np.array([0.02, 0.1, 0.3, 0.7])
     codes = np.round(_encode(x, "srgb", True) * 255).astype(int)
     np.testing.assert_allclose(lut[codes], x, rtol=0.03)
-    assert s.response() == {"lut": list(lut)}
-    assert Sensor(gamma=1.0).response() == "linear" and Sensor().response() == "srgb"
-    assert Sensor(gamma=2.4).response() == {"gamma": 2.4}
+    assert s.response.to_json()["lut"] == pytest.approx(list(lut))
+    assert Sensor(gamma=1.0).response.to_json() == "linear" and Sensor().response.to_json() == "srgb"
+    assert Sensor(gamma=2.4).response.to_json() == {"gamma": 2.4}
 
 
 def test_white_balance_casts_the_channels():

@@ -123,9 +123,6 @@ def pitch(
                 paths = write_report(res, report)
             outputs.record(paths.values(), report)
             written.append(paths["html"])
-    from stillcap.cli._selfchecks import print_failed_checks
-
-    print_failed_checks(res.self_checks)  # on stderr: also beside --json
     if as_json:
         print(json.dumps(res.to_dict(), indent=1, allow_nan=False))
         outputs.finish(printed_json=True)

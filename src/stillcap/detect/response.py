@@ -277,7 +277,7 @@ def response_check(estimate: ResponseEstimate, declared: Response, subject: str 
     decl = Response.from_json(declared, "declared response")
     gd = decl.effective_gamma
     if not estimate.ok:
-        return SelfCheck("response", True, float("nan"), limit,
+        return SelfCheck("response", True, None, limit,
                          f"declared response {decl}; the photos cannot tell ({estimate.evidence})", subject, "")
     value = float(abs(np.log(estimate.gamma / gd)))
     passed = value <= limit
