@@ -83,9 +83,14 @@ def hand(
 
         read_label_overrides(overrides)
     if hand_model is not None or markers is not None:  # bad files are named before the analysis runs
-        from stillcap.body.hand_files import load_hand
+        from stillcap.body.hand_files import load_hand, read_hand_markers, read_hand_model
 
-        load_hand(hand_model, markers)
+        if hand_model is not None and markers is not None:
+            load_hand(hand_model, markers)
+        elif hand_model is not None:  # the other may come from capture.json: checked together in the analysis
+            read_hand_model(hand_model)
+        else:
+            read_hand_markers(markers)
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation,
                        response=parse_response_option(response), hand_model=hand_model, hand_markers=markers,
