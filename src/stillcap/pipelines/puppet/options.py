@@ -39,6 +39,10 @@ class PuppetOptions:
     min_fill, fill_ratio : float
         A view is whole when its fill is at least ``min_fill``, or at least ``fill_ratio`` x the
         marker's best fill when that best view is whole.
+    arc_fit : bool
+        For a bead that fewer than two views show whole: refit its centre in each partly hidden
+        view to the visible arc of its rim (:func:`~stillcap.detect.bead_arc.arc_centers`), and
+        leave out the views where the arc fixes none (while two remain).
     pose : str
         The result's pose: ``"fit"`` (:func:`~stillcap.body.puppet_pose.fit_pose`) or ``"thesis"`` (bone directions).
     marker_sigma_m : float
@@ -72,6 +76,7 @@ class PuppetOptions:
     use_fill: bool = True
     min_fill: float = 0.65
     fill_ratio: float = 0.85
+    arc_fit: bool = True
     pose: str = "fit"
     marker_sigma_m: float = 0.2e-3
     roi: bool = True
@@ -102,6 +107,7 @@ class PuppetOptions:
         return {"detector": self.detector, "identify": self.identify, "radius_range_px": list(self.radius_range),
                 "n_circles": self.n_circles, "triangulation": self.triangulation, "outlier_px": self.outlier_px,
                 "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
+                "arc_fit": self.arc_fit,
                 "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
                 "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_color,
                 "coarse": self.coarse, "root": self.root}
@@ -112,7 +118,7 @@ DEFAULT = PuppetOptions()
 #: The thesis's chain: IsoData + outline + Hough, greedy HSB, midpoint triangulation of every
 #: identified view, bone directions.
 THESIS_CHAIN = PuppetOptions(detector="thesis", identify="thesis", triangulation="midpoint", outlier_px=None, roi=False,
-                              use_fill=False, pose="thesis", reidentify=False)
+                              use_fill=False, pose="thesis", reidentify=False, arc_fit=False)
 
 
 
