@@ -9,7 +9,10 @@ In a pose with joint world rotations ``W`` and root position ``t``, a bead sits 
 
 which is linear in ``(s, o, t)`` once the rotations are known. :func:`calibrate_skeleton`
 alternates: the rotations of every pose by :func:`~stillcap.body.puppet_pose.fit_pose` (the
-rest pose's are the identity), then ``(s, o, t)`` by linear least squares over all poses.
+rest pose's are the identity), then ``(s, o, t)`` by linear least squares over all poses. The
+alternation converges slowly (coupled unknowns moved one block at a time), so it only starts
+:func:`_joint_fit`: one nonlinear least-squares fit of the scales, offsets and every capture's
+pose together, which then names the bones the captures leave open (:func:`_unfixed_bones`).
 
 What the captures fix: the rest pose alone places every bead, but not where along its bone a
 joint lies between beads (a joint moved along the bone with its beads' offsets moved back
@@ -106,6 +109,9 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         Convergence: largest change of a bead offset or bone length in one alternation, metres.
     name : str, optional
         Name of the calibrated skeleton.
+    joint : bool
+        Finish with the joint fit (:func:`_joint_fit`) and report what stays open; False keeps
+        the alternation's answer alone.
 
     Returns
     -------
