@@ -69,3 +69,21 @@ def test_calibrate_skeleton_writes_files_the_run_reads(other, tmp_path, capsys):
                            tmp_path / "cal-markers.json"], capsys)
     assert code == 0, err
     assert json.loads(text)["skeleton"]["name"] == "puppet-210mm-calibrated"
+
+
+def test_new_keeps_the_puppets_files_in_the_project_and_reconstruct_names_a_missing_one(tmp_path, capsys):
+    from stillcap.io.project import Project
+
+    sk, ms = another_puppet(4)
+    sk.save(tmp_path / "sk.json", "mm")
+    ms.save(tmp_path / "ms.json", "mm")
+    code, _, err = run(["puppet", "new", tmp_path / "proj", "--skeleton", tmp_path / "sk.json", "--markers",
+                        tmp_path / "ms.json"], capsys)
+    assert code == 0, err
+    p = Project.load(tmp_path / "proj")
+    assert p.skeleton is not None and np.allclose(p.skeleton.offsets, sk.offsets, atol=1e-6)
+    assert np.allclose(p.markerset.offsets, ms.offsets, atol=1e-6)
+    code, _, err = run(["puppet", "reconstruct", tmp_path / "proj", "--skeleton", tmp_path / "none.json"], capsys)
+    assert code == 2 and "--skeleton" in err and "none.json" in err
+    code, _, err = run(["puppet", "new", tmp_path / "proj2", "--markers", tmp_path / "none.json"], capsys)
+    assert code == 2 and "--markers" in err

@@ -115,3 +115,34 @@ def test_calibration_from_a_rest_pose_and_further_poses_fixes_the_bones():
         calibrate_skeleton(rest[:3], Skeleton.puppet(), MarkerSet.puppet())
     with pytest.raises(ValueError, match="at least 3 recovered beads"):
         calibrate_skeleton(np.full_like(rest, np.nan), Skeleton.puppet(), MarkerSet.puppet())
+
+
+def test_joint_calibration_beats_the_alternating_warm_start_and_names_what_it_cannot_fix():
+    sk, ms = another_puppet(5)
+    rng = np.random.default_rng(2)
+
+    def noisy(p):
+        return p + rng.normal(0, 0.05e-3, p.shape)
+
+    rest = noisy(ms.positions(Pose.rest(sk)))
+    others = [noisy(ms.positions(random_pose(sk, 200 + i, ms))) for i in range(2)]
+    alt = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, iterations=6, joint=False)
+    cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, iterations=6)
+    assert cal.joint_evaluations and alt.joint_evaluations is None
+    assert cal.rms_m < alt.rms_m
+    errs = {"alt": [], "joint": []}
+    for k in range(3):
+        test = random_pose(sk, 900 + k, ms)
+        pts = noisy(ms.positions(test))
+        for name, c in (("alt", alt), ("joint", cal)):
+            errs[name].append(_full_bone_error_deg(sk, fit_pose(c.skeleton, c.markerset, pts, root="free").pose, test))
+    assert np.mean(errs["joint"]) < np.mean(errs["alt"])
+    assert np.mean(errs["joint"]) < 1.0
+    # no bead lies beyond the hands and fingers: no pose can fix those lengths, and the result says so
+    for b in ("l-finger", "r-finger"):
+        assert "no pose fixes it" in cal.unfixed[b]
+    # a rest pose alone fixes no joint's place along its bone: the elbows and knees are named with
+    # the pose that would fix them
+    only_rest = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet())
+    for b in ("l-elbow", "r-knee"):
+        assert "add a capture (--pose)" in only_rest.unfixed[b] and b not in cal.unfixed

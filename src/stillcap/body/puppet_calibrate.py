@@ -9,7 +9,10 @@ In a pose with joint world rotations ``W`` and root position ``t``, a bead sits 
 
 which is linear in ``(s, o, t)`` once the rotations are known. :func:`calibrate_skeleton`
 alternates: the rotations of every pose by :func:`~stillcap.body.puppet_pose.fit_pose` (the
-rest pose's are the identity), then ``(s, o, t)`` by linear least squares over all poses.
+rest pose's are the identity), then ``(s, o, t)`` by linear least squares over all poses. The
+alternation converges slowly (coupled unknowns moved one block at a time), so it only starts
+:func:`_joint_fit`: one nonlinear least-squares fit of the scales, offsets and every capture's
+pose together, which then names the bones the captures leave open (:func:`_unfixed_bones`).
 
 What the captures fix: the rest pose alone places every bead, but not where along its bone a
 joint lies between beads (a joint moved along the bone with its beads' offsets moved back
@@ -20,7 +23,7 @@ joints where the beads turn about them. The result says how well the beads fit
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -48,6 +51,11 @@ class SkeletonCalibration:
         RMS distance of the measured beads from the calibrated model's, over all captures, metres.
     per_pose_rms_m : list of float
     n_poses : int
+    unfixed : dict
+        Bone (joint name) -> what the captures lack to fix its length (see :func:`_unfixed_bones`);
+        empty when every bone's length is fixed.
+    joint_evaluations : int or None
+        Residual evaluations of the joint fit (None: not run, e.g. a rest capture alone).
     """
 
     skeleton: Skeleton
@@ -56,6 +64,8 @@ class SkeletonCalibration:
     rms_m: float
     per_pose_rms_m: list
     n_poses: int
+    unfixed: dict = field(default_factory=dict)
+    joint_evaluations: int | None = None
 
 
 def _paths(skeleton: Skeleton) -> list[list[int]]:
@@ -72,7 +82,8 @@ def _paths(skeleton: Skeleton) -> list[list[int]]:
 
 def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, pose_points=(),
                        marker_sigma_m: float = 0.2e-3, scale_sd: float = 0.3, offset_sd_m: float = 0.01,
-                       iterations: int = 30, tol_m: float = 1e-6, name: str | None = None) -> SkeletonCalibration:
+                       iterations: int = 30, tol_m: float = 1e-6, name: str | None = None,
+                       joint: bool = True) -> SkeletonCalibration:
     """Estimate bone lengths and bead offsets (see the module docstring).
 
     Parameters
@@ -98,6 +109,9 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         Convergence: largest change of a bead offset or bone length in one alternation, metres.
     name : str, optional
         Name of the calibrated skeleton.
+    joint : bool
+        Finish with the joint fit (:func:`_joint_fit`) and report what stays open; False keeps
+        the alternation's answer alone.
 
     Returns
     -------
@@ -167,11 +181,11 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     eye = np.tile(np.eye(3), (nj, 1, 1))
     x = solve([eye])  # the rest pose alone first
     sk, ms, s = build(x)
+    fits = []
     for _ in range(iterations if poses else 0):
         rots = [eye]
-        for pts in poses:
-            fit = fit_pose(sk, ms, pts, marker_sigma_m=marker_sigma_m, root="free")
-            rots.append(fit.pose.joint2world[:, :3, :3])
+        fits = [fit_pose(sk, ms, pts, marker_sigma_m=marker_sigma_m, root="free") for pts in poses]
+        rots += [f.pose.joint2world[:, :3, :3] for f in fits]
         x_new = solve(rots)
         sk, ms, s = build(x_new)
         moved = max(np.abs(x_new[n_s:] - x[n_s:]).max(), float(np.max(np.abs(x_new[:n_s] - x[:n_s]) *
@@ -179,6 +193,21 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         x = x_new
         if moved < tol_m:
             break
+    joint_fit, unfixed = None, {}
+    if joint:
+        fits = [fit_pose(sk, ms, pts, marker_sigma_m=marker_sigma_m, root="free") for pts in poses]
+        ts = [x[n_s + 3 * nm:n_s + 3 * nm + 3]] + [f.pose.root2world[:3, 3] for f in fits]
+        angles = [sk.limit_angles_deg(f.pose.local_rotations) for f in fits]
+        s_j, beads_j, ts_j, _, joint_fit, fitted_bones, _ = _joint_fit(template, markerset, all_points, s, ms.offsets,
+                                                                    ts, angles, marker_sigma_m, scale_sd,
+                                                                    offset_sd_m)
+        x = x.copy()
+        for k, i in col_s.items():
+            x[i] = s_j[k]
+        x[n_s:n_s + 3 * nm] = beads_j.ravel()
+        x[n_s + 3 * nm:n_s + 3 * nm + 3] = ts_j[0]
+        sk, ms, s = build(x)
+        unfixed = _unfixed_bones(template, frames, fitted_bones, joint_fit.jac, c, scale_sd)
     # how well the calibrated model explains every capture
     per = []
     sq = []
@@ -193,4 +222,232 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         sq.append(d ** 2)
     allsq = np.concatenate(sq)
     return SkeletonCalibration(sk, ms, s, float(np.sqrt(np.mean(allsq))) if len(allsq) else float("nan"), per,
-                               len(all_points))
+                               len(all_points), unfixed,
+                               None if joint_fit is None else int(joint_fit.nfev))
+
+
+#: A bone counts as fixed by the captures when its length's 1-sigma uncertainty from the joint
+#: fit's information (the captures and the weak prior together) is below this fraction of the
+#: prior's alone (``scale_sd`` times its length): a ratio, so it does not hang on the stated
+#: bead noise.
+FIXED_SD_RATIO = 0.5
+
+
+def _unfixed_bones(template: Skeleton, frames: np.ndarray, bones: list[int], jac, c: np.ndarray,
+                   scale_sd: float) -> dict[str, str]:
+    """Which bones' lengths the captures leave open, and what would fix each.
+
+    The scales' covariance is read from the joint fit's Jacobian (``inv(J^T J)``, the residuals
+    being in sigmas); a bone whose length's sd exceeds :data:`FIXED_LENGTH_SD_M` is open. Joint
+    ``k``'s offset from its parent is fixed by beads that turn about ``k``: beads on ``k``'s
+    frame or beyond it, in a capture where ``k`` is bent. Without such beads no pose fixes it.
+    """
+    J = jac.toarray() if hasattr(jac, "toarray") else np.asarray(jac)
+    H = J.T @ J
+    try:
+        cov = np.linalg.pinv(H)
+    except np.linalg.LinAlgError:  # pragma: no cover - pinv by SVD
+        return {}
+    out = {}
+    parents = template.parents
+    for i, k in enumerate(bones):
+        sd = float(np.sqrt(max(cov[i, i], 0.0))) * float(np.linalg.norm(c[k]))
+        if sd <= FIXED_SD_RATIO * scale_sd * float(np.linalg.norm(c[k])):
+            continue
+        beyond = []
+        for f in set(frames.tolist()):
+            j = f
+            while j >= 0:
+                if j == k:
+                    beyond.append(f)
+                    break
+                j = parents[j]
+        name, parent = template.names[k], template.names[parents[k]]
+        if beyond:
+            out[name] = (f"the {parent} -> {name} length is open ({sd * 1e3:.1f} mm 1-sigma): add a capture (--pose) "
+                         f"with {name} bent well away from rest, so the beads beyond it turn about it")
+        else:
+            out[name] = (f"the {parent} -> {name} length is open ({sd * 1e3:.1f} mm 1-sigma): no bead lies on "
+                         f"{name}'s side, so no pose fixes it; it keeps the template's proportion")
+    return out
+
+
+def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: np.ndarray, beads0: np.ndarray,
+               root_t: list, angles0: list, marker_sigma_m: float, scale_sd: float, offset_sd_m: float,
+               loss_scale: float = 3.0, max_nfev: int = 200):
+    """One nonlinear least-squares fit of every unknown together (see :func:`calibrate_skeleton`).
+
+    Unknowns: the bone scales, the bead offsets in their bone frames, and per capture the root's
+    position and (captures after the rest one) the root's rotation and the free joints' intrinsic
+    XYZ Euler angles (degrees, as :func:`~stillcap.body.puppet_pose.fit_pose`'s). The rest capture's
+    joints are all at rest and its root upright: that fixes the gauge (where a bone frame's
+    beads sit versus its rotation). Residuals: every measured bead over ``marker_sigma_m``, the
+    weak priors (scales about 1, offsets about the template's, angles about their start with
+    180 deg), soft-L1 loss at ``loss_scale`` sigma. ``scipy.optimize.least_squares`` with
+    ``jac_sparsity``: a bead's residual depends only on the scales and angles on its frame's
+    path, its own offset and its capture's root, so finite differences need few evaluations.
+
+    Returns ``(s, beads, root_t, angles, result)``.
+    """
+    from scipy.optimize import least_squares
+    from scipy.sparse import lil_matrix
+
+    from stillcap.body.puppet_pose import _euler_matrices
+    from stillcap.body.skeleton import forward_kinematics
+
+    nm, nj = len(markerset), template.n_joints
+    frames = markerset.bone_frames(template)
+    c = template.offsets.copy()
+    c[template.root] = 0.0
+    root = template.root
+    bones = [k for k in range(nj) if k != root and np.linalg.norm(c[k]) > 0]
+    lim = template.limits_deg
+    lo = np.where(np.isnan(lim[..., 0]), -np.inf, lim[..., 0])
+    hi = np.where(np.isnan(lim[..., 1]), np.inf, lim[..., 1])
+    lo[root], hi[root] = -np.inf, np.inf
+    free = hi > lo
+    pidx = np.argwhere(free)
+    n_a = len(pidx)
+    n_s = len(bones)
+    n_caps = len(all_points)
+    # layout: scales | bead offsets | rest root t | per further capture: t (3), angles (n_a)
+    o_b = n_s
+    o_t0 = o_b + 3 * nm
+    per = 3 + n_a
+    o_caps = o_t0 + 3
+
+    def cap_slice(p):
+        b = o_caps + per * (p - 1)
+        return b, b + 3, b + per
+
+    n_par = o_caps + per * (n_caps - 1)
+    seen = [np.flatnonzero(np.all(np.isfinite(pts), axis=1)) for pts in all_points]
+    # which joints' parameters move frame f: the frame and its ancestors
+    chain = []
+    for f in range(nj):
+        path, k = [], f
+        while k >= 0:
+            path.append(k)
+            k = template.parents[k]
+        chain.append(set(path))
+    x0 = np.zeros(n_par)
+    x0[:n_s] = s0[bones]
+    x0[o_b:o_t0] = beads0.ravel()
+    x0[o_t0:o_t0 + 3] = root_t[0]
+    a_start = []
+    for p in range(1, n_caps):
+        b, e, end = cap_slice(p)
+        x0[b:e] = root_t[p]
+        a = np.clip(angles0[p - 1], lo, hi)
+        x0[e:end] = a[free]
+        a_start.append(a)
+    lower = np.full(n_par, -np.inf)
+    upper = np.full(n_par, np.inf)
+    lower[:n_s] = 0.05
+    for p in range(1, n_caps):
+        b, e, end = cap_slice(p)
+        lower[e:end], upper[e:end] = lo[free], hi[free]
+    x0 = np.clip(x0, lower + 1e-9 * np.isfinite(lower), upper - 1e-9 * np.isfinite(upper))
+    w = 1.0 / marker_sigma_m
+    n_data = 3 * sum(len(s) for s in seen)
+    n_prior = n_s + 3 * nm + n_a * (n_caps - 1)
+    prior_b = markerset.offsets.ravel()
+
+    def offsets_of(x):
+        off = c.copy()
+        off[bones] = c[bones] * x[:n_s, None]
+        return off
+
+    def residuals(x):
+        off = offsets_of(x)
+        beads = x[o_b:o_t0].reshape(nm, 3)
+        out = np.empty(n_data + n_prior)
+        r = 0
+        for p in range(n_caps):
+            if p == 0:
+                local = np.tile(np.eye(3), (nj, 1, 1))
+                t = x[o_t0:o_t0 + 3]
+            else:
+                b, e, end = cap_slice(p)
+                t = x[b:e]
+                a = a_start[p - 1].copy()
+                a[free] = x[e:end]
+                Rx, Ry, Rz = _euler_matrices(a)
+                local = Rx @ Ry @ Rz
+            r2w = np.eye(4)
+            r2w[:3, 3] = t
+            j2w = _fk(off, local, r2w)
+            idx = seen[p]
+            model = np.einsum("nij,nj->ni", j2w[frames[idx], :3, :3], beads[idx]) + j2w[frames[idx], :3, 3]
+            out[r:r + 3 * len(idx)] = ((model - all_points[p][idx]) * w).ravel()
+            r += 3 * len(idx)
+        out[r:r + n_s] = (x[:n_s] - 1.0) / scale_sd
+        r += n_s
+        out[r:r + 3 * nm] = (x[o_b:o_t0] - prior_b) / offset_sd_m
+        r += 3 * nm
+        for p in range(1, n_caps):
+            b, e, end = cap_slice(p)
+            out[r:r + n_a] = (x[e:end] - a_start[p - 1][free]) / 180.0
+            r += n_a
+        return out
+
+    parents = template.parents
+    order = template.depth_first
+
+    def _fk(off, local, r2w):
+        # forward kinematics with these offsets (Skeleton.with_offsets would validate a new
+        # skeleton at every evaluation)
+        out = np.empty((nj, 4, 4))
+        for i in order:
+            m = np.eye(4)
+            m[:3, :3] = local[i]
+            if parents[i] < 0:
+                out[i] = r2w @ m
+            else:
+                m[:3, 3] = off[i]
+                out[i] = out[parents[i]] @ m
+        return out
+
+    S = lil_matrix((n_data + n_prior, n_par), dtype=int)
+    r = 0
+    for p in range(n_caps):
+        for m in seen[p]:
+            f = frames[m]
+            rows = slice(r, r + 3)
+            for i, k in enumerate(bones):
+                if k in chain[f]:
+                    S[rows, i] = 1
+            S[rows, o_b + 3 * m:o_b + 3 * m + 3] = 1
+            if p == 0:
+                S[rows, o_t0:o_t0 + 3] = 1
+            else:
+                b, e, end = cap_slice(p)
+                S[rows, b:e] = 1
+                for q, (j, _) in enumerate(pidx):
+                    if j in chain[f]:
+                        S[rows, e + q] = 1
+            r += 3
+    for i in range(n_s):
+        S[r + i, i] = 1
+    r += n_s
+    for i in range(3 * nm):
+        S[r + i, o_b + i] = 1
+    r += 3 * nm
+    for p in range(1, n_caps):
+        b, e, end = cap_slice(p)
+        for q in range(n_a):
+            S[r + q, e + q] = 1
+        r += n_a
+    res = least_squares(residuals, x0, jac_sparsity=S.tocsr(), bounds=(lower, upper), loss="soft_l1",
+                        f_scale=loss_scale, x_scale="jac", method="trf", max_nfev=max_nfev)
+    x = res.x
+    s = np.ones(nj)
+    s[bones] = x[:n_s]
+    beads = x[o_b:o_t0].reshape(nm, 3)
+    ts = [x[o_t0:o_t0 + 3]] + [x[cap_slice(p)[0]:cap_slice(p)[1]] for p in range(1, n_caps)]
+    angles = []
+    for p in range(1, n_caps):
+        a = a_start[p - 1].copy()
+        a[free] = x[cap_slice(p)[1]:cap_slice(p)[2]]
+        angles.append(a)
+    return s, beads, ts, angles, res, bones, n_data

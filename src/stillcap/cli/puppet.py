@@ -272,18 +272,25 @@ def new(
     height_mm: float = typer.Option(80.0, "--height-mm", help="Turntable: lens centre above the platform, mm."),
     rig: Path = typer.Option(None, "--rig", help="A rig file (several calibrated cameras) instead of a turntable."),
     name: str = typer.Option(None, "--name", help="Project name (default: the folder name)."),
+    skeleton: Path = typer.Option(None, "--skeleton", help="The puppet's skeleton (a stillcap-skeleton JSON file, "
+                                  "e.g. from puppet calibrate-skeleton), kept in project.json; default the "
+                                  "built-in puppet's."),
+    markers: Path = typer.Option(None, "--markers", help="The puppet's beads (a stillcap-markerset JSON file), "
+                                 "kept in project.json; default puppet-16."),
 ):
     """Make an empty puppet project (the thesis's turntable and webcam by default)."""
     from stillcap.camera import Rig
     from stillcap.io.project import Project, TurntableSetup
 
     check(project, "folder", "PROJECT", names=("project.json",))
+    body = _body_files(skeleton, markers)
+    kw = dict(name=name, skeleton=body.get("skeleton"), markerset=body.get("markerset", "puppet-16"))
     if rig is not None:
-        p = Project.create(project, rig=Rig.load(rig), name=name)
+        p = Project.create(project, rig=Rig.load(rig), **kw)
         what = f"rig project with cameras {', '.join(p.rig.names)}"
     else:
         p = Project.create(project, turntable=TurntableSetup(distance=distance_mm / 1000, height=height_mm / 1000),
-                           name=name)
+                           **kw)
         what = f"turntable project (camera {distance_mm:g} mm from the axis, {height_mm:g} mm up)"
     console.print(f"created {what} in [bold]{p.root}[/]")
 
@@ -418,14 +425,19 @@ def reconstruct(
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path = typer.Option(None, "--out", help="Write result.json, overlays and 3D plots here."),
     force: Force = False,
+    skeleton: Path = typer.Option(None, "--skeleton", help="The puppet's skeleton (a stillcap-skeleton JSON file) "
+                                  "instead of the project's."),
+    markers: Path = typer.Option(None, "--markers", help="The puppet's beads (a stillcap-markerset JSON file with "
+                                 "the project's marker names) instead of the project's."),
 ):
     """3D markers and the pose from the project's stored markers (detections with edits)."""
     from stillcap.io.project import dumps_json
     from stillcap.pipelines.puppet import analyse_puppet
 
     check(out, "folder", "--out", force, OUT_FILES)
+    body = _body_files(skeleton, markers)
     with progress("triangulating and posing"):
-        res, images = analyse_puppet(project, detect=False)
+        res, images = analyse_puppet(project, detect=False, **body)
     outputs = _write_outputs(res, images, out, say=Console(stderr=True) if as_json else console)
     if as_json:
         print(dumps_json(res.to_dict()))
@@ -528,6 +540,9 @@ def calibrate_palette_cmd(
     folder: Path = typer.Argument(..., help="T-pose photos: a capture folder or a project."),
     out: Path = typer.Option(..., "--out", help="Palette JSON to write (use it with puppet run --palette)."),
     force: Force = False,
+    markers: Path = typer.Option(None, "--markers", help="The puppet's beads (a stillcap-markerset JSON file) "
+                                 "instead of the capture's or project's."),
+    skeleton: Path = typer.Option(None, "--skeleton", help="The puppet's skeleton (a stillcap-skeleton JSON file)."),
 ):
     """Measure the beads' reference colours from T-pose photos (the thesis's calibration).
 
@@ -541,8 +556,9 @@ def calibrate_palette_cmd(
     from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
 
     check(out, "file", "--out", force)
+    body = _body_files(skeleton, markers)
     with progress("detecting beads") as update:
-        res, images = analyse_puppet(folder, DEFAULT, progress=update)
+        res, images = analyse_puppet(folder, DEFAULT, progress=update, **body)
     pts = [np.where(res.markers.used[k][:, None], res.markers.observations[k], np.nan) for k in range(len(images))]
     from stillcap.detect.palette import Palette
 
@@ -621,4 +637,6 @@ def calibrate_skeleton_cmd(
     if not poses:
         console.print("[yellow]a rest pose alone places the beads but not where the joints lie between them; "
                       "add --pose captures with bent joints to fix them[/]")
+    for bone, need in cal.unfixed.items():
+        console.print(f"[yellow]{bone}: {need}[/]")
     console.print(f"wrote [bold]{out}[/] and [bold]{markers_out}[/]")

@@ -138,6 +138,8 @@ def puppet(
                                 help="Marker set: puppet-16 (the thesis's 16 beads), puppet-20 (plus a second bead "
                                      "on each forearm and shin) or a marker-set JSON file. Stored in the capture."),
     camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
+    skeleton: Path = typer.Option(None, "--skeleton", help="The puppet's skeleton (a stillcap-skeleton JSON file) "
+                                  "instead of the built-in puppet's: render a puppet of other proportions."),
 ):
     """The thesis's marked puppet on its turntable, photographed by the webcam; truth = pose, 3D
     beads and per-view bead pixels and visibility."""
@@ -147,7 +149,10 @@ def puppet(
     from stillcap.studio.puppet import puppet_scene, webcam_sensor
 
     markerset = MarkerSet.resolve(markers)
-    markerset.check_skeleton(Skeleton.puppet())
+    if skeleton is not None and not skeleton.is_file():
+        raise ValueError(f"--skeleton {skeleton}: no such file")
+    body = Skeleton.load(skeleton) if skeleton is not None else Skeleton.puppet()
+    markerset.check_skeleton(body)
     sensor = webcam_sensor(jpeg_quality=None)  # the webcam's JPEG compression happens once, when the capture is written
     if (response := _sensor_response(camera_response)) is not None:
         from dataclasses import replace
@@ -158,7 +163,7 @@ def puppet(
     with progress("rendering views", total=views) as update:
         # the webcam's JPEG compression happens once, when the capture is written
         result = puppet_scene(rig, pose, rng=seed, sensor=sensor,
-                              progress=lambda i, n: update(i), markerset=markerset)
+                              progress=lambda i, n: update(i), markerset=markerset, skeleton=body)
     cap, images = result.to_capture(".jpg")
     _save(cap, images, out, jpeg)
 

@@ -100,7 +100,7 @@ class Project:
     @classmethod
     def create(cls, folder, *, turntable: TurntableSetup | None = None, rig: Rig | None = None,
                markerset: MarkerSet | str = "puppet-16", name: str | None = None,
-               rig_file: str | None = None, save: bool = True) -> Project:
+               rig_file: str | None = None, save: bool = True, skeleton: Skeleton | None = None) -> Project:
         """A new, empty project in ``folder`` (created if needed).
 
         Parameters
@@ -118,6 +118,8 @@ class Project:
             project.json.
         save : bool
             Write project.json now (importers pass False and save once at the end).
+        skeleton : Skeleton, optional
+            The puppet's own skeleton (kept in project.json; default the built-in puppet's).
         """
         root = Path(folder)
         if (root / PROJECT_FILE).exists():
@@ -132,8 +134,9 @@ class Project:
             if markerset not in BUILTIN_MARKERSETS:
                 raise ValueError(f"unknown marker set {markerset!r}; built-in: {sorted(BUILTIN_MARKERSETS)}")
             markerset = BUILTIN_MARKERSETS[markerset]()
+        markerset.check_skeleton(skeleton or Skeleton.puppet())
         project = cls(root, markerset, turntable, rig, [], name if name is not None else root.name,
-                      rig_file, {})
+                      rig_file, {}, skeleton=skeleton)
         root.mkdir(parents=True, exist_ok=True)
         if rig_file is not None:
             rig.save(resolve_inside(root, rig_file, "rig file"))

@@ -40,6 +40,12 @@ class PuppetOptions:
     min_fill, fill_ratio : float
         A view is whole when its fill is at least ``min_fill``, or at least ``fill_ratio`` x the
         marker's best fill when that best view is whole.
+    arc_fit : bool
+        For a bead that fewer than two views show whole: refit its centre in each partly hidden
+        view to the visible arc of its rim (:func:`~stillcap.detect.bead_arc.arc_centers`), and
+        leave out the views where the arc fixes none (while two remain). Off by default: on the
+        studio's captures it changed no partly hidden bead's error yet (the rim test takes the
+        ring's median grey as the background, but a bead borders its own limb on one side).
     pose : str
         The result's pose: ``"fit"`` (:func:`~stillcap.body.puppet_pose.fit_pose`) or ``"thesis"`` (bone directions).
     marker_sigma_m : float
@@ -78,6 +84,7 @@ class PuppetOptions:
     use_fill: bool = True
     min_fill: float = 0.65
     fill_ratio: float = 0.85
+    arc_fit: bool = False
     pose: str = "fit"
     marker_sigma_m: float = 0.2e-3
     roi: bool = True
@@ -113,6 +120,7 @@ class PuppetOptions:
         return {"detector": self.detector, "identify": self.identify, "radius_range_px": list(self.radius_range),
                 "n_circles": self.n_circles, "triangulation": self.triangulation, "outlier_px": self.outlier_px,
                 "use_fill": self.use_fill, "min_fill": self.min_fill, "fill_ratio": self.fill_ratio,
+                "arc_fit": self.arc_fit,
                 "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
                 "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_color,
                 "coarse": self.coarse, "root": self.root}

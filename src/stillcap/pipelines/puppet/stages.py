@@ -79,6 +79,27 @@ def identify_beads(images, candidates, seconds, palette: Palette, options: Puppe
     return [ViewResult(c, i, t + share) for c, i, t in zip(candidates, idents, seconds)]
 
 
+def _arc_refit(images, x, x_used, good, hidden, r_exp):
+    """Partly hidden beads' views refitted to their visible arc (:mod:`stillcap.detect.bead_arc`):
+    the contour radius a whole bead would have there is its expected radius times the median
+    contour/expected ratio of the capture's whole views. Views the arc does not fix are left
+    out while two whole or refitted views remain. Returns the centres to triangulate and the
+    views left out."""
+    from stillcap.detect.bead_arc import arc_centers, contour_radii
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = (contour_radii(images, np.where(good[..., None], x, np.nan), r_exp) / r_exp).ravel()
+    q = q[np.isfinite(q)]
+    ratio = float(np.median(q)) if len(q) else np.nan
+    if not np.isfinite(ratio):
+        return x_used, np.zeros_like(hidden)
+    arc = arc_centers(images, np.where(hidden[..., None], x, np.nan), ratio * r_exp)
+    fixed = hidden & np.isfinite(arc[..., 0])
+    x_used = np.where(fixed[..., None], arc, x_used)
+    drop = hidden & ~fixed & ((good | fixed).sum(axis=0) >= 2)[None]
+    return np.where(drop[..., None], np.nan, x_used), drop
+
+
 # --- stage 3: triangulation --------------------------------------------------------------------
 def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, options: PuppetOptions = DEFAULT,
                   bead_radius_m: float = 0.003, radii_px=None) -> MarkerSolve:
@@ -141,6 +162,10 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         enough = good.sum(axis=0) >= 2
         partial = seen & ~good & enough[None]
         x_used = np.where(partial[..., None], np.nan, x)
+        hidden = seen & ~good & ~enough[None]  # views of beads that fewer than two views show whole
+        if options.arc_fit and hidden.any():
+            x_used, dropped = _arc_refit(images, x, x_used, good, hidden, r_exp)
+            partial |= dropped
     tri = triangulate_markers(rig, x_used, method, refine, options.outlier_px, pair_errors=pair_err, views=views)
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
