@@ -16,7 +16,7 @@ from rich.markup import escape
 
 from stillcap.cli import calibrate, demo, markers, studio
 from stillcap.cli import export as export_cli, palette as palette_cli, puppet as puppet_cli
-from stillcap.cli import flight as flight_cli, hand as hand_cli, metrics as metrics_cli, pitch as pitch_cli
+from stillcap.cli import flight as flight_cli, hand as hand_cli, hand_calibrate as hand_calibrate_cli, metrics as metrics_cli, pitch as pitch_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   help="stillcap: optical motion capture from still photographs.")
@@ -29,6 +29,7 @@ app.command("export")(export_cli.export)
 app.command("palette")(palette_cli.palette)
 app.command("pitch")(pitch_cli.pitch)
 app.command("hand")(hand_cli.hand)
+app.command("hand-calibrate")(hand_calibrate_cli.hand_calibrate)
 app.command("flight")(flight_cli.flight)
 app.command("metrics")(metrics_cli.metrics)
 
