@@ -100,7 +100,7 @@ def _digit_rms(markerset: MarkerSet, skeleton: Skeleton, residuals) -> dict:
 
 def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, initial=None,
                      joint_sigma: float = 0.12, marker_sigma_m: float = 0.004, noise_m: float = NOISE_M,
-                     regularise: float = 1e-4, max_nfev: int = 60) -> HandAdaptation:
+                     regularise: float = 1e-4, max_nfev: int = 60, known_deg=None, loss: str = "soft_l1") -> HandAdaptation:
     """Adapt the hand model to the person from labelled markers of one or more flashes.
 
     Parameters
@@ -119,6 +119,12 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         Noise of the measured markers (m): weighs the data against the priors.
     regularise : float
         Pull of each angle toward its start (m per radian, as :func:`~stillcap.body.hand.fit_hand`).
+    known_deg : sequence of (None or array_like (n_joints, 3)), optional
+        Per flash, the joint angles (degrees) when the hand was held in a known pose (a
+        calibration pose, :mod:`stillcap.body.hand_calibrate`): they are held fixed, so the
+        marker places cannot trade against the angles; None for a flash in an unknown pose.
+    loss : str
+        SciPy's loss of the residuals (default soft-L1, see below).
 
     Returns
     -------
@@ -160,10 +166,15 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     sig_j = joint_sigma * np.linalg.norm(o0[joints_free], axis=1) + 0.002
 
     # start: per flash, the root from the back of the hand, the angles from ``initial``
+    known = [None] * F if known_deg is None else list(known_deg)
+    if len(known) != F:
+        raise ValueError(f"known_deg must have {F} entries (one per flash), got {len(known)}")
     x0, a0s = [np.zeros(ns)], []
     for k in range(F):
         ang = np.zeros((J, 3))
-        if initial is not None and initial[k] is not None:
+        if known[k] is not None:
+            ang = np.radians(as_array(known[k], (J, 3), "known_deg"))
+        elif initial is not None and initial[k] is not None:
             ang = np.radians(skeleton.limit_angles_deg(initial[k].local_rotations))
         a = np.clip([ang[i, ax] for i, ax in dofs], lo + 1e-9, hi - 1e-9)
         fit0 = rigid_alignment(m0[back], pts[k, back])
@@ -213,6 +224,10 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     lb = np.concatenate([np.full(ns, -np.inf)] + [np.concatenate([np.full(6, -np.inf), lo]) for _ in range(F)])
     ub = np.concatenate([np.full(ns, np.inf)] + [np.concatenate([np.full(6, np.inf), hi]) for _ in range(F)])
     lb[0], ub[0] = np.log(0.7), np.log(1.4)
+    for k in range(F):
+        if known[k] is not None:  # a known pose: its angles are held (a sliver of room for the solver)
+            sl = slice(ns + k * npp + 6, ns + (k + 1) * npp)
+            lb[sl], ub[sl] = a0s[k] - 1e-9, a0s[k] + 1e-9
 
     def fun(x):
         return residuals(x[None])[0]
@@ -227,7 +242,7 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
     # SciPy's soft-L1 loss (f_scale 3 noise sigmas) applies to every row: it also softens the
     # priors beyond 3 sigmas, which only matters for a model far off
-    sol = least_squares(fun, x0, jac=jac, bounds=(lb, ub), x_scale="jac", loss="soft_l1", f_scale=3.0,
+    sol = least_squares(fun, x0, jac=jac, bounds=(lb, ub), x_scale="jac", loss=loss, f_scale=3.0,
                         xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev)
     joff, moff = shape(sol.x[None])
     joints = tuple(Joint(j.name, j.parent, o, j.limits_deg) for j, o in zip(skeleton.joints, joff[0]))

@@ -16,7 +16,8 @@ from rich.markup import escape
 
 from stillcap.cli import balls as balls_cli, batch as batch_cli, calibrate, demo, markers, studio
 from stillcap.cli import export as export_cli, palette as palette_cli, puppet as puppet_cli
-from stillcap.cli import flight as flight_cli, hand as hand_cli, metrics as metrics_cli, pitch as pitch_cli
+from stillcap.cli import flight as flight_cli, hand as hand_cli, hand_calibrate as hand_calibrate_cli
+from stillcap.cli import metrics as metrics_cli, pitch as pitch_cli
 from stillcap.cli import gui as gui_cli
 
 app = typer.Typer(no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
@@ -30,6 +31,7 @@ app.command("export")(export_cli.export)
 app.command("palette")(palette_cli.palette)
 app.command("pitch")(pitch_cli.pitch)
 app.command("hand")(hand_cli.hand)
+app.command("hand-calibrate")(hand_calibrate_cli.hand_calibrate)
 app.command("flight")(flight_cli.flight)
 app.command("metrics")(metrics_cli.metrics)
 app.command("gui")(gui_cli.gui)

@@ -285,6 +285,11 @@ def hand(
     jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
     camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
+    calibration_pose: str = typer.Option(None, "--calibration-pose", help="Render a calibration capture for "
+                                         "stillcap hand-calibrate instead of a throw: the hand in this pose (flat), "
+                                         "then curling."),
+    person: int = typer.Option(None, "--person", help="Another person's hand, light and cameras "
+                               "(studio.hand_variation.another_hand with this seed)."),
 ):
     """The pitcher's gloved hand with its 18 markers around release, photographed by 4 cameras
     behind the pitcher in a 75 Hz strobe's light; truth = marker positions, joint angles and the
@@ -293,8 +298,19 @@ def hand(
 
     response = _sensor_response(camera_response)
     _check_out(out, force)
+    if calibration_pose is not None:
+        from stillcap.body.hand_calibrate import calibration_angles
+        from stillcap.body.hand import hand_skeleton
+
+        calibration_angles(calibration_pose, hand_skeleton())  # an unknown pose: one line, exit 2
+    who = None
+    if person is not None:
+        from stillcap.studio.hand_variation import another_hand
+
+        who = another_hand(person)
     with progress("rendering cameras", total=4) as update:
-        result = hand_capture(seed, preset=preset, image_size=_parse_size(size),
+        result = hand_capture(seed, preset=preset, image_size=_parse_size(size), person=who,
+                              calibration_pose=calibration_pose,
                               sensor=None if response is None else _studio_sensor(response),
                               progress=lambda i, n, label: update(i, n))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")

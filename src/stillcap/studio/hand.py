@@ -660,7 +660,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
                  window_s=WINDOW_S, release_time_s: float | None = None,
                  variation: ReleaseVariation | None = DEFAULT_VARIATION, model="seed", palette: dict | None = None,
                  sensor: Sensor | None = None, supersample: int = 3, known_flash_times: bool = False,
-                 person=None,
+                 person=None, calibration_pose: str | None = None,
                  progress: Callable[[int, int, str], None] | None = None) -> HandCapture:
     """Render the pitcher's hand around release with the truth (module docstring).
 
@@ -690,6 +690,9 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     person : HandVariation, optional
         Another person's hand, motion, light and camera placement
         (:func:`stillcap.studio.hand_variation.another_hand`); default the seed's.
+    calibration_pose : str, optional
+        Instead of a throw, a calibration capture for ``stillcap hand-calibrate``: the hand held
+        in this pose, then curling (:func:`stillcap.studio.hand_calibration.calibration_motion`).
 
     Returns
     -------
@@ -718,6 +721,10 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     motion = hand_motion(release, flight, skeleton)
     if person is not None:
         motion.angle_offsets_deg = person.angle_offsets_deg
+    if calibration_pose is not None:
+        from stillcap.studio.hand_calibration import calibration_motion
+
+        motion = calibration_motion(motion, calibration_pose, t0)
     ball, layout = ball_sphere(palette)
 
     hz = hrig.strobe_hz

@@ -1,0 +1,50 @@
+"""``stillcap hand-calibrate``: the person's hand model from a calibration capture."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def hand_calibrate(
+    capture: Path = typer.Argument(..., help="Calibration capture folder (a hand capture of the gloved hand held "
+                                   "in the pose, then curling its fingers; docs/hand.md)."),
+    out: Path = typer.Option(..., "--out", help="The hand model to write (stillcap-skeleton JSON), for "
+                             "stillcap hand --hand-model."),
+    markers_out: Path = typer.Option(None, "--markers-out", help="The glove marker set to write (default: "
+                                     "OUT with .markers.json), for stillcap hand --markers."),
+    pose: str = typer.Option("flat", "--pose", help="The calibration pose: flat (hand flat, fingers extended "
+                             "and together, thumb alongside)."),
+    markers: str = typer.Option(None, "--markers", help="The glove's marker set (file or built-in name; default "
+                                "hand-18)."),
+    template: str = typer.Option(None, "--template", help="The hand model to start from (file or built-in name; "
+                                 "default hand-right-adult)."),
+):
+    """Estimate the person's hand model (phalanx lengths, marker places, knuckles, thumb) from a
+    capture of the hand in a known pose; write it and its marker set.
+
+    Exit status 2 with one line when the capture is not in the stated pose.
+    """
+    from rich.console import Console
+
+    from stillcap.body.hand_calibrate import CALIBRATION_POSES, digit_lengths_table
+    from stillcap.body.hand_files import load_hand
+    from stillcap.pipelines.hand.calibration import calibrate_hand_capture
+
+    if pose not in CALIBRATION_POSES:
+        raise typer.BadParameter(f"{pose!r} is not one of {', '.join(CALIBRATION_POSES)}", param_hint="--pose")
+    sk, ms = load_hand(template, markers, model_what="--template")
+    markers_out = markers_out or out.with_name(out.name.removesuffix(".json") + ".markers.json")
+    cal = calibrate_hand_capture(capture, pose, skeleton=sk, markerset=ms)
+    cal.skeleton.save(out)
+    cal.markerset.save(markers_out)
+    con = Console()
+    for m in cal.messages:
+        con.print(f"[yellow]{m}[/]", highlight=False)
+    con.print(f"hand size {cal.size:.3f} x the template; fit residual {cal.rms * 1e3:.2f} mm RMS "
+              f"({cal.pose_rms * 1e3:.2f} mm in the {pose} pose; {cal.n_posed} flash(es) in it, {cal.n_free} curling)")
+    con.print("lengths (mm): metacarpal or CMC offset, then the phalanges to the tip")
+    for d, ls in digit_lengths_table(cal):
+        con.print(f"  {d:7s} " + "  ".join(f"{v:5.1f}" for v in ls), highlight=False)
+    con.print(f"wrote {out} and {markers_out}: stillcap hand CAPTURE --hand-model {out} --markers {markers_out}")
