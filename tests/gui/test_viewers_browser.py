@@ -4,17 +4,12 @@ mesh per measured position, the metrics table showing the result's numbers; a ha
 in the page, saved to the overrides file, read back, and applied by the hand pipeline."""
 
 import json
-import sys
 from pathlib import Path
 
+import gui_support as vs
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))  # the shared test helper beside this file
-import viewers_support as vs  # noqa: E402
-
-pytestmark = pytest.mark.skipif(not vs.CHROMIUM.exists(), reason=f"{vs.CHROMIUM} is absent (apt install chromium)")
-WAIT_MS = 240_000  # only stops a hung test (a loaded machine): nothing is timed
+from gui_support import WAIT_MS
 
 
 @pytest.fixture(scope="module")
@@ -30,12 +25,6 @@ def pitch_root(tmp_path_factory):
     return root
 
 
-@pytest.fixture(scope="module")
-def chromium():
-    with vs.browser() as b:
-        yield b
-
-
 def _scene(page, name="stillcapPitch"):
     return page.evaluate(f"""() => ({{
         positions: window.{name}.objectsOfKind('position').length,
@@ -45,11 +34,12 @@ def _scene(page, name="stillcapPitch"):
         stats: window.{name}.frameStatistics()}})""")
 
 
-def test_pitch_result_page(pitch_root, chromium):
+def test_pitch_result_page(pitch_root, new_page):
     d = json.loads((pitch_root / "report-b" / "pitch.json").read_text())
     n_pos = sum(len(p["positions"]) for p in d["pairs"])
-    with vs.serve(pitch_root) as (base, ctx):
-        page = vs.open_page(chromium, f"{base}/pitch.html?token={vs.TOKEN}&item=report-b/pitch.json")
+    with vs.run_server(pitch_root) as srv:
+        ctx = srv.ctx
+        page = new_page(srv.page_url("pitch.html", "item=report-b/pitch.json"))
         page.wait_for_selector("#metrics-table tbody tr[data-key]", timeout=WAIT_MS)
         vs.wait_until(page, "window.stillcapPitch && window.stillcapPitch.objectsOfKind('position').length > 0")
         s = _scene(page)
@@ -81,9 +71,10 @@ def test_pitch_result_page(pitch_root, chromium):
         assert page.errors == []
 
 
-def test_pitch_capture_analysed_in_the_page(pitch_root, chromium):
-    with vs.serve(pitch_root) as (base, ctx):
-        page = vs.open_page(chromium, f"{base}/pitch.html?token={vs.TOKEN}&item=pitch-b")
+def test_pitch_capture_analysed_in_the_page(pitch_root, new_page):
+    with vs.run_server(pitch_root) as srv:
+        ctx = srv.ctx
+        page = new_page(srv.page_url("pitch.html", "item=pitch-b"))
         page.wait_for_selector("#analyse:not([hidden])", timeout=WAIT_MS)
         assert page.locator("#metrics-table tbody tr[data-key]").count() == 0
         page.click("#analyse")
@@ -104,13 +95,14 @@ def test_pitch_capture_analysed_in_the_page(pitch_root, chromium):
         assert page.errors == []
 
 
-def test_hand_relabel_saved_and_applied(tmp_path, chromium):
+def test_hand_relabel_saved_and_applied(tmp_path, new_page):
     from stillcap.body.hand_label import read_label_overrides
     from stillcap.pipelines.hand import HandOptions, analyse_hand
 
     root = vs.render_hand(tmp_path / "hand", seed=2)
-    with vs.serve(root) as (base, ctx):
-        page = vs.open_page(chromium, f"{base}/hand.html?token={vs.TOKEN}")
+    with vs.run_server(root) as srv:
+        ctx = srv.ctx
+        page = new_page(srv.page_url("hand.html"))
         page.wait_for_selector("#points-table tbody tr", timeout=WAIT_MS)  # analysed on opening
         view = ctx.state["hand"]["results"][""]["view"]
         k = next(f["flash"] for f in view["flashes"] if f["reconstructed"])

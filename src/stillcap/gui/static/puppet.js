@@ -142,11 +142,15 @@ async function showFirst() {
 }
 
 async function showView(name, data) {
-  current = data ?? await api(`${P}/view/${encodeURIComponent(name)}`);
+  // Everything is fetched before anything shown changes: a click during the fetch (on the old
+  // view) must not be undone by this view's arrival, nor select a bead of a view not drawn yet.
+  const view = data ?? await api(`${P}/view/${encodeURIComponent(name)}`);
   const blob = await (await api(`${P}/photo/${encodeURIComponent(name)}`, { raw: true })).blob();
-  photo = await createImageBitmap(blob);
-  selected = null;
-  $("selected-panel").hidden = true;
+  const bitmap = await createImageBitmap(blob);
+  if (!current || current.name !== view.name) selected = null;  // the same view again keeps its selection
+  current = view;
+  photo = bitmap;
+  showSelected();
   $("view-title").textContent = `— ${current.name}`;
   drawPhoto();
   const edits = current.edits.length ? `; ${current.edits.length} hand edits` : "";
@@ -192,11 +196,15 @@ $("photo").onclick = (ev) => run(async () => {
   if (!current) return;
   const [x, y] = imageXY(ev);
   const scale = $("photo").width / $("photo").getBoundingClientRect().width;
-  const hit = current.markers.find((m) => Math.hypot(m.xy[0] - x, m.xy[1] - y) < 12 * Math.max(1, scale));
+  // the nearest bead within the ring's radius (two rings can overlap: the first found may not be the one clicked)
+  let hit = null, best = 12 * Math.max(1, scale);
+  for (const m of current.markers) {
+    const d = Math.hypot(m.xy[0] - x, m.xy[1] - y);
+    if (d < best) { hit = m; best = d; }
+  }
   if (hit && !ev.shiftKey) {  // select a bead (shift-click places even on a bead)
     selected = hit.name;
-    $("selected-panel").hidden = false;
-    $("selected-name").textContent = `${hit.name} (${hit.source}${hit.confidence == null ? "" : ", confidence " + Math.round(hit.confidence * 100) + "%"})`;
+    showSelected();
     drawPhoto();
     return;
   }
@@ -204,17 +212,33 @@ $("photo").onclick = (ev) => run(async () => {
   status(`${$("place-select").value} placed at (${x.toFixed(1)}, ${y.toFixed(1)}) px`);
 });
 
+/** The selected bead's panel (hidden when none is selected or the view no longer has it). */
+function showSelected() {
+  const m = selected && current ? current.markers.find((b) => b.name === selected) : null;
+  if (!m) selected = null;
+  $("selected-panel").hidden = !m;
+  $("selected-name").textContent = m ?
+    `${m.name} (${m.source}${m.confidence == null ? "" : ", confidence " + Math.round(m.confidence * 100) + "%"})` : "";
+}
+
 async function edit(body) {
   const v = await api(`${P}/view/${encodeURIComponent(current.name)}/edit`, { method: "POST", json: body });
   await showView(v.name, v);
   await refresh();
 }
 
-$("delete-btn").onclick = () => run(async () => { await edit({ op: "delete", marker: selected }); status("bead deleted"); });
+$("delete-btn").onclick = () => run(async () => {
+  const name = selected;
+  if (!name) throw new Error("click a bead first");
+  await edit({ op: "delete", marker: name });
+  status(`${name} deleted`);
+});
 $("relabel-btn").onclick = () => run(async () => {
-  const to = $("relabel-select").value;
-  await edit({ op: "relabel", marker: selected, to });
-  status(`relabelled as ${to}`);
+  const [name, to] = [selected, $("relabel-select").value];
+  if (!name) throw new Error("click a bead first");
+  selected = to;  // the bead stays selected under its new name
+  await edit({ op: "relabel", marker: name, to });
+  status(`${name} relabelled as ${to}`);
 });
 for (const [id, action, msg] of [["redetect-btn", "redetect", "detected again (your edits still apply)"],
   ["clear-btn", "clear-edits", "edits undone"], ["retake-btn", "retake", "marked to retake"]]) {
