@@ -144,6 +144,18 @@ def open_page(browser, url: str | None = None, size=(1500, 950), **context_kw):
     return page
 
 
+def canvas_click(page, selector: str, x: float, y: float, modifiers=()):
+    """Click image pixel (x, y) of a canvas drawn at its image's size and scaled by CSS."""
+    box = page.locator(selector).bounding_box()
+    size = page.evaluate("(s) => [document.querySelector(s).width, document.querySelector(s).height]", selector)
+    at = box["x"] + (x + 0.5) * box["width"] / size[0], box["y"] + (y + 0.5) * box["height"] / size[1]
+    for m in modifiers:
+        page.keyboard.down(m)
+    page.mouse.click(*at)
+    for m in modifiers:
+        page.keyboard.up(m)
+
+
 def wait_until(page, js: str, arg=None, timeout_s: float = WAIT_S):
     """Poll ``js`` in the page until it is truthy; its value.
 

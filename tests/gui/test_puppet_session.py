@@ -8,7 +8,7 @@ import json
 
 import cv2
 import numpy as np
-from gui_support import wait_until
+from gui_support import canvas_click, wait_until
 from gui_video import read_code
 
 
@@ -29,18 +29,6 @@ def _stored_photo(root, view_name):
     project = json.loads((root / "project.json").read_text())
     view = next(v for v in project["views"] if v["name"] == view_name)
     return cv2.imread(str(root / view["image"]))
-
-
-def _canvas_click(page, selector, x, y, modifiers=()):
-    """Click image pixel (x, y) of a canvas drawn at its image's size and scaled by CSS."""
-    box = page.locator(selector).bounding_box()
-    size = page.evaluate(f"() => [document.querySelector('{selector}').width, document.querySelector('{selector}').height]")
-    at = box["x"] + (x + 0.5) * box["width"] / size[0], box["y"] + (y + 0.5) * box["height"] / size[1]
-    for m in modifiers:
-        page.keyboard.down(m)
-    page.mouse.click(*at)
-    for m in modifiers:
-        page.keyboard.up(m)
 
 
 def _wait(page, js, arg, errors):
@@ -133,7 +121,7 @@ def test_puppet_session(camera_browser, puppet_video, tmp_path):
         page.click(f"#angles button[data-angle='{round(puppet_video.angles_deg[k]) % 360}']")
         _wait(page, "(n) => window.stillcapPuppet.view && window.stillcapPuppet.view.name === n", vname, errors)
         page.select_option("#place-select", marker)
-        _canvas_click(page, "#photo", float(xy[0]), float(xy[1]), ["Shift"])  # placed even beside another bead
+        canvas_click(page, "#photo", float(xy[0]), float(xy[1]), ["Shift"])  # placed even beside another bead
         _wait(page, "(m) => window.stillcapPuppet.view.markers.some(b => b.name === m && b.source === 'edited')"
                     " || document.getElementById('status').classList.contains('error')", marker, errors)
         assert "error" not in (page.get_attribute("#status", "class") or ""), page.inner_text("#status")

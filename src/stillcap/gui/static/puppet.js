@@ -30,7 +30,10 @@ async function refresh() {
   sel.replaceChildren(...state.projects.map((p) => new Option(p === "." ? "(this folder)" : p, p)));
   const p = state.project;
   $("project-name").textContent = p ? `${p.name} — ${p.views.length} photos, marker set ${p.markerset.name}` : "no project open";
-  $("take-btn").disabled = !p;
+  $("take-btn").disabled = !p || !p.turntable;
+  const caps = state.captures ?? [];
+  $("import-row").hidden = !caps.length || (p && p.views.length > 0);
+  $("import-select").replaceChildren(...caps.map((c) => new Option(c === "." ? "(this folder)" : c, c)));
   if (!p) { $("angles").replaceChildren(); return; }
   const angleSel = $("angle-select");
   const keep = angleSel.value;
@@ -40,9 +43,10 @@ async function refresh() {
   $("angles").replaceChildren(...p.angles.map((a) => {
     const b = document.createElement("button");
     b.className = a.status + (current && a.view === current.name ? " current" : "");
-    b.textContent = `${fmt(a.angle_deg)}°`;
+    b.textContent = a.label ?? `${fmt(a.angle_deg)}°`;  // a rig project's tiles: its cameras' views
     b.title = a.view ? `${a.view}: ${a.identified} markers identified (${a.status})` : "missing";
-    b.dataset.angle = a.angle_deg;
+    if (a.angle_deg != null) b.dataset.angle = a.angle_deg;
+    if (a.view) b.dataset.view = a.view;
     b.dataset.status = a.status;
     b.onclick = () => { angleSel.value = String(a.angle_deg); if (a.view) showView(a.view); };
     return b;
@@ -82,6 +86,16 @@ $("new-btn").onclick = () => run(async () => {
 $("open-btn").onclick = () => run(async () => {
   await api(`${P}/open`, { method: "POST", json: { path: $("open-select").value } });
   current = null; await refresh(); await showFirst(); status("project opened");
+});
+$("import-btn").onclick = () => run(async () => {
+  $("import-btn").disabled = true;
+  $("import-progress").hidden = false;
+  try {
+    const job = await api(`${P}/import`, { method: "POST", json: { capture: $("import-select").value } });
+    const r = await followJob(job, progressInto($("import-progress"), $("progress-text")), $("import-cancel"));
+    current = null; await refresh(); await showFirst();
+    status(r.imported ? `capture imported as the project ${r.project} (${r.views} views)` : `opened the project ${r.project}`);
+  } finally { $("import-btn").disabled = false; }
 });
 $("save-btn").onclick = () => run(async () => { const r = await api(`${P}/save`, { method: "POST" }); status(`saved ${r.saved}`); });
 
@@ -156,7 +170,7 @@ async function showView(name, data) {
   const edits = current.edits.length ? `; ${current.edits.length} hand edits` : "";
   $("view-info").textContent = `${current.markers.length} identified, ${current.rejected.length} rejected` +
     (current.missing.length ? `; not found: ${current.missing.join(", ")}` : "") + edits;
-  for (const b of $("angles").children) b.classList.toggle("current", +b.dataset.angle === current.angle_deg);
+  for (const b of $("angles").children) b.classList.toggle("current", b.dataset.view === current.name);
 }
 
 function drawPhoto() {
@@ -256,7 +270,7 @@ $("compute-btn").onclick = () => run(async () => {
   $("compute-btn").disabled = true;
   try {
     const job = await api(`${P}/reconstruct`, { method: "POST" });
-    const result = await followJob(job, progressInto($("progress"), $("progress-text")));
+    const result = await followJob(job, progressInto($("progress"), $("progress-text")), $("compute-cancel"));
     show3D(result);
     status(`3D: ${result.markers.filter((m) => !m.missing).length} of ${result.markers.length} markers`);
   } finally { $("compute-btn").disabled = false; }
