@@ -138,14 +138,17 @@ def test_hand_relabel_saved_and_applied(tmp_path, new_page):
 
 
 @pytest.fixture(scope="module")
-def checks_root(tmp_path_factory, pitch_root):
-    """Two results: the clean curveball of :func:`pitch_root`, and a pitch flown with the Nathan
-    model analysed with the seed's physics (the wrong one: ``flight_chi2`` fails)."""
+def checks_root(tmp_path_factory):
+    """Two results: a clean studio four-seamer (seed 1, the one whose checks all pass in
+    tests/pipelines/test_pitch_checks.py), and a pitch flown with the Nathan model analysed with
+    the seed's physics (the wrong one: ``flight_chi2`` fails)."""
     from stillcap.pipelines.pitch import analyse_pitch
     from stillcap.studio.pitch import pitch_capture
 
     root = tmp_path_factory.mktemp("browser-checks")
-    vs.copy_tree(pitch_root / "report-b", root / "clean")
+    (root / "clean").mkdir()
+    (root / "clean" / "pitch.json").write_text(json.dumps(
+        analyse_pitch(vs.render_pitch(root / "clean-capture", seed=1)).to_dict(), allow_nan=False))
     pc = pitch_capture("mlb-4seam", rng=2, calibrate=False, image_size=vs.STUDIO_SIZE, model="nathan")
     cap, photos = pc.to_capture()
     folder = cap.save(root / "nathan", photos)
