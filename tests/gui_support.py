@@ -167,7 +167,12 @@ def wait_until(page, js: str, arg=None, timeout_s: float = WAIT_S):
     """
     end = time.monotonic() + timeout_s
     while True:
-        value = page.evaluate(js, arg)
+        try:
+            value = page.evaluate(js, arg)
+        except Exception as e:  # the page navigated meanwhile (the token's redirect): ask the new one
+            if "context was destroyed" not in str(e) and "navigat" not in str(e):
+                raise
+            value = None
         if value:
             return value
         if time.monotonic() > end:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -38,13 +39,14 @@ WIDTH = 1200  # the PNGs are scaled down to this width: smaller files
 def shoot_puppet(b, work: Path, out: Path, playwright) -> list[str]:
     video = write_turntable_video(work / "turntable.y4m")
     root = work / "jumpingjack"
-    root.mkdir(exist_ok=True)
+    shutil.rmtree(root, ignore_errors=True)  # made anew: the project of an earlier run would be refused
+    root.mkdir()
     cam = gs.launch_chromium(playwright, ["--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream",
                                           f"--use-file-for-fake-video-capture={video.path}"])
     shots = []
     with gs.run_server(root) as srv:
-        page = gs.open_page(cam, srv.page_url("index.html", "stay"), size=(1500, 1000))
-        gs.wait_until(page, "() => document.getElementById('opened').textContent.length > 0")
+        page = gs.open_page(cam, srv.page_url("index.html", "stay=1"), size=(1500, 1000))
+        gs.wait_until(page, "() => (document.getElementById('opened')?.textContent ?? '').startsWith('Opened')")
         page.screenshot(path=str(out / "gui-start.png"))
         shots.append("gui-start.png")
         # the project: 11 photos through the API (as the camera would), the 12th left for the camera
@@ -87,6 +89,7 @@ def shoot_puppet(b, work: Path, out: Path, playwright) -> list[str]:
                            supersample=1)
         c, images = res.to_capture(".jpg")
         c.save(capture, images, jpeg_quality=85)
+    shutil.rmtree(capture / "project", ignore_errors=True)  # imported anew
     with gs.run_server(capture) as srv:
         page = gs.open_page(b, srv.page_url("puppet.html"), size=(1500, 1000))
         gs.wait_until(page, "() => !document.getElementById('import-row').hidden")
@@ -116,7 +119,8 @@ def shoot_pitch(b, work: Path, out: Path) -> list[str]:
         gs.wait_until(page, "document.getElementById('zoom-img').complete")
         page.screenshot(path=str(out / "gui-pitch-result.png"))
         shots.append("gui-pitch-result.png")
-        page.locator("#plate-svg").scroll_into_view_if_needed()
+        page.evaluate("() => document.getElementById('plate-svg').scrollIntoView({ block: 'start' })")  # the plate and the checks below it
+        page.wait_for_timeout(300)
         page.screenshot(path=str(out / "gui-pitch-plate-checks.png"))
         shots.append("gui-pitch-plate-checks.png")
         # a capture analysed in the page, its photo zoomed on a ball with its markers

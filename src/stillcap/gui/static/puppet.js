@@ -37,9 +37,11 @@ async function refresh() {
   if (!p) { $("angles").replaceChildren(); return; }
   const angleSel = $("angle-select");
   const keep = angleSel.value;
-  angleSel.replaceChildren(...p.angles.map((a) => new Option(`${fmt(a.angle_deg)} (${a.status})`, a.angle_deg)));
+  // a rig project (an imported capture) takes no photos: its cameras are the capture's
+  angleSel.replaceChildren(...(p.turntable ? p.angles : []).map((a) => new Option(`${fmt(a.angle_deg)} (${a.status})`, a.angle_deg)));
+  $("angles").classList.toggle("rig", !p.turntable);
   const next = p.angles.find((a) => a.status !== "taken");
-  angleSel.value = keep && p.angles.some((a) => String(a.angle_deg) === keep) ? keep : String((next ?? p.angles[0]).angle_deg);
+  if (p.turntable) angleSel.value = keep && p.angles.some((a) => String(a.angle_deg) === keep) ? keep : String((next ?? p.angles[0]).angle_deg);
   $("angles").replaceChildren(...p.angles.map((a) => {
     const b = document.createElement("button");
     b.className = a.status + (current && a.view === current.name ? " current" : "");
