@@ -128,9 +128,10 @@ class _Puppet:
             return {"project": rel_project, "imported": False}
         if not (src / "capture.json").is_file():
             raise ValueError(f"{rel_capture!r} holds no capture (capture.json)")
+        kind = _capture_kind(src)  # before the whole file is checked: the kind is the first thing to say
+        if kind != "puppet":
+            raise ValueError(f"{rel_capture}/capture.json: kind {kind!r} is not a puppet capture")
         cap = Capture.load(src)
-        if cap.kind != "puppet":
-            raise ValueError(f"{rel_capture}/capture.json: kind {cap.kind!r} is not a puppet capture")
         if cap.rig is None:
             raise ValueError(f"{rel_capture}/capture.json: the capture has no rig (its cameras are needed for 3D)")
         markerset = capture_markerset(src, cap)
@@ -156,12 +157,7 @@ class _Puppet:
     def captures(self) -> list[str]:
         """Puppet captures in the opened folder (itself, or its subfolders), to import."""
         def is_puppet(folder: Path) -> bool:
-            try:
-                import json
-
-                return json.loads((folder / "capture.json").read_text(encoding="utf-8")).get("kind") == "puppet"
-            except (OSError, ValueError, AttributeError):
-                return False
+            return (folder / "capture.json").is_file() and _capture_kind(folder) == "puppet"
 
         root = self.ctx.root
         found = ["."] if is_puppet(root) else []
@@ -310,6 +306,18 @@ class _Puppet:
             target.parent.mkdir(exist_ok=True)
             del p
             return export(target, self.result_obj)
+
+
+def _capture_kind(folder: Path):
+    """The ``kind`` a folder's ``capture.json`` names (None when unreadable); only peeks:
+    :meth:`Capture.load` checks the whole file."""
+    import json
+
+    try:
+        kind = json.loads((folder / "capture.json").read_text(encoding="utf-8")).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return kind if isinstance(kind, str) else None
 
 
 def _hex(rgb) -> str:
