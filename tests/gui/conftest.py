@@ -8,12 +8,11 @@ is not disabled).
 
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
 import pytest
-from gui_support import CHROMIUM, launch_chromium, run_server
+from gui_support import CHROMIUM, have_chromium, launch_chromium, open_page, run_server
 
 
 @pytest.fixture
@@ -26,7 +25,7 @@ def gui_server(tmp_path):
 
 
 def _need_chromium():
-    if not (Path(CHROMIUM).is_file() and os.access(CHROMIUM, os.X_OK)):
+    if not have_chromium():
         pytest.skip(f"Debian's Chromium is not installed at {CHROMIUM} (apt-get install chromium; .ci/run does)")
     try:
         import playwright.sync_api  # noqa: F401
@@ -69,14 +68,25 @@ def camera_browser(playwright_instance, puppet_video):
 
 
 @pytest.fixture
-def page(browser):
-    """A fresh browser page (its console errors fail the test that looks at ``page.errors``)."""
-    ctx = browser.new_context(viewport={"width": 1500, "height": 950})
-    pg = ctx.new_page()
-    pg.errors = []
-    pg.on("pageerror", lambda e: pg.errors.append(str(e)))
-    yield pg
-    ctx.close()
+def new_page(browser):
+    """``new_page(url=None, size=(1500, 950), browser=None, **context_kw)``: a page in a fresh
+    context, its errors collected in ``page.errors`` (:func:`gui_support.open_page`); closed at
+    the test's end."""
+    pages = []
+
+    def make(url=None, size=(1500, 950), browser_=None, **kw):
+        pages.append(open_page(browser_ or browser, url, size, **kw))
+        return pages[-1]
+
+    yield make
+    for p in pages:
+        p.context.close()
+
+
+@pytest.fixture
+def page(new_page):
+    """A fresh browser page (its errors in ``page.errors``)."""
+    return new_page()
 
 
 def has_ffmpeg() -> bool:

@@ -98,3 +98,26 @@ def test_export_needs_3d_and_writes_inside_the_project(scene, tmp_path):
 
     g = pygltflib.GLTF2().load(str(tmp_path / "exports" / "pose.glb"))
     assert g.skins and len(g.skins[0].joints) > 10
+
+
+def test_capture_import_refusals_and_reopening(tmp_path):
+    """Import: paths leading out refused at once (400), a capture of another kind or a folder
+    with no capture fails its job with one line naming it; an existing project is opened."""
+    from gui_support import wait_job
+
+    (tmp_path / "pitchcap").mkdir()
+    (tmp_path / "pitchcap" / "capture.json").write_text(json.dumps(
+        {"format": "stillcap-capture", "version": 1, "kind": "pitch", "images": []}))
+    (tmp_path / "empty").mkdir()
+    ctx, c = _client(tmp_path)
+    for body in ({"capture": "../x"}, {"capture": "/etc"}, {"capture": "empty", "project": "../out"}):
+        r = c.post("/api/puppet/import", json=body)
+        assert r.status_code == 400 and "error" in r.json(), (body, r.text)
+    job = wait_job(c, c.post("/api/puppet/import", json={"capture": "empty"}).json())
+    assert job["status"] == "failed" and "'empty' holds no capture" in job["error"]
+    job = wait_job(c, c.post("/api/puppet/import", json={"capture": "pitchcap"}).json())
+    assert job["status"] == "failed" and "pitchcap" in job["error"] and "not a puppet capture" in job["error"], job["error"]
+    assert c.get("/api/puppet/state").json()["captures"] == []  # a pitch capture is not offered
+    assert c.post("/api/puppet/new", json={"path": "proj"}).status_code == 200
+    job = wait_job(c, c.post("/api/puppet/import", json={"capture": "empty", "project": "proj"}).json())
+    assert job["status"] == "done" and job["result"] == {"project": "proj", "imported": False}

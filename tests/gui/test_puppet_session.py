@@ -8,6 +8,7 @@ import json
 
 import cv2
 import numpy as np
+from gui_support import canvas_click, wait_until
 from gui_video import read_code
 
 
@@ -30,28 +31,14 @@ def _stored_photo(root, view_name):
     return cv2.imread(str(root / view["image"]))
 
 
-def _canvas_click(page, selector, x, y, modifiers=()):
-    """Click image pixel (x, y) of a canvas drawn at its image's size and scaled by CSS."""
-    box = page.locator(selector).bounding_box()
-    size = page.evaluate(f"() => [document.querySelector('{selector}').width, document.querySelector('{selector}').height]")
-    at = box["x"] + (x + 0.5) * box["width"] / size[0], box["y"] + (y + 0.5) * box["height"] / size[1]
-    for m in modifiers:
-        page.keyboard.down(m)
-    page.mouse.click(*at)
-    for m in modifiers:
-        page.keyboard.up(m)
-
-
-def _wait(page, js, arg, errors, timeout=30_000):
-    """``page.wait_for_function`` whose failure says what the page shows (status line, errors)."""
-    from playwright.sync_api import TimeoutError as PlaywrightTimeout
-
+def _wait(page, js, arg, errors):
+    """:func:`gui_support.wait_until` that also keeps a screenshot of the page when it times out."""
     try:
-        page.wait_for_function(js, arg=arg, timeout=timeout)
-    except PlaywrightTimeout:
+        return wait_until(page, js, arg)
+    except TimeoutError as e:
         page.screenshot(path="/tmp/gui_fail.png")
-        raise AssertionError(f"waiting for {js} ({arg!r}): the page says {page.inner_text('#status')!r}, "
-                             f"view {page.evaluate('() => window.stillcapPuppet.view?.name')!r}, errors {errors}") from None
+        raise AssertionError(f"{e}; view {page.evaluate('() => window.stillcapPuppet.view?.name')!r}, "
+                             f"errors {errors}") from None
 
 
 def _three_shot(page) -> np.ndarray:
@@ -76,12 +63,12 @@ def test_puppet_session(camera_browser, puppet_video, tmp_path):
         # a new project in the opened folder
         page.click("#new-project summary")
         page.click("#new-btn")
-        page.wait_for_function("() => document.getElementById('project-name').textContent.includes('0 photos')")
+        wait_until(page, "() => document.getElementById('project-name').textContent.includes('0 photos')")
         assert (root / "project.json").is_file()
 
         # the camera, and a photo per angle: read the angle the turntable shows, choose it, take
         page.click("#camera-btn")
-        page.wait_for_function("() => document.getElementById('live').videoWidth > 0")
+        wait_until(page, "() => document.getElementById('live').videoWidth > 0")
         verified: dict[int, str] = {}
         changes, last = 0, None  # bounded by turns of the turntable, not by the clock
         while len(verified) < 12:
@@ -134,7 +121,7 @@ def test_puppet_session(camera_browser, puppet_video, tmp_path):
         page.click(f"#angles button[data-angle='{round(puppet_video.angles_deg[k]) % 360}']")
         _wait(page, "(n) => window.stillcapPuppet.view && window.stillcapPuppet.view.name === n", vname, errors)
         page.select_option("#place-select", marker)
-        _canvas_click(page, "#photo", float(xy[0]), float(xy[1]), ["Shift"])  # placed even beside another bead
+        canvas_click(page, "#photo", float(xy[0]), float(xy[1]), ["Shift"])  # placed even beside another bead
         _wait(page, "(m) => window.stillcapPuppet.view.markers.some(b => b.name === m && b.source === 'edited')"
                     " || document.getElementById('status').classList.contains('error')", marker, errors)
         assert "error" not in (page.get_attribute("#status", "class") or ""), page.inner_text("#status")
@@ -143,14 +130,14 @@ def test_puppet_session(camera_browser, puppet_video, tmp_path):
         assert edit["op"] == "move" and edit["marker"] == marker
         assert np.hypot(*(np.array(edit["xy"]) - xy)) < 1.5  # the click landed on the pixel meant
         page.click("#redetect-btn")  # the edit survives detection run again
-        page.wait_for_function("() => document.getElementById('status').textContent.startsWith('detected again')")
+        wait_until(page, "() => document.getElementById('status').textContent.startsWith('detected again')")
         view = next(v for v in json.loads((root / "project.json").read_text())["views"] if v["name"] == vname)
         assert view["edits"] and view["edits"][-1]["marker"] == marker
 
         # compute 3D in the background, with a progress bar; then look at it
         blank = _three_shot(page)
         page.click("#compute-btn")
-        page.wait_for_function("() => document.getElementById('status').textContent.startsWith('3D:')", timeout=120_000)
+        wait_until(page, "() => document.getElementById('status').textContent.startsWith('3D:')")
         assert page.evaluate("() => document.getElementById('progress').value") == 1
         shot = _three_shot(page)
         changed = np.abs(shot - blank).sum(axis=2) > 30
@@ -171,7 +158,7 @@ def test_puppet_session(camera_browser, puppet_video, tmp_path):
             const p = m.position.clone().project(s.camera);
             return {x: r.left + (p.x + 1) / 2 * r.width, y: r.top + (1 - p.y) / 2 * r.height, name: m.userData.name}; }""")
         page.mouse.click(target["x"], target["y"])
-        page.wait_for_function("(n) => document.getElementById('pick-info').textContent.startsWith('marker ')", arg=target["name"])
+        wait_until(page, "(n) => document.getElementById('pick-info').textContent.startsWith('marker ')")
 
         # export, downloaded, opened by real readers
         files = {}

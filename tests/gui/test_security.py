@@ -47,6 +47,8 @@ def test_pages_need_the_token_then_keep_it_in_an_httponly_cookie(client):
     assert client.get("/puppet.html?token=wrong", follow_redirects=False).status_code == 403
     r = client.get("/puppet.html?token=" + TOKEN, follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"] == "/puppet.html"  # the token leaves the address bar
+    r = client.get(f"/index.html?token={TOKEN}&stay&item=a/b.json", follow_redirects=False)
+    assert r.headers["location"] == "/index.html?stay=&item=a%2Fb.json"  # the rest of the query kept, blank ones too
     cookie = r.headers["set-cookie"].lower()
     assert "httponly" in cookie and "samesite=strict" in cookie
     page = client.get("/puppet.html")

@@ -4,15 +4,13 @@ opened folder, bad input) with a clear message and a 4xx status."""
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))  # the shared test helper beside this file
-import viewers_support as vs  # noqa: E402
+import gui_support as vs
 
 
 @pytest.fixture(scope="module")
@@ -176,7 +174,9 @@ def test_token_required(session):
 
     from stillcap.gui.app import create_app
 
-    bare = TestClient(create_app(vs.context(session)), base_url="http://127.0.0.1")
+    from stillcap.gui.context import GuiContext
+
+    bare = TestClient(create_app(GuiContext(session.resolve(), vs.TEST_TOKEN)), base_url="http://127.0.0.1")
     assert bare.get("/api/pitch/items").status_code == 403
     assert bare.get("/api/hand/items").status_code == 403
 
@@ -255,7 +255,7 @@ def test_hand_overrides_refused(client, session, entries, match):
     path = session / "hand-a" / "label-overrides.json"
     before = path.read_bytes() if path.exists() else None
     r = client.put("/api/hand/overrides", content=json.dumps({"path": "hand-a", "overrides": entries}),
-                   headers={"Content-Type": "application/json", "X-Stillcap-Token": vs.TOKEN})
+                   headers={"Content-Type": "application/json", "X-Stillcap-Token": vs.TEST_TOKEN})
     assert r.status_code == 400 and re.search(match, r.json()["error"]), r.json()
     assert (path.read_bytes() if path.exists() else None) == before  # nothing written
 

@@ -140,7 +140,7 @@ class _Guard:
         except Exception:
             pass
         cookie_token = cookie[self.cookie].value if self.cookie in cookie else None
-        query = parse_qs(scope.get("query_string", b"").decode("latin-1"))
+        query = parse_qs(scope.get("query_string", b"").decode("latin-1"), keep_blank_values=True)  # "?stay" survives the redirect
         if path.startswith("/api/"):
             ok = self._token_ok(headers.get(TOKEN_HEADER)) or (method in _SAFE_METHODS and self._token_ok(cookie_token))
             if not ok:

@@ -348,7 +348,10 @@ def _analyse_session(progress, ctx: GuiContext, rels: list) -> dict:
         if progress is not None:
             progress(i, len(rels), rel)
         try:
-            analyse_capture(ctx, rel)
+            sub = None if progress is None else (  # the capture's own steps: a finer bar, and a cancel stops mid-capture
+                lambda d, t, step=None, i=i, rel=rel: progress(i + (d / t if t else 0), len(rels),
+                                                               f"{rel}: {step}" if step else rel))
+            analyse_capture(ctx, rel, sub)
             done.append(rel)
         except ValueError as e:  # one capture that cannot give a flight must not stop the session
             failed.append({"path": rel, "error": str(e)})

@@ -21,6 +21,9 @@ Routes (JSON unless said):
   (``delete``, ``relabel``, ``move``: a move of an absent marker adds it); ``POST
   /view/{view}/clear-edits``; ``POST /view/{view}/redetect`` (the edits still apply);
   ``POST /view/{view}/retake`` (flag it to be retaken).
+- ``POST /import`` ``{capture, project}``: a background job making a project of a puppet capture
+  folder (``stillcap studio puppet``; default project folder: ``CAPTURE/project``); ``GET
+  /state`` lists the captures found (``captures``).
 - ``POST /reconstruct``: a background job (:mod:`stillcap.gui.jobs`): 3D markers and the pose
   from the stored markers; its result is the 3D scene (``GET /result`` answers it again).
 - ``GET /export/{fmt}`` (``dae``, ``bvh``, ``gltf``, ``glb``, ``c3d``, ``csv``, ``json``): writes
@@ -107,6 +110,63 @@ class _Puppet:
             raise ValueError("no project is open: make a new one or open one first")
         return self.project
 
+    def import_capture(self, progress, rel_capture: str, rel_project: str) -> dict:
+        """Make a project of a puppet capture folder (``capture.json`` of kind ``puppet``, as
+        ``stillcap studio puppet`` writes it): the capture's rig and marker set, a view per photo
+        (copied into the project's ``photos/``) with its beads detected and identified, as
+        ``stillcap puppet run`` detects them. The project goes to ``rel_project`` (inside the
+        opened folder); a folder that already holds a project is opened instead."""
+        from stillcap.io.capture import Capture
+        from stillcap.io.project import Project
+        from stillcap.pipelines.puppet import capture_markerset
+
+        src = self._folder(rel_capture)
+        folder = self._folder(rel_project)
+        if (folder / "project.json").is_file():
+            with self.lock:
+                self.open(rel_project)
+            return {"project": rel_project, "imported": False}
+        if not (src / "capture.json").is_file():
+            raise ValueError(f"{rel_capture!r} holds no capture (capture.json)")
+        kind = _capture_kind(src)  # before the whole file is checked: the kind is the first thing to say
+        if kind != "puppet":
+            raise ValueError(f"{rel_capture}/capture.json: kind {kind!r} is not a puppet capture")
+        cap = Capture.load(src)
+        if cap.rig is None:
+            raise ValueError(f"{rel_capture}/capture.json: the capture has no rig (its cameras are needed for 3D)")
+        markerset = capture_markerset(src, cap)
+        project = Project.create(folder, rig=cap.rig, markerset=markerset,
+                                 name=Path(rel_capture).name if rel_capture not in ("", ".") else self.ctx.root.name,
+                                 save=False)
+        details = {}
+        n = len(cap.images)
+        for i, im in enumerate(cap.images):
+            progress(i, n, f"detecting the beads of {im.camera}")
+            image = cap.read_image(im)  # checked and decoded safely (stillcap.files.images)
+            det, details_i = self.detect(image, markerset)
+            v = project.add_view(cap.path_of(im), camera=im.camera, detections=det)  # copied byte for byte
+            details[v.name] = details_i
+        project.save()
+        with self.lock:
+            self.project, self.rel = project, rel_project
+            self.result = self.result_obj = None
+            self.details, self.retake = details, set()
+        progress(n, n, "imported")
+        return {"project": rel_project, "imported": True, "views": n}
+
+    def captures(self) -> list[str]:
+        """Puppet captures in the opened folder (itself, or its subfolders), to import."""
+        def is_puppet(folder: Path) -> bool:
+            return (folder / "capture.json").is_file() and _capture_kind(folder) == "puppet"
+
+        root = self.ctx.root
+        found = ["."] if is_puppet(root) else []
+        try:
+            found += sorted(p.name for p in root.iterdir() if p.is_dir() and not p.is_symlink() and is_puppet(p))
+        except OSError:
+            pass
+        return found
+
     def projects(self) -> list[str]:
         root = self.ctx.root
         found = ["."] if (root / "project.json").is_file() else []
@@ -118,16 +178,13 @@ class _Puppet:
         return found
 
     # -- detection ---------------------------------------------------------------------------
-    def _palette(self):
+    def detect(self, image, markerset=None) -> tuple[dict, dict]:
+        """``(detections {name: (x, y)}, details)`` of one photo with the pipeline's defaults
+        (the open project's marker set unless ``markerset``)."""
         from stillcap.detect.palette import Palette
-
-        return Palette.from_markerset(self.need().markerset)
-
-    def detect(self, image) -> tuple[dict, dict]:
-        """``(detections {name: (x, y)}, details)`` of one photo with the pipeline's defaults."""
         from stillcap.pipelines.puppet import DEFAULT, detect_view
 
-        pal = self._palette()
+        pal = Palette.from_markerset(markerset if markerset is not None else self.need().markerset)
         vr = detect_view(image, pal, DEFAULT)
         ident, circles = vr.identification, vr.circles
         beads = []
@@ -182,7 +239,8 @@ class _Puppet:
     # -- the overview ------------------------------------------------------------------------
     def state(self) -> dict:
         with self.lock:
-            out = {"projects": self.projects(), "project": None, "export_formats": EXPORT_FORMATS}
+            out = {"projects": self.projects(), "captures": self.captures(), "project": None,
+                   "export_formats": EXPORT_FORMATS}
             p = self.project
             if p is None:
                 return out
@@ -206,6 +264,9 @@ class _Puppet:
                     angles.append({"angle_deg": a, "status": entry["status"] if entry else "missing",
                                    "view": v.name if v is not None else None,
                                    "identified": entry["identified"] if entry else 0})
+            else:  # a rig project (an imported capture): one tile per camera's view
+                angles = [{"angle_deg": v["angle_deg"], "label": v["name"], "status": v["status"], "view": v["name"],
+                           "identified": v["identified"]} for v in views]
             tt = p.turntable
             out["project"] = {
                 "path": self.rel, "name": p.name, "turntable": p.is_turntable, "views": views, "angles": angles,
@@ -245,6 +306,18 @@ class _Puppet:
             target.parent.mkdir(exist_ok=True)
             del p
             return export(target, self.result_obj)
+
+
+def _capture_kind(folder: Path):
+    """The ``kind`` a folder's ``capture.json`` names (None when unreadable); only peeks:
+    :meth:`Capture.load` checks the whole file."""
+    import json
+
+    try:
+        kind = json.loads((folder / "capture.json").read_text(encoding="utf-8")).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return kind if isinstance(kind, str) else None
 
 
 def _hex(rgb) -> str:
@@ -467,6 +540,13 @@ def routes(ctx: GuiContext) -> list[Route]:
                 return pp.state()
         return JSONResponse(await run_in_threadpool(do))
 
+    async def import_capture(request):
+        b = await _json(request)
+        cap = str(b.get("capture", "."))
+        proj = str(b.get("project") or (f"{cap}/project" if cap not in ("", ".") else "project"))
+        pp._folder(cap), pp._folder(proj)  # paths leading out refused now, not in the job
+        return job_response(jobs.submit(pp.import_capture, cap, proj, label="import capture"))
+
     async def reconstruct(request):
         pp.need()
         return job_response(jobs.submit(pp.reconstruct, label="compute 3D"))
@@ -495,6 +575,7 @@ def routes(ctx: GuiContext) -> list[Route]:
             Route("/view/{view}/clear-edits", handler(clear_edits), methods=["POST"]),
             Route("/view/{view}/redetect", handler(redetect), methods=["POST"]),
             Route("/view/{view}/retake", handler(retake), methods=["POST"]),
+            Route("/import", handler(import_capture), methods=["POST"]),
             Route("/reconstruct", handler(reconstruct), methods=["POST"]),
             Route("/result", handler(result), methods=["GET"]),
             Route("/export/{fmt}", handler(export), methods=["GET"])]

@@ -26,16 +26,30 @@ export async function api(path, { method = "GET", json, body, headers = {}, raw 
 }
 
 /** Follow a background job (GET /api/jobs/{id}) until it ends; onProgress(job) on every change.
- *  Resolves with the job's result, rejects with its error. */
-export async function followJob(job, onProgress = () => {}) {
+ *  `cancelButton` (optional) is shown while the job runs; a click asks the server to cancel it
+ *  (DELETE /api/jobs/{id}: it stops at its next progress report).
+ *  Resolves with the job's result, rejects with its error ("cancelled" when cancelled). */
+export async function followJob(job, onProgress = () => {}, cancelButton = null) {
   let last = "";
-  for (;;) {
-    const state = JSON.stringify(job);
-    if (state !== last) { onProgress(job); last = state; }
-    if (job.status === "done") return job.result;
-    if (job.status === "failed" || job.status === "cancelled") throw new Error(job.error ?? job.status);
-    await new Promise((r) => setTimeout(r, 150));
-    job = await api(`/api/jobs/${job.id}`);
+  if (cancelButton) {
+    cancelButton.hidden = false;
+    cancelButton.disabled = false;
+    cancelButton.onclick = async () => {
+      cancelButton.disabled = true;
+      try { await api(`/api/jobs/${job.id}`, { method: "DELETE" }); } catch (e) { status(e.message, true); }
+    };
+  }
+  try {
+    for (;;) {
+      const state = JSON.stringify(job);
+      if (state !== last) { onProgress(job); last = state; }
+      if (job.status === "done") return job.result;
+      if (job.status === "failed" || job.status === "cancelled") throw new Error(job.error ?? job.status);
+      await new Promise((r) => setTimeout(r, 150));
+      job = await api(`/api/jobs/${job.id}`);
+    }
+  } finally {
+    if (cancelButton) { cancelButton.hidden = true; cancelButton.onclick = null; }
   }
 }
 

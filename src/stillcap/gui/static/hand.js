@@ -63,7 +63,7 @@ async function analyse(path) {
   $("progress").hidden = false;
   try {
     const job = await api("/api/hand/analyse", { method: "POST", json: { path } });
-    await followJob(job, progressInto($("progress"), $("progress-text")));
+    await followJob(job, progressInto($("progress"), $("progress-text")), $("cancel-job"));
     await loadItems();
     await openItem(path, { analyseIfNeeded: false });
   } catch (e) {
@@ -88,7 +88,8 @@ function showView(v) {
   $("flash").replaceChildren(...v.flashes.map((f) => el("option", { value: f.flash },
     `${f.order} (${fmt(f.time_s * 1e3, 1)} ms${f.reconstructed ? "" : ", no pose"})`)));
   $("flash").onchange = () => selectFlash(Number($("flash").value));
-  $("show-all-flashes").onchange = () => drawScene();
+  $("show-all-flashes").onchange = () => drawScene(true);
+  $("frame-hand").onclick = () => drawScene(true);
   const times = timeline(v);
   state.t0 = times[0]; state.t1 = times[1];
   $("time").oninput = () => setTime(state.t0 + (state.t1 - state.t0) * $("time").value / 1000, false);
@@ -224,10 +225,18 @@ function drawScene(frame = false) {
   if (v.ball) for (const p of v.ball.positions) if (p && p.every((x) => x !== null)) hand.add(sphere(p, 0.006, 0xbbbbbb, { kind: "ball-flash" }));
   view3d.content.add(hand);
   if (frame || !state.framed) {
-    // the view frames the hand over the whole take (markers of every flash and the joints)
-    const all = new THREE.Group();
-    for (const f of v.flashes) for (const p of f.points) all.add(sphere(p.position, 0.01, 0, {}));
-    view3d.frame([0.2, 1, 0.35], all.children.length ? all : hand);
+    // frame the hand: the shown flash's labelled markers and the skeleton (unlabelled points can
+    // be strays far off, and the whole take spans a metre of throw); with "all flashes", the take
+    const box = new THREE.Group();
+    const add = (p) => { if (p && p.every((x) => x !== null)) box.add(sphere(p, 0.01, 0, {})); };
+    if ($("show-all-flashes").checked) {
+      for (const f of v.flashes) for (const p of f.points) add(p.position);
+    } else {
+      for (const p of v.flashes[state.flash].points) if (p.label) add(p.position);
+      if (joints) joints.forEach(add);
+      if (box.children.length < 2) for (const p of v.flashes[state.flash].points) add(p.position);
+    }
+    view3d.frame([0.2, 1, 0.35], box.children.length ? box : hand);
     state.framed = true;
   }
   view3d.render();

@@ -75,7 +75,7 @@ async function analyse(path) {
   $("progress").hidden = false;
   try {
     const job = await api("/api/pitch/analyse", { method: "POST", json: { path } });
-    await followJob(job, progressInto($("progress"), $("progress-text")));
+    await followJob(job, progressInto($("progress"), $("progress-text")), $("cancel-job"));
     await loadItems();
     await openItem(path);
   } catch (e) {
@@ -314,7 +314,7 @@ async function showSession() {
     $("progress").hidden = false;
     try {
       const job = await api("/api/pitch/session/analyse", { method: "POST", json: { path: "" } });
-      const res = await followJob(job, progressInto($("progress"), $("progress-text")));
+      const res = await followJob(job, progressInto($("progress"), $("progress-text")), $("cancel-job"));
       if (res.failed.length) status(res.failed.map((f) => `${f.path}: ${f.error}`).join(" · "), true);
       await loadItems();
       await showSession();

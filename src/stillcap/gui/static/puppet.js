@@ -30,19 +30,25 @@ async function refresh() {
   sel.replaceChildren(...state.projects.map((p) => new Option(p === "." ? "(this folder)" : p, p)));
   const p = state.project;
   $("project-name").textContent = p ? `${p.name} — ${p.views.length} photos, marker set ${p.markerset.name}` : "no project open";
-  $("take-btn").disabled = !p;
+  $("take-btn").disabled = !p || !p.turntable;
+  const caps = state.captures ?? [];
+  $("import-row").hidden = !caps.length || (p && p.views.length > 0);
+  $("import-select").replaceChildren(...caps.map((c) => new Option(c === "." ? "(this folder)" : c, c)));
   if (!p) { $("angles").replaceChildren(); return; }
   const angleSel = $("angle-select");
   const keep = angleSel.value;
-  angleSel.replaceChildren(...p.angles.map((a) => new Option(`${fmt(a.angle_deg)} (${a.status})`, a.angle_deg)));
+  // a rig project (an imported capture) takes no photos: its cameras are the capture's
+  angleSel.replaceChildren(...(p.turntable ? p.angles : []).map((a) => new Option(`${fmt(a.angle_deg)} (${a.status})`, a.angle_deg)));
+  $("angles").classList.toggle("rig", !p.turntable);
   const next = p.angles.find((a) => a.status !== "taken");
-  angleSel.value = keep && p.angles.some((a) => String(a.angle_deg) === keep) ? keep : String((next ?? p.angles[0]).angle_deg);
+  if (p.turntable) angleSel.value = keep && p.angles.some((a) => String(a.angle_deg) === keep) ? keep : String((next ?? p.angles[0]).angle_deg);
   $("angles").replaceChildren(...p.angles.map((a) => {
     const b = document.createElement("button");
     b.className = a.status + (current && a.view === current.name ? " current" : "");
-    b.textContent = `${fmt(a.angle_deg)}°`;
+    b.textContent = a.label ?? `${fmt(a.angle_deg)}°`;  // a rig project's tiles: its cameras' views
     b.title = a.view ? `${a.view}: ${a.identified} markers identified (${a.status})` : "missing";
-    b.dataset.angle = a.angle_deg;
+    if (a.angle_deg != null) b.dataset.angle = a.angle_deg;
+    if (a.view) b.dataset.view = a.view;
     b.dataset.status = a.status;
     b.onclick = () => { angleSel.value = String(a.angle_deg); if (a.view) showView(a.view); };
     return b;
@@ -82,6 +88,16 @@ $("new-btn").onclick = () => run(async () => {
 $("open-btn").onclick = () => run(async () => {
   await api(`${P}/open`, { method: "POST", json: { path: $("open-select").value } });
   current = null; await refresh(); await showFirst(); status("project opened");
+});
+$("import-btn").onclick = () => run(async () => {
+  $("import-btn").disabled = true;
+  $("import-progress").hidden = false;
+  try {
+    const job = await api(`${P}/import`, { method: "POST", json: { capture: $("import-select").value } });
+    const r = await followJob(job, progressInto($("import-progress"), $("progress-text")), $("import-cancel"));
+    current = null; await refresh(); await showFirst();
+    status(r.imported ? `capture imported as the project ${r.project} (${r.views} views)` : `opened the project ${r.project}`);
+  } finally { $("import-btn").disabled = false; }
 });
 $("save-btn").onclick = () => run(async () => { const r = await api(`${P}/save`, { method: "POST" }); status(`saved ${r.saved}`); });
 
@@ -142,17 +158,21 @@ async function showFirst() {
 }
 
 async function showView(name, data) {
-  current = data ?? await api(`${P}/view/${encodeURIComponent(name)}`);
+  // Everything is fetched before anything shown changes: a click during the fetch (on the old
+  // view) must not be undone by this view's arrival, nor select a bead of a view not drawn yet.
+  const view = data ?? await api(`${P}/view/${encodeURIComponent(name)}`);
   const blob = await (await api(`${P}/photo/${encodeURIComponent(name)}`, { raw: true })).blob();
-  photo = await createImageBitmap(blob);
-  selected = null;
-  $("selected-panel").hidden = true;
+  const bitmap = await createImageBitmap(blob);
+  if (!current || current.name !== view.name) selected = null;  // the same view again keeps its selection
+  current = view;
+  photo = bitmap;
+  showSelected();
   $("view-title").textContent = `— ${current.name}`;
   drawPhoto();
   const edits = current.edits.length ? `; ${current.edits.length} hand edits` : "";
   $("view-info").textContent = `${current.markers.length} identified, ${current.rejected.length} rejected` +
     (current.missing.length ? `; not found: ${current.missing.join(", ")}` : "") + edits;
-  for (const b of $("angles").children) b.classList.toggle("current", +b.dataset.angle === current.angle_deg);
+  for (const b of $("angles").children) b.classList.toggle("current", b.dataset.view === current.name);
 }
 
 function drawPhoto() {
@@ -192,11 +212,15 @@ $("photo").onclick = (ev) => run(async () => {
   if (!current) return;
   const [x, y] = imageXY(ev);
   const scale = $("photo").width / $("photo").getBoundingClientRect().width;
-  const hit = current.markers.find((m) => Math.hypot(m.xy[0] - x, m.xy[1] - y) < 12 * Math.max(1, scale));
+  // the nearest bead within the ring's radius (two rings can overlap: the first found may not be the one clicked)
+  let hit = null, best = 12 * Math.max(1, scale);
+  for (const m of current.markers) {
+    const d = Math.hypot(m.xy[0] - x, m.xy[1] - y);
+    if (d < best) { hit = m; best = d; }
+  }
   if (hit && !ev.shiftKey) {  // select a bead (shift-click places even on a bead)
     selected = hit.name;
-    $("selected-panel").hidden = false;
-    $("selected-name").textContent = `${hit.name} (${hit.source}${hit.confidence == null ? "" : ", confidence " + Math.round(hit.confidence * 100) + "%"})`;
+    showSelected();
     drawPhoto();
     return;
   }
@@ -204,17 +228,33 @@ $("photo").onclick = (ev) => run(async () => {
   status(`${$("place-select").value} placed at (${x.toFixed(1)}, ${y.toFixed(1)}) px`);
 });
 
+/** The selected bead's panel (hidden when none is selected or the view no longer has it). */
+function showSelected() {
+  const m = selected && current ? current.markers.find((b) => b.name === selected) : null;
+  if (!m) selected = null;
+  $("selected-panel").hidden = !m;
+  $("selected-name").textContent = m ?
+    `${m.name} (${m.source}${m.confidence == null ? "" : ", confidence " + Math.round(m.confidence * 100) + "%"})` : "";
+}
+
 async function edit(body) {
   const v = await api(`${P}/view/${encodeURIComponent(current.name)}/edit`, { method: "POST", json: body });
   await showView(v.name, v);
   await refresh();
 }
 
-$("delete-btn").onclick = () => run(async () => { await edit({ op: "delete", marker: selected }); status("bead deleted"); });
+$("delete-btn").onclick = () => run(async () => {
+  const name = selected;
+  if (!name) throw new Error("click a bead first");
+  await edit({ op: "delete", marker: name });
+  status(`${name} deleted`);
+});
 $("relabel-btn").onclick = () => run(async () => {
-  const to = $("relabel-select").value;
-  await edit({ op: "relabel", marker: selected, to });
-  status(`relabelled as ${to}`);
+  const [name, to] = [selected, $("relabel-select").value];
+  if (!name) throw new Error("click a bead first");
+  selected = to;  // the bead stays selected under its new name
+  await edit({ op: "relabel", marker: name, to });
+  status(`${name} relabelled as ${to}`);
 });
 for (const [id, action, msg] of [["redetect-btn", "redetect", "detected again (your edits still apply)"],
   ["clear-btn", "clear-edits", "edits undone"], ["retake-btn", "retake", "marked to retake"]]) {
@@ -232,7 +272,7 @@ $("compute-btn").onclick = () => run(async () => {
   $("compute-btn").disabled = true;
   try {
     const job = await api(`${P}/reconstruct`, { method: "POST" });
-    const result = await followJob(job, progressInto($("progress"), $("progress-text")));
+    const result = await followJob(job, progressInto($("progress"), $("progress-text")), $("compute-cancel"));
     show3D(result);
     status(`3D: ${result.markers.filter((m) => !m.missing).length} of ${result.markers.length} markers`);
   } finally { $("compute-btn").disabled = false; }
