@@ -96,7 +96,7 @@ $("import-btn").onclick = () => run(async () => {
     const job = await api(`${P}/import`, { method: "POST", json: { capture: $("import-select").value } });
     const r = await followJob(job, progressInto($("import-progress"), $("progress-text")), $("import-cancel"));
     current = null; await refresh(); await showFirst();
-    status(r.imported ? `capture imported as the project ${r.project} (${r.views} views)` : `opened the project ${r.project}`);
+    status(r.imported ? `capture imported into the project folder “${r.project}” (${r.views} views)` : `opened the project folder “${r.project}”`);
   } finally { $("import-btn").disabled = false; }
 });
 $("save-btn").onclick = () => run(async () => { const r = await api(`${P}/save`, { method: "POST" }); status(`saved ${r.saved}`); });
