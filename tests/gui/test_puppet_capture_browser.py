@@ -44,7 +44,7 @@ def test_capture_imported_edited_by_clicks_and_computed(puppet_capture, new_page
         page.click("#import-btn")
         wait_until(page, "() => /imported|error/.test(document.getElementById('status').className + "
                          "document.getElementById('status').textContent)")
-        assert _status(page).startswith("capture imported as the project project (12 views)"), _status(page)
+        assert _status(page).startswith("capture imported into the project folder “project” (12 views)"), _status(page)
         proj = capture / "project"
         d = _project(proj)
         assert len(d["views"]) == 12 and {v["camera"] for v in d["views"]} == {c.name for c in scene.rig}
