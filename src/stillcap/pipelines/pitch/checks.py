@@ -141,7 +141,13 @@ def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2
     pc = cam.world_to_cam(P)
     px = cam.project(P)
     r_m = float(np.nanmedian(pair.radius_px[which])) if np.any(np.isfinite(pair.radius_px[which])) else 20.0
-    rad = np.full(len(P), r_m)
+    # the ball's image radius at each flash: the pair's median radius scaled by depth (the ball
+    # images nearest the camera are the largest; a median radius made the gate below too tight
+    # for them, and a found half moon there counted as missed)
+    z_found = cam.world_to_cam(np.asarray(pair.positions, float).reshape(-1, 3))[:, 2]
+    z_med = float(np.nanmedian(z_found)) if np.any(np.isfinite(z_found) & (z_found > 0)) else np.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rad = np.where(np.isfinite(z_med) & (pc[:, 2] > 0), r_m * z_med / pc[:, 2], r_m)
     W, H = cam.image_size
     inside = ((pc[:, 2] > 0) & np.all(np.isfinite(px), axis=1)
               & (px[:, 0] - rad >= margin_px) & (px[:, 0] + rad <= W - 1 - margin_px)
@@ -153,7 +159,9 @@ def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2
         if not ok:
             continue
         if len(found) and np.min(np.linalg.norm(found - x, axis=1)) < max(rr, 3.0):
-            continue  # a silhouette is there (found, maybe not matched or dropped)
+            # a silhouette is there (found, maybe not matched or dropped): its centre lies inside
+            # the expected disc (a half moon's silhouette centre sits up to ~0.6 r toward the light)
+            continue
         out.append((int(kk), (float(x[0]), float(x[1]))))
     return out
 
