@@ -38,7 +38,7 @@ from stillcap._checks import as_array
 from stillcap.detect.ball._hough import _percentile
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
-           "detect_ball_markers", "classify_shape", "marker_color_class"]
+           "detect_ball_markers", "classify_shape", "marker_color_class", "ball_white_balance"]
 
 SHAPES = ("disc", "ring", "square", "triangle")
 _BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
@@ -288,12 +288,64 @@ def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
     return np.abs(a - 180.0)
 
 
+def ball_white_balance(image, centers, radii_px, inner_fraction: float = 0.85, lit_share: float = 0.6,
+                       clip: float = 250.0, min_pixels: int = 30) -> np.ndarray:
+    """The photo's white balance measured on the balls: BGR gains (largest 1) of the ball's lit
+    leather, as the photo encodes it.
+
+    Model: the leather is white (near grey: a colour cast of the camera or the light is the
+    only reason its lit pixels are coloured), and a cast is a gain per channel in linear light,
+    which a power-law response keeps a gain per channel in the encoded values (nearly so for
+    sRGB and tone curves over the lit pixels used). The lit leather is the ball's pixels within
+    ``inner_fraction`` of its radius whose brightness (their largest channel) reaches
+    ``lit_share`` of the ball's 99th percentile, none of whose channels is clipped (``clip``);
+    painted markers are darker in that largest channel than the lit leather, and the median per
+    channel ignores those that are not. Channels within 1.5 levels of the brightest count as
+    equal to it (the resolution of a median of 8-bit values). Returns ``(1, 1, 1)`` when fewer than ``min_pixels``
+    such pixels are found.
+    """
+    img = np.asarray(image)
+    c = np.asarray(centers, float).reshape(-1, 2)
+    r_all = np.broadcast_to(np.asarray(radii_px, float), (len(c),))
+    H, W = img.shape[:2]
+    picks = []
+    for (cx, cy), r in zip(c, r_all):
+        if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r >= 3):
+            continue
+        x0, y0 = max(int(cx - r), 0), max(int(cy - r), 0)
+        x1, y1 = min(int(cx + r) + 2, W), min(int(cy + r) + 2, H)
+        if x1 - x0 < 3 or y1 - y0 < 3:
+            continue
+        crop = img[y0:y1, x0:x1].astype(np.float32)
+        X = np.arange(x0, x1, dtype=np.float32)[None, :]
+        Y = np.arange(y0, y1, dtype=np.float32)[:, None]
+        inside = np.hypot(X - cx, Y - cy) <= inner_fraction * r
+        v = crop.max(axis=2)
+        if np.count_nonzero(inside) < 3:
+            continue
+        top = _percentile(v[inside], 99.0)
+        sel = inside & (v >= lit_share * top) & (v < clip) & (v > 0)
+        picks.append(crop[sel])
+    px = np.concatenate(picks) if picks else np.zeros((0, 3), np.float32)
+    if len(px) < min_pixels:
+        return np.ones(3)
+    med = np.median(px, axis=0).astype(float)
+    if not np.all(med > 0):
+        return np.ones(3)
+    # the median of 8-bit values resolves one level: channels within 1.5 levels of the
+    # brightest are taken as equal to it (no cast measured)
+    g = med / med.max()
+    g[med.max() - med < 1.5] = 1.0
+    return g
+
+
 def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | Mapping = BASEBALL_MARKER_TYPES,
                         min_area_px: float | None = None, hue_tol_deg: float = 30.0,
                         min_saturation: float = 0.2, min_value: float = 0.12, dark_ratio: float = 0.5,
                         weak_membership: float = 0.2,
                         lit_fraction: float = 0.2, disc_fraction: float = 0.97, limb_fraction: float = 0.8,
-                        min_aspect: float = 0.4, reject_foreshortened: bool = False) -> BallMarkers:
+                        min_aspect: float = 0.4, reject_foreshortened: bool = False,
+                        white_balance="auto", adapt_thresholds: bool = True) -> BallMarkers:
     """Painted markers inside ball images (seed section 4.1: coloured regions inside each ball).
 
     Parameters
@@ -332,6 +384,14 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     min_aspect : float
         Regions thinner than this minor/major ratio get ``FORESHORTENED`` (and are dropped with
         ``reject_foreshortened``).
+    white_balance : "auto", None or array_like of 3 BGR gains
+        The photo's colour cast, divided out before the colours are classified (the palette is
+        the paint as a neutral camera photographs it): ``"auto"`` measures it on the balls' lit
+        leather (:func:`ball_white_balance`), ``None`` takes the photo as neutral.
+    adapt_thresholds : bool
+        Scale ``min_saturation``, ``weak_membership`` and ``dark_ratio`` to the contrast the
+        photo's markers reach (lens blur and small marker images lower it), never below the
+        leather's noise; False keeps them as given.
 
     Returns
     -------
@@ -363,6 +423,18 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             raise ValueError(f"marker type {t.name!r}: colour {t.color_bgr} is neither saturated nor dark; "
                              "it cannot be told from a white ball")
     H, W = img.shape[:2]
+    if isinstance(white_balance, str):
+        if white_balance != "auto":
+            raise ValueError(f"white_balance must be 'auto', None or 3 BGR gains, got {white_balance!r}")
+        wb = ball_white_balance(img, c, radii)
+    elif white_balance is None:
+        wb = np.ones(3)
+    else:
+        wb = as_array(white_balance, (3,), "white_balance")
+        if not np.all(wb > 0):
+            raise ValueError(f"white_balance gains must be positive, got {white_balance!r}")
+    inv_wb = (1.0 / (255.0 * np.asarray(wb, float))).astype(np.float32)
+    neutral = bool(np.all(np.abs(wb - 1.0) < 1e-12))
     # the palette in HSV, once per call: chromatic types stacked so each step below is one
     # array operation over all of them (float32 like the crop's hue, so the same arithmetic)
     ch_hue = np.array([h for _, h, _ in chroma], np.float32).reshape(-1, 1, 1)
@@ -374,6 +446,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
+    prep, ch_peak, sat_lit, dk_lit = [], [], [], []
     for bi in range(len(c)):
         cx, cy, r = c[bi, 0], c[bi, 1], radii[bi]
         if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r >= 3):
@@ -382,7 +455,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         x1, y1 = min(int(np.ceil(cx + r)) + 2, W), min(int(np.ceil(cy + r)) + 2, H)
         if x1 - x0 < 3 or y1 - y0 < 3:
             continue
-        crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
+        if neutral:
+            crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
+        else:  # the cast divided out (clipped at full scale: a clipped channel stays clipped)
+            crop = np.minimum(img[y0:y1, x0:x1].astype(np.float32) * inv_wb, 1.0)
         hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
         hue, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
         # pixel coordinates as a row (1, w) and a column (h, 1): they broadcast to the grid
@@ -418,28 +494,71 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         lit = disc & (vclose >= max(lit_fraction * top, min_value))
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
         inner = cv2.erode(disc.astype(np.uint8), _BOX3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
+        ratio = val / np.maximum(vclose, 1e-6)
+        # what the photo's markers reach and the leather's noise (for the thresholds below)
+        if chroma:
+            dh = _hue_distance(hue, ch_hue)  # (types, h, w)
+            hue_ok = (disc & (val >= min_value)) & (dh <= hue_tol_deg)
+            ch_peak.append(np.where(hue_ok & lit, sat, 0.0).reshape(len(chroma), -1).max(axis=1))
+        else:
+            hue_ok = None
+        if np.any(lit):
+            sat_lit.append(sat[lit])
+            dk_lit.append(1.0 - ratio[lit])
+        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area))
+    # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
+    # for markers whose cores reach the paint's full saturation (or darkness) ``ref``. Lens blur
+    # and small marker images mix the paint with the leather, so the cores reach less (1.5 px
+    # of blur leaves a 12 mm marker on a 15 px ball 15-40 % of it). Where the photo's markers
+    # reach less (``peak``: the 90th percentile over the balls of each ball's strongest pixel of
+    # that colour), both thresholds keep their share of what is reached, ``min(default, default
+    # x peak / ref)``, never below the leather's own noise (median + 6 robust sigmas of its
+    # lit pixels' saturation or darkness), so noise alone never makes a marker.
+    # A colour's peak is evidence only above the noise (1.5x its ceiling): a colour no ball
+    # shows (or only noise) takes the scale the others show, blur being one for all colours.
+    s_core, s_weak = np.full(len(chroma), min_saturation), np.full(len(chroma), weak_membership)
+    d_core, d_weak = 1.0 - dark_ratio, weak_membership
+    if adapt_thresholds and prep and sat_lit:
+        s_noise = _robust_ceiling(np.concatenate(sat_lit))
+        d_noise = _robust_ceiling(np.concatenate(dk_lit))
+        ref = ch_sat.reshape(-1).astype(float)
+        ref_d = max(1.0 - v_pal, 0.1)
+        peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
+        scales = [(pk / rf, pk > 1.5 * s_noise) for pk, rf in zip(peaks, ref)]
+        # (the dark types take the chromatic ones' scale: the leather's shading and limb make
+        # darkness without paint, never saturation, so darkness peaks are no evidence of blur)
+        scales.append((1.0, False))
+        seen = [min(sc, 1.0) for sc, ok in scales if ok]
+        common = float(np.median(seen)) if seen else 1.0
+        sc = np.array([min(v, 1.0) if ok else common for v, ok in scales])
+        if chroma:
+            s_core = np.maximum(min_saturation * sc[:len(chroma)], s_noise)
+            s_weak = np.maximum(weak_membership * sc[:len(chroma)], s_noise / ref)
+        if dark:
+            d_core = max((1.0 - dark_ratio) * sc[-1], d_noise)
+            d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
+    s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
+    s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
+    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
         # foreshortened marker is blurred below the core threshold at its rim).
         cand = []  # (types, weak mask, core mask, soft)
         if chroma:
-            dh = _hue_distance(hue, ch_hue)  # (types, h, w)
-            hue_ok = (disc & (val >= min_value)) & (dh <= hue_tol_deg)
             soft = np.where(hue_ok, np.clip(sat / ch_sat, 0, 1), 0.0).astype(np.float32, copy=False)
-            weak = soft >= weak_membership
-            core = hue_ok & (sat >= min_saturation)
+            weak = soft >= s_weak32
+            core = hue_ok & (sat >= s_core32)
             any_chroma = weak.any(axis=0)
             for i, (tl, _, _) in enumerate(chroma):
                 cand.append((tl, weak[i], core[i], soft[i]))
         else:
             any_chroma = np.zeros_like(disc)
         if dark:
-            ratio = val / np.maximum(vclose, 1e-6)
             lit_free = lit & ~any_chroma
             soft = np.where(lit_free, np.clip((1.0 - ratio) / max(1.0 - v_pal, 0.1), 0, 1), 0.0)
             soft = soft.astype(np.float32, copy=False)
-            cand.append((dark, soft >= weak_membership, lit_free & (ratio < dark_ratio), soft))
+            cand.append((dark, soft >= d_weak, lit_free & (1.0 - ratio > d_core), soft))
         for tl, weak, core, soft in cand:
             if not np.any(core):
                 continue
@@ -460,6 +579,14 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         shapes=np.array([rw[2] for rw in rows], object), areas=np.array([rw[3] for rw in rows], float),
         confidences=np.array([rw[4] for rw in rows], float), aspects=np.array([rw[5] for rw in rows], float),
         ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int))
+
+
+def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:
+    """``median + k x robust sigma`` of ``x``: the top of the leather's noise (the markers, a
+    minority of the lit pixels, do not move it). The sigma (1.4826 MAD) is at least 2/255: 8-bit
+    levels make a near-neutral surface's saturation and darkness step by about that much."""
+    med = float(np.median(x))
+    return med + k * max(1.4826 * float(np.median(np.abs(x - med))), 2.0 / 255.0)
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):

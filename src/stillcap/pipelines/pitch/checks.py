@@ -45,7 +45,8 @@ from stillcap._selfcheck import SelfCheck
 from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
 
-__all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images", "disagreement_factor"]
+__all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images", "disagreement_factor",
+           "ambiguous_alias_candidates", "widen_spin_for_aliases"]
 
 #: False-alarm probability of each check on a capture where the model holds.
 CHECK_P = 1e-3
@@ -140,7 +141,13 @@ def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2
     pc = cam.world_to_cam(P)
     px = cam.project(P)
     r_m = float(np.nanmedian(pair.radius_px[which])) if np.any(np.isfinite(pair.radius_px[which])) else 20.0
-    rad = np.full(len(P), r_m)
+    # the ball's image radius at each flash: the pair's median radius scaled by depth (the ball
+    # images nearest the camera are the largest; a median radius made the gate below too tight
+    # for them, and a found half moon there counted as missed)
+    z_found = cam.world_to_cam(np.asarray(pair.positions, float).reshape(-1, 3))[:, 2]
+    z_med = float(np.nanmedian(z_found)) if np.any(np.isfinite(z_found) & (z_found > 0)) else np.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rad = np.where(np.isfinite(z_med) & (pc[:, 2] > 0), r_m * z_med / pc[:, 2], r_m)
     W, H = cam.image_size
     inside = ((pc[:, 2] > 0) & np.all(np.isfinite(px), axis=1)
               & (px[:, 0] - rad >= margin_px) & (px[:, 0] + rad <= W - 1 - margin_px)
@@ -152,7 +159,9 @@ def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2
         if not ok:
             continue
         if len(found) and np.min(np.linalg.norm(found - x, axis=1)) < max(rr, 3.0):
-            continue  # a silhouette is there (found, maybe not matched or dropped)
+            # a silhouette is there (found, maybe not matched or dropped): its centre lies inside
+            # the expected disc (a half moon's silhouette centre sits up to ~0.6 r toward the light)
+            continue
         out.append((int(kk), (float(x[0]), float(x[1]))))
     return out
 
@@ -276,3 +285,57 @@ def disagreement_factor(checks) -> float:
         if c.name == "pair_agreement" and not c.passed and np.isfinite(c.value):
             f = max(f, float(c.value) / 3.0)
     return f
+
+
+def ambiguous_alias_candidates(checks, alias) -> list:
+    """The spin aliases the photos cannot rule out when the ``alias_margin`` check failed: every
+    candidate but the best within ``MIN_ALIAS_GAP`` of its chi-square, at least the runner-up
+    (the best's evidence is then weak); every candidate when the evidence is inconsistent (a
+    wrong strobe measurement or curvature: the ranking itself cannot be trusted). Empty when
+    the check passed."""
+    failed = any(c.name == "alias_margin" and not c.passed for c in checks)
+    if not failed or alias is None or len(alias.candidates) < 2:
+        return []
+    if not alias.consistent:  # the evidence contradicts itself: it rules no alias out
+        return list(alias.candidates[1:])
+    best = float(alias.best.chi2)
+    out = [c for c in alias.candidates[1:] if float(c.chi2) - best < MIN_ALIAS_GAP]
+    return out or [alias.candidates[1]]
+
+
+def widen_spin_for_aliases(spin, candidates):
+    """The spin result with intervals that cover the other aliases the photos allow.
+
+    An ambiguous alias is a mixture: the true spin is the reported one or one of
+    ``candidates``. Its vector covariance gains ``d d^T`` per candidate (``d`` = candidate -
+    reported: the candidate at one sigma along ``d``), and the rate and axis sigmas are what puts
+    every candidate's own interval inside the reported 95 % intervals (rate ``|d rate| / 1.96 +
+    sigma``; axis, which a reversed alias turns by up to 180 deg, ``angle / 2.45 + sigma``, 2.45
+    the 2-D 95 % radius). Returns
+    ``(spin, extra_covariance)`` (rad/s)^2.
+    """
+    from dataclasses import replace
+
+    from scipy.stats import norm
+
+    w = np.asarray(spin.spin, float)
+    extra = np.zeros((3, 3))
+    need_rate, need_axis = 0.0, 0.0
+    n = float(np.linalg.norm(w))
+    # each candidate is itself measured to about the reported spin's sigmas: the intervals
+    # reach past it by those
+    s_rate0 = float(spin.sigma_rpm) if np.isfinite(spin.sigma_rpm) else 0.0
+    s_axis0 = float(spin.sigma_axis_deg) if np.isfinite(spin.sigma_axis_deg) else 0.0
+    for c in candidates:
+        wc = np.asarray(c.spin, float)
+        d = wc - w
+        extra += np.outer(d, d)
+        need_rate = max(need_rate, abs(float(np.linalg.norm(wc)) - n) * 60.0 / (2 * np.pi) / norm.ppf(0.975) + s_rate0)
+        if n > 0 and np.linalg.norm(wc) > 0:
+            ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(w, wc)), w @ wc))
+            need_axis = max(need_axis, float(ang) / np.sqrt(_chi2.ppf(0.95, 2)) + s_axis0)
+    cov = np.asarray(spin.spin_covariance, float) + extra
+    # the rate and axis sigmas from the candidates themselves (the vector covariance projected
+    # on the rate is meaningless for a reversed alias, whose rate is close and vector opposite)
+    return replace(spin, spin_covariance=cov, sigma_rpm=max(s_rate0, need_rate),
+                   sigma_axis_deg=max(s_axis0, need_axis)), extra

@@ -292,6 +292,17 @@ class PitchResult:
         d["spin_from_flight"] = None if self.flight_spin is None else self.flight_spin.to_dict()
         d["spin_comparison"] = None if self.spin_comparison is None else self.spin_comparison.to_dict()
         d["response"] = self.response
+        # an ambiguous spin alias (the alias_margin check failed): every alias the photos allow,
+        # the reported one first; the reported intervals cover them all
+        from stillcap.pipelines.pitch.checks import ambiguous_alias_candidates
+
+        others = ambiguous_alias_candidates(self.self_checks, self.alias) if self.spin_available else []
+        d["spin_ambiguous"] = bool(others)
+        d["spin_candidates"] = ([{"spin": self.spin.spin, "spin_rpm": self.spin.spin_rpm, "axis": self.spin.axis,
+                                  "reported": True}]
+                                + [{"spin": c.spin, "spin_rpm": c.spin_rpm, "axis": c.axis, "reported": False,
+                                    "chi2_above_best": float(c.chi2 - self.alias.best.chi2)} for c in others]
+                                if others else None)
         d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth

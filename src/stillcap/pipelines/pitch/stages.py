@@ -570,7 +570,8 @@ def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured:
 
     Returns ``(checks, fit)`` (failed checks are in the result's ``self_checks``, which the CLI
     prints, not in its messages)."""
-    from stillcap.pipelines.pitch.checks import disagreement_factor, pitch_self_checks
+    from stillcap.pipelines.pitch.checks import (ambiguous_alias_candidates, disagreement_factor, pitch_self_checks,
+                                                 widen_spin_for_aliases)
 
     t = _time.perf_counter()
     for p in pairs:
@@ -580,6 +581,20 @@ def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured:
     finally:
         for p in pairs:
             del p._check_cams
+    # an ambiguous alias (alias_margin failed) is never one confident value: the spin's
+    # intervals cover every alias the photos allow, and the result names them
+    others = ambiguous_alias_candidates(checks, measured.alias) if measured.ok else []
+    if others:
+        spin0 = measured.spin
+        measured.spin, extra = widen_spin_for_aliases(spin0, others)
+        r = float(np.linalg.norm(measured.w0)) / max(float(np.linalg.norm(spin0.spin)), 1e-12)
+        measured.cov0 = measured.cov0 + extra * r * r
+        log.messages.append(
+            f"spin ambiguous: {spin0.spin_rpm:.0f} rpm or "
+            + " or ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ spin0.axis, -1, 1))):.0f} deg "
+                          "from the reported one)" for c in others)
+            + f": the reported intervals cover them all (+-{1.96 * measured.spin.sigma_rpm:.0f} rpm, "
+            f"axis +-{2.45 * measured.spin.sigma_axis_deg:.0f} deg); photograph with two strobe rates")
     f = disagreement_factor(checks)
     if f > 1.0:
         fit = fit.with_extra_covariance((f - 1.0) * fit.covariance)
