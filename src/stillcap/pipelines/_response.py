@@ -110,11 +110,13 @@ def pitch_auto_estimates(cap: Capture, radius_m: float, rounds: int = 3) -> dict
     return out
 
 
-def pitch_response_checks(cap: Capture, pairs: list) -> tuple[list, dict]:
+def pitch_response_checks(cap: Capture, pairs: list, decoded: dict | None = None) -> tuple[list, dict]:
     """The ``response`` self-check of every camera of a pitch's pairs: the shading of its ball
     images (at the refined centres and projected radii the result used) against the response the
-    pipeline used. Returns the checks and each camera's estimate (JSON form)."""
+    pipeline used. Returns the checks and each camera's estimate (JSON form). ``decoded``: photos
+    already decoded, by file (the others are read)."""
     checks, found = [], {}
+    decoded = decoded or {}
     for p in pairs:
         if len(p) == 0:
             continue
@@ -122,7 +124,9 @@ def pitch_response_checks(cap: Capture, pairs: list) -> tuple[list, dict]:
             ims = cap.images_of(name)
             if not ims:
                 continue
-            img = cap.read_image(ims[0])
+            img = decoded.get(ims[0].file)
+            if img is None:
+                img = cap.read_image(ims[0])
             e: ResponseEstimate = estimate_response(img, np.asarray(p.centers_px[k]), np.asarray(p.radius_px[k]))
             found[name] = e.to_json()
             checks.append(response_check(e, cap.rig[name].response, subject=name))

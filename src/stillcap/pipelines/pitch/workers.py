@@ -170,6 +170,8 @@ class ThreadJobs:
     def __init__(self, capture: Capture, workers: int):
         self.capture = capture
         self.pool = ThreadPoolExecutor(max(1, int(workers)))
+        #: the photos decoded here, by file: the response self-check reuses them (no second decode)
+        self.decoded: dict = {}
 
     def __enter__(self):
         return self
@@ -188,6 +190,7 @@ class ThreadJobs:
         for sp, futs in zip(specs, decoding):
             cams = [cap.rig[c] for c in sp.cameras]
             imgs = [f.result() for f in futs]
+            self.decoded.update((im.file, img) for im, img in zip(sp.images, imgs))
             found.append((cams, imgs, ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], radius_m)))
         return found
 
@@ -210,6 +213,7 @@ class ProcessJobs:
         self.capture = capture
         self.executors = worker_pools(int(processes))
         self.cached: dict = {}  # token -> executor: a pair's photos held by a worker until its marker step
+        self.decoded: dict = {}  # the photos stay in the workers: the response self-check decodes its own
 
     def __enter__(self):
         return self
