@@ -8,7 +8,8 @@ stages one of two schedulers with the same two calls (``find_balls`` for every p
 
 - :class:`ThreadJobs` (``PitchOptions.processes == 0``, default): the photos decode on a pool of
   ``PitchOptions.workers`` threads (``imread`` releases the GIL) while the calling thread finds
-  each pair's ball images as soon as its photos are in; the pairs' marker jobs run on the pool.
+  each pair's ball images as soon as its photos are in; the pairs' marker jobs run on the pool
+  (``workers == 1``: everything on the calling thread, one core).
 - :class:`ProcessJobs` (``processes > 0``): each pair in a worker process, as follows.
 
 Most of a pair's work after decoding (ball detection and refinement, markers, the pair's own spin
@@ -37,7 +38,7 @@ import multiprocessing
 import os
 import threading
 from collections import OrderedDict
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import replace
 
 from stillcap.ball.stereo import ball_centers_stereo
@@ -163,13 +164,31 @@ atexit.register(shutdown_worker_pools)
 
 
 # -- the two schedulers ----------------------------------------------------------------------
+class _Inline:
+    """An executor that runs each job at once on the calling thread (a finished Future): one
+    thread in all. A pool of one thread beside the calling one let a capture use a second core
+    (decoding, markers while the flight is fitted), so a batch worker meant to use one core used
+    more, and one worker's time was not the one-core time its parallel efficiency divides by."""
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as e:  # noqa: BLE001 - raised again by result(), as a pool's would be
+            fut.set_exception(e)
+        return fut
+
+    def shutdown(self, wait: bool = True) -> None:
+        pass
+
+
 class ThreadJobs:
     """A pair's work on a pool of ``workers`` threads (a context manager: the pool shuts down on
-    exit, waiting for its jobs)."""
+    exit, waiting for its jobs); ``workers == 1``: on the calling thread only."""
 
     def __init__(self, capture: Capture, workers: int):
         self.capture = capture
-        self.pool = ThreadPoolExecutor(max(1, int(workers)))
+        self.pool = _Inline() if int(workers) <= 1 else ThreadPoolExecutor(int(workers))
         #: the photos decoded here, by file: the response self-check reuses them (no second decode)
         self.decoded: dict = {}
 
