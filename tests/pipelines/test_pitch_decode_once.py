@@ -1,5 +1,6 @@
-"""Each photo of a pitch is decoded once per analysis (issue 16): the response self-check works on
-the photos the pair step decoded, with threads; serial (workers=1) gives the same result."""
+"""Each photo of a pitch is decoded once per analysis (issue 16): the response self-check's
+estimates are made by each pair's job on the photos it decoded (threads, serial, and worker
+processes), with the same values in all three."""
 
 import pytest
 
@@ -34,3 +35,14 @@ def test_each_photo_decoded_once(fastball, monkeypatch):
     assert [(c.subject, c.value) for c in serial.self_checks if c.name == "response"] == \
         [(c.subject, c.value) for c in checks]
     assert serial.metrics.to_dict() == res.metrics.to_dict()
+
+
+def test_response_estimates_in_worker_processes(fastball):
+    """With worker processes the estimates come from the workers (which hold the photos): the
+    same checks as on threads, digit for digit."""
+    cap = Capture.load(fastball)
+    threads = analyse_pitch(cap, PitchOptions(n_samples=50))
+    procs = analyse_pitch(cap, PitchOptions(n_samples=50, processes=2))
+    assert [(c.subject, c.value, c.passed) for c in procs.self_checks if c.name == "response"] == \
+        [(c.subject, c.value, c.passed) for c in threads.self_checks if c.name == "response"]
+    assert procs.response["shading"] == threads.response["shading"]
