@@ -28,6 +28,8 @@ import time
 from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src"
+# this tree's stillcap, in this process as in the ones it starts (not whichever is installed)
+sys.path.insert(0, str(SRC))
 PRESETS = ("seed-4seam", "seed-curveball", "mlb-4seam")
 PITCH_TYPES = {"seed-4seam": "FF", "seed-curveball": "CU", "mlb-4seam": "FF"}
 
@@ -65,6 +67,7 @@ def time_batch(folders: list[Path], workers: int) -> tuple[float, int]:
     from stillcap.batch import read_inputs, run_batch
 
     inputs = read_inputs(folders)
+    os.environ["PYTHONPATH"] = _env()["PYTHONPATH"]  # the workers import this tree's stillcap too
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
                       dashboard_address=None) as cluster, Client(cluster) as client:
         client.run(lambda: __import__("stillcap.pipelines.pitch") and None)  # imports before the clock

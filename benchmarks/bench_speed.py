@@ -31,6 +31,8 @@ import cv2
 from _timing import best_time
 
 SRC = Path(__file__).resolve().parents[1] / "src"
+# this tree's stillcap, in this process as in the ones it starts (not whichever is installed)
+sys.path.insert(0, str(SRC))
 PUPPET_RUN = r"""
 import json, sys, time
 from stillcap.pipelines.puppet import DEFAULT, analyse_puppet

@@ -161,9 +161,36 @@ def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_sc
         return np.clip(rad, 1e-9, 1.0) ** np.exp(-lg), s
 
     keep = np.ones(len(vv), bool)
+    Nk, vk = N, vv  # the kept pixels' normals and values (set again with ``keep`` below)
 
     def resid(p):
-        return 255.0 * (model(p)[0][keep] - vv[keep])
+        th, ph, la, b, lg = p
+        s = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), -np.cos(th)])
+        rad = np.exp(la) * np.maximum(Nk @ s, 0.0) + b
+        return 255.0 * (np.clip(rad, 1e-9, 1.0) ** np.exp(-lg) - vk)
+
+    def jac(p):
+        # analytic: the numerical one cost 5 more evaluations per step, ~2/3 of the fit's time
+        th, ph, la, b, lg = p
+        st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+        s = np.array([st * cp, st * sp, -ct])
+        ns = Nk @ s
+        lit = ns > 0.0
+        a = np.exp(la)
+        rad = a * np.where(lit, ns, 0.0) + b
+        inside = (rad > 1e-9) & (rad < 1.0)
+        rc = np.clip(rad, 1e-9, 1.0)
+        k = np.exp(-lg)
+        pred = rc ** k
+        dpdr = np.where(inside, k * pred / rc, 0.0)  # d pred / d rad
+        al = a * lit
+        J = np.empty((len(ns), 5))
+        J[:, 0] = dpdr * al * (Nk @ np.array([ct * cp, ct * sp, st]))
+        J[:, 1] = dpdr * al * (Nk @ np.array([-st * sp, st * cp, 0.0]))
+        J[:, 2] = dpdr * a * np.where(lit, ns, 0.0)
+        J[:, 3] = dpdr
+        J[:, 4] = -k * pred * np.log(rc)
+        return 255.0 * J
 
     th0 = float(np.arccos(np.clip(-s0[2], -1, 1)))
     ph0 = float(np.arctan2(s0[1], s0[0]))
@@ -174,7 +201,7 @@ def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_sc
         a0 = float(np.quantile(vv, 0.95)) ** g0
         p0 = [min(max(th0, 1e-3), np.pi - 1e-3), ph0, np.log(max(a0, 2e-3)), 0.0, np.log(g0)]
         try:
-            f = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale, max_nfev=200)
+            f = least_squares(resid, p0, jac, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale, max_nfev=200)
         except ValueError:
             continue
         if best is None or f.cost < best.cost:
@@ -196,8 +223,10 @@ def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_sc
     band = terminator_px / r
     keep = (np.abs(N @ s0) >= band) & ~dark
     if keep.sum() >= _MIN_PIXELS:
+        Nk, vk = N[keep], vv[keep]
         try:
-            best = least_squares(resid, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale, max_nfev=200)
+            best = least_squares(resid, best.x, jac, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale,
+                                 max_nfev=200)
         except ValueError:
             pass
     pred, s = model(best.x)

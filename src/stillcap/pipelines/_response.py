@@ -110,11 +110,14 @@ def pitch_auto_estimates(cap: Capture, radius_m: float, rounds: int = 3) -> dict
     return out
 
 
-def pitch_response_checks(cap: Capture, pairs: list) -> tuple[list, dict]:
+def pitch_response_checks(cap: Capture, pairs: list, estimates: dict | None = None) -> tuple[list, dict]:
     """The ``response`` self-check of every camera of a pitch's pairs: the shading of its ball
     images (at the refined centres and projected radii the result used) against the response the
-    pipeline used. Returns the checks and each camera's estimate (JSON form)."""
+    pipeline used. Returns the checks and each camera's estimate (JSON form). ``estimates``:
+    ``{(camera, photo file): ResponseEstimate}`` already made from those centres and radii (by
+    the pipeline's pair jobs, on the photos they decoded); the others are made here."""
     checks, found = [], {}
+    estimates = estimates or {}
     for p in pairs:
         if len(p) == 0:
             continue
@@ -122,8 +125,10 @@ def pitch_response_checks(cap: Capture, pairs: list) -> tuple[list, dict]:
             ims = cap.images_of(name)
             if not ims:
                 continue
-            img = cap.read_image(ims[0])
-            e: ResponseEstimate = estimate_response(img, np.asarray(p.centers_px[k]), np.asarray(p.radius_px[k]))
+            e: ResponseEstimate | None = estimates.get((name, ims[0].file))
+            if e is None:
+                img = cap.read_image(ims[0])
+                e = estimate_response(img, np.asarray(p.centers_px[k]), np.asarray(p.radius_px[k]))
             found[name] = e.to_json()
             checks.append(response_check(e, cap.rig[name].response, subject=name))
     return checks, found

@@ -77,8 +77,11 @@ def analyse_pitch(capture: Capture | str | Path, options: PitchOptions | None = 
     # the per-pair work on threads, or in worker processes (options.processes > 0)
     with pair_jobs(cap, options.workers, options.processes) as jobs:
         result = _analyse(cap, options, jobs, progress, t_all)
+        # the response self-check's estimates, made by each pair's job on its photos after its
+        # marker step (no second decode)
+        estimates = jobs.response_estimates()
     # the response self-check: the ball's shading against the response used
-    checks, found = pitch_response_checks(cap, result.pairs)
+    checks, found = pitch_response_checks(cap, result.pairs, estimates)
     result.self_checks.extend(checks)
     result.response = {**response, "shading": found}
     result.messages[:0] = response["messages"]

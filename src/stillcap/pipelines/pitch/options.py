@@ -84,8 +84,9 @@ class PitchOptions:
         lenses, motion blur and JPEG give more).
     workers : int
         Threads for the per-pair work: decoding the photos (while the calling thread finds the
-        ball images of the pairs already decoded), markers and the pairs' own spin fits. The
-        results do not depend on it.
+        ball images of the pairs already decoded), markers and the pairs' own spin fits; 1: all
+        on the calling thread (one core: a batch worker's setting). The results do not depend on
+        it.
     processes : int
         Worker processes for the per-pair work (0, default: the ``workers`` threads). Each pair's
         photos are decoded, its ball images and markers found and its own spin fitted in a

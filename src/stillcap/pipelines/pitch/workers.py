@@ -8,7 +8,8 @@ stages one of two schedulers with the same two calls (``find_balls`` for every p
 
 - :class:`ThreadJobs` (``PitchOptions.processes == 0``, default): the photos decode on a pool of
   ``PitchOptions.workers`` threads (``imread`` releases the GIL) while the calling thread finds
-  each pair's ball images as soon as its photos are in; the pairs' marker jobs run on the pool.
+  each pair's ball images as soon as its photos are in; the pairs' marker jobs run on the pool
+  (``workers == 1``: everything on the calling thread, one core).
 - :class:`ProcessJobs` (``processes > 0``): each pair in a worker process, as follows.
 
 Most of a pair's work after decoding (ball detection and refinement, markers, the pair's own spin
@@ -37,10 +38,13 @@ import multiprocessing
 import os
 import threading
 from collections import OrderedDict
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import replace
 
+import numpy as np
+
 from stillcap.ball.stereo import ball_centers_stereo
+from stillcap.detect.response import estimate_response
 from stillcap.io.capture import Capture
 from stillcap.pipelines.pitch.spin import pair_markers_and_spin
 
@@ -81,16 +85,37 @@ def pair_positions_job(capture: Capture, images: tuple, cameras: tuple, radius_m
     return st
 
 
-def pair_markers_job(token: str, pair, types, layout, radius_m: float, max_px: float, spin_method: str):
-    """The marker step of the pitch pipeline on the photos cached under ``token`` (released
-    here); ``pair`` is the pair's ``PairResult`` without its photos. Returns what
-    :func:`stillcap.pipelines.pitch.spin.pair_markers_and_spin` returns."""
+def _cached(token: str, pair, release: bool):
     try:
-        cams, imgs = _PHOTOS.pop(token)
+        return _PHOTOS.pop(token) if release else _PHOTOS[token]
     except KeyError:
         raise RuntimeError(f"pitch worker {os.getpid()}: the photos of pair {pair.name!r} are no longer cached") \
             from None
+
+
+def pair_markers_job(token: str, pair, types, layout, radius_m: float, max_px: float, spin_method: str,
+                     release: bool = True):
+    """The marker step of the pitch pipeline on the photos cached under ``token`` (released
+    here unless ``release`` is False: :func:`pair_response_job` follows); ``pair`` is the pair's
+    ``PairResult`` without its photos. Returns what
+    :func:`stillcap.pipelines.pitch.spin.pair_markers_and_spin` returns."""
+    cams, imgs = _cached(token, pair, release)
     return pair_markers_and_spin(cams, imgs, pair, types, layout, radius_m, max_px, spin_method)
+
+
+def pair_response_estimates(photos, pair) -> dict:
+    """Each camera's :class:`~stillcap.detect.response.ResponseEstimate` from the pair's photos
+    at its refined centres and projected radii: what the ``response`` self-check
+    (:func:`stillcap.pipelines._response.pitch_response_checks`) computes, on the photos the
+    pair step decoded, where they are."""
+    return {name: estimate_response(photos[k], np.asarray(pair.centers_px[k]), np.asarray(pair.radius_px[k]))
+            for k, name in enumerate(pair.cameras)}
+
+
+def pair_response_job(token: str, pair) -> dict:
+    """:func:`pair_response_estimates` on the photos cached under ``token`` (released here)."""
+    _cams, imgs = _cached(token, pair, True)
+    return pair_response_estimates(imgs, pair)
 
 
 def drop_job(token: str) -> None:
@@ -163,13 +188,33 @@ atexit.register(shutdown_worker_pools)
 
 
 # -- the two schedulers ----------------------------------------------------------------------
+class _Inline:
+    """An executor that runs each job at once on the calling thread (a finished Future): one
+    thread in all. A pool of one thread beside the calling one let a capture use a second core
+    (decoding, markers while the flight is fitted), so a batch worker meant to use one core used
+    more, and one worker's time was not the one-core time its parallel efficiency divides by."""
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as e:  # noqa: BLE001 - raised again by result(), as a pool's would be
+            fut.set_exception(e)
+        return fut
+
+    def shutdown(self, wait: bool = True) -> None:
+        pass
+
+
 class ThreadJobs:
     """A pair's work on a pool of ``workers`` threads (a context manager: the pool shuts down on
-    exit, waiting for its jobs)."""
+    exit, waiting for its jobs); ``workers == 1``: on the calling thread only."""
 
     def __init__(self, capture: Capture, workers: int):
         self.capture = capture
-        self.pool = ThreadPoolExecutor(max(1, int(workers)))
+        self.pool = _Inline() if int(workers) <= 1 else ThreadPoolExecutor(int(workers))
+        self.images: dict = {}  # pair name -> its photos' entries
+        self.responses: list = []  # (photo entries, Future of pair_response_estimates)
 
     def __enter__(self):
         return self
@@ -188,13 +233,35 @@ class ThreadJobs:
         for sp, futs in zip(specs, decoding):
             cams = [cap.rig[c] for c in sp.cameras]
             imgs = [f.result() for f in futs]
+            self.images[sp.name] = sp.images
             found.append((cams, imgs, ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], radius_m)))
         return found
 
     def markers_and_spin(self, pair, cams, photos, *args):
         """:func:`pair_markers_and_spin` of one pair on the pool (a Future); ``args``: its
-        arguments after the pair."""
-        return self.pool.submit(pair_markers_and_spin, cams, photos, pair, *args)
+        arguments after the pair. The pair's response estimates go on the pool when its marker
+        step is done (behind the other pairs' marker steps, which the main thread waits for
+        first; :meth:`response_estimates`)."""
+        fut = self.pool.submit(pair_markers_and_spin, cams, photos, pair, *args)
+        out = Future()
+
+        def start(_done):
+            try:
+                job = self.pool.submit(pair_response_estimates, photos, pair)
+            except RuntimeError as e:  # the pool shut down: the capture stopped on an error
+                out.set_exception(e)
+                return
+            job.add_done_callback(lambda j: out.set_exception(j.exception()) if j.exception() else
+                                  out.set_result(j.result()))
+
+        fut.add_done_callback(start)
+        self.responses.append((self.images[pair.name], out))
+        return fut
+
+    def response_estimates(self) -> dict:
+        """``{(camera, photo file): ResponseEstimate}`` of the pairs whose marker step ran
+        (:func:`pair_response_estimates`; waits for them)."""
+        return _collect(self.responses)
 
 
 class ProcessJobs:
@@ -210,6 +277,8 @@ class ProcessJobs:
         self.capture = capture
         self.executors = worker_pools(int(processes))
         self.cached: dict = {}  # token -> executor: a pair's photos held by a worker until its marker step
+        self.images: dict = {}  # pair name -> its photos' entries
+        self.responses: list = []  # (photo entries, Future of pair_response_job)
 
     def __enter__(self):
         return self
@@ -227,14 +296,31 @@ class ProcessJobs:
         for i, sp in enumerate(specs):
             token, ex = new_token(), self.executors[i % len(self.executors)]
             self.cached[token] = ex
+            self.images[sp.name] = sp.images
             futs.append((token, ex.submit(pair_positions_job, light, sp.images, sp.cameras, radius_m, token)))
         return [([cap.rig[c] for c in sp.cameras], token, f.result()) for sp, (token, f) in zip(specs, futs)]
 
     def markers_and_spin(self, pair, cams, photos, *args):
         """:func:`pair_markers_job` of one pair on the worker holding its photos (``photos``:
         their token); a Future."""
-        # the worker holding the photos; the pair goes without them and its StereoBalls
-        return self.cached.pop(photos).submit(pair_markers_job, photos, replace(pair, stereo=None), *args)
+        # the worker holding the photos; the pair goes without them and its StereoBalls; the
+        # pair's response estimates follow on that worker, which then releases the photos
+        ex, light = self.cached.pop(photos), replace(pair, stereo=None)
+        fut = ex.submit(pair_markers_job, photos, light, *args, release=False)
+        self.responses.append((self.images[pair.name], ex.submit(pair_response_job, photos, light)))
+        return fut
+
+    def response_estimates(self) -> dict:
+        """As :meth:`ThreadJobs.response_estimates`, from the worker processes."""
+        return _collect(self.responses)
+
+
+def _collect(responses: list) -> dict:
+    out = {}
+    for images, fut in responses:
+        found = fut.result()
+        out.update(((im.camera, im.file), found[im.camera]) for im in images)
+    return out
 
 
 def pair_jobs(capture: Capture, workers: int, processes: int):
