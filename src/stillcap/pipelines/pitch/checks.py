@@ -340,7 +340,7 @@ def widen_spin_for_aliases(spin, candidates):
         need_rate = max(need_rate, abs(float(np.linalg.norm(wc)) - n) * 60.0 / (2 * np.pi) / norm.ppf(0.975) + s_rate0)
         if n > 0 and np.linalg.norm(wc) > 0:
             ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(w, wc)), w @ wc))
-            need_axis = max(need_axis, float(ang) / np.sqrt(_chi2.ppf(0.95, 2)) + s_axis0)
+            need_axis = max(need_axis, float(ang) / np.sqrt(_chi2_ppf(0.95, 2)) + s_axis0)
     cov = np.asarray(spin.spin_covariance, float) + extra
     # the rate and axis sigmas from the candidates themselves (the vector covariance projected
     # on the rate is meaningless for a reversed alias, whose rate is close and vector opposite)
