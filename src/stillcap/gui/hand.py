@@ -34,7 +34,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from stillcap.gui.context import GuiContext
-from stillcap.gui.viewers import (ApiError, api, confined, find_capture_for, frusta, json_body, query_path,
+from stillcap.gui.viewers import (ApiError, api, capture_folder, confined, is_capture_of, start_capture_job, find_capture_for, frusta, json_body, query_path,
                                   read_small_json, rel_of, scan_json)
 
 __all__ = ["routes", "OVERRIDES_FILE", "hand_view", "list_items", "overrides_path", "write_overrides"]
@@ -55,11 +55,6 @@ def _state(ctx: GuiContext) -> dict:
     return ctx.state.setdefault("hand", {"results": {}, "lock": threading.Lock()})
 
 
-def _is_hand_capture(folder: Path) -> bool:
-    d = read_small_json(folder / "capture.json") if (folder / "capture.json").is_file() else None
-    return isinstance(d, dict) and d.get("kind") == "hand"
-
-
 def _is_hand_result(d) -> bool:
     return (isinstance(d, dict) and d.get("kind") == "hand" and isinstance(d.get("flashes"), dict)
             and isinstance(d.get("marker_names"), list))
@@ -71,7 +66,7 @@ def list_items(ctx: GuiContext) -> list[dict]:
     items = []
     for p in scan_json(Path(ctx.root)):
         if p.name == "capture.json":
-            if _is_hand_capture(p.parent):
+            if is_capture_of(p.parent, "hand"):
                 rel = rel_of(ctx, p.parent)
                 items.append({"path": rel, "kind": "capture", "name": p.parent.name or rel, "analysed": rel in analysed})
         elif p.name not in ("rig.json", "truth.json", OVERRIDES_FILE):
@@ -86,7 +81,7 @@ def overrides_path(ctx: GuiContext, rel: str) -> Path:
     """The label overrides file of an item: in a capture folder, or beside a result file."""
     path = confined(ctx, rel)
     if path.is_dir():
-        if not _is_hand_capture(path):
+        if not is_capture_of(path, "hand"):
             raise ApiError(f"{rel or '.'}: not a hand capture folder (no capture.json of kind 'hand')")
         return path / OVERRIDES_FILE
     if path.is_file() and path.suffix.lower() == ".json":
@@ -279,7 +274,7 @@ def hand_view(ctx: GuiContext, rel: str) -> dict:
     view = {"path": rel, "name": path.name, "notes": [], "cameras": []}
     cap = None
     if path.is_dir():
-        if not _is_hand_capture(path):
+        if not is_capture_of(path, "hand"):
             raise ApiError(f"{rel or '.'}: not a hand capture folder (no capture.json of kind 'hand')")
         cap = Capture.load(path)
         kept = _state(ctx)["results"].get(rel_of(ctx, path))
@@ -312,9 +307,7 @@ def analyse_capture(ctx: GuiContext, rel: str, progress=None) -> dict:
     when there is one) and keep the view; a short summary."""
     from stillcap.pipelines.hand import HandOptions, analyse_hand
 
-    folder = confined(ctx, rel)
-    if not folder.is_dir() or not _is_hand_capture(folder):
-        raise ValueError(f"{rel or '.'}: not a hand capture folder (no capture.json of kind 'hand')")
+    folder = capture_folder(ctx, rel, "hand")
     ov = folder / OVERRIDES_FILE
     res = analyse_hand(folder, HandOptions(overrides=ov if ov.is_file() else None), progress=progress)
     view = view_from_result(res)
@@ -339,16 +332,7 @@ def routes(ctx: GuiContext) -> list:
 
     @api
     async def analyse(request: Request):
-        from stillcap.gui.jobs import job_manager, job_response
-
-        body = await json_body(request)
-        rel = body.get("path", "")
-        folder = confined(ctx, rel)
-        if not folder.is_dir() or not _is_hand_capture(folder):
-            raise ApiError(f"{rel or '.'}: not a hand capture folder (no capture.json of kind 'hand')")
-        job = job_manager(ctx).submit(lambda progress: analyse_capture(ctx, rel, progress),
-                                      label=f"hand {rel or Path(ctx.root).name}")
-        return job_response(job)
+        return await start_capture_job(ctx, request, "hand", analyse_capture)
 
     @api
     async def get_overrides(request: Request):

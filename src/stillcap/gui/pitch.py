@@ -32,7 +32,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import Route
 
 from stillcap.gui.context import GuiContext
-from stillcap.gui.viewers import (ApiError, api, confined, find_capture_for, frusta, json_body, photo_response,
+from stillcap.gui.viewers import (ApiError, api, capture_folder, confined, is_capture_of, start_capture_job, find_capture_for, frusta, json_body, photo_response,
                                   photo_width, query_path, read_small_json, rel_of, scan_json)
 
 __all__ = ["routes", "RESULT_FORMAT", "pitch_view", "session_rows", "list_items"]
@@ -61,11 +61,6 @@ def _state(ctx: GuiContext) -> dict:
 # --------------------------------------------------------------------------------------------
 # finding captures and results
 # --------------------------------------------------------------------------------------------
-def _is_pitch_capture(folder: Path) -> bool:
-    d = read_small_json(folder / "capture.json") if (folder / "capture.json").is_file() else None
-    return isinstance(d, dict) and d.get("kind") == "pitch"
-
-
 def list_items(ctx: GuiContext, under: Path | None = None) -> list[dict]:
     """The pitch captures (folders with a ``capture.json`` of kind pitch) and results (JSON
     files of format ``stillcap-pitch``) under ``under`` (default: the opened folder)."""
@@ -74,7 +69,7 @@ def list_items(ctx: GuiContext, under: Path | None = None) -> list[dict]:
     items = []
     for p in scan_json(under):
         if p.name == "capture.json":
-            if _is_pitch_capture(p.parent):
+            if is_capture_of(p.parent, "pitch"):
                 rel = rel_of(ctx, p.parent)
                 items.append({"path": rel, "kind": "capture", "name": p.parent.name or rel,
                               "analysed": rel in analysed})
@@ -93,7 +88,7 @@ def _load(ctx: GuiContext, rel: str) -> tuple[dict | None, object, dict | None, 
 
     path = confined(ctx, rel)
     if path.is_dir():
-        if not _is_pitch_capture(path):
+        if not is_capture_of(path, "pitch"):
             raise ApiError(f"{rel or '.'}: not a pitch capture folder (no capture.json of kind 'pitch')")
         cap = Capture.load(path)
         kept = _state(ctx)["results"].get(rel_of(ctx, path))
@@ -331,9 +326,7 @@ def analyse_capture(ctx: GuiContext, rel: str, progress=None) -> dict:
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
 
-    folder = confined(ctx, rel)
-    if not folder.is_dir() or not _is_pitch_capture(folder):
-        raise ValueError(f"{rel or '.'}: not a pitch capture folder (no capture.json of kind 'pitch')")
+    folder = capture_folder(ctx, rel, "pitch")
     res = analyse_pitch(Capture.load(folder), PitchOptions(), progress=progress)
     st = _state(ctx)
     with st["lock"]:
@@ -379,16 +372,7 @@ def routes(ctx: GuiContext) -> list:
 
     @api
     async def analyse(request: Request):
-        from stillcap.gui.jobs import job_manager, job_response
-
-        body = await json_body(request)
-        rel = body.get("path", "")
-        folder = confined(ctx, rel)
-        if not folder.is_dir() or not _is_pitch_capture(folder):
-            raise ApiError(f"{rel or '.'}: not a pitch capture folder (no capture.json of kind 'pitch')")
-        job = job_manager(ctx).submit(lambda progress: analyse_capture(ctx, rel, progress),
-                                      label=f"pitch {rel or Path(ctx.root).name}")
-        return job_response(job)
+        return await start_capture_job(ctx, request, "pitch", analyse_capture)
 
     @api
     async def session(request: Request):

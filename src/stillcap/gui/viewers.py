@@ -21,7 +21,8 @@ from starlette.responses import JSONResponse, Response
 from stillcap.gui.context import GuiContext
 
 __all__ = ["ApiError", "api", "query_path", "json_body", "rel_of", "scan_json", "read_small_json",
-           "photo_response", "frusta", "find_capture_for"]
+           "photo_response", "frusta", "find_capture_for", "is_capture_of", "capture_folder",
+           "start_capture_job"]
 
 #: Folders deeper than this below the opened folder are not searched for captures and results.
 MAX_DEPTH = 3
@@ -110,6 +111,32 @@ def read_small_json(path: Path):
         return json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return None
+
+
+def is_capture_of(folder: Path, kind: str) -> bool:
+    """``folder`` holds a ``capture.json`` of ``kind`` (peeked at; the pipeline validates it)."""
+    d = read_small_json(folder / "capture.json") if (folder / "capture.json").is_file() else None
+    return isinstance(d, dict) and d.get("kind") == kind
+
+
+def capture_folder(ctx: GuiContext, rel: str, kind: str) -> Path:
+    """The capture folder ``rel`` (confined), or ``ValueError`` (400) when it is not one of ``kind``."""
+    folder = confined(ctx, rel)
+    if not folder.is_dir() or not is_capture_of(folder, kind):
+        raise ValueError(f"{rel or '.'}: not a {kind} capture folder (no capture.json of kind '{kind}')")
+    return folder
+
+
+async def start_capture_job(ctx: GuiContext, request: Request, kind: str, analyse) -> Response:
+    """``POST {"path": REL}``: analyse the ``kind`` capture ``REL`` in the background
+    (``analyse(ctx, rel, progress)``); the job's JSON."""
+    from stillcap.gui.jobs import job_manager, job_response
+
+    rel = (await json_body(request)).get("path", "")
+    capture_folder(ctx, rel, kind)  # refused before a job starts
+    job = job_manager(ctx).submit(lambda progress: analyse(ctx, rel, progress),
+                                  label=f"{kind} {rel or Path(ctx.root).name}")
+    return job_response(job)
 
 
 def scan_json(root: Path, max_depth: int = MAX_DEPTH):

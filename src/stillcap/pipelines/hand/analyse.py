@@ -8,13 +8,12 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from stillcap._checks import as_array
 from stillcap.body.hand_files import load_hand
-from stillcap.io.capture import Capture, stereo_pairs
+from stillcap.io.capture import Capture
 from stillcap.pipelines._response import apply_response, auto_report, auto_rig, camera_estimates, response_checks
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
-from stillcap.pipelines.hand.stages import (check_hand, find_ball, find_glove_markers, fit_poses, label_markers,
+from stillcap.pipelines.hand.stages import (check_hand, hand_setup, read_hand_photos, find_ball, find_glove_markers, fit_poses, label_markers,
                                             label_markers_adapted, release_and_spin, triangulate_glove_markers)
 from stillcap._progress import report_progress
 
@@ -53,21 +52,11 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
         raise ValueError("give either options or keyword arguments, not both")
     cap = capture if isinstance(capture, Capture) else Capture.load(capture)
     cap, response = apply_response(cap, None if options.response == "auto" else options.response)
-    where = f"capture {cap.root}" if cap.root is not None else "capture"
-    if cap.kind != "hand":
-        raise ValueError(f"{where} is a {cap.kind!r} capture, not a hand capture (capture.json \"kind\")")
+    setup = hand_setup(cap, options.strobe_position_m)
+    where, pairs, strobe_hz, light, messages = (setup.where, setup.pairs, setup.strobe_hz, setup.light,
+                                                setup.messages)
     skeleton, markerset = _hand_of(cap, options)
-    specs, messages = stereo_pairs(cap)
-    rates = {sp.strobe_hz for sp in specs}
-    if len(rates) != 1:
-        raise ValueError(f"{where}: the stereo pairs have different strobe rates {sorted(rates)} Hz; "
-                         "a hand capture is lit by one strobe")
-    strobe_hz = rates.pop()
-    pairs = {sp.name: sp.cameras for sp in specs}
-    light = options.strobe_position_m if options.strobe_position_m is not None else cap.meta.get("strobe_position_m")
-    if light is not None:
-        light = as_array(light, (3,), "strobe_position_m")
-    else:
+    if light is None:
         messages.append("strobe position unknown (capture.json meta strobe_position_m): marker centroids keep "
                         "their half-lit bias (~1 px)")
     timings: dict = {}
@@ -76,11 +65,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     t = _time.perf_counter()
     report_progress(progress, 0, total, "reading photos")
     rig = cap.rig
-    used = [c for sp in specs for c in sp.cameras]
-    images = []
-    for name in rig.names:
-        ims = cap.images_of(name)
-        images.append(cap.read_image(ims[0]) if (name in used and ims) else None)
+    images = read_hand_photos(cap, pairs)
     timings["decode"] = _time.perf_counter() - t
 
     # -- ball ---------------------------------------------------------------------------------

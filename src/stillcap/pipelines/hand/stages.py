@@ -25,10 +25,11 @@ plain function over arrays and dataclasses that appends what went wrong to ``mes
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from stillcap._checks import as_array
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS
@@ -36,12 +37,52 @@ from stillcap.body.hand_checks import hand_self_checks
 from stillcap.body.hand_label import HandLabels, label_hand_markers
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
+from stillcap.io.capture import stereo_pairs
 from stillcap.geometry.marker_points import MarkerPoints, triangulate_color_markers
 from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ball_spin
 from stillcap.pipelines.hand.options import HandOptions
 
-__all__ = ["find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
+__all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
            "release_and_spin", "check_hand", "label_markers_adapted"]
+
+@dataclass
+class HandSetup:
+    """What a hand capture states before any photo is read: where it is (for messages), its
+    stereo pairs (name -> cameras), the one strobe's rate, the strobe's position (or None) and
+    the capture's messages so far."""
+
+    where: str
+    pairs: dict
+    strobe_hz: float
+    light: np.ndarray | None
+    messages: list
+
+
+def hand_setup(cap, strobe_position_m=None) -> HandSetup:
+    """Check that ``cap`` is a hand capture lit by one strobe; ``ValueError`` names the capture."""
+    where = f"capture {cap.root}" if cap.root is not None else "capture"
+    if cap.kind != "hand":
+        raise ValueError(f"{where} is a {cap.kind!r} capture, not a hand capture (capture.json \"kind\")")
+    specs, messages = stereo_pairs(cap)
+    rates = {sp.strobe_hz for sp in specs}
+    if len(rates) != 1:
+        raise ValueError(f"{where}: the stereo pairs have different strobe rates {sorted(rates)} Hz; "
+                         "a hand capture is lit by one strobe")
+    light = strobe_position_m if strobe_position_m is not None else cap.meta.get("strobe_position_m")
+    if light is not None:
+        light = as_array(light, (3,), "strobe_position_m")
+    return HandSetup(where, {sp.name: sp.cameras for sp in specs}, rates.pop(), light, messages)
+
+
+def read_hand_photos(cap, pairs: dict) -> list:
+    """One photo per rig camera (None for a camera no stereo pair uses or with no photo)."""
+    used = {c for cams in pairs.values() for c in cams}
+    images = []
+    for name in cap.rig.names:
+        ims = cap.images_of(name)
+        images.append(cap.read_image(ims[0]) if (name in used and ims) else None)
+    return images
+
 
 #: Position uncertainty of fully seen and of partly hidden glove markers (m), as measured by
 #: ``benchmarks/bench_hand_markers.py`` (0.16 mm RMS and a few mm): the pose fit's weights.
