@@ -42,6 +42,7 @@ def flight(
     """
     import numpy as np
 
+    from stillcap._numeric import RPM_PER_RAD_S
     from stillcap.ball.physics import G0, ball_model
     from stillcap.ball.rally import cut_flights, fit_flight, read_trajectory_csv
     from stillcap.cli._outputs import check
@@ -86,7 +87,7 @@ def flight(
     for k, f in enumerate(fits, 1):
         cd = f"{f.cd:.3f} ± {f.cd_sigma:.3f}" if fit_coefficients else f"{f.cd:.3f}"
         tab.add_row(str(k), f"{f.times[0]:.3f}", f"{f.duration:.3f}", str(len(f.times)), f"{f.speed:.2f}",
-                    f"{f.spin_rpm:.0f} ± {f.spin_sigma * 60 / (2 * np.pi):.0f}", f"{f.rms * 1e3:.2f}",
+                    f"{f.spin_rpm:.0f} ± {f.spin_sigma * RPM_PER_RAD_S:.0f}", f"{f.rms * 1e3:.2f}",
                     f"{f.cross_rms * 1e3:.2f}", cd + ("" if f.cd_in_range else " !"),
                     f"{f.cl:.3f} ± {f.cl_sigma:.3f}" + ("" if f.cl_in_range else " !"))
     console.print(tab)

@@ -29,6 +29,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from stillcap._numeric import RPM_PER_RAD_S
 from stillcap.files.atomic import atomic_path, write_bytes, write_text  # noqa: E402
 
 __all__ = ["POSITION_COLUMNS", "METRIC_UNITS", "write_json", "write_positions_csv", "write_metrics_csv",
@@ -231,7 +232,7 @@ def _plot_spin(result, path) -> Path:
         notes = [m for m in result.messages if "spin" in m or "marker" in m] or ["no markers"]
         st = result.fit_positions_only.spin_transverse
         notes.append(f"spin seen by the flight's curvature alone (Magnus force, {result.options.physics} physics): "
-                     f"{np.linalg.norm(st) * 60 / (2 * np.pi):.0f} rpm transverse to the flight")
+                     f"{np.linalg.norm(st) * RPM_PER_RAD_S:.0f} rpm transverse to the flight")
         ax2.text(0.0, 0.5, "\n\n".join(textwrap.fill(m, 48) for m in notes), ha="left", va="center", fontsize=8)
         ax2.set_axis_off()
     fig.tight_layout()

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._numeric import RPM_PER_RAD_S
 from stillcap._selfcheck import checks_to_json
 from stillcap.ball.release import Release
 from stillcap.body.hand_label import HandLabels
@@ -150,6 +151,6 @@ class HandResult:
 
 
 def _spin_dict(s: HandBallSpin) -> dict:
-    rpm = float(np.linalg.norm(s.spin) * 60 / (2 * np.pi)) if s.available else None
+    rpm = float(np.linalg.norm(s.spin) * RPM_PER_RAD_S) if s.available else None
     return {"available": s.available, "spin": s.spin.tolist(), "spin_rpm": rpm,
             "candidates_rpm": list(s.candidates_rpm), "ambiguous": s.ambiguous, "message": s.message}

@@ -41,8 +41,9 @@ from __future__ import annotations
 import numpy as np
 # chi2.ppf(q, k) is 2 gammaincinv(k / 2, q) (what scipy.stats computes): importing scipy.stats
 # cost 0.4-1 s of every CLI call, for two quantiles
-from scipy.special import gammaincinv as _gammaincinv
+from scipy.special import gammaincinv as _gammaincinv, ndtri as _ndtri
 
+from stillcap._numeric import RPM_PER_RAD_S
 from stillcap._selfcheck import SelfCheck
 from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
@@ -323,8 +324,6 @@ def widen_spin_for_aliases(spin, candidates):
     """
     from dataclasses import replace
 
-    from scipy.stats import norm
-
     w = np.asarray(spin.spin, float)
     extra = np.zeros((3, 3))
     need_rate, need_axis = 0.0, 0.0
@@ -337,7 +336,7 @@ def widen_spin_for_aliases(spin, candidates):
         wc = np.asarray(c.spin, float)
         d = wc - w
         extra += np.outer(d, d)
-        need_rate = max(need_rate, abs(float(np.linalg.norm(wc)) - n) * 60.0 / (2 * np.pi) / norm.ppf(0.975) + s_rate0)
+        need_rate = max(need_rate, abs(float(np.linalg.norm(wc)) - n) * RPM_PER_RAD_S / _ndtri(0.975) + s_rate0)
         if n > 0 and np.linalg.norm(wc) > 0:
             ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(w, wc)), w @ wc))
             need_axis = max(need_axis, float(ang) / np.sqrt(_chi2_ppf(0.95, 2)) + s_axis0)
