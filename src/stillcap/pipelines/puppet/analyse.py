@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from stillcap._blas import one_blas_thread
+from stillcap._blas import one_blas_thread, single_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
 from stillcap.body.puppet_checks import marker_noise_m, partly_hidden_checks, skeleton_checks
@@ -23,6 +23,10 @@ from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views
 from stillcap.detect.palette import Palette
+# imported with the pipeline, not at its first call: reading a capture folder is what
+# analyse_puppet does first, and this module's import builds the capture.json schema (pydantic
+# models, ~15 ms), a one-off cost of the process like every other import
+from stillcap.io.capture import Capture
 from stillcap.pipelines.puppet.options import DEFAULT, PuppetOptions, _options_for
 from stillcap.pipelines.puppet.result import PuppetResult
 from stillcap.pipelines.puppet.stages import (_prepare, detect_view, find_beads, identify_beads, pose_skeleton,
@@ -148,8 +152,6 @@ def capture_markerset(folder, cap=None) -> MarkerSet:
     folder: :func:`body_entry`); captures without one show the thesis's 16 beads. ``cap``: the
     capture already loaded from ``folder``."""
     if cap is None:
-        from stillcap.io.capture import Capture
-
         cap = Capture.load(folder)
     entry = (cap.meta or {}).get("markerset", "puppet-16")
     return body_entry(entry, "markerset", Path(folder), f"capture {folder}", str(Path(folder) / "capture.json"),
@@ -161,8 +163,6 @@ def capture_skeleton(folder, cap=None) -> Skeleton:
     inside the folder, or the whole skeleton file embedded: :func:`body_entry`); captures
     without one: the built-in puppet (:meth:`Skeleton.puppet`)."""
     if cap is None:
-        from stillcap.io.capture import Capture
-
         cap = Capture.load(folder)
     entry = (cap.meta or {}).get("skeleton")
     if entry is None:
@@ -172,16 +172,20 @@ def capture_skeleton(folder, cap=None) -> Skeleton:
 
 
 
-def _capture_inputs(folder: Path):
-    """A puppet capture's pieces: ``(capture, rig, view names, angles, files, markerset, skeleton)``
-    (:func:`capture_markerset`, :func:`capture_skeleton`)."""
-    from stillcap.io.capture import Capture
-
+def _load_capture(folder: Path):
+    """A puppet capture folder's :class:`~stillcap.io.capture.Capture` (ValueError for another
+    kind or one without images)."""
     cap = Capture.load(folder)
     if cap.kind != "puppet":
         raise ValueError(f"capture {folder} is of kind {cap.kind!r}, not 'puppet' (make one with stillcap studio puppet)")
     if not cap.images:
         raise ValueError(f"capture {folder} has no images")
+    return cap
+
+
+def _capture_inputs(folder: Path, cap):
+    """A loaded puppet capture's pieces: ``(rig, view names, angles, files, markerset, skeleton)``
+    (:func:`capture_markerset`, :func:`capture_skeleton`)."""
     cams, names, angles, files = [], [], [], []
     for im in cap.images:
         c = cap.rig[im.camera]
@@ -193,10 +197,9 @@ def _capture_inputs(folder: Path):
     rig = Rig(cams, cap.rig.world)
     markerset = capture_markerset(folder, cap)
     skeleton = capture_skeleton(folder, cap)
-    return cap, rig, names, angles, files, markerset, skeleton
+    return rig, names, angles, files, markerset, skeleton
 
 
-@one_blas_thread
 def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette | None = None,
                      progress: Callable[[int, int], None] | None = None,
                      workers: int = 2, markerset: MarkerSet | None = None,
@@ -211,7 +214,9 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     named by colour together (:func:`~stillcap.detect.beads.identify_views`). The result is the
     same as with ``workers=1`` (decode all, then :func:`~stillcap.pipelines.puppet.stages.detect_view` each). Detecting whole photos
     on two threads was measured slower on the benchmark's two shared cores (the candidate
-    search is mostly small NumPy calls that hold the GIL).
+    search is mostly small NumPy calls that hold the GIL). The decoding starts as soon as the
+    capture is loaded; the rest of the set-up (cameras, marker set, skeleton, BLAS's thread
+    limit: one-off costs of a process's first call) runs on this thread meanwhile.
     Timings: ``read`` is the capture's loading plus the time spent waiting for decoded photos.
     BLAS runs on one thread during the call (see :func:`analyse_puppet_views`).
 
@@ -223,41 +228,54 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     """
     folder = Path(folder)
     t0 = time.perf_counter()
-    cap, rig, names, angles, files, cap_markerset, cap_skeleton = _capture_inputs(folder)
-    markerset = markerset or cap_markerset
-    skeleton = skeleton or cap_skeleton
-    options = _options_for(options, markerset)
-    detections = None
+    cap = _load_capture(folder)
     if workers <= 1 or len(cap.images) <= 1:
-        images = [cap.read_image(im) for im in cap.images]
-        t_read = time.perf_counter() - t0
-    else:
-        t_read = time.perf_counter() - t0
-        if palette is None:  # analyse_puppet_views's default: the marker set's reference colours
-            palette = Palette.from_markerset(markerset)
-        images, detections = [], []
+        with single_blas_thread():
+            rig, names, angles, files, cap_markerset, cap_skeleton = _capture_inputs(folder, cap)
+            markerset = markerset or cap_markerset
+            skeleton = skeleton or cap_skeleton
+            options = _options_for(options, markerset)
+            images = [cap.read_image(im) for im in cap.images]
+            t_read = time.perf_counter() - t0
+            res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options,
+                                       view_names=names, angles_deg=angles, progress=progress,
+                                       source={"type": "capture", "path": str(folder)}, files=files, skeleton=skeleton)
+        res.timings_s = {"read": t_read, **res.timings_s}
+        return res, images
 
-        def read(entry):  # the second thread: decode, and the photo-wide part of the detection
-            # as analyse_puppet_views sees a photo: re-encoded to sRGB through its camera's response
-            img = (options.response or cap.rig[entry.camera].response).as_srgb(cap.read_image(entry))
-            return img, _prepare(img, options)
+    def read(entry, opts=options):  # the second thread: decode, and the photo-wide part of the detection
+        # as analyse_puppet_views sees a photo: re-encoded to sRGB through its camera's response
+        # (the options as given: prepare_view does not use the candidate count _options_for raises)
+        img = (opts.response or cap.rig[entry.camera].response).as_srgb(cap.read_image(entry))
+        return img, _prepare(img, opts)
 
-        candidates, t_det, idents = [], [], []
+    images = []
+    candidates, t_det, idents = [], [], []
+    # the decoding starts as soon as the photos are known: the rest of the set-up (cameras,
+    # marker set, skeleton, BLAS's thread limit) runs here meanwhile
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = [pool.submit(read, im) for im in cap.images]
+        try:
+            with single_blas_thread():
+                rig, names, angles, files, cap_markerset, cap_skeleton = _capture_inputs(folder, cap)
+                markerset = markerset or cap_markerset
+                skeleton = skeleton or cap_skeleton
+                options = _options_for(options, markerset)
+                t_read = time.perf_counter() - t0
+                if palette is None:  # analyse_puppet_views's default: the marker set's reference colours
+                    palette = Palette.from_markerset(markerset)
 
-        def name(upto):  # the photos found so far but not yet named, named by colour together
-            if upto > len(idents):
-                t = time.perf_counter()
-                new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
-                                     options.identify)
-                share = (time.perf_counter() - t) / len(new)
-                for j in range(len(idents), upto):
-                    t_det[j] += share
-                idents.extend(new)
+                def name(upto):  # the photos found so far but not yet named, named by colour together
+                    if upto > len(idents):
+                        t = time.perf_counter()
+                        new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
+                                             options.identify)
+                        share = (time.perf_counter() - t) / len(new)
+                        for j in range(len(idents), upto):
+                            t_det[j] += share
+                        idents.extend(new)
 
-        with ThreadPoolExecutor(max_workers=1) as pool:
-            pending = [pool.submit(read, im) for im in cap.images]
-            stolen = {}
-            try:
+                stolen = {}
                 for k, fut in enumerate(pending):
                     if not fut.done():
                         name(k)  # while the other thread still decodes: name what was found
@@ -280,19 +298,19 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                     t_det.append(time.perf_counter() - t2)
                     if progress is not None:
                         progress(k + 1, len(pending))
-            finally:
-                for fut in pending:
-                    fut.cancel()
-        # every photo's candidates named by colour (identify_views: the same identification as
-        # detect_view's per photo; the photos named together share its small-matrix calls)
-        name(len(images))
-        detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
-    if detections is not None:  # the photos were re-encoded to sRGB as they were decoded: not again
-        rig, options = rig.with_responses(Response.srgb()), replace(options, response=None)
-    res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options, view_names=names,
-                               angles_deg=angles, progress=None if detections is not None else progress,
-                               source={"type": "capture", "path": str(folder)}, files=files, detections=detections,
-                               skeleton=skeleton)
+                # every photo's candidates named by colour (identify_views: the same identification as
+                # detect_view's per photo; the photos named together share its small-matrix calls)
+                name(len(images))
+                detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
+                # the photos were re-encoded to sRGB as they were decoded: not again
+                rig, options = rig.with_responses(Response.srgb()), replace(options, response=None)
+                res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options,
+                                           view_names=names, angles_deg=angles,
+                                           source={"type": "capture", "path": str(folder)}, files=files,
+                                           detections=detections, skeleton=skeleton)
+        finally:
+            for fut in pending:
+                fut.cancel()
     res.timings_s = {"read": t_read, **res.timings_s}
     return res, images
 
