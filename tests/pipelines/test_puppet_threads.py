@@ -41,3 +41,46 @@ def test_photos_decoded_on_both_threads_give_the_serial_result(monkeypatch, capt
     assert len(images) == 12
     assert_same_reconstruction(one, two)
     assert np.isfinite(two.markers.points).all(axis=1).sum() >= 14
+
+
+def test_decoding_starts_before_the_marker_set_is_read(monkeypatch, capture):
+    """The decoding thread starts as soon as capture.json is loaded: the rest of the set-up (marker
+    set, skeleton, BLAS limit: one-off costs of a first call) overlaps it."""
+    import stillcap.pipelines.puppet.analyse as analyse
+
+    started = threading.Event()
+    real_read, real_markerset = Capture.read_image, analyse.capture_markerset
+
+    def read(self, entry):
+        started.set()
+        return real_read(self, entry)
+
+    order = []
+
+    def markerset(folder, cap=None):
+        # waits for the first decode (a safeguard, not a timing: set at once when it has begun)
+        order.append(started.wait(timeout=30))
+        return real_markerset(folder, cap)
+
+    monkeypatch.setattr(Capture, "read_image", read)
+    monkeypatch.setattr(analyse, "capture_markerset", markerset)
+    res, _ = analyse_puppet(capture, workers=2)
+    assert order == [True]
+    assert len(res.names) == 16
+
+
+def test_a_bad_marker_set_stops_the_decoding_thread(tmp_path, capture):
+    """An error in the set-up made while the photos decode is the usual one line, and the decoding
+    thread ends with it (no photos decoded in the background afterwards)."""
+    import json
+    import shutil
+
+    folder = tmp_path / "cap"
+    shutil.copytree(capture, folder)
+    meta = json.loads((folder / "capture.json").read_text())
+    meta["markerset"] = {"file": "beads-missing.json"}
+    (folder / "capture.json").write_text(json.dumps(meta))
+    before = set(threading.enumerate())
+    with pytest.raises(ValueError, match="beads-missing.json"):
+        analyse_puppet(folder, workers=2)
+    assert set(threading.enumerate()) <= before
