@@ -215,7 +215,12 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         radius_px=np.stack([ref_a.radii_px, ref_b.radii_px], axis=1), pairs=m.pairs.copy(),
         epipolar_px=m.distance_px.copy(), reproj_error_px=tri.reproj_error_px, flags=flags.astype(int),
         detections_a=det_a, detections_b=det_b,
-        psf_px=np.array([_psf_of(psf, 0), _psf_of(psf, 1)]))
+        psf_px=np.array([_psf_of(psf, 0), _psf_of(psf, 1)]),
+        shading_px=np.stack([np.linalg.norm(_corr(ref_a), axis=1), np.linalg.norm(_corr(ref_b), axis=1)], axis=1))
+
+
+def _corr(ref: RefinedCenters) -> np.ndarray:
+    return ref.shading_px if ref.shading_px is not None else np.zeros((len(ref), 2))
 
 
 def _psf_option(psf_px):

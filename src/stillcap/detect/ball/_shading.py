@@ -159,29 +159,45 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     r2 = q[0] ** 2 + q[1] ** 2
     n_sat = int(np.count_nonzero((lin >= SATURATED) & (r2 < 1.15 ** 2)))
     if n_sat >= MIN_SATURATED_PX:
-        model = _clipped_model(lin, mid, A, q, light, blur, smooth, band)
-        if model is not None:
-            kf = max(2, int(round(0.3 / fine_step)))
-            return np.array(_model_peak(model, center, tpl, power, fine_step, kf)) - center
+        # a clipped ball's bias (up to ~1 px on a 20 px ball) moves the frame the light is read
+        # in: the centroid's offset from a centre that far toward the light reads a phase too
+        # small; the frame follows the corrected centre (a fixed point, at most 5 rounds)
+        kf = max(2, int(round(0.3 / fine_step)))
+        bias, c = None, np.asarray(center, float)
+        for _ in range(5):
+            mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off)
+            if light_c is None:
+                break
+            model = _clipped_model(lin, mid_c, A_c, q_c, light_c, blur, smooth, band)
+            if model is None:
+                break
+            bias = np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
+            c_new = np.asarray(center, float) - bias
+            if np.hypot(*(c_new - c)) < 0.005:
+                break
+            c = c_new
+        if bias is not None:
+            return bias
     model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=band, q=q), (0, 0), blur)
     kf = max(2, int(round(0.3 / fine_step)))
     return np.array(_model_peak(model, center, tpl, power, fine_step, kf)) - center
 
 
-#: linear radiance at which a pixel counts as clipped (code 254.5 of 255 in sRGB; every
-#: response maps the top code to 1)
-SATURATED = 0.99
+#: linear radiance from which a pixel counts as clipped: code ~250 of 255 in sRGB (JPEG
+#: smears a clipped plateau over the top codes); every response maps the top code to 1
+SATURATED = 0.95
 #: clipped pixels within a ball's outline from which its shading is modelled as clipped
 MIN_SATURATED_PX = 3
 
 
-def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: float, rounds: int = 2):
+def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: float, rounds: int = 5):
     """The model ball of :func:`_shading_bias` as a sensor that clips makes it (None when its
     gain cannot be had): ``min(gain x G_psf(radiance) + level, 1)`` smoothed by ``smooth``,
-    with ``psf = sqrt(blur^2 - smooth^2)``; gain and level by least squares over the unclipped
-    pixels within 1.3 outline radii. The light's phase angle, read from the clipped photo's
-    radiance centroid (which clipping pulls toward the middle), is moved by the difference
-    between the clipped model's centroid and the sharp table's, ``rounds`` times."""
+    with ``psf = sqrt(blur^2 - smooth^2)``; the level is the median beyond 1.3 outline radii,
+    the gain the one that puts as many pixels within 1.15 radii at or above ``SATURATED`` as
+    the photo has. The light's phase angle is the one whose clipped model has the photo's
+    radiance centroid (clipping pulls it toward the middle, so the sharp table's phase is too
+    small): secant steps from the table's, at most ``rounds``."""
     psf = float(np.sqrt(max(blur * blur - smooth * smooth, 0.0)))
     r2 = q[0] ** 2 + q[1] ** 2
     inside = r2 < 1.15 ** 2
@@ -191,11 +207,10 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
     if not (np.isfinite(m_obs) and n_sat >= 1 and np.any(ring)):
         return None
     level = float(median(lin[ring]))
-    a_obs = _phase_from_centroid(m_obs)
     a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
     az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
-    clipped = None
-    for k in range(rounds + 1):
+
+    def clipped_at(a):
         lt = (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
         sharp = _lit_sphere_image(lin.shape, mid, A, lt, band_px=band, q=q)
         m = cv2.GaussianBlur(sharp, (0, 0), psf) if psf > 0.05 else sharp
@@ -203,15 +218,27 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
         # pins it: a fit to the unclipped pixels leans on the dim limb and the background)
         mv = np.sort(m[inside])[::-1]
         if n_sat > len(mv) or not mv[n_sat - 1] > 0:
-            return None
-        g = (1.0 - level) / float(mv[n_sat - 1])
-        clipped = np.minimum(g * m + level, 1.0).astype(np.float32)
-        if k == rounds:
+            return None, float("nan")
+        g = (SATURATED - level) / float(mv[n_sat - 1])
+        img = np.minimum(g * m + level, 1.0).astype(np.float32)
+        return img, _window_centroid(img, q) - m_obs
+
+    # the phase whose clipped model has the photo's centroid: secant steps from the sharp
+    # table's phase (the clipped centroid moves little with the phase: fixed-point steps crawl)
+    clipped, f = clipped_at(a)
+    if clipped is None:
+        return None
+    a_prev, f_prev = a, f
+    a = a + np.radians(5.0) * (1.0 if f < 0 else -1.0)
+    for _ in range(rounds):
+        a = float(np.clip(a, 0.0, np.radians(175.0)))
+        img, f = clipped_at(a)
+        if img is None or not np.isfinite(f):
             break
-        m_mod = _window_centroid(clipped, q)
-        if not np.isfinite(m_mod):
+        clipped = img
+        if abs(f) < 1e-4 or f == f_prev:
             break
-        a = float(np.clip(a + a_obs - _phase_from_centroid(m_mod), 0.0, np.radians(175.0)))
+        a, a_prev, f_prev = a - f * (a - a_prev) / (f - f_prev), a, f
     return cv2.GaussianBlur(clipped, (0, 0), smooth) if smooth > 0 else clipped
 
 
@@ -288,53 +315,3 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
     step = float(_BLUR_GRID[1] - _BLUR_GRID[0])
     return float(_BLUR_GRID[k] + np.clip(d, -0.5, 0.5) * step)
 
-
-def limb_fit_shift(lin: np.ndarray, center, off: np.ndarray, blur: float, rounds: int = 3) -> np.ndarray:
-    """Shift (2,) px that moves the shaded-sphere model onto the ball image: the ball's centre
-    from its whole limb and shading rather than the lit limb's gradient.
-
-    The model of :func:`_shading_bias` (lit from the direction the radiance centroid gives,
-    blurred by ``blur``) is fitted to the linear crop ``lin`` as ``gain x model(x - d) + level``
-    over the band ``0.5 < rho < 1.4`` of outline radii, by Gauss-Newton in the shift ``d`` with
-    the gain and level linear, each round re-rendered at the shifted centre. Painted markers are
-    darker than the model: pixels whose residual is large (Tukey's biweight, 4.685 robust
-    sigmas) weigh less. NaN when the image has no lit radiance.
-    """
-    lin = np.asarray(lin, np.float32)
-    center = np.asarray(center, float)
-    mid0, A, q, light = _lit_frame(lin, center, off)
-    if light is None:
-        return np.full(2, np.nan)
-    Ai = np.linalg.inv(A)
-    h, w = lin.shape
-    d = np.zeros(2)
-    r2 = q[0] ** 2 + q[1] ** 2
-    band = (r2 > 0.5 ** 2) & (r2 < 1.4 ** 2)
-    y = lin[band].astype(float)
-    wgt = np.ones_like(y)
-    for _ in range(rounds):
-        mid = mid0 + d
-        xy = np.empty((2, h, w))
-        xy[0] = np.arange(w) - mid[0]
-        xy[1] = (np.arange(h) - mid[1])[:, None]
-        qq = np.einsum("ij,jhw->ihw", Ai, xy)
-        model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=4.0 * blur + 4.0, q=qq),
-                                 (0, 0), blur)
-        gy, gx = np.gradient(model.astype(float))
-        m = model[band].astype(float)
-        X = np.stack([m, np.ones_like(m), gx[band], gy[band]], axis=1)
-        # y ~ g m(x - dd) + l ~ g m - g grad(m) dd + l: solve for (g, l, -g dd) by weighted LS
-        sw = np.sqrt(wgt)
-        coef = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)[0]
-        g = coef[0]
-        if not g > 0:
-            return np.full(2, np.nan)
-        dd = -coef[2:] / g
-        res = y - X @ coef
-        sc = 1.4826 * float(np.median(np.abs(res - np.median(res)))) + 1e-9
-        u = res / (4.685 * sc)
-        wgt = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
-        d = d + np.clip(dd, -1.0, 1.0)
-        if np.hypot(*dd) < 0.005:
-            break
-    return d
