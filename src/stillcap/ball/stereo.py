@@ -135,7 +135,7 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         (:func:`stillcap.detect.ball._shading._shading_bias`).
     psf_px : "auto", float or pair of floats
         Lens blur (Gaussian sigma, px) of the photos for the shading correction. ``"auto"``
-        (default): each photo's own, read from its ball images' limbs after the first round
+        (default): each photo's own, read from up to 8 of its ball images' limbs after the first round
         (:func:`photo_blur_px`; ``DEFAULT_PSF_PX`` where it cannot be read, e.g. with one round).
         A blur of 1.5 px the correction took for 0.5 px left the back cameras' centres of a
         studio pitch 0.5-0.7 px toward the light.
@@ -241,7 +241,7 @@ def _psf_of(psf, i: int) -> float:
     return float(psf[i])
 
 
-def photo_blur_px(image, centers, outlines, response=None, max_images: int = 12) -> float:
+def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8) -> float:
     """Lens blur (Gaussian sigma, px) of a photo: the median of :func:`limb_blur_px` over up to
     ``max_images`` of its ball images (spread evenly over them), NaN when none gives one.
 

@@ -268,8 +268,9 @@ def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int
     return bx + ddx * step, by + ddy * step
 
 
-#: lens blurs (Gaussian sigma, px) :func:`limb_blur_px` tries; the best is refined by a parabola
-_BLUR_GRID = np.round(np.arange(0.1, 3.01, 0.1), 2)
+#: lens blurs (Gaussian sigma, px) :func:`limb_blur_px` tries, finer where pixel integration
+#: and blur are alike; the best is refined by a parabola through its neighbours
+_BLUR_GRID = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.4, 1.6, 1.85, 2.1, 2.4, 2.7, 3.0])
 
 
 def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
@@ -301,17 +302,18 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
         return float("nan")
     model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=float(_BLUR_GRID[-1]) * 4.0 + 4.0, q=q)
     y = lin[band].astype(float)
+    y = y - y.mean()
+    yy = float(y @ y)
     sse = np.empty(len(_BLUR_GRID))
     for k, s in enumerate(_BLUR_GRID):
         m = cv2.GaussianBlur(model0, (0, 0), float(s))[band].astype(float)
-        X = np.stack([m, np.ones_like(m)], axis=1)
-        coef, res, *_ = np.linalg.lstsq(X, y, rcond=None)
-        sse[k] = float(res[0]) if len(res) else float(np.sum((X @ coef - y) ** 2))
+        m = m - m.mean()
+        mm = float(m @ m)
+        # the misfit of y ~ gain m + level after the least-squares gain and level
+        sse[k] = yy - (float(m @ y) ** 2 / mm if mm > 0 else 0.0)
     k = int(np.argmin(sse))
     if k == 0 or k == len(_BLUR_GRID) - 1:
         return float("nan")
-    den = sse[k - 1] - 2.0 * sse[k] + sse[k + 1]
-    d = 0.5 * (sse[k - 1] - sse[k + 1]) / den if den > 0 else 0.0
-    step = float(_BLUR_GRID[1] - _BLUR_GRID[0])
-    return float(_BLUR_GRID[k] + np.clip(d, -0.5, 0.5) * step)
-
+    x0, x1, x2 = _BLUR_GRID[k - 1:k + 2]
+    c2, c1, _ = np.polyfit([x0, x1, x2], sse[k - 1:k + 2], 2)
+    return float(np.clip(-c1 / (2.0 * c2), x0, x2)) if c2 > 0 else float(x1)
