@@ -139,6 +139,20 @@ def summarise(condition: str, rs: list) -> dict:
         else:
             out[f"cov_{k}"] = float(np.mean(xs)) if xs else float("nan")
             out[f"cov_{k}_n"] = len(xs)
+    # z = error / sigma (mean and spread over the captures): a mean off 0 is a shared bias the
+    # intervals miss, a spread above 1 sigmas too small, below 1 too large
+    for key, err, sig, i in (("speed", "speed_mph", "speed_sigma_mph", None),
+                             ("dir_h", "dir_err_hv_deg", "dir_sigma_hv_deg", 0),
+                             ("dir_v", "dir_err_hv_deg", "dir_sigma_hv_deg", 1)):
+        z = []
+        for r in ok:
+            e, s = r.get(err), r.get(sig)
+            if i is not None:
+                e, s = (e[i], s[i]) if e is not None and s is not None else (None, None)
+            if e is not None and s is not None and np.isfinite(e) and np.isfinite(s) and s > 0:
+                z.append(e / s)
+        out[f"z_{key}_mean"] = float(np.mean(z)) if z else float("nan")
+        out[f"z_{key}_sd"] = float(np.std(z)) if z else float("nan")
     out["checks_fired"] = float(np.mean([bool(r.get("checks_failed")) for r in ok])) if ok else float("nan")
     names = sorted({c for r in ok for c in r.get("checks_failed", [])})
     out["checks"] = {c: sum(c in r.get("checks_failed", []) for r in ok) for c in names}
@@ -166,17 +180,23 @@ def run(conditions, n: int, seed: int, size, jobs: int, progress=None) -> list[d
 
 
 def rows(quick: bool = False, n: int | None = None, seed: int = 0, jobs: int | None = None,
-         progress=None, captures: list | None = None) -> list[dict]:
+         progress=None, captures: list | None = None, conditions=None) -> list[dict]:
     """One dict per condition (``pipeline``, ``condition``, ``n``, the metric keys).
 
     quick: 1280x960 photos and 6 captures per condition (about 3 min on 2 cores); else
     2560x1920 and 40 per condition (about 30 min on 2 quiet cores). ``captures``, a list, gets
-    the per-capture rows as well.
+    the per-capture rows as well; ``conditions`` (names of ``CONDITIONS``) runs only those.
+    Each row also has the z-scores' mean and spread (``z_speed_mean``, ``z_speed_sd``,
+    ``z_dir_h_*``, ``z_dir_v_*``).
     """
     size = (1280, 960) if quick else (2560, 1920)
     n = n or (6 if quick else 40)
     jobs = jobs or min(2, os.cpu_count() or 1)
-    per = run(list(CONDITIONS), n, seed, size, jobs, progress)
+    conds = list(CONDITIONS) if conditions is None else list(conditions)
+    unknown = [c for c in conds if c not in CONDITIONS]
+    if unknown:
+        raise ValueError(f"unknown pitch conditions {unknown}; known: {list(CONDITIONS)}")
+    per = run(conds, n, seed, size, jobs, progress)
     if captures is not None:
         captures.extend(per)
-    return [summarise(c, [r for r in per if r["condition"] == c]) for c in CONDITIONS]
+    return [summarise(c, [r for r in per if r["condition"] == c]) for c in conds]

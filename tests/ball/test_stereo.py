@@ -59,3 +59,25 @@ def test_bad_stereo_input_names_the_shape():
         ball_centers_stereo(a, z, b, z, -1.0)
     with pytest.raises(ValueError, match="stillcap Camera"):
         ball_centers_stereo("a", z, b, z, R_BALL)
+
+
+def test_stereo_pair_reads_the_lens_blur_and_corrects_every_ball():
+    """The photos' lens blur is read from the ball images' limbs (``psf_px="auto"``) and the
+    shading correction runs on every match (full discs too); a stated blur is used as given,
+    ``shading="partial"`` corrects only half moons, and a wrong ``psf_px`` is named."""
+    a, b = front_pair()
+    ia = draw_balls_camera(a, FLIGHT, R_BALL, blur=1.2, rng=11)
+    ib = draw_balls_camera(b, FLIGHT, R_BALL, blur=1.2, rng=12)
+    res = ball_centers_stereo(a, ia, b, ib, R_BALL)
+    assert np.all(np.abs(res.psf_px - 1.2) < 0.18), res.psf_px
+    assert np.all(res.shading_px > 0)  # full discs are corrected too
+    stated = ball_centers_stereo(a, ia, b, ib, R_BALL, psf_px=(0.5, 0.7))
+    np.testing.assert_array_equal(stated.psf_px, [0.5, 0.7])
+    partial = ball_centers_stereo(a, ia, b, ib, R_BALL, shading="partial")
+    assert not np.any(partial.shading_px)  # full discs: not PARTIAL, not corrected
+    order = np.argsort(res.points_3d[:, 0])
+    assert np.linalg.norm(res.points_3d[order] - FLIGHT, axis=1).max() * 1e3 < 1.0
+    with pytest.raises(ValueError, match="psf_px must be 'auto' or a blur in px"):
+        ball_centers_stereo(a, ia, b, ib, R_BALL, psf_px="sharp")
+    with pytest.raises(ValueError, match="psf_px must be >= 0 px"):
+        ball_centers_stereo(a, ia, b, ib, R_BALL, psf_px=-1.0)

@@ -355,3 +355,32 @@ def test_position_covariances_edge_cases_and_bad_inputs():
         position_covariances(r, S, dof_ratio=0.5)
     with pytest.raises(ValueError, match=r"shared_modes must have shape \(M, 3, 3\)"):
         position_covariances(r, S, np.zeros((2, 4, 3)))
+
+
+def test_remaining_bias_grows_with_the_shading_correction_made():
+    """Where the stereo step corrected the ball images' shading (``StereoBalls.shading_px``),
+    every image counts as corrected and its remaining-bias sigma is the model's own error and
+    ``model_error`` times the correction in quadrature: the modes grow with both, and a
+    ``model_error`` of 0 leaves the model's own."""
+    from detect.test_ball import FLIGHT, R_BALL, draw_balls_camera, front_pair
+    from stillcap.ball.stereo import ball_centers_stereo
+    from stillcap.ball.uncertainty import remaining_bias_modes
+
+    a, b = front_pair()
+    light = (1.0, 0.0, 0.3)  # half moons: a correction of ~0.1-0.2 px
+    st = ball_centers_stereo(a, draw_balls_camera(a, FLIGHT, R_BALL, light_world=light, rng=11),
+                             b, draw_balls_camera(b, FLIGHT, R_BALL, light_world=light, rng=12), R_BALL)
+    assert st.shading_px.shape == (len(st), 2) and np.all(st.shading_px > 0.02)
+    x = np.stack([st.centers_a, st.centers_b])
+    flags = np.zeros(len(st), int)  # not PARTIAL: the corrections alone make them corrected
+    m0 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.0)
+    m1 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5)
+    m2 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 1.0)
+    size = [float(np.sqrt(np.sum(m ** 2))) for m in (m0, m1, m2)]
+    assert 0 < size[0] < size[1] < size[2]
+    # corrected images move along their lit direction only: the per-axis full-disc modes are empty
+    assert np.all(m1[[2, 3, 4, 5, 8, 9, 10, 11]] == 0)
+    # a stereo result without the record (an older one) keeps the former sizing
+    st.shading_px = None
+    np.testing.assert_array_equal(remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5),
+                                  remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.0))

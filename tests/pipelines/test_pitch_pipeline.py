@@ -210,6 +210,8 @@ def test_bad_uncertainty_options():
         PitchOptions(calibration_focal_sigma=-1e-4)
     with pytest.raises(ValueError, match="calibration_focal_sigma must be >= 0"):
         PitchOptions(calibration_focal_sigma=float("nan"))
+    with pytest.raises(ValueError, match="shading_model_error must be >= 0"):
+        PitchOptions(shading_model_error=-0.1)
 
 
 def test_threads_do_not_change_the_result(fastball, result):

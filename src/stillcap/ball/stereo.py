@@ -16,10 +16,15 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
                                   sphere_outline_px)
 from stillcap.detect.ball._foreground import _check_image
+from stillcap.detect.ball._refine import _linear_max, _response_lut
+from stillcap.detect.ball._shading import limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
 
-__all__ = ["StereoBalls", "ball_centers_stereo"]
+__all__ = ["StereoBalls", "ball_centers_stereo", "photo_blur_px"]
+
+#: lens blur (Gaussian sigma, px) assumed where a photo's own cannot be read from its ball images
+DEFAULT_PSF_PX = 0.5
 
 
 @dataclass
@@ -48,6 +53,12 @@ class StereoBalls:
         :class:`BallFlag` bits of both views, OR-ed.
     detections_a, detections_b : BallDetections
         All detections in each photo (with refined centres where matched).
+    psf_px : ndarray, shape (2,)
+        Lens blur (Gaussian sigma, px) of photo a and b the shading correction used: read from
+        the ball images' limbs (:func:`photo_blur_px`) or stated.
+    shading_px : ndarray, shape (K, 2)
+        Length of the shading correction applied to each match's centre in camera a and b (px;
+        0 where none ran).
     """
 
     points_3d: np.ndarray
@@ -63,6 +74,14 @@ class StereoBalls:
     flags: np.ndarray
     detections_a: BallDetections
     detections_b: BallDetections
+    psf_px: np.ndarray = None
+    shading_px: np.ndarray = None
+
+    def __post_init__(self):
+        if self.psf_px is None:
+            self.psf_px = np.full(2, DEFAULT_PSF_PX)
+        if self.shading_px is None:
+            self.shading_px = np.zeros((len(self.points_3d), 2))
 
     def __len__(self) -> int:
         return len(self.points_3d)
@@ -79,7 +98,7 @@ class StereoBalls:
 def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_m: float,
                         background_a=None, background_b=None, max_epipolar_px: float | None = None,
                         iterations: int = 2, size_tolerance: float = 0.35, shading: bool = True,
-                        **detect_kwargs) -> StereoBalls:
+                        psf_px="auto", **detect_kwargs) -> StereoBalls:
     """Ball centres of a stereo pair of multi-exposure photos (steps 1-5 of SPEC J1).
 
     Parameters
@@ -104,10 +123,22 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
     size_tolerance : float
         Relative difference between the ellipse's semi-major axis and the projected radius above
         which a match is flagged ``SIZE_MISMATCH`` (a wrong match triangulates at a wrong depth).
-    shading : bool
+    shading : bool or "partial"
         Correct the last round's centres for the shading of a lit sphere
-        (:func:`refine_ball_centers`' ``shading``), in both views of every match where either
-        silhouette is flagged ``PARTIAL`` (a correction in one view only moves the depth).
+        (:func:`refine_ball_centers`' ``shading``): ``True`` (default) in both views of every
+        match, ``"partial"`` only in both views of the matches where either silhouette is
+        flagged ``PARTIAL`` (the former default; a correction in one view only moves the depth),
+        ``False`` nowhere. Full discs lit at 10-30 deg from the camera are biased too: on studio
+        pitches with the light beside the cameras the back pair's refined centres sat 0.1-0.25 px
+        toward the light uncorrected (its positions 2.8 mm short along the flight, 0.9 mm
+        corrected), and clipped (over-exposed) balls more, which the correction models
+        (:func:`stillcap.detect.ball._shading._shading_bias`).
+    psf_px : "auto", float or pair of floats
+        Lens blur (Gaussian sigma, px) of the photos for the shading correction. ``"auto"``
+        (default): each photo's own, read from up to 8 of its ball images' limbs after the first round
+        (:func:`photo_blur_px`; ``DEFAULT_PSF_PX`` where it cannot be read, e.g. with one round).
+        A blur of 1.5 px the correction took for 0.5 px left the back cameras' centres of a
+        studio pitch 0.5-0.7 px toward the light.
     **detect_kwargs
         Passed to :func:`detect_balls` (``min_area``, ``threshold``, ...).
 
@@ -145,19 +176,25 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
     search_a = search_b = None
     ref_a = ref_b = None
     part = det_a.has(BallFlag.PARTIAL)[ia] | det_b.has(BallFlag.PARTIAL)[ib]
+    psf = _psf_option(psf_px)
     for it in range(iterations):
         pa, oa, ra = sphere_outline_px(cam_a, X, ball_radius_m)
         pb, ob, rb = sphere_outline_px(cam_b, X, ball_radius_m)
+        if psf is None and it == iterations - 1 and it > 0 and shading:
+            # the photos' blur from the ball images at the latest refined centres (the first
+            # round's start, the ellipse centres, lies up to 0.4 r off)
+            psf = np.array([photo_blur_px(img_a, ca, oa - pa[:, None], cam_a.response),
+                            photo_blur_px(img_b, cb, ob - pb[:, None], cam_b.response)])
         # the Hough template is the outline relative to the projected sphere centre, so the
         # refined point is the image of the sphere centre (not the centre of its ellipse)
         # the shading correction only in the last round: earlier rounds only place the outlines
         # (both views of a match, where either silhouette is a half moon: a correction in one view
         # only would move the triangulated depth)
-        sh = part if shading and it == iterations - 1 else False
+        sh = (part if shading == "partial" else np.ones(K, bool)) if shading and it == iterations - 1 else False
         ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0,
-                                    shading=sh, response=cam_a.response)
+                                    shading=sh, response=cam_a.response, psf_px=_psf_of(psf, 0))
         ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0,
-                                    shading=sh, response=cam_b.response)
+                                    shading=sh, response=cam_b.response, psf_px=_psf_of(psf, 1))
         ca, cb = ref_a.centers, ref_b.centers
         tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))  # the last round's is the result
         X = tri.points
@@ -177,7 +214,69 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         centers_a_undistorted=cam_a.undistort_points(ca), centers_b_undistorted=cam_b.undistort_points(cb),
         radius_px=np.stack([ref_a.radii_px, ref_b.radii_px], axis=1), pairs=m.pairs.copy(),
         epipolar_px=m.distance_px.copy(), reproj_error_px=tri.reproj_error_px, flags=flags.astype(int),
-        detections_a=det_a, detections_b=det_b)
+        detections_a=det_a, detections_b=det_b,
+        psf_px=np.array([_psf_of(psf, 0), _psf_of(psf, 1)]),
+        shading_px=np.stack([np.linalg.norm(_corr(ref_a), axis=1), np.linalg.norm(_corr(ref_b), axis=1)], axis=1))
+
+
+def _corr(ref: RefinedCenters) -> np.ndarray:
+    return ref.shading_px if ref.shading_px is not None else np.zeros((len(ref), 2))
+
+
+def _psf_option(psf_px):
+    """``ball_centers_stereo``'s ``psf_px`` -> None (estimate) or an array (2,) of px."""
+    if isinstance(psf_px, str):
+        if psf_px != "auto":
+            raise ValueError(f"psf_px must be 'auto' or a blur in px, got {psf_px!r}")
+        return None
+    p = np.broadcast_to(np.asarray(psf_px, float), (2,)).copy()
+    if not np.all(np.isfinite(p) & (p >= 0)):
+        raise ValueError(f"psf_px must be >= 0 px, got {psf_px}")
+    return p
+
+
+def _psf_of(psf, i: int) -> float:
+    if psf is None or not np.isfinite(psf[i]):
+        return DEFAULT_PSF_PX
+    return float(psf[i])
+
+
+def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8) -> float:
+    """Lens blur (Gaussian sigma, px) of a photo: the median of :func:`limb_blur_px` over up to
+    ``max_images`` of its ball images (spread evenly over them), NaN when none gives one.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3)
+        The photo (8-bit scale), linearised through ``response``.
+    centers : array_like, shape (N, 2)
+        Ball centres (raw px), refined ones: the limb's model is placed there.
+    outlines : array_like, shape (N, M, 2)
+        Each ball's projected outline relative to its centre (:func:`sphere_outline_px`).
+    response : Response or its rig-file form, optional
+        The camera's response (default sRGB).
+    """
+    img = _check_image(image)
+    c = np.asarray(centers, float).reshape(-1, 2)
+    off = np.asarray(outlines, float)
+    ok = np.flatnonzero(np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(off), axis=(1, 2)))
+    if not len(ok):
+        return float("nan")
+    pick = ok[np.unique(np.linspace(0, len(ok) - 1, min(max_images, len(ok))).round().astype(int))]
+    lut = _response_lut(response)
+    H, W = img.shape[:2]
+    est = []
+    for i in pick:
+        ext = float(np.abs(off[i]).max()) + 6.0
+        x0, y0 = int(np.floor(c[i, 0] - ext)), int(np.floor(c[i, 1] - ext))
+        x1, y1 = int(np.ceil(c[i, 0] + ext)) + 1, int(np.ceil(c[i, 1] + ext)) + 1
+        if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
+            continue  # a ball cut by the photo's edge: its limb is not all there
+        lin = _linear_max(img[y0:y1, x0:x1], lut)
+        est.append(limb_blur_px(lin, c[i] - (x0, y0), off[i]))
+    est = np.asarray(est, float)
+    est = est[np.isfinite(est)]
+    return float(np.median(est)) if len(est) else float("nan")
 
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:

@@ -446,16 +446,34 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     return out
 
 
-def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px) -> np.ndarray:
+def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error: float = 0.0) -> np.ndarray:
     """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
-    (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras)."""
+    (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras).
+
+    Where the stereo step corrected every ball image (``stereo.shading_px``, the correction's
+    length per image and camera, set), every image counts as corrected, and its remaining bias is
+    the model's own error (:func:`shading_residual_lookup`) and ``model_error`` times the
+    correction made, in quadrature: the share of the correction the model may have wrong (its
+    light, blur, clipping and lambertian leather are estimates or assumptions), the same share
+    for every image of a camera (the ``lit_bias_modes`` are shared by the camera's images).
+    """
     u, phase, corr = lit_geometry(stereo, centers_px, flags, radius_px)
+    shading_px = getattr(stereo, "shading_px", None)
+    x = np.asarray(centers_px, float)
+    made = None
+    if shading_px is not None and len(stereo.centers_a) and x.shape[1]:
+        # the stereo rows of the pair's centres (as lit_geometry finds them)
+        row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
+        made = np.asarray(shading_px, float)[row].T  # (2, K)
+        corr = corr | np.any(made > 0, axis=0)
     # full discs (not PARTIAL, phase below ~55 deg) as lit from the camera: there the model's
     # offset swings by ~0.1 px within 10 deg of phase, finer than the silhouette's area resolves
     # (a thresholded full disc loses its dim limb: 0.96-1.11 of pi r^2 from 0 to 30 deg), and
     # against the truth the front pair's (phase ~10 deg) per-camera bias was 0.016-0.020 px
     phase = np.where(corr[None, :], phase, 0.0)
     s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
+    if made is not None and model_error > 0:
+        s = np.hypot(s, model_error * made)
     return lit_bias_modes(cams, centers_px, u, s, corr)
 
 

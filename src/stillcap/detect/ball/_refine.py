@@ -162,6 +162,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
     out_c = c0.copy()
     scores = np.zeros(n)
     flags = np.zeros(n, int)
+    corr = np.zeros((n, 2))
     H, W = img.shape[:2]
     for i in range(n):
         r = radii[i]
@@ -241,6 +242,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
             flags[i] = BallFlag.REFINE_FAILED
             continue
         if shade[i] if shade is not None else (shading and support < shading_support):
-            best = best - _shading_bias(lin, best, off, tpl, power, np.hypot(sigma, psf_px), fine_step)
+            corr[i] = _shading_bias(lin, best, off, tpl, power, np.hypot(sigma, psf_px), fine_step, smooth=sigma)
+            best = best - corr[i]
         out_c[i] = best + (xa, ya)
-    return RefinedCenters(out_c, radii.copy(), scores, out_c - c0, flags)
+    return RefinedCenters(out_c, radii.copy(), scores, out_c - c0, flags, corr)

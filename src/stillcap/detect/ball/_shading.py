@@ -98,21 +98,10 @@ def _phase_from_centroid(m: float) -> float:
     return float(np.interp(m, table, alpha))
 
 
-def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
-                  blur: float, fine_step: float) -> np.ndarray:
-    """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
-
-    The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
-    fast (``n . l`` with ``n_z = sqrt(1 - rho^2)``), falling toward the limb when the ball is
-    lit from the front and rising when lit from behind (a half moon's thin bright rim). Blurred,
-    that moves the lit limb's gradient peak in or out by a fraction of a pixel, and the Hough
-    centre with it along the lit direction (noise-free model: -0.1 px at a 45 deg phase angle,
-    +0.1 px at 90 deg, +0.25 px at 110 deg for a 20 px ball). The phase angle is read from the
-    image: the radiance centroid of the ball (blur does not move it) lies a known distance from
-    the centre for each phase angle (:func:`_centroid_table`), toward the light. The model ball
-    lit so is rendered at the Hough centre, blurred like the photo (``blur``: lens PSF and the
-    refinement's own smoothing), and the same Hough run on it gives the offset.
-    """
+def _lit_frame(lin: np.ndarray, center, off: np.ndarray):
+    """The outline's middle, its ellipse ``A``, the outline-normalised coordinates ``q`` (2, H, W)
+    of the crop's pixels and the light direction read from the ball image's radiance centroid
+    (:func:`_shading_bias`; None when the image has no radiance above its surroundings)."""
     # the outline's own middle: off axis the image of the sphere centre is not the middle of
     # its (elongated) outline; the shading is modelled about the middle, orthographically
     mid = center + off.mean(axis=0)
@@ -129,19 +118,141 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     wgt = np.where(r2 < 1.15 ** 2, np.maximum(lin - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
-        return np.zeros(2)
+        return mid, A, q, None
     mq = np.array([np.sum(wgt * q[0]), np.sum(wgt * q[1])]) / tot
     mn = float(np.hypot(*mq))
     if not np.isfinite(mn) or mn < 1e-6:
-        return np.zeros(2)
+        return mid, A, q, None
     a = _phase_from_centroid(mn)
-    light = (np.sin(a) * mq[0] / mn, np.sin(a) * mq[1] / mn, np.cos(a))
+    return mid, A, q, (np.sin(a) * mq[0] / mn, np.sin(a) * mq[1] / mn, np.cos(a))
+
+
+def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
+                  blur: float, fine_step: float, smooth: float = 0.7) -> np.ndarray:
+    """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
+
+    The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
+    fast (``n . l`` with ``n_z = sqrt(1 - rho^2)``), falling toward the limb when the ball is
+    lit from the front and rising when lit from behind (a half moon's thin bright rim). Blurred,
+    that moves the lit limb's gradient peak in or out by a fraction of a pixel, and the Hough
+    centre with it along the lit direction (noise-free model: -0.1 px at a 45 deg phase angle,
+    +0.1 px at 90 deg, +0.25 px at 110 deg for a 20 px ball). The phase angle is read from the
+    image: the radiance centroid of the ball (blur does not move it) lies a known distance from
+    the centre for each phase angle (:func:`_centroid_table`), toward the light. The model ball
+    lit so is rendered at the Hough centre, blurred like the photo (``blur``: lens PSF and the
+    refinement's own smoothing), and the same Hough run on it gives the offset.
+
+    A ball image with clipped pixels (at least ``MIN_SATURATED_PX`` at the top code, the
+    brightest channel, within the outline) is modelled as the sensor made it
+    (:func:`_clipped_model`): the model blurred by the lens alone (``blur`` less the
+    refinement's smoothing ``smooth``, ``refine_ball_centers``' ``sigma``), scaled to the photo,
+    clipped, then smoothed. A flattened lit side has a hard edge and moves the Hough centre toward
+    the light (studio pitch, light beside the back cameras: 0.24 px at 1280 px) which the
+    unclipped model did not predict.
+    """
+    mid, A, q, light = _lit_frame(lin, center, off)
+    if light is None:
+        return np.zeros(2)
     # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
     # and the Hough's search around the centre from the limb, a pixel cannot change the result
     band = 4.0 * blur + 4.0
+    r2 = q[0] ** 2 + q[1] ** 2
+    n_sat = int(np.count_nonzero((lin >= SATURATED) & (r2 < 1.15 ** 2)))
+    if n_sat >= MIN_SATURATED_PX:
+        # a clipped ball's bias (up to ~1 px on a 20 px ball) moves the frame the light is read
+        # in: the centroid's offset from a centre that far toward the light reads a phase too
+        # small; the frame follows the corrected centre (a fixed point, at most 5 rounds)
+        kf = max(2, int(round(0.3 / fine_step)))
+        bias, c = None, np.asarray(center, float)
+        for _ in range(5):
+            mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off)
+            if light_c is None:
+                break
+            model = _clipped_model(lin, mid_c, A_c, q_c, light_c, blur, smooth, band)
+            if model is None:
+                break
+            bias = np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
+            c_new = np.asarray(center, float) - bias
+            if np.hypot(*(c_new - c)) < 0.005:
+                break
+            c = c_new
+        if bias is not None:
+            return bias
     model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=band, q=q), (0, 0), blur)
     kf = max(2, int(round(0.3 / fine_step)))
     return np.array(_model_peak(model, center, tpl, power, fine_step, kf)) - center
+
+
+#: linear radiance from which a pixel counts as clipped: code ~250 of 255 in sRGB (JPEG
+#: smears a clipped plateau over the top codes); every response maps the top code to 1
+SATURATED = 0.95
+#: clipped pixels within a ball's outline from which its shading is modelled as clipped
+MIN_SATURATED_PX = 3
+
+
+def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: float, rounds: int = 5):
+    """The model ball of :func:`_shading_bias` as a sensor that clips makes it (None when its
+    gain cannot be had): ``min(gain x G_psf(radiance) + level, 1)`` smoothed by ``smooth``,
+    with ``psf = sqrt(blur^2 - smooth^2)``; the level is the median beyond 1.3 outline radii,
+    the gain the one that puts as many pixels within 1.15 radii at or above ``SATURATED`` as
+    the photo has. The light's phase angle is the one whose clipped model has the photo's
+    radiance centroid (clipping pulls it toward the middle, so the sharp table's phase is too
+    small): secant steps from the table's, at most ``rounds``."""
+    psf = float(np.sqrt(max(blur * blur - smooth * smooth, 0.0)))
+    r2 = q[0] ** 2 + q[1] ** 2
+    inside = r2 < 1.15 ** 2
+    ring = r2 > 1.3 ** 2
+    n_sat = int(np.count_nonzero((lin >= SATURATED) & inside))
+    m_obs = _window_centroid(lin, q)
+    if not (np.isfinite(m_obs) and n_sat >= 1 and np.any(ring)):
+        return None
+    level = float(median(lin[ring]))
+    a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
+    az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
+
+    def clipped_at(a):
+        lt = (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
+        sharp = _lit_sphere_image(lin.shape, mid, A, lt, band_px=band, q=q)
+        m = cv2.GaussianBlur(sharp, (0, 0), psf) if psf > 0.05 else sharp
+        # the gain that clips as many pixels as the photo has clipped (the clipped area is what
+        # pins it: a fit to the unclipped pixels leans on the dim limb and the background)
+        mv = np.sort(m[inside])[::-1]
+        if n_sat > len(mv) or not mv[n_sat - 1] > 0:
+            return None, float("nan")
+        g = (SATURATED - level) / float(mv[n_sat - 1])
+        img = np.minimum(g * m + level, 1.0).astype(np.float32)
+        return img, _window_centroid(img, q) - m_obs
+
+    # the phase whose clipped model has the photo's centroid: secant steps from the sharp
+    # table's phase (the clipped centroid moves little with the phase: fixed-point steps crawl)
+    clipped, f = clipped_at(a)
+    if clipped is None:
+        return None
+    a_prev, f_prev = a, f
+    a = a + np.radians(5.0) * (1.0 if f < 0 else -1.0)
+    for _ in range(rounds):
+        a = float(np.clip(a, 0.0, np.radians(175.0)))
+        img, f = clipped_at(a)
+        if img is None or not np.isfinite(f):
+            break
+        clipped = img
+        if abs(f) < 1e-4 or f == f_prev:
+            break
+        a, a_prev, f_prev = a - f * (a - a_prev) / (f - f_prev), a, f
+    return cv2.GaussianBlur(clipped, (0, 0), smooth) if smooth > 0 else clipped
+
+
+def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
+    """Distance (outline radii) of ``img``'s radiance centroid from the outline's middle, measured
+    as :func:`_lit_frame` measures it (level from the ring beyond 1.3 radii, radiance within 1.15)."""
+    r2 = q[0] ** 2 + q[1] ** 2
+    ring = (r2 > 1.3 ** 2)
+    level = median(img[ring]) if np.any(ring) else 0.0
+    wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
+    tot = float(wgt.sum())
+    if not tot > 0:
+        return float("nan")
+    return float(np.hypot(np.sum(wgt * q[0]), np.sum(wgt * q[1])) / tot)
 
 
 def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:
@@ -155,3 +266,54 @@ def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int
         bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
     ddy, ddx = _quad_peak(fs, fi, fj)
     return bx + ddx * step, by + ddy * step
+
+
+#: lens blurs (Gaussian sigma, px) :func:`limb_blur_px` tries, finer where pixel integration
+#: and blur are alike; the best is refined by a parabola through its neighbours
+_BLUR_GRID = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.4, 1.6, 1.85, 2.1, 2.4, 2.7, 3.0])
+
+
+def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
+    """Lens blur (Gaussian sigma, px) of a photo, read from one ball image's limb.
+
+    The ball is modelled as in :func:`_shading_bias` (a lambertian sphere lit from the direction
+    its radiance centroid gives, seen through the known outline ``off`` about ``center``, each
+    pixel integrated over its area), blurred by each sigma of ``_BLUR_GRID`` and fitted to the
+    linear crop ``lin`` as ``gain x model + level`` (linear least squares) over the band
+    ``0.6 < rho < 1.4`` of outline radii around the limb, where the limb's edge width decides
+    the fit; the sigma of the smallest squared misfit is refined by a parabola through its
+    neighbours. The limb's own shading (a soft edge on a ball lit from the front, a thin bright
+    rim lit from behind) is in the model, so what is left to fit is the lens's blur. Painted
+    markers in the band and a centre off by a tenth of a pixel perturb one image's estimate:
+    take the median over a photo's ball images (:func:`stillcap.ball.stereo.photo_blur_px`).
+
+    Written by hand: no library fits a blurred, shaded sphere's edge; the model and the fit are
+    the shading correction's own.
+
+    Returns NaN when the image has no lit radiance or the best sigma is at the grid's end.
+    """
+    lin = np.asarray(lin, np.float32)
+    mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off)
+    if light is None:
+        return float("nan")
+    r2 = q[0] ** 2 + q[1] ** 2
+    band = (r2 > 0.6 ** 2) & (r2 < 1.4 ** 2)
+    if band.sum() < 20:
+        return float("nan")
+    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=float(_BLUR_GRID[-1]) * 4.0 + 4.0, q=q)
+    y = lin[band].astype(float)
+    y = y - y.mean()
+    yy = float(y @ y)
+    sse = np.empty(len(_BLUR_GRID))
+    for k, s in enumerate(_BLUR_GRID):
+        m = cv2.GaussianBlur(model0, (0, 0), float(s))[band].astype(float)
+        m = m - m.mean()
+        mm = float(m @ m)
+        # the misfit of y ~ gain m + level after the least-squares gain and level
+        sse[k] = yy - (float(m @ y) ** 2 / mm if mm > 0 else 0.0)
+    k = int(np.argmin(sse))
+    if k == 0 or k == len(_BLUR_GRID) - 1:
+        return float("nan")
+    x0, x1, x2 = _BLUR_GRID[k - 1:k + 2]
+    c2, c1, _ = np.polyfit([x0, x1, x2], sse[k - 1:k + 2], 2)
+    return float(np.clip(-c1 / (2.0 * c2), x0, x2)) if c2 > 0 else float(x1)

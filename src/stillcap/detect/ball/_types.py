@@ -111,6 +111,8 @@ class RefinedCenters:
         ``centers - input centres``.
     flags : ndarray of int, shape (N,)
         ``BallFlag.REFINE_FAILED`` where the peak was weak or on the search border.
+    shading_px : ndarray, shape (N, 2) or None
+        The shading correction subtracted from each centre (px; 0 where none ran).
     """
 
     centers: np.ndarray
@@ -118,6 +120,7 @@ class RefinedCenters:
     scores: np.ndarray
     shifts: np.ndarray
     flags: np.ndarray
+    shading_px: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.centers)

@@ -77,6 +77,13 @@ class PitchOptions:
         "Coverage audit", fourth pass); a number: that many px per image axis and camera, a
         constant and a trend along the flight; 0 leaves it out. ``docs/pitch.md``,
         "Uncertainties".
+    shading_model_error : float
+        Share of each ball image's shading correction (``StereoBalls.shading_px``) the model may
+        have wrong, taken as a bias shared by a camera's ball images (with the default
+        ``center_bias_px``, ``stillcap.ball.uncertainty.remaining_bias_modes``): the light's
+        direction, the lens blur and the clipping are read from the photo and the leather is
+        taken for lambertian, all of which a real ball and lens break. Default 0.5 (measured on
+        studio pitches: ``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
     center_sigma_px : float
         Expected random error of a refined ball centre per image axis, px: the noise the
         self-checks (:mod:`stillcap.pipelines.pitch.checks`) test the epipolar residuals and the
@@ -116,6 +123,7 @@ class PitchOptions:
     sigma_method: str = "linear"
     calibration_focal_sigma: float = 2.5e-4
     center_bias_px: float | None = None
+    shading_model_error: float = 0.5
     center_sigma_px: float = 0.2
     workers: int = 2
     processes: int = 0
@@ -148,6 +156,8 @@ class PitchOptions:
             raise ValueError(f"processes must be >= 0, got {self.processes}")
         if not (np.isfinite(self.center_sigma_px) and self.center_sigma_px > 0):
             raise ValueError(f"center_sigma_px must be a positive number of pixels, got {self.center_sigma_px}")
+        if not (np.isfinite(self.shading_model_error) and self.shading_model_error >= 0):
+            raise ValueError(f"shading_model_error must be >= 0, got {self.shading_model_error}")
         if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
             raise ValueError(f"calibration_focal_sigma must be >= 0, got {self.calibration_focal_sigma}")
 
@@ -201,5 +211,5 @@ class PitchOptions:
                 "expected_speed_mph": self.expected_speed_mph, "position_sigma_m": self.position_sigma_m,
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
                 "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px,
-                "center_sigma_px": self.center_sigma_px,
+                "center_sigma_px": self.center_sigma_px, "shading_model_error": self.shading_model_error,
                 "response": self.response if self.response in (None, "auto") else self.response.to_json()}

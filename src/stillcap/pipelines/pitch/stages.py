@@ -357,7 +357,8 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         sb = options.center_bias_px
         if sb is None and p.stereo is not None:
             # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
-            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px)
+            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px,
+                                      options.shading_model_error)
         else:
             if sb is None:
                 sb = pixel_sigma(p.reproj_error_px, default_px=0.0)
