@@ -28,21 +28,36 @@ import numpy as np
 
 from stillcap.detect.circle_fit import arc_span_deg, center_covariance, fit_circle, kasa_circle
 
-__all__ = ["faint_mask", "thin_arcs", "edge_circle", "arc_center_sigma"]
+__all__ = ["faint_mask", "thin_arcs", "crescent_circle", "edge_circle", "arc_center_sigma"]
 
 
-def arc_center_sigma(points, center, rms_px: float, blur_px: float = 0.5) -> float:
-    """1-sigma centre uncertainty (px, largest axis) of a known-radius circle on these arc points:
-    radial noise ``hypot(rms, blur)`` per point, points a blur width apart counted as one (their
-    errors are not independent), through :func:`center_covariance`."""
+def arc_center_sigma(points, center, rms_px: float, blur_px: float = 0.5, radius_known: bool = True) -> float:
+    """1-sigma centre uncertainty (px, largest axis) of a circle fitted to these arc points.
+
+    Two parts. Random: each point's radial scatter (the fit's RMS, at least 0.1 px), points 2 px
+    apart counted as independent, through :func:`center_covariance` (with the radius free or
+    known). Systematic, only with a known radius (the refinement of a crescent uses the radius
+    projected from 3D): where the limb of a dim, blurred arc lies is uncertain by about the blur
+    ``blur_px`` all along the arc, and a common radial offset ``d`` moves a known-radius centre by
+    ``d (sum u u^T)^-1 sum u`` (u the points' radial directions): nothing for a whole circle,
+    ~1.6 d along the axis of a half circle, more for a shorter arc.
+    """
     p = np.asarray(points, float)
     if len(p) < 3:
         return float("inf")
-    # thin the points to about one per blur width (at least one per 2 px) along the arc
-    step = max(1, int(round(max(2.0, 2.0 * blur_px))))
-    cov = center_covariance(p[::step], center, float(np.hypot(rms_px, blur_px)), radius_known=True)
-    ev = np.linalg.eigvalsh(cov) if np.all(np.isfinite(cov)) else np.array([np.inf])
-    return float(np.sqrt(max(ev.max(), 0.0)))
+    step = max(1, int(round(2.0 / max(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)), 0.25)))) if len(p) > 3 else 1
+    cov = center_covariance(p[::step], center, max(float(rms_px), 0.1), radius_known=radius_known)
+    if not np.all(np.isfinite(cov)):
+        return float("inf")
+    if radius_known:
+        u = p - np.asarray(center, float)
+        u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        try:
+            g = np.linalg.solve(u.T @ u, u.sum(axis=0))
+        except np.linalg.LinAlgError:
+            return float("inf")
+        cov = cov + float(blur_px) ** 2 * np.outer(g, g)
+    return float(np.sqrt(max(np.linalg.eigvalsh(cov).max(), 0.0)))
 
 
 def _outer_points(pts: np.ndarray, center: np.ndarray, n_bins: int, half_px: float = 0.5) -> np.ndarray:
@@ -80,12 +95,18 @@ def faint_mask(img: np.ndarray, background=None, k_sigma: float = 4.0, scale: in
     resolution 6-sigma threshold breaks into specks, stands out whole. Returns the 0/255 mask at
     1/``scale`` resolution.
     """
-    a = img.astype(np.float32)
+    a = np.asarray(img)
     if background is not None:
-        a = np.abs(a - np.asarray(background, np.float32))
-    g = a.mean(axis=2) if a.ndim == 3 else a
-    H, W = g.shape
-    small = cv2.resize(g, (max(W // scale, 1), max(H // scale, 1)), interpolation=cv2.INTER_AREA)
+        bg = np.asarray(background)
+        a = cv2.absdiff(a, bg) if a.dtype == np.uint8 and bg.dtype == np.uint8 else \
+            np.abs(a.astype(np.float32) - bg.astype(np.float32))
+    H, W = a.shape[:2]
+    # averaged to 1/scale first (cv2.INTER_AREA on the 8-bit photo: ~20x cheaper than converting
+    # the full photo to float), then the channel mean
+    small = cv2.resize(a, (max(W // scale, 1), max(H // scale, 1)), interpolation=cv2.INTER_AREA)
+    small = small.astype(np.float32)
+    if small.ndim == 3:
+        small = small.mean(axis=2)
     if smooth_px > 0:
         small = cv2.GaussianBlur(small, (0, 0), smooth_px)
     step = max(1, int(np.sqrt(small.size / 2.5e5)))
@@ -153,7 +174,7 @@ def thin_arcs(mask_small, scale: int, kept_contours, min_pixels: int = 6, min_sp
     for c, r, p in groups:
         # the pixel cloud's own circle lies inside the limb (by half the rim's width): the outer
         # edge, found around it, is the limb
-        outer = _outer_points(p, c, max(24, int(np.ceil(2 * np.pi * r / (2.0 * scale)))), 0.5 * scale)
+        outer = _outer_points(p, c, max(24, int(np.ceil(2 * np.pi * r / (2.0 * scale)))), 0.0)
         if image_size is not None:
             W, H = image_size
             outer = outer[(outer[:, 0] > 1.0) & (outer[:, 1] > 1.0) & (outer[:, 0] < W - 2.0) & (outer[:, 1] < H - 2.0)]
@@ -166,6 +187,45 @@ def thin_arcs(mask_small, scale: int, kept_contours, min_pixels: int = 6, min_sp
             continue
         out.append({"center": cc, "radius": rr, "rms": rms, "span_deg": span, "points": outer, "pixels": p})
     return out
+
+
+def crescent_circle(contour, area: float, max_fill: float = 0.4, min_span_deg: float = 60.0,
+                    rms_px: float = 1.0, rms_rel: float = 0.06, image_size=None):
+    """Circle through the outer limb of a crescent silhouette (one the opening kept).
+
+    The silhouette's ellipse (and its centroid) sit on the crescent, up to ~0.9 radius from the
+    ball's centre, further than the known-radius refinement searches. Around a first centre (the
+    Kasa circle of the whole contour, then the fit's own centre, twice) the outermost contour
+    point per angle is the limb; the terminator, inside the disc, is never outermost once the
+    centre is right. Kept only for a silhouette filling at most ``max_fill`` of its circle (a
+    crescent: a ball lit from more than ~110 deg; half moons and fuller balls keep their ellipse
+    and the refinement) and passing the arc self-check.
+
+    Returns
+    -------
+    dict or None
+        ``center``, ``radius``, ``rms``, ``span_deg``, ``points`` (the limb points).
+    """
+    pts = np.asarray(contour, float).reshape(-1, 2)
+    if len(pts) < 12:
+        return None
+    c, r = kasa_circle(pts)
+    got = None
+    for _ in range(3):
+        if not (np.all(np.isfinite(c)) and r >= 3.0):
+            return None
+        outer = _outer_points(pts, c, max(24, int(np.ceil(2 * np.pi * r / 2.0))), 0.5)
+        if image_size is not None:
+            W, H = image_size
+            outer = outer[(outer[:, 0] > 1.0) & (outer[:, 1] > 1.0) & (outer[:, 0] < W - 2.0) & (outer[:, 1] < H - 2.0)]
+        got = _good_circle(outer, min_span_deg, rms_px, rms_rel)
+        if got is None:
+            return None
+        c, r = got[0], got[1]
+    if area > max_fill * np.pi * r * r:
+        return None
+    c, r, rms, span = got
+    return {"center": c, "radius": r, "rms": rms, "span_deg": span, "points": outer}
 
 
 def edge_circle(contour, image_size, min_span_deg: float = 150.0, rms_px: float = 0.75,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stillcap.detect.ball._arcs import arc_center_sigma, edge_circle, faint_mask, thin_arcs
+from stillcap.detect.ball._arcs import arc_center_sigma, crescent_circle, edge_circle, faint_mask, thin_arcs
 from stillcap.detect.ball._foreground import _check_image, _mask_limits, _threshold
 from stillcap.detect.ball._types import BallDetections, BallFlag
 from stillcap.detect.circle_fit import kasa_circle
@@ -229,9 +229,11 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         Keep the cleaned foreground mask (filled silhouettes) in the result (``mask``), for
         display and debugging.
     crescents : bool
-        Also find thin crescents (balls lit from behind) that the opening removes
-        (:func:`stillcap.detect.ball._arcs.thin_arcs`): flagged ``CRESCENT | PARTIAL``, centre
-        and radius of the circle through their outer limb.
+        Give crescents (balls lit from behind, silhouettes filling at most 0.4 of their circle)
+        the centre and radius of the circle through their outer limb
+        (:func:`stillcap.detect.ball._arcs.crescent_circle`), and also find the thin crescents
+        that the opening removes (:func:`stillcap.detect.ball._arcs.thin_arcs`): flagged
+        ``CRESCENT | PARTIAL``.
     edges : bool
         Fit the balls cut by the photo's border to their in-frame limb
         (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
@@ -279,7 +281,7 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
                 cx, cy, r = float(fit["center"][0]), float(fit["center"][1]), float(fit["radius"])
                 rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), area, hull_area,
                              flag | BallFlag.EDGE, ci,
-                             arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px)))
+                             arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=False)))
                 continue
         (ex, ey), (ew, eh), _ = ell
         semi_major = 0.5 * max(ew, eh)
@@ -300,6 +302,14 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         fill = hull_area / max(np.pi / 4 * ew * eh, 1e-9)
         if min(ew, eh) < partial_ratio * max(ew, eh) or fill < partial_fill:
             flag |= BallFlag.PARTIAL
+            cres = crescent_circle(c, area, image_size=(W, H)) if crescents else None
+            if cres is not None:
+                # the circle through the crescent's outer limb, not the crescent's ellipse
+                cx, cy, r = float(cres["center"][0]), float(cres["center"][1]), float(cres["radius"])
+                rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), area, hull_area,
+                             flag | BallFlag.CRESCENT, ci,
+                             arc_center_sigma(cres["points"], cres["center"], cres["rms"], blur_px)))
+                continue
         rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci, np.nan))
     if crescents:
         kept = [s_[1] for s_ in sil]
