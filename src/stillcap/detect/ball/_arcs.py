@@ -74,7 +74,7 @@ def _outer_points(pts: np.ndarray, center: np.ndarray, n_bins: int, half_px: flo
 
 
 def _good_circle(pts, min_span_deg, rms_px, rms_rel, radius=None):
-    if len(pts) < 8:
+    if len(pts) < 6:
         return None
     c, r, rms = fit_circle(pts, radius=radius)
     if not (np.all(np.isfinite(c)) and r >= 3.0 and rms <= max(rms_px, rms_rel * r)):
@@ -83,6 +83,31 @@ def _good_circle(pts, min_span_deg, rms_px, rms_rel, radius=None):
     if span < min_span_deg:
         return None
     return c, r, rms, span
+
+
+def _limb_circle(pts: np.ndarray, half_px: float, image_size, min_span_deg: float, rms_px: float,
+                 rms_rel: float, iterations: int = 3):
+    """Circle through the outer limb of an arc's points: around a first centre (the Kasa circle
+    of all points), the outermost point per angle, a circle fitted to them; repeated around the
+    new centre (the terminator, inside the disc, is never outermost once the centre is right).
+    Limb points within 2 px of the photo's border are left out. None when the self-check fails."""
+    c, r = kasa_circle(pts)
+    got = outer = None
+    for _ in range(iterations):
+        if not (np.all(np.isfinite(c)) and r >= 1.5):
+            return None
+        outer = _outer_points(pts, c, max(24, int(np.ceil(2 * np.pi * r / 2.0))), half_px)
+        if image_size is not None:
+            W, H = image_size
+            outer = outer[(outer[:, 0] > 1.0) & (outer[:, 1] > 1.0) & (outer[:, 0] < W - 2.0) & (outer[:, 1] < H - 2.0)]
+        got = _good_circle(outer, 0.0, np.inf, np.inf)
+        if got is None:
+            return None
+        c, r = got[0], got[1]
+    c, r, rms, span = got
+    if span < min_span_deg or rms > max(rms_px, rms_rel * r):
+        return None
+    return c, r, rms, span, outer
 
 
 def faint_mask(img: np.ndarray, background=None, k_sigma: float = 4.0, scale: int = 2, smooth_px: float = 1.0):
@@ -117,7 +142,8 @@ def faint_mask(img: np.ndarray, background=None, k_sigma: float = 4.0, scale: in
 
 
 def thin_arcs(mask_small, scale: int, kept_contours, min_pixels: int = 6, min_span_deg: float = 60.0,
-              max_cover: float = 0.5, rms_px: float = 1.5, rms_rel: float = 0.08, image_size=None):
+              max_cover: float = 0.5, rms_px: float = 1.5, rms_rel: float = 0.08, image_size=None,
+              min_radius: float = 3.0):
     """Thin crescents of a faint-rim mask (:func:`faint_mask`) that no kept silhouette covers
     (module docstring).
 
@@ -131,6 +157,8 @@ def thin_arcs(mask_small, scale: int, kept_contours, min_pixels: int = 6, min_sp
         Smallest piece of a crescent (pixels of the mask).
     image_size : (W, H), optional
         Limb points on the photo's border are left out (a crescent cut by the edge).
+    min_radius : float
+        Smallest radius of a ball (px).
 
     Returns
     -------
@@ -172,18 +200,18 @@ def thin_arcs(mask_small, scale: int, kept_contours, min_pixels: int = 6, min_sp
             groups.append([c, r, p])
     out = []
     for c, r, p in groups:
-        # the pixel cloud's own circle lies inside the limb (by half the rim's width): the outer
-        # edge, found around it, is the limb
-        outer = _outer_points(p, c, max(24, int(np.ceil(2 * np.pi * r / (2.0 * scale)))), 0.0)
-        if image_size is not None:
-            W, H = image_size
-            outer = outer[(outer[:, 0] > 1.0) & (outer[:, 1] > 1.0) & (outer[:, 0] < W - 2.0) & (outer[:, 1] < H - 2.0)]
-        got = _good_circle(outer, min_span_deg, rms_px, rms_rel)
+        # the limb: the outer edge of the rim (the pixel cloud's own circle lies inside it)
+        got = _limb_circle(p, 0.0, image_size, min_span_deg, rms_px, rms_rel)
         if got is None:
             continue
-        cc, rr, rms, span = got
-        # a crescent lies inside its circle, along it: not a blob with a round side
-        if np.mean(np.hypot(*(p - cc).T) < 0.5 * rr) > 0.05:
+        cc, rr, rms, span, outer = got
+        # a crescent lies along its circle: not a blob with a round side (a filled disc has 12 %
+        # of its pixels within 0.35 r of its centre; a small crescent's rim, thickened by the
+        # half resolution and the smoothing, up to ~9 %)
+        # and it covers a small part of its disc (a filled blob covers all of it; a crescent,
+        # thickened as above, up to ~70 %)
+        fill = len(p) * scale * scale / (np.pi * rr * rr)
+        if rr < min_radius or fill > 0.8 or np.mean(np.hypot(*(p - cc).T) < 0.35 * rr) > 0.1:
             continue
         out.append({"center": cc, "radius": rr, "rms": rms, "span_deg": span, "points": outer, "pixels": p})
     return out
@@ -209,22 +237,12 @@ def crescent_circle(contour, area: float, max_fill: float = 0.4, min_span_deg: f
     pts = np.asarray(contour, float).reshape(-1, 2)
     if len(pts) < 12:
         return None
-    c, r = kasa_circle(pts)
-    got = None
-    for _ in range(3):
-        if not (np.all(np.isfinite(c)) and r >= 3.0):
-            return None
-        outer = _outer_points(pts, c, max(24, int(np.ceil(2 * np.pi * r / 2.0))), 0.5)
-        if image_size is not None:
-            W, H = image_size
-            outer = outer[(outer[:, 0] > 1.0) & (outer[:, 1] > 1.0) & (outer[:, 0] < W - 2.0) & (outer[:, 1] < H - 2.0)]
-        got = _good_circle(outer, min_span_deg, rms_px, rms_rel)
-        if got is None:
-            return None
-        c, r = got[0], got[1]
+    got = _limb_circle(pts, 0.5, image_size, min_span_deg, rms_px, rms_rel)
+    if got is None:
+        return None
+    c, r, rms, span, outer = got
     if area > max_fill * np.pi * r * r:
         return None
-    c, r, rms, span = got
     return {"center": c, "radius": r, "rms": rms, "span_deg": span, "points": outer}
 
 

@@ -199,7 +199,8 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
                  open_px: int = 1, partial_ratio: float = 0.8, partial_fill: float = 0.9,
                  merge_ratio: float = 0.9,
                  merge_solidity: float = 0.97, merge_min_sep: float = 4.0,
-                 keep_mask: bool = False, crescents: bool = True, edges: bool = True,
+                 keep_mask: bool = False, crescents: bool = True, faint_crescents: bool = True,
+                 edges: bool = True,
                  blur_px: float = 0.5) -> BallDetections:
     """Ball silhouettes of one photo: foreground mask, contours, convex hull, ellipse (steps 1-2).
 
@@ -231,9 +232,11 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     crescents : bool
         Give crescents (balls lit from behind, silhouettes filling at most 0.4 of their circle)
         the centre and radius of the circle through their outer limb
-        (:func:`stillcap.detect.ball._arcs.crescent_circle`), and also find the thin crescents
-        that the opening removes (:func:`stillcap.detect.ball._arcs.thin_arcs`): flagged
-        ``CRESCENT | PARTIAL``.
+        (:func:`stillcap.detect.ball._arcs.crescent_circle`): flagged ``CRESCENT | PARTIAL``.
+    faint_crescents : bool
+        Also find the thin, dim crescents that the threshold and the opening remove
+        (:func:`stillcap.detect.ball._arcs.faint_mask`, :func:`~stillcap.detect.ball._arcs.thin_arcs`;
+        with ``crescents``): flagged ``CRESCENT | PARTIAL``.
     edges : bool
         Fit the balls cut by the photo's border to their in-frame limb
         (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
@@ -311,9 +314,10 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
                              arc_center_sigma(cres["points"], cres["center"], cres["rms"], blur_px)))
                 continue
         rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci, np.nan))
-    if crescents:
+    if crescents and faint_crescents:
         kept = [s_[1] for s_ in sil]
-        for arc in thin_arcs(faint_mask(img, background), 2, kept, image_size=(W, H)):
+        for arc in thin_arcs(faint_mask(img, background), 2, kept, image_size=(W, H),
+                             min_radius=max(3.0, float(np.sqrt(min_area / np.pi)))):
             cx, cy, r = float(arc["center"][0]), float(arc["center"][1]), float(arc["radius"])
             if max_area is not None and np.pi * r * r > 4 * max_area:
                 continue
