@@ -19,8 +19,9 @@ The stereo rows run the whole pipeline (``ball_centers_stereo``) on the seed's f
 "Ball images the silhouettes miss" (issue 12): faint back-lit crescents (phase angle 150-165 deg,
 exposure 0.2, noise sigma 5: a thin rim a few noise sigmas above the room) and flights that run
 off the photo (the first and last ball cut by the frame edge, their centre 0.2-1.0 radii inside
-it), each without (``crescents=False, edges=False``: the detector before) and with the crescent
-and edge fits. "detected": truth images with a detection within 0.35 r (where the refinement's
+it), each without (``crescents=False, edges=False``: the detector before), with the default
+crescent and edge fits ("default": crescent silhouettes re-centred on their outer limb, cut balls
+fitted to their in-frame limb) and with the faint-crescent search as well (``faint_crescents=True``). "detected": truth images with a detection within 0.35 r (where the refinement's
 search, 0.6 r, surely reaches); "within r": with one within a radius; "false": detections farther
 than a radius from every truth image; "fit err": the detection's own centre (the outer-limb / in-frame-limb circle for
 CRESCENT / EDGE balls); "Hough err": after ``refine_ball_centers`` with the true radius (and the
@@ -108,7 +109,8 @@ def missed_table(con, photos, seed):
                 "Hough err mean px", "Hough err max px", "sigma/err", "detect CPU ms"):
         tab.add_column(col, justify="right")
     for name, make, flag in (("faint crescents", crescent_photo, BallFlag.CRESCENT), ("frame edge", edge_photo, BallFlag.EDGE)):
-        for label, kw in (("before", dict(crescents=False, edges=False)), ("after", {})):
+        for label, kw in (("before", dict(crescents=False, edges=False)), ("default", {}),
+                          ("+ faint", dict(faint_crescents=True))):
             n_true = n_det = n_near = n_false = n_flag = 0
             e_fit, e_h, t_det, sig, e_axis = [], [], [], [], []
             for p in range(photos):

@@ -199,7 +199,7 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
                  open_px: int = 1, partial_ratio: float = 0.8, partial_fill: float = 0.9,
                  merge_ratio: float = 0.9,
                  merge_solidity: float = 0.97, merge_min_sep: float = 4.0,
-                 keep_mask: bool = False, crescents: bool = True, faint_crescents: bool = True,
+                 keep_mask: bool = False, crescents: bool = True, faint_crescents: bool = False,
                  edges: bool = True,
                  blur_px: float = 0.5) -> BallDetections:
     """Ball silhouettes of one photo: foreground mask, contours, convex hull, ellipse (steps 1-2).
@@ -234,9 +234,13 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         the centre and radius of the circle through their outer limb
         (:func:`stillcap.detect.ball._arcs.crescent_circle`): flagged ``CRESCENT | PARTIAL``.
     faint_crescents : bool
-        Also find the thin, dim crescents that the threshold and the opening remove
-        (:func:`stillcap.detect.ball._arcs.faint_mask`, :func:`~stillcap.detect.ball._arcs.thin_arcs`;
-        with ``crescents``): flagged ``CRESCENT | PARTIAL``.
+        (Default off.) Also find the thin, dim crescents that the threshold and the opening
+        remove (:func:`stillcap.detect.ball._arcs.faint_mask`,
+        :func:`~stillcap.detect.ball._arcs.thin_arcs`; with ``crescents``): flagged
+        ``CRESCENT | PARTIAL``. Off by default: their refined centres are ~1 px off towards the
+        light (the shading correction does not model so thin a rim) and the flight fit does not
+        yet weigh them by their ``center_sigma_px``; with them the pitch pipeline's positions
+        and direction got worse (measured on bench_robustness's "light to the side" captures).
     edges : bool
         Fit the balls cut by the photo's border to their in-frame limb
         (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
