@@ -82,12 +82,15 @@ def test_ball_cut_by_the_frame_edge_is_fitted_to_its_in_frame_limb(cut):
     assert list(old.has(BallFlag.TOUCHES_BORDER)) == [True, False, True] and not old.has(BallFlag.EDGE).any()
 
 
-def test_a_sliver_at_the_edge_stays_touches_border():
-    """Less than 150 deg of limb in the frame does not fix the centre: not fitted, flagged."""
-    balls = np.array([[-0.6 * 26.0, 200.0, 26.0], [300.0, 210.0, 26.0]])
+@pytest.mark.parametrize("beyond", [0.35, 0.6])
+def test_less_than_half_a_ball_at_the_edge_stays_touches_border(beyond):
+    """Less than 150 deg of limb in the frame does not fix the centre: not fitted, flagged, and
+    (less than half a disc) not taken for a crescent."""
+    balls = np.array([[-beyond * 26.0, 200.0, 26.0], [300.0, 210.0, 26.0]])
     img, _ = draw_balls(SIZE, balls, rng=4)
     det = detect_balls(img, min_area=20)
-    assert det.has(BallFlag.TOUCHES_BORDER).sum() <= 1 and not det.has(BallFlag.EDGE).any()
+    assert len(det) == 2
+    assert det.has(BallFlag.TOUCHES_BORDER).sum() == 1 and not det.has(BallFlag.EDGE | BallFlag.CRESCENT).any()
 
 
 def test_circle_fit_known_and_free_radius_and_arc_covariance():

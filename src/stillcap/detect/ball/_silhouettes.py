@@ -309,7 +309,9 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         fill = hull_area / max(np.pi / 4 * ew * eh, 1e-9)
         if min(ew, eh) < partial_ratio * max(ew, eh) or fill < partial_fill:
             flag |= BallFlag.PARTIAL
-            cres = crescent_circle(c, area, image_size=(W, H)) if crescents else None
+            # (not a cut ball that its in-frame limb did not fix: less than half a disc is no crescent)
+            cres = (crescent_circle(c, area, image_size=(W, H))
+                    if crescents and not flag & BallFlag.TOUCHES_BORDER else None)
             if cres is not None:
                 # the circle through the crescent's outer limb, not the crescent's ellipse
                 cx, cy, r = float(cres["center"][0]), float(cres["center"][1]), float(cres["radius"])
