@@ -24,8 +24,10 @@ crescent and edge fits ("default": crescent silhouettes re-centred on their oute
 fitted to their in-frame limb) and with the faint-crescent search as well (``faint_crescents=True``). "detected": truth images with a detection within 0.35 r (where the refinement's
 search, 0.6 r, surely reaches); "within r": with one within a radius; "false": detections farther
 than a radius from every truth image; "fit err": the detection's own centre (the outer-limb / in-frame-limb circle for
-CRESCENT / EDGE balls); "Hough err": after ``refine_ball_centers`` with the true radius (and the
-shading correction for ``PARTIAL`` balls, as ``ball_centers_stereo`` runs it);
+CRESCENT / EDGE balls; of the detections within 0.35 r); "refined ok", "Hough err": every
+detection within a radius refined by ``refine_ball_centers`` with the true radius (and the
+shading correction for ``PARTIAL`` balls, as ``ball_centers_stereo`` runs it), how many it did
+not flag ``REFINE_FAILED`` and their errors;
 "sigma/err": the mean ``center_sigma_px`` of the arc fits over their RMS refined (crescent) or
 fitted (edge) error per axis (1 = honest).
 Goal: a 2560x1920 photo well under 0.3 s, within 3x of decoding it. Times are CPU times
@@ -106,12 +108,12 @@ def edge_photo(seed):
 def missed_table(con, photos, seed):
     tab = Table(title=f"Ball images the silhouettes miss, {photos} photos x 8 balls, 2560x1920")
     for col in ("condition", "detector", "detected", "within r", "false", "flagged", "fit err mean px", "fit err max px",
-                "Hough err mean px", "Hough err max px", "sigma/err", "detect CPU ms"):
+                "refined ok", "Hough err mean px", "Hough err max px", "sigma/err", "detect CPU ms"):
         tab.add_column(col, justify="right")
     for name, make, flag in (("faint crescents", crescent_photo, BallFlag.CRESCENT), ("frame edge", edge_photo, BallFlag.EDGE)):
         for label, kw in (("before", dict(crescents=False, edges=False)), ("default", {}),
                           ("+ faint", dict(faint_crescents=True))):
-            n_true = n_det = n_near = n_false = n_flag = 0
+            n_true = n_det = n_near = n_false = n_flag = n_hok = 0
             e_fit, e_h, t_det, sig, e_axis = [], [], [], [], []
             for p in range(photos):
                 img, balls = make(1000 * seed + p)
@@ -125,26 +127,30 @@ def missed_table(con, photos, seed):
                 near = match(det.centers, balls[:, :2], max_px=balls[:, 2].mean())
                 n_near += int((near >= 0).sum())
                 n_false += len(det) - int((near >= 0).sum())
-                if not ok.any():
+                if ok.any():
+                    e_fit.append(np.linalg.norm(det.centers[m[ok]] - balls[ok, :2], axis=1))
+                nr = near >= 0
+                if not nr.any():
                     continue
-                j = m[ok]
-                e_fit.append(np.linalg.norm(det.centers[j] - balls[ok, :2], axis=1))
-                # the shading correction for partly lit balls, as the stereo pipeline runs it
-                ref = refine_ball_centers(img, det.centers[j], balls[ok, 2], shading=det.has(BallFlag.PARTIAL)[j])
-                e_h.append(np.linalg.norm(ref.centers - balls[ok, :2], axis=1))
+                # every detection within a radius refined (its search reaches 0.6 r), with the
+                # shading correction for partly lit balls, as the stereo pipeline runs it
+                j = near[nr]
+                ref = refine_ball_centers(img, det.centers[j], balls[nr, 2], shading=det.has(BallFlag.PARTIAL)[j])
+                e_h.append(np.linalg.norm(ref.centers - balls[nr, :2], axis=1))
+                n_hok += int(ref.ok.sum())
                 fl = det.has(flag)[j]
                 n_flag += int(fl.sum())
                 if fl.any():
                     # the centre the arc fit stands for: refined for crescents, the fit for edges
                     c = ref.centers if flag == BallFlag.CRESCENT else det.centers[j]
                     sig.append(det.center_sigma_px[j][fl])
-                    e_axis.append((c - balls[ok, :2])[fl].ravel())
+                    e_axis.append((c - balls[nr, :2])[fl].ravel())
             e_fit = np.concatenate(e_fit) if e_fit else np.full(1, np.nan)
             e_h = np.concatenate(e_h) if e_h else np.full(1, np.nan)
             ratio = (f"{np.mean(np.concatenate(sig)) / np.sqrt(np.mean(np.concatenate(e_axis) ** 2)):.2f}"
                      if sig else "-")
             tab.add_row(name, label, f"{n_det}/{n_true}", f"{n_near}/{n_true}", str(n_false), f"{n_flag}", f"{e_fit.mean():.3f}",
-                        f"{e_fit.max():.3f}", f"{e_h.mean():.3f}", f"{e_h.max():.3f}", ratio,
+                        f"{e_fit.max():.3f}", f"{n_hok}/{n_near}", f"{e_h.mean():.3f}", f"{e_h.max():.3f}", ratio,
                         f"{1e3 * np.mean(t_det):.0f}")
     con.print(tab)
 

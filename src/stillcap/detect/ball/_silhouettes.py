@@ -251,8 +251,9 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     Returns
     -------
     BallDetections
-        ``centers`` are the ellipse centres (the split circle centres for merged silhouettes);
-        run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
+        ``ellipse_centers`` are the ellipse centres (the split circle centres for merged
+        silhouettes); ``centers`` the same, but the arc fits' for ``CRESCENT`` and ``EDGE`` balls
+        (their circle's radius in ``arc_radii_px``, their uncertainty in ``center_sigma_px``); run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
         refinement.
     """
     img = _check_image(image)
@@ -280,16 +281,6 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         flag = BallFlag.NONE
         if x <= 0 or y <= 0 or x + bw >= W or y + bh >= H:
             flag |= BallFlag.TOUCHES_BORDER
-            fit = edge_circle(c, (W, H)) if edges else None
-            if fit is not None:
-                # the in-frame limb's circle: the cut shape's ellipse is biased inwards. Still
-                # TOUCHES_BORDER: the known-radius refinement pulls such a centre ~1 px towards
-                # the border (measured), so pipelines leave these out until it handles them
-                cx, cy, r = float(fit["center"][0]), float(fit["center"][1]), float(fit["radius"])
-                rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), area, hull_area,
-                             flag | BallFlag.EDGE, ci,
-                             arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=False)))
-                continue
         (ex, ey), (ew, eh), _ = ell
         semi_major = 0.5 * max(ew, eh)
         pieces = []
@@ -303,23 +294,28 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         if pieces:
             for pc, pr, rms in pieces:
                 f = flag | BallFlag.MERGED | (BallFlag.SPLIT if np.isfinite(rms) else BallFlag.PARTIAL)
-                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci, np.nan))
+                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci, None))
             continue
         # a half moon's hull fits an ellipse badly: too narrow, or filling too little of it
         fill = hull_area / max(np.pi / 4 * ew * eh, 1e-9)
         if min(ew, eh) < partial_ratio * max(ew, eh) or fill < partial_fill:
             flag |= BallFlag.PARTIAL
-            # (not a cut ball that its in-frame limb did not fix: less than half a disc is no crescent)
-            cres = (crescent_circle(c, area, image_size=(W, H))
-                    if crescents and not flag & BallFlag.TOUCHES_BORDER else None)
-            if cres is not None:
-                # the circle through the crescent's outer limb, not the crescent's ellipse
-                cx, cy, r = float(cres["center"][0]), float(cres["center"][1]), float(cres["radius"])
-                rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), area, hull_area,
-                             flag | BallFlag.CRESCENT, ci,
-                             arc_center_sigma(cres["points"], cres["center"], cres["rms"], blur_px)))
-                continue
-        rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci, np.nan))
+        # issue 12: the centre of a ball cut by the border from its in-frame limb, of a crescent
+        # from its outer limb (not a cut ball that its in-frame limb did not fix: less than
+        # half a disc is no crescent). The silhouette's own ellipse stays (ellipse_centers,
+        # ellipses, radii_px: what stereo matching uses, unchanged); the fit goes to ``centers``.
+        arc = None
+        if flag & BallFlag.TOUCHES_BORDER:
+            fit = edge_circle(c, (W, H)) if edges else None
+            if fit is not None:
+                flag |= BallFlag.EDGE
+                arc = (fit, False)
+        elif flag & BallFlag.PARTIAL and crescents:
+            fit = crescent_circle(c, area, image_size=(W, H))
+            if fit is not None:
+                flag |= BallFlag.CRESCENT
+                arc = (fit, True)
+        rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci, arc))
     if crescents and faint_crescents:
         kept = [s_[1] for s_ in sil]
         for arc in thin_arcs(faint_mask(img, background), 2, kept, image_size=(W, H),
@@ -334,16 +330,26 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
             px = arc["pixels"]
             if px[:, 0].min() <= 0 or px[:, 1].min() <= 0 or px[:, 0].max() >= W - 1 or px[:, 1].max() >= H - 1:
                 f |= BallFlag.EDGE
+            # no silhouette: its "ellipse" is the fitted circle
             rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), float(len(px)),
-                         float(len(px)), f, -1, arc_center_sigma(arc["points"], arc["center"], arc["rms"], blur_px)))
+                         float(len(px)), f, -1, (arc, True)))
     if not rows:
         return BallDetections.empty(mask)
     rows.sort(key=lambda r: (r[0][0], r[0][1]))
-    centers = np.array([r[0] for r in rows], float)
+    ellipse_centers = np.array([r[0] for r in rows], float)
+    centers = ellipse_centers.copy()
+    arc_radii = np.full(len(rows), np.nan)
+    sigma = np.full(len(rows), np.nan)
+    for i, r in enumerate(rows):
+        if r[7] is not None:
+            fit, radius_known = r[7]
+            centers[i] = fit["center"]
+            arc_radii[i] = fit["radius"]
+            sigma[i] = arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=radius_known)
     ellipses = np.array([[r[2][0][0], r[2][0][1], r[2][1][0], r[2][1][1], r[2][2]] for r in rows], float)
     return BallDetections(
-        centers=centers, ellipse_centers=centers.copy(), radii_px=np.array([r[1] for r in rows], float),
+        centers=centers, ellipse_centers=ellipse_centers, radii_px=np.array([r[1] for r in rows], float),
         ellipses=ellipses, areas=np.array([r[3] for r in rows], float),
         hull_areas=np.array([r[4] for r in rows], float), scores=np.full(len(rows), np.nan),
         flags=np.array([int(r[5]) for r in rows], int), contour_index=np.array([r[6] for r in rows], int),
-        mask=mask, center_sigma_px=np.array([r[7] for r in rows], float))
+        mask=mask, center_sigma_px=sigma, arc_radii_px=arc_radii)

@@ -52,9 +52,11 @@ class BallDetections:
     ----------
     centers : ndarray, shape (N, 2)
         Best centre estimate (raw pixels): the refined centre where refinement ran and
-        succeeded, else the ellipse centre.
+        succeeded, else the arc fit's for ``CRESCENT`` and ``EDGE`` balls, else the ellipse
+        centre.
     ellipse_centers : ndarray, shape (N, 2)
-        Centre of the ellipse fitted to the convex hull (first estimate, step 2).
+        Centre of the ellipse fitted to the convex hull (first estimate, step 2; what stereo
+        matching uses). A faint crescent found without a silhouette: its circle's centre.
     radii_px : ndarray, shape (N,)
         Radius in pixels: the known radius used by the refinement, else the ellipse's
         semi-major axis (a split ball: its circle's radius). The silhouette includes the
@@ -75,6 +77,9 @@ class BallDetections:
     contour_index : ndarray of int, shape (N,)
         Index of the silhouette each ball came from (balls split from one silhouette share it;
         -1 for a crescent found in the unopened mask).
+    arc_radii_px : ndarray, shape (N,), optional
+        Radius of the arc fit of ``CRESCENT`` and ``EDGE`` balls (the circle through the outer
+        or in-frame limb), px; NaN for the others.
     center_sigma_px : ndarray, shape (N,), optional
         Centre uncertainty (1 sigma, px) of balls whose centre is an arc fit (``CRESCENT``,
         ``EDGE``: from the arc's length, residual and blur; larger the shorter the arc); NaN for
@@ -92,10 +97,13 @@ class BallDetections:
     contour_index: np.ndarray
     mask: np.ndarray | None = field(default=None, repr=False)
     center_sigma_px: np.ndarray | None = None
+    arc_radii_px: np.ndarray | None = None
 
     def __post_init__(self):
         if self.center_sigma_px is None:
             self.center_sigma_px = np.full(len(self.centers), np.nan)
+        if self.arc_radii_px is None:
+            self.arc_radii_px = np.full(len(self.centers), np.nan)
 
     def __len__(self) -> int:
         return len(self.centers)
