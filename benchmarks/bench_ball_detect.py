@@ -111,8 +111,8 @@ def missed_table(con, photos, seed):
                 "refined ok", "Hough err mean px", "Hough err max px", "sigma/err", "detect CPU ms"):
         tab.add_column(col, justify="right")
     for name, make, flag in (("faint crescents", crescent_photo, BallFlag.CRESCENT), ("frame edge", edge_photo, BallFlag.EDGE)):
-        for label, kw in (("before", dict(crescents=False, edges=False)), ("default", {}),
-                          ("+ faint", dict(faint_crescents=True))):
+        for label, kw in (("before", {"crescents": False, "edges": False}), ("default", {}),
+                          ("+ faint", {"faint_crescents": True})):
             n_true = n_det = n_near = n_false = n_flag = n_hok = 0
             e_fit, e_h, t_det, sig, e_axis = [], [], [], [], []
             for p in range(photos):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from detect.test_ball import draw_balls
-from stillcap.detect.ball import BallFlag, detect_balls, refine_ball_centers  # noqa: F401
+from stillcap.detect.ball import BallFlag, detect_balls, refine_ball_centers
 from stillcap.detect.circle_fit import arc_span_deg, center_covariance, fit_circle, kasa_circle
 
 SIZE = (480, 900)

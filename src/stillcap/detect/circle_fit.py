@@ -16,7 +16,7 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["kasa_circle", "fit_circle", "arc_span_deg", "center_covariance"]
+__all__ = ["arc_span_deg", "center_covariance", "fit_circle", "kasa_circle"]
 
 
 def kasa_circle(points) -> tuple[np.ndarray, float]:

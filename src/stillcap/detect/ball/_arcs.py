@@ -28,7 +28,7 @@ import numpy as np
 
 from stillcap.detect.circle_fit import arc_span_deg, center_covariance, fit_circle, kasa_circle
 
-__all__ = ["faint_mask", "thin_arcs", "crescent_circle", "edge_circle", "arc_center_sigma"]
+__all__ = ["arc_center_sigma", "crescent_circle", "edge_circle", "faint_mask", "thin_arcs"]
 
 
 def arc_center_sigma(points, center, rms_px: float, blur_px: float = 0.5, radius_known: bool = True) -> float:
