@@ -13,7 +13,8 @@ level the 90th percentile within ``r``; the bead's mask is the grey above halfwa
 point when that outside pixel is at the background level (within a quarter of the contrast):
 the bead meets the background there, not an occluder. Each rim point is placed at the
 sub-pixel crossing of the halfway level between the two pixels. The circle of the given contour
-radius is fitted to them by robust least squares (``scipy.optimize.least_squares``, soft-L1).
+radius is fitted to them by robust least squares (:func:`stillcap.detect.circle_fit.fit_circle`: ``scipy.optimize.least_squares``,
+soft-L1).
 
 Self-check: the fit is kept only when the rim points span at least ``min_span_deg`` around the
 fitted centre and their RMS distance from the circle is at most ``max_rms_px``; otherwise the
@@ -30,7 +31,8 @@ import math
 
 import numpy as np
 from scipy import ndimage
-from scipy.optimize import least_squares
+
+from stillcap.detect.circle_fit import arc_span_deg, fit_circle
 
 __all__ = ["arc_centers", "contour_radii"]
 
@@ -87,17 +89,6 @@ def _rim(grey: np.ndarray, center, r: float):
     return np.concatenate(rim), np.concatenate(edge)
 
 
-def _fit_circle(points: np.ndarray, radius: float | None, start) -> tuple[np.ndarray, float, float]:
-    """Centre (and radius when ``radius`` is None) of the circle through ``points``; RMS residual."""
-    def res(x):
-        rr = x[2] if radius is None else radius
-        return np.hypot(points[:, 0] - x[0], points[:, 1] - x[1]) - rr
-    x0 = np.array([start[0], start[1]] + ([float(np.mean(np.hypot(*(points - start).T)))] if radius is None else []))
-    sol = least_squares(res, x0, loss="soft_l1", f_scale=0.5)
-    r_fit = float(sol.x[2]) if radius is None else float(radius)
-    return sol.x[:2], r_fit, float(np.sqrt(np.mean(res(sol.x) ** 2)))
-
-
 def contour_radii(images, centers, radii_px) -> np.ndarray:
     """Radius of the halfway-level contour of each (whole) bead, pixels, shape (n_views, N); NaN
     where it cannot be measured. Divided by the expected radius, it says how much smaller than
@@ -114,7 +105,7 @@ def contour_radii(images, centers, radii_px) -> np.ndarray:
             got = _rim(grey, c_all[v, m], r_all[v, m])
             if got is None or len(got[1]) < 8:
                 continue
-            _, r_fit, rms = _fit_circle(got[1], None, c_all[v, m])
+            _, r_fit, rms = fit_circle(got[1], None, c_all[v, m])
             if rms <= 0.5:
                 out[v, m] = r_fit
     return out
@@ -154,10 +145,8 @@ def arc_centers(images, centers, contour_radii_px, min_span_deg: float = 120.0, 
             if got is None or len(got[0]) < 6:
                 continue
             rim = got[0]
-            c, _, rms = _fit_circle(rim, r, c_all[v, m])
-            ang = np.sort(np.arctan2(rim[:, 1] - c[1], rim[:, 0] - c[0]))
-            gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
-            span = math.degrees(2 * np.pi - gaps.max())
+            c, _, rms = fit_circle(rim, r, c_all[v, m])
+            span = arc_span_deg(rim, c)
             if span >= min_span_deg and rms <= max_rms_px:
                 out[v, m] = c
     return out

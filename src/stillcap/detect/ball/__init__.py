@@ -38,6 +38,8 @@ Where it is:
 - :mod:`._foreground`: step 1, :func:`foreground_mask` (robust levels, thresholds, opening);
 - :mod:`._silhouettes`: step 2, :func:`detect_balls` (contours, hull, ellipse, merged
   silhouettes split);
+- :mod:`._arcs`: step 2 for crescents (the circle through the outer limb; thin, faint rims) and
+  balls cut by the frame edge (the in-frame limb), with their centre uncertainty;
 - :mod:`._outline`: step 3, :func:`sphere_outline_px`;
 - :mod:`._hough`: the known-radius Hough transform (templates, scores, grid peaks);
 - :mod:`._shading`: step 4b, the lit-sphere shading model of a partly lit ball;

@@ -6,22 +6,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from stillcap.detect.ball._arcs import arc_center_sigma, crescent_circle, edge_circle, faint_mask, thin_arcs
 from stillcap.detect.ball._foreground import _check_image, _mask_limits, _threshold
 from stillcap.detect.ball._types import BallDetections, BallFlag
+from stillcap.detect.circle_fit import kasa_circle
 
 
 # --------------------------------------------------------------------------------------------
 # step 2: silhouettes -> hull -> ellipse, merged silhouettes
 # --------------------------------------------------------------------------------------------
-def _fit_circle(pts: np.ndarray) -> tuple[np.ndarray, float]:
-    """Algebraic (Kasa) circle fit: centre (2,), radius. A 3-unknown least-squares problem."""
-    A = np.column_stack([2 * pts, np.ones(len(pts))])
-    b = (pts ** 2).sum(axis=1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c = sol[:2]
-    return c, float(np.sqrt(max(sol[2] + c @ c, 0.0)))
-
-
 def _split_merged(contour: np.ndarray, min_sep: float, min_dip: float = 0.06):
     """Ball images inside one silhouette, from the maxima of its distance transform.
 
@@ -94,7 +87,7 @@ def _split_merged(contour: np.ndarray, min_sep: float, min_dip: float = 0.06):
     for j in range(len(keep)):
         sel = P[(best == j) & clear]
         if len(sel) >= 8:
-            c, r = _fit_circle(sel)
+            c, r = kasa_circle(sel)
             rms = float(np.sqrt(np.mean((np.linalg.norm(sel - c, axis=1) - r) ** 2)))
             if rms <= max(1.0, 0.05 * r) and np.hypot(*(c - cen[j])) < 0.5 * rr[j]:
                 out.append((c, r, rms))
@@ -206,7 +199,9 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
                  open_px: int = 1, partial_ratio: float = 0.8, partial_fill: float = 0.9,
                  merge_ratio: float = 0.9,
                  merge_solidity: float = 0.97, merge_min_sep: float = 4.0,
-                 keep_mask: bool = False) -> BallDetections:
+                 keep_mask: bool = False, crescents: bool = True, faint_crescents: bool = False,
+                 edges: bool = True,
+                 blur_px: float = 0.5) -> BallDetections:
     """Ball silhouettes of one photo: foreground mask, contours, convex hull, ellipse (steps 1-2).
 
     Parameters
@@ -234,12 +229,31 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     keep_mask : bool
         Keep the cleaned foreground mask (filled silhouettes) in the result (``mask``), for
         display and debugging.
+    crescents : bool
+        Give crescents (balls lit from behind, silhouettes filling at most 0.4 of their circle)
+        the centre and radius of the circle through their outer limb
+        (:func:`stillcap.detect.ball._arcs.crescent_circle`): flagged ``CRESCENT | PARTIAL``.
+    faint_crescents : bool
+        (Default off.) Also find the thin, dim crescents that the threshold and the opening
+        remove (:func:`stillcap.detect.ball._arcs.faint_mask`,
+        :func:`~stillcap.detect.ball._arcs.thin_arcs`; with ``crescents``): flagged
+        ``CRESCENT | PARTIAL``. Off by default: their refined centres are ~1 px off towards the
+        light (the shading correction does not model so thin a rim) and the flight fit does not
+        yet weigh them by their ``center_sigma_px``; with them the pitch pipeline's positions
+        and direction got worse (measured on bench_robustness's "light to the side" captures).
+    edges : bool
+        Fit the balls cut by the photo's border to their in-frame limb
+        (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
+        centre, else ``TOUCHES_BORDER``.
+    blur_px : float
+        Lens blur (Gaussian sigma, px) for the arc fits' centre uncertainty.
 
     Returns
     -------
     BallDetections
-        ``centers`` are the ellipse centres (the split circle centres for merged silhouettes);
-        run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
+        ``ellipse_centers`` are the ellipse centres (the split circle centres for merged
+        silhouettes); ``centers`` the same, but the arc fits' for ``CRESCENT`` and ``EDGE`` balls
+        (their circle's radius in ``arc_radii_px``, their uncertainty in ``center_sigma_px``); run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
         refinement.
     """
     img = _check_image(image)
@@ -280,21 +294,62 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         if pieces:
             for pc, pr, rms in pieces:
                 f = flag | BallFlag.MERGED | (BallFlag.SPLIT if np.isfinite(rms) else BallFlag.PARTIAL)
-                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci))
+                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci, None))
             continue
         # a half moon's hull fits an ellipse badly: too narrow, or filling too little of it
         fill = hull_area / max(np.pi / 4 * ew * eh, 1e-9)
         if min(ew, eh) < partial_ratio * max(ew, eh) or fill < partial_fill:
             flag |= BallFlag.PARTIAL
-        rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci))
+        # issue 12: the centre of a ball cut by the border from its in-frame limb, of a crescent
+        # from its outer limb (not a cut ball that its in-frame limb did not fix: less than
+        # half a disc is no crescent). The silhouette's own ellipse stays (ellipse_centers,
+        # ellipses, radii_px: what stereo matching uses, unchanged); the fit goes to ``centers``.
+        arc = None
+        if flag & BallFlag.TOUCHES_BORDER:
+            fit = edge_circle(c, (W, H)) if edges else None
+            if fit is not None:
+                flag |= BallFlag.EDGE
+                arc = (fit, False)
+        elif flag & BallFlag.PARTIAL and crescents:
+            fit = crescent_circle(c, area, image_size=(W, H))
+            if fit is not None:
+                flag |= BallFlag.CRESCENT
+                arc = (fit, True)
+        rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci, arc))
+    if crescents and faint_crescents:
+        kept = [s_[1] for s_ in sil]
+        for arc in thin_arcs(faint_mask(img, background), 2, kept, image_size=(W, H),
+                             min_radius=max(3.0, float(np.sqrt(min_area / np.pi)))):
+            cx, cy, r = float(arc["center"][0]), float(arc["center"][1]), float(arc["radius"])
+            if max_area is not None and np.pi * r * r > 4 * max_area:
+                continue
+            # a piece of a ball already found (a horn the opening cut off a thicker crescent)
+            if any(np.hypot(r_[0][0] - cx, r_[0][1] - cy) < r for r_ in rows):
+                continue
+            f = BallFlag.CRESCENT | BallFlag.PARTIAL
+            px = arc["pixels"]
+            if px[:, 0].min() <= 0 or px[:, 1].min() <= 0 or px[:, 0].max() >= W - 1 or px[:, 1].max() >= H - 1:
+                f |= BallFlag.EDGE
+            # no silhouette: its "ellipse" is the fitted circle
+            rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), float(len(px)),
+                         float(len(px)), f, -1, (arc, True)))
     if not rows:
         return BallDetections.empty(mask)
     rows.sort(key=lambda r: (r[0][0], r[0][1]))
-    centers = np.array([r[0] for r in rows], float)
+    ellipse_centers = np.array([r[0] for r in rows], float)
+    centers = ellipse_centers.copy()
+    arc_radii = np.full(len(rows), np.nan)
+    sigma = np.full(len(rows), np.nan)
+    for i, r in enumerate(rows):
+        if r[7] is not None:
+            fit, radius_known = r[7]
+            centers[i] = fit["center"]
+            arc_radii[i] = fit["radius"]
+            sigma[i] = arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=radius_known)
     ellipses = np.array([[r[2][0][0], r[2][0][1], r[2][1][0], r[2][1][1], r[2][2]] for r in rows], float)
     return BallDetections(
-        centers=centers, ellipse_centers=centers.copy(), radii_px=np.array([r[1] for r in rows], float),
+        centers=centers, ellipse_centers=ellipse_centers, radii_px=np.array([r[1] for r in rows], float),
         ellipses=ellipses, areas=np.array([r[3] for r in rows], float),
         hull_areas=np.array([r[4] for r in rows], float), scores=np.full(len(rows), np.nan),
         flags=np.array([int(r[5]) for r in rows], int), contour_index=np.array([r[6] for r in rows], int),
-        mask=mask)
+        mask=mask, center_sigma_px=sigma, arc_radii_px=arc_radii)

@@ -13,7 +13,8 @@ class BallFlag(enum.IntFlag):
     """Per-ball quality flags (bit set; ``0`` means nothing to report)."""
 
     NONE = 0
-    #: the silhouette touches the image border (a cut ball: centre and size unreliable)
+    #: the silhouette touches the image border (a cut ball: centre and size unreliable; with
+    #: ``EDGE`` they are a circle fitted to the in-frame limb)
     TOUCHES_BORDER = 1
     #: the ball came from a silhouette of several overlapping ball images
     MERGED = 2
@@ -26,6 +27,18 @@ class BallFlag(enum.IntFlag):
     REFINE_FAILED = 16
     #: the ellipse size disagrees with the radius projected from the triangulated centre
     SIZE_MISMATCH = 32
+    #: a thin crescent (a ball lit from behind) found in the unopened mask: its centre and radius
+    #: are a circle fitted to the crescent's outer limb (``partial: crescent``)
+    CRESCENT = 64
+    #: a ball cut by the photo's border (also ``TOUCHES_BORDER``) whose centre and radius are a
+    #: circle fitted to its in-frame limb (``partial: edge``)
+    EDGE = 128
+
+
+def partial_kind(flags: int) -> str:
+    """``"crescent"``, ``"edge"``, ``"crescent|edge"`` or ``""`` for a ball's flags."""
+    f = int(flags)
+    return "|".join(n for n, b in (("crescent", BallFlag.CRESCENT), ("edge", BallFlag.EDGE)) if f & int(b))
 
 
 # --------------------------------------------------------------------------------------------
@@ -39,9 +52,11 @@ class BallDetections:
     ----------
     centers : ndarray, shape (N, 2)
         Best centre estimate (raw pixels): the refined centre where refinement ran and
-        succeeded, else the ellipse centre.
+        succeeded, else the arc fit's for ``CRESCENT`` and ``EDGE`` balls, else the ellipse
+        centre.
     ellipse_centers : ndarray, shape (N, 2)
-        Centre of the ellipse fitted to the convex hull (first estimate, step 2).
+        Centre of the ellipse fitted to the convex hull (first estimate, step 2; what stereo
+        matching uses). A faint crescent found without a silhouette: its circle's centre.
     radii_px : ndarray, shape (N,)
         Radius in pixels: the known radius used by the refinement, else the ellipse's
         semi-major axis (a split ball: its circle's radius). The silhouette includes the
@@ -60,7 +75,15 @@ class BallDetections:
     flags : ndarray of int, shape (N,)
         :class:`BallFlag` bits.
     contour_index : ndarray of int, shape (N,)
-        Index of the silhouette each ball came from (balls split from one silhouette share it).
+        Index of the silhouette each ball came from (balls split from one silhouette share it;
+        -1 for a crescent found in the unopened mask).
+    arc_radii_px : ndarray, shape (N,), optional
+        Radius of the arc fit of ``CRESCENT`` and ``EDGE`` balls (the circle through the outer
+        or in-frame limb), px; NaN for the others.
+    center_sigma_px : ndarray, shape (N,), optional
+        Centre uncertainty (1 sigma, px) of balls whose centre is an arc fit (``CRESCENT``,
+        ``EDGE``: from the arc's length, residual and blur; larger the shorter the arc); NaN for
+        whole silhouettes (their error is the pair's, from its residuals).
     """
 
     centers: np.ndarray
@@ -73,9 +96,23 @@ class BallDetections:
     flags: np.ndarray
     contour_index: np.ndarray
     mask: np.ndarray | None = field(default=None, repr=False)
+    center_sigma_px: np.ndarray | None = None
+    arc_radii_px: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.center_sigma_px is None:
+            self.center_sigma_px = np.full(len(self.centers), np.nan)
+        if self.arc_radii_px is None:
+            self.arc_radii_px = np.full(len(self.centers), np.nan)
 
     def __len__(self) -> int:
         return len(self.centers)
+
+    @property
+    def partial(self) -> list:
+        """Per ball, which partial fit gave its centre: ``"crescent"``, ``"edge"``, both
+        (``"crescent|edge"``) or ``""``."""
+        return [partial_kind(f) for f in self.flags]
 
     @classmethod
     def empty(cls, mask=None) -> BallDetections:

@@ -1,0 +1,79 @@
+"""Circles fitted to points on an arc: shared by the bead-arc fit (:mod:`stillcap.detect.bead_arc`)
+and the ball detector's crescent and frame-edge fits (:mod:`stillcap.detect.ball._arcs`).
+
+- :func:`kasa_circle`: the algebraic (Kasa) fit, a 3-unknown linear least-squares problem; a
+  start, and exact on points that lie on a circle.
+- :func:`fit_circle`: robust geometric least squares (``scipy.optimize.least_squares``, soft-L1
+  loss), with the radius free or known.
+- :func:`arc_span_deg`: how much of the circle the points cover, seen from a centre.
+- :func:`center_covariance`: the centre's covariance for a given radial noise (the Gauss-Newton
+  normal matrix of the fit), which grows as the arc shortens.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import least_squares
+
+__all__ = ["arc_span_deg", "center_covariance", "fit_circle", "kasa_circle"]
+
+
+def kasa_circle(points) -> tuple[np.ndarray, float]:
+    """Algebraic (Kasa) circle fit of points (N, 2): centre (2,), radius."""
+    pts = np.asarray(points, float)
+    A = np.column_stack([2 * pts, np.ones(len(pts))])
+    b = (pts ** 2).sum(axis=1)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    c = sol[:2]
+    return c, float(np.sqrt(max(sol[2] + c @ c, 0.0)))
+
+
+def fit_circle(points, radius: float | None = None, start=None, f_scale: float = 0.5
+               ) -> tuple[np.ndarray, float, float]:
+    """Centre (and radius when ``radius`` is None) of the circle through ``points`` (N, 2), by
+    robust least squares (soft-L1 loss of scale ``f_scale`` px: a few points off the circle,
+    such as a marker's notch, pull little); start ``start`` (default the Kasa centre).
+
+    Returns centre (2,), radius, RMS residual (px).
+    """
+    points = np.asarray(points, float)
+    if start is None:
+        start = kasa_circle(points)[0]
+    start = np.asarray(start, float)
+
+    def res(x):
+        rr = x[2] if radius is None else radius
+        return np.hypot(points[:, 0] - x[0], points[:, 1] - x[1]) - rr
+    x0 = np.array([start[0], start[1]] + ([float(np.mean(np.hypot(*(points - start).T)))] if radius is None else []))
+    sol = least_squares(res, x0, loss="soft_l1", f_scale=f_scale)
+    r_fit = float(sol.x[2]) if radius is None else float(radius)
+    return sol.x[:2], r_fit, float(np.sqrt(np.mean(res(sol.x) ** 2)))
+
+
+def arc_span_deg(points, center) -> float:
+    """Angle (degrees) the points cover around ``center``: 360 minus the largest empty gap."""
+    p = np.asarray(points, float)
+    if len(p) < 2:
+        return 0.0
+    ang = np.sort(np.arctan2(p[:, 1] - center[1], p[:, 0] - center[0]))
+    gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
+    return math.degrees(2 * np.pi - gaps.max())
+
+
+def center_covariance(points, center, sigma_radial_px: float, radius_known: bool = True) -> np.ndarray:
+    """Covariance (2, 2) of a fitted centre when each point's radial distance has independent
+    noise ``sigma_radial_px``: ``sigma^2 (J^T J)^-1`` with J the residuals' derivatives (unit
+    radial directions; with a free radius also a column of ones, whose correlation with the
+    centre is what makes a short arc's centre so loose along its axis). Infinite when singular.
+    """
+    p = np.asarray(points, float)
+    u = p - np.asarray(center, float)
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+    J = u if radius_known else np.column_stack([u, np.ones(len(u))])
+    N = J.T @ J
+    try:
+        cov = np.linalg.inv(N)[:2, :2]
+    except np.linalg.LinAlgError:
+        return np.full((2, 2), np.inf)
+    return float(sigma_radial_px) ** 2 * cov
