@@ -34,7 +34,8 @@ from stillcap._checks import as_array
 from stillcap._selfcheck import SelfCheck
 from stillcap.response import LINEAR_LIMIT, Response
 
-__all__ = ["ResponseEstimate", "ball_shading_gamma", "estimate_response", "response_check", "MIN_SPHERES"]
+__all__ = ["ResponseEstimate", "ball_shading_gamma", "estimate_response", "estimate_responses", "response_check",
+           "MIN_SPHERES"]
 
 #: Fewest fitted spheres for an estimate (below: "cannot tell").
 MIN_SPHERES = 3
@@ -420,17 +421,40 @@ def estimate_response(images, centers, radii_px, max_spheres: int = _MAX_SPHERES
     -------
     ResponseEstimate
     """
-    if isinstance(images, np.ndarray):
-        images, centers, radii_px = [images], [centers], [radii_px]
-    cand = []
-    for k, (img, cs, rs) in enumerate(zip(images, centers, radii_px)):
-        cs = np.asarray(cs, float).reshape(-1, 2)
-        rs = np.broadcast_to(np.asarray(rs, float), (len(cs),))
-        cand += [(float(r), k, c) for c, r in zip(cs, rs) if np.isfinite(r) and np.all(np.isfinite(c))]
-    cand.sort(key=lambda t: -t[0])
-    discs = [d for r, k, c in cand[:int(max_spheres)] if (d := _disc(images[k], c, r, 0.8, _MAX_PIXELS)) is not None]
-    fits = [f for f in _fit_discs(discs) if f is not None]
-    return _combine(fits, what)
+    return estimate_responses([(images, centers, radii_px)], max_spheres, what)[0]
+
+
+def estimate_responses(cameras, max_spheres: int = _MAX_SPHERES, what: str = "ball") -> list:
+    """:func:`estimate_response` of several cameras, their spheres fitted in one batch (cheaper
+    than one call per camera: the fit's cost is mostly per batch).
+
+    Parameters
+    ----------
+    cameras : list of (images, centers, radii_px)
+        Each camera's arguments of :func:`estimate_response`.
+
+    Returns
+    -------
+    list of ResponseEstimate
+        One per camera, in order.
+    """
+    discs, owner = [], []
+    for q, (images, centers, radii_px) in enumerate(cameras):
+        if isinstance(images, np.ndarray):
+            images, centers, radii_px = [images], [centers], [radii_px]
+        cand = []
+        for k, (img, cs, rs) in enumerate(zip(images, centers, radii_px)):
+            cs = np.asarray(cs, float).reshape(-1, 2)
+            rs = np.broadcast_to(np.asarray(rs, float), (len(cs),))
+            cand += [(float(r), k, c) for c, r in zip(cs, rs) if np.isfinite(r) and np.all(np.isfinite(c))]
+        cand.sort(key=lambda t: -t[0])
+        for r, k, c in cand[:int(max_spheres)]:
+            d = _disc(images[k], c, r, 0.8, _MAX_PIXELS)
+            if d is not None:
+                discs.append(d)
+                owner.append(q)
+    fits = _fit_discs(discs)
+    return [_combine([f for f, o in zip(fits, owner) if o == q and f is not None], what) for q in range(len(cameras))]
 
 
 def _combine(fits: list, what: str) -> ResponseEstimate:
