@@ -28,7 +28,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 
 from stillcap.calibrate.detect import find_chessboard, image_name, read_gray

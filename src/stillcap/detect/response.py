@@ -113,7 +113,7 @@ def _brightest(img: np.ndarray) -> np.ndarray:
 class _Disc:
     """One sphere image's pixels to fit: normals ``N`` (n, 3), values ``v`` (n,) 0-1, where they
     sit on the (subsampled) crop's grid ``sel``, the crop's subsampling ``k``, the sphere's
-    radius ``r`` (px) and the inner disc's pixel count before subsampling."""
+    radius ``r`` (px) and about how many pixels are fitted before subsampling (``len(v) k^2``)."""
 
     N: np.ndarray
     v: np.ndarray
@@ -152,7 +152,7 @@ def _disc(image, center, radius_px: float, inner: float, max_pixels: int) -> _Di
     # (a larger radius flattens the profile like a larger gamma), so they must come from the
     # geometry (the refined centre and the radius projected from the triangulated ball).
     N = np.stack([xs / r, ys / r, -np.sqrt(np.maximum(1.0 - (xs * xs + ys * ys) / (r * r), 0.0))], 1)
-    return _Disc(N, vv, sel, k, r, int(disc.sum()) * k * k)
+    return _Disc(N, vv, sel, k, r, len(vv) * k * k)
 
 
 class _Pixels:
@@ -393,16 +393,17 @@ def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_sc
     Returns
     -------
     dict or None
-        ``gamma``, ``rms`` (code values), ``n`` (pixels of the inner disc), ``light`` (unit
-        ``s``, camera-like frame x right, y down, z away from the camera), ``lit`` (share of
-        fitted pixels with ``n . s > 0``); None when the sphere is too small, cut by the border
-        or flat.
+        ``gamma``, ``rms`` (code values), ``n`` (pixels fitted, counted before subsampling),
+        ``light`` (unit ``s``, camera-like frame x right, y down, z away from the camera),
+        ``lit`` (share of fitted pixels with ``n . s > 0``); None when the sphere is too small,
+        cut by the border or flat.
     """
     d = _disc(image, center, radius_px, inner, max_pixels)
     return None if d is None else _fit_discs([d], f_scale, terminator_px)[0]
 
 
-def estimate_response(images, centers, radii_px, max_spheres: int = _MAX_SPHERES, what: str = "ball") -> ResponseEstimate:
+def estimate_response(images, centers, radii_px, max_spheres: int = _MAX_SPHERES,
+                      what: str = "ball") -> ResponseEstimate:
     """The response class and effective gamma from lit spheres in photos of one camera.
 
     Parameters
