@@ -14,7 +14,8 @@ shading are fixed by the geometry, the spacing of the values between them by the
 :func:`ball_shading_gamma` fits one ball image (pixels within ``inner`` of the radius, where
 the lens blur and the limb's mix with the background do not reach; markers and saturated pixels
 fall out of a robust fit); :func:`estimate_response` combines the balls of a photo (or of a
-capture) into a :class:`ResponseEstimate` with its class, gamma, spread and evidence, and
+capture) into a :class:`ResponseEstimate` (:func:`estimate_responses`: several cameras' balls
+fitted in one batch) with its class, gamma, spread and evidence, and
 :func:`response_check` compares it with a declared response (the ``response`` self-check).
 
 Works on pitch balls (white leather with painted markers), the hand capture's ball, and on lit
@@ -184,7 +185,7 @@ def _profile(px: _Pixels, lg, f_scale: float, s0=None, start=None, iters: int = 
     weighted linear least-squares solve (IRLS with soft-L1 weights), and all B x G of them are
     one set of array operations (the 4x4 normal equations as matrix products). Hand-written: no
     library fits a batch of hinge models with a robust loss; a 5-parameter
-    ``scipy.optimize.least_squares`` per sphere cost ~15x more, almost all of it the overhead of
+    ``scipy.optimize.least_squares`` per sphere cost >10x more, almost all of it the overhead of
     its steps, not arithmetic.
 
     Parameters
