@@ -2,7 +2,11 @@
 the ``response`` self-check fires with the response declared right and wrong, on N studio
 pitches per response (linear, sRGB, gamma 1.8, gamma 2.6, a consumer tone curve).
 
-    PYTHONPATH=src python benchmarks/bench_response_rates.py [N] [SIZE]
+    PYTHONPATH=src python benchmarks/bench_response_rates.py [N] [SIZE] [--cache DIR]
+
+With ``--cache DIR`` the rendered captures are kept in DIR (``<response>-<seed>-<size>``) and
+read from there on later runs (rendering is most of the time: compare two versions of the
+estimate on the same photos).
 
 Runs the pitch pipeline's response stages, not the whole pipeline (for speed): "auto" is
 :func:`stillcap.pipelines._response.pitch_auto_estimates` on the capture with a rig that does not
@@ -14,8 +18,10 @@ for a linear camera, linear for an encoded one. Accuracy only: no timing.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
+from pathlib import Path
 from dataclasses import replace
 
 from stillcap.ball.layout import BASEBALL_RADIUS
@@ -41,17 +47,25 @@ def fired(cap: Capture, declared: Response) -> tuple[bool, list]:
     return any(not c.passed for c in values), [round(c.value, 2) for c in values]
 
 
-def main(n: int, size) -> None:
+def capture(name: str, true: Response, seed: int, size, cache: Path | None) -> Capture:
+    """The studio pitch of ``seed`` photographed with the response ``true`` (rendered, or read from ``cache``)."""
+    folder = None if cache is None else cache / f"{name.replace(':', '')}-{seed}-{size[0]}x{size[1]}"
+    if folder is not None and (folder / "capture.json").is_file():
+        return Capture.load(folder)
+    preset = list(PRESETS)[seed % len(PRESETS)]
+    r = pitch_capture(preset, rng=1000 + seed, calibrate=False, image_size=size, sensor=Sensor(gamma=true))
+    cap, photos = r.to_capture()
+    return Capture.load(cap.save(folder or tempfile.mkdtemp(prefix="bench-rates-"), photos))
+
+
+def main(n: int, size, cache: Path | None = None) -> None:
     print(f"N = {n} pitches per response, {size[0]}x{size[1]}")
     print(f"{'true':>10} {'auto class right':>17} {'fires (right)':>13} {'fires (wrong)':>13}  auto gammas")
     for name, true in TRUE.items():
         ok = total = fr = fw = 0
         gammas = []
         for seed in range(n):
-            preset = list(PRESETS)[seed % len(PRESETS)]
-            r = pitch_capture(preset, rng=1000 + seed, calibrate=False, image_size=size, sensor=Sensor(gamma=true))
-            cap, photos = r.to_capture()
-            cap = Capture.load(cap.save(tempfile.mkdtemp(prefix="bench-rates-"), photos))
+            cap = capture(name, true, seed, size, cache)
             blind = replace(cap, rig=cap.rig.with_responses(Response.srgb()))
             est = pitch_auto_estimates(blind, BASEBALL_RADIUS)
             for e in est.values():
@@ -65,6 +79,12 @@ def main(n: int, size) -> None:
 
 
 if __name__ == "__main__":
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 12
-    size = tuple(int(v) for v in sys.argv[2].split("x")) if len(sys.argv) > 2 else (1280, 960)
-    main(n, size)
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("n", nargs="?", type=int, default=12, help="pitches per response (default 12)")
+    ap.add_argument("size", nargs="?", default="1280x960", help="image size WxH (default 1280x960)")
+    ap.add_argument("--cache", type=Path, help="keep the rendered captures here and reuse them")
+    a = ap.parse_args()
+    cache = a.cache
+    if cache is not None:
+        cache.mkdir(parents=True, exist_ok=True)
+    main(a.n, tuple(int(v) for v in a.size.split("x")), cache)

@@ -26,7 +26,7 @@ def test_intrinsics_json(capsys, stereo_dir, tmp_path):
     d = json.loads(run(capsys, "calibrate", "intrinsics", *left, "--pattern", "9x6", "--square", "1",
                        "--name", "left", "--json", "--out", out))
     assert set(d) == {"rms_px", "fx", "fy", "cx", "cy", "dist", "image_size", "images_used", "images_skipped",
-                      "per_image_rms_px", "outlier_views", "without_outliers"}
+                      "per_image_rms_px", "outlier_views", "without_outliers", "response"}
     assert d["rms_px"] <= 0.409 and abs(d["fx"] - 536.07) < 0.02 and len(d["dist"]) == 5
     assert d["image_size"] == [640, 480] and len(d["images_used"]) == 13 and d["images_skipped"] == {}
     assert Rig.load(out).names == ["left"]

@@ -4,14 +4,17 @@ import cv2
 import numpy as np
 import pytest
 
+from stillcap.detect import response as response_module
 from stillcap.detect.response import MIN_SPHERES, ball_shading_gamma, estimate_response, response_check
 from stillcap.response import Response
 
 
 def sphere_photo(gamma, light=(0.3, -0.2, -0.93), r=18.0, size=64, albedo=0.8, ambient=0.0, blur=0.6,
-                 noise=0.0, rng=0, markers=True):
+                 noise=0.0, rng=0, markers=True, n_markers=3, specular=0.0):
     """A lambertian sphere (centre at the image centre, radius r) lit from ``light`` (camera frame,
-    z away from the camera), with dark and coloured marker spots, encoded with ``gamma``."""
+    z away from the camera), with ``n_markers`` dark marker spots and, with ``specular`` > 0, a
+    highlight of that peak radiance where the surface mirrors the light toward the camera,
+    encoded with ``gamma``."""
     rng = np.random.default_rng(rng)
     s = np.asarray(light, float) / np.linalg.norm(light)
     ss = 4  # supersampled
@@ -24,9 +27,13 @@ def sphere_photo(gamma, light=(0.3, -0.2, -0.93), r=18.0, size=64, albedo=0.8, a
     shade = np.clip(nx * s[0] + ny * s[1] + nz * s[2], 0, None)
     a = np.full(shade.shape, albedo)
     if markers:
-        for mx, my in rng.uniform(-0.5, 0.5, (3, 2)):
+        for mx, my in rng.uniform(-0.5, 0.5, (n_markers, 2)):
             a[(nx - mx) ** 2 + (ny - my) ** 2 < 0.02] = 0.03
     rad = np.where(inside, a * shade + ambient, 0.0)
+    if specular:
+        h = s + np.array([0.0, 0.0, -1.0])  # the half vector between the light and the view
+        h /= np.linalg.norm(h)
+        rad = rad + np.where(inside, specular * np.clip(nx * h[0] + ny * h[1] + nz * h[2], 0, 1) ** 200, 0.0)
     rad = cv2.resize(rad, (size, size), interpolation=cv2.INTER_AREA)
     if blur:
         rad = cv2.GaussianBlur(rad, (0, 0), blur)
@@ -75,3 +82,50 @@ def test_check_fires_on_a_wrong_declaration_and_passes_on_the_right_one():
         bad = response_check(e, wrong, "cam_0")
         assert right.passed and right.name == "response" and right.subject == "cam_0"
         assert not bad.passed and bad.value > bad.limit and "disagrees" in bad.message
+
+
+@pytest.mark.parametrize("gamma, value", [("linear", 1.0), ("srgb", 2.14), ({"gamma": 2.6}, 2.6)])
+def test_painted_markers_and_a_highlight_fall_out_of_the_fit(gamma, value):
+    """The robust fit (soft-L1 weights, then the dark paint left out): six dark markers and a
+    saturating specular highlight on the disc do not move the gamma."""
+    img, c, r = sphere_photo(gamma, (0.4, -0.3, -0.87), r=22.0, size=70, n_markers=6, specular=1.5, noise=0.002,
+                             rng=3)
+    assert (img == 255).any() and (img < 30).any()  # the highlight clips, the paint is dark
+    plain = ball_shading_gamma(*sphere_photo(gamma, (0.4, -0.3, -0.87), r=22.0, size=70, markers=False,
+                                             noise=0.002, rng=3))
+    f = ball_shading_gamma(img, c, r)
+    assert f["gamma"] == pytest.approx(value, rel=0.12)
+    assert f["gamma"] == pytest.approx(plain["gamma"], rel=0.08)
+
+
+def test_a_big_ball_is_fitted_on_a_subsample_to_the_same_gamma():
+    """A disc of ~3,000 inner pixels is fitted on every k-th pixel and row (at most ~max_pixels):
+    the same gamma as from all of them, and the pixel count reported is the disc's."""
+    img, c, r = sphere_photo("srgb", (0.5, -0.3, -0.81), r=40.0, size=100, noise=0.003, rng=5)
+    every = ball_shading_gamma(img, c, r, max_pixels=100_000)
+    sub = ball_shading_gamma(img, c, r, max_pixels=300)
+    assert every["gamma"] == pytest.approx(2.14, rel=0.1)
+    assert sub["gamma"] == pytest.approx(every["gamma"], rel=0.05)
+    assert sub["n"] == pytest.approx(every["n"], rel=0.15)
+
+
+def test_the_batched_fit_gives_each_ball_its_own_gamma():
+    """estimate_response fits all balls at once: each ball's gamma is the one it gets alone,
+    whatever the others (different sizes, lights and responses in one batch)."""
+    photos = [sphere_photo(g, light, r=r, size=int(2 * r + 20), noise=0.002, rng=k) for k, (g, light, r) in
+              enumerate([("linear", (0, 0, -1), 12.0), ("srgb", (0.6, 0.2, -0.77), 25.0),
+                         ({"gamma": 2.6}, (-0.9, 0.1, -0.42), 8.0), ("srgb", (0.3, 0.6, -0.74), 17.0)])]
+    discs = [response_module._disc(p[0], p[1], p[2], 0.8, response_module._MAX_PIXELS) for p in photos]
+    together = response_module._fit_discs(discs)
+    for p, t in zip(photos, together):
+        alone = ball_shading_gamma(*p)
+        assert t["gamma"] == pytest.approx(alone["gamma"], rel=1e-6)
+        np.testing.assert_allclose(t["light"], alone["light"], atol=1e-6)
+
+
+def test_only_the_largest_spheres_are_fitted():
+    photos = [sphere_photo("linear", (0.2, 0.1, -0.97), r=r, size=int(2 * r + 20), rng=k)
+              for k, r in enumerate([9.0, 20.0, 14.0, 6.0, 17.0])]
+    e = estimate_response([p[0] for p in photos], [p[1][None] for p in photos], [p[2] for p in photos],
+                          max_spheres=3)
+    assert e.n_spheres == 3 and e.response_class == "linear"

@@ -1,6 +1,8 @@
 """`stillcap calibrate ...` commands: intrinsics, stereo, rig.
 
-Thin: parse arguments, call :mod:`stillcap.calibrate`, print. Lengths (``--square``,
+Thin: parse arguments, call :mod:`stillcap.calibrate`, print. Each command also writes the
+cameras' response into the rig (``--response``; by default estimated from the board photos,
+:mod:`stillcap.calibrate.edge_response`). Lengths (``--square``,
 ``--marker``) are in metres; translations and baselines come out in the same unit.
 """
 
@@ -33,6 +35,36 @@ Dict = Annotated[str, typer.Option("--dict", help="ChArUco: ArUco dictionary nam
 Out = Annotated[Path | None, typer.Option("--out", "-o", help="Write a stillcap rig JSON file.")]
 AsJson = Annotated[bool, typer.Option("--json", help="Print the result as one JSON object on stdout.")]
 Force = Annotated[bool, typer.Option("--force", help="Overwrite an --out file stillcap did not write.")]
+ResponseOpt = Annotated[str | None, typer.Option(
+    "--response", help="The cameras' response, written into the rig: srgb, linear or gamma:G states it (it wins); "
+                       "auto (the default) estimates each camera's from the symmetry of its board photos' blurred "
+                       "edges (chessboards only) and writes it where the estimate is sure. See "
+                       "docs/camera-response.md.")]
+
+
+def _stated(response: str | None):
+    """``--response`` parsed before the calibration runs (a bad spec: one line, exit status 2)."""
+    from stillcap.cli._response import parse_response_option
+
+    return parse_response_option(response)
+
+
+def _responses(rig, images: dict, target, stated):
+    """The rig with the cameras' responses (stated, or estimated from the board photos) and the
+    report (:func:`stillcap.calibrate.edge_response.rig_responses`)."""
+    from stillcap.calibrate.edge_response import rig_responses
+
+    if stated is not None and stated != "auto":
+        return rig_responses(rig, images, target, stated)
+    with progress("estimating the response", err_console) as cb:
+        return rig_responses(rig, images, target, stated, progress=cb)
+
+
+def _print_responses(report: dict) -> None:
+    from rich.markup import escape
+
+    for m in report["messages"]:
+        out_console.print(("  [yellow]" if "not written" in m else "  ") + escape(m))
 
 
 def _save_rig(rig, out: Path | None) -> Outputs:
@@ -141,9 +173,9 @@ def intrinsics(
     pattern: Pattern = "9x6", square: Square = 0.025, charuco: Charuco = False, squares: Squares = "7x5",
     marker: Marker = None, dictionary: Dict = "DICT_5X5_250",
     name: Annotated[str, typer.Option("--name", help="Camera name in the rig file.")] = "cam0",
-    out: Out = None, as_json: AsJson = False, force: Force = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False, response: ResponseOpt = None,
 ):
-    """Intrinsics (K, distortion k1 k2 p1 p2 k3) of one camera from board photos.
+    """Intrinsics (K, distortion k1 k2 p1 p2 k3) of one camera from board photos, and its response.
 
     Images where the board is not found are skipped and listed with the reason.
     """
@@ -151,16 +183,19 @@ def intrinsics(
     from stillcap.camera import Rig
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    stated = _stated(response)
     check(out, "file", "--out", force)
     with progress("detecting", err_console) as cb:
         res = calibrate_intrinsics(images, target, camera_name=name, progress=cb)
-    outputs = _save_rig(Rig([res.camera]), out)
+    rig, resp = _responses(Rig([res.camera]), {name: images}, target, stated)
+    outputs = _save_rig(rig, out)
     if as_json:
-        typer.echo(json.dumps(_summary(res), indent=2))
+        typer.echo(json.dumps({**_summary(res), "response": resp}, indent=2))
         outputs.finish(printed_json=True)
         return
     out_console.print(_intrinsics_table(name, res))
     _print_camera(res)
+    _print_responses(resp)
     if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
     outputs.finish()
@@ -177,9 +212,10 @@ def stereo(
     right_key: Annotated[str, typer.Option("--right-key", help="Word marking right-camera file names.")] = "right",
     refine_intrinsics: Annotated[bool, typer.Option(
         "--refine-intrinsics", help="Refine intrinsics in the stereo fit (default: fixed).")] = False,
-    out: Out = None, as_json: AsJson = False, force: Force = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False, response: ResponseOpt = None,
 ):
-    """Stereo pair: intrinsics of each camera, then R, T of right relative to left (left = world).
+    """Stereo pair: intrinsics of each camera, then R, T of right relative to left (left = world),
+    and each camera's response.
 
     Example: stillcap calibrate stereo data/left*.jpg data/right*.jpg --pattern 9x6 --square 0.025
     """
@@ -189,12 +225,14 @@ def stereo(
     from stillcap.calibrate.extrinsics import split_stereo_images
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    stated = _stated(response)
     check(out, "file", "--out", force)
     left, right = split_stereo_images(images, (left_key, right_key))
     with progress("detecting", err_console) as cb:
         res = calibrate_stereo(left, right, target, names=(left_key, right_key), keys=(left_key, right_key),
                                fix_intrinsics=not refine_intrinsics, progress=cb)
-    outputs = _save_rig(res.rig, out)
+    rig, resp = _responses(res.rig, dict(zip(res.rig.names, (left, right))), target, stated)
+    outputs = _save_rig(rig, out)
     if as_json:
         d = {"rms_px": _f(res.rms_px), "R": [[_f(v) for v in row] for row in res.R], "T": [_f(v) for v in res.T],
              "baseline": _f(res.baseline), "left": _summary(res.left), "right": _summary(res.right),
@@ -208,6 +246,7 @@ def stereo(
             "left_rms_px": _f(w.left.rms_px), "right_rms_px": _f(w.right.rms_px), "pairs_used": w.pairs_used}
         if refine_intrinsics:  # the stereo fit's intrinsics; "left"/"right" stay the single-camera results
             d["refined"] = {"rms_px": _f(res.rms_px), **{c.name: _camera_dict(c) for c in res.rig}}
+        d["response"] = resp
         typer.echo(json.dumps(d, indent=2))
         outputs.finish(printed_json=True)
         return
@@ -228,6 +267,7 @@ def stereo(
     ang = np.degrees(np.arccos(np.clip((np.trace(res.R) - 1) / 2, -1, 1)))
     out_console.print(f"  R: rotation of {ang:.3f} deg")
     _print_outlier_pairs(res)
+    _print_responses(resp)
     if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
     outputs.finish()
@@ -265,9 +305,10 @@ def rig(
                              "repeat for several files.")] = None,
     refine_intrinsics: Annotated[bool, typer.Option("--refine-intrinsics",
                                                     help="Refine intrinsics in the bundle adjustment too.")] = False,
-    out: Out = None, as_json: AsJson = False, force: Force = False,
+    out: Out = None, as_json: AsJson = False, force: Force = False, response: ResponseOpt = None,
 ):
-    """N-camera rig: intrinsics per camera, spanning-tree poses, then bundle adjustment.
+    """N-camera rig: intrinsics per camera, spanning-tree poses, then bundle adjustment; and each
+    camera's response.
 
     Layout: FOLDER/cam0/001.jpg, FOLDER/cam1/001.jpg, ... (same name = same instant).
     """
@@ -276,13 +317,15 @@ def rig(
     from stillcap.camera import Rig
 
     target = _target(pattern, square, charuco, squares, marker, dictionary)
+    stated = _stated(response)
     check(out, "file", "--out", force)
     images, instants = rig_images_from_folder(folder)
     known = {c.name: c for f in intrinsics_files or [] for c in Rig.load(f)} or None
     with progress("detecting", err_console) as cb:
         res = calibrate_rig(images, target, cameras=known, instants=instants, refine_intrinsics=refine_intrinsics,
                             progress=cb)
-    outputs = _save_rig(res.rig, out)
+    rig, resp = _responses(res.rig, images, target, stated)
+    outputs = _save_rig(rig, out)
     if as_json:
         cams = []
         for c in res.rig:
@@ -297,7 +340,8 @@ def rig(
              "outlier_views": res.outlier_views,
              "without_outliers": None if res.without_outliers is None else {
                  "rms_px": _f(res.without_outliers.rms_px),
-                 "per_camera_rms_px": {k: _f(v) for k, v in res.without_outliers.per_camera_rms_px.items()}}}
+                 "per_camera_rms_px": {k: _f(v) for k, v in res.without_outliers.per_camera_rms_px.items()}},
+             "response": resp}
         typer.echo(json.dumps(d, indent=2))
         outputs.finish(printed_json=True)
         return
@@ -326,6 +370,7 @@ def rig(
                               + ", ".join(f"{k} {res.per_camera_rms_px[k]:.3f} -> {v:.3f}"
                                           for k, v in w.per_camera_rms_px.items())
                               + f"); consider dropping {_them(len(odd))} and calibrating again")
+    _print_responses(resp)
     if out is not None and not outputs.failed:
         out_console.print(f"wrote {out}")
     outputs.finish()

@@ -76,11 +76,16 @@ def chessboard(
     size: str = typer.Option("1280x960", "--size", help="Image size WIDTHxHEIGHT in pixels."),
     jpeg: int = typer.Option(None, "--jpeg", min=1, max=100, help="Write JPEG at this quality instead of PNG."),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty folder."),
+    camera_response: str = typer.Option(
+        None, "--camera-response", help="The camera's response the photos are encoded with: srgb (default), linear, "
+                                        "gamma:G or tone (sRGB with a consumer S-shaped tone curve); recorded in "
+                                        "truth.json (the rig stays the nominal, uncalibrated camera)."),
 ):
-    """Photos of a calibration board in random poses; truth = camera and board poses."""
+    """Photos of a calibration board in random poses; truth = camera and board poses (and the response)."""
     from stillcap.calibrate.targets import CharucoTarget, Chessboard, parse_pattern
     from stillcap.studio.scenes import chessboard_set, default_camera
 
+    response = _sensor_response(camera_response)
     _check_out(out, force)
     camera = default_camera(image_size=_parse_size(size))
     if charuco:
@@ -92,6 +97,7 @@ def chessboard(
         target = Chessboard(cols, rows, (square_mm or 25.0) / 1000)
     with progress("rendering views", total=views) as update:
         result = chessboard_set(camera, n_views=views, target=target, rng=seed,
+                                sensor=None if response is None else _studio_sensor(response),
                                 progress=lambda i, n: update(i))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")
     _save(cap, images, out, jpeg)

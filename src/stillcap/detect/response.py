@@ -14,7 +14,8 @@ shading are fixed by the geometry, the spacing of the values between them by the
 :func:`ball_shading_gamma` fits one ball image (pixels within ``inner`` of the radius, where
 the lens blur and the limb's mix with the background do not reach; markers and saturated pixels
 fall out of a robust fit); :func:`estimate_response` combines the balls of a photo (or of a
-capture) into a :class:`ResponseEstimate` with its class, gamma, spread and evidence, and
+capture) into a :class:`ResponseEstimate` (:func:`estimate_responses`: several cameras' balls
+fitted in one batch) with its class, gamma, spread and evidence, and
 :func:`response_check` compares it with a declared response (the ``response`` self-check).
 
 Works on pitch balls (white leather with painted markers), the hand capture's ball, and on lit
@@ -29,18 +30,29 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 
 from stillcap._checks import as_array
 from stillcap._selfcheck import SelfCheck
 from stillcap.response import LINEAR_LIMIT, Response
 
-__all__ = ["ResponseEstimate", "ball_shading_gamma", "estimate_response", "response_check", "MIN_SPHERES"]
+__all__ = ["ResponseEstimate", "ball_shading_gamma", "estimate_response", "estimate_responses", "response_check",
+           "MIN_SPHERES"]
 
 #: Fewest fitted spheres for an estimate (below: "cannot tell").
 MIN_SPHERES = 3
 _MIN_PIXELS = 25
 _G_BOUNDS = (0.4, 5.0)
+# the profile over gamma (_best_gammas): a coarse grid (log-spaced), then golden-section steps
+_COARSE = np.geomspace(_G_BOUNDS[0], _G_BOUNDS[1], 10)
+_GOLD = 0.5 * (3.0 - np.sqrt(5.0))  # golden section: the bracket narrows to 0.618 a step
+_ROUNDS_FIRST = 3  # golden-section steps of the first fit (it finds the light, markers and shadow line)
+_FIRST_PIXELS = 150
+_ROUNDS = 7  # ... of the final fit: a bracket of 0.56 in ln gamma narrows to ~0.02
+_ITERS = 3  # solves per fit on the coarse grid (2 for the others, which start from a fit)
+#: at most about this many pixels of a ball are fitted (ball_shading_gamma's ``max_pixels``)
+_MAX_PIXELS = 400
+#: at most this many spheres (the largest) are fitted (estimate_response's ``max_spheres``)
+_MAX_SPHERES = 40
 
 
 @dataclass
@@ -98,8 +110,266 @@ def _brightest(img: np.ndarray) -> np.ndarray:
     return img
 
 
+@dataclass
+class _Disc:
+    """One sphere image's pixels to fit: normals ``N`` (n, 3), values ``v`` (n,) 0-1, where they
+    sit on the (subsampled) crop's grid ``sel``, the crop's subsampling ``k``, the sphere's
+    radius ``r`` (px) and about how many pixels are fitted before subsampling (``len(v) k^2``)."""
+
+    N: np.ndarray
+    v: np.ndarray
+    sel: np.ndarray
+    k: int
+    r: float
+    n_disc: int
+
+
+def _disc(image, center, radius_px: float, inner: float, max_pixels: int) -> _Disc | None:
+    """The pixels :func:`ball_shading_gamma` fits (None: too small, cut by the border, flat)."""
+    img = np.asarray(image)
+    c = as_array(center, (2,), "center")
+    r = float(radius_px)
+    if not (np.all(np.isfinite(c)) and np.isfinite(r) and r >= 3):
+        return None
+    H, W = img.shape[:2]
+    x0, y0 = int(np.floor(c[0] - r)), int(np.floor(c[1] - r))
+    x1, y1 = int(np.ceil(c[0] + r)) + 1, int(np.ceil(c[1] + r)) + 1
+    if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
+        return None
+    # every k-th pixel of every k-th row: the fewest k that leave at most ~max_pixels of the
+    # inner disc (area pi (inner r)^2); the shading is smooth, its shape needs no more
+    k = max(1, int(np.ceil(np.sqrt(np.pi * (inner * r) ** 2 / max(int(max_pixels), _MIN_PIXELS)))))
+    v = _brightest(img[y0:y1:k, x0:x1:k]).astype(float)
+    X, Y = np.meshgrid(np.arange(x0, x1, k) - c[0], np.arange(y0, y1, k) - c[1])
+    rho2 = (X * X + Y * Y) / (r * r)
+    disc = rho2 <= inner * inner
+    sel = disc & (v < 254.5) & (v > 0.5)
+    if sel.sum() < _MIN_PIXELS:
+        return None
+    xs, ys, vv = X[sel], Y[sel], v[sel] / 255.0
+    if np.ptp(vv) < 12 / 255:  # flat: nothing to fit (a sphere lit by ambient light only)
+        return None
+    # The centre and radius stay fixed: fitted with the shading they trade off with the gamma
+    # (a larger radius flattens the profile like a larger gamma), so they must come from the
+    # geometry (the refined centre and the radius projected from the triangulated ball).
+    N = np.stack([xs / r, ys / r, -np.sqrt(np.maximum(1.0 - (xs * xs + ys * ys) / (r * r), 0.0))], 1)
+    return _Disc(N, vv, sel, k, r, len(vv) * k * k)
+
+
+class _Pixels:
+    """B discs' pixels padded to one length, with what every fit of them reuses: normals ``N``
+    (B, n, 3), values ``v`` (B, 1, n) 0-1 (padding 0.5), ``valid`` (B, 1, n) (not padding, not
+    left out), the rows ``X = (N, 1)`` and their outer products."""
+
+    def __init__(self, discs: list, keep: list | None = None):
+        n = max(len(d.v) for d in discs)
+        B = len(discs)
+        N, v, valid = np.zeros((B, n, 3)), np.full((B, n), 0.5), np.zeros((B, n), bool)
+        for j, d in enumerate(discs):
+            k = len(d.v)
+            N[j, :k], v[j, :k] = d.N, d.v
+            valid[j, :k] = True if keep is None else keep[j]
+        self.N, self.v, self.valid = N, v[:, None, :], valid[:, None, :]
+        self.lv = np.log(self.v)
+        self.Nt = N.transpose(0, 2, 1)
+        self.X = np.concatenate([N, np.ones((B, n, 1))], 2)  # (B, n, 4)
+        self.XX = (self.X[..., :, None] * self.X[..., None, :]).reshape(B, n, 16)
+
+
+def _profile(px: _Pixels, lg, f_scale: float, s0=None, start=None, iters: int = 2):
+    """The robust fit of ``v = clip(max(0, N . m) + b, 0, 1) ** (1 / g)`` at given gammas, for B
+    spheres and G gammas each at once: the profile of the cost over gamma.
+
+    For a fixed gamma the lit pixels' linear radiance ``N . m + b`` (``m = a s``) is linear in
+    ``(m, b)``, so each fit is a few Gauss-Newton steps on the code-value residuals, each a
+    weighted linear least-squares solve (IRLS with soft-L1 weights), and all B x G of them are
+    one set of array operations (the 4x4 normal equations as matrix products). Hand-written: no
+    library fits a batch of hinge models with a robust loss; a 5-parameter
+    ``scipy.optimize.least_squares`` per sphere cost >10x more, almost all of it the overhead of
+    its steps, not arithmetic.
+
+    Parameters
+    ----------
+    px : _Pixels
+    lg : ndarray, shape (B, G)
+        The gammas, ln.
+    f_scale : float
+        Soft-L1 scale, code values.
+    s0 : ndarray, shape (B, 3), optional
+        First guess of each sphere's light direction (which pixels are lit): the first solve is
+        then the linearised problem (target ``v ** g``, weights ``(dv/dL)^2`` at the observed
+        values).
+    start : (m, b), shapes (B, 3), (B,), optional
+        Instead of ``s0``: a fit (at a nearby gamma) to start the Gauss-Newton steps from.
+    iters : int
+        Solves per fit.
+
+    Returns
+    -------
+    (cost, m, b) : ndarrays, shapes (B, G), (B, G, 3), (B, G)
+        The robust cost (soft L1 of the code-value residuals over ``f_scale``) and the fits.
+    """
+    v, valid = px.v, px.valid
+    B, G = lg.shape
+    g = np.exp(lg)[..., None]  # (B, G, 1)
+    floor = (0.5 / 255) ** g  # dv/dL is taken no steeper than at half a code (unlit pixels)
+
+    def residuals(m, b):
+        ns = m @ px.Nt  # (B, G, n)
+        lit = ns > 0.0
+        L = np.clip(np.where(lit, ns, 0.0) + b[..., None], 1e-9, 1.0)
+        pred = np.exp(np.log(L) / g)
+        return lit, L, pred, (255.0 / f_scale) * (pred - v)
+
+    if start is None:
+        lit = (np.einsum("bni,bi->bn", px.N, s0) > 0.0)[:, None, :]
+        z = np.exp(g * px.lv)  # (B, G, n)
+        dv = v / (g * z)
+        w = dv * dv * valid
+    else:
+        m, b = np.repeat(start[0][:, None], G, 1), np.repeat(start[1][:, None], G, 1)
+        lit, L, pred, r = residuals(m, b)
+    eye = np.eye(4)
+    for it in range(iters):
+        if start is not None or it > 0:
+            # Gauss-Newton on the code-value residual: target L + (v - pred) / (dv/dL), weight
+            # (dv/dL)^2 times the soft-L1 weight
+            dv = np.where(L > floor, pred / (g * L), (0.5 / 255) / (g * floor))
+            z = L + (v - pred) / dv
+            w = dv * dv / np.sqrt(1.0 + r * r) * valid
+        # the normal equations: a lit pixel's row is (N, 1), an unlit one's (0, 0, 0, 1)
+        A = (w * lit) @ px.XX  # (B, G, 16)
+        A[..., 15] = w.sum(-1)
+        A = A.reshape(B, G, 4, 4)
+        wz = w * z
+        y = (wz * lit) @ px.X  # (B, G, 4)
+        y[..., 3] = wz.sum(-1)
+        A += eye * (1e-9 * A[..., 3:4, 3:4] + 1e-30)  # a ridge: no lit pixel leaves m = 0
+        p = np.linalg.solve(A, y[..., None])[..., 0]
+        # the ambient kept within [0, 0.3]: where it left, fitted again with it fixed there
+        out = (p[..., 3] < 0.0) | (p[..., 3] > 0.3)
+        if out.any():
+            bf = np.clip(p[out][:, 3], 0.0, 0.3)
+            Ao, yo = A[out], y[out]
+            p3 = np.linalg.solve(Ao[:, :3, :3], (yo[:, :3] - Ao[:, :3, 3] * bf[:, None])[..., None])[..., 0]
+            p[out] = np.concatenate([p3, bf[:, None]], 1)
+        m, b = p[..., :3], p[..., 3]
+        lit, L, pred, r = residuals(m, b)
+    cost = ((np.sqrt(1.0 + r * r) - 1.0) * valid).sum(-1)
+    return cost, m, b
+
+
+def _unit(m):
+    return m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-12)
+
+
+def _best_gammas(px: _Pixels, s0, f_scale: float, rounds: int):
+    """Each sphere's gamma (and its ``m``, ``b``) of least robust cost: the profile
+    (:func:`_profile`) on the coarse grid :data:`_COARSE`, then ``rounds`` golden-section steps
+    in the bracket of its best point (all spheres at once, each step's fits starting from the
+    best so far), then the vertex of the parabola through the bracket when it is better. The
+    profile is smooth but can be lopsided (flat toward low gammas where the ambient light trades
+    off with the gamma), so a parabola through the coarse grid alone can land far from the
+    minimum.
+
+    Returns
+    -------
+    (gamma, m, b, ok) : ndarrays, shapes (B,), (B, 3), (B,), (B,)
+    """
+    B = len(px.N)
+    lg0 = np.log(_COARSE)
+    cost, m, b = _profile(px, np.broadcast_to(lg0, (B, len(lg0))), f_scale, s0=s0, iters=_ITERS)
+    cost = np.where(np.isfinite(cost), cost, np.inf)
+    i = np.argmin(cost, 1)
+    rows = np.arange(B)
+    last = len(lg0) - 1
+    xa, xc, xb = lg0[np.maximum(i - 1, 0)], lg0[i], lg0[np.minimum(i + 1, last)]
+    fa, fc, fb = cost[rows, np.maximum(i - 1, 0)], cost[rows, i], cost[rows, np.minimum(i + 1, last)]
+    mc, bc = m[rows, i], b[rows, i]
+    for _ in range(int(rounds)):  # golden section in [xa, xb] about the best point xc
+        right = (xb - xc) > (xc - xa)
+        x = np.where(right, xc + _GOLD * (xb - xc), xc - _GOLD * (xc - xa))
+        fx, mx, bx = _profile(px, x[:, None], f_scale, start=(mc, bc))
+        fx, mx, bx = np.where(np.isfinite(fx[:, 0]), fx[:, 0], np.inf), mx[:, 0], bx[:, 0]
+        better = fx < fc
+        # better: x is the new best, xc a bracket end; worse: x is a bracket end
+        na = np.where(better, np.where(right, xc, xa), np.where(right, xa, x))
+        nb = np.where(better, np.where(right, xb, xc), np.where(right, x, xb))
+        nfa = np.where(better, np.where(right, fc, fa), np.where(right, fa, fx))
+        nfb = np.where(better, np.where(right, fb, fc), np.where(right, fx, fb))
+        xa, xb, fa, fb = na, nb, nfa, nfb
+        xc, fc = np.where(better, x, xc), np.where(better, fx, fc)
+        mc, bc = np.where(better[:, None], mx, mc), np.where(better, bx, bc)
+    # the parabola's vertex through the bracket (kept inside it), where it improves on the best
+    d1 = (fc - fa) / np.maximum(xc - xa, 1e-12)
+    d2 = (fb - fc) / np.maximum(xb - xc, 1e-12)
+    curv = (d2 - d1) / np.maximum(xb - xa, 1e-12)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xv = np.where((curv > 0) & (xa < xc) & (xc < xb), 0.5 * (xa + xc) - d1 / (2 * curv), xc)
+    xv = np.clip(np.nan_to_num(xv, nan=0.0, posinf=0.0, neginf=0.0), xa, xb)
+    fv, mv, bv = _profile(px, xv[:, None], f_scale, start=(mc, bc))
+    use = np.isfinite(fv[:, 0]) & (fv[:, 0] <= fc)
+    lg = np.where(use, xv, xc)
+    m, b = np.where(use[:, None], mv[:, 0], mc), np.where(use, bv[:, 0], bc)
+    ok = np.isfinite(fc) & np.all(np.isfinite(m), 1) & (np.linalg.norm(m, axis=1) >= 1e-3)
+    return np.exp(lg), m, b, ok
+
+
+def _predict(N, m, b, g):
+    return np.clip(np.maximum(N @ m, 0.0) + b, 1e-9, 1.0) ** (1.0 / g)
+
+
+def _fit_discs(discs: list, f_scale: float = 4.0, terminator_px: float = 2.0) -> list:
+    """:func:`ball_shading_gamma`'s fit of every disc at once (a dict per disc, None where it fails)."""
+    if not discs:
+        return []
+    # the first fit (it finds the light, the markers and the shadow line for the final one) on
+    # every j-th of the pixels, at most about _FIRST_PIXELS of them
+    first = [_Disc(d.N[::j], d.v[::j], d.sel, d.k, d.r, d.n_disc)
+             for d in discs for j in [max(1, len(d.v) // _FIRST_PIXELS)]]
+    # start: the light toward the bright side, from the value-weighted centroid of each disc
+    s0 = _unit(np.stack([((d.v - d.v.min())[:, None] * d.N).sum(0) for d in first]))
+    g, m, b, ok = _best_gammas(_Pixels(first), s0, f_scale, _ROUNDS_FIRST)
+    # Again without the terminator's band: the lens blur spreads the lit side's light over the
+    # shadow line, which a sharp lambertian model reads as a flatter curve (a side- or back-lit
+    # ball's gamma came out ~15 % low with 0.6 px of blur).
+    # ... and without the dark markers: pixels well below the first fit, grown by a pixel (a
+    # marker's blurred rim), are paint, not shading (dark paint near the limb steepened the
+    # profile: linear balls came out 0.5-1.0 with the robust loss alone)
+    keep, again = [], []
+    for j, d in enumerate(discs):
+        if not ok[j]:
+            keep.append(np.zeros(len(d.v), bool))
+            continue
+        res = 255.0 * (d.v - _predict(d.N, m[j], b[j], g[j]))
+        sigma = 1.4826 * float(np.median(np.abs(res)))
+        dark = np.zeros(d.sel.shape, np.uint8)
+        dark[d.sel] = res < -max(4.0 * sigma, 5.0)
+        dark = cv2.dilate(dark, np.ones((3, 3), np.uint8))[d.sel].astype(bool)
+        kj = (np.abs(d.N @ _unit(m[j])) >= terminator_px / d.r) & ~dark
+        keep.append(kj)
+        if kj.sum() >= _MIN_PIXELS:
+            again.append(j)
+    if again:
+        sub = [discs[j] for j in again]
+        g2, m2, b2, ok2 = _best_gammas(_Pixels(sub, [keep[j] for j in again]), _unit(m[again]), f_scale, _ROUNDS)
+        for q, j in enumerate(again):
+            if ok2[q]:
+                g[j], m[j], b[j] = g2[q], m2[q], b2[q]
+    out = []
+    for j, d in enumerate(discs):
+        if not ok[j]:
+            out.append(None)
+            continue
+        s = _unit(m[j])
+        res = 255.0 * (_predict(d.N, m[j], b[j], g[j]) - d.v)
+        out.append({"gamma": float(g[j]), "rms": float(np.sqrt(np.median(res ** 2))), "n": d.n_disc,
+                    "light": s, "lit": float(np.mean(d.N @ s > 0))})
+    return out
+
+
 def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_scale: float = 4.0,
-                       terminator_px: float = 2.0) -> dict | None:
+                       terminator_px: float = 2.0, max_pixels: int = _MAX_PIXELS) -> dict | None:
     """Fit one lit sphere's shading (module docstring) with a power law.
 
     Parameters
@@ -117,126 +387,24 @@ def ball_shading_gamma(image, center, radius_px: float, inner: float = 0.8, f_sc
     terminator_px : float
         The final fit leaves out the pixels within about this distance of the shadow line
         (``|n . s| < terminator_px / radius``), where the lens blur mixes lit and unlit.
+    max_pixels : int
+        A larger disc is fitted on every k-th pixel of every k-th row (the fewest k that leave
+        at most about this many).
 
     Returns
     -------
     dict or None
-        ``gamma``, ``rms`` (code values), ``n`` (pixels), ``light`` (unit ``s``, camera-like
-        frame x right, y down, z away from the camera), ``lit`` (share of fitted pixels with
-        ``n . s > 0``); None when the sphere is too small, cut by the border or flat.
+        ``gamma``, ``rms`` (code values), ``n`` (pixels fitted, counted before subsampling),
+        ``light`` (unit ``s``, camera-like frame x right, y down, z away from the camera),
+        ``lit`` (share of fitted pixels with ``n . s > 0``); None when the sphere is too small,
+        cut by the border or flat.
     """
-    img = np.asarray(image)
-    c = as_array(center, (2,), "center")
-    r = float(radius_px)
-    if not (np.all(np.isfinite(c)) and np.isfinite(r) and r >= 3):
-        return None
-    H, W = img.shape[:2]
-    x0, y0 = int(np.floor(c[0] - r)), int(np.floor(c[1] - r))
-    x1, y1 = int(np.ceil(c[0] + r)) + 1, int(np.ceil(c[1] + r)) + 1
-    if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
-        return None
-    v = _brightest(img[y0:y1, x0:x1]).astype(float)
-    X, Y = np.meshgrid(np.arange(x0, x1) - c[0], np.arange(y0, y1) - c[1])
-    rho2 = (X * X + Y * Y) / (r * r)
-    sel = (rho2 <= inner * inner) & (v < 254.5) & (v > 0.5)
-    if sel.sum() < _MIN_PIXELS:
-        return None
-    xs, ys, vv = X[sel], Y[sel], v[sel] / 255.0
-    if np.ptp(vv) < 12 / 255:  # flat: nothing to fit (a sphere lit by ambient light only)
-        return None
-
-    # The centre and radius stay fixed: fitted with the shading they trade off with the gamma
-    # (a larger radius flattens the profile like a larger gamma), so they must come from the
-    # geometry (the refined centre and the radius projected from the triangulated ball).
-    N = np.stack([xs / r, ys / r, -np.sqrt(np.maximum(1.0 - (xs * xs + ys * ys) / (r * r), 0.0))], 1)
-    # start: the light toward the bright side, from the value-weighted centroid of the disc
-    w = vv - vv.min()
-    m = (N * w[:, None]).sum(0) / max(w.sum(), 1e-12)
-    s0 = m / max(np.linalg.norm(m), 1e-12)
-
-    def model(p):
-        th, ph, la, b, lg = p
-        s = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), -np.cos(th)])
-        rad = np.exp(la) * np.maximum(N @ s, 0.0) + b
-        return np.clip(rad, 1e-9, 1.0) ** np.exp(-lg), s
-
-    keep = np.ones(len(vv), bool)
-    Nk, vk = N, vv  # the kept pixels' normals and values (set again with ``keep`` below)
-
-    def resid(p):
-        th, ph, la, b, lg = p
-        s = np.array([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), -np.cos(th)])
-        rad = np.exp(la) * np.maximum(Nk @ s, 0.0) + b
-        return 255.0 * (np.clip(rad, 1e-9, 1.0) ** np.exp(-lg) - vk)
-
-    def jac(p):
-        # analytic: the numerical one cost 5 more evaluations per step, ~2/3 of the fit's time
-        th, ph, la, b, lg = p
-        st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
-        s = np.array([st * cp, st * sp, -ct])
-        ns = Nk @ s
-        lit = ns > 0.0
-        a = np.exp(la)
-        rad = a * np.where(lit, ns, 0.0) + b
-        inside = (rad > 1e-9) & (rad < 1.0)
-        rc = np.clip(rad, 1e-9, 1.0)
-        k = np.exp(-lg)
-        pred = rc ** k
-        dpdr = np.where(inside, k * pred / rc, 0.0)  # d pred / d rad
-        al = a * lit
-        J = np.empty((len(ns), 5))
-        J[:, 0] = dpdr * al * (Nk @ np.array([ct * cp, ct * sp, st]))
-        J[:, 1] = dpdr * al * (Nk @ np.array([-st * sp, st * cp, 0.0]))
-        J[:, 2] = dpdr * a * np.where(lit, ns, 0.0)
-        J[:, 3] = dpdr
-        J[:, 4] = -k * pred * np.log(rc)
-        return 255.0 * J
-
-    th0 = float(np.arccos(np.clip(-s0[2], -1, 1)))
-    ph0 = float(np.arctan2(s0[1], s0[0]))
-    best = None
-    lo = [0.0, -np.inf, np.log(1e-3), 0.0, np.log(_G_BOUNDS[0])]
-    hi = [np.pi, np.inf, np.log(4.0), 0.3, np.log(_G_BOUNDS[1])]
-    for g0 in (1.0, 2.2):  # two starts: the linear and the encoded basin
-        a0 = float(np.quantile(vv, 0.95)) ** g0
-        p0 = [min(max(th0, 1e-3), np.pi - 1e-3), ph0, np.log(max(a0, 2e-3)), 0.0, np.log(g0)]
-        try:
-            f = least_squares(resid, p0, jac, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale, max_nfev=200)
-        except ValueError:
-            continue
-        if best is None or f.cost < best.cost:
-            best = f
-    if best is None:
-        return None
-    # Again without the terminator's band: the lens blur spreads the lit side's light over the
-    # shadow line, which a sharp lambertian model reads as a flatter curve (a side- or back-lit
-    # ball's gamma came out ~15 % low with 0.6 px of blur).
-    # ... and without the dark markers: pixels well below the first fit, grown by a pixel (a
-    # marker's blurred rim), are paint, not shading (dark paint near the limb steepened the
-    # profile: linear balls came out 0.5-1.0 with the robust loss alone)
-    pred0, s0 = model(best.x)
-    res = 255.0 * (vv - pred0)
-    sigma = 1.4826 * float(np.median(np.abs(res)))
-    dark = np.zeros(sel.shape, np.uint8)
-    dark[sel] = res < -max(4.0 * sigma, 5.0)
-    dark = cv2.dilate(dark, np.ones((3, 3), np.uint8))[sel].astype(bool)
-    band = terminator_px / r
-    keep = (np.abs(N @ s0) >= band) & ~dark
-    if keep.sum() >= _MIN_PIXELS:
-        Nk, vk = N[keep], vv[keep]
-        try:
-            best = least_squares(resid, best.x, jac, bounds=(lo, hi), loss="soft_l1", f_scale=f_scale,
-                                 max_nfev=200)
-        except ValueError:
-            pass
-    pred, s = model(best.x)
-    res = 255.0 * (pred - vv)
-    lit = float(np.mean(N @ s > 0))
-    return {"gamma": float(np.exp(best.x[4])), "rms": float(np.sqrt(np.median(res ** 2))), "n": int(sel.sum()),
-            "light": s, "lit": lit}
+    d = _disc(image, center, radius_px, inner, max_pixels)
+    return None if d is None else _fit_discs([d], f_scale, terminator_px)[0]
 
 
-def estimate_response(images, centers, radii_px, max_spheres: int = 40, what: str = "ball") -> ResponseEstimate:
+def estimate_response(images, centers, radii_px, max_spheres: int = _MAX_SPHERES,
+                      what: str = "ball") -> ResponseEstimate:
     """The response class and effective gamma from lit spheres in photos of one camera.
 
     Parameters
@@ -255,20 +423,40 @@ def estimate_response(images, centers, radii_px, max_spheres: int = 40, what: st
     -------
     ResponseEstimate
     """
-    if isinstance(images, np.ndarray):
-        images, centers, radii_px = [images], [centers], [radii_px]
-    cand = []
-    for k, (img, cs, rs) in enumerate(zip(images, centers, radii_px)):
-        cs = np.asarray(cs, float).reshape(-1, 2)
-        rs = np.broadcast_to(np.asarray(rs, float), (len(cs),))
-        cand += [(float(r), k, c) for c, r in zip(cs, rs) if np.isfinite(r) and np.all(np.isfinite(c))]
-    cand.sort(key=lambda t: -t[0])
-    fits = []
-    for r, k, c in cand[:int(max_spheres)]:
-        f = ball_shading_gamma(images[k], c, r)
-        if f is not None:
-            fits.append(f)
-    return _combine(fits, what)
+    return estimate_responses([(images, centers, radii_px)], max_spheres, what)[0]
+
+
+def estimate_responses(cameras, max_spheres: int = _MAX_SPHERES, what: str = "ball") -> list:
+    """:func:`estimate_response` of several cameras, their spheres fitted in one batch (cheaper
+    than one call per camera: the fit's cost is mostly per batch).
+
+    Parameters
+    ----------
+    cameras : list of (images, centers, radii_px)
+        Each camera's arguments of :func:`estimate_response`.
+
+    Returns
+    -------
+    list of ResponseEstimate
+        One per camera, in order.
+    """
+    discs, owner = [], []
+    for q, (images, centers, radii_px) in enumerate(cameras):
+        if isinstance(images, np.ndarray):
+            images, centers, radii_px = [images], [centers], [radii_px]
+        cand = []
+        for k, (img, cs, rs) in enumerate(zip(images, centers, radii_px)):
+            cs = np.asarray(cs, float).reshape(-1, 2)
+            rs = np.broadcast_to(np.asarray(rs, float), (len(cs),))
+            cand += [(float(r), k, c) for c, r in zip(cs, rs) if np.isfinite(r) and np.all(np.isfinite(c))]
+        cand.sort(key=lambda t: -t[0])
+        for r, k, c in cand[:int(max_spheres)]:
+            d = _disc(images[k], c, r, 0.8, _MAX_PIXELS)
+            if d is not None:
+                discs.append(d)
+                owner.append(q)
+    fits = _fit_discs(discs)
+    return [_combine([f for f, o in zip(fits, owner) if o == q and f is not None], what) for q in range(len(cameras))]
 
 
 def _combine(fits: list, what: str) -> ResponseEstimate:

@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from stillcap.ball.stereo import ball_centers_stereo
-from stillcap.detect.response import ResponseEstimate, estimate_response, response_check
+from stillcap.detect.response import ResponseEstimate, estimate_response, estimate_responses, response_check
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.response import Response, check_response_option
 
@@ -81,8 +81,8 @@ def _pair_estimates(cams, imgs, radius_m: float) -> tuple:
     responses, radii projected from the triangulated balls (the geometry the shading fit needs)."""
     st = ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], radius_m)
     ok = st.ok
-    return tuple(estimate_response(imgs[k], (st.centers_a, st.centers_b)[k][ok], st.radius_px[ok, k])
-                 for k in range(2))
+    return tuple(estimate_responses([(imgs[k], (st.centers_a, st.centers_b)[k][ok], st.radius_px[ok, k])
+                                     for k in range(2)]))
 
 
 def pitch_auto_estimates(cap: Capture, radius_m: float, rounds: int = 3) -> dict:
@@ -138,14 +138,15 @@ def camera_estimates(names, images, centers_px, radius_px) -> dict:
     """Each camera's :class:`ResponseEstimate` from its photo's ball images at known centres
     ``(n_cams, K, 2)`` and radii ``(n_cams, K)`` (e.g. the hand capture's triangulated ball,
     projected); cameras without a photo are left out."""
-    out = {}
+    names_in, args = [], []
     for k, (name, img) in enumerate(zip(names, images)):
         if img is None:
             continue
         c, r = np.asarray(centers_px[k], float), np.asarray(radius_px[k], float)
         ok = np.all(np.isfinite(c), axis=1) & np.isfinite(r)
-        out[name] = estimate_response(img, c[ok], r[ok])
-    return out
+        names_in.append(name)
+        args.append((img, c[ok], r[ok]))
+    return dict(zip(names_in, estimate_responses(args)))  # all cameras in one batch
 
 
 def auto_rig(rig, estimates: dict):

@@ -17,6 +17,7 @@ from stillcap._progress import report_progress
 from stillcap._checks import as_rng
 from stillcap.calibrate.targets import CalibrationObject, CharucoTarget, Chessboard
 from stillcap.camera import Camera, Rig, look_at, pose_matrix
+from stillcap.response import Response
 from stillcap.io.capture import Capture, CaptureImage, target_to_dict
 from stillcap.detect.blobs import MARKER_BALL_COLORS
 from stillcap.studio.markers import baseball_markers
@@ -59,6 +60,8 @@ class ChessboardSet:
     corners_px : list of np.ndarray
         True pixel positions of :meth:`target.object_points` per view, ``(n_corners, 2)``
         (for a calibration object: all faces' corners stacked in face order).
+    response : Response, optional
+        The response the photos are encoded with (the sensor's), recorded in the truth.
     """
 
     camera: Camera
@@ -66,6 +69,7 @@ class ChessboardSet:
     board2cam: np.ndarray
     images: list
     corners_px: list
+    response: Response | None = None
 
     @property
     def kind(self) -> str:
@@ -79,6 +83,8 @@ class ChessboardSet:
         truth = {"kind": self.kind, "camera": self.camera.to_dict(),
                  "views": [{"file": f, "board2cam": T, "corners_px": c}
                            for f, T, c in zip(files, self.board2cam, self.corners_px)]}
+        if self.response is not None:
+            truth["response"] = self.response.to_json()
         meta = {"synthetic": True, "rig_calibrated": False, "target": target_to_dict(self.target),
                 "description": f"synthetic {self.kind} calibration set, {len(files)} views"}
         cap = Capture(self.kind, Rig([nominal_camera(self.camera)]), imgs, truth, meta)
@@ -193,7 +199,7 @@ def chessboard_set(camera: Camera | None = None, n_views: int = 15, target=None,
         corners.append(probe.project(_target_points(target) @ T[:3, :3].T + T[:3, 3]))
         poses.append(T)
         report_progress(progress, i + 1, n_views)
-    return ChessboardSet(camera, target, np.array(poses), images, corners)
+    return ChessboardSet(camera, target, np.array(poses), images, corners, sensor.response)
 
 
 @dataclass

@@ -44,7 +44,7 @@ from dataclasses import replace
 import numpy as np
 
 from stillcap.ball.stereo import ball_centers_stereo
-from stillcap.detect.response import estimate_response
+from stillcap.detect.response import estimate_responses
 from stillcap.io.capture import Capture
 from stillcap.pipelines.pitch.spin import pair_markers_and_spin
 
@@ -108,8 +108,9 @@ def pair_response_estimates(photos, pair) -> dict:
     at its refined centres and projected radii: what the ``response`` self-check
     (:func:`stillcap.pipelines._response.pitch_response_checks`) computes, on the photos the
     pair step decoded, where they are."""
-    return {name: estimate_response(photos[k], np.asarray(pair.centers_px[k]), np.asarray(pair.radius_px[k]))
-            for k, name in enumerate(pair.cameras)}
+    found = estimate_responses([(photos[k], np.asarray(pair.centers_px[k]), np.asarray(pair.radius_px[k]))
+                                for k in range(len(pair.cameras))])  # both cameras in one batch
+    return dict(zip(pair.cameras, found))
 
 
 def pair_response_job(token: str, pair) -> dict:
