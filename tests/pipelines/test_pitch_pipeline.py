@@ -255,3 +255,12 @@ def test_stereo_pairs_from_meta_and_rates(fastball):
     cap.meta.pop("pairs")
     pairs, _ = stereo_pairs(cap)
     assert sorted(p.cameras for p in pairs) == [("back_left", "back_right"), ("front_top", "front_bottom")]
+
+
+def test_each_pair_reports_the_lens_blur_its_shading_correction_used(result):
+    """The studio photos are blurred with 0.5 px (Gaussian sigma): the blur read from the balls'
+    limbs and reported per camera is near it, not a fixed default pretending to be a measurement."""
+    for p in result.to_dict()["pairs"]:
+        blur = p["blur_px"]
+        assert len(blur) == 2 and all(0.3 < b < 0.8 for b in blur), (p["name"], blur)
+        assert 0.5 not in blur  # read from the photos, not the fallback

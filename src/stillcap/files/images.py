@@ -93,7 +93,7 @@ def _jpeg(data: bytes) -> tuple[int, int, str | None]:
         i += 2 + length
     if w == 0 or h == 0:
         return w, h, "is corrupt (no JPEG frame header before the image data)"
-    if data.find(b"\xff\xd9", i + 2 + length) < 0:
+    if data.rfind(b"\xff\xd9", i + 2 + length) < 0:  # rfind: same test, found at the end in microseconds
         return w, h, "is truncated (no JPEG end-of-image marker)"
     return w, h, None
 

@@ -134,6 +134,8 @@ class PairResult:
             "time_offset_s": self.time_offset_s, "time_offset_sigma_s": self.time_offset_sigma_s,
             "markers_per_flash": n_mk, "n_markers_3d": self.n_markers_3d, "n_markers_ray": self.n_markers_ray,
             "spin": None if self.spin is None else self.spin.to_dict(),
+            # the lens blur each camera's shading correction used (read from the balls' limbs)
+            "blur_px": None if self.stereo is None else [float(v) for v in self.stereo.psf_px],
         }
 
 
