@@ -110,3 +110,20 @@ def test_pitch_session_report_needs_distinct_names(fastball, tmp_path, capsys):
     code, _, err = run(["pitch", str(fastball), str(twin), "--report", str(tmp_path / "rep")], capsys)
     assert code == 2 and "distinct folder names" in err
     assert not (tmp_path / "rep").exists()
+
+
+def test_pitch_uncertainty_assumptions_are_options(fastball, capsys):
+    """--center-sigma-px and --shading-model-error are stated assumptions: a larger one gives wider
+    position uncertainties, and a bad one is refused in one line with exit status 2."""
+    sig = {}
+    for value in ("0.5", "3"):
+        code, out, err = run(["pitch", str(fastball), "--json", "--shading-model-error", value,
+                              "--center-sigma-px", "0.2"], capsys)
+        assert code == 0, err
+        d = json.loads(out)
+        sig[value] = np.mean([np.trace(np.asarray(c)) for p in d["pairs"] for c in p["position_covariance_mm2"]])
+    assert sig["3"] > sig["0.5"] > 0
+    code, _, err = run(["pitch", str(fastball), "--shading-model-error", "-1"], capsys)
+    assert code == 2 and "shading_model_error" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run(["pitch", str(fastball), "--center-sigma-px", "0"], capsys)
+    assert code == 2 and "center_sigma_px" in err

@@ -62,6 +62,12 @@ def pitch(
                                        "one capture, 2 for several (the pool starts once, ~0.5 s, then is reused)."),
     force: bool = typer.Option(False, "--force", help="Overwrite files stillcap did not write (--report, --csv)."),
     response: str = typer.Option(None, "--response", help=RESPONSE_HELP),
+    center_sigma_px: float = typer.Option(0.2, "--center-sigma-px", help="Assumed 1-sigma noise of a refined "
+                                          "ball centre in the photo (px); the self-checks grow it when the "
+                                          "residuals show more."),
+    shading_model_error: float = typer.Option(0.5, "--shading-model-error", help="Assumed relative error of "
+                                              "the lit-phase (shading) correction of each ball centre: its "
+                                              "remaining bias is taken as this fraction of the correction."),
 ):
     """Ball positions, release velocity, spin, reference trajectory and pitch metrics of a capture.
 
@@ -100,7 +106,8 @@ def pitch(
         ball_obj = load_ball(ball, "--ball")
     opts = PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
                         release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes,
-                        ball=ball_obj, response=camera_response)
+                        ball=ball_obj, response=camera_response, center_sigma_px=center_sigma_px,
+                        shading_model_error=shading_model_error)
     if len(captures) > 1:
         _session(captures, opts, report, as_json)
         return
