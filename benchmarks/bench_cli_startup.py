@@ -112,7 +112,7 @@ def importtime(args: list[str], top: int) -> None:
         m = mods[i] if i < len(mods) else ("", 0)
         p = pkgs[i] if i < len(pkgs) else ("", 0)
         t.add_row(m[0], f"{m[1] / 1e3:.1f}" if m[0] else "", p[0], f"{p[1] / 1e3:.1f}" if p[0] else "")
-    Console().print(t)
+    Console(width=150).print(t)
 
 
 def main() -> None:
@@ -136,7 +136,7 @@ def main() -> None:
     for name, floor in FLOORS:
         wall, cpu = times(floor, args.repeat)
         t.add_row(f"[dim]{name}[/]", f"{statistics.median(wall):.3f}", f"{min(wall):.3f}", f"{min(cpu):.3f}", "-", "-")
-    Console().print(t)
+    Console(width=150).print(t)
     if args.pitch_repeat <= 0:
         return
     from bench_speed import render
@@ -159,7 +159,7 @@ def main() -> None:
                   f"{min(wall) / inproc:.2f}", f"<= {PITCH_GOAL:g}" if i == 0 else "")
     p.add_section()
     p.add_row("Capture.load + analyse_pitch (in process, warm)", f"{inproc:.3f}", "", "", "1.00", "")
-    Console().print(p)
+    Console(width=150).print(p)
     if args.importtime:
         importtime(["-m", "stillcap", "pitch", str(capture), "--json"], args.importtime)
 

@@ -159,7 +159,8 @@ def hold_point_path(times: np.ndarray, points: np.ndarray):
     straight line with 2 points.
     """
     if len(times) >= 3:
-        from scipy.interpolate import CubicSpline  # here: a pitch never needs it (stillcap pitch starts faster)
+        # imported here: a pitch never needs it, and stillcap pitch starts faster without it
+        from scipy.interpolate import CubicSpline
 
         c, e1, e2, n, r = _circle_3d(points)
         span = float(np.linalg.norm(points[-1] - points[0]))

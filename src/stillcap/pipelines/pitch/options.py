@@ -132,7 +132,8 @@ class PitchOptions:
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if self.ball is not None:
-            from stillcap.ball.ballfile import Ball  # here: only a given ball needs it (stillcap pitch starts faster)
+            # imported here: only a given ball needs it, and stillcap pitch starts faster without it
+            from stillcap.ball.ballfile import Ball
 
             if not isinstance(self.ball, Ball):
                 raise ValueError(f"ball must be a stillcap.ball.ballfile.Ball, got {type(self.ball).__name__}")
