@@ -22,6 +22,10 @@ pipeline decodes the photos itself after its imports), against ``Capture.load`` 
 command's start-up with the largest own import time (``python -X importtime``, the least of
 three runs), summed by top-level package too.
 
+The processes keep stillcap's bytecode in ``--cache``/pycache (``PYTHONPYCACHEPREFIX``), as an
+installed package has it, also where ``PYTHONDONTWRITEBYTECODE`` is set (the development
+machine sets it: every process then compiles stillcap's modules again; one row shows that).
+
 Run it on a quiet machine: on a loaded one every ratio is distorted (a fresh process's one-off
 costs suffer most, and the decoding ahead needs the second core to be free).
 """
@@ -59,20 +63,32 @@ NO_DECODING_AHEAD = ("import sys\nfrom stillcap.io.capture import Capture\nCaptu
 PITCH_IMPORTS = "import stillcap.cli.pitch, stillcap.io.capture, stillcap.pipelines.pitch"
 
 
-def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
+PYCACHE: Path | None = None  # where the processes keep stillcap's bytecode (main() sets it)
 
 
-def times(args: list[str], repeat: int) -> tuple[list[float], list[float]]:
+def _env(bytecode: bool = True) -> dict:
+    """The processes' environment: this tree's ``src`` first; with ``bytecode``, stillcap's compiled
+    modules kept in :data:`PYCACHE` (as an installed package has them: a process started with
+    ``PYTHONDONTWRITEBYTECODE`` compiles every stillcap module from source, ~0.1 s)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
+    if bytecode and PYCACHE is not None:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+        env["PYTHONPYCACHEPREFIX"] = str(PYCACHE)
+    else:
+        env["PYTHONDONTWRITEBYTECODE"] = "1"
+    return env
+
+
+def times(args: list[str], repeat: int, bytecode: bool = True) -> tuple[list[float], list[float]]:
     """Wall and CPU (user + system) seconds of ``repeat`` runs of ``python ARGS`` (after one
-    untimed run)."""
-    cmd = [sys.executable, *args]
-    subprocess.run(cmd, check=True, capture_output=True, env=_env())
+    untimed run, which also compiles the bytecode)."""
+    cmd, env = [sys.executable, *args], _env(bytecode)
+    subprocess.run(cmd, check=True, capture_output=True, env=env)
     wall, cpu = [], []
     for _ in range(repeat):
         r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t = time.perf_counter()
-        subprocess.run(cmd, check=True, capture_output=True, env=_env())
+        subprocess.run(cmd, check=True, capture_output=True, env=env)
         wall.append(time.perf_counter() - t)
         r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu.append(r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime)
@@ -94,7 +110,8 @@ def importtime(args: list[str], top: int) -> None:
     """The ``top`` modules with the largest own import time (least of 3 runs), and the sums by package."""
     own: dict[str, int] = {}
     for _ in range(3):
-        r = subprocess.run([sys.executable, "-X", "importtime", *args], capture_output=True, text=True, env=_env())
+        r = subprocess.run([sys.executable, "-X", "importtime", *args], check=True, capture_output=True, text=True,
+                           env=_env())
         for line in r.stderr.splitlines():
             if line.startswith("import time:") and "self [us]" not in line:
                 us, _cum, name = line[len("import time:"):].split("|")
@@ -124,6 +141,8 @@ def main() -> None:
     ap.add_argument("--importtime", type=int, default=0, metavar="N",
                     help="Also print the N largest own import times of the pitch command.")
     args = ap.parse_args()
+    global PYCACHE
+    PYCACHE = args.cache / "pycache"
     t = Table(title=f"stillcap start-up: seconds over {args.repeat} runs each")
     for c in ("command", "median s", "min s", "min CPU s", "goal s", "ratio to goal"):
         t.add_column(c, justify="right" if c != "command" else "left")
@@ -151,10 +170,11 @@ def main() -> None:
     rows = (("python -m stillcap pitch CAP --json", ["-m", "stillcap", "pitch", str(capture), "--json"]),
             ("  without the GC freeze at exit", ["-c", NO_FREEZE, str(capture)]),
             ("  without decoding the photos ahead", ["-c", NO_DECODING_AHEAD, str(capture)]),
+            ("  without bytecode (PYTHONDONTWRITEBYTECODE)", ["-m", "stillcap", "pitch", str(capture), "--json"]),
             ("[dim]imports of the pitch path only[/]", ["-c", PITCH_IMPORTS]),
             ("[dim]python -c pass[/]", ["-c", "pass"]))
     for i, (name, argv) in enumerate(rows):
-        wall, cpu = times(argv, n)
+        wall, cpu = times(argv, n, bytecode="bytecode" not in name)
         p.add_row(name, f"{min(wall):.3f}", f"{statistics.median(wall):.3f}", f"{min(cpu):.3f}",
                   f"{min(wall) / inproc:.2f}", f"<= {PITCH_GOAL:g}" if i == 0 else "")
     p.add_section()
