@@ -1,4 +1,4 @@
-from stillcap.cli import main
+from stillcap.cli import run
 
 if __name__ == "__main__":  # not again in a spawned process (Dask, multiprocessing) that imports it
-    main()
+    run()

@@ -31,7 +31,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 
 from stillcap._checks import as_array
@@ -160,6 +159,9 @@ def hold_point_path(times: np.ndarray, points: np.ndarray):
     straight line with 2 points.
     """
     if len(times) >= 3:
+        # imported here: a pitch never needs it, and stillcap pitch starts faster without it
+        from scipy.interpolate import CubicSpline
+
         c, e1, e2, n, r = _circle_3d(points)
         span = float(np.linalg.norm(points[-1] - points[0]))
         if np.isfinite(r) and 0 < r < 20 * max(span, 1e-9):

@@ -84,10 +84,6 @@ def pitch(
     written); if writing fails afterwards, the result is saved in a temporary folder and the
     message says where.
     """
-    from stillcap.io.capture import Capture
-    from stillcap.pipelines.pitch import TABLE1_COLUMNS, PitchOptions, analyse_pitch
-    from stillcap.studio.compare.pitch import add_truth_comparison
-
     camera_response = parse_response_option(response)
     _choice("--spin", spin, SPIN_CHOICES)
     _choice("--physics", physics, PHYSICS_CHOICES)
@@ -104,16 +100,32 @@ def pitch(
     if ball is not None:
         from stillcap.ball.ballfile import load_ball
         ball_obj = load_ball(ball, "--ball")
-    opts = PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
-                        release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes,
-                        ball=ball_obj, response=camera_response, center_sigma_px=center_sigma_px,
-                        shading_model_error=shading_model_error)
+
+    def options():
+        from stillcap.pipelines.pitch import PitchOptions
+
+        return PitchOptions(spin_method=spin, physics=physics, fit_method=fit.replace("-", "_"),
+                            release_y_ft=release_y_ft, expected_speed_mph=expected_speed_mph, processes=processes,
+                            ball=ball_obj, response=camera_response, center_sigma_px=center_sigma_px,
+                            shading_model_error=shading_model_error)
+
     if len(captures) > 1:
-        _session(captures, opts, report, as_json)
+        _session(captures, options(), report, as_json)
         return
+    from stillcap.io.capture import Capture
+
     with progress("analysing the pitch") as bar:
         cap = Capture.load(captures[0])
-        res = add_truth_comparison(analyse_pitch(cap, opts, progress=bar), cap.truth)
+        if processes == 0:  # the photos decode on the other core while the pipeline's modules import (~0.5 s)
+            cap.start_decoding()
+        opts = options()  # its errors (e.g. --expected-speed-mph -1) now come after the capture's
+        from stillcap.pipelines.pitch import analyse_pitch
+
+        res = analyse_pitch(cap, opts, progress=bar)
+        if cap.truth is not None:  # a studio render: its truth compared (photos from elsewhere have none)
+            from stillcap.studio.compare.pitch import add_truth_comparison
+
+            res = add_truth_comparison(res, cap.truth)
     print_failed_checks(res.self_checks, "pitch")  # on stderr, also with --json
     written = []
     outputs = Outputs(lambda: json.dumps(res.to_dict(), indent=1, allow_nan=False) + "\n", "pitch.json")
@@ -152,6 +164,8 @@ def pitch(
             continue
         mt.add_row(k, v if isinstance(v, str) else _f(v, 3), _f(s.get(k), 3))
     console.print(mt)
+    from stillcap.pipelines.pitch import TABLE1_COLUMNS
+
     t1 = Table(title="Seed Table 1: reference trajectory vs measured initial parameters")
     t1.add_column("column")
     t1.add_column("value", justify="right")

@@ -153,6 +153,9 @@ class Capture:
     truth: dict | None = None
     meta: dict = field(default_factory=dict)
     root: Path | None = None
+    # photos being decoded ahead (start_decoding): file -> Future of its read_image; shared by the
+    # copies dataclasses.replace makes (a rig with other responses: the same photos)
+    _decoding: dict = field(default_factory=dict, repr=False, compare=False, kw_only=True)
 
     def __post_init__(self):
         if not isinstance(self.kind, str) or not self.kind:
@@ -198,15 +201,38 @@ class Capture:
 
     def read_image(self, image: CaptureImage | str | int, flags: int = cv2.IMREAD_COLOR) -> np.ndarray:
         """Decode one image (BGR uint8 by default); ValueError naming the file if it cannot be
-        decoded or its size differs from its camera's ``image_size``."""
+        decoded or its size differs from its camera's ``image_size``. A photo decoded ahead
+        (:meth:`start_decoding`) is handed out once, to the first call in colour; later calls
+        decode the file again, as without it."""
         im = self._entry(image)
         path = self.path_of(im)
-        img = _read_image_file(path, flags)  # size and completeness checked before decoding
+        ahead = self._decoding.pop(im.file, None) if flags == cv2.IMREAD_COLOR else None
+        # size and completeness checked before decoding (its errors come here from a decoding ahead)
+        img = ahead.result() if ahead is not None else _read_image_file(path, flags)
         w, h = self.rig[im.camera].image_size
         if img.shape[:2] != (h, w):
             raise ValueError(f"image file {path} is {img.shape[1]}x{img.shape[0]} px but camera "
                              f"{im.camera!r} is {w}x{h} px")
         return img
+
+    def start_decoding(self, images=None) -> None:
+        """Start decoding photos (default: all) in colour on a background thread, for
+        :meth:`read_image` to hand out: e.g. while the program still imports the pipeline that
+        will read them (OpenCV's decoding releases the GIL, so it runs on another core). The
+        photos and the errors are those :meth:`read_image` gives without it; a photo nobody
+        reads stays in memory as long as the capture."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        entries = [self._entry(im) for im in (self.images if images is None else images)]
+        pool = ThreadPoolExecutor(1, thread_name_prefix="stillcap-decode")
+        for im in entries:
+            if im.file not in self._decoding:
+                self._decoding[im.file] = pool.submit(_read_image_file, self.path_of(im), cv2.IMREAD_COLOR)
+        pool.shutdown(wait=False)  # the thread ends after the last photo
+
+    def __getstate__(self) -> dict:
+        # a capture sent to a worker process goes without the photos decoded ahead here
+        return {**self.__dict__, "_decoding": {}}
 
     def verify(self) -> None:
         """Decode every image (slow); raises ValueError naming the first bad file."""
@@ -323,11 +349,10 @@ def capture_ball(capture: Capture):
     ball's name, a ball file's path inside the capture folder (kept inside it), or a ball file's
     content; None without the key. ``ValueError`` naming ``capture.json``, the key and the
     problem otherwise."""
-    from stillcap.ball.ballfile import resolve_ball
-
     spec = capture.meta.get("ball")
     if spec is None:
         return None
+    from stillcap.ball.ballfile import resolve_ball
     where = f"{capture.root / 'capture.json'}: ball" if capture.root is not None else "capture.json: ball"
     return resolve_ball(spec, capture.root, where)
 

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stillcap.ball.ballfile import Ball
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
 from stillcap.ball.physics import FLIGHT_MODELS, flight_model
 from stillcap.response import check_response_option
+
+if TYPE_CHECKING:
+    from stillcap.ball.ballfile import Ball
 
 __all__ = ["FIT_METHODS", "PHYSICS", "PitchOptions", "SIGMA_METHODS", "SPIN_METHODS"]
 
@@ -136,8 +139,12 @@ class PitchOptions:
         for name, allowed in (("spin_method", SPIN_METHODS), ("physics", PHYSICS), ("fit_method", FIT_METHODS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
-        if self.ball is not None and not isinstance(self.ball, Ball):
-            raise ValueError(f"ball must be a stillcap.ball.ballfile.Ball, got {type(self.ball).__name__}")
+        if self.ball is not None:
+            # imported here: only a given ball needs it, and stillcap pitch starts faster without it
+            from stillcap.ball.ballfile import Ball
+
+            if not isinstance(self.ball, Ball):
+                raise ValueError(f"ball must be a stillcap.ball.ballfile.Ball, got {type(self.ball).__name__}")
         if self.ball_radius_m is not None and not (np.isfinite(self.ball_radius_m) and self.ball_radius_m > 0):
             raise ValueError(f"ball_radius_m must be a positive number of metres, got {self.ball_radius_m}")
         if self.expected_speed_mph is not None and not self.expected_speed_mph > 0:
