@@ -177,7 +177,7 @@ def _parameters(sk0: Skeleton, ms0: MarkerSet, ad) -> list:
             out.append(CalibratedParameter(f"{sk.names[sk.parents[i]]} to {n}", "length", np.linalg.norm(o[i]) * 1e3,
                                            _sd(o[i], C) * 1e3, np.linalg.norm(o0[i]) * 1e3, "mm"))
     for i, n in enumerate(sk.names):  # the thumb's bone directions
-        if n.startswith("thumb-") and sk.parents[i] != sk.root:
+        if n.startswith("thumb-") and sk.parents[i] != sk.root and not n.endswith("-tip"):
             u, u0 = o[i] / np.linalg.norm(o[i]), o0[i] / np.linalg.norm(o0[i])
             P = (np.eye(3) - np.outer(u, u)) / np.linalg.norm(o[i])
             sd = np.sqrt(max(0.0, np.trace(P @ ad.joint_cov[i] @ P.T) / 2))
