@@ -36,10 +36,24 @@ from stillcap.studio.hand_variation import another_hand
 NOISE_M = 0.0003
 
 
-def _one(seed: int, person, adapted: bool, own: bool = False) -> dict:
+def _calibrated(seed: int, person):
+    """The hand's model from a studio calibration capture (``--calibration-pose flat``, the
+    protocol motion) through ``stillcap.body.hand_calibrate`` on its 3D markers (as ``_one``)."""
+    from stillcap.body.hand_calibrate import calibrate_hand_from_points
+
+    tr = hand_capture(seed + 1000, image_size=(320, 240), supersample=1, person=person, calibration_pose="flat").truth
+    d = hand_points_from_truth(tr, noise_m=NOISE_M, drop=0.0, n_spurious=3, rng=seed + 1000)
+    cal = calibrate_hand_from_points(d["points"], d["colours"], strobe_hz=tr.strobe_hz)
+    return cal.skeleton, cal.markerset
+
+
+def _one(seed: int, person, adapted: bool, own: bool = False, calibrated: bool = False) -> dict:
     truth = hand_capture(seed, image_size=(320, 240), supersample=1, person=person).truth
     d = hand_points_from_truth(truth, noise_m=NOISE_M, drop=0.0, n_spurious=3, rng=seed)
-    if adapted:
+    if calibrated:  # the model from a calibration capture (stillcap hand-calibrate), then --hand-model
+        sk, ms = _calibrated(seed, person)
+        lab = label_hand_markers(d["points"], d["colours"], strobe_hz=truth.strobe_hz, skeleton=sk, markerset=ms)
+    elif adapted:
         from stillcap.body.hand_adapt import label_and_adapt
 
         lab, _ = label_and_adapt(d["points"], d["colours"], strobe_hz=truth.strobe_hz, skeleton=hand_skeleton(),
@@ -84,13 +98,14 @@ def rows(quick: bool = False) -> list[dict]:
     """One dict per condition (keys ``pipeline``, ``condition``, ``n`` and the metrics)."""
     n = 2 if quick else 8
     other = CONDITIONS["another hand (±15 % size, own proportions)"]["person"]
-    conds = [(name, c["person"], False, False) for name, c in CONDITIONS.items()]
-    conds.append(("another hand, its own model file (--hand-model, --markers)", other, False, True))
+    conds = [(name, c["person"], False, False, False) for name, c in CONDITIONS.items()]
+    conds.append(("another hand, its own model file (--hand-model, --markers)", other, False, True, False))
     if not quick:
-        conds.append(("another hand, model adapted to it", other, True, False))
+        conds.append(("another hand, model adapted to it", other, True, False, False))
+        conds.append(("another hand, calibrated model (hand-calibrate, protocol)", other, False, False, True))
     out = []
-    for name, person, adapted, own in conds:
-        rs = [_one(100 + s, person(100 + s), adapted, own) for s in range(n)]
+    for name, person, adapted, own, calibrated in conds:
+        rs = [_one(100 + s, person(100 + s), adapted, own, calibrated) for s in range(n)]
         given = sum(r["given"] for r in rs)
         err = np.concatenate([r["err"] for r in rs])
         ang = np.concatenate([r["ang"] for r in rs])

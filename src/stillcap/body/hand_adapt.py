@@ -65,6 +65,14 @@ class HandAdaptation:
     n_flashes : int
     success : bool
     message : str
+    joint_cov, marker_cov : ndarray, shape (n_joints, 3, 3) and (n_markers, 3, 3)
+        Covariance (m^2) of every joint offset and every marker offset of the adapted model
+        (zero for components held), from the solution's Jacobian (the Gauss-Newton
+        approximation, priors included), scaled up by the data's reduced chi-square when that
+        exceeds 1 (the noise was larger than ``noise_m``).
+    joint_prior_z, marker_prior_z : ndarray, shape (n_joints,) and (n_markers,)
+        Largest change of a component from the model started from, in its prior's sigmas (a
+        model that had to move far from the template to fit: a pose that is not what was stated).
     """
 
     skeleton: Skeleton
@@ -75,6 +83,10 @@ class HandAdaptation:
     n_flashes: int
     success: bool
     message: str = ""
+    joint_cov: np.ndarray | None = None
+    marker_cov: np.ndarray | None = None
+    joint_prior_z: np.ndarray | None = None
+    marker_prior_z: np.ndarray | None = None
 
     def digit_rms(self) -> dict:
         """RMS residual (m) of each digit's markers and of the back of the hand (NaN if unseen)."""
@@ -195,25 +207,30 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         moff[:, mk_free] = m0[mk_free][None] + X[:, 1 + nj_free:ns].reshape(P, -1, 3)
         return joff, moff
 
-    def residuals(X):
-        P = len(X)
-        joff, moff = shape(X)
-        Y = X[:, ns:].reshape(P, F, npp)
-        R0 = Rotation.from_rotvec(Y[..., :3].reshape(-1, 3)).as_matrix().reshape(P, F, 3, 3)
-        ang = np.zeros((P, F, J, 3))
+    def markers_at(joff, moff, Y):
+        """Model markers (P, F', M, 3) for poses ``Y`` (P, F', npp); ``joff``/``moff`` (P or 1, ...)."""
+        P, Fk = Y.shape[:2]
+        R0 = Rotation.from_rotvec(Y[..., :3].reshape(-1, 3)).as_matrix().reshape(P, Fk, 3, 3)
+        ang = np.zeros((P, Fk, J, 3))
         ang[:, :, dof_j, dof_a] = Y[..., 6:]
-        local = Rotation.from_euler("XYZ", ang.reshape(-1, 3)).as_matrix().reshape(P, F, J, 3, 3)
-        Rj = np.empty((P, F, J, 3, 3))
-        tj = np.empty((P, F, J, 3))
+        local = Rotation.from_euler("XYZ", ang.reshape(-1, 3)).as_matrix().reshape(P, Fk, J, 3, 3)
+        Rj = np.empty((P, Fk, J, 3, 3))
+        tj = np.empty((P, Fk, J, 3))
         for i in order:
             q = parents[i]
             if q < 0:
                 Rj[:, :, i] = R0 @ local[:, :, i]
                 tj[:, :, i] = Y[..., 3:6]
             else:
-                tj[:, :, i] = np.einsum("pfab,pb->pfa", Rj[:, :, q], joff[:, i]) + tj[:, :, q]
+                tj[:, :, i] = (Rj[:, :, q] @ joff[:, None, i, :, None])[..., 0] + tj[:, :, q]
                 Rj[:, :, i] = Rj[:, :, q] @ local[:, :, i]
-        m = np.einsum("pfmab,pmb->pfma", Rj[:, :, frames], moff) + tj[:, :, frames]
+        return (Rj[:, :, frames] @ moff[:, None, :, :, None])[..., 0] + tj[:, :, frames]
+
+    def residuals(X):
+        P = len(X)
+        joff, moff = shape(X)
+        Y = X[:, ns:].reshape(P, F, npp)
+        m = markers_at(joff, moff, Y)
         data = ((m - pts[None]) / noise_m)[:, seen].reshape(P, -1)
         prior_j = ((joff[:, joints_free] - o0[joints_free][None]) / sig_j[None, :, None]).reshape(P, -1)
         prior_m = ((moff[:, mk_free] - m0[mk_free][None]) / marker_sigma_m).reshape(P, -1)
@@ -232,12 +249,30 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     def fun(x):
         return residuals(x[None])[0]
 
+    n_seen = seen.sum(axis=1) * 3
+    data_at = np.concatenate([[0], np.cumsum(n_seen)])
+    reg_at = int(data_at[-1]) + len(joints_free) * 3 + len(mk_free) * 3 + 1
+
     def jac(x):
-        # forward differences of all parameters in one vectorised call (as fit_hand)
+        # forward differences, vectorised: the shape's columns in one call over all flashes, each
+        # flash's pose columns in one call over that flash alone (they move nothing else)
         h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x))
         h = np.where(x + h > ub, -h, h)
-        Fm = residuals(np.vstack([x[None], x[None] + np.diag(h)]))
-        return ((Fm[1:] - Fm[0]) / h[:, None]).T
+        f0 = fun(x)
+        Jm = np.zeros((len(f0), len(x)))
+        Xs = np.vstack([x[None]] * ns) + np.diag(h)[:ns]
+        Jm[:, :ns] = ((residuals(Xs) - f0) / h[:ns, None]).T
+        joff, moff = shape(x[None])
+        for k in range(F):
+            sl = slice(ns + k * npp, ns + (k + 1) * npp)
+            yk = x[sl]
+            Yk = (yk[None] + np.diag(h[sl]))[:, None]
+            mk = markers_at(joff, moff, Yk)[:, 0][:, seen[k]].reshape(npp, -1) / noise_m
+            Jm[data_at[k]:data_at[k + 1], sl] = ((mk - (f0[data_at[k]:data_at[k + 1]] + (pts[k][seen[k]] / noise_m).ravel()))
+                                                 / h[sl, None]).T
+            r = reg_at + k * nd
+            Jm[r:r + nd, sl][np.arange(nd), 6 + np.arange(nd)] = regularise / noise_m
+        return Jm
 
     x0 = np.clip(x0, lb + 1e-9, ub - 1e-9)
     # SciPy's soft-L1 loss (f_scale 3 noise sigmas) applies to every row: it also softens the
@@ -262,7 +297,31 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         d = np.linalg.norm(ms.positions(p) - pts[k], axis=1)
         res[k] = np.where(seen[k], d, np.nan)
     rms = float(np.sqrt(np.nanmean(res ** 2)))
-    return HandAdaptation(sk, ms, poses, res, rms, F, bool(sol.success), str(sol.message))
+    # uncertainty of the shape (Gauss-Newton covariance; the pseudo-inverse for parameters no
+    # residual touches) and how far the shape moved in its priors' sigmas
+    Jm = jac(sol.x)
+    n_data = int(seen.sum()) * 3
+    chi2 = float(np.sum(fun(sol.x)[:n_data] ** 2))
+    scale = max(1.0, chi2 / max(1, n_data - len(sol.x)))
+    cov = np.linalg.pinv(Jm.T @ Jm)[:ns, :ns] * scale
+    jcov = np.zeros((J, 3, 3))
+    jidx = np.full(len(joints_free) * 3, -1)
+    jidx[cf] = 1 + np.arange(nj_free)
+    jidx = jidx.reshape(-1, 3)
+    for r, i in enumerate(joints_free):
+        ok = jidx[r] >= 0
+        sub = np.zeros((3, 3))
+        sub[np.ix_(ok, ok)] = cov[np.ix_(jidx[r][ok], jidx[r][ok])]
+        jcov[i] = sub
+    mcov = np.zeros((M, 3, 3))
+    for r, k in enumerate(mk_free):
+        q = 1 + nj_free + 3 * r + np.arange(3)
+        mcov[k] = cov[np.ix_(q, q)]
+    jz = np.zeros(J)
+    jz[joints_free] = np.abs((joff[0, joints_free] - o0[joints_free]) / sig_j[:, None]).max(axis=1)
+    mz = np.zeros(M)
+    mz[mk_free] = np.abs(moff[0, mk_free] - m0[mk_free]).max(axis=1) / marker_sigma_m
+    return HandAdaptation(sk, ms, poses, res, rms, F, bool(sol.success), str(sol.message), jcov, mcov, jz, mz)
 
 
 def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, markerset: MarkerSet,

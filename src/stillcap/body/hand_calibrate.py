@@ -34,11 +34,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stillcap.body.hand import BACK_MARKERS, DIGITS, hand_markerset, hand_skeleton, scale_hand
+from stillcap.body.hand import BACK_MARKERS, DIGITS, fit_hand, hand_markerset, hand_skeleton, scale_hand
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 
-__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "HandCalibration", "calibration_angles", "calibrate_hand",
+__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "CalibratedParameter",
+           "HandCalibration", "calibration_angles", "calibrate_hand",
            "calibrate_hand_from_points", "phalanx_lengths"]
 
 #: The calibration poses: name -> description (their angles: :func:`calibration_angles`).
@@ -48,6 +49,12 @@ CALIBRATION_POSES = {"flat": "hand flat, fingers extended and together, thumb al
 REFUSE_RMS_M = 0.0015
 #: Assumed noise of a labelled 3D marker (m): weighs the markers against the priors.
 NOISE_M = 0.0004
+#: A fit that moves a joint or marker farther than this many prior sigmas from the template
+#: (scaled to the hand) is refused: the pose was not the one stated (measured: below 2 on the
+#: studio's other hands, see docs/hand-calibration.md).
+REFUSE_PRIOR_Z = 4.0
+#: The pipeline's limit of a length's 1-sigma (m): beyond it the capture did not bend that joint.
+MAX_LENGTH_SIGMA_M = 0.0015
 
 
 def calibration_angles(pose: str, skeleton: Skeleton) -> np.ndarray:
@@ -62,6 +69,29 @@ def phalanx_lengths(skeleton: Skeleton) -> dict:
     index's proximal phalanx; ``index-mcp`` its metacarpal, wrist to knuckle)."""
     L = np.linalg.norm(skeleton.offsets, axis=1)
     return {n: float(L[i]) for i, n in enumerate(skeleton.names) if i != skeleton.root}
+
+
+@dataclass(frozen=True)
+class CalibratedParameter:
+    """One estimated parameter of the person's hand (:attr:`HandCalibration.parameters`).
+
+    ``value``, ``sigma`` (1-sigma, from the fit's covariance) and ``template`` (the built-in
+    model scaled to the hand's size) in ``unit``; ``kind`` is ``length`` (a bone), ``knuckle``
+    (a joint's place: ``x`` along the fingers, ``y`` toward the thumb, ``z`` out of the back of
+    the hand), ``height`` (a marker over its bone's axis) or ``axis`` (the thumb's bone
+    directions, their angle from the template's).
+    """
+
+    name: str
+    kind: str
+    value: float
+    sigma: float
+    template: float
+    unit: str
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "kind": self.kind, "value": self.value, "sigma": self.sigma,
+                "template": self.template, "unit": self.unit}
 
 
 @dataclass(eq=False)
@@ -83,6 +113,10 @@ class HandCalibration:
         Flashes in the stated pose and in other (unknown) poses used.
     residuals : ndarray, shape (n_flashes, n_markers)
     messages : list of str
+    parameters : list of CalibratedParameter
+        Every estimated length, knuckle place, marker height and thumb axis with its 1-sigma.
+    self_checks : list of SelfCheck
+        The checks a calibration passed (a failed one refuses the capture with ValueError).
     """
 
     skeleton: Skeleton
@@ -95,9 +129,21 @@ class HandCalibration:
     n_free: int
     residuals: np.ndarray
     messages: list = field(default_factory=list)
+    parameters: list = field(default_factory=list)
+    self_checks: list = field(default_factory=list)
 
     def lengths(self) -> dict:
         return phalanx_lengths(self.skeleton)
+
+    def to_dict(self) -> dict:
+        """The calibration report (JSON-ready, lengths in mm)."""
+        from stillcap._selfcheck import checks_to_json
+
+        return {"format": "stillcap-hand-calibration", "version": 1, "pose": self.pose, "size": self.size,
+                "rms_mm": self.rms * 1e3, "pose_rms_mm": self.pose_rms * 1e3, "n_posed": self.n_posed,
+                "n_free": self.n_free, "messages": list(self.messages),
+                "parameters": [p.to_dict() for p in self.parameters],
+                "self_checks": checks_to_json(self.self_checks)}
 
 
 def _size(markerset: MarkerSet, pts) -> float:
@@ -107,9 +153,58 @@ def _size(markerset: MarkerSet, pts) -> float:
     return float(d1 / d0)
 
 
+def _sd(v, cov) -> float:
+    """1-sigma of ``|v|`` from the covariance of ``v`` (first order)."""
+    n = np.linalg.norm(v)
+    g = v / n if n > 0 else np.zeros(3)
+    return float(np.sqrt(max(0.0, g @ cov @ g)))
+
+
+def _parameters(sk0: Skeleton, ms0: MarkerSet, ad) -> list:
+    """The estimated parameters with their 1-sigma (mm, deg), against the template ``sk0``/``ms0``."""
+    sk, ms = ad.skeleton, ad.markerset
+    o, o0 = sk.offsets, sk0.offsets
+    out = []
+    for i, n in enumerate(sk.names):
+        if i == sk.root or n.endswith("-tip"):
+            continue  # the tip's length: no marker beyond it
+        C = ad.joint_cov[i]
+        if sk.parents[i] == sk.root:  # a knuckle's (or the thumb base's) place on the palm
+            for a, ax in enumerate("xyz"):
+                out.append(CalibratedParameter(f"{n} {ax}", "knuckle", o[i, a] * 1e3, np.sqrt(C[a, a]) * 1e3,
+                                               o0[i, a] * 1e3, "mm"))
+        else:
+            out.append(CalibratedParameter(f"{sk.names[sk.parents[i]]} to {n}", "length", np.linalg.norm(o[i]) * 1e3,
+                                           _sd(o[i], C) * 1e3, np.linalg.norm(o0[i]) * 1e3, "mm"))
+    for i, n in enumerate(sk.names):  # the thumb's bone directions
+        if n.startswith("thumb-") and sk.parents[i] != sk.root and not n.endswith("-tip"):
+            u, u0 = o[i] / np.linalg.norm(o[i]), o0[i] / np.linalg.norm(o0[i])
+            P = (np.eye(3) - np.outer(u, u)) / np.linalg.norm(o[i])
+            sd = np.sqrt(max(0.0, np.trace(P @ ad.joint_cov[i] @ P.T) / 2))
+            out.append(CalibratedParameter(f"{n} axis", "axis", np.degrees(np.arccos(np.clip(u @ u0, -1, 1))),
+                                           np.degrees(sd), 0.0, "deg"))
+    frames = ms.bone_frames(sk)
+    for k, m in enumerate(ms.markers):
+        if m.name in BACK_MARKERS:
+            continue
+        b = frames[k]
+        u = o[b] / np.linalg.norm(o[b]) if np.linalg.norm(o[b]) > 0 else np.array([1.0, 0, 0])
+        # height: the part of the offset out of the bone's axis (the bone's end joint's direction)
+        j = [c for c in range(sk.n_joints) if sk.parents[c] == b]
+        u = o[j[0]] / np.linalg.norm(o[j[0]]) if j else u
+        v = ms.offsets[k] - (ms.offsets[k] @ u) * u
+        j0 = [c for c in range(sk0.n_joints) if sk0.parents[c] == b]
+        u0 = o0[j0[0]] / np.linalg.norm(o0[j0[0]])
+        v0 = ms0.offsets[k] - (ms0.offsets[k] @ u0) * u0
+        out.append(CalibratedParameter(f"{m.name} height", "height", np.linalg.norm(v) * 1e3,
+                                       _sd(v, ad.marker_cov[k]) * 1e3, np.linalg.norm(v0) * 1e3, "mm"))
+    return out
+
+
 def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton | None = None,
-                   markerset: MarkerSet | None = None, noise_m: float = NOISE_M, max_nfev: int = 100,
-                   refuse_rms_m: float = REFUSE_RMS_M) -> HandCalibration:
+                   markerset: MarkerSet | None = None, noise_m: float = NOISE_M, max_nfev: int = 200,
+                   refuse_rms_m: float = REFUSE_RMS_M, refuse_prior_z: float = REFUSE_PRIOR_Z,
+                   max_length_sigma_m: float | None = None) -> HandCalibration:
     """The person's hand model from labelled markers in a calibration pose (module docstring).
 
     Parameters
@@ -129,7 +224,16 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
         The markers' noise (m) and the solver's budget.
     refuse_rms_m : float
         ValueError when the calibration-pose flashes' residual RMS exceeds it.
+    refuse_prior_z : float
+        ValueError when the fit had to move a joint or marker farther than this many of its
+        prior's sigmas from the template scaled to the hand (a pose other than the one stated,
+        absorbed by the model: a hand is not that unlike the template).
+    max_length_sigma_m : float, optional
+        ValueError when a finger phalanx's or the thumb's length is known worse than this
+        (1-sigma, m): the capture did not bend that joint enough (the protocol's steps were not
+        done); None: not checked.
     """
+    from stillcap._selfcheck import SelfCheck
     from stillcap.body.hand_adapt import adapt_hand_model
 
     sk0 = skeleton or hand_skeleton()
@@ -143,27 +247,59 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     sk, ms = scale_hand(sk0, ms0, size)
     pts = np.concatenate([posed, free])
     kd = [known] * len(posed) + [None] * len(free)
-    ad = adapt_hand_model(sk, ms, pts, known_deg=kd, noise_m=noise_m, loss="linear", max_nfev=max_nfev)
+    # each free flash starts from its pose fitted with the scaled template (a fist is far from rest)
+    init = [None] * len(posed) + [fit_hand(sk, ms, f).pose for f in free]
+    ad = adapt_hand_model(sk, ms, pts, known_deg=kd, initial=init, noise_m=noise_m, loss="linear", max_nfev=max_nfev)
     res = ad.residuals
     pose_rms = float(np.sqrt(np.nanmean(res[:len(posed)] ** 2)))
+    checks = []
+    what = f"the calibration flash is not in the {pose!r} pose ({CALIBRATION_POSES[pose]})"
     if not pose_rms <= refuse_rms_m:
         worst = ad.digit_rms()
         dig = max((d for d in worst if np.isfinite(worst[d])), key=lambda d: worst[d])
-        raise ValueError(f"the calibration flash is not in the {pose!r} pose ({CALIBRATION_POSES[pose]}): its "
-                         f"markers miss the calibrated model by {pose_rms * 1e3:.1f} mm RMS (limit "
+        raise ValueError(f"{what}: its markers miss the calibrated model by {pose_rms * 1e3:.1f} mm RMS (limit "
                          f"{refuse_rms_m * 1e3:.1f} mm; worst: {dig}, {worst[dig] * 1e3:.1f} mm)")
+    checks.append(SelfCheck("calibration_pose_residual", True, pose_rms * 1e3, refuse_rms_m * 1e3,
+                            f"the {pose} flash(es) fit the calibrated model", pose, "mm"))
+    zj, zm = ad.joint_prior_z, ad.marker_prior_z
+    if max(zj.max(), zm.max()) > refuse_prior_z:
+        if zj.max() >= zm.max():
+            i = int(np.argmax(zj))
+            d = np.linalg.norm(ad.skeleton.offsets[i] - sk.offsets[i])
+            who, z = f"joint {sk.names[i]!r} {d * 1e3:.0f} mm", zj[i]
+        else:
+            k = int(np.argmax(zm))
+            d = np.linalg.norm(ad.markerset.offsets[k] - ms.offsets[k])
+            who, z = f"marker {ms.names[k]!r} {d * 1e3:.0f} mm", zm[k]
+        raise ValueError(f"{what}: fitting it moves {who} from the template's place ({z:.1f} prior sigmas, "
+                         f"limit {refuse_prior_z:g}); hold the hand in the pose (docs/hand-calibration.md)")
+    checks.append(SelfCheck("model_plausibility", True, float(max(zj.max(), zm.max())),
+                            refuse_prior_z, "no joint or marker moved implausibly far from the template", pose,
+                            "prior sigmas"))
     sk1 = Skeleton(ad.skeleton.joints, name=f"{sk0.name}-calibrated", source=f"hand-calibrate ({pose})")
     ms1 = MarkerSet(ad.markerset.markers, ad.markerset.rules, ms0.name, sk1.name, f"hand-calibrate ({pose})")
+    ad.skeleton, ad.markerset = sk1, ms1
+    params = _parameters(sk, ms, ad)
+    if max_length_sigma_m is not None:
+        lens = [p for p in params if p.kind == "length"]
+        worst = max(lens, key=lambda p: p.sigma)
+        if not worst.sigma <= max_length_sigma_m * 1e3:
+            raise ValueError(f"the calibration capture does not fix the length {worst.name} (+-{worst.sigma:.1f} mm, "
+                             f"limit {max_length_sigma_m * 1e3:.1f} mm): that joint did not bend enough; do every "
+                             f"step of the protocol (docs/hand-calibration.md)")
+        checks.append(SelfCheck("bone_lengths_fixed", True, worst.sigma, max_length_sigma_m * 1e3,
+                                f"every length known to {max_length_sigma_m * 1e3:.1f} mm (worst {worst.name})",
+                                pose, "mm"))
     msgs = []
     if len(free) == 0:
         msgs.append("only the calibration pose was seen: the joint centres along the fingers stay at the "
                     "template's (scaled); flashes of the fingers curling fix them")
-    return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs)
+    return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks)
 
 
 def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = "flat",
                                skeleton: Skeleton | None = None, markerset: MarkerSet | None = None,
-                               reprojection_px=None, max_free: int = 4, **kw) -> HandCalibration:
+                               reprojection_px=None, max_free: int = 12, **kw) -> HandCalibration:
     """Label the unlabelled 3D markers of a calibration capture and calibrate the hand.
 
     The markers are labelled with the template scaled to the hand

@@ -20,6 +20,12 @@ def hand_calibrate(
                                 "hand-18)."),
     template: str = typer.Option(None, "--template", help="The hand model to start from (file or built-in name; "
                                  "default hand-right-adult)."),
+    report: Path = typer.Option(None, "--report", help="Also write the calibration report (stillcap-hand-calibration "
+                                "JSON: every estimated length, knuckle place, marker height and thumb axis with its "
+                                "1-sigma, the self-checks)."),
+    max_length_sigma: float = typer.Option(None, "--max-length-sigma", help="Refuse (exit 2) when a bone length "
+                                           "is known worse than this 1-sigma (mm): the capture did not bend that "
+                                           "joint enough."),
 ):
     """Estimate the person's hand model (phalanx lengths, marker places, knuckles, thumb) from a
     capture of the hand in a known pose; write it and its marker set.
@@ -28,7 +34,7 @@ def hand_calibrate(
     """
     from rich.console import Console
 
-    from stillcap.body.hand_calibrate import CALIBRATION_POSES, digit_lengths_table
+    from stillcap.body.hand_calibrate import CALIBRATION_POSES
     from stillcap.body.hand_files import load_hand
     from stillcap.pipelines.hand.calibration import calibrate_hand_capture
 
@@ -36,15 +42,24 @@ def hand_calibrate(
         raise typer.BadParameter(f"{pose!r} is not one of {', '.join(CALIBRATION_POSES)}", param_hint="--pose")
     sk, ms = load_hand(template, markers, model_what="--template")
     markers_out = markers_out or out.with_name(out.name.removesuffix(".json") + ".markers.json")
-    cal = calibrate_hand_capture(capture, pose, skeleton=sk, markerset=ms)
+    cal = calibrate_hand_capture(capture, pose, skeleton=sk, markerset=ms,
+                                 max_length_sigma_m=None if max_length_sigma is None else max_length_sigma * 1e-3)
     cal.skeleton.save(out)
     cal.markerset.save(markers_out)
+    if report is not None:
+        import json
+
+        from stillcap.files.atomic import write_text
+        from stillcap.files.jsonable import to_jsonable
+
+        write_text(report, json.dumps(to_jsonable(cal.to_dict()), indent=1) + "\n")
     con = Console()
     for m in cal.messages:
         con.print(f"[yellow]{m}[/]", highlight=False)
     con.print(f"hand size {cal.size:.3f} x the template; fit residual {cal.rms * 1e3:.2f} mm RMS "
               f"({cal.pose_rms * 1e3:.2f} mm in the {pose} pose; {cal.n_posed} flash(es) in it, {cal.n_free} curling)")
-    con.print("lengths (mm): metacarpal or CMC offset, then the phalanges to the tip")
-    for d, ls in digit_lengths_table(cal):
-        con.print(f"  {d:7s} " + "  ".join(f"{v:5.1f}" for v in ls), highlight=False)
+    con.print("estimated (1-sigma; template scaled to the hand):")
+    for p in cal.parameters:
+        con.print(f"  {p.name:26s} {p.value:7.1f} +- {p.sigma:4.1f} {p.unit:3s} (template {p.template:6.1f})",
+                  highlight=False)
     con.print(f"wrote {out} and {markers_out}: stillcap hand CAPTURE --hand-model {out} --markers {markers_out}")

@@ -293,7 +293,11 @@ def hand(
     camera_response: str = typer.Option(None, "--camera-response", help=CAMERA_RESPONSE_HELP),
     calibration_pose: str = typer.Option(None, "--calibration-pose", help="Render a calibration capture for "
                                          "stillcap hand-calibrate instead of a throw: the hand in this pose (flat), "
-                                         "then curling."),
+                                         "then moving (--calibration-motion)."),
+    calibration_motion: str = typer.Option("protocol", "--calibration-motion", help="The calibration capture's "
+                                           "motion: protocol (flat, spread, table top, hook, fist, thumb "
+                                           "opposition, half curl, flat; docs/hand-calibration.md) or curl (flat, "
+                                           "then a loose fist)."),
     person: int = typer.Option(None, "--person", help="Another person's hand, light and cameras "
                                "(studio.hand_variation.another_hand with this seed)."),
 ):
@@ -309,6 +313,10 @@ def hand(
         from stillcap.body.hand import hand_skeleton
 
         calibration_angles(calibration_pose, hand_skeleton())  # an unknown pose: one line, exit 2
+        from stillcap.studio.hand_calibration import CALIBRATION_MOTIONS
+
+        if calibration_motion not in CALIBRATION_MOTIONS:
+            raise ValueError(f"unknown --calibration-motion {calibration_motion!r}; known: {', '.join(CALIBRATION_MOTIONS)}")
     who = None
     if person is not None:
         from stillcap.studio.hand_variation import another_hand
@@ -316,7 +324,7 @@ def hand(
         who = another_hand(person)
     with progress("rendering cameras", total=4) as update:
         result = hand_capture(seed, preset=preset, image_size=_parse_size(size), person=who,
-                              calibration_pose=calibration_pose,
+                              calibration_pose=calibration_pose, calibration_motion=calibration_motion,
                               sensor=None if response is None else _studio_sensor(response),
                               progress=lambda i, n, label: update(i, n))
     cap, images = result.to_capture(".jpg" if jpeg else ".png")

@@ -660,7 +660,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
                  window_s=WINDOW_S, release_time_s: float | None = None,
                  variation: ReleaseVariation | None = DEFAULT_VARIATION, model="seed", palette: dict | None = None,
                  sensor: Sensor | None = None, supersample: int = 3, known_flash_times: bool = False,
-                 person=None, calibration_pose: str | None = None,
+                 person=None, calibration_pose: str | None = None, calibration_motion: str = "protocol",
                  progress: Callable[[int, int, str], None] | None = None) -> HandCapture:
     """Render the pitcher's hand around release with the truth (module docstring).
 
@@ -692,13 +692,22 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
         (:func:`stillcap.studio.hand_variation.another_hand`); default the seed's.
     calibration_pose : str, optional
         Instead of a throw, a calibration capture for ``stillcap hand-calibrate``: the hand held
-        in this pose, then curling (:func:`stillcap.studio.hand_calibration.calibration_motion`).
+        in this pose, then moving (:func:`stillcap.studio.hand_calibration.calibration_motion`).
+    calibration_motion : str
+        The calibration capture's motion (:data:`~stillcap.studio.hand_calibration.CALIBRATION_MOTIONS`):
+        ``protocol`` (the protocol's steps; the window becomes
+        :data:`~stillcap.studio.hand_calibration.PROTOCOL_WINDOW_S` unless ``window_s`` is
+        given) or ``curl``.
 
     Returns
     -------
     HandCapture
     """
     rng = as_rng(rng)
+    if calibration_pose is not None and calibration_motion == "protocol" and window_s is WINDOW_S:
+        from stillcap.studio.hand_calibration import PROTOCOL_WINDOW_S
+
+        window_s = PROTOCOL_WINDOW_S
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; known: {', '.join(PRESETS)}")
     w0, w1 = (float(v) for v in as_array(window_s, (2,), "window_s"))
@@ -722,9 +731,9 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     if person is not None:
         motion.angle_offsets_deg = person.angle_offsets_deg
     if calibration_pose is not None:
-        from stillcap.studio.hand_calibration import calibration_motion
+        from stillcap.studio.hand_calibration import calibration_motion as _calibration_motion
 
-        motion = calibration_motion(motion, calibration_pose, t0)
+        motion = _calibration_motion(motion, calibration_pose, t0, calibration_motion, hrig.strobe_hz)
     ball, layout = ball_sphere(palette)
 
     hz = hrig.strobe_hz

@@ -1,13 +1,24 @@
 """Calibration captures of the hand for ``stillcap hand-calibrate`` (issue 12):
 ``hand_capture(..., calibration_pose="flat")`` renders the gloved hand where a throw's hand is
 at release (facing the cameras the same way), held in the calibration pose for the first
-flashes, then curling its fingers and thumb toward a loose fist; the hand drifts 4 cm per
-flash (sideways and toward the plate) so that the flashes' markers do not overlap in the
+flashes, then moving through the steps of a calibration motion; the hand drifts 4 cm per flash
+(sideways and toward the plate) so that the flashes' markers do not overlap in the
 multi-exposure photos. The ball is out of view.
 
+Two motions (:data:`CALIBRATION_MOTIONS`):
+
+- ``protocol`` (the default; docs/hand-calibration.md): the protocol's steps, one per flash
+  (:data:`PROTOCOL_STEPS`): flat (held two flashes), fingers spread, "table top" (knuckles
+  bent, fingers straight), hook (knuckles straight, finger joints bent), fist, thumb across the
+  palm to the little finger (opposition), a half curl with the knuckles bent back, flat again.
+  Every joint bends on its own at least once, by 45-100 deg, so every joint centre is seen
+  turning its distal markers, and the knuckles abduct, so their sideways place is seen too;
+- ``curl`` (the first calibration motion, kept to compare): flat, then every joint curling
+  together toward a loose fist (MCP 55, PIP 75, DIP 45 deg).
+
 :func:`calibration_motion` wraps the throw's :class:`~stillcap.studio.hand.HandMotion` (so the
-person, light and cameras of the throw are kept); the curl's angles are the truth's, not
-known to the calibration.
+person, light and cameras of the throw are kept); the angles after the flat flashes are the
+truth's, not known to the calibration.
 """
 
 from __future__ import annotations
@@ -17,24 +28,68 @@ import numpy as np
 from stillcap.body.hand import hand_pose
 from stillcap.body.skeleton import Pose
 
-__all__ = ["CalibrationMotion", "calibration_motion", "CURL_DEG"]
+__all__ = ["CalibrationMotion", "calibration_motion", "CALIBRATION_MOTIONS", "CURL_DEG", "PROTOCOL_STEPS",
+           "PROTOCOL_WINDOW_S"]
 
-#: Flexion (deg) at full curl: finger MCP, PIP, DIP; thumb CMC, MCP, IP.
+#: The calibration motions of the studio (module docstring).
+CALIBRATION_MOTIONS = ("protocol", "curl")
+#: Flexion (deg) at full curl of the ``curl`` motion: finger MCP, PIP, DIP; thumb CMC, MCP, IP.
 CURL_DEG = {"mcp": 55.0, "pip": 75.0, "dip": 45.0, "thumb-cmc": 25.0, "thumb-mcp": 30.0, "thumb-ip": 45.0}
-#: The hand is still in the pose until this long before the release time, then curls over CURL_S.
+#: ``curl``: the hand is still in the pose until this long before the release time, then curls over CURL_S.
 POSE_UNTIL_S, CURL_S = 0.024, 0.045
 #: Drift per second (m/s): 4 cm per flash at 75 Hz, sideways and toward the plate.
 DRIFT = np.array([2.1, -2.1, 0.0])
+#: The studio's window of a ``protocol`` capture (s about the throw's release time): 9-10
+#: flashes at 75 Hz (the throw's window holds 4-5).
+PROTOCOL_WINDOW_S = (-0.06, 0.065)
+
+
+def _f(mcp=0.0, pip=0.0, dip=0.0, abd=None):
+    """Finger angles: MCP flexion, PIP, DIP; ``abd`` MCP abduction per finger (index, middle, ring, little)."""
+    return {"mcp": mcp, "pip": pip, "dip": dip, "abd": (0.0, 0.0, 0.0, 0.0) if abd is None else abd}
+
+
+#: The ``protocol`` motion's steps, one per strobe period: (name, fingers, thumb CMC (twist,
+#: flexion, abduction), thumb MCP, thumb IP), degrees. Between steps the angles move linearly.
+PROTOCOL_STEPS = (
+    ("flat", _f(), (0.0, 0.0, 0.0), 0.0, 0.0),
+    ("flat", _f(), (0.0, 0.0, 0.0), 0.0, 0.0),
+    ("spread", _f(abd=(18.0, 4.0, -12.0, -22.0)), (0.0, 0.0, 35.0), 0.0, 0.0),
+    ("table top", _f(mcp=75.0), (0.0, 25.0, 10.0), 40.0, 0.0),
+    ("hook", _f(pip=95.0, dip=65.0), (-15.0, 0.0, 0.0), 0.0, 70.0),
+    ("fist", _f(mcp=80.0, pip=100.0, dip=55.0), (10.0, 35.0, -10.0), 55.0, 60.0),
+    ("opposition", _f(mcp=30.0, pip=45.0, dip=20.0, abd=(-10.0, 0.0, 8.0, 15.0)), (25.0, 50.0, 40.0), 20.0, 30.0),
+    ("half curl, knuckles back", _f(mcp=-20.0, pip=50.0, dip=35.0, abd=(10.0, -8.0, 10.0, -15.0)),
+     (-20.0, -10.0, 25.0), -5.0, -15.0),
+    ("flat", _f(), (0.0, 0.0, 0.0), 0.0, 0.0),
+    ("flat", _f(), (0.0, 0.0, 0.0), 0.0, 0.0),
+)
+
+
+def _step_angles(skeleton, step) -> np.ndarray:
+    _, fing, cmc, tmcp, tip = step
+    ang = np.zeros((skeleton.n_joints, 3))
+    for k, d in enumerate(("index", "middle", "ring", "little")):
+        ang[skeleton.index(f"{d}-mcp")] = (0.0, fing["mcp"], fing["abd"][k])
+        ang[skeleton.index(f"{d}-pip"), 1] = fing["pip"]
+        ang[skeleton.index(f"{d}-dip"), 1] = fing["dip"]
+    ang[skeleton.index("thumb-cmc")] = cmc
+    ang[skeleton.index("thumb-mcp"), 1] = tmcp
+    ang[skeleton.index("thumb-ip"), 1] = tip
+    return ang
 
 
 class CalibrationMotion:
-    """The hand held in a calibration pose, then curling (module docstring); the interface of
+    """The hand held in a calibration pose, then moving (module docstring); the interface of
     :class:`~stillcap.studio.hand.HandMotion` that :func:`~stillcap.studio.hand.hand_capture` uses."""
 
-    def __init__(self, base, pose: str, t0: float):
+    def __init__(self, base, pose: str, t0: float, motion: str = "protocol", strobe_hz: float = 75.0,
+                 start_s: float | None = None):
         from stillcap.body.hand_calibrate import calibration_angles
 
-        self.base, self.pose_name, self.t0 = base, pose, float(t0)
+        if motion not in CALIBRATION_MOTIONS:
+            raise ValueError(f"unknown calibration motion {motion!r}; known: {', '.join(CALIBRATION_MOTIONS)}")
+        self.base, self.pose_name, self.t0, self.motion = base, pose, float(t0), motion
         self.skeleton = base.skeleton
         self.shoulder = base.shoulder
         self.release = base.release
@@ -42,13 +97,19 @@ class CalibrationMotion:
         self._r2w0 = base.root2world(self.t0)
         self._rest = calibration_angles(pose, self.skeleton)
         sk = self.skeleton
+        lim = sk.limits_deg
+        lo, hi = np.nan_to_num(lim[..., 0], nan=-180), np.nan_to_num(lim[..., 1], nan=180)
         curl = np.zeros((sk.n_joints, 3))
         for i, n in enumerate(sk.names):
             key = n if n.startswith("thumb-") else n.split("-")[-1]
             if key in CURL_DEG:
                 curl[i, 1] = CURL_DEG[key]
-        lim = sk.limits_deg
-        self._curl = np.clip(curl, np.nan_to_num(lim[..., 0], nan=-180), np.nan_to_num(lim[..., 1], nan=180))
+        self._curl = np.clip(curl, lo, hi)
+        # protocol: step k at start + k / strobe_hz; the flat steps are the calibration pose's angles
+        self._period = 1.0 / float(strobe_hz)
+        self._start = self.t0 + (PROTOCOL_WINDOW_S[0] if start_s is None else float(start_s))
+        self._steps = np.stack([self._rest if s[0] == "flat" else np.clip(_step_angles(sk, s), lo, hi)
+                                for s in PROTOCOL_STEPS])
 
     def root2world(self, t: float) -> np.ndarray:
         T = self._r2w0.copy()
@@ -56,8 +117,13 @@ class CalibrationMotion:
         return T
 
     def angles_deg(self, t: float) -> np.ndarray:
-        u = float(np.clip((float(t) - (self.t0 - POSE_UNTIL_S)) / CURL_S, 0.0, 1.0))
-        return self._rest + u * (self._curl - self._rest)
+        if self.motion == "curl":
+            u = float(np.clip((float(t) - (self.t0 - POSE_UNTIL_S)) / CURL_S, 0.0, 1.0))
+            return self._rest + u * (self._curl - self._rest)
+        u = float(np.clip((float(t) - self._start) / self._period, 0.0, len(self._steps) - 1))
+        k = min(int(np.floor(u)), len(self._steps) - 2)
+        w = u - k
+        return (1 - w) * self._steps[k] + w * self._steps[k + 1]
 
     def pose(self, t: float) -> Pose:
         return hand_pose(self.skeleton, self.root2world(t), self.angles_deg(t))
@@ -72,6 +138,6 @@ class CalibrationMotion:
         return T
 
 
-def calibration_motion(base, pose: str, t0: float) -> CalibrationMotion:
+def calibration_motion(base, pose: str, t0: float, motion: str = "protocol", strobe_hz: float = 75.0) -> CalibrationMotion:
     """The calibration motion for the throw ``base`` (its hand, its release time ``t0``)."""
-    return CalibrationMotion(base, pose, t0)
+    return CalibrationMotion(base, pose, t0, motion, strobe_hz)

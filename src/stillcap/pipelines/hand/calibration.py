@@ -1,5 +1,6 @@
 """``stillcap hand-calibrate``: the person's hand model from a calibration capture (a hand
-capture of the gloved hand held in a stated pose, then curling: ``stillcap.body.hand_calibrate``).
+capture of the gloved hand held in a stated pose, then moving through the protocol's steps: ``stillcap.body.hand_calibrate``,
+docs/hand-calibration.md).
 
 The stages are the hand pipeline's (glove markers, 3D markers; no ball), then
 :func:`~stillcap.body.hand_calibrate.calibrate_hand_from_points`.
@@ -19,7 +20,7 @@ __all__ = ["calibrate_hand_capture"]
 
 
 def calibrate_hand_capture(capture: Capture | str | Path, pose: str = "flat", *, skeleton=None,
-                           markerset=None, strobe_position_m=None) -> HandCalibration:
+                           markerset=None, strobe_position_m=None, max_length_sigma_m=None) -> HandCalibration:
     """Calibrate the hand model from a calibration capture (``kind: hand``).
 
     Raises
@@ -37,7 +38,8 @@ def calibrate_hand_capture(capture: Capture | str | Path, pose: str = "flat", *,
     try:
         cal = calibrate_hand_from_points(points.points, points.colors, strobe_hz=setup.strobe_hz, pose=pose,
                                          skeleton=skeleton, markerset=markerset,
-                                         reprojection_px=points.reprojection_px)
+                                         reprojection_px=points.reprojection_px,
+                                         max_length_sigma_m=max_length_sigma_m)
     except ValueError as e:
         raise ValueError(f"{where}: {e}") from None
     cal.messages = messages + cal.messages
