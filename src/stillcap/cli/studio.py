@@ -294,7 +294,7 @@ def hand(
     calibration_pose: str = typer.Option(None, "--calibration-pose", help="Render a calibration capture for "
                                          "stillcap hand-calibrate instead of a throw: the hand in this pose (flat), "
                                          "then moving (--calibration-motion)."),
-    calibration_motion: str = typer.Option("protocol", "--calibration-motion", help="The calibration capture's "
+    calibration_motion: str = typer.Option("curl", "--calibration-motion", help="The calibration capture's "
                                            "motion: protocol (flat, spread, table top, hook, fist, thumb "
                                            "opposition, half curl, flat; docs/hand-calibration.md) or curl (flat, "
                                            "then a loose fist)."),

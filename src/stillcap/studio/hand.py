@@ -660,7 +660,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
                  window_s=WINDOW_S, release_time_s: float | None = None,
                  variation: ReleaseVariation | None = DEFAULT_VARIATION, model="seed", palette: dict | None = None,
                  sensor: Sensor | None = None, supersample: int = 3, known_flash_times: bool = False,
-                 person=None, calibration_pose: str | None = None, calibration_motion: str = "protocol",
+                 person=None, calibration_pose: str | None = None, calibration_motion: str = "curl",
                  progress: Callable[[int, int, str], None] | None = None) -> HandCapture:
     """Render the pitcher's hand around release with the truth (module docstring).
 
