@@ -93,7 +93,9 @@ def _jpeg(data: bytes) -> tuple[int, int, str | None]:
         i += 2 + length
     if w == 0 or h == 0:
         return w, h, "is corrupt (no JPEG frame header before the image data)"
-    if data.find(b"\xff\xd9", i + 2 + length) < 0:
+    # searched from the end, where the marker is: the same answer as a forward search (some
+    # marker after the scan header or none) without reading the whole entropy-coded data
+    if data.rfind(b"\xff\xd9", i + 2 + length) < 0:
         return w, h, "is truncated (no JPEG end-of-image marker)"
     return w, h, None
 
