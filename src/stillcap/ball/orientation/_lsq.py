@@ -115,10 +115,11 @@ def solve_small_lsq(fun, jac, x0, args=(), *, loss: str = "linear", f_scale: flo
                 nu = 2.0
                 done = actual < ftol * cost and ratio > 0.25
                 x, f, cost, rho1, wgt = x_new, f_new, cost_new, rho1_new, wgt_new
+                if done:  # converged: no Jacobian needed at the last point
+                    status = 2
+                    break
                 J = jac(x, *args)
                 njev += 1
-                if done:
-                    status = 2
                 break
             mu, nu = mu * nu, nu * 2.0
     return SmallLsqResult(x, cost, status, nfev, njev)
