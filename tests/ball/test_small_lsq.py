@@ -31,8 +31,8 @@ def test_same_minimum_as_scipy(loss, seed):
     rng = np.random.default_rng(seed)
     fun, jac = _problem(rng)
     x0 = np.array([1.0, -1.0, 0.5, 2.1])
-    kw = dict(loss=loss, f_scale=0.05, x_scale=np.array([1.0, 1.0, 1.0, 0.5]), xtol=1e-12, ftol=1e-12,
-              gtol=1e-12, max_nfev=500)
+    kw = {"loss": loss, "f_scale": 0.05, "x_scale": np.array([1.0, 1.0, 1.0, 0.5]), "xtol": 1e-12,
+          "ftol": 1e-12, "gtol": 1e-12, "max_nfev": 500}
     ref = least_squares(fun, x0, jac=jac, args=(1.0,), **kw)
     res = solve_small_lsq(fun, jac, x0, args=(1.0,), **kw)
     assert ref.status > 0 and res.status > 0

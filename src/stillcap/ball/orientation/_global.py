@@ -18,7 +18,7 @@ from stillcap.ball.orientation._lsq import solve_small_lsq
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
 from stillcap.ball.orientation._so3 import (_consensus_rotations, _dphi_over_sin, _expmap, _left_jacobian,
-                                           _mean_rotation, _phi_over_sin, _rot_angles, _skew, _tangent_bases)
+                                           _mean_rotation, _phi_over_sin, _rot_angles, _tangent_bases)
 
 
 _NEXT, _NEXT2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cyclic component order of a cross product
@@ -402,8 +402,9 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
     Model: ``R(t) = exp([w] (t - t0)) R0`` (``ball2world``); residuals: the angle (as a 2-D
     log-map vector in the tangent plane of the observation) between each observed marker
     direction and the rotated model marker of its type it is assigned to (the nearest;
-    assignments are renewed until they stop changing). ``scipy.optimize.least_squares`` with a
-    robust ``loss`` downweights mis-typed or misplaced markers; observations further than
+    assignments are renewed until they stop changing). Least squares with a robust ``loss``
+    (:func:`~stillcap.ball.orientation._lsq.solve_small_lsq`: the cost and stopping tests of
+    ``scipy.optimize.least_squares``) downweights mis-typed or misplaced markers; observations further than
     ``outlier_deg`` from their marker are then dropped and a plain least-squares polish gives
     the covariance: in every direction the larger of
     ``s^2 (J^T J)^-1`` (``s^2`` the residual variance per degree of freedom) and the
@@ -443,7 +444,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         Start at this orientation at ``t0`` (with ``spin_init``).
     init : {"auto", "per_flash", "grid"}
     loss : str
-        ``least_squares`` loss of the robust stage (``"soft_l1"``, ``"cauchy"``, ``"huber"``,
+        Loss of the robust stage (``"soft_l1"``, ``"cauchy"``, ``"huber"``,
         ``"linear"``).
     f_scale_deg : float
         Residual size where the robust loss starts to flatten, deg.
