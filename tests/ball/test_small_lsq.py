@@ -1,5 +1,6 @@
-"""The spin fit's hand-written least-squares solver against scipy.optimize.least_squares: the
-same minimum of the same robust cost, and SciPy's stopping codes."""
+"""The spin fit's hand-written least-squares solver against scipy.optimize.least_squares (whose
+trust-region algorithm it repeats): the same path (evaluations) to the same minimum of the same
+robust cost, and SciPy's stopping codes."""
 
 import numpy as np
 import pytest
@@ -36,9 +37,28 @@ def test_same_minimum_as_scipy(loss, seed):
     ref = least_squares(fun, x0, jac=jac, args=(1.0,), **kw)
     res = solve_small_lsq(fun, jac, x0, args=(1.0,), **kw)
     assert ref.status > 0 and res.status > 0
-    assert res.cost == pytest.approx(ref.cost, rel=1e-9)
-    np.testing.assert_allclose(res.x, ref.x, rtol=0, atol=1e-6)
-    assert res.nfev <= 500
+    assert res.cost == pytest.approx(ref.cost, rel=1e-12)
+    np.testing.assert_allclose(res.x, ref.x, rtol=0, atol=1e-9)
+    assert res.nfev == ref.nfev  # the same steps, not only the same end
+
+
+def test_same_steps_as_scipy_from_a_far_start():
+    """Far from the minimum the trust region (radius updates, More's parameter search) decides
+    the path: every evaluated point must be SciPy's."""
+    fun, jac = _problem(np.random.default_rng(5))
+    seen = {"scipy": [], "small": []}
+
+    def rec(key):
+        def f(x, s):
+            seen[key].append(np.array(x))
+            return fun(x, s)
+        return f
+    x0 = np.array([0.3, -0.2, 1.5, 1.2])
+    kw = {"loss": "soft_l1", "f_scale": 0.05, "x_scale": 1.0, "xtol": 1e-10, "ftol": 1e-10, "gtol": 1e-10}
+    least_squares(rec("scipy"), x0, jac=jac, args=(1.0,), **kw)
+    solve_small_lsq(rec("small"), jac, x0, args=(1.0,), **kw)
+    assert len(seen["small"]) == len(seen["scipy"]) > 5
+    np.testing.assert_allclose(np.array(seen["small"]), np.array(seen["scipy"]), rtol=0, atol=1e-9)
 
 
 def test_stops_at_max_nfev_with_status_0():

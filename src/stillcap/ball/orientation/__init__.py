@@ -20,8 +20,8 @@ Two estimators return the same :class:`SpinResult`:
   the relative rotations ``R_k R_{k-1}^T`` give axis-angle pairs, the spin axis is their mean
   and the rate their angle times the strobe frequency.
 - :func:`fit_spin`, one constant spin over all flashes: ``R(t) = exp([w] (t - t0)) R0`` with
-  ``R0`` and ``w`` (rad/s, world frame) fitted by robust least squares (a small
-  Levenberg-Marquardt solver with ``scipy.optimize.least_squares``'s cost and stopping tests,
+  ``R0`` and ``w`` (rad/s, world frame) fitted by robust least squares (the
+  trust-region method of ``scipy.optimize.least_squares`` without its overhead,
   :mod:`~stillcap.ball.orientation._lsq`) to the angles between every observed marker and the
   rotated model marker of its type it is assigned to (nearest, re-assigned until stable);
   then a plain least-squares polish on the inliers gives the covariance and the 1-sigma of

@@ -199,8 +199,8 @@ def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None, a
         if j_prev is not None and np.array_equal(j[sel], j_prev[sel]):
             break  # (j, d) is the assignment at the solution
         j_prev = j
-        # the same cost and stopping tests as scipy.optimize.least_squares, ~3x less CPU on this
-        # 6-parameter problem (see _lsq)
+        # scipy.optimize.least_squares's trust-region method step for step, without its overhead
+        # on this 6-parameter problem (see _lsq)
         res = solve_small_lsq(prob.residuals, prob.jacobian, np.concatenate([np.zeros(3), w]),
                               args=(R0, j, sel), loss=loss, f_scale=f_scale, x_scale=x_scale,
                               xtol=1e-9, ftol=1e-9, gtol=1e-9, max_nfev=100)
@@ -403,7 +403,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
     log-map vector in the tangent plane of the observation) between each observed marker
     direction and the rotated model marker of its type it is assigned to (the nearest;
     assignments are renewed until they stop changing). Least squares with a robust ``loss``
-    (:func:`~stillcap.ball.orientation._lsq.solve_small_lsq`: the cost and stopping tests of
+    (:func:`~stillcap.ball.orientation._lsq.solve_small_lsq`: the trust-region method of
     ``scipy.optimize.least_squares``) downweights mis-typed or misplaced markers; observations further than
     ``outlier_deg`` from their marker are then dropped and a plain least-squares polish gives
     the covariance: in every direction the larger of
