@@ -32,11 +32,14 @@ from stillcap.pipelines.pitch import analyse_pitch
 
 #: The timed functions, in pipeline order: (row name, [(module that calls it, name there), ...]).
 #: The row name is the function's own; each module's name is patched where the pipeline (on
-#: threads, ``processes=0``) calls it. Older versions of the code, with the whole pipeline in the
+#: threads, ``processes=0``) calls it (``"Class.method"``: patched on the class). Older versions of the code, with the whole pipeline in the
 #: module ``stillcap.pipelines.pitch``, are patched there (missing names are skipped).
 STAGES = (
+    ("decoding (Capture.read_image)", [("stillcap.io.capture", "Capture.read_image")]),
     ("ball_centers_stereo", [("stillcap.pipelines.pitch.workers", "ball_centers_stereo"),
                              ("stillcap.pipelines.pitch", "ball_centers_stereo")]),
+    ("  of which detect_balls", [("stillcap.ball.stereo", "detect_balls")]),
+    ("  of which refine_ball_centers", [("stillcap.ball.stereo", "refine_ball_centers")]),
     ("pair_marker_observations", [("stillcap.pipelines.pitch.spin", "pair_marker_observations"),
                                   ("stillcap.pipelines.pitch", "pair_marker_observations")]),
     ("fit_pair_spin", [("stillcap.pipelines.pitch.spin", "_fit_pair_spin"),
@@ -47,6 +50,8 @@ STAGES = (
                                   ("stillcap.pipelines.pitch", "fit_reference_trajectory")]),
     ("metrics_sigma", [("stillcap.pipelines.pitch.stages", "metrics_sigma"),
                        ("stillcap.pipelines.pitch", "_metrics_sigma")]),
+    ("pair_response_estimates (response self-check)", [("stillcap.pipelines.pitch.workers",
+                                                        "pair_response_estimates")]),
 )
 
 
@@ -59,7 +64,9 @@ def instrument(totals: dict) -> None:
                 module = importlib.import_module(module_name)
             except ImportError:  # a version of the code without this module
                 continue
-            fn = getattr(module, attr, None)
+            owner, _, attr = attr.rpartition(".")
+            owner = getattr(module, owner, None) if owner else module
+            fn = getattr(owner, attr, None)
             if fn is None:  # a version of the code without this stage here
                 continue
 
@@ -69,7 +76,7 @@ def instrument(totals: dict) -> None:
                     return _fn(*a, **k)
                 finally:
                     totals[_name] += time.thread_time() - t
-            setattr(module, attr, timed)
+            setattr(owner, attr, timed)
 
 
 def _captures(args, tmp: Path) -> list:
@@ -96,6 +103,8 @@ def main():
     ap.add_argument("--captures", type=Path, default=None, help="folders kept by bench_pitch.py --keep")
     ap.add_argument("--every", type=int, default=6, help="every n-th kept capture")
     ap.add_argument("--seeds", type=int, default=2, help="pitches per preset when rendering (no --captures)")
+    ap.add_argument("--workers", type=int, default=2,
+                    help="PitchOptions.workers (1: every stage on the calling thread, so the rows add up)")
     args = ap.parse_args()
     console = Console()
     with tempfile.TemporaryDirectory() as tmp:
@@ -107,14 +116,14 @@ def main():
             cap = Capture.load(folder)
             rel = cap.truth["metrics"]["release_pos_y_ft"] if isinstance(cap.truth, dict) else None
             t = time.process_time()
-            analyse_pitch(cap, release_y_ft=rel, processes=0)
+            analyse_pitch(cap, release_y_ft=rel, processes=0, workers=args.workers)
             return time.process_time() - t
 
         run(folders[0])  # warm-up: imports, caches
         totals.clear()
         whole = [run(f) for f in folders]
     n = len(folders)
-    t = Table(title=f"pitch pipeline CPU per capture, ms ({n} captures; stillcap from "
+    t = Table(title=f"pitch pipeline CPU per capture, ms ({n} captures, workers={args.workers}; stillcap from "
                     f"{Path(stillcap.__file__).parent})")
     t.add_column("stage")
     t.add_column("ms per capture", justify="right")

@@ -9,6 +9,13 @@
    its 12 JPEGs. Goal <= 4x. The same call again in that process (warm) is printed beside it,
    and the import of ``stillcap.pipelines.puppet`` plus the first call.
 
+Beside row 1, for comparison (no goal): ``analyse_pitch`` with ``processes=2`` (each stereo pair's
+work in a worker process of a pool started before the timing), and the CPU time of row 1 (all
+threads of the process) against the decode's. The CPU ratio holds on a loaded machine, where the
+wall times do not; on two idle cores the threads overlap little beyond decoding (the stages after
+it hold the GIL), so row 1's wall is close to its CPU, while worker processes run the two pairs'
+work (ball images, markers, the pair's spin, the response estimates) side by side.
+
 Every time is the best of ``--repeat`` runs (the least disturbed by other work). The captures are
 rendered by the studio into ``--cache`` once (a 2560x1920 JPEG pitch, a 640x480 JPEG puppet of 12
 views), so the benchmark needs no folder from elsewhere. Run it on a quiet machine: on a loaded
@@ -63,9 +70,23 @@ def render(cache: Path) -> tuple[Path, Path]:
     return pitch, puppet
 
 
-def decode(folder: Path, repeat: int) -> float:
+def decode(folder: Path, repeat: int, cpu: bool = False):
+    """Best wall time of decoding the folder's JPEGs one after the other (and its best CPU time)."""
     files = sorted(str(p) for p in (folder / "images").iterdir() if p.suffix.lower() in (".jpg", ".jpeg"))
-    return best_time(lambda: [cv2.imread(f) for f in files], repeat)
+    wall, cpu_s = best_wall_cpu(lambda: [cv2.imread(f) for f in files], repeat)
+    return (wall, cpu_s) if cpu else wall
+
+
+def best_wall_cpu(fn, repeat: int) -> tuple[float, float]:
+    """The shortest wall time and the shortest CPU time (``time.process_time``: every thread of
+    this process, not its worker processes) of ``repeat`` runs of ``fn()``."""
+    walls, cpus = [], []
+    for _ in range(repeat):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - t)
+        cpus.append(time.process_time() - c)
+    return min(walls), min(cpus)
 
 
 def main(argv=None) -> None:
@@ -79,9 +100,12 @@ def main(argv=None) -> None:
     pitch, puppet = render(args.cache)
     n_pitch = len(list((pitch / "images").iterdir()))
     n_puppet = len(list((puppet / "images").iterdir()))
-    dec_pitch = decode(pitch, args.repeat)
+    dec_pitch, dec_pitch_cpu = decode(pitch, args.repeat, cpu=True)
     analyse_pitch(Capture.load(pitch), PitchOptions())  # warm-up: first-call costs belong to row 2's process
-    api = best_time(lambda: analyse_pitch(Capture.load(pitch), PitchOptions()), args.repeat)
+    api, api_cpu = best_wall_cpu(lambda: analyse_pitch(Capture.load(pitch), PitchOptions()), args.repeat)
+    # for comparison: the pairs' work in 2 worker processes (the pool started by the warm-up)
+    analyse_pitch(Capture.load(pitch), PitchOptions(processes=2))
+    api_proc = best_time(lambda: analyse_pitch(Capture.load(pitch), PitchOptions(processes=2)), args.repeat)
 
     def cli():
         subprocess.run([sys.executable, "-m", "stillcap", "pitch", str(pitch), "--json"], check=True, env=_env(),
@@ -96,6 +120,9 @@ def main(argv=None) -> None:
     cold, warm = min(r["cold"] for r in runs), min(r["warm"] for r in runs)
     imp = min(r["import"] for r in runs)
     rows = [(f"analyse_pitch (load included, threads) vs decoding its {n_pitch} JPEGs", api, dec_pitch, 2.0),
+            ("  (the same, CPU time of all its threads vs the decode's CPU time, for comparison)", api_cpu,
+             dec_pitch_cpu, None),
+            ("  (the same with processes=2, worker pool started before, for comparison)", api_proc, dec_pitch, None),
             ("`stillcap pitch CAPTURE --json` wall time vs analyse_pitch", wall, api, 1.3),
             (f"puppet end to end, loading included (first call) vs decoding its {n_puppet} JPEGs", cold, dec_puppet, 4.0),
             (f"  (the same call again in that process, for comparison)", warm, dec_puppet, None),
