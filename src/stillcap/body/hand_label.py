@@ -48,6 +48,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 from stillcap._checks import as_array, as_rng
 from stillcap.body.hand import BACK_MARKERS, HAND_COLORS, fit_hand, hand_markerset, hand_skeleton
 from stillcap.body.hand_grid import LabelModel, back_triplets, grid_match, label_flash, root_pose
+from stillcap.body.hand_label_fill import MIN_SIDE_M, PAIR_TOL_M, label_leftovers, pose_from_neighbours
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 from stillcap.files.jsonable import to_jsonable
@@ -122,7 +123,7 @@ class HandLabels:
     positions : ndarray, shape (n, m, 3)
         The labelled points' positions (m); NaN = not seen.
     reconstructed : ndarray of bool, shape (n,)
-        The flash has its back-of-hand markers and a fitted pose.
+        The flash has a fitted pose (:attr:`pose_source` says from what).
     skipped : list of str
         Why a flash has no pose ("" for reconstructed flashes).
     members : list of ndarray of int
@@ -144,6 +145,11 @@ class HandLabels:
     hand_scale : float
         The hand's size relative to the model given (estimated from its back-of-hand triangles
         unless given).
+    pose_source : list of str
+        How each flash got its pose: ``"triplet"`` (its back-of-hand triplet), ``"neighbours"``
+        (its other markers with a neighbouring flash's pose as the prior,
+        :func:`~stillcap.body.hand_label_fill.pose_from_neighbours`), ``"overrides"`` (refitted
+        after manual overrides) or ``""`` (no pose).
     """
 
     marker_names: list
@@ -165,6 +171,7 @@ class HandLabels:
     skeleton: Skeleton = field(repr=False)
     markerset: MarkerSet = field(repr=False)
     hand_scale: float = 1.0
+    pose_source: list = field(default_factory=list)
 
     @property
     def n_flashes(self) -> int:
@@ -200,6 +207,7 @@ class HandLabels:
                         "skipped": list(self.skipped), "rms_mm": self.rms * 1000, "root2world": self.root2world,
                         "members": [m.tolist() for m in self.members]},
             "unassigned": self.unassigned, "deleted": self.deleted, "hand_scale": self.hand_scale,
+            "pose_source": list(self.pose_source),
         })
 
 
@@ -252,7 +260,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
                        min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
-                       size_range=SIZE_RANGE) -> HandLabels:
+                       size_range=SIZE_RANGE, fill: bool = True) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -283,6 +291,11 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         and marker set are the scaled ones, and :attr:`HandLabels.hand_scale` says it.
     size_range : (float, float)
         Sizes relative to the model a hand may have (default :data:`SIZE_RANGE`).
+    fill : bool
+        Fill in labels the first pass leaves out (steps 6-7, :mod:`stillcap.body.hand_label_fill`):
+        flashes without a back-of-hand triplet posed from their other markers and a neighbouring
+        flash's pose, and points the gate did not reach labelled after the fits when only one
+        marker can be theirs. False gives the first pass alone.
 
     Returns
     -------
@@ -365,6 +378,22 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                             f"{', '.join(model.colors[model.back])} at the model's distances) among its "
                             f"{len(mem)} points (back colours present: {', '.join(found) or 'none'})"))
     flashes.sort(key=lambda f: f[0])
+    source = ["triplet" if f[2] is not None else "" for f in flashes]
+
+    # 6-7. flashes without a triplet posed from their other markers and a neighbour's pose; points
+    # the gate did not reach labelled after the fits when only one marker can be theirs
+    if fill:
+        flashes = [list(f) for f in flashes]
+        for k in pose_from_neighbours(model, pts, cols, flashes, grid_gate=grid_gate_m, gate=gate_m,
+                                      min_markers=min_markers, pair_tol=PAIR_TOL_M * hand_scale,
+                                      min_side=MIN_SIDE_M * hand_scale):
+            source[k] = "neighbours"
+        avail = usable.copy()
+        for f in flashes:
+            avail[list(f[1].values()) if f[1] else []] = False
+            if f[2] is None:
+                avail[f[3]] = False  # the points of a flash still without a pose stay its own
+        label_leftovers(model, pts, cols, avail, flashes, gate=gate_m)
 
     n, m = len(flashes), len(markerset)
     point_index = np.full((n, m), -1, int)
@@ -372,7 +401,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         for mk, p in (labels or {}).items():
             point_index[k, mk] = p
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
-                 [f[3] for f in flashes], np.array([], int), hand_scale)
+                 [f[3] for f in flashes], np.array([], int), hand_scale, source)
     if overrides is not None:
         if isinstance(overrides, (str, os.PathLike)):
             overrides = read_label_overrides(overrides)
@@ -381,7 +410,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
 
 
 def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, deleted,
-           hand_scale: float = 1.0) -> HandLabels:
+           hand_scale: float = 1.0, source=None) -> HandLabels:
     n, m = point_index.shape
     positions = np.where((point_index >= 0)[..., None], pts[np.maximum(point_index, 0)], np.nan)
     used = set(point_index[point_index >= 0].tolist()) | set(np.asarray(deleted).tolist())
@@ -391,7 +420,8 @@ def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, del
     return HandLabels(list(model.markerset.names), list(model.colors), order, order / strobe_hz, strobe_hz,
                       point_index, positions, np.array([f is not None for f in fits], bool), list(skipped),
                       [np.asarray(x, int) for x in members], unassigned, np.asarray(deleted, int), rms, list(fits),
-                      pts, cols, model.skeleton, model.markerset, float(hand_scale))
+                      pts, cols, model.skeleton, model.markerset, float(hand_scale),
+                      list(source) if source is not None else ["triplet" if f is not None else "" for f in fits])
 
 
 # --------------------------------------------------------------------------------------------
@@ -458,7 +488,8 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
     must lie within its tolerance. A relabel moves the point to ``(flash, label)`` (the point
     that had that label becomes unassigned); a delete removes the point. A flash that gets its
     three back-of-hand markers is fitted (so an override can rescue a skipped flash); one that
-    loses them is skipped.
+    loses them is skipped, unless it was posed from its other markers in the first place
+    (``pose_source`` ``"neighbours"``) and keeps :data:`MIN_MARKERS` labels.
 
     Parameters
     ----------
@@ -503,19 +534,24 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
             pi[o.flash, ms.index(o.label)] = p
             members[o.flash].add(p)
     fits, skipped = list(labels.fits), list(labels.skipped)
+    source = list(labels.pose_source) or ["triplet" if f is not None else "" for f in fits]
     back = [ms.index(b) for b in BACK_MARKERS]
     for k in sorted(touched):
+        pos = np.where((pi[k] >= 0)[:, None], labels.points[np.maximum(pi[k], 0)], np.nan)
         if np.all(pi[k, back] >= 0):
-            pos = np.where((pi[k] >= 0)[:, None], labels.points[np.maximum(pi[k], 0)], np.nan)
             init = fits[k].pose if fits[k] is not None else (next((f.pose for f in fits if f is not None), None))
             fits[k] = fit_hand(labels.skeleton, ms, pos, initial=init)
+            skipped[k], source[k] = "", "overrides"
+        elif fits[k] is not None and source[k] == "neighbours" and (pi[k] >= 0).sum() >= MIN_MARKERS:
+            fits[k] = fit_hand(labels.skeleton, ms, pos, initial=fits[k].pose)  # posed from its other markers
             skipped[k] = ""
         else:
             fits[k] = None
             miss = [BACK_MARKERS[j] for j in range(3) if pi[k, back[j]] < 0]
-            skipped[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}"
+            skipped[k], source[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}", ""
     return _build(model, labels.points, labels.colors, labels.strobe_hz, pi, fits, skipped,
-                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int), labels.hand_scale)
+                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int), labels.hand_scale,
+                  source)
 
 
 # --------------------------------------------------------------------------------------------
