@@ -236,12 +236,11 @@ def pose_from_neighbours(model: LabelModel, pts, cols, flashes: list, *, grid_ga
         todo = [k for k, f in enumerate(flashes) if f[2] is None and tried.get(k, -1) < len(posed)]
         if not todo:
             break
-        k = min(todo, key=lambda q: min((abs(q - p) for p in posed), default=0))
+        if not posed:  # no prior: the rest pose would be a guess about the hand's shape
+            break
+        k = min(todo, key=lambda q: min(abs(q - p) for p in posed))
         tried[k] = len(posed)
-        if posed:
-            templates = [flashes[q][2].angles_deg for q in sorted(posed, key=lambda q: abs(k - q))[:2]]
-        else:
-            templates = [np.zeros((model.skeleton.n_joints, 3))]  # no posed flash: the rest pose
+        templates = [flashes[q][2].angles_deg for q in sorted(posed, key=lambda q: abs(k - q))[:2]]
         labels, fit = pose_one_flash(model, pts, cols, flashes[k][3], templates, grid_gate=grid_gate, gate=gate,
                                      min_markers=min_markers, pair_tol=pair_tol, min_side=min_side)
         if labels is None:
