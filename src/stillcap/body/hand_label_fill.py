@@ -197,14 +197,14 @@ def pose_one_flash(model: LabelModel, pts, cols, members, templates, *, grid_gat
             seen_poses.append(r2w[h])
             labels, fit = _refine(model, pts, cols, avail, r2w[h], angles, grid_gate, gate)
             if labels is not None:
-                refined.append((labels, fit))
+                refined.append((labels, fit, angles))
     if not refined:
         return None, "no three of its points match a neighbouring flash's markers"
-    good = [(lab, f) for lab, f in refined if f.rms < gate]
+    good = [(lab, f, a) for lab, f, a in refined if f.rms < gate]
     if not good:
         return None, "no pose from its other markers fits within the gate"
-    most = max(len(lab) for lab, _ in good)
-    compete = [lab for lab, _ in good if len(lab) >= most - COMPETE_MARKERS]
+    most = max(len(lab) for lab, _, _ in good)
+    compete = [lab for lab, _, _ in good if len(lab) >= most - COMPETE_MARKERS]
     best = max(good, key=lambda x: (len(x[0]), -x[1].rms))
     # a label is kept when no competing labelling gives its marker another point or its point
     # another marker (a labelling that leaves either out does not contradict it)
@@ -214,7 +214,16 @@ def pose_one_flash(model: LabelModel, pts, cols, members, templates, *, grid_gat
     if len(agreed) < min_markers:
         return None, (f"its other markers give {len(compete)} competing labellings that agree on only "
                       f"{len(agreed)} points (a pose needs {min_markers})")
-    fit, _ = fit_labels(model, pts, agreed, best[1].pose)
+    # the joints start from the neighbour's angles, not the hypothesis' grid pose: a digit with one
+    # marker or none leaves its angles to the start, a grid pose of it is arbitrary (a ring finger
+    # with its nail marker alone came out 47 deg off at the DIP), and the sequence fit starts the
+    # next flash from this one; the grid pose's fit is kept only when it fits clearly better
+    start = Pose(model.skeleton, best[1].pose.root2world,
+                 Rotation.from_euler("XYZ", best[2], degrees=True).as_matrix())
+    fit, _ = fit_labels(model, pts, agreed, start)
+    grid_fit, _ = fit_labels(model, pts, agreed, best[1].pose)
+    if grid_fit.rms < 0.5 * fit.rms - 1e-4:
+        fit = grid_fit
     if fit.rms >= gate:
         return None, "its agreed labels do not fit the hand within the gate"
     return agreed, fit
