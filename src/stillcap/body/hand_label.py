@@ -29,6 +29,11 @@ The method (:func:`label_hand_markers`):
 5. **Skipped flashes.** Points left over are clustered (single linkage); a cluster of a few
    points is a flash whose back-of-hand triplet was not found: it is reported with why, without
    a pose (the seed's rule).
+6. **Filling in** (issue 12, :mod:`stillcap.body.hand_label_fill`): such a flash is posed from
+   its other markers with a neighbouring flash's pose as the prior, keeping only the labels every
+   competing hypothesis agrees on; then points the gate did not reach are labelled after the
+   fits when exactly one marker of their colour lies within a wider gate (two candidates leave
+   both unlabelled).
 
 Manual corrections (:func:`read_label_overrides`, :func:`apply_label_overrides`) name a point
 by its flash and 3D position (within a tolerance, so they survive re-runs) and relabel or
