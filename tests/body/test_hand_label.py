@@ -149,7 +149,7 @@ def test_overrides_relabel_and_delete(runs, tmp_path):
 
 def test_override_taking_a_back_marker_skips_the_flash(runs):
     d, lab = runs[SEEDS[0]]
-    k = int(np.flatnonzero(lab.reconstructed)[0])
+    k = lab.pose_source.index("triplet")  # a flash posed from its back-of-hand triplet
     p = lab.point_index[k, lab.markerset.index("back.3")]
     q = lab.point_index[k, lab.markerset.index("index.pip")]
     gone = apply_label_overrides(lab, [LabelOverride(k, lab.points[q], delete=True)])
@@ -163,7 +163,7 @@ def test_override_taking_a_back_marker_skips_the_flash(runs):
 
 def test_override_errors_name_the_entry(runs, tmp_path):
     d, lab = runs[SEEDS[0]]
-    k = int(np.flatnonzero(lab.reconstructed)[0])
+    k = lab.pose_source.index("triplet")
     p = lab.points[lab.point_index[k, 0]]
     far = write_overrides(tmp_path / "far.json", [{"flash": k, "position_m": (p + 0.01).tolist(), "delete": True}])
     with pytest.raises(ValueError, match=r"far.json: overrides\.0: no point within 3 mm"):
@@ -208,8 +208,9 @@ def test_bad_input():
 
 def test_reprojection_gate_drops_points(runs):
     d, lab = runs[SEEDS[0]]
-    k = int(np.flatnonzero(lab.reconstructed)[0])
+    k = lab.pose_source.index("triplet")
     p = lab.point_index[k, lab.markerset.index("index.pip")]
+    assert p >= 0
     rep = np.full(len(d["points"]), 0.5)
     rep[p] = 9.0
     new = label_hand_markers(d["points"], d["colours"], strobe_hz=75, reprojection_px=rep, max_reprojection_px=2.0)
