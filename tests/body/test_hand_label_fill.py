@@ -93,39 +93,55 @@ def test_another_hand_labelled_as_the_goal_asks(person_seed):
     assert 1 - missing / real >= 0.95, (missing, real, lab.skipped)
 
 
-def _displaced(direction_sign=1.0):
-    """Default hand, one flash's index.pip point moved 12 mm (past the 8 mm gate, within the
-    second pass's 20 mm), away from every other marker of its colour."""
+def _displaced():
+    """Default hand, its index.pip points moved 12 mm (past the 8 mm gate, within the second
+    pass's 20 mm) the same way in the hand frame in every flash, as a finger of other proportions
+    would put them, away from every other marker of their colour."""
     tr = truth(0)
     d = hand_points_from_truth(tr, noise_m=0.0002, drop=0.0, n_spurious=0, rng=2)
     ms = hand_markerset()
     m = ms.index("index.pip")
     cols = np.array(tr.marker_colors)
     rows = np.flatnonzero(d["marker"] == m)
-    i = int(rows[len(rows) // 2])
-    f = d["flash"][i]
-    others = tr.markers[f, (cols == cols[m]) & (np.arange(len(cols)) != m)]
     axes = np.vstack([np.eye(3), -np.eye(3)])
-    far = [np.linalg.norm(others - (d["points"][i] + 0.012 * a), axis=1).min() for a in axes]
-    a = axes[int(np.argmax(far))]
-    return d, i, f, m, a
+
+    def shift(i, a):
+        return tr.root2world[d["flash"][i]][:3, :3] @ (0.012 * a)
+
+    def far(a):
+        return min(np.linalg.norm(tr.markers[d["flash"][i], (cols == cols[m]) & (np.arange(len(cols)) != m)]
+                                  - (d["points"][i] + shift(i, a)), axis=1).min() for i in rows)
+
+    a = axes[int(np.argmax([far(a) for a in axes]))]
+    return d, rows, m, np.array([shift(i, a) for i in rows])
 
 
-def test_unreached_point_labelled_when_only_one_marker_can_be_it():
+def test_unreached_points_labelled_when_only_one_marker_can_be_them():
     assert 0.012 < LEFTOVER_GATE_FACTOR * GATE_M
-    d, i, f, m, a = _displaced()
-    d["points"][i] = d["points"][i] + 0.012 * a
+    d, rows, m, sh = _displaced()
+    d["points"][rows] += sh
     first = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0, fill=False)
     lab = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0)
-    assert first.labels()[i, 1] == -1 and i in first.unassigned  # the gate does not reach it
-    assert lab.labels()[i, 1] == m and i not in lab.unassigned
+    assert np.sum(first.labels()[rows, 1] == -1) >= 2  # the gate does not reach them (a fit may bend to one)
+    assert np.all(lab.labels()[rows, 1] == m)
+
+
+def test_stray_point_near_a_missing_marker_stays_unlabelled():
+    """One flash alone shows a point 12 mm off: no other flash misses the marker that way (the
+    stray point that took a dropped marker's label)."""
+    d, rows, m, sh = _displaced()
+    d["points"][rows[0]] += sh[0]
+    lab = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0)
+    assert lab.labels()[rows[0], 1] == -1 and rows[0] in lab.unassigned
 
 
 def test_two_candidates_within_the_gate_leave_both_unlabelled():
-    d, i, f, m, a = _displaced()
-    p0 = d["points"][i].copy()
-    d["points"][i] = p0 + 0.012 * a
-    extra = p0 + 0.012 * np.cross(a, [1.0, 1.0, 1.0]) / np.linalg.norm(np.cross(a, [1.0, 1.0, 1.0]))
+    d, rows, m, sh = _displaced()
+    d["points"][rows] += sh
+    i = rows[0]
+    a = sh[0] / np.linalg.norm(sh[0])
+    side = np.cross(a, [1.0, 1.0, 1.0])
+    extra = d["points"][i] - sh[0] + 0.012 * side / np.linalg.norm(side)
     d = {"points": np.vstack([d["points"], extra]), "colours": np.append(d["colours"], d["colours"][i]),
          "flash": np.append(d["flash"], -1), "marker": np.append(d["marker"], -1)}
     lab = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0)

@@ -26,8 +26,11 @@ without trading correctness for coverage:
     After the fits, a point left over near a posed hand is labelled when exactly one unlabelled
     marker of its colour lies within the wider gate (:data:`LEFTOVER_GATE_FACTOR` times the
     assignment gate) and that marker has no other candidate point, and no other marker of that
-    colour (labelled or not, of any posed flash) lies within the gate of the point. Two
-    candidates within the gate leave both unlabelled. The flash is refitted and the ordinary
+    colour (labelled or not, of any posed flash) lies within the gate of the point, and another
+    flash shows the same marker off the fitted model the same way (its offset in the hand frame
+    within the assignment gate): a model of other proportions misses a marker alike in every
+    flash, a stray point near a marker whose own point is missing does not. Two candidates
+    within the gate leave both unlabelled. The flash is refitted and the ordinary
     assignment runs again, a few rounds.
 
 Both keep the points they cannot label in ``unassigned`` (the result lists them), and the
@@ -288,6 +291,20 @@ def label_leftovers(model: LabelModel, pts, cols, avail, flashes: list, *, gate:
         for p, cs in cand.items():
             for k, m, _ in cs:
                 per_marker.setdefault((k, m), []).append(p)
+        # where each marker's points sit relative to the fitted model, in the hand frame, per flash:
+        # a model of other proportions misses a marker the same way in every flash; a stray point
+        # near a marker whose own point is missing does not (it gave the one wrong label)
+        def offset(k, m, p):
+            r2w = flashes[k][2].pose.root2world
+            return r2w[:3, :3].T @ (pts[p] - pred[k][m])
+
+        seen_off = {}  # marker -> [(flash, offset)] of its labelled points and its candidates
+        for k in posed:
+            for m, p in flashes[k][1].items():
+                seen_off.setdefault(m, []).append((k, offset(k, m, p)))
+        for p, cs in cand.items():
+            for k, m, _ in cs:
+                seen_off.setdefault(m, []).append((k, offset(k, m, p)))
         changed = set()
         for p, cs in cand.items():
             if len(cs) != 1:
@@ -295,6 +312,9 @@ def label_leftovers(model: LabelModel, pts, cols, avail, flashes: list, *, gate:
             k, m, _ = cs[0]
             if m in flashes[k][1] or len(per_marker[(k, m)]) != 1:
                 continue  # the marker has its point already, or two points want it
+            o = offset(k, m, p)
+            if not any(q != k and np.linalg.norm(o - oq) < gate for q, oq in seen_off.get(m, [])):
+                continue  # no other flash misses this marker the same way
             flashes[k][1][m] = p
             avail[p] = False
             changed.add(k)

@@ -174,13 +174,15 @@ def fit_hand_sequence(labels, skeleton: Skeleton | None = None, markerset: Marke
     for k in range(len(flashes)):
         own = labels.fits[flashes[k]]
         init = prev if prev is not None else own.pose if own is not None else None
-        if own is not None and not np.isfinite(pos[k, back]).all():  # posed from its other markers
+        from_triplet = np.isfinite(pos[k, back]).all()
+        if own is not None and not from_triplet:  # posed from its other markers
             init = own.pose  # (stillcap.body.hand_label_fill): its root starts from its own pose
         if init is not None and init.skeleton is not sk:
             init = Pose(sk, init.root2world, init.local_rotations)
         f = fit_hand(sk, ms, pos[k], initial=init, weights=wts[k])
         fits.append(f)
-        prev = f.pose
+        if from_triplet:  # a flash posed from a neighbour's prior is no start for the next one: its
+            prev = f.pose  # digits with one marker or none keep angles the photos do not fix
     return HandSequence(sk, ms, flashes, t, [f.pose for f in fits],
                         np.stack([sk.limit_angles_deg(f.pose.local_rotations) for f in fits]),
                         np.stack([f.residuals for f in fits]), np.array([f.rms for f in fits]),
