@@ -17,7 +17,7 @@ detection or triangulation; the marker RMS is the noise put in). Metrics per con
 labels right (% of the labels given), markers seen twice that got a label (%), marker RMS
 (labelled point to true marker, mm), joint-angle RMS on the degrees of freedom the seen markers
 fix (deg), captures lost (no flash with a pose although one showed its back-of-hand markers
-to 2+ cameras). ``quick`` (2 hands per condition, no adaptation rows) runs in about a minute
+to 2+ cameras), flashes posed (of the throw's flashes). ``quick`` (2 hands per condition, no adaptation rows) runs in about a minute
 on a quiet machine; the times were not measured on one.
 """
 
@@ -83,7 +83,8 @@ def _one(seed: int, person, adapted: bool, own: bool = False, calibrated: bool =
     back_seen = (truth.markers_visible.sum(axis=0) >= 2)[:, :3].all(axis=1).any()
     return {"given": int(given.sum()), "right": int(right.sum()), "seen2": int(real.sum()),
             "labelled": int((right & real).sum()), "err": err, "ang": np.asarray(ang),
-            "lost": bool(back_seen and not lab.reconstructed.any())}
+            "lost": bool(back_seen and not lab.reconstructed.any()), "posed": int(lab.reconstructed.sum()),
+            "flashes": int(truth.n)}
 
 
 CONDITIONS = {
@@ -115,6 +116,7 @@ def rows(quick: bool = False) -> list[dict]:
                     "marker_rms_mm": float(np.sqrt(np.mean(err ** 2)) * 1e3) if len(err) else None,
                     "joint_angle_rms_deg": float(np.sqrt(np.mean(ang ** 2))) if len(ang) else None,
                     "captures_lost": int(sum(r["lost"] for r in rs)),
+                    "flashes_posed": f"{sum(r['posed'] for r in rs)}/{sum(r['flashes'] for r in rs)}",
                     "source": "3D markers from the studio truth (0.3 mm noise per axis), not rendered photos"})
     return out
 
@@ -129,12 +131,12 @@ def main():
     t = Table(title="Hand robustness (goals: labels >= 99.5 %, >= 95 % of markers seen twice labelled, "
                     "marker RMS <= 1 mm, joint angles <= 2 deg, no capture lost)")
     for c in ("condition", "n", "labels right %", "seen twice labelled %", "marker RMS mm", "joint angles RMS deg",
-              "captures lost"):
+              "captures lost", "flashes posed"):
         t.add_column(c, justify="left" if c == "condition" else "right")
     f = lambda v, p: "-" if v is None else f"{v:.{p}f}"  # noqa: E731
     for r in rows(args.quick):
         t.add_row(r["condition"], str(r["n"]), f(r["label_accuracy_pct"], 2), f(r["seen_twice_labelled_pct"], 1),
-                  f(r["marker_rms_mm"], 2), f(r["joint_angle_rms_deg"], 2), str(r["captures_lost"]))
+                  f(r["marker_rms_mm"], 2), f(r["joint_angle_rms_deg"], 2), str(r["captures_lost"]), r["flashes_posed"])
     Console(width=160).print(t)
 
 

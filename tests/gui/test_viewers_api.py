@@ -198,10 +198,12 @@ def test_hand_items_and_view(client, hand_view):
     assert len(v["marker_names"]) == 18 and len(v["parents"]) == len(v["joint_names"]) == 21
     posed = [f for f in v["flashes"] if f["reconstructed"]]
     assert len(posed) >= 2 and all(f["joints"] is not None and len(f["joints"]) == 21 for f in posed)
+    full_back = 0
     for f in posed:
         labels = [p["label"] for p in f["points"] if p["label"]]
         assert len(labels) == len(set(labels)) >= 6
-        assert {"back.1", "back.2", "back.3"} <= set(labels)
+        full_back += {"back.1", "back.2", "back.3"} <= set(labels)
+    assert full_back >= 2  # the others were posed from their other markers and a neighbour (issue 12)
     anim = v["animation"]
     assert len(anim["times_s"]) == len(anim["joints"]) > 10 and np.all(np.diff(anim["times_s"]) > 0)
     assert v["overrides_file"] == "hand-a/label-overrides.json" and len(v["cameras"]) == 4

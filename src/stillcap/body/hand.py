@@ -223,7 +223,7 @@ class HandFit:
     n_markers : int
         Markers used.
     success : bool
-        The optimiser converged, the back of the hand was seen and the RMS is below 5 mm.
+        The optimiser converged and the RMS is below 5 mm.
     message : str
     """
 
@@ -275,12 +275,14 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     markerset : MarkerSet
     marker_positions : array_like, shape (n_markers, 3), or mapping name -> (3,)
         World positions, metres; NaN (or a missing name) for unseen markers. The back-of-hand
-        markers (:data:`BACK_MARKERS`) must be seen (as in the seed).
+        markers (:data:`BACK_MARKERS`) must be seen (as in the seed), unless ``initial`` is
+        given and 3+ markers are seen: the root then starts from ``initial``'s.
     fit_scale : bool
         Also fit a scale factor per :data:`SCALE_GROUPS` (see :func:`personalise_hand`).
     initial : Pose, optional
-        Start for the joint angles (default: the rest pose); the root always starts from the
-        rigid alignment of the back-of-hand markers.
+        Start for the joint angles (default: the rest pose); the root starts from the
+        rigid alignment of the back-of-hand markers (from ``initial``'s root when one of them
+        is unseen).
     regularise : float
         Weight (m per radian) pulling each angle toward its start, so that joints no seen
         marker constrains stay put.
@@ -298,9 +300,9 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     if not np.all(np.isfinite(w[seen]) & (w[seen] > 0)):
         raise ValueError("weights of the seen markers must be finite and > 0")
     back = [markerset.index(n) for n in BACK_MARKERS]
-    if not seen[back].all():
-        raise ValueError(f"fitting a hand needs the back-of-hand markers {list(BACK_MARKERS)} seen, "
-                         f"missing: {[BACK_MARKERS[k] for k in np.flatnonzero(~seen[back])]}")
+    if not seen[back].all() and (initial is None or seen.sum() < 3):
+        raise ValueError(f"fitting a hand needs the back-of-hand markers {list(BACK_MARKERS)} seen (or an initial "
+                         f"pose and 3+ markers), missing: {[BACK_MARKERS[k] for k in np.flatnonzero(~seen[back])]}")
     frames, dofs, gidx, mg, offsets, moffsets, parents, order, lim = _fit_setup(skeleton, markerset)
 
     ang0 = np.zeros((skeleton.n_joints, 3))
@@ -312,8 +314,11 @@ def fit_hand(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, fit_
     a0 = np.clip(a0, lo, hi)
 
     # root from the back of the hand (scale-free start: the rotation is right, the translation nearly)
-    fit0 = rigid_alignment(moffsets[back], pts[back])  # the back markers ride on the root frame
-    rv0, t0 = fit0.rotation.as_rotvec(), fit0.translation
+    if seen[back].all():
+        fit0 = rigid_alignment(moffsets[back], pts[back])  # the back markers ride on the root frame
+        rv0, t0 = fit0.rotation.as_rotvec(), fit0.translation
+    else:  # a flash posed from its other markers (body.hand_label_fill): the root starts from the initial pose
+        rv0, t0 = Rotation.from_matrix(initial.root2world[:3, :3]).as_rotvec(), initial.root2world[:3, 3]
     n_s = len(SCALE_GROUPS) if fit_scale else 0
     x0 = np.concatenate([rv0, t0, a0, np.zeros(n_s)])
 

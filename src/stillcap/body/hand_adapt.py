@@ -347,8 +347,9 @@ def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, mar
     if not adapt:
         return label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, overrides=overrides,
                                   hand_scale=hand_scale, **kw), None
+    # the adaptation learns from flashes posed from their back-of-hand triplets only (fill=False)
     first = label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, hand_scale=hand_scale,
-                               gate_m=GATE_M * ADAPT_GATE_FACTOR, **kw)
+                               gate_m=GATE_M * ADAPT_GATE_FACTOR, fill=False, **kw)
     rec = np.flatnonzero(first.reconstructed)
     if len(rec) < min_flashes:
         return label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, overrides=overrides,

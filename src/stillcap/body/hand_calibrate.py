@@ -314,7 +314,7 @@ def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = 
     ms0 = markerset or hand_markerset()
     target = calibration_angles(pose, sk0)
     lab = label_hand_markers(points, colors, strobe_hz=strobe_hz, skeleton=sk0, markerset=ms0,
-                             reprojection_px=reprojection_px)
+                             reprojection_px=reprojection_px, fill=False)  # flashes with their back triplet
     rec = np.flatnonzero(lab.reconstructed)
     if len(rec) == 0:
         why = "; ".join(sorted({s for s in lab.skipped if s})) or "no back-of-hand markers found"
@@ -323,7 +323,8 @@ def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = 
     k0 = int(rec[int(np.argmin(dist))])
     first = calibrate_hand(lab.positions[k0], pose=pose, skeleton=sk0, markerset=ms0, **kw)
     lab2 = label_hand_markers(points, colors, strobe_hz=strobe_hz, skeleton=first.skeleton,
-                              markerset=first.markerset, reprojection_px=reprojection_px, hand_scale=1.0)
+                              markerset=first.markerset, reprojection_px=reprojection_px, hand_scale=1.0,
+                              fill=False)
     rec2 = np.flatnonzero(lab2.reconstructed)
     if len(rec2) == 0:
         return first

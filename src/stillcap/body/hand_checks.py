@@ -15,6 +15,10 @@ what the hand model and the triangulation noise allow (:class:`~stillcap._selfch
   says on which finger the hand model does not match this hand and what to do.
 - ``partly_hidden_residual``: a labelled, partly hidden marker farther from the fitted model than
   its own larger uncertainty (``hidden_noise_m``) allows: its label is doubtful.
+- ``flashes_without_pose``: the share of the flashes' points in flashes that got no pose (no
+  back-of-hand triplet, and posing them from their other markers failed), against the same
+  labelling goal; the message names the flashes and why, and how many flashes were posed from
+  a neighbouring flash's pose.
 - ``unlabelled_markers``: the fraction of triangulated markers near a posed hand that got no
   label (points of flashes without a pose are counted in the flash's own no-pose note, not
   here).
@@ -147,6 +151,22 @@ def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float,
                                                               sorted(far)[::-1][:4])
                             + "; check them in the report and delete them if wrong (--overrides)")
                 checks.append(SelfCheck("partly_hidden_residual", ok, worst * 1e3, hlim * 1e3, msg, "", "mm"))
+
+    # flashes whose points got no pose at all (neither from their triplet nor from a neighbour)
+    unposed = np.flatnonzero(~labels.reconstructed)
+    n_flash_pts = sum(len(m) for m in labels.members)
+    if labels.n_flashes:
+        lost = sum(len(labels.members[k]) for k in unposed)
+        frac = lost / max(1, n_flash_pts)
+        src = list(getattr(labels, "pose_source", []) or [])
+        from_nb = sum(1 for x in src if x == "neighbours")
+        msg = (f"{labels.n_flashes - len(unposed)} of {labels.n_flashes} flashes posed"
+               + (f" ({from_nb} from their other markers and a neighbouring flash's pose)" if from_nb else ""))
+        if len(unposed):
+            msg += (f"; {len(unposed)} without a pose, their {lost} points unlabelled: "
+                    + "; ".join(f"flash {int(labels.order[k])}: {labels.skipped[k]}" for k in unposed[:3])
+                    + (" ..." if len(unposed) > 3 else ""))
+        checks.append(SelfCheck("flashes_without_pose", frac <= UNLABELLED_LIMIT, frac, UNLABELLED_LIMIT, msg, "", ""))
 
     # markers near a posed hand that got no label
     posed = np.flatnonzero(labels.reconstructed)

@@ -29,6 +29,11 @@ The method (:func:`label_hand_markers`):
 5. **Skipped flashes.** Points left over are clustered (single linkage); a cluster of a few
    points is a flash whose back-of-hand triplet was not found: it is reported with why, without
    a pose (the seed's rule).
+6. **Filling in** (issue 12, :mod:`stillcap.body.hand_label_fill`): such a flash is posed from
+   its other markers with a neighbouring flash's pose as the prior, keeping only the labels every
+   competing hypothesis agrees on; then points the gate did not reach are labelled after the
+   fits when exactly one marker of their colour lies within a wider gate (two candidates leave
+   both unlabelled).
 
 Manual corrections (:func:`read_label_overrides`, :func:`apply_label_overrides`) name a point
 by its flash and 3D position (within a tolerance, so they survive re-runs) and relabel or
@@ -44,16 +49,13 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import Field
 from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.optimize import linear_sum_assignment
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array, as_rng
-from stillcap.body.hand import (BACK_MARKERS, DIGITS, HAND_COLORS, fit_hand, hand_markerset,
-                                hand_skeleton, marker_colors)
-from stillcap.body.kinematics import rigid_alignment
+from stillcap.body.hand import BACK_MARKERS, HAND_COLORS, fit_hand, hand_markerset, hand_skeleton
+from stillcap.body.hand_grid import LabelModel, back_triplets, grid_match, label_flash, root_pose
+from stillcap.body.hand_label_fill import MIN_SIDE_M, PAIR_TOL_M, label_leftovers, pose_from_neighbours
 from stillcap.body.markerset import MarkerSet
-from stillcap.body.skeleton import Pose, Skeleton
+from stillcap.body.skeleton import Skeleton
 from stillcap.files.jsonable import to_jsonable
 from stillcap.files.jsonfile import read_json
 from stillcap.files.schema import ClosedModel, Model, Name, PositiveCount, Vec3, validate
@@ -78,11 +80,6 @@ MIN_MARKERS = 6
 #: such a group needs.
 CLUSTER_LINK_M = 0.10
 MIN_SKIPPED_POINTS = 4
-#: Points farther than this from a hand's root cannot belong to it (m; the hand is 0.19 m long).
-REACH_M = 0.30
-#: Log-likelihood of a marker the grid pose puts near no point of its colour (a hit at the
-#: gate scores -2): an unseen marker is less likely than a seen one.
-_LOG_MISS = -np.log(100.0)
 
 _OVERRIDES_FORMAT = "stillcap-label-overrides"
 _Tolerance = Field(None, strict=True, gt=0, le=1000, allow_inf_nan=False)
@@ -131,7 +128,7 @@ class HandLabels:
     positions : ndarray, shape (n, m, 3)
         The labelled points' positions (m); NaN = not seen.
     reconstructed : ndarray of bool, shape (n,)
-        The flash has its back-of-hand markers and a fitted pose.
+        The flash has a fitted pose (:attr:`pose_source` says from what).
     skipped : list of str
         Why a flash has no pose ("" for reconstructed flashes).
     members : list of ndarray of int
@@ -153,6 +150,11 @@ class HandLabels:
     hand_scale : float
         The hand's size relative to the model given (estimated from its back-of-hand triangles
         unless given).
+    pose_source : list of str
+        How each flash got its pose: ``"triplet"`` (its back-of-hand triplet), ``"neighbours"``
+        (its other markers with a neighbouring flash's pose as the prior,
+        :func:`~stillcap.body.hand_label_fill.pose_from_neighbours`), ``"overrides"`` (refitted
+        after manual overrides) or ``""`` (no pose).
     """
 
     marker_names: list
@@ -174,6 +176,7 @@ class HandLabels:
     skeleton: Skeleton = field(repr=False)
     markerset: MarkerSet = field(repr=False)
     hand_scale: float = 1.0
+    pose_source: list = field(default_factory=list)
 
     @property
     def n_flashes(self) -> int:
@@ -209,219 +212,15 @@ class HandLabels:
                         "skipped": list(self.skipped), "rms_mm": self.rms * 1000, "root2world": self.root2world,
                         "members": [m.tolist() for m in self.members]},
             "unassigned": self.unassigned, "deleted": self.deleted, "hand_scale": self.hand_scale,
+            "pose_source": list(self.pose_source),
         })
-
-
-# --------------------------------------------------------------------------------------------
-# Per-digit grids
-# --------------------------------------------------------------------------------------------
-@dataclass
-class _Digit:
-    name: str
-    chain: list            # joint indices, parents first
-    markers: np.ndarray    # marker indices on the digit
-    grid: np.ndarray       # (G, len(chain), 3) angles, degrees
-    local: np.ndarray      # (G, len(markers), 3) marker positions in the root frame
-
-
-class _HandModel:
-    """The hand model's precomputed pieces for labelling."""
-
-    def __init__(self, skeleton: Skeleton, markerset: MarkerSet, step_deg: float):
-        self.skeleton, self.markerset = skeleton, markerset
-        self.frames = markerset.bone_frames(skeleton)
-        self.colors = np.asarray(marker_colors(markerset))
-        self.back = np.array([markerset.index(n) for n in BACK_MARKERS])
-        if np.any(self.frames[self.back] != skeleton.root):
-            raise ValueError(f"the back-of-hand markers {list(BACK_MARKERS)} must ride on the root joint")
-        if len(set(self.colors[self.back])) != 3:
-            raise ValueError("the back-of-hand markers must have three different colours")
-        self.back_model = markerset.offsets[self.back]
-        self.digits = []
-        names = skeleton.names
-        for d in DIGITS:
-            chain = [i for i in skeleton.depth_first if names[i].split("-")[0] == d]
-            mk = np.flatnonzero(np.isin(self.frames, chain))
-            if not chain or not len(mk):
-                continue
-            grid = self._grid(chain, step_deg)
-            dig = _Digit(d, chain, mk, grid, np.empty(0))
-            dig.local = self.digit_markers(dig, grid)
-            self.digits.append(dig)
-
-    def _grid(self, chain, step_deg):
-        lim = self.skeleton.limits_deg
-        axes = []
-        for i in chain:
-            for a in range(3):
-                lo, hi = lim[i, a]
-                if np.isnan(lo):
-                    lo, hi = -180.0, 180.0 - step_deg
-                n = 1 if hi <= lo else int(np.ceil((hi - lo) / step_deg)) + 1
-                axes.append(np.linspace(lo, hi, n))
-        mesh = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(chain), 3)
-        return mesh
-
-    def digit_markers(self, dig: _Digit, angles: np.ndarray) -> np.ndarray:
-        """Marker positions of a digit in the root frame for angles (G, len(chain), 3) degrees."""
-        sk = self.skeleton
-        g = len(angles)
-        local = Rotation.from_euler("XYZ", angles.reshape(-1, 3), degrees=True).as_matrix().reshape(g, -1, 3, 3)
-        R, t = {}, {}
-        for k, i in enumerate(dig.chain):  # vectorised forward kinematics over the grid
-            p = sk.parents[i]
-            if p == sk.root:
-                R[i], t[i] = local[:, k], np.broadcast_to(sk.offsets[i], (g, 3))
-            else:
-                R[i] = R[p] @ local[:, k]
-                t[i] = t[p] + R[p] @ sk.offsets[i]
-        out = np.empty((g, len(dig.markers), 3))
-        for k, m in enumerate(dig.markers):
-            f = self.frames[m]
-            out[:, k] = np.einsum("gij,j->gi", R[f], self.markerset.offsets[m]) + t[f]
-        return out
-
-
-# --------------------------------------------------------------------------------------------
-# Labelling
-# --------------------------------------------------------------------------------------------
-def _triplets(points, colors, avail, model: _HandModel, tol, size_range=None):
-    """Candidate back-of-hand triplets: point indices (K, 3) in BACK_MARKERS order, and the size
-    of each relative to the model (K,).
-
-    ``size_range`` None: the sides must match the model's within ``tol`` (size 1). Given
-    ``(lo, hi)``: the triangle may be the model's scaled by any size in the range (least-squares
-    size from the three sides), each side within ``tol`` times the size: a hand larger or
-    smaller than the model is found all the same.
-    """
-    bm = model.back_model
-    pairs = ((0, 1), (0, 2), (1, 2))
-    D = np.array([np.linalg.norm(bm[a] - bm[b]) for a, b in pairs])
-    lo, hi = (1.0, 1.0) if size_range is None else (float(size_range[0]), float(size_range[1]))
-    idx = [np.flatnonzero(avail & (colors == model.colors[b])) for b in model.back]
-    out, sizes = [], []
-    for i in idx[0]:
-        d1 = np.linalg.norm(points[idx[1]] - points[i], axis=1)
-        d2 = np.linalg.norm(points[idx[2]] - points[i], axis=1)
-        js = idx[1][(d1 > lo * D[0] - tol * hi) & (d1 < hi * D[0] + tol * hi)]
-        ks = idx[2][(d2 > lo * D[1] - tol * hi) & (d2 < hi * D[1] + tol * hi)]
-        for j in js:
-            for k in ks:
-                d = np.array([np.linalg.norm(points[j] - points[i]), np.linalg.norm(points[k] - points[i]),
-                              np.linalg.norm(points[j] - points[k])])
-                s = 1.0 if size_range is None else float(np.clip(d @ D / (D @ D), lo, hi))
-                if np.all(np.abs(d - s * D) < tol * s):
-                    out.append((i, j, k))
-                    sizes.append(s)
-    return np.array(out, int).reshape(-1, 3), np.array(sizes, float)
-
-
-def _root_pose(model: _HandModel, points, triplet, scale: float = 1.0) -> np.ndarray:
-    return rigid_alignment(scale * model.back_model, points[triplet]).model2world
-
-
-def _grid_match(model: _HandModel, r2w, points, colors, avail, gate, prior=None, scale: float = 1.0):
-    """Best grid pose per digit for a root pose: ``(labels {marker: point}, angles (n_joints, 3),
-    n matched digit markers, cost)``; ``scale``: the hand is the model scaled by it (the gate too)."""
-    gate = gate * scale
-    R, t = r2w[:3, :3], r2w[:3, 3]
-    near = avail & (np.linalg.norm(points - t, axis=1) < REACH_M * scale)
-    trees = {}
-    for c in np.unique(model.colors):
-        sel = np.flatnonzero(near & (colors == c))
-        trees[c] = (cKDTree(points[sel]), sel) if len(sel) else None
-    labels, angles, n, cost = {}, np.zeros((model.skeleton.n_joints, 3)), 0, 0.0
-    for dig in model.digits:
-        grid, local = dig.grid, dig.local
-        if prior is not None:  # the neighbouring flash's pose competes with the grid
-            pa = prior[dig.chain][None]
-            grid = np.concatenate([grid, pa])
-            local = np.concatenate([local, model.digit_markers(dig, pa)])
-        world = (scale * local) @ R.T + t
-        logw = np.zeros(len(grid))
-        hits = np.full((len(grid), len(dig.markers)), -1)
-        dists = np.full((len(grid), len(dig.markers)), np.inf)
-        for k, m in enumerate(dig.markers):
-            tr = trees[model.colors[m]]
-            if tr is None:
-                logw += _LOG_MISS
-                continue
-            d, j = tr[0].query(world[:, k], distance_upper_bound=gate)
-            ok = np.isfinite(d)
-            hits[ok, k] = tr[1][j[ok]]
-            dists[:, k] = d
-            logw += np.where(ok, -0.5 * (np.where(ok, d, 0) / (0.5 * gate)) ** 2, _LOG_MISS)
-        # choose the labelling, not the grid pose: the labelling with the most evidence (the sum
-        # of the grid poses' likelihoods that give it, a uniform prior over the angles within
-        # the limits). A lone yellow point on the ring finger fits its PIP marker for a whole
-        # range of PIP and DIP angles but its nail marker for few: it is the PIP.
-        uniq, inv = np.unique(hits, axis=0, return_inverse=True)
-        inv = inv.ravel()
-        w = np.exp(logw - logw.max())
-        ev = np.bincount(inv, weights=w, minlength=len(uniq))
-        g = int(np.argmax(ev))
-        members = np.flatnonzero(inv == g)
-        b = int(members[np.argmax(logw[members])])
-        angles[dig.chain] = grid[b]
-        cost -= float(logw[b])
-        row, dr = hits[b], dists[b]
-        for k in np.argsort(dr):  # a point claimed twice within the digit goes to the nearer marker
-            if row[k] >= 0 and row[k] not in labels.values():
-                labels[int(dig.markers[k])] = int(row[k])
-                n += 1
-    return labels, angles, n, cost
-
-
-def _assign(model: _HandModel, predicted, points, colors, avail, gate, fixed):
-    """Optimal assignment of points to predicted markers (colour a hard constraint, a dummy
-    column per marker at the gate's cost); ``fixed`` {marker: point} are kept."""
-    m = len(predicted)
-    cand = np.flatnonzero(avail)
-    cand = cand[np.min(np.linalg.norm(points[cand][:, None] - predicted[None], axis=-1), axis=1) < gate]
-    cand = np.setdiff1d(cand, list(fixed.values()))
-    rows = np.array([i for i in range(m) if i not in fixed], int)
-    big = 1e6
-    d2 = np.sum((predicted[rows][:, None] - points[cand][None]) ** 2, axis=-1)
-    ok = (model.colors[rows][:, None] == colors[cand][None]) & (d2 < gate ** 2)
-    cost = np.concatenate([np.where(ok, d2, big), np.where(np.eye(len(rows), dtype=bool), gate ** 2, big)], axis=1)
-    r, c = linear_sum_assignment(cost)
-    out = dict(fixed)
-    for i, j in zip(r, c):
-        if j < len(cand) and cost[i, j] < big:
-            out[int(rows[i])] = int(cand[j])
-    return out
-
-
-def _fit_labels(model: _HandModel, points, labels, initial: Pose):
-    pos = np.full((len(model.markerset), 3), np.nan)
-    for mk, p in labels.items():
-        pos[mk] = points[p]
-    return fit_hand(model.skeleton, model.markerset, pos, initial=initial), pos
-
-
-def _label_flash(model, points, colors, avail, triplet, prior_angles, grid_gate, gate, max_iter=4):
-    """Labels and fit of one hand from its back-of-hand triplet."""
-    r2w = _root_pose(model, points, triplet)
-    labels, angles, _, _ = _grid_match(model, r2w, points, colors, avail, grid_gate, prior_angles)
-    fixed = {int(b): int(p) for b, p in zip(model.back, triplet)}
-    labels = {**{k: v for k, v in labels.items() if v not in fixed.values()}, **fixed}
-    initial = Pose(model.skeleton, np.eye(4), Rotation.from_euler("XYZ", angles, degrees=True).as_matrix())
-    fit, pos = _fit_labels(model, points, labels, initial)
-    for _ in range(max_iter):
-        pred = model.markerset.positions(fit.pose)
-        new = _assign(model, pred, points, colors, avail, gate, fixed)
-        if new == labels:
-            break
-        labels = new
-        fit, pos = _fit_labels(model, points, labels, fit.pose)
-    return labels, fit, pos
 
 
 def _accept(model, pts, cols, usable, cands, sizes, grid_gate, min_markers, roots=None) -> list:
     """Candidate hands accepted greedily, best grid score first, each taking its points out of
     play; candidate ``i`` is the model scaled by ``sizes[i]``."""
     if roots is None:
-        roots = [_root_pose(model, pts, c, s) for c, s in zip(cands, sizes)]
+        roots = [root_pose(model, pts, c, s) for c, s in zip(cands, sizes)]
     avail = usable.copy()
     accepted = []
     alive = np.ones(len(cands), bool)
@@ -431,7 +230,7 @@ def _accept(model, pts, cols, usable, cands, sizes, grid_gate, min_markers, root
             if not avail[cands[i]].all():
                 alive[i] = False
                 continue
-            lab, _, n, cost = _grid_match(model, roots[i], pts, cols, avail, grid_gate, scale=sizes[i])
+            lab, _, n, cost = grid_match(model, roots[i], pts, cols, avail, grid_gate, scale=sizes[i])
             if n + 3 < min_markers:
                 alive[i] = False
                 continue
@@ -466,7 +265,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
                        min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
-                       size_range=SIZE_RANGE) -> HandLabels:
+                       size_range=SIZE_RANGE, fill: bool = True) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -497,6 +296,11 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         and marker set are the scaled ones, and :attr:`HandLabels.hand_scale` says it.
     size_range : (float, float)
         Sizes relative to the model a hand may have (default :data:`SIZE_RANGE`).
+    fill : bool
+        Fill in labels the first pass leaves out (steps 6-7, :mod:`stillcap.body.hand_label_fill`):
+        flashes without a back-of-hand triplet posed from their other markers and a neighbouring
+        flash's pose, and points the gate did not reach labelled after the fits when only one
+        marker can be theirs. False gives the first pass alone.
 
     Returns
     -------
@@ -512,7 +316,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     throw = throw / np.linalg.norm(throw)
     skeleton = skeleton or hand_skeleton()
     markerset = markerset or hand_markerset()
-    model = _HandModel(skeleton, markerset, grid_step_deg)
+    model = LabelModel(skeleton, markerset, grid_step_deg)
     usable = np.all(np.isfinite(pts), axis=1)
     if rep is not None and max_reprojection_px is not None:
         usable &= ~(rep > float(max_reprojection_px))
@@ -521,7 +325,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     # score with the model scaled to each; the median size of the accepted hands scales the model
     # and every gate (a hand larger or smaller than the model is not lost to fixed mm gates)
     if hand_scale is None:
-        cands, sizes = _triplets(pts, cols, usable, model, triangle_tol_m, size_range)
+        cands, sizes = back_triplets(pts, cols, usable, model, triangle_tol_m, size_range)
         acc = _accept(model, pts, cols, usable, cands, sizes, grid_gate_m, min_markers)
         hand_scale = float(np.median(sizes[acc])) if len(acc) else 1.0
     hand_scale = float(hand_scale)
@@ -531,17 +335,17 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         from stillcap.body.hand import scale_hand
 
         skeleton, markerset = scale_hand(skeleton, markerset, hand_scale)
-        model = _HandModel(skeleton, markerset, grid_step_deg)
+        model = LabelModel(skeleton, markerset, grid_step_deg)
         triangle_tol_m, gate_m, grid_gate_m = (v * hand_scale for v in (triangle_tol_m, gate_m, grid_gate_m))
 
     # 1-2. candidate hands from back-of-hand triplets, accepted greedily by grid score
-    cands, _ = _triplets(pts, cols, usable, model, triangle_tol_m)
-    roots = [_root_pose(model, pts, c) for c in cands]
+    cands, _ = back_triplets(pts, cols, usable, model, triangle_tol_m)
+    roots = [root_pose(model, pts, c) for c in cands]
     accepted = _accept(model, pts, cols, usable, cands, np.ones(len(cands)), grid_gate_m, min_markers, roots)
 
     # 3. time order of the hands, by their points' centroid along the throw
     def centroid(i):
-        lab, _, _, _ = _grid_match(model, roots[i], pts, cols, usable, grid_gate_m)
+        lab, _, _, _ = grid_match(model, roots[i], pts, cols, usable, grid_gate_m)
         return np.mean(pts[list(lab.values()) + list(cands[i])], axis=0)
 
     hands = [(float(centroid(i) @ throw), i) for i in accepted]
@@ -554,7 +358,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         if not avail[cands[i]].all():
             results[i] = None
             continue
-        labels, fit, _ = _label_flash(model, pts, cols, avail, cands[i], prior, grid_gate_m, gate_m)
+        labels, fit, _ = label_flash(model, pts, cols, avail, cands[i], prior, grid_gate_m, gate_m)
         results[i] = (labels, fit)
         avail[list(labels.values())] = False
         prior = fit.angles_deg
@@ -579,6 +383,22 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                             f"{', '.join(model.colors[model.back])} at the model's distances) among its "
                             f"{len(mem)} points (back colours present: {', '.join(found) or 'none'})"))
     flashes.sort(key=lambda f: f[0])
+    source = ["triplet" if f[2] is not None else "" for f in flashes]
+
+    # 6-7. flashes without a triplet posed from their other markers and a neighbour's pose; points
+    # the gate did not reach labelled after the fits when only one marker can be theirs
+    if fill:
+        flashes = [list(f) for f in flashes]
+        for k in pose_from_neighbours(model, pts, cols, flashes, grid_gate=grid_gate_m, gate=gate_m,
+                                      min_markers=min_markers, pair_tol=PAIR_TOL_M * hand_scale,
+                                      min_side=MIN_SIDE_M * hand_scale):
+            source[k] = "neighbours"
+        avail = usable.copy()
+        for f in flashes:
+            avail[list(f[1].values()) if f[1] else []] = False
+            if f[2] is None:
+                avail[f[3]] = False  # the points of a flash still without a pose stay its own
+        label_leftovers(model, pts, cols, avail, flashes, gate=gate_m)
 
     n, m = len(flashes), len(markerset)
     point_index = np.full((n, m), -1, int)
@@ -586,7 +406,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         for mk, p in (labels or {}).items():
             point_index[k, mk] = p
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
-                 [f[3] for f in flashes], np.array([], int), hand_scale)
+                 [f[3] for f in flashes], np.array([], int), hand_scale, source)
     if overrides is not None:
         if isinstance(overrides, (str, os.PathLike)):
             overrides = read_label_overrides(overrides)
@@ -595,7 +415,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
 
 
 def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, deleted,
-           hand_scale: float = 1.0) -> HandLabels:
+           hand_scale: float = 1.0, source=None) -> HandLabels:
     n, m = point_index.shape
     positions = np.where((point_index >= 0)[..., None], pts[np.maximum(point_index, 0)], np.nan)
     used = set(point_index[point_index >= 0].tolist()) | set(np.asarray(deleted).tolist())
@@ -605,7 +425,8 @@ def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, del
     return HandLabels(list(model.markerset.names), list(model.colors), order, order / strobe_hz, strobe_hz,
                       point_index, positions, np.array([f is not None for f in fits], bool), list(skipped),
                       [np.asarray(x, int) for x in members], unassigned, np.asarray(deleted, int), rms, list(fits),
-                      pts, cols, model.skeleton, model.markerset, float(hand_scale))
+                      pts, cols, model.skeleton, model.markerset, float(hand_scale),
+                      list(source) if source is not None else ["triplet" if f is not None else "" for f in fits])
 
 
 # --------------------------------------------------------------------------------------------
@@ -672,7 +493,8 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
     must lie within its tolerance. A relabel moves the point to ``(flash, label)`` (the point
     that had that label becomes unassigned); a delete removes the point. A flash that gets its
     three back-of-hand markers is fitted (so an override can rescue a skipped flash); one that
-    loses them is skipped.
+    loses them is skipped, unless it was posed from its other markers in the first place
+    (``pose_source`` ``"neighbours"``) and keeps :data:`MIN_MARKERS` labels.
 
     Parameters
     ----------
@@ -685,7 +507,7 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
         A new result; ``labels`` is left unchanged.
     """
     ms = labels.markerset
-    model = _HandModel.__new__(_HandModel)  # only the cheap parts are needed here
+    model = LabelModel.__new__(LabelModel)  # only the cheap parts are needed here
     model.skeleton, model.markerset = labels.skeleton, ms
     model.colors = np.asarray(labels.marker_colors)
     pi = labels.point_index.copy()
@@ -717,19 +539,24 @@ def apply_label_overrides(labels: HandLabels, overrides) -> HandLabels:
             pi[o.flash, ms.index(o.label)] = p
             members[o.flash].add(p)
     fits, skipped = list(labels.fits), list(labels.skipped)
+    source = list(labels.pose_source) or ["triplet" if f is not None else "" for f in fits]
     back = [ms.index(b) for b in BACK_MARKERS]
     for k in sorted(touched):
+        pos = np.where((pi[k] >= 0)[:, None], labels.points[np.maximum(pi[k], 0)], np.nan)
         if np.all(pi[k, back] >= 0):
-            pos = np.where((pi[k] >= 0)[:, None], labels.points[np.maximum(pi[k], 0)], np.nan)
             init = fits[k].pose if fits[k] is not None else (next((f.pose for f in fits if f is not None), None))
             fits[k] = fit_hand(labels.skeleton, ms, pos, initial=init)
+            skipped[k], source[k] = "", "overrides"
+        elif fits[k] is not None and source[k] == "neighbours" and (pi[k] >= 0).sum() >= MIN_MARKERS:
+            fits[k] = fit_hand(labels.skeleton, ms, pos, initial=fits[k].pose)  # posed from its other markers
             skipped[k] = ""
         else:
             fits[k] = None
             miss = [BACK_MARKERS[j] for j in range(3) if pi[k, back[j]] < 0]
-            skipped[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}"
+            skipped[k], source[k] = f"back-of-hand markers missing after manual overrides: {', '.join(miss)}", ""
     return _build(model, labels.points, labels.colors, labels.strobe_hz, pi, fits, skipped,
-                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int), labels.hand_scale)
+                  [np.array(sorted(m), int) for m in members], np.array(sorted(deleted), int), labels.hand_scale,
+                  source)
 
 
 # --------------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline, Slerp
 
 from stillcap._checks import as_array
-from stillcap.body.hand import fit_hand, fit_hand_poses, hand_dofs, personalise_hand
+from stillcap.body.hand import BACK_MARKERS, fit_hand, fit_hand_poses, hand_dofs, personalise_hand
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Animation, Pose, Skeleton
 
@@ -170,13 +170,19 @@ def fit_hand_sequence(labels, skeleton: Skeleton | None = None, markerset: Marke
         idx = labels.point_index[flashes]
         wts = np.where(idx >= 0, sig.min() / sig[np.maximum(idx, 0)], 1.0)
     fits, prev = [], None
+    back = [ms.index(b) for b in BACK_MARKERS]
     for k in range(len(flashes)):
-        init = prev if prev is not None else labels.fits[flashes[k]].pose if labels.fits[flashes[k]] is not None else None
+        own = labels.fits[flashes[k]]
+        init = prev if prev is not None else own.pose if own is not None else None
+        from_triplet = np.isfinite(pos[k, back]).all()
+        if own is not None and not from_triplet:  # posed from its other markers
+            init = own.pose  # (stillcap.body.hand_label_fill): its root starts from its own pose
         if init is not None and init.skeleton is not sk:
             init = Pose(sk, init.root2world, init.local_rotations)
         f = fit_hand(sk, ms, pos[k], initial=init, weights=wts[k])
         fits.append(f)
-        prev = f.pose
+        if from_triplet:  # a flash posed from a neighbour's prior is no start for the next one: its
+            prev = f.pose  # digits with one marker or none keep angles the photos do not fix
     return HandSequence(sk, ms, flashes, t, [f.pose for f in fits],
                         np.stack([sk.limit_angles_deg(f.pose.local_rotations) for f in fits]),
                         np.stack([f.residuals for f in fits]), np.array([f.rms for f in fits]),

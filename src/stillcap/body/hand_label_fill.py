@@ -1,0 +1,339 @@
+"""Labels filled in where the first pass of the glove labelling leaves them out (issue 12).
+
+On hands unlike the model the first pass (:func:`stillcap.body.hand_label.label_hand_markers`,
+steps 1-5) labelled only 58-89 % of the markers seen by two or more cameras. Most of the others
+were in flashes whose back-of-hand triplet was not found (one back marker hidden: the flash got
+no pose at all); the rest were points the model's 8 mm gate did not reach (a finger of other
+proportions puts its PIP marker 9-18 mm from the model's). Two steps label what is there,
+without trading correctness for coverage:
+
+:func:`pose_from_neighbours`
+    A flash without a pose is posed from whatever markers it has, with a neighbouring flash's
+    pose as the prior. The hand changes shape little from one flash to the next, so the
+    neighbour's fitted joint angles give a template of all markers in the hand frame. Every
+    triple of the flash's points whose colours and mutual distances match three template
+    markers (within :data:`PAIR_TOL_M`, times the hand's size: fingers move between flashes)
+    is a hypothesis of the root pose (rigid alignment, the Kabsch method vectorised over the hypotheses).
+    The best hypotheses (markers of the template within the grid gate of a point of their
+    colour) are refined as a flash with a back-of-hand triplet is: best grid pose per digit,
+    the hand fitted, points assigned optimally (:func:`scipy.optimize.linear_sum_assignment`)
+    until the labels stop changing. A label is kept only when every competitive hypothesis
+    (within :data:`COMPETE_MARKERS` markers of the best and fitting as well) gives that point
+    the same marker: ambiguous evidence leaves the points unlabelled. The flash is posed when
+    :data:`~stillcap.body.hand_label.MIN_MARKERS` agreed labels remain. Flashes are posed
+    nearest a posed flash first, so a newly posed flash is a neighbour for the next.
+:func:`label_leftovers`
+    After the fits, a point left over near a posed hand is labelled when exactly one unlabelled
+    marker of its colour lies within the wider gate (:data:`LEFTOVER_GATE_FACTOR` times the
+    assignment gate) and that marker has no other candidate point, and no other marker of that
+    colour (labelled or not, of any posed flash) lies within the gate of the point, and another
+    flash shows the same marker off the fitted model the same way (its offset in the hand frame
+    within the assignment gate): a model of other proportions misses a marker alike in every
+    flash, a stray point near a marker whose own point is missing does not. Two candidates
+    within the gate leave both unlabelled. The flash is refitted and the ordinary
+    assignment runs again, a few rounds.
+
+Both keep the points they cannot label in ``unassigned`` (the result lists them), and the
+self-check ``unlabelled_markers`` counts them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from stillcap.body.hand_grid import LabelModel, assign_points, fit_labels, grid_match
+from stillcap.body.skeleton import Pose
+
+__all__ = ["COMPETE_MARKERS", "LEFTOVER_GATE_FACTOR", "PAIR_TOL_M", "label_leftovers", "pose_from_neighbours",
+           "pose_one_flash", "template_markers"]
+
+#: Tolerance on each distance between three points of a flash and the three template markers
+#: they are taken for (m, for a hand of the model's size): the fingers move between flashes.
+PAIR_TOL_M = 0.012
+#: Sides of a hypothesis triangle shorter than this (m, model size) do not fix a rotation well.
+MIN_SIDE_M = 0.015
+#: Hypotheses refined per template (the best by markers matched).
+N_REFINE = 12
+#: A refined hypothesis competes with the best when it labels at most this many markers fewer
+#: than the one labelling most and fits within the assignment gate.
+COMPETE_MARKERS = 2
+#: The second pass's gate, in multiples of the assignment gate (8 mm x the hand's size): on
+#: hands of other proportions the unreached markers were 9-18 mm from the fitted model, the
+#: nearest other marker of their colour 29 mm or more.
+LEFTOVER_GATE_FACTOR = 2.5
+#: Rounds of the second pass.
+LEFTOVER_ROUNDS = 3
+
+
+def template_markers(model: LabelModel, angles_deg) -> np.ndarray:
+    """The model's markers in the hand (root) frame for joint angles ``angles_deg`` (n_joints, 3),
+    shape (n_markers, 3)."""
+    rot = Rotation.from_euler("XYZ", np.asarray(angles_deg, float), degrees=True).as_matrix()
+    return model.markerset.positions(Pose(model.skeleton, np.eye(4), rot))
+
+
+def _hypotheses(T, tcols, P, pcols, tol, min_side):
+    """Index triples ``(i, j, l)`` of points and ``(a, b, c)`` of template markers whose colours
+    and three mutual distances agree; shapes (H, 3), (H, 3)."""
+    DT = np.linalg.norm(T[:, None] - T[None], axis=-1)
+    DP = np.linalg.norm(P[:, None] - P[None], axis=-1)
+    C = pcols[:, None] == tcols[None]
+    pts_idx, mk_idx = [], []
+    n = len(P)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if DP[i, j] < min_side:
+                continue
+            A, B = np.nonzero(C[i][:, None] & C[j][None] & (np.abs(DT - DP[i, j]) < tol))
+            if not len(A):
+                continue
+            for l in range(j + 1, n):
+                if DP[i, l] < min_side or DP[j, l] < min_side:
+                    continue
+                ok = C[l][None] & (np.abs(DT[A] - DP[i, l]) < tol) & (np.abs(DT[B] - DP[j, l]) < tol)
+                ok[np.arange(len(A)), A] = False
+                ok[np.arange(len(B)), B] = False
+                r, c = np.nonzero(ok)
+                for rr, cc in zip(r, c):
+                    pts_idx.append((i, j, l))
+                    mk_idx.append((A[rr], B[rr], cc))
+    return np.array(pts_idx, int).reshape(-1, 3), np.array(mk_idx, int).reshape(-1, 3)
+
+
+def _kabsch(src, dst):
+    """Rigid transforms (H, 4, 4) taking ``src`` (H, k, 3) onto ``dst`` (H, k, 3), and the RMS
+    of each alignment (H,). Vectorised over the hypotheses (``rigid_alignment`` does one)."""
+    cs, cd = src.mean(axis=1), dst.mean(axis=1)
+    H = np.einsum("hki,hkj->hij", src - cs[:, None], dst - cd[:, None])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("hij,hjk->hik", U, Vt)))
+    D = np.tile(np.eye(3), (len(src), 1, 1))
+    D[:, 2, 2] = d
+    R = np.einsum("hji,hjk,hlk->hil", Vt, D, U)  # V D U^T
+    out = np.tile(np.eye(4), (len(src), 1, 1))
+    out[:, :3, :3] = R
+    out[:, :3, 3] = cd - np.einsum("hij,hj->hi", R, cs)
+    rms = np.sqrt(np.mean(np.sum((np.einsum("hij,hkj->hki", R, src) + out[:, None, :3, 3] - dst) ** 2, -1), -1))
+    return out, rms
+
+
+def _score(T, tcols, P, pcols, r2w, gate):
+    """Markers of each hypothesis' template within ``gate`` of a point of their colour (H,), and
+    the sum of their squared distances (capped at the gate) (H,)."""
+    hits = np.zeros(len(r2w), int)
+    cost = np.zeros(len(r2w))
+    for s in range(0, len(r2w), 2000):
+        R, t = r2w[s:s + 2000, :3, :3], r2w[s:s + 2000, :3, 3]
+        W = np.einsum("hij,mj->hmi", R, T) + t[:, None]
+        d = np.linalg.norm(W[:, :, None] - P[None, None], axis=-1)
+        d = np.where((tcols[:, None] == pcols[None])[None], d, np.inf).min(axis=2)
+        hits[s:s + 2000] = (d < gate).sum(axis=1)
+        cost[s:s + 2000] = np.minimum(d, gate).__pow__(2).sum(axis=1)
+    return hits, cost
+
+
+def _refine(model, pts, cols, avail, r2w, prior_angles, grid_gate, gate, max_iter=4):
+    """A root pose hypothesis refined: grid pose per digit, fit, optimal assignment until the
+    labels stop changing. ``(labels {marker: point}, fit)`` or ``(None, None)``."""
+    labels, angles, _, _ = grid_match(model, r2w, pts, cols, avail, grid_gate, prior_angles)
+    if len(labels) < 3:
+        return None, None
+    initial = Pose(model.skeleton, r2w, Rotation.from_euler("XYZ", angles, degrees=True).as_matrix())
+    fit, _ = fit_labels(model, pts, labels, initial)
+    for _ in range(max_iter):
+        new = assign_points(model, model.markerset.positions(fit.pose), pts, cols, avail, gate, {})
+        if new == labels or len(new) < 3:
+            break
+        labels = new
+        fit, _ = fit_labels(model, pts, labels, fit.pose)
+    return labels, fit
+
+
+def pose_one_flash(model: LabelModel, pts, cols, members, templates, *, grid_gate: float, gate: float,
+                   min_markers: int, pair_tol: float, min_side: float):
+    """Labels and fit of one flash without a back-of-hand triplet (module docstring).
+
+    Parameters
+    ----------
+    model : LabelModel
+        The (scaled) hand model.
+    pts, cols : ndarray, shapes (N, 3), (N,)
+        All points and colours.
+    members : array_like of int
+        The flash's points.
+    templates : list of ndarray, shape (n_joints, 3)
+        Joint angles (degrees) of neighbouring posed flashes.
+    grid_gate, gate, pair_tol, min_side : float
+        Already scaled to the hand's size (m).
+
+    Returns
+    -------
+    (dict, HandFit) or (None, str)
+        The agreed labels {marker: point} and the fit, or None and why not.
+    """
+    members = np.asarray(members, int)
+    avail = np.zeros(len(pts), bool)
+    avail[members] = True
+    P, pc = pts[members], cols[members]
+    refined = []
+    for angles in templates:
+        T = template_markers(model, angles)
+        pi, mi = _hypotheses(T, model.colors, P, pc, pair_tol, min_side)
+        if not len(pi):
+            continue
+        r2w, rms = _kabsch(T[mi], P[pi])
+        keep = rms < pair_tol
+        r2w = r2w[keep]
+        if not len(r2w):
+            continue
+        hits, cost = _score(T, model.colors, P, pc, r2w, grid_gate)
+        order = np.lexsort((cost, -hits))
+        seen_poses = []
+        for h in order:
+            if len(seen_poses) >= N_REFINE:
+                break
+            # hypotheses from other triples of the same hand give (almost) the same root pose
+            if any(np.linalg.norm(r2w[h, :3, 3] - q[:3, 3]) < gate and
+                   np.linalg.norm(r2w[h, :3, :3] - q[:3, :3]) < 0.1 for q in seen_poses):
+                continue
+            seen_poses.append(r2w[h])
+            labels, fit = _refine(model, pts, cols, avail, r2w[h], angles, grid_gate, gate)
+            if labels is not None:
+                refined.append((labels, fit, angles))
+    if not refined:
+        return None, "no three of its points match a neighbouring flash's markers"
+    good = [(lab, f, a) for lab, f, a in refined if f.rms < gate]
+    if not good:
+        return None, "no pose from its other markers fits within the gate"
+    most = max(len(lab) for lab, _, _ in good)
+    compete = [lab for lab, _, _ in good if len(lab) >= most - COMPETE_MARKERS]
+    best = max(good, key=lambda x: (len(x[0]), -x[1].rms))
+    # a label is kept when no competing labelling gives its marker another point or its point
+    # another marker (a labelling that leaves either out does not contradict it)
+    inverse = [{p: m for m, p in lab.items()} for lab in compete]
+    agreed = {m: p for m, p in best[0].items()
+              if all(lab.get(m, p) == p and inv.get(p, m) == m for lab, inv in zip(compete, inverse))}
+    if len(agreed) < min_markers:
+        return None, (f"its other markers give {len(compete)} competing labellings that agree on only "
+                      f"{len(agreed)} points (a pose needs {min_markers})")
+    # the joints start from the neighbour's angles, not the hypothesis' grid pose: a digit with one
+    # marker or none leaves its angles to the start, a grid pose of it is arbitrary (a ring finger
+    # with its nail marker alone came out 47 deg off at the DIP), and the sequence fit starts the
+    # next flash from this one; the grid pose's fit is kept only when it fits clearly better
+    start = Pose(model.skeleton, best[1].pose.root2world,
+                 Rotation.from_euler("XYZ", best[2], degrees=True).as_matrix())
+    fit, _ = fit_labels(model, pts, agreed, start)
+    grid_fit, _ = fit_labels(model, pts, agreed, best[1].pose)
+    if grid_fit.rms < 0.5 * fit.rms - 1e-4:
+        fit = grid_fit
+    if fit.rms >= gate:
+        return None, "its agreed labels do not fit the hand within the gate"
+    return agreed, fit
+
+
+def pose_from_neighbours(model: LabelModel, pts, cols, flashes: list, *, grid_gate: float, gate: float,
+                         min_markers: int, pair_tol: float, min_side: float) -> list:
+    """Pose the flashes without a pose from their neighbours (module docstring).
+
+    ``flashes`` is the labelling's list in time order, each ``[position, labels or None, fit or
+    None, members, why]``; the flashes posed here get their labels, fit and members, and
+    ``why`` becomes "" (their reason for having no pose is replaced when they stay without one).
+    Returns the indices of the flashes posed here.
+    """
+    posed_here, tried, why = [], {}, {}
+    while True:
+        posed = [k for k, f in enumerate(flashes) if f[2] is not None]
+        # a flash is tried again only when more flashes have a pose than at its last try
+        todo = [k for k, f in enumerate(flashes) if f[2] is None and tried.get(k, -1) < len(posed)]
+        if not todo:
+            break
+        if not posed:  # no prior: the rest pose would be a guess about the hand's shape
+            break
+        k = min(todo, key=lambda q: min(abs(q - p) for p in posed))
+        tried[k] = len(posed)
+        templates = [flashes[q][2].angles_deg for q in sorted(posed, key=lambda q: abs(k - q))[:2]]
+        labels, fit = pose_one_flash(model, pts, cols, flashes[k][3], templates, grid_gate=grid_gate, gate=gate,
+                                     min_markers=min_markers, pair_tol=pair_tol, min_side=min_side)
+        if labels is None:
+            why[k] = fit
+            continue
+        flashes[k][1], flashes[k][2], flashes[k][4] = labels, fit, ""
+        flashes[k][3] = np.array(sorted(labels.values()), int)
+        posed_here.append(k)
+    for k, w in why.items():
+        if flashes[k][2] is None:
+            flashes[k][4] = f"{flashes[k][4]}; posing it from its other markers failed: {w}"
+    return posed_here
+
+
+def label_leftovers(model: LabelModel, pts, cols, avail, flashes: list, *, gate: float, factor: float = LEFTOVER_GATE_FACTOR,
+                    rounds: int = LEFTOVER_ROUNDS) -> int:
+    """Label points left over near posed hands (module docstring); ``flashes`` as in
+    :func:`pose_from_neighbours` (updated in place), ``avail`` (N,) bool the points not labelled
+    yet (updated). Returns the number of points labelled."""
+    wide = factor * gate
+    n_new = 0
+    posed = [k for k, f in enumerate(flashes) if f[2] is not None]
+    for _ in range(rounds):
+        left = np.flatnonzero(avail)
+        if not len(left) or not posed:
+            break
+        pred = {k: model.markerset.positions(flashes[k][2].pose) for k in posed}
+        # every (flash, marker) within the wide gate of each left-over point, labelled or not
+        cand = {}  # point -> list of (flash, marker, distance)
+        for k in posed:
+            d = np.linalg.norm(pts[left][:, None] - pred[k][None], axis=-1)
+            same = cols[left][:, None] == model.colors[None]
+            for a, m in zip(*np.nonzero(same & (d < wide))):
+                cand.setdefault(int(left[a]), []).append((k, int(m), float(d[a, m])))
+        per_marker = {}
+        for p, cs in cand.items():
+            for k, m, _ in cs:
+                per_marker.setdefault((k, m), []).append(p)
+        # where each marker's points sit relative to the fitted model, in the hand frame, per flash:
+        # a model of other proportions misses a marker the same way in every flash; a stray point
+        # near a marker whose own point is missing does not (it gave the one wrong label)
+        def offset(k, m, p):
+            r2w = flashes[k][2].pose.root2world
+            return r2w[:3, :3].T @ (pts[p] - pred[k][m])
+
+        seen_off = {}  # marker -> [(flash, offset)] of its labelled points and its candidates
+        for k in posed:
+            for m, p in flashes[k][1].items():
+                seen_off.setdefault(m, []).append((k, offset(k, m, p)))
+        for p, cs in cand.items():
+            for k, m, _ in cs:
+                seen_off.setdefault(m, []).append((k, offset(k, m, p)))
+        changed = set()
+        for p, cs in cand.items():
+            if len(cs) != 1:
+                continue  # two markers within the gate: ambiguous
+            k, m, _ = cs[0]
+            if m in flashes[k][1] or len(per_marker[(k, m)]) != 1:
+                continue  # the marker has its point already, or two points want it
+            o = offset(k, m, p)
+            if not any(q != k and np.linalg.norm(o - oq) < gate for q, oq in seen_off.get(m, [])):
+                continue  # no other flash misses this marker the same way
+            flashes[k][1][m] = p
+            avail[p] = False
+            changed.add(k)
+            n_new += 1
+        if not changed:
+            break
+        for k in changed:  # refit, then the ordinary assignment may reach more
+            labels = flashes[k][1]
+            fit, _ = fit_labels(model, pts, labels, flashes[k][2].pose)
+            free = avail.copy()
+            free[list(labels.values())] = True
+            new = assign_points(model, model.markerset.positions(fit.pose), pts, cols, free, gate, labels)
+            for m, p in new.items():
+                if m not in labels:
+                    avail[p] = False
+                    n_new += 1
+            if new != labels:
+                fit, _ = fit_labels(model, pts, new, fit.pose)
+            flashes[k][1], flashes[k][2] = new, fit
+            flashes[k][3] = np.array(sorted(new.values()), int)
+    return n_new
+
