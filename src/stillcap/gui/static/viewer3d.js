@@ -45,7 +45,11 @@ export function createView(canvas) {
     const center = box.getCenter(new THREE.Vector3());
     const size = box.getSize(new THREE.Vector3()).length() || 1;
     const dir = new THREE.Vector3(...direction).normalize();
-    camera.position.copy(center).addScaledVector(dir, size * 1.1);
+    // far enough for the box's bounding sphere to fit the narrower of the two fields of view
+    const vfov = THREE.MathUtils.degToRad(camera.fov);
+    const hfov = 2 * Math.atan(Math.tan(vfov / 2) * camera.aspect);
+    const distance = (size / 2) / Math.sin(Math.min(vfov, hfov) / 2);
+    camera.position.copy(center).addScaledVector(dir, distance * 1.05);
     camera.near = size / 1000;
     camera.far = size * 20;
     camera.updateProjectionMatrix();
