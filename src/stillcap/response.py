@@ -111,6 +111,14 @@ class Response:
         return cls("gamma", gamma=gamma)
 
     @classmethod
+    def estimated(cls, response_class: str, gamma: float) -> Response:
+        """The response an estimate names: linear for the ``"linear"`` class, else the power law
+        of the estimated ``gamma`` (kept within 1.4-3.2, the encodings cameras use)."""
+        if response_class == "linear":
+            return cls.linear()
+        return cls.power(round(float(np.clip(gamma, 1.4, 3.2)), 2))
+
+    @classmethod
     def table(cls, values) -> Response:
         """A measured curve: ``values[code]`` = linear radiance (0-1) of each 8-bit code."""
         return cls("lut", lut=values)

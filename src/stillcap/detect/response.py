@@ -88,13 +88,8 @@ class ResponseEstimate:
         return self.response_class is not None
 
     def response(self) -> Response | None:
-        """The response to use: linear for the linear class, else the power law of the estimated
-        gamma (kept within 1.4-3.2, the encodings cameras use); None when it cannot tell."""
-        if not self.ok:
-            return None
-        if self.response_class == "linear":
-            return Response.linear()
-        return Response.power(round(float(np.clip(self.gamma, 1.4, 3.2)), 2))
+        """The response to use (:meth:`Response.estimated`); None when it cannot tell."""
+        return Response.estimated(self.response_class, self.gamma) if self.ok else None
 
     def to_json(self) -> dict:
         r = self.response()

@@ -112,14 +112,9 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray):
     xy[0] = np.arange(w) - mid[0]
     xy[1] = (np.arange(h) - mid[1])[:, None]
     q = np.einsum("ij,jhw->ihw", Ai, xy)
-    r2 = q[0] ** 2 + q[1] ** 2
-    ring = (r2 > 1.3 ** 2)
-    level = median(lin[ring]) if np.any(ring) else 0.0
-    wgt = np.where(r2 < 1.15 ** 2, np.maximum(lin - level, 0.0), 0.0)
-    tot = float(wgt.sum())
-    if not tot > 0:
+    mq = _radiance_centroid(lin, q)
+    if mq is None:
         return mid, A, q, None
-    mq = np.array([np.sum(wgt * q[0]), np.sum(wgt * q[1])]) / tot
     mn = float(np.hypot(*mq))
     if not np.isfinite(mn) or mn < 1e-6:
         return mid, A, q, None
@@ -245,14 +240,21 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
 def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
     """Distance (outline radii) of ``img``'s radiance centroid from the outline's middle, measured
     as :func:`_lit_frame` measures it (level from the ring beyond 1.3 radii, radiance within 1.15)."""
+    mq = _radiance_centroid(img, q)
+    return float("nan") if mq is None else float(np.hypot(*mq))
+
+
+def _radiance_centroid(img: np.ndarray, q: np.ndarray):
+    """Centroid (outline radii, shape (2,)) of ``img``'s radiance above the level of the ring
+    beyond 1.3 radii, over the pixels within 1.15 radii; None when nothing is above it."""
     r2 = q[0] ** 2 + q[1] ** 2
     ring = (r2 > 1.3 ** 2)
     level = median(img[ring]) if np.any(ring) else 0.0
     wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
-        return float("nan")
-    return float(np.hypot(np.sum(wgt * q[0]), np.sum(wgt * q[1])) / tot)
+        return None
+    return np.array([np.sum(wgt * q[0]), np.sum(wgt * q[1])]) / tot
 
 
 def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:
