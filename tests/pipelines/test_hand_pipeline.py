@@ -44,6 +44,9 @@ def test_recovers_the_truth(result):
     assert c is not None
     assert c["labels"] >= 30 and c["labels_right_pct"] >= 99.0
     assert c["flashes_reconstructed"] >= max(2, c["flashes_back_seen_2plus"] - 1)
+    # the flashes whose back is seen are counted apart from those posed from their neighbours
+    assert c["flashes_reconstructed_back_seen"] <= min(c["flashes_back_seen_2plus"], c["flashes_reconstructed"])
+    assert c["flashes_reconstructed_back_seen"] >= max(2, c["flashes_back_seen_2plus"] - 1)
     assert c["marker_rms_mm"] < 1.2
     assert c["joint_angle_rms_deg"] < 2.0  # the goal (measured 1.0)
     assert c["ball_mean_mm"] < 3.0

@@ -216,7 +216,8 @@ def print_hand_comparison(cmp: dict) -> None:
     t.add_column("quantity")
     t.add_column("value", justify="right")
     rows = [("flashes with a pose / with the back of the hand in 2+ cameras",
-             f"{cmp['flashes_reconstructed']} / {cmp['flashes_back_seen_2plus']}"),
+             f"{cmp.get('flashes_reconstructed_back_seen', cmp['flashes_reconstructed'])} / "
+             f"{cmp['flashes_back_seen_2plus']} (all posed: {cmp['flashes_reconstructed']})"),
             ("labels right", f"{_f(cmp['labels_right_pct'], 2)} %  ({cmp['labels_right']} of {cmp['labels']})"),
             ("markers seen in 2+ cameras, labelled right", f"{_f(cmp['markers_recovered_pct'], 1)} % fully seen + "
              f"{_f(cmp.get('markers_recovered_partly_hidden_pct'), 1)} % partly hidden"),

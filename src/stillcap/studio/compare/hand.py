@@ -129,6 +129,10 @@ def compare_with_truth(result: HandResult, truth: dict) -> dict:
     out = {"flashes_true": len(tr["times"]), "flashes_back_seen_2plus": int(back_seen.sum()),
            "flashes_found": int(lab.n_flashes), "flashes_matched": int(np.sum(match >= 0)),
            "flashes_reconstructed": int(lab.reconstructed.sum()),
+           # of the flashes whose back of the hand 2+ cameras see, those with a pose (the others
+           # with a pose were posed from their neighbours' markers)
+           "flashes_reconstructed_back_seen": int(sum(1 for k, j in enumerate(match)
+                                                      if j >= 0 and lab.reconstructed[k] and back_seen[j])),
            "flash_match": match.tolist(), "clock_offset_s": float(t_off),
            "labels": n_lab, "labels_right": n_right,
            "labels_right_pct": 100.0 * n_right / n_lab if n_lab else None,
