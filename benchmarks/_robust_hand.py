@@ -33,6 +33,8 @@ from stillcap.body.hand_track import fit_hand_sequence, observed_dofs
 from stillcap.studio.hand import hand_capture
 from stillcap.studio.hand_variation import another_hand
 
+from bench_hand_labels import flash_of_groups
+
 NOISE_M = 0.0003
 
 
@@ -63,12 +65,7 @@ def _one(seed: int, person, adapted: bool, own: bool = False, calibrated: bool =
                                  markerset=person.markerset)
     else:
         lab = label_hand_markers(d["points"], d["colours"], strobe_hz=truth.strobe_hz)
-    fmap = []
-    for mem in lab.members:
-        f = d["flash"][mem]
-        f = f[f >= 0]
-        fmap.append(int(np.bincount(f).argmax()) if len(f) else -1)
-    fmap = np.array(fmap, int)
+    fmap = flash_of_groups(lab, d["flash"])
     lp = lab.labels()
     given = lp[:, 0] >= 0
     right = np.array([g and fmap[lp[i, 0]] == d["flash"][i] and lp[i, 1] == d["marker"][i]

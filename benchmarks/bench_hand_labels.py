@@ -35,6 +35,17 @@ from stillcap.studio.hand import hand_capture
 console = Console(width=160)
 
 
+def flash_of_groups(lab, flash) -> np.ndarray:
+    """The true flash of each flash group the labelling found (the majority of its points' true
+    flashes; -1 for a group of spurious points only)."""
+    fmap = []
+    for mem in lab.members:
+        f = flash[mem]
+        f = f[f >= 0]
+        fmap.append(int(np.bincount(f).argmax()) if len(f) else -1)
+    return np.array(fmap, int)
+
+
 def run(truth, seed, noise_m, personalise):
     d = hand_points_from_truth(truth, noise_m=noise_m, drop=0.05, n_spurious=3, rng=seed)
     t = time.perf_counter()
@@ -44,12 +55,7 @@ def run(truth, seed, noise_m, personalise):
     n_truth = truth.n
     has_back = np.array([all(((d["flash"] == k) & (d["marker"] == b)).any() for b in range(3)) for k in range(n_truth)])
     vis_back = (truth.markers_visible.sum(axis=0) >= 2)[:, :3].all(axis=1)
-    fmap = []
-    for mem in lab.members:
-        f = d["flash"][mem]
-        f = f[f >= 0]
-        fmap.append(int(np.bincount(f).argmax()) if len(f) else -1)
-    fmap = np.array(fmap, int)
+    fmap = flash_of_groups(lab, d["flash"])
     lab_pt = lab.labels()
     ok = np.array([lab_pt[i, 0] >= 0 and fmap[lab_pt[i, 0]] == d["flash"][i] and lab_pt[i, 1] == d["marker"][i]
                    for i in range(len(lab_pt))], bool)
