@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "gui": ("gui", "gui", "command"),
     "batch": ("batch", "batch", "command"),
     "balls": ("balls", "app", "group"),
+    "serve": ("serve", "serve", "command"),
 }
 HELP = "stillcap: optical motion capture from still photographs."
 
@@ -107,7 +108,8 @@ def main(argv=None) -> None:
 
 
 def run() -> None:
-    """The ``stillcap`` process's entry point (the script and ``python -m stillcap``): :func:`main`,
+    """A run of the ``stillcap`` command in this process (:func:`stillcap._entry.run`, the script's
+    and ``python -m stillcap``'s entry point, calls it when no warm server takes the run): :func:`main`,
     then the objects left are frozen out of the garbage collector, so that the interpreter's exit
     does not walk all of them once more (SciPy's and the pipelines' modules hold about a million:
     ~0.1 s of every run). Not in :func:`main`, which Python callers (the tests) use in a process

@@ -1,0 +1,474 @@
+"""The warm server behind ``stillcap serve``: imports the pipelines once, then forks one process
+per run a client sends (docs/serve.md; the client is :mod:`stillcap._entry`, the socket and the
+messages :mod:`stillcap._server_link`).
+
+Written on the standard library's sockets, ``selectors`` and ``os.fork``/``os.pidfd_open``: the
+pattern of mypy's dmypy and nailgun (a resident process that runs each command in a fresh
+fork), for which no maintained library exists that hands a client's own file descriptors to
+the command; Python's ``multiprocessing.forkserver`` is the same idea but its forks report to
+the parent process, not to an unrelated client.
+
+Each run is its own process, forked from the server: it takes the client's stdin, stdout and
+stderr (``dup2`` onto 0, 1, 2), working directory, environment, umask and arguments, and runs
+``stillcap.cli.main`` in a fresh process group; the server reports its exit status (or the
+signal that ended it) to the client and passes the client's signals on to the group. Runs never
+share a process, so two at once cannot disturb each other; the server itself runs no analysis
+(its memory stays as the imports left it, and no thread pool is forked half-used).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import gc
+import importlib
+import io
+import json
+import os
+import selectors
+import signal
+import socket
+import sys
+import threading
+import time
+import traceback
+
+from stillcap import _server_link as link
+
+__all__ = ["PRELOAD", "Server", "preload", "run_command"]
+
+#: What the server imports once: the four forwarded commands' modules and what their runs import
+#: later (found by listing ``sys.modules`` after a run of each, on captures with and without a
+#: truth). A module that fails to import is left to the run.
+PRELOAD = ("stillcap.cli.pitch", "stillcap.cli.hand", "stillcap.cli.puppet", "stillcap.cli.markers",
+           "stillcap.pipelines.pitch", "stillcap.pipelines.hand", "stillcap.pipelines.puppet",
+           "stillcap.pipelines.markers", "stillcap.pipelines.pitch.checks", "stillcap.io.capture",
+           "stillcap.io.export", "stillcap.io.project", "stillcap.files.outputs", "stillcap.ball.alias",
+           "stillcap.body.retarget", "stillcap.calibrate", "stillcap.studio.compare.pitch",
+           "stillcap.studio.compare.hand", "stillcap.studio.compare.puppet", "pydantic.type_adapter",
+           "scipy.sparse.csgraph", "xml.etree.ElementTree", "rich.markup")
+#: Imported for their imports, then forgotten, so that each run executes them afresh: the CLI's
+#: modules make rich consoles when imported, which fix their colours and terminal from the
+#: process's stdout and environment of that moment; typer's rich_utils reads the environment.
+FORGET = ("stillcap.cli.", "typer.rich_utils")
+KEEP = ("stillcap.cli._server", "stillcap.cli.serve")
+
+
+def _log(text: str) -> None:
+    sys.stderr.write(f"{time.strftime('%Y-%m-%d %H:%M:%S')} stillcap serve[{os.getpid()}]: {text}\n")
+    sys.stderr.flush()
+
+
+def preload() -> tuple[float, int]:
+    """Import :data:`PRELOAD`, forget :data:`FORGET`, freeze the objects left out of the garbage
+    collector (the forks then neither scan nor copy them). Seconds taken and modules loaded."""
+    t = time.perf_counter()
+    for name in PRELOAD:
+        try:
+            importlib.import_module(name)
+        except Exception as e:  # noqa: BLE001  (an optional module: the run will say what is wrong)
+            _log(f"preloading {name} failed ({type(e).__name__}: {e}); runs import it themselves")
+    cli = sys.modules["stillcap.cli"]
+    for name in list(sys.modules):
+        if name.startswith(FORGET) and name not in KEEP:
+            del sys.modules[name]
+            if name.startswith("stillcap.cli.") and "." not in name[len("stillcap.cli."):]:
+                cli.__dict__.pop(name.rsplit(".", 1)[1], None)
+    gc.collect()
+    gc.freeze()
+    return time.perf_counter() - t, len(sys.modules)
+
+
+def run_command(argv: list[str]):
+    """``stillcap ARGV`` as :func:`stillcap.cli.run` runs it in a fresh process: the exit status
+    (SystemExit's code as Python reads it at exit); a KeyboardInterrupt ends the process by
+    SIGINT after its traceback, as Python does."""
+    from stillcap.cli import main
+
+    try:
+        main(argv)
+        return 0
+    except SystemExit as e:
+        return e.code
+    except KeyboardInterrupt:
+        traceback.print_exc()
+        sys.stderr.flush()
+        import atexit
+
+        atexit._run_exitfuncs()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        os.kill(os.getpid(), signal.SIGINT)
+        return 130
+    except BaseException:  # noqa: BLE001  (a bug: its traceback and status 1, as Python gives)
+        traceback.print_exc()
+        return 1
+    finally:
+        gc.freeze()
+
+
+def _reopen_stdio() -> None:
+    """New ``sys.stdin``, ``sys.stdout`` and ``sys.stderr`` on descriptors 0, 1, 2 (now the
+    client's), buffered as Python's start-up buffers them: stdout line by line on a terminal,
+    stderr always line by line; encoding and error handler as the server's (the client's are
+    the same: the locale, PYTHONIOENCODING and PYTHONUNBUFFERED are in the fingerprint)."""
+    unbuffered = bool(getattr(sys.stdout, "write_through", False))  # python -u, PYTHONUNBUFFERED
+    for name, fd, mode in (("stdin", 0, "r"), ("stdout", 1, "w"), ("stderr", 2, "w")):
+        old = getattr(sys, name)
+        encoding = getattr(old, "encoding", None) or "utf-8"
+        errors = getattr(old, "errors", None) or ("backslashreplace" if fd == 2 else "strict")
+        if mode == "r":
+            buf = open(fd, "rb", closefd=False)  # noqa: SIM115
+        else:
+            buf = open(fd, "wb", buffering=0 if unbuffered else -1, closefd=False)  # noqa: SIM115
+        new = io.TextIOWrapper(buf, encoding=encoding, errors=errors, newline="\n",
+                               line_buffering=mode == "w" and not unbuffered and (fd == 2 or os.isatty(fd)),
+                               write_through=unbuffered)
+        setattr(sys, name, new)
+        setattr(sys, f"__{name}__", new)
+
+
+class Server:
+    """One server on one socket: :meth:`start` (lock, imports, bind), then :meth:`loop`."""
+
+    def __init__(self, path: str, idle_timeout_s: float):
+        self.path, self.idle_timeout_s = path, float(idle_timeout_s)
+        self.pid = os.getpid()
+        self.lock_fd = self.listener = self.sel = None
+        self.runs: dict[int, dict] = {}  # pid -> {"conn", "pidfd"}
+        self.stopping = False
+        self.served = 0
+        self.started = time.time()
+        self.fingerprint = ""
+        self.env_before: dict = {}
+        self.env_changes: dict = {}
+        self.env_removed: list = []
+        self.preload_s = 0.0
+        self.last_active = time.monotonic()
+
+    # -- start and stop ------------------------------------------------------------------------
+    def lock(self) -> None:
+        """Take the socket's lock file (one server per socket), or ValueError naming the socket."""
+        if len(os.fsencode(self.path)) > 107:
+            raise ValueError(f"{self.path}: a socket path may have at most 107 bytes; give a shorter --socket")
+        link.check_private_dir(os.path.dirname(self.path), create=True)
+        self.lock_fd = os.open(self.path + ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            fcntl.flock(self.lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self.lock_fd)
+            self.lock_fd = None
+            raise ValueError(f"{self.path}: a server is already running on this socket "
+                             f"(stillcap serve --stop ends it)") from None
+
+    def start(self) -> None:
+        """Lock, import, then listen (so that a socket that answers is a warm server)."""
+        if self.lock_fd is None:
+            self.lock()
+        before = dict(os.environ)
+        self.fingerprint = link.fingerprint(before)
+        self.preload_s, n = preload()
+        # what the imports did to the environment (OpenCV sets LD_LIBRARY_PATH, ...): each run's
+        # environment, the client's, gets the same changes, as a process of its own would have them
+        self.env_before = before
+        self.env_changes = {k: v for k, v in os.environ.items() if before.get(k) != v}
+        self.env_removed = [k for k in before if k not in os.environ]
+        if threading.active_count() > 1:
+            _log(f"{threading.active_count()} threads run after the imports: forked runs may hang")
+        try:
+            os.unlink(self.path)  # a stale socket (the lock is ours: no server holds it)
+        except FileNotFoundError:
+            pass
+        self.listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        old = os.umask(0o177)  # the socket is made 0600, never readable by others for a moment
+        try:
+            self.listener.bind(self.path)
+        finally:
+            os.umask(old)
+        os.chmod(self.path, 0o600)
+        self.listener.listen(64)
+        self.sel = selectors.DefaultSelector()
+        self.sel.register(self.listener, selectors.EVENT_READ, ("listen", None))
+        _log(f"listening on {self.path}: {n} modules imported in {self.preload_s:.2f} s; "
+             f"idle timeout {self._idle_text()}")
+
+    def _idle_text(self) -> str:
+        return "none" if self.idle_timeout_s <= 0 else f"{self.idle_timeout_s:g} s"
+
+    def close(self) -> None:
+        """Stop listening (the socket file removed if still this server's), release the lock."""
+        if os.getpid() != self.pid:
+            return  # a run's process unwinding through the server's frames
+        if self.listener is not None:
+            try:  # the lock is still this server's: no other server can have bound the path meanwhile
+                os.unlink(self.path)
+            except OSError:
+                pass
+            if self.sel is not None:
+                try:
+                    self.sel.unregister(self.listener)
+                except (KeyError, ValueError):
+                    pass
+            self.listener.close()
+            self.listener = None
+        if self.lock_fd is not None:
+            os.close(self.lock_fd)
+            self.lock_fd = None
+
+    # -- the loop ------------------------------------------------------------------------------
+    def loop(self) -> None:
+        """Serve until stopped (``--stop``, SIGTERM, Ctrl-C) or idle for the idle timeout."""
+        signal.signal(signal.SIGTERM, _terminate)
+        try:
+            while True:
+                if self.stopping and not self.runs:
+                    _log("stopped")
+                    return
+                timeout = None
+                if not self.runs and self.idle_timeout_s > 0:
+                    timeout = self.last_active + self.idle_timeout_s - time.monotonic()
+                    if timeout <= 0:
+                        _log(f"idle for {self._idle_text()}: exiting")
+                        return
+                for key, _ in self.sel.select(timeout):
+                    kind, pid = key.data
+                    if kind == "listen" and self.listener is not None:
+                        self._accept()
+                    elif kind == "conn":
+                        self._from_client(pid)
+                    elif kind == "run":
+                        self._reap(pid)
+        finally:
+            self.close()
+
+    def _accept(self) -> None:
+        conn, _ = self.listener.accept()
+        fds: list[int] = []
+        try:
+            conn.settimeout(5.0)
+            peer, uid = link.peer_uid(conn)
+            if uid != os.getuid():
+                _log(f"refused process {peer} of uid {uid}")
+                conn.close()
+                return
+            request, fds = link.recv_request(conn)
+            kind = request.get("kind")
+            if kind == "status":
+                link.send_line(conn, self.status())
+            elif kind == "stop":
+                link.send_line(conn, {"ok": True, "pid": self.pid, "running": len(self.runs)})
+                _log(f"stop asked by process {peer}" + (f"; waiting for {len(self.runs)} runs" if self.runs else ""))
+                self.stopping = True
+                self.close_listener()
+            elif kind == "run":
+                given, fds = fds, []
+                self._start_run(conn, request, given)  # closes them (in a run's process: never returns)
+                return
+            conn.close()
+        except (OSError, ValueError) as e:
+            _log(f"a connection failed: {e}")
+            conn.close()
+        finally:
+            if os.getpid() == self.pid:
+                for fd in fds:
+                    os.close(fd)
+
+    def close_listener(self) -> None:
+        """No more connections: the socket file goes (new runs stay in their own process) and
+        the lock with it, so that a new server may start while this one waits for its runs."""
+        if self.listener is not None:
+            self.sel.unregister(self.listener)
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            self.listener.close()
+            self.listener = None
+        if self.lock_fd is not None:
+            os.close(self.lock_fd)
+            self.lock_fd = None
+
+    def status(self) -> dict:
+        return {"ok": True, "pid": self.pid, "socket": self.path, "fingerprint": self.fingerprint,
+                "version": _version(), "source": os.path.dirname(os.path.realpath(link.__file__)),
+                "python": sys.executable, "uptime_s": round(time.time() - self.started, 1),
+                "idle_timeout_s": self.idle_timeout_s, "running": len(self.runs), "served": self.served,
+                "preload_s": round(self.preload_s, 3), "modules": len(sys.modules)}
+
+    def _start_run(self, conn: socket.socket, request: dict, fds: list[int]) -> None:
+        try:
+            why = self._refusal(request, fds)
+            if why:
+                link.send_line(conn, {"ok": False, "reason": why})
+                conn.close()
+                return
+            link.send_line(conn, {"ok": True})
+            lines = link.Lines(conn)
+            go = lines.next()  # the client may have given up waiting: then nothing runs
+            if not (go and go.get("go")):
+                conn.close()
+                return
+            sys.stdout.flush()
+            sys.stderr.flush()
+            pid = os.fork()
+            if pid == 0:
+                self._child(conn, request, fds)  # raises SystemExit: never returns
+            try:
+                os.setpgid(pid, pid)
+            except OSError:
+                pass  # the run already set it (or has ended)
+            conn.settimeout(None)
+            pidfd = os.pidfd_open(pid)
+            self.runs[pid] = {"conn": conn, "pidfd": pidfd, "lines": lines}
+            self.sel.register(conn, selectors.EVENT_READ, ("conn", pid))
+            self.sel.register(pidfd, selectors.EVENT_READ, ("run", pid))
+            link.send_line(conn, {"pid": pid})
+        except OSError as e:
+            _log(f"a run could not start: {e}")
+            conn.close()
+        finally:
+            if os.getpid() == self.pid:  # (a run's process leaves through here with SystemExit)
+                for fd in fds:
+                    os.close(fd)
+
+    def _refusal(self, request: dict, fds: list[int]) -> str | None:
+        """Why this server does not take the run (the client then runs it itself), or None."""
+        if self.stopping:
+            return "the server is stopping"
+        if len(fds) != 3:
+            return "stdin, stdout and stderr did not arrive"
+        if request.get("fingerprint") != self.fingerprint:
+            if link.fingerprint(self.env_before) != self.fingerprint:  # its own source changed: useless now
+                _log("stillcap's source or the environment changed since the start: stopping")
+                self.stopping = True
+                self.close_listener()
+                return "the server's code is out of date (it is stopping)"
+            return "the server runs other code (another stillcap, Python or environment)"
+        return None
+
+    def _from_client(self, pid: int) -> None:
+        run = self.runs[pid]
+        try:
+            message = run["lines"].next()
+        except (OSError, ValueError):
+            message = None
+        if message is None:  # the client is gone (killed): so is the run, as it would have been
+            self.sel.unregister(run["conn"])
+            self._signal(pid, signal.SIGTERM)
+            return
+        if "signal" in message:
+            self._signal(pid, int(message["signal"]))
+
+    @staticmethod
+    def _signal(pid: int, signum: int) -> None:
+        try:
+            os.killpg(pid, signum)  # the run and the worker processes it started, as a terminal does
+        except OSError:
+            try:
+                os.kill(pid, signum)
+            except OSError:
+                pass
+
+    def _reap(self, pid: int) -> None:
+        run = self.runs.pop(pid)
+        self.sel.unregister(run["pidfd"])
+        os.close(run["pidfd"])
+        _, status = os.waitpid(pid, 0)
+        end = {"signal": os.WTERMSIG(status)} if os.WIFSIGNALED(status) else {"exit": os.waitstatus_to_exitcode(status)}
+        conn = run["conn"]
+        try:
+            self.sel.unregister(conn)
+        except (KeyError, ValueError):
+            pass
+        try:
+            link.send_line(conn, end)
+        except OSError:
+            pass
+        conn.close()
+        self.served += 1
+        self.last_active = time.monotonic()
+
+    # -- the run's own process -----------------------------------------------------------------
+    def _child(self, conn: socket.socket, request: dict, fds: list[int]) -> None:
+        """In the forked process: become the client's process, run the command, exit with its
+        status by raising SystemExit (so that the interpreter ends as usual: atexit handlers,
+        worker pools shut down, stdout flushed)."""
+        try:
+            os.setpgid(0, 0)
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT, signal.SIGCHLD):
+                signal.signal(s, signal.SIG_DFL)
+            for s in request.get("ignored", ()):  # as the client ignores them (nohup, a background job)
+                signal.signal(int(s), signal.SIG_IGN)
+            self.sel.close()
+            for run in self.runs.values():
+                run["conn"].close()
+                os.close(run["pidfd"])
+            self.runs = {}
+            if self.listener is not None:
+                self.listener.close()
+            if self.lock_fd is not None:
+                os.close(self.lock_fd)
+            conn.close()
+            for i, fd in enumerate(fds):
+                os.dup2(fd, i)
+            for fd in fds:
+                if fd > 2:
+                    os.close(fd)
+            os.chdir(request["cwd"])
+            os.environ.clear()
+            os.environ.update(request["env"])
+            os.environ.update(self.env_changes)
+            for k in self.env_removed:
+                os.environ.pop(k, None)
+            time.tzset()
+            os.umask(int(request["umask"]))
+            sys.argv = [request.get("argv0") or "stillcap", *request["argv"]]
+            _reopen_stdio()
+            if "numpy" in sys.modules:  # NumPy's global generator would repeat the server's sequence
+                sys.modules["numpy"].random.seed()
+        except BaseException as e:  # noqa: BLE001
+            os.write(2, f"stillcap: the server could not start the run: {e}\n".encode())
+            os._exit(2)
+        raise SystemExit(run_command(request["argv"]))
+
+
+def _terminate(signum, _frame):
+    _log("SIGTERM: stopped")
+    raise SystemExit(0)
+
+
+def _version() -> str:
+    import stillcap
+
+    return stillcap.__version__
+
+
+def query(path: str, kind: str, timeout_s: float = 5.0) -> dict | None:
+    """Ask the server on ``path`` for its status or to stop: its reply, or None when no server
+    answers there."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock.settimeout(timeout_s)
+    try:
+        link.check_private_dir(os.path.dirname(path), create=False)
+        sock.connect(path)
+        if link.peer_uid(sock)[1] != os.getuid():
+            return None
+        link.send_request(sock, {"kind": kind})
+        return link.Lines(sock).next()
+    except (OSError, ValueError):
+        return None
+    finally:
+        sock.close()
+
+
+def status_text(reply: dict) -> str:
+    same = reply.get("fingerprint") == link.fingerprint()
+    return (f"stillcap server pid {reply['pid']} on {reply['socket']}: stillcap {reply['version']} from "
+            f"{reply['source']}; up {reply['uptime_s']:g} s, {reply['served']} runs served, {reply['running']} running; "
+            f"idle timeout {'none' if reply['idle_timeout_s'] <= 0 else format(reply['idle_timeout_s'], 'g') + ' s'}; "
+            f"imports took {reply['preload_s']:g} s\n"
+            + ("this stillcap's runs of pitch, hand, puppet run and markers go through it" if same else
+               "this stillcap differs from the server's (code, Python or environment): its runs stay in-process"))
+
+
+def as_json(reply: dict) -> str:
+    return json.dumps(dict(reply, same_code=reply.get("fingerprint") == link.fingerprint()), indent=2)

@@ -1,0 +1,251 @@
+"""``stillcap serve``: a warm server as a separate process on a socket in a temporary folder, the
+``stillcap`` command (``python -m stillcap``, the console script's entry) sending runs to it.
+
+What a run through the server must give is what the same run gives in its own process
+(``STILLCAP_SERVER=off``): the same stdout, stderr and exit status, for a result and for bad
+input; when no server can take it (none, a killed one's stale socket, other code) it runs in its
+own process with the same result. No timings: the benchmark (benchmarks/bench_speed.py) times it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+VIA = "stillcap: via the server at "
+READY_WAIT_S = 300  # how long to wait for a server's imports on a loaded machine (not a timing test)
+
+
+def _env(sock: Path, src: Path = SRC, **extra) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(src), STILLCAP_SOCKET=str(sock))
+    env.pop("STILLCAP_SERVER", None)
+    env.update(extra)
+    return env
+
+
+def stillcap(args, sock: Path, mode: str | None = None, src: Path = SRC, **extra) -> subprocess.CompletedProcess:
+    """``python -m stillcap ARGS`` as a fresh process; ``mode``: STILLCAP_SERVER's value."""
+    env = _env(sock, src, **extra)
+    if mode is not None:
+        env["STILLCAP_SERVER"] = mode
+    return subprocess.run([sys.executable, "-m", "stillcap", *map(str, args)], capture_output=True, text=True,
+                          env=env, timeout=600)
+
+
+def start_server(sock: Path, src: Path = SRC, detach: bool = False):
+    """A server on ``sock`` (its folder made private), once its status answers: its Popen (or
+    None with ``detach``)."""
+    sock.parent.mkdir(mode=0o700, exist_ok=True)
+    args = [sys.executable, "-m", "stillcap", "serve", "--socket", str(sock), "--idle-timeout", "900"]
+    if detach:
+        r = subprocess.run([*args, "--detach"], capture_output=True, text=True, env=_env(sock, src), timeout=600)
+        assert r.returncode == 0, r.stderr
+        assert "listening on" in r.stdout
+        return None
+    proc = subprocess.Popen(args, env=_env(sock, src), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + READY_WAIT_S
+    while stillcap(["serve", "--status"], sock, src=src).returncode != 0:
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < end, "the server did not start listening"
+        time.sleep(0.5)
+    return proc
+
+
+def status(sock: Path, src: Path = SRC) -> dict | None:
+    r = stillcap(["serve", "--status", "--json"], sock, src=src)
+    return json.loads(r.stdout) if r.returncode == 0 else None
+
+
+def _untimed(x):
+    if isinstance(x, dict):
+        return {k: _untimed(v) for k, v in x.items() if k not in ("timings_s", "fit_time_s")}
+    if isinstance(x, list):
+        return [_untimed(v) for v in x]
+    return x
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    sock = tmp_path_factory.mktemp("serve") / "run" / "s.sock"
+    proc = start_server(sock)
+    yield sock, proc
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=60)
+
+
+@pytest.fixture(scope="module")
+def pitch_capture(tmp_path_factory):
+    from support import studio_pitch
+
+    return studio_pitch(tmp_path_factory, "fastball")
+
+
+def _via(r: subprocess.CompletedProcess, sock: Path) -> str:
+    """The run's stderr without the line saying it went through the server (which must be there)."""
+    first, _, rest = r.stderr.partition("\n")
+    assert first == VIA + str(sock), r.stderr
+    return rest
+
+
+def test_a_pitch_through_the_server_is_the_run_in_its_own_process(server, pitch_capture):
+    sock, _ = server
+    served = status(sock)["served"]
+    warm = stillcap(["pitch", pitch_capture, "--json"], sock, "verbose")
+    cold = stillcap(["pitch", pitch_capture, "--json"], sock, "off")
+    assert (warm.returncode, cold.returncode) == (0, 0), (warm.stderr, cold.stderr)
+    assert _via(warm, sock) == cold.stderr
+    assert _untimed(json.loads(warm.stdout)) == _untimed(json.loads(cold.stdout))
+    assert json.loads(warm.stdout)["self_checks"]  # a real result, with its self-checks
+    assert status(sock)["served"] == served + 1  # the server ran it
+
+
+@pytest.mark.parametrize("args", [["pitch", "{missing}", "--json"], ["pitch", "--no-such-option"],
+                                  ["markers", "{missing}"], ["puppet", "run", "{missing}"]])
+def test_bad_input_through_the_server_gives_the_same_line_and_status(server, tmp_path, args):
+    sock, _ = server
+    args = [a.replace("{missing}", str(tmp_path / "no-capture")) for a in args]
+    warm = stillcap(args, sock, "verbose")
+    cold = stillcap(args, sock, "off")
+    assert warm.returncode == cold.returncode == 2
+    assert _via(warm, sock) == cold.stderr
+    assert warm.stdout == cold.stdout
+    if args[0] == "pitch" and "--json" in args:
+        assert cold.stderr == f"error: capture folder {args[1]} does not exist\n"
+
+
+def test_the_client_imports_neither_numpy_nor_typer(server, pitch_capture):
+    """The process of ``stillcap pitch`` run through the server loads only the standard library
+    and stillcap's client modules (checked in that process after the run)."""
+    sock, _ = server
+    code = ("import sys\n"
+            f"sys.argv = ['stillcap', 'pitch', {str(pitch_capture)!r}, '--json']\n"
+            "from stillcap._entry import run\n"
+            "try:\n    run()\nexcept SystemExit as e:\n    code = e.code\n"
+            "heavy = sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('numpy', 'scipy', 'cv2', 'typer', 'click', 'rich', 'pydantic'))\n"
+            "mine = sorted(m for m in sys.modules if m.startswith('stillcap'))\n"
+            "sys.stderr.write(f'\\nCODE {code} HEAVY {heavy} STILLCAP {mine}\\n')\n")
+    env = _env(sock, STILLCAP_SERVER="verbose")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+    assert r.stderr.startswith(VIA), r.stderr
+    assert "CODE 0 HEAVY [] STILLCAP ['stillcap', 'stillcap._entry', 'stillcap._server_link']" in r.stderr
+    assert json.loads(r.stdout)["self_checks"]
+
+
+def test_other_code_or_environment_runs_in_process(server, tmp_path):
+    """A client whose import-time environment differs from the server's (here the BLAS thread
+    count) runs the command itself, with the same result; STILLCAP_SERVER=off never asks."""
+    sock, _ = server
+    missing = tmp_path / "no-capture"
+    r = stillcap(["pitch", missing], sock, "verbose", OPENBLAS_NUM_THREADS="1")
+    assert r.returncode == 2
+    assert r.stderr.splitlines()[0].startswith("stillcap: in-process (the server runs other code"), r.stderr
+    assert r.stderr.splitlines()[1] == f"error: capture folder {missing} does not exist"
+    served = status(sock)["served"]
+    assert stillcap(["pitch", missing], sock, "off").returncode == 2
+    assert status(sock)["served"] == served
+
+
+def test_ctrl_c_reaches_the_run(server, pitch_capture):
+    """SIGINT to the client reaches the run in the server's fork, which ends as an interrupted
+    run in its own process ends: inside the command typer's exit status 130, before it Python's
+    death by SIGINT; no result on stdout either way (without the forwarding the run would finish)."""
+    sock, _ = server
+    p = subprocess.Popen([sys.executable, "-m", "stillcap", "pitch", str(pitch_capture), "--json"],
+                         env=_env(sock, STILLCAP_SERVER="verbose"), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    while status(sock)["running"] == 0:  # until the run has started in the server's fork
+        assert p.poll() is None
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=600)
+    assert p.returncode in (130, -signal.SIGINT), err
+    assert out == b""
+    while status(sock)["running"]:  # the fork has ended (the server reaped it)
+        time.sleep(0.1)
+
+
+def test_the_server_exports_no_console_made_at_its_start():
+    """The CLI's modules make rich consoles when imported (their colours and terminal fixed
+    then): the server imports them for their imports and forgets them, so each run makes its own."""
+    code = ("from stillcap.cli._server import preload\n"
+            "preload()\n"
+            "import sys, rich.console\n"
+            "bad = [f'{n}.{a}' for n, m in list(sys.modules.items()) if m is not None\n"
+            "       for a, v in list(vars(m).items()) if isinstance(v, rich.console.Console)]\n"
+            "print(bad, 'stillcap.cli.pitch' in sys.modules, 'stillcap.pipelines.pitch' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                       env=dict(os.environ, PYTHONPATH=str(SRC)))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[] False True"
+
+
+def test_stale_socket_stop_status_and_changed_source(tmp_path):
+    """A killed server's socket: runs go in-process; a new server replaces the stale socket;
+    --status and --stop; a server whose source changed stops itself."""
+    src = tmp_path / "src"
+    shutil.copytree(SRC, src, ignore=shutil.ignore_patterns("__pycache__", "static"))
+    sock = tmp_path / "run" / "s.sock"
+    missing = tmp_path / "no-capture"
+    proc = start_server(sock, src)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=60)
+    assert sock.exists()  # the stale socket is left behind
+    r = stillcap(["pitch", missing], sock, "verbose", src=src)
+    assert r.returncode == 2
+    assert r.stderr.startswith("stillcap: in-process (server at"), r.stderr
+    assert r.stderr.splitlines()[1] == f"error: capture folder {missing} does not exist"
+    assert stillcap(["serve", "--status"], sock, src=src).returncode == 1
+
+    start_server(sock, src, detach=True)  # over the stale socket
+    st = status(sock, src)
+    assert st["same_code"] and st["running"] == 0
+    again = stillcap(["serve", "--socket", sock], sock, src=src)  # a second server on the socket is refused
+    assert again.returncode == 2 and "a server is already running on this socket" in again.stderr
+    r = stillcap(["serve", "--stop"], sock, src=src)
+    assert r.returncode == 0 and f"stopped the stillcap server (pid {st['pid']})" in r.stdout
+    assert not sock.exists()
+    assert stillcap(["serve", "--status"], sock, src=src).returncode == 1
+
+    start_server(sock, src, detach=True)
+    pid = status(sock, src)["pid"]
+    os.utime(src / "stillcap" / "pipelines" / "markers.py")  # the code changed under the server
+    r = stillcap(["pitch", missing], sock, "verbose", src=src)
+    assert r.returncode == 2
+    assert r.stderr.startswith("stillcap: in-process (the server's code is out of date"), r.stderr
+    for _ in range(600):  # it stops itself
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("the out-of-date server did not stop")
+    assert stillcap(["serve", "--status"], sock, src=src).returncode == 1
+
+
+def test_the_socket_folder_must_be_private(tmp_path):
+    folder = tmp_path / "open"
+    folder.mkdir(mode=0o755)
+    folder.chmod(0o755)
+    r = stillcap(["serve", "--socket", folder / "s.sock"], folder / "s.sock")
+    assert r.returncode == 2
+    assert r.stderr == f"error: {folder}: the server's folder is open to others (mode 755, needs 700)\n"
+    # a client does not hand its terminal to a socket in such a folder
+    s = socket.socket(socket.AF_UNIX)
+    s.bind(str(folder / "s.sock"))
+    s.listen(1)
+    try:
+        r = stillcap(["pitch", tmp_path / "missing"], folder / "s.sock", "verbose")
+        assert r.returncode == 2
+        assert r.stderr.startswith(f"stillcap: in-process ({folder}: the server's folder is open to others"), r.stderr
+    finally:
+        s.close()
