@@ -26,6 +26,9 @@ The processes keep stillcap's bytecode in ``--cache``/pycache (``PYTHONPYCACHEPR
 installed package has it, also where ``PYTHONDONTWRITEBYTECODE`` is set (the development
 machine sets it: every process then compiles stillcap's modules again; one row shows that).
 
+Every process runs the command itself (``STILLCAP_SERVER=off``): the run through a warm
+``stillcap serve`` is a row of ``bench_speed.py`` (docs/serve.md).
+
 Run it on a quiet machine: on a loaded one every ratio is distorted (a fresh process's one-off
 costs suffer most, and the decoding ahead needs the second core to be free).
 """
@@ -70,7 +73,8 @@ def _env(bytecode: bool = True) -> dict:
     """The processes' environment: this tree's ``src`` first; with ``bytecode``, stillcap's compiled
     modules kept in :data:`PYCACHE` (as an installed package has them: a process started with
     ``PYTHONDONTWRITEBYTECODE`` compiles every stillcap module from source, ~0.1 s)."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]),
+               STILLCAP_SERVER="off")  # each run in its own process, even when a `stillcap serve` runs
     if bytecode and PYCACHE is not None:
         env.pop("PYTHONDONTWRITEBYTECODE", None)
         env["PYTHONPYCACHEPREFIX"] = str(PYCACHE)

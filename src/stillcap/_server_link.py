@@ -101,11 +101,10 @@ def fingerprint(env=None) -> str:
     warning and ``-X`` options, module path after the script's own folder) and the environment
     variables read at import (:func:`import_env`). Equal fingerprints: the server's forked process
     runs the code a fresh process would. Not covered: a dependency (NumPy, ...) upgraded in place."""
-    import stillcap
-
-    root = os.path.realpath(stillcap.__path__[0])
+    package = sys.modules[__package__]  # stillcap (imported before any of its modules; not imported
+    root = os.path.dirname(os.path.realpath(__file__))  # here: it is above every layer of the stack)
     h = hashlib.sha256()
-    h.update(repr((stillcap.__version__, root, os.path.realpath(sys.executable), sys.version, tuple(sys.flags),
+    h.update(repr((package.__version__, root, os.path.realpath(sys.executable), sys.version, tuple(sys.flags),
                    sys.warnoptions, sorted(sys._xoptions.items()), sys.path[1:],
                    sorted(import_env(env).items()))).encode())
     for folder, dirs, files in os.walk(root):
