@@ -249,3 +249,51 @@ def test_the_socket_folder_must_be_private(tmp_path):
         assert r.stderr.startswith(f"stillcap: in-process ({folder}: the server's folder is open to others"), r.stderr
     finally:
         s.close()
+
+
+def test_an_idle_server_exits(tmp_path):
+    sock = tmp_path / "run" / "s.sock"
+    sock.parent.mkdir(mode=0o700)
+    r = subprocess.run([sys.executable, "-m", "stillcap", "serve", "--socket", str(sock), "--idle-timeout", "1",
+                        "--detach"], capture_output=True, text=True, env=_env(sock), timeout=600)
+    assert r.returncode == 0, r.stderr
+    pid = int(r.stdout.split("pid ")[1].split()[0])
+    end = time.monotonic() + READY_WAIT_S
+    while _alive(pid):
+        assert time.monotonic() < end, "the idle server did not exit"
+        time.sleep(0.2)
+    assert not sock.exists()
+    assert "idle for 1 s: exiting" in (tmp_path / "run" / "s.sock.log").read_text()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat", "rb") as f:  # a zombie (not yet reaped by init) has ended
+        return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+
+
+def test_which_commands_go_to_the_server():
+    from stillcap._entry import forwardable
+
+    for argv in (["pitch", "CAP"], ["pitch", "A", "B", "--json"], ["hand", "CAP"], ["markers", "CAP"],
+                 ["puppet", "run", "CAP"]):
+        assert forwardable(argv), argv
+    for argv in ([], ["serve"], ["gui"], ["batch", "A"], ["studio", "pitch"], ["puppet", "new", "P"],
+                 ["pitch", "--help"], ["calibrate", "rig", "F"], ["demo"]):
+        assert not forwardable(argv), argv
+
+
+def test_a_linked_socket_folder_is_refused(tmp_path):
+    from stillcap._server_link import check_private_dir
+
+    real = tmp_path / "real"
+    real.mkdir(mode=0o700)
+    (tmp_path / "link").symlink_to(real)
+    check_private_dir(str(real), create=False)
+    with pytest.raises(ValueError, match="is not a directory"):
+        check_private_dir(str(tmp_path / "link"), create=False)
+    with pytest.raises(ValueError, match="does not exist"):
+        check_private_dir(str(tmp_path / "none"), create=False)
