@@ -73,6 +73,7 @@ def forward(argv: list[str], verbose: bool = False):
         sock.connect(path)
         _pid, uid = link.peer_uid(sock)
         if uid != os.getuid():
+            sock.close()
             _say(verbose, f"in-process (the server on {path} runs as uid {uid})")
             return None
         request = {"kind": "run", "fingerprint": link.fingerprint(), "argv": list(argv),
@@ -82,6 +83,7 @@ def forward(argv: list[str], verbose: bool = False):
         lines = link.Lines(sock)
         reply = lines.next()
         if reply is None or not reply.get("ok"):
+            sock.close()
             why = "the server closed the connection" if reply is None else reply.get("reason", "refused")
             _say(verbose, f"in-process ({why})")
             return None
