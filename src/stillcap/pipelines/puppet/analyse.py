@@ -21,7 +21,7 @@ from stillcap.body.bodyfiles import body_entry
 from stillcap.body.puppet_checks import marker_noise_m, partly_hidden_checks, skeleton_checks
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
-from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views
+from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views, refine_bead_candidates
 from stillcap.detect.palette import Palette
 # imported with the pipeline, not at its first call: reading a capture folder is what
 # analyse_puppet does first, and this module's import builds the capture.json schema (pydantic
@@ -249,7 +249,7 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
         img = (opts.response or cap.rig[entry.camera].response).as_srgb(cap.read_image(entry))
         return img, _prepare(img, opts)
 
-    images = []
+    images, preps = [], []
     candidates, t_det, idents = [], [], []
     # the decoding starts as soon as the photos are known: the rest of the set-up (cameras,
     # marker set, skeleton, BLAS's thread limit) runs here meanwhile
@@ -265,9 +265,16 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 if palette is None:  # analyse_puppet_views's default: the marker set's reference colours
                     palette = Palette.from_markerset(markerset)
 
+                # the template detector's candidates are refined to sub-pixel centres when they
+                # are named, several photos' together (the same centres as one by one)
+                together = options.detector == "template"
+
                 def name(upto):  # the photos found so far but not yet named, named by colour together
                     if upto > len(idents):
                         t = time.perf_counter()
+                        if together:
+                            candidates[len(idents):upto] = refine_bead_candidates(candidates[len(idents):upto],
+                                                                                  preps[len(idents):upto])
                         new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
                                              options.identify)
                         share = (time.perf_counter() - t) / len(new)
@@ -292,9 +299,10 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                     t2 = time.perf_counter()
                     t_read += t2 - t1
                     images.append(img)
+                    preps.append(prepared)
                     candidates.append(find_bead_candidates(img, options.detector, options.radius_range,
                                                            options.n_circles, options.roi, options.coarse,
-                                                           prepared=prepared))
+                                                           prepared=prepared, refine=not together))
                     t_det.append(time.perf_counter() - t2)
                     if progress is not None:
                         progress(k + 1, len(pending))
