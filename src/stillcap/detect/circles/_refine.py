@@ -127,7 +127,7 @@ def _refine_group(greys, centers, radii, bgs, half, iterations, local_bg):
         a, b = np.divmod(np.arange(m * m), m)
         qi.append(s0 + a[a != b])
         qj.append(s0 + b[a != b])
-    qi, qj = np.concatenate(qi), np.concatenate(qj)
+    qi, qj = (qi[0], qj[0]) if len(qi) == 1 else (np.concatenate(qi), np.concatenate(qj))
     # every S x S window of each grey image as a zero-copy view: the windows inside the image
     # are gathered per circle (~8x faster than indexing each pixel of each window; the few that
     # cross the border are read with clipped indices, i.e. the replicated border)
@@ -210,12 +210,9 @@ def _refine_group(greys, centers, radii, bgs, half, iterations, local_bg):
         # A refinement that walks away (a false circle on a limb) is undone.
         bad = moved > r
         new[bad] = c[bad]
-        # photos that stopped keep their centres
-        c = np.where(active[view][:, None], new, c)
-        # a photo stops once its centres have settled
-        most = np.zeros(len(greys))
-        np.maximum.at(most, view, moved)
-        active &= ~(most < 1e-3)
+        # photos that stopped keep their centres; a photo stops once its centres have settled
+        c = new if active.all() else np.where(active[view][:, None], new, c)
+        active &= ~(np.maximum.reduceat(moved, starts) < 1e-3)
         if not active.any():
             break
-    return [a.copy() for a in np.split(c, starts[1:])]
+    return [c] if len(greys) == 1 else [a.copy() for a in np.split(c, starts[1:])]

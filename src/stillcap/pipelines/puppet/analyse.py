@@ -268,6 +268,11 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 # the template detector's candidates are refined to sub-pixel centres when they
                 # are named, several photos' together (the same centres as one by one)
                 together = options.detector == "template"
+                # while the other thread decodes, found photos are named two or more at a time
+                # (refine_bead_candidates and identify_views on one photo cost more per photo,
+                # their small-array calls made for one); a single one waits while this thread
+                # decodes a photo instead, and is named when nothing is left to decode
+                min_batch = 2 if together else 1
 
                 def name(upto):  # the photos found so far but not yet named, named by colour together
                     if upto > len(idents):
@@ -284,7 +289,7 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
 
                 stolen = {}
                 for k, fut in enumerate(pending):
-                    if not fut.done():
+                    if not fut.done() and k - len(idents) >= min_batch:
                         name(k)  # while the other thread still decodes: name what was found
                     t1 = time.perf_counter()
                     # still waiting: decode a photo the other thread has not started (the last
@@ -293,6 +298,8 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                         j = next((j for j in range(len(pending) - 1, k, -1)
                                   if j not in stolen and pending[j].cancel()), None)
                         if j is None:
+                            if k > len(idents):
+                                name(k)  # nothing left to decode here: name what was found
                             break
                         stolen[j] = read(cap.images[j])
                     img, prepared = stolen.pop(k) if k in stolen else fut.result()
