@@ -210,8 +210,11 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     detection inputs (:func:`~stillcap.detect.beads.prepare_view`: bright region, grey image,
     half-resolution contrast map; OpenCV calls and large NumPy operations, which release the
     GIL) while this one finds the candidates of each photo as soon as it is ready, so that work
-    hides behind the detection when a second core is free; then every photo's candidates are
-    named by colour together (:func:`~stillcap.detect.beads.identify_views`). The result is the
+    hides behind the detection when a second core is free; the photos found are refined to
+    sub-pixel centres and named by colour several at a time
+    (:func:`~stillcap.detect.beads.refine_bead_candidates`,
+    :func:`~stillcap.detect.beads.identify_views`), while this thread would otherwise wait and
+    at the end. The result is the
     same as with ``workers=1`` (decode all, then :func:`~stillcap.pipelines.puppet.stages.detect_view` each). Detecting whole photos
     on two threads was measured slower on the benchmark's two shared cores (the candidate
     search is mostly small NumPy calls that hold the GIL). The decoding starts as soon as the
@@ -274,37 +277,40 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 # decodes a photo instead, and is named when nothing is left to decode
                 min_batch = 2 if together else 1
 
-                def name(upto):  # the photos found so far but not yet named, named by colour together
-                    if upto > len(idents):
-                        t = time.perf_counter()
-                        if together:
-                            candidates[len(idents):upto] = refine_bead_candidates(candidates[len(idents):upto],
-                                                                                  preps[len(idents):upto])
-                        new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
-                                             options.identify)
-                        share = (time.perf_counter() - t) / len(new)
-                        for j in range(len(idents), upto):
-                            t_det[j] += share
-                        idents.extend(new)
+                def name(upto) -> float:  # the photos found so far but not yet named, named by colour
+                    # together; returns the seconds it took
+                    if upto <= len(idents):
+                        return 0.0
+                    t = time.perf_counter()
+                    if together:
+                        candidates[len(idents):upto] = refine_bead_candidates(candidates[len(idents):upto],
+                                                                              preps[len(idents):upto])
+                    new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
+                                         options.identify)
+                    share = (time.perf_counter() - t) / len(new)
+                    for j in range(len(idents), upto):
+                        t_det[j] += share
+                    idents.extend(new)
+                    return share * len(new)
 
                 stolen = {}
                 for k, fut in enumerate(pending):
                     if not fut.done() and k - len(idents) >= min_batch:
                         name(k)  # while the other thread still decodes: name what was found
                     t1 = time.perf_counter()
+                    naming = 0.0  # seconds of it spent naming (detection time, not reading)
                     # still waiting: decode a photo the other thread has not started (the last
                     # one), here, so that both threads decode while this one has nothing to detect
                     while k not in stolen and not fut.done():
                         j = next((j for j in range(len(pending) - 1, k, -1)
                                   if j not in stolen and pending[j].cancel()), None)
                         if j is None:
-                            if k > len(idents):
-                                name(k)  # nothing left to decode here: name what was found
+                            naming = name(k)  # nothing left to decode here: name what was found
                             break
                         stolen[j] = read(cap.images[j])
                     img, prepared = stolen.pop(k) if k in stolen else fut.result()
                     t2 = time.perf_counter()
-                    t_read += t2 - t1
+                    t_read += t2 - t1 - naming
                     images.append(img)
                     preps.append(prepared)
                     candidates.append(find_bead_candidates(img, options.detector, options.radius_range,
