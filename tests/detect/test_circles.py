@@ -257,3 +257,32 @@ def test_contrast_at_is_the_contrast_map(scenes):
     cols = np.r_[g.shape[1] - 1, 0, rng.integers(0, g.shape[1], 50)]
     v = _contrast_at(gp, pad, rows, cols, kst)
     assert np.abs(v - ref[:, rows, cols].T).max() < 1e-3
+
+
+def test_peak_suppression_and_ties_are_the_plain_loops():
+    """The coarse template's non-maximum suppression and _local_maxima's tie test (faster forms)
+    keep what the plain loops keep: random peaks with many neighbours and many equal values."""
+    from stillcap.detect.circles._template import _local_maxima, _suppress
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        n, md = int(rng.integers(0, 60)), int(rng.integers(1, 6))
+        rows, cols = rng.integers(0, 40, n), rng.integers(0, 40, n)
+        out = np.zeros(n, bool)
+        for i in range(n):  # the plain loop
+            if not out[i]:
+                out |= (np.abs(rows - rows[i]) <= md) & (np.abs(cols - cols[i]) <= md) & (np.arange(n) > i)
+        np.testing.assert_array_equal(_suppress(rows, cols, md), np.flatnonzero(~out))
+        # _local_maxima with plateaus and repeated values: every kept pixel is a maximum of its
+        # square, and of equal maxima within md only the first in raster order stays
+        C = rng.integers(0, 6, (30, 35)).astype(np.float32)
+        peaks = _local_maxima(C, md, 1.0)
+        dil = np.array([[C[max(0, y - md):y + md + 1, max(0, x - md):x + md + 1].max() for x in range(35)]
+                        for y in range(30)])
+        ys, xs = np.nonzero((C >= dil) & (C > 1.0))
+        cand = sorted(zip(-C[ys, xs], ys, xs))
+        kept = []
+        for v, y, x in cand:
+            if not any(-v == C[ky, kx] and abs(y - ky) <= md and abs(x - kx) <= md for ky, kx in kept):
+                kept.append((y, x))
+        assert peaks.tolist() == [list(k) for k in kept]

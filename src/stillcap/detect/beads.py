@@ -25,13 +25,13 @@ import cv2
 import numpy as np
 
 from stillcap.camera import Rig
-from stillcap.detect.circles import Circles, TemplateInputs, find_circles, prepare_template
+from stillcap.detect.circles import Circles, TemplateInputs, find_circles, prepare_template, refine_bead_centers_views
 from stillcap.detect.identify import (RECOMMENDED, THESIS, Identification, identify_markers,
                                       identify_markers_views)
 from stillcap.detect.palette import Palette
 
 __all__ = ["DETECTORS", "IDENTIFIERS", "ViewResult", "PreparedView", "detect_beads", "find_bead_candidates",
-           "identify_views", "prepare_view", "bright_region", "bead_fill", "bead_fill_views", "reidentify",
+           "refine_bead_candidates", "identify_views", "prepare_view", "bright_region", "bead_fill", "bead_fill_views", "reidentify",
            "expected_radius_px", "roi_box"]
 
 #: Bead detectors (:func:`stillcap.detect.circles.find_circles` methods) the puppet pipeline offers.
@@ -138,9 +138,11 @@ def detect_beads(image, palette: Palette, detector: str = "template", identify: 
 
 def find_bead_candidates(image, detector: str = "template", radius_range=(5.0, 7.0), n_circles: int = 16,
                          roi: bool = True, coarse: bool = True, region=None,
-                         prepared: PreparedView | None = None) -> Circles:
+                         prepared: PreparedView | None = None, refine: bool = True) -> Circles:
     """The first half of :func:`detect_beads`: the bead candidates of one photo (whole-photo
-    pixels), not yet named. Parameters as :func:`detect_beads`'s."""
+    pixels), not yet named. Parameters as :func:`detect_beads`'s; ``refine=False`` leaves out
+    the sub-pixel refinement of the centres (:func:`refine_bead_candidates` then refines
+    several photos' candidates together)."""
     if detector not in DETECTORS:
         raise ValueError(f"unknown detector {detector!r}; choose one of {', '.join(DETECTORS)}")
     img = np.asarray(image)
@@ -155,10 +157,42 @@ def find_bead_candidates(image, detector: str = "template", radius_range=(5.0, 7
         x0, y0, x1, y1 = roi_box(img, radius_range) if region is None else (int(v) for v in region)
         img = img[y0:y1, x0:x1]
     circles = find_circles(img, n=n_circles, radius_range=radius_range, method=detector, coarse=coarse,
-                           prepared=pre)
+                           prepared=pre, refine=None if refine else False)
     if x0 or y0:
         circles = Circles(circles.centers + [x0, y0], circles.radii, circles.scores, circles.method, circles.threshold)
     return circles
+
+
+def refine_bead_candidates(candidates: Sequence[Circles], prepared: Sequence[PreparedView]) -> list:
+    """Several photos' template candidates found with ``find_bead_candidates(..., refine=False)``
+    and their :func:`prepare_view`, refined together: the centres
+    ``find_bead_candidates(..., refine=True)`` gives on each photo
+    (:func:`~stillcap.detect.circles.refine_bead_centers_views`, one set of array operations for
+    all photos' beads).
+
+    Parameters
+    ----------
+    candidates : sequence of Circles
+        Each photo's unrefined candidates (whole-photo pixels; the template detector's centres
+        are whole pixels, so moving them into the searched region and back is exact).
+    prepared : sequence of PreparedView
+        Each photo's :func:`prepare_view` with the template detector.
+
+    Returns
+    -------
+    list of Circles
+    """
+    if len(candidates) != len(prepared):
+        raise ValueError(f"need one prepared view per photo's candidates ({len(candidates)}), got {len(prepared)}")
+    if any(p.template is None for p in prepared):
+        raise ValueError("refine_bead_candidates needs the template detector's prepared views (prepare_view with "
+                         "detector='template')")
+    offsets = [np.zeros(2) if p.region is None else np.array(p.region[:2], float) for p in prepared]
+    centers = refine_bead_centers_views([p.template.grey for p in prepared],
+                                        [c.centers - o for c, o in zip(candidates, offsets)],
+                                        [c.radii for c in candidates], backgrounds=[p.template.median for p in prepared])
+    return [Circles(x + o if o.any() else x, c.radii, c.scores, c.method, c.threshold)
+            for c, x, o in zip(candidates, centers, offsets)]
 
 
 def identify_views(images, candidates: Sequence[Circles], palette: Palette, identify: str = "recommended") -> list:

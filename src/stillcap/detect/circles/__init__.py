@@ -36,13 +36,13 @@ Where it is:
   :func:`outline`, the circular Hough transform) and the ``blobs`` and ``cv2`` methods;
 - :mod:`._template`: the ``template`` method (:func:`contrast_map`, :func:`prepare_template`,
   :class:`TemplateInputs`);
-- :mod:`._refine`: :func:`refine_bead_centers`.
+- :mod:`._refine`: :func:`refine_bead_centers` (:func:`refine_bead_centers_views`: several photos' at once).
 
 Synthetic bead photos with known sub-pixel centres are drawn by :mod:`stillcap.studio.beads`.
 """
 
 from stillcap.detect.circles._find import METHODS, Circles, find_circles
-from stillcap.detect.circles._refine import refine_bead_centers
+from stillcap.detect.circles._refine import refine_bead_centers, refine_bead_centers_views
 from stillcap.detect.circles._template import TemplateInputs, contrast_map, prepare_template
 from stillcap.detect.circles._thesis import grey_image, isodata_threshold, outline
 
@@ -57,4 +57,5 @@ __all__ = [
     "outline",
     "prepare_template",
     "refine_bead_centers",
+    "refine_bead_centers_views",
 ]

@@ -231,8 +231,12 @@ def _local_maxima(C: np.ndarray, md: int, floor: float) -> np.ndarray:
     # Plateau pixels: keep the first of equal maxima within md. Two maxima within md of each
     # other are each >= the other, so only pixels sharing their value with another one can be
     # dropped: the loop runs over those few only (over all of them it cost ~1 ms per photo).
-    _, inv, counts = np.unique(val, return_inverse=True, return_counts=True)
-    tied = np.flatnonzero(counts[inv] > 1)
+    # (the values are sorted, so equal ones are neighbours: no np.unique, which sorts again)
+    eq = val[1:] == val[:-1]
+    shared = np.zeros(len(val), bool)
+    shared[1:] |= eq
+    shared[:-1] |= eq
+    tied = np.flatnonzero(shared)
     for a, i in enumerate(tied):
         if keep[i]:
             rest = tied[a + 1:]
@@ -303,6 +307,19 @@ def _coarse_map(g: np.ndarray, rs: np.ndarray) -> np.ndarray:
     return _max_over(_filter_radii(gh, rs, pad_h, 0.5))
 
 
+def _suppress(rows: np.ndarray, cols: np.ndarray, md: int) -> np.ndarray:
+    """Non-maximum suppression of peaks sorted strongest first: the indices of those kept, each
+    peak going when a stronger kept one lies within ``md`` (Chebyshev), as the dilation test of
+    :func:`_local_maxima` does."""
+    # each peak's weaker neighbours within md; only peaks that have some can suppress any
+    near = np.triu((np.abs(rows[:, None] - rows[None]) <= md) & (np.abs(cols[:, None] - cols[None]) <= md), 1)
+    out = np.zeros(len(rows), bool)
+    for i in np.flatnonzero(near.any(axis=1)):
+        if not out[i]:
+            out |= near[i]
+    return np.flatnonzero(~out)
+
+
 def _template_coarse(grey, radii, n, md, min_contrast, prepared: TemplateInputs | None = None):
     """:func:`_template` with the contrast map computed at half resolution.
 
@@ -362,12 +379,7 @@ def _template_coarse(grey, radii, n, md, min_contrast, prepared: TemplateInputs 
     rows, cols, val, best_r = rows[ok], cols[ok], val[ok], best_r[ok]
     order = np.lexsort((cols, rows, -val))  # strongest first, raster order among equals
     rows, cols, val, best_r = rows[order], cols[order], val[order], best_r[order]
-    near = (np.abs(rows[:, None] - rows[None]) <= md) & (np.abs(cols[:, None] - cols[None]) <= md)
-    out = np.zeros(len(rows), bool)
-    for i in range(len(rows)):  # non-maximum suppression within md (Chebyshev), as the dilation test
-        if not out[i]:
-            out |= near[i] & (np.arange(len(rows)) > i)
-    keep = np.flatnonzero(~out)
+    keep = _suppress(rows, cols, md)
     val, rows, cols, best_r = val[keep], rows[keep], cols[keep], best_r[keep]
     top = np.sort(val[:n])
     # np.median(top) (the mean of the two middle values; NaN when empty, then the floor wins)

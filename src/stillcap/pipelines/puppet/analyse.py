@@ -21,7 +21,7 @@ from stillcap.body.bodyfiles import body_entry
 from stillcap.body.puppet_checks import marker_noise_m, partly_hidden_checks, skeleton_checks
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
-from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views
+from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views, refine_bead_candidates
 from stillcap.detect.palette import Palette
 # imported with the pipeline, not at its first call: reading a capture folder is what
 # analyse_puppet does first, and this module's import builds the capture.json schema (pydantic
@@ -210,8 +210,11 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     detection inputs (:func:`~stillcap.detect.beads.prepare_view`: bright region, grey image,
     half-resolution contrast map; OpenCV calls and large NumPy operations, which release the
     GIL) while this one finds the candidates of each photo as soon as it is ready, so that work
-    hides behind the detection when a second core is free; then every photo's candidates are
-    named by colour together (:func:`~stillcap.detect.beads.identify_views`). The result is the
+    hides behind the detection when a second core is free; the photos found are refined to
+    sub-pixel centres and named by colour several at a time
+    (:func:`~stillcap.detect.beads.refine_bead_candidates`,
+    :func:`~stillcap.detect.beads.identify_views`), while this thread would otherwise wait and
+    at the end. The result is the
     same as with ``workers=1`` (decode all, then :func:`~stillcap.pipelines.puppet.stages.detect_view` each). Detecting whole photos
     on two threads was measured slower on the benchmark's two shared cores (the candidate
     search is mostly small NumPy calls that hold the GIL). The decoding starts as soon as the
@@ -249,7 +252,7 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
         img = (opts.response or cap.rig[entry.camera].response).as_srgb(cap.read_image(entry))
         return img, _prepare(img, opts)
 
-    images = []
+    images, preps = [], []
     candidates, t_det, idents = [], [], []
     # the decoding starts as soon as the photos are known: the rest of the set-up (cameras,
     # marker set, skeleton, BLAS's thread limit) runs here meanwhile
@@ -265,36 +268,54 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 if palette is None:  # analyse_puppet_views's default: the marker set's reference colours
                     palette = Palette.from_markerset(markerset)
 
-                def name(upto):  # the photos found so far but not yet named, named by colour together
-                    if upto > len(idents):
-                        t = time.perf_counter()
-                        new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
-                                             options.identify)
-                        share = (time.perf_counter() - t) / len(new)
-                        for j in range(len(idents), upto):
-                            t_det[j] += share
-                        idents.extend(new)
+                # the template detector's candidates are refined to sub-pixel centres when they
+                # are named, several photos' together (the same centres as one by one)
+                together = options.detector == "template"
+                # while the other thread decodes, found photos are named two or more at a time
+                # (refine_bead_candidates and identify_views on one photo cost more per photo,
+                # their small-array calls made for one); a single one waits while this thread
+                # decodes a photo instead, and is named when nothing is left to decode
+                min_batch = 2 if together else 1
+
+                def name(upto) -> float:  # the photos found so far but not yet named, named by colour
+                    # together; returns the seconds it took
+                    if upto <= len(idents):
+                        return 0.0
+                    t = time.perf_counter()
+                    if together:
+                        candidates[len(idents):upto] = refine_bead_candidates(candidates[len(idents):upto],
+                                                                              preps[len(idents):upto])
+                    new = identify_views(images[len(idents):upto], candidates[len(idents):upto], palette,
+                                         options.identify)
+                    share = (time.perf_counter() - t) / len(new)
+                    for j in range(len(idents), upto):
+                        t_det[j] += share
+                    idents.extend(new)
+                    return share * len(new)
 
                 stolen = {}
                 for k, fut in enumerate(pending):
-                    if not fut.done():
+                    if not fut.done() and k - len(idents) >= min_batch:
                         name(k)  # while the other thread still decodes: name what was found
                     t1 = time.perf_counter()
+                    naming = 0.0  # seconds of it spent naming (detection time, not reading)
                     # still waiting: decode a photo the other thread has not started (the last
                     # one), here, so that both threads decode while this one has nothing to detect
                     while k not in stolen and not fut.done():
                         j = next((j for j in range(len(pending) - 1, k, -1)
                                   if j not in stolen and pending[j].cancel()), None)
                         if j is None:
+                            naming = name(k)  # nothing left to decode here: name what was found
                             break
                         stolen[j] = read(cap.images[j])
                     img, prepared = stolen.pop(k) if k in stolen else fut.result()
                     t2 = time.perf_counter()
-                    t_read += t2 - t1
+                    t_read += t2 - t1 - naming
                     images.append(img)
+                    preps.append(prepared)
                     candidates.append(find_bead_candidates(img, options.detector, options.radius_range,
                                                            options.n_circles, options.roi, options.coarse,
-                                                           prepared=prepared))
+                                                           prepared=prepared, refine=not together))
                     t_det.append(time.perf_counter() - t2)
                     if progress is not None:
                         progress(k + 1, len(pending))
