@@ -465,19 +465,18 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
 
     Where the stereo step corrected every ball image (``stereo.shading_px``, the correction's
     length per image and camera, set), every image counts as corrected, and its remaining bias is
-    the model's own error (:func:`shading_residual_lookup`, shared by the camera's images as the
-    ``lit_bias_modes``) and, as a mode of its own per camera, ``model_error`` times the
-    correction made: the share of the correction the model may have wrong (its light, blur,
-    clipping and lambertian leather are estimates or assumptions), the same share for every
-    image of a camera.
+    the model's own error (:func:`shading_residual_lookup`) and ``model_error`` times the
+    correction made, in quadrature: the share of the correction the model may have wrong (its
+    light, blur, clipping and lambertian leather are estimates or assumptions), the same share
+    for every image of a camera (the ``lit_bias_modes`` are shared by the camera's images: a
+    constant and a trend mode per camera; one mode per camera for the share alone was tried,
+    ``docs/pitch.md``, "The correction's wrong share").
     ``model_error``: one share for both cameras, or one per camera (shape (2,)).
 
     Returns
     -------
-    ndarray, shape (14, K, 3)
-        The 12 :func:`lit_bias_modes` of the model's own error (constant and trend per camera),
-        then one mode per camera of the share of the correction (constant share: the image's
-        own correction times ``model_error``, along its lit direction).
+    ndarray, shape (12, K, 3)
+        :func:`lit_bias_modes`.
     """
     u, phase, corr = lit_geometry(stereo, centers_px, flags, radius_px)
     made = correction_made(stereo, centers_px)
@@ -492,21 +491,9 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     # against the truth the front pair's (phase ~10 deg) per-camera bias was 0.016-0.020 px
     phase = np.where(corr[None, :], phase, 0.0)
     s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
-    modes = lit_bias_modes(cams, centers_px, u, s, corr)
-    # the share of the correction: one mode per camera, each image moved by k_c x its own
-    # correction along its lit direction (the share is the camera's, the correction the image's:
-    # how it changes along the flight is in the corrections made; a trend mode of the same size
-    # as well counted it twice, up to 2x the variance at the pair's first and last images)
-    extra = np.zeros((2,) + modes.shape[1:])
     if made is not None and np.any(k > 0):
-        x = np.asarray(centers_px, float)
-        shifted = []
-        for c in range(2):
-            xs = x.copy()
-            xs[c] += u[c] * (k[c] * np.nan_to_num(made[c]))[:, None]
-            shifted.append(xs)
-        extra = _retriangulated_shifts(cams, x, shifted)
-    return np.concatenate([modes, extra])
+        s = np.hypot(s, k[:, None] * made)
+    return lit_bias_modes(cams, centers_px, u, s, corr)
 
 
 # --------------------------------------------------------------------------------------------
