@@ -85,9 +85,9 @@ class PitchOptions:
         have wrong, taken as a bias shared by a camera's ball images (with the default
         ``center_bias_px``, ``stillcap.ball.uncertainty.remaining_bias_modes``): the light's
         direction, the lens blur and the clipping are read from the photo and the leather is
-        taken for lambertian, all of which a real ball and lens break: a mode per camera, each
-        image moved by this share of its own correction. With ``estimate_shading_error`` it is
-        the prior's 1-sigma of that share, what decides where the capture cannot tell.
+        taken for lambertian, all of which a real ball and lens break. With
+        ``estimate_shading_error`` it is the prior's 1-sigma of that share, what decides where
+        the capture cannot tell.
         Default 0.5 (``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
     estimate_shading_error : bool
         Experimental, off by default: estimate each camera's share of the correction that is
