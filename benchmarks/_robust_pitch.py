@@ -159,6 +159,21 @@ def summarise(condition: str, rs: list) -> dict:
     return out
 
 
+def z_table(rows: list) -> tuple[list, list]:
+    """Per condition, z = error / sigma of speed and of the direction (horizontal / vertical
+    across the flight), mean +- spread over the captures: the coverage with n = 6 moves by
+    +-9 % per capture, these say more (a mean off 0: a shared bias the intervals miss; a
+    spread above 1: sigmas too small, below 1: too large)."""
+    def cell(r, key):
+        m, s = r.get(f"z_{key}_mean"), r.get(f"z_{key}_sd")
+        if m is None or s is None or not (np.isfinite(m) and np.isfinite(s)):
+            return "-"
+        return f"{m:+.2f} +- {s:.2f}"
+    head = ["condition", "n", "z speed", "z dir h", "z dir v"]
+    body = [[r["condition"], str(r["n"]), cell(r, "speed"), cell(r, "dir_h"), cell(r, "dir_v")] for r in rows]
+    return head, body
+
+
 def run(conditions, n: int, seed: int, size, jobs: int, progress=None) -> list[dict]:
     """Every capture of every condition on ``jobs`` processes; rows per capture."""
     tasks = [(c, i) for c in conditions for i in range(n)]

@@ -38,7 +38,7 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import BallFlag
 from stillcap.geometry.triangulate import triangulate
 
-__all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "lit_bias_modes", "lit_geometry",
+__all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes", "lit_geometry",
            "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
            "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "speed_sigma",
            "spin_decay_slope"]
@@ -446,7 +446,20 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     return out
 
 
-def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error: float = 0.0) -> np.ndarray:
+def correction_made(stereo, centers_px) -> np.ndarray | None:
+    """The shading correction's length (px) per camera and ball image of a pair's centres,
+    shape (2, K) (``stereo.shading_px`` at the rows the centres came from); None where the
+    stereo step did not record it."""
+    shading_px = getattr(stereo, "shading_px", None)
+    x = np.asarray(centers_px, float)
+    if shading_px is None or not len(stereo.centers_a) or not x.shape[1]:
+        return None
+    # the stereo rows of the pair's centres (as lit_geometry finds them)
+    row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
+    return np.asarray(shading_px, float)[row].T  # (2, K)
+
+
+def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0) -> np.ndarray:
     """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
     (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras).
 
@@ -455,25 +468,31 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     the model's own error (:func:`shading_residual_lookup`) and ``model_error`` times the
     correction made, in quadrature: the share of the correction the model may have wrong (its
     light, blur, clipping and lambertian leather are estimates or assumptions), the same share
-    for every image of a camera (the ``lit_bias_modes`` are shared by the camera's images).
+    for every image of a camera (the ``lit_bias_modes`` are shared by the camera's images: a
+    constant and a trend mode per camera; one mode per camera for the share alone was tried,
+    ``docs/pitch.md``, "The correction's wrong share").
+    ``model_error``: one share for both cameras, or one per camera (shape (2,)).
+
+    Returns
+    -------
+    ndarray, shape (12, K, 3)
+        :func:`lit_bias_modes`.
     """
     u, phase, corr = lit_geometry(stereo, centers_px, flags, radius_px)
-    shading_px = getattr(stereo, "shading_px", None)
-    x = np.asarray(centers_px, float)
-    made = None
-    if shading_px is not None and len(stereo.centers_a) and x.shape[1]:
-        # the stereo rows of the pair's centres (as lit_geometry finds them)
-        row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
-        made = np.asarray(shading_px, float)[row].T  # (2, K)
+    made = correction_made(stereo, centers_px)
+    if made is not None:
         corr = corr | np.any(made > 0, axis=0)
+    k = np.broadcast_to(np.asarray(model_error, float), (2,))
+    if not np.all(np.isfinite(k) & (k >= 0)):
+        raise ValueError(f"model_error must be >= 0 (one or one per camera), got {model_error}")
     # full discs (not PARTIAL, phase below ~55 deg) as lit from the camera: there the model's
     # offset swings by ~0.1 px within 10 deg of phase, finer than the silhouette's area resolves
     # (a thresholded full disc loses its dim limb: 0.96-1.11 of pi r^2 from 0 to 30 deg), and
     # against the truth the front pair's (phase ~10 deg) per-camera bias was 0.016-0.020 px
     phase = np.where(corr[None, :], phase, 0.0)
     s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
-    if made is not None and model_error > 0:
-        s = np.hypot(s, model_error * made)
+    if made is not None and np.any(k > 0):
+        s = np.hypot(s, k[:, None] * made)
     return lit_bias_modes(cams, centers_px, u, s, corr)
 
 

@@ -85,8 +85,19 @@ class PitchOptions:
         have wrong, taken as a bias shared by a camera's ball images (with the default
         ``center_bias_px``, ``stillcap.ball.uncertainty.remaining_bias_modes``): the light's
         direction, the lens blur and the clipping are read from the photo and the leather is
-        taken for lambertian, all of which a real ball and lens break. Default 0.5 (measured on
-        studio pitches: ``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
+        taken for lambertian, all of which a real ball and lens break. With
+        ``estimate_shading_error`` it is the prior's 1-sigma of that share, what decides where
+        the capture cannot tell.
+        Default 0.5 (``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
+    estimate_shading_error : bool
+        Experimental, off by default: estimate each camera's share of the correction that is
+        wrong from the capture (the positions-only fit's residuals regressed on the pattern the
+        share would leave: ``stillcap.ball.shading_error.estimate_shading_share``, reported per
+        camera in ``PairResult.shading_error``) and size the remaining bias with it, the prior
+        ``shading_model_error`` deciding where the capture cannot tell. Against the studio's
+        truth its estimates were confidently wrong (z -1.8 +- 1.4 over 60 cameras:
+        ``docs/pitch.md``, "The correction's wrong share"), so the default keeps the stated
+        ``shading_model_error`` for every camera.
     center_sigma_px : float
         Expected random error of a refined ball centre per image axis, px: the noise the
         self-checks (:mod:`stillcap.pipelines.pitch.checks`) test the epipolar residuals and the
@@ -127,6 +138,7 @@ class PitchOptions:
     calibration_focal_sigma: float = 2.5e-4
     center_bias_px: float | None = None
     shading_model_error: float = 0.5
+    estimate_shading_error: bool = False
     center_sigma_px: float = 0.2
     workers: int = 2
     processes: int = 0
@@ -219,4 +231,5 @@ class PitchOptions:
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
                 "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px,
                 "center_sigma_px": self.center_sigma_px, "shading_model_error": self.shading_model_error,
+                "estimate_shading_error": bool(self.estimate_shading_error),
                 "response": self.response if self.response in (None, "auto") else self.response.to_json()}
