@@ -167,8 +167,9 @@ class MarkerPoints:
         The stereo pair(s) whose matching made the point, ``"left"``, ``"right"`` or
         ``"left+right"`` (merged).
     ambiguous : ndarray of bool, shape (N,)
-        Some blob of the point had another same-colour candidate within the epipolar tolerance
-        and the choice was not confirmed by a third view.
+        A two-view point one of whose blobs had another match that fits about as well (its
+        reprojection RMS within twice the centroid noise, estimated from the points with three or
+        more views), and no third view decided.
     cameras : list of str
         Camera names (rig order).
     bias_corrected : bool
@@ -513,14 +514,22 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
     chosen = _pack_tracks(tracks, weights)
     if len(chosen) == 0:
         return MarkerPoints.empty(names)
+    # the centroids' noise, from the capture itself: the reprojection RMS of the chosen tracks with
+    # three or more views (they pass a test that two views do not); a tolerance's sixth without them
+    multi_rms = rms[chosen][n_views[chosen] >= 3]
+    noise_px = float(np.median(multi_rms)) if len(multi_rms) >= 5 else max_epi / 6.0
+    two = n_views == 2
+    is_chosen = np.zeros(len(tracks), bool)
+    is_chosen[chosen] = True
     merged = []
     for t in chosen:
         views = {int(k): int(tracks[t, k]) for k in np.flatnonzero(seen[t])}
         pn = [p for p, ab in pair_idx.items() if set(ab) <= set(views)]
         amb = False
-        if len(views) == 2:  # some blob had another admissible partner, and no third view decided
+        if len(views) == 2:  # another match of one of its blobs fits about as well, no third view decides
             (a, ja), (b, jb) = sorted(views.items())
-            amb = admissible[(a, b)][ja].sum() > 1 or admissible[(a, b)][:, jb].sum() > 1
+            rival = two & ~is_chosen & seen[:, a] & seen[:, b] & ((tracks[:, a] == ja) ^ (tracks[:, b] == jb))
+            amb = bool(np.any(rms[rival] < rms[t] + 2.0 * noise_px))
         merged.append({"views": views, "colour": col[min(views)][views[min(views)]],
                        "pairs": "+".join(sorted(pn)) or "cross", "ambiguous": bool(amb)})
     # a marker whose views the tracks split (a partly hidden view's centroid moved beyond the
