@@ -313,6 +313,9 @@ CROSS_PAIR_PENALTY = 0.25
 #: Weight lost per unit of a candidate's reprojection RMS over its tolerance (half the epipolar
 #: tolerance): of two explanations of the same blobs, the better-fitting one wins.
 RESIDUAL_PENALTY = 0.5
+#: A two-view point across the pairs is kept only when its reprojection RMS is within this many
+#: times the centroid noise (estimated from the points with three or more views).
+CROSS_PAIR_NOISE_FACTOR = 3.0
 #: Confirming blobs tried per other camera (the nearest ones within the confirmation distance).
 CONFIRMATIONS_PER_CAMERA = 2
 
@@ -519,6 +522,15 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
     multi_rms = rms[chosen][n_views[chosen] >= 3]
     noise_px = float(np.median(multi_rms)) if len(multi_rms) >= 5 else max_epi / 6.0
     two = n_views == 2
+    # a two-view point across the pairs is what is left when each pair saw the marker once; its
+    # wide baseline crosses many same-colour blobs, so it must fit within the noise (a partly hidden
+    # centroid is no excuse: a stereo pair's own tolerance is for those), else packed again without it
+    loose = two & cross & (rms > CROSS_PAIR_NOISE_FACTOR * noise_px)
+    if loose[chosen].any():
+        keep = np.flatnonzero(~loose)
+        tracks, seen, n_views, cross, weights, rms, two = (v[keep] for v in (tracks, seen, n_views, cross, weights,
+                                                                             rms, two))
+        chosen = _pack_tracks(tracks, weights)
     is_chosen = np.zeros(len(tracks), bool)
     is_chosen[chosen] = True
     merged = []
@@ -530,6 +542,8 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
             (a, ja), (b, jb) = sorted(views.items())
             rival = two & ~is_chosen & seen[:, a] & seen[:, b] & ((tracks[:, a] == ja) ^ (tracks[:, b] == jb))
             amb = bool(np.any(rms[rival] < rms[t] + 2.0 * noise_px))
+        if amb and not pn:
+            continue  # across the pairs, two views and a rival as good: a coin toss, no marker
         merged.append({"views": views, "colour": col[min(views)][views[min(views)]],
                        "pairs": "+".join(sorted(pn)) or "cross", "ambiguous": bool(amb)})
     # a marker whose views the tracks split (a partly hidden view's centroid moved beyond the
