@@ -9,14 +9,15 @@ Two parts:
   weighted by ``max(n.l, 0) / d_light^2`` times its foreshortening toward the camera (visible
   side only). The studio's truth (:func:`stillcap.studio.hand.lit_centroids`) is this model
   plus occlusion by other bodies.
-- **Triangulation** (:func:`triangulate_color_markers`): per stereo pair, every same-colour
-  blob pair near each other's epipolar line is a candidate; each candidate is triangulated and
-  checked in the other cameras (a same-colour blob where it should appear confirms it); an
-  optimal one-to-one assignment (``scipy.optimize.linear_sum_assignment``, with the option of
-  leaving a blob unmatched) prefers confirmed, close candidates. The points of both pairs that
-  share a blob, or have the same colour and lie within ``merge_mm``, are one marker,
-  re-triangulated from all its views. With the light's position the half-lit bias is removed by
-  iteration: triangulate, predict each view's centroid offset at the point, subtract, again.
+- **Triangulation** (:func:`triangulate_color_markers`): every two cameras (not only the stereo
+  pairs: one strobe lights them all) propose same-colour blob pairs near each other's epipolar
+  line; each is triangulated and projected into the other cameras, where same-colour blobs near
+  its predicted centroid may confirm it. Of all these tracks, the set that explains most blobs
+  best, each blob used once, is chosen exactly (a set packing, ``scipy.optimize.milp``); tracks of
+  the same colour within ``merge_mm`` that share no camera are one marker, re-triangulated from
+  all its views. With the light's position the half-lit bias is removed by iteration:
+  triangulate, predict each view's centroid offset at the point, subtract, again.
+  ``docs/hand-markers.md`` gives the weights and why.
 """
 
 from __future__ import annotations
@@ -164,8 +165,8 @@ class MarkerPoints:
         Index of the blob in that camera's :class:`~stillcap.detect.color_markers.ColorBlobs`,
         -1 where unused.
     pairs : ndarray of str, shape (N,)
-        The stereo pair(s) whose matching made the point, ``"left"``, ``"right"`` or
-        ``"left+right"`` (merged).
+        The stereo pair(s) both of whose cameras the point uses, ``"left"``, ``"right"`` or
+        ``"left+right"``; ``"cross"`` when it uses no stereo pair whole (one camera of each).
     ambiguous : ndarray of bool, shape (N,)
         A two-view point one of whose blobs had another match that fits about as well (its
         reprojection RMS within twice the centroid noise, estimated from the points with three or
