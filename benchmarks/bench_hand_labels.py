@@ -11,9 +11,12 @@ sigma), 3 spurious points of random colours near the hands, shuffled). Then
 Columns:
 - labels right: points of flashes whose three back markers are among the points, labelled
   with the right flash and marker (%); wrong: labels given that are wrong (% of labels given);
-- flashes: reconstructed / flashes with their 3 back markers seen by 2+ cameras (truth) /
-  of those, with all three still among the points after the dropouts; order: seeds whose found
-  flashes are in the true time order;
+- flashes: of the flashes with all three back markers among the points (after the dropouts),
+  those with a pose, "of" how many, then "(+N posed from neighbours)": flashes without their
+  three back markers that :mod:`stillcap.body.hand_label_fill` posed from their other markers
+  (counted apart, so the column never shows more flashes posed than there are), then the
+  flashes whose three back markers 2+ cameras see (truth); order: seeds whose found flashes are
+  in the true time order;
 - joint angles: error of the degrees of freedom the seen markers fix (every marker from the
   digit's base to the joint seen), RMS and max; DIP: the distal joints alone (short levers);
 - fit RMS: marker residual of the per-flash fits (mm); time: labelling + sequence fit per seed.
@@ -71,11 +74,21 @@ def run(truth, seed, noise_m, personalise):
                     dip.append(e)
                 else:
                     other.append(e)
+    # flashes with a pose: those whose three back markers are among the points, and the others
+    # (posed from their neighbours) apart
+    rec_back = sum(1 for k, f in enumerate(fmap) if lab.reconstructed[k] and f >= 0 and has_back[f])
     return {"right": int((ok & sel).sum()), "total": int(sel.sum()), "wrong": int((given & ~ok).sum()),
-            "given": int(given.sum()), "recon": int(lab.reconstructed.sum()), "vis_back": int(vis_back.sum()),
+            "given": int(given.sum()), "recon": int(rec_back), "recon_extra": int(lab.reconstructed.sum()) - rec_back, "vis_back": int(vis_back.sum()),
             "has_back": int(has_back.sum()), "order": bool(np.all(np.diff(fmap) > 0)), "err": err, "dip": dip, "other": other,
             "rms": [] if seq is None else list(seq.rms), "time": dt,
             "scales": None if seq is None else np.array(list(seq.scales.values()))}
+
+
+def _flashes(rs) -> str:
+    """The flashes column: "67 of 67 (+3 posed from neighbours) / 77"."""
+    extra = sum(r["recon_extra"] for r in rs)
+    return (f"{sum(r['recon'] for r in rs)} of {sum(r['has_back'] for r in rs)}"
+            + (f" (+{extra} posed from neighbours)" if extra else "") + f" / {sum(r['vis_back'] for r in rs)}")
 
 
 def main():
@@ -88,7 +101,7 @@ def main():
     truths = [hand_capture(s, image_size=(320, 240), supersample=1).truth for s in range(args.seeds)]
     console.print(f"{args.seeds} studio truths in {time.perf_counter() - t:.1f} s")
     tab = Table(title=f"hand labelling and pose, {args.seeds} seeds (5 % dropped, 3 spurious points per capture)")
-    for c in ("noise/axis mm", "personalise", "labels right %", "wrong %", "flashes recon / 3 back vis / 3 back in pts",
+    for c in ("noise/axis mm", "personalise", "labels right %", "wrong %", "flashes posed of 3 back in pts (+neighbours) / 3 back vis",
               "order ok", "angle RMS deg", "angle max deg", "DIP/IP RMS deg", "other RMS deg", "fit RMS mm",
               "max |scale-1|", "time s/seed"):
         tab.add_column(c, justify="right")
@@ -102,7 +115,7 @@ def main():
             sc = [np.abs(r["scales"] - 1).max() for r in rs if r["scales"] is not None]
             tab.add_row(f"{noise:g}", pers, f"{100 * sum(r['right'] for r in rs) / sum(r['total'] for r in rs):.2f}",
                         f"{100 * sum(r['wrong'] for r in rs) / max(1, sum(r['given'] for r in rs)):.2f}",
-                        f"{sum(r['recon'] for r in rs)} / {sum(r['vis_back'] for r in rs)} / {sum(r['has_back'] for r in rs)}",
+                        _flashes(rs),
                         f"{sum(r['order'] for r in rs)}/{len(rs)}",
                         f"{np.sqrt(np.mean(err ** 2)):.2f}", f"{np.abs(err).max():.1f}",
                         f"{np.sqrt(np.mean(dip ** 2)):.2f}", f"{np.sqrt(np.mean(other ** 2)):.2f}",
