@@ -35,6 +35,65 @@ class _GlobalProblem:
         self.layout = layout
         self.flash = obs.flash
         self._same = layout.types[None, :] == obs.types[:, None]  # (M, 12): markers of each one's type
+        # per-observation weights: each residual pair (r1, r2) multiplied by W = L^T, L L^T the
+        # observation's information in the (t1, t2) basis, scaled so that the median observation's
+        # is about 1 (residuals stay in radians there; info_scale, px^2/rad^2, turns the fitted
+        # residual scale into the centroid noise in pixels)
+        self.W, self.info_scale = None, float("nan")
+        if obs.information is not None and len(obs):
+            B = np.stack([self.t1, self.t2], axis=2)  # (M, 3, 2)
+            M2 = np.swapaxes(B, 1, 2) @ obs.information @ B
+            M2 = 0.5 * (M2 + np.swapaxes(M2, 1, 2))
+            scale = float(np.median(np.trace(M2, axis1=1, axis2=2) / 2.0))
+            if np.isfinite(scale) and scale > 0:
+                M2 = M2 / scale + 1e-9 * np.eye(2)
+                self.W = np.swapaxes(np.linalg.cholesky(M2), 1, 2)  # upper: W[:, 1, 0] = 0
+                self.info_scale = scale
+        self.W_base = self.W
+        self.noise_class = obs.noise_class
+        self.class_scale = {}
+
+    def estimate_class_noise(self, x, R0_ref, j, sel, min_obs: int = 4):
+        """Each noise class's residual scale relative to class 0 (or to all observations when
+        class 0 has fewer than ``min_obs``): the weights of class ``c`` are divided by its
+        ``scale_c`` so that every class's weighted residuals have the same variance. A class with
+        fewer than ``min_obs`` observations keeps scale 1. Returns ``{class: scale}``."""
+        if self.W_base is None:
+            return {}
+        self.W = self.W_base
+        cls = self.noise_class[sel]
+        kinds = np.unique(cls)
+        if len(kinds) < 2:
+            self.class_scale = {}
+            return {}
+        e2 = self.observation_norms(x, R0_ref, j, sel) ** 2
+        pooled = float(np.mean(e2))
+        ref = float(np.mean(e2[cls == 0])) if np.count_nonzero(cls == 0) >= min_obs else pooled
+        if not ref > 0:
+            return {}
+        scales = {}
+        for c in kinds:
+            n_c = int(np.count_nonzero(cls == c))
+            scales[int(c)] = float(np.sqrt(np.mean(e2[cls == c]) / ref)) if n_c >= min_obs else 1.0
+        f = np.array([1.0 / max(scales.get(int(c), 1.0), 1e-6) for c in self.noise_class])
+        self.W = self.W_base * f[:, None, None]
+        self.class_scale = scales
+        return scales
+
+    def _whiten(self, a1, a2, sel):
+        """``W (a1, a2)`` per observation ``sel`` (rows of residuals or of the Jacobian)."""
+        if self.W is None:
+            return a1, a2
+        W = self.W[sel]
+        if a1.ndim == 2:
+            return (W[:, 0, 0, None] * a1 + W[:, 0, 1, None] * a2, W[:, 1, 1, None] * a2)
+        return W[:, 0, 0] * a1 + W[:, 0, 1] * a2, W[:, 1, 1] * a2
+
+    def observation_norms(self, x, R0_ref, j, sel):
+        """Length of each observation's (weighted) residual pair, shape (m,)."""
+        r = self.residuals(x, R0_ref, j, sel)
+        m = len(r) // 2
+        return np.hypot(r[:m], r[m:])
 
     def rotations(self, R0, w):
         """ball2world per flash, (K, 3, 3)."""
@@ -91,7 +150,7 @@ class _GlobalProblem:
         _, t1, t2, _ = self._subset(sel)
         r1 = g * np.einsum("ma,ma->m", t1, p)
         r2 = g * np.einsum("ma,ma->m", t2, p)
-        return np.concatenate([r1, r2])
+        return np.concatenate(self._whiten(r1, r2, sel))
 
     def jacobian(self, x, R0_ref, j, sel):
         """Analytic Jacobian of :meth:`residuals`, shape (2 m, 6)."""
@@ -113,6 +172,9 @@ class _GlobalProblem:
         J = np.empty((len(q), 6))
         J[:, :3] = -np.einsum("ma,mab->mb", y, np.concatenate([A, A])) @ Jl[0]
         J[:, 3:] = -np.einsum("ma,mab->mb", y, Jl[1:][fl2]) * self.dt[fl2][:, None]
+        if self.W is not None:
+            m = len(J) // 2
+            J = np.concatenate(self._whiten(J[:m], J[m:], sel))
         return J
 
 
@@ -576,16 +638,25 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         assigned = None
 
     # outliers, then a plain least-squares polish on the inliers for the covariance
-    r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, np.ones(len(obs), bool))
+    every = np.ones(len(obs), bool)
+    r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, every)
     sigma_robust = float(np.median(np.abs(r)) / 0.6745)
     thr = np.radians(outlier_deg) if outlier_deg is not None else max(4.0 * sigma_robust, np.radians(1.0))
-    inl = d < thr
+    # weighted observations: the outlier test on the weighted residual (a marker near the limb
+    # may lie further off in angle than one face-on, as its weight says)
+    inl = (d if prob.W is None else prob.observation_norms(np.concatenate([np.zeros(3), w]), R0, j, every)) < thr
     message = "ok"
     if inl.sum() < 4:
         inl = d <= np.sort(d)[min(3, len(d) - 1)]
         message = "few inliers"
     R0, w, j, d, res = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
                                      max_outer=max_outer, sel=inl, assigned=assigned)
+    # each noise class's own scale (markers cut by the limb are noisier than whole ones), then
+    # the polish again with those weights
+    if prob.estimate_class_noise(np.concatenate([np.zeros(3), w]), R0, j, inl):
+        R0, w, j, d, res2 = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
+                                          max_outer=max_outer, sel=inl)
+        res = res if res2 is None else res2
     x = np.concatenate([np.zeros(3), w])
     r = prob.residuals(x, R0, j, inl)
     J = prob.jacobian(x, R0, j, inl)
@@ -608,4 +679,6 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         orientations=prob.rotations(R0, w), residuals_deg=np.degrees(d), assigned=j, inliers=inl,
         rms_deg=float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))), n_observations=len(obs),
         n_inliers=int(inl.sum()), success=success, message=message, method="global",
-        fit_time_s=_time.perf_counter() - t_start)
+        fit_time_s=_time.perf_counter() - t_start,
+        noise_px=float(np.sqrt(s2 * prob.info_scale)) if prob.W is not None else float("nan"),
+        dof=int(len(r) - 6))
