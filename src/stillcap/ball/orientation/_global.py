@@ -669,6 +669,14 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         cov = cov + _time_offset_cov(prob, x, R0, j, inl, bread, J, time_groups, time_group_sigma)
     cov_w = cov[3:, 3:]
     rate, axis, sig_r, sig_a = _spin_summary(w, cov_w)
+    if prob.W is None:
+        rms_deg = float(np.degrees(np.sqrt(np.mean(d[inl] ** 2))))
+    else:
+        # weighted: the RMS of the weighted residuals (before the noise classes' scales) in the
+        # angle of the median observation's weight: a marker near the limb, whose direction its
+        # centroid fixes poorly toward the line of sight, counts as the precision it has there
+        prob.W = prob.W_base
+        rms_deg = float(np.degrees(np.sqrt(np.mean(prob.observation_norms(x, R0, j, inl) ** 2))))
     success = bool(res is None or res.status > 0) and int(inl.sum()) >= 4 and np.all(np.isfinite(w))
     if len(r) - 6 < 2:
         message = "as many parameters as residuals: no uncertainty"
@@ -677,7 +685,7 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         spin=w, spin_rpm=rate, axis=axis, sigma_rpm=sig_r, sigma_axis_deg=sig_a,
         spin_covariance=cov_w, ball2world_t0=R0, t0=t0, times=times, strobe_hz=f,
         orientations=prob.rotations(R0, w), residuals_deg=np.degrees(d), assigned=j, inliers=inl,
-        rms_deg=float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))), n_observations=len(obs),
+        rms_deg=rms_deg, n_observations=len(obs),
         n_inliers=int(inl.sum()), success=success, message=message, method="global",
         fit_time_s=_time.perf_counter() - t_start,
         noise_px=float(np.sqrt(s2 * prob.info_scale)) if prob.W is not None else float("nan"),

@@ -53,7 +53,10 @@ class SpinResult:
     inliers : ndarray of bool, shape (M,)
         Observations used by the final fit.
     rms_deg : float
-        RMS residual angle of the inliers.
+        RMS residual angle of the inliers; with weighted observations
+        (``MarkerObservations.information``) the RMS of the weighted residuals in the angle of
+        the median observation's weight (a marker near the limb counts with the precision its
+        centroid has there).
     n_observations, n_inliers : int
     success : bool
     message : str
