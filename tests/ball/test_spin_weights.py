@@ -207,3 +207,34 @@ def test_spin_noise_check_fires_when_the_residuals_exceed_the_stated_noise():
     assert not bad.passed and "do not follow one spin" in bad.message
     plain = fit_spin(times, MarkerObservations(obs.flash, obs.types, obs.directions), LAYOUT, spin_init=w)
     assert spin_noise_check(plain) is None
+
+
+def test_center_shift_cov_covers_the_error_of_a_centre_offset_shared_by_all_flashes():
+    """Every flash's directions measured from a centre moved by the same offset (lateral, in
+    ball radii): the spin moves; with that offset's covariance stated the spin's covariance
+    grows so that the move is within its chi-square(3) 99 % bound in nearly every case, and
+    without it the move is beyond the stated intervals in many."""
+    from scipy.stats import chi2
+
+    lateral = np.eye(3) - np.outer(VIEW, VIEW)
+    sigma = 0.02  # radii: 0.3 px on a 15 px ball
+    inside, outside_plain = 0, 0
+    n = 16
+    for seed in range(n):
+        times, obs, w = _pixel_noise_observations(seed, 0.1)
+        base = fit_spin(times, obs, LAYOUT, spin_init=w)
+        rng = np.random.default_rng(100 + seed)
+        delta = lateral @ rng.normal(size=3) * sigma
+        u = obs.directions
+        moved = u - (delta[None, :] - (u @ delta)[:, None] * u)
+        moved /= np.linalg.norm(moved, axis=1, keepdims=True)
+        shifted = MarkerObservations(obs.flash, obs.types, moved, None, obs.information, obs.noise_class)
+        plain = fit_spin(times, shifted, LAYOUT, spin_init=w)
+        wide = fit_spin(times, shifted, LAYOUT, spin_init=w, center_shift_cov=[(None, sigma ** 2 * lateral)])
+        assert np.allclose(wide.spin, plain.spin)  # the estimate is the same, only its covariance grows
+        assert np.trace(wide.spin_covariance) > np.trace(plain.spin_covariance)
+        d = plain.spin - base.spin
+        inside += d @ np.linalg.solve(wide.spin_covariance, d) <= chi2.ppf(0.99, 3)
+        outside_plain += d @ np.linalg.solve(plain.spin_covariance, d) > chi2.ppf(0.99, 3)
+    assert inside >= n - 2  # (linearised: the part of the move outside the offset's span is the plain fit's)
+    assert outside_plain >= n // 2

@@ -246,6 +246,39 @@ def _time_offset_cov(prob, x, R0, j, sel, bread, J, time_groups, time_group_sigm
     return out
 
 
+def _center_shift_cov(prob, x, R0, j, sel, bread, J, modes):
+    """Covariance of (delta, w) from ball-centre errors shared by all flashes: for each
+    ``(mask, C)`` in ``modes`` (``C`` the 3x3 covariance of a centre offset common to the masked
+    observations, in ball radii, world frame) and each eigen-direction ``e`` of ``C``, the
+    directions from the moved centre (``u - h (e - (e.u) u)``, central differences) give
+    ``dx = -(J^T J)^-1 J^T dr/dh`` and ``cov += lambda dx dx^T``. The cluster-robust sandwich sees
+    a centre error that changes from flash to flash; one common to the flashes (a bias of the
+    centre refinement) it cannot."""
+    from stillcap.ball.orientation._observations import MarkerObservations
+
+    out = np.zeros((J.shape[1], J.shape[1]))
+    obs, u = prob.obs, prob.u
+    f = None if prob.W is None else prob.W[:, 0, 0] / prob.W_base[:, 0, 0]  # the noise classes' weights
+    h = 1e-4
+    for mask, C in modes:
+        m = np.ones(len(u), bool) if mask is None else np.asarray(mask, bool)
+        lam, V = np.linalg.eigh(0.5 * (np.asarray(C, float) + np.asarray(C, float).T))
+        for lk, e in zip(lam, V.T):
+            if not lk > 0:
+                continue
+            rs = []
+            for sgn in (1.0, -1.0):
+                d = u - sgn * h * (e[None, :] - (u @ e)[:, None] * u) * m[:, None]
+                p2 = _GlobalProblem(prob.dt, MarkerObservations(obs.flash, obs.types, d, obs.from_ray, obs.information,
+                                                                obs.noise_class), prob.layout, 0.0)
+                if f is not None and p2.W is not None:
+                    p2.W = p2.W_base * f[:, None, None]
+                rs.append(p2.residuals(x, R0, j, sel))
+            dx = -bread @ (J.T @ ((rs[0] - rs[1]) / (2.0 * h)))
+            out += lk * np.outer(dx, dx)
+    return out
+
+
 def _solve_global(prob, R0, w, *, loss, f_scale, x_scale, max_outer, sel=None, assigned=None):
     """Outer loop: assign nearest same-type markers, robust least squares, repeat.
 
@@ -456,7 +489,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
              init: str = "auto", loss: str = "soft_l1", f_scale_deg: float = 3.0,
              outlier_deg: float | None = None, cap_deg: float = 8.0, max_outer: int = 10,
              grid_step_deg: float = 15.0, time_groups=None, time_group_sigma=None,
-             stop_fraction: float | None = None) -> SpinResult:
+             stop_fraction: float | None = None, center_shift_cov=None) -> SpinResult:
     """Fit one constant spin to all flashes' markers (robust least squares, SPEC "beyond").
 
     Model: ``R(t) = exp([w] (t - t0)) R0`` (``ball2world``); residuals: the angle (as a 2-D
@@ -521,6 +554,10 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         offset ``g``).
     time_group_sigma : array_like, shape (G,), optional
         1-sigma of the offset of groups 1..G, s (added to the spin covariance).
+    center_shift_cov : sequence of (mask, ndarray (3, 3)), optional
+        Ball-centre errors common to all flashes: per entry, the covariance (ball radii^2, world
+        frame) of an offset shared by the observations ``mask`` (bool (M,), or None for all),
+        propagated into the spin's covariance (:func:`_center_shift_cov`).
     stop_fraction : float, optional
         Skip the other starts when the first one, after fitting, has this fraction of the
         observations within ``cap_deg`` of their markers (the pitch pipeline uses 0.9: on the
@@ -586,7 +623,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
                       as_array(spin_init, (3,), "spin_init"))])
         if np.mean(first[4] < cap) >= 0.9:
             return _finish_global(prob, obs, times, first, spin_init, period, t0, f, cap, outlier_deg,
-                                  max_outer, x_scale, time_groups, time_group_sigma, t_start)
+                                  max_outer, x_scale, time_groups, time_group_sigma, t_start, center_shift_cov)
 
     flash_fit = {}
     for k in np.flatnonzero(counts >= 2):
@@ -624,11 +661,11 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         return _failed("global", times, obs, "no flash with 2 identifiable markers: cannot start "
                        "the fit (pass spin_init and ball2world_init)", t_start, f)
     return _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlier_deg, max_outer,
-                          x_scale, time_groups, time_group_sigma, t_start)
+                          x_scale, time_groups, time_group_sigma, t_start, center_shift_cov)
 
 
 def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlier_deg, max_outer, x_scale,
-                   time_groups, time_group_sigma, t_start) -> SpinResult:
+                   time_groups, time_group_sigma, t_start, center_shift_cov=None) -> SpinResult:
     """:func:`fit_spin` after the robust stage: outliers, least-squares polish, covariance."""
     _, R0, w, j, d = best
     assigned = (j, d)  # at (R0, w)
@@ -667,6 +704,8 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
     cov = _cluster_robust(cov, bread, J, r, prob.flash[inl])
     if time_groups is not None and time_group_sigma is not None:
         cov = cov + _time_offset_cov(prob, x, R0, j, inl, bread, J, time_groups, time_group_sigma)
+    if center_shift_cov:
+        cov = cov + _center_shift_cov(prob, x, R0, j, inl, bread, J, center_shift_cov)
     cov_w = cov[3:, 3:]
     rate, axis, sig_r, sig_a = _spin_summary(w, cov_w)
     if prob.W is None:
