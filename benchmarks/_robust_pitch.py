@@ -105,6 +105,9 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
         res = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1)
         add_truth_comparison(res, loaded.truth)
         row.update(evaluate(res, loaded.truth))
+        if res.spin is not None:  # the marker-centroid noise the spin fit's residuals show (px)
+            nz = float(getattr(res.spin, "noise_px", float("nan")))
+            row["marker_noise_px"] = nz if np.isfinite(nz) else None
         checks = getattr(res, "self_checks", None) or []
         row["checks_failed"] = [c.name for c in checks if not c.passed]
         row["ok"] = True

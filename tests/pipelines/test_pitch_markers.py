@@ -70,10 +70,21 @@ def test_one_matching_over_all_balls_is_each_balls_own(pairs, max_px):
     layout = BallLayout.seed()
     kinds = np.zeros(2, int)
     for cams, imgs, p in pairs:
+        # the matching is the subject here: the triangulated directions the reference computes
         obs, (ma, mb), st = pair_marker_observations(cams[0], imgs[0], cams[1], imgs[1], p.centers_px[0],
                                                      p.centers_px[1], p.radius_px[0], p.radius_px[1], p.positions,
-                                                     max_px=max_px)
+                                                     max_px=max_px, directions="triangulated")
         ref, n3, nray, epi = ball_by_ball(cams[0], cams[1], ma, mb, p.positions, layout, BASEBALL_RADIUS, max_px)
+        # the default (rays met with the sphere, matched pairs combined) keeps the same observations
+        rays, _, st_r = pair_marker_observations(cams[0], imgs[0], cams[1], imgs[1], p.centers_px[0],
+                                                 p.centers_px[1], p.radius_px[0], p.radius_px[1], p.positions,
+                                                 max_px=max_px)
+        np.testing.assert_array_equal(rays.flash, obs.flash)
+        np.testing.assert_array_equal(rays.types, obs.types)
+        np.testing.assert_array_equal(rays.from_ray, obs.from_ray)
+        assert rays.information is not None and obs.information is None
+        single = rays.from_ray
+        np.testing.assert_allclose(rays.directions[single], obs.directions[single], rtol=0, atol=1e-12)
         assert len(set(ref.flash)) > 1  # markers of several balls
         kinds += (n3, nray)
         assert (st["n_3d"], st["n_ray"]) == (n3, nray)
@@ -102,7 +113,7 @@ def test_markers_pair_only_within_their_ball_and_rays_keep_each_balls_order(pair
     det = {"a": (cam_a.project(np.array([x0, x2, blue])), ["red", "red", "blue"], [0, 2, 2]),
            "b": (cam_b.project(np.array([x0, x2])), ["red", "red"], [1, 2])}
 
-    def fake_detect(img, centers, radii, types):
+    def fake_detect(img, centers, radii, types, **kw):
         xy, names, ball = det[img]
         n = len(names)
         return BallMarkers(xy, np.array(names, object), np.array(["unknown"] * n, object), np.full(n, 30.0),

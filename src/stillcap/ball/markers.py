@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
-from stillcap.ball.orientation import MarkerObservations, rays_to_directions
+from stillcap.ball.orientation import MarkerObservations, direction_information, rays_to_directions
 from stillcap.camera import Camera
-from stillcap.detect.ball_markers import BallMarkers, MarkerType, detect_ball_markers
+from stillcap.detect.ball_markers import BallMarkers, MarkerFlag, MarkerType, detect_ball_markers
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
 from stillcap.response import Response
@@ -45,18 +45,69 @@ def _triangulated_direction(cam_a, cam_b, xa, xb, center, radius):
     return v / np.where(r > 0, r, 1.0)[:, None], ok
 
 
+def _ray_directions(cam: Camera, centers_px, ball_centers, radius_px, radius_m, depth, radial=None):
+    """Each centroid's pixel ray met with the sphere its centroid lies on (radius
+    ``radius_m (1 - depth)``), as a direction from the ball centre, with its information
+    (:func:`~stillcap.ball.orientation.direction_information`) and whether the ray hit."""
+    o, dirs = cam.rays(centers_px)
+    v, hit = rays_to_directions(o, dirs, ball_centers, radius_m * (1.0 - depth))
+    view = cam.center[None, :] - ball_centers
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    return v, direction_information(v, view, radius_px, radial=radial), hit
+
+
+def _combine_directions(va, Ia, vb, Ib):
+    """Two cameras' directions of one marker combined by their information (the weighted mean in
+    the tangent plane of their mean, normalised): ``(directions (n, 3), information (n, 3, 3))``."""
+    u0 = va + vb
+    u0 /= np.linalg.norm(u0, axis=1, keepdims=True)
+    t1, t2 = _tangent_basis(u0)
+    B = np.stack([t1, t2], axis=2)  # (n, 3, 2)
+    Bt = np.swapaxes(B, 1, 2)
+    Ma, Mb = Bt @ Ia @ B, Bt @ Ib @ B
+    rhs = Ma @ (Bt @ va[:, :, None]) + Mb @ (Bt @ vb[:, :, None])
+    x = np.linalg.solve(Ma + Mb + 1e-12 * np.eye(2), rhs)[:, :, 0]
+    u = u0 + np.einsum("mab,mb->ma", B, x)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    return u, B @ (Ma + Mb) @ Bt
+
+
+def _tangent_basis(u):
+    """Two unit vectors spanning the tangent plane of each unit vector ``u`` (n, 3)."""
+    a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    t1 = np.cross(u, a)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return t1, np.cross(u, t1)
+
+
 def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers_a, centers_b, radius_a, radius_b,
                              positions, types=None, layout: BallLayout | None = None, radius_m: float = BASEBALL_RADIUS,
-                             max_px: float = 2.0):
+                             max_px: float = 2.0, directions: str = "rays", blur_px=None):
     """Painted markers of a pair's ball images as directions from the ball centres.
 
     Per photo the markers are found inside each ball image (colour and shape); per ball the two
     photos' markers are matched (same type, epipolar distance below ``max_px``, optimal
-    assignment) and triangulated, and the direction from the ball centre is kept when the
-    marker lies on the sphere (0.8-1.15 radii: a wrong match does not). Markers seen by one
-    camera (or badly triangulated) become pixel rays meeting the sphere their image centroids
-    lie on (:attr:`BallLayout.centroid_depth <stillcap.ball.layout.BallLayout.centroid_depth>`,
-    just inside the ball).
+    assignment) and triangulated, and a match is kept when the marker lies on the sphere
+    (0.8-1.15 radii: a wrong match does not). Every centroid's pixel ray meets the sphere its
+    image centroid lies on (:attr:`BallLayout.centroid_depth
+    <stillcap.ball.layout.BallLayout.centroid_depth>`, just inside the ball) at a direction from
+    the ball centre; a matched marker's two directions are combined by their information
+    (:func:`~stillcap.ball.orientation.direction_information`), a marker seen by one camera (or
+    badly triangulated) keeps its own. Every observation carries its information, so the spin
+    fit weighs it and estimates the centroid noise in pixels.
+
+    Why rays and not the triangulated marker: a pair's two cameras see the ball from directions
+    only 5-15 deg apart, so a triangulated marker's depth is 4-10 times less precise than its
+    image position, and the direction from the ball centre inherits that (measured on the
+    studio's pitches at 15 px ball radius: 4.2 deg RMS for triangulated markers against 1-2 deg
+    for rays, ``docs/spin.md``). A ray needs only the ball centre, whose depth error leaves the
+    direction unchanged to first order (the centre moves along the line of sight).
+    ``directions="triangulated"`` keeps the triangulated directions (no information).
+
+    ``blur_px``: each photo's lens blur (Gaussian sigma, px; one value or one per camera, e.g.
+    the pair's :attr:`StereoBalls.psf_px <stillcap.ball.stereo.StereoBalls.psf_px>`, measured on
+    the balls' limbs): the centroids are corrected for the pull of blur over the ball's shading
+    (:func:`stillcap.detect.ball_markers.shading_blur_shift`). None: no correction.
 
     Returns
     -------
@@ -66,6 +117,8 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     stats : dict
         ``n_3d``, ``n_ray``, ``epipolar_px`` (median of the matches).
     """
+    if directions not in ("rays", "triangulated"):
+        raise ValueError(f"directions must be 'rays' or 'triangulated', got {directions!r}")
     layout = BallLayout.seed() if layout is None else layout
     # the palette as each camera photographs it (its response), unless one is given for both
     types_a = marker_types(layout, cam_a.response) if types is None else types
@@ -75,8 +128,10 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     if K == 0:
         empty = MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
         return empty, [BallMarkers.empty(), BallMarkers.empty()], {"n_3d": 0, "n_ray": 0, "epipolar_px": np.nan}
-    ma = detect_ball_markers(img_a, centers_a, radius_a, types_a)
-    mb = detect_ball_markers(img_b, centers_b, radius_b, types_b)
+    blur = [None, None] if blur_px is None else [float(v) for v in np.broadcast_to(np.asarray(blur_px, float), (2,))]
+    blur = [b if b is not None and np.isfinite(b) else None for b in blur]
+    ma = detect_ball_markers(img_a, centers_a, radius_a, types_a, blur_px=blur[0], response=cam_a.response)
+    mb = detect_ball_markers(img_b, centers_b, radius_b, types_b, blur_px=blur[1], response=cam_b.response)
     # The K balls' markers (sorted by ball), matched in one call (a call per ball cost more than
     # the matching): labelled by ball and type, a marker pairs only with one of the same ball
     # and type, and an optimal assignment of such independent blocks is each block's own.
@@ -86,40 +141,58 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
                        labels_b=[f"{k} {t}" for k, t in zip(B.ball_index, B.types)])
     ia, ib = m.pairs[:, 0], m.pairs[:, 1]
     ball = A.ball_index[ia]  # of each match
+    # a marker cut by the searched disc's edge (the limb) has no trustworthy position toward the
+    # ball's centre: only its direction around the line of sight informs the fit
+    radial_a = (A.flags & MarkerFlag.AT_EDGE) == 0
+    radial_b = (B.flags & MarkerFlag.AT_EDGE) == 0
+    # each ball's image radius in each camera, px, from the geometry (what the weights need)
+    rad_a = cam_a.K[0, 0] * radius_m / np.linalg.norm(P - cam_a.center, axis=1)
+    rad_b = cam_b.K[0, 0] * radius_m / np.linalg.norm(P - cam_b.center, axis=1)
+    u, info = np.zeros((0, 3)), np.zeros((0, 3, 3))
     if len(ia):
         u, ok = _triangulated_direction(cam_a, cam_b, A.centers[ia], B.centers[ib], P[ball], radius_m)
+        if directions == "rays":
+            depth = layout.centroid_depth[layout.type_index(list(A.types[ia]))]
+            va, Ia, _ = _ray_directions(cam_a, A.centers[ia], P[ball], rad_a[ball], radius_m, depth, radial_a[ia])
+            vb, Ib, _ = _ray_directions(cam_b, B.centers[ib], P[ball], rad_b[ball], radius_m, depth, radial_b[ib])
+            u, info = _combine_directions(va, Ia, vb, Ib)
     else:
-        u, ok = np.zeros((0, 3)), np.zeros(0, bool)
+        ok = np.zeros(0, bool)
     # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
     # sphere; a stable sort by ball keeps that order within each ball.
     rays = []
-    for M, cam, idx in ((A, cam_a, np.concatenate([m.unmatched_a, ia[~ok]])),
-                        (B, cam_b, np.concatenate([m.unmatched_b, ib[~ok]]))):
+    for M, cam, rad, rdl, idx in ((A, cam_a, rad_a, radial_a, np.concatenate([m.unmatched_a, ia[~ok]])),
+                                  (B, cam_b, rad_b, radial_b, np.concatenate([m.unmatched_b, ib[~ok]]))):
         idx = idx[np.argsort(M.ball_index[idx], kind="stable")].astype(int)
         k_ray = M.ball_index[idx]
         ti = layout.type_index(list(M.types[idx]))
         if len(idx):
-            o, dirs = cam.rays(M.centers[idx])
             # a centroid is the image of a point inside the ball (BallLayout.centroid_depth): the
             # ray meets that smaller sphere where the marker's axis does, the ball's surface
             # closer to the line of sight (a fixed-sign spin error otherwise, "Coverage audit")
-            v, hit = rays_to_directions(o, dirs, P[k_ray], radius_m * (1.0 - layout.centroid_depth[ti]))
+            v, I, hit = _ray_directions(cam, M.centers[idx], P[k_ray], rad[k_ray], radius_m,
+                                        layout.centroid_depth[ti], rdl[idx])
         else:
-            v, hit = np.zeros((0, 3)), np.zeros(0, bool)
-        rays.append((ti, k_ray, v, hit))
+            v, I, hit = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, bool)
+        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx], 0, 1)))
+    with_info = directions == "rays"
     parts, n3, nray, epi = [], 0, 0, []
     for k in range(K):
         sel = ok & (ball == k)
         if sel.any():
-            parts.append(MarkerObservations.from_directions(np.full(int(sel.sum()), k), list(A.types[ia[sel]]),
-                                                            u[sel], layout))
+            o = MarkerObservations.from_directions(np.full(int(sel.sum()), k), list(A.types[ia[sel]]), u[sel], layout)
+            if with_info:
+                o.information = info[sel]
+            o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]], 0, 1)
+            parts.append(o)
             n3 += int(sel.sum())
             epi += list(m.distance_px[sel])
-        for ti, k_ray, v, hit in rays:
+        for ti, k_ray, v, I, hit, cls in rays:
             sel = hit & (k_ray == k)
             if sel.any():
                 parts.append(MarkerObservations(np.full(int(sel.sum()), k), ti[sel], v[sel],
-                                                np.ones(int(sel.sum()), bool)))
+                                                np.ones(int(sel.sum()), bool), I[sel] if with_info else None,
+                                                cls[sel]))
                 nray += int(sel.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))

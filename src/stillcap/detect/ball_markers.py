@@ -36,6 +36,7 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap.detect.ball._hough import _percentile
+from stillcap.response import Response
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
            "detect_ball_markers", "classify_shape", "marker_color_class", "ball_white_balance"]
@@ -345,7 +346,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                         weak_membership: float = 0.2,
                         lit_fraction: float = 0.2, disc_fraction: float = 0.97, limb_fraction: float = 0.8,
                         min_aspect: float = 0.4, reject_foreshortened: bool = False,
-                        white_balance="auto", adapt_thresholds: bool = True) -> BallMarkers:
+                        white_balance="auto", adapt_thresholds: bool = True, blur_px: float | None = None,
+                        response=None, shading_model: bool = True) -> BallMarkers:
     """Painted markers inside ball images (seed section 4.1: coloured regions inside each ball).
 
     Parameters
@@ -392,6 +394,18 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         Scale ``min_saturation``, ``weak_membership`` and ``dark_ratio`` to the contrast the
         photo's markers reach (lens blur and small marker images lower it), never below the
         leather's noise; False keeps them as given.
+    blur_px : float, optional
+        The photo's lens blur (Gaussian sigma, px; e.g. measured on the balls' limbs,
+        :func:`stillcap.ball.stereo.photo_blur_px`). Given, each centroid is corrected for the
+        pull that blur and the ball's shading give it (:func:`shading_blur_shift`); None or 0:
+        no correction.
+    response : Response or its rig-file form, optional
+        The camera's response (default sRGB): the shading model is fitted in linear light.
+    shading_model : bool
+        Measure each marker's darkness against the ball's shading fitted as a matte sphere
+        (:func:`_fit_shading`) where that model explains the leather (residual RMS within
+        10 % of its brightest), else against a morphological closing of the brightness; False:
+        always the closing (as before issue 12).
 
     Returns
     -------
@@ -447,6 +461,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
     prep, ch_peak, sat_lit, dk_lit = [], [], [], []
+    shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
+    if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
+        raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
+    resp = Response.srgb() if response is None else Response.from_json(response, "response")
     for bi in range(len(c)):
         cx, cy, r = c[bi, 0], c[bi, 1], radii[bi]
         if not (np.isfinite(cx) and np.isfinite(cy) and np.isfinite(r) and r >= 3):
@@ -492,6 +510,16 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         lclose = cv2.morphologyEx(np.where(disc, luma, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
         dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32)
         lit = disc & (vclose >= max(lit_fraction * top, min_value))
+        # The local white as a shaded sphere (fitted to the leather the closing finds) where that
+        # model holds: a closing fills a marker from its brighter side on a shaded ball, which
+        # pulls every centroid down the shading (0.1-0.3 px with 1.5 px of blur, "Blur" in
+        # docs/spin.md); the model has no such pull.
+        model = _fit_shading(luma, X, Y, cx, cy, r, lit & (dark_luma < 0.1), resp) if shading_model else None
+        if model is not None:
+            white = (resp.encode(_shading_at(model, X, Y)) / 255.0).astype(np.float32)
+            dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(white, 1e-6), 0, 1), 0).astype(np.float32)
+            if blur_px is not None and blur_px > 0:
+                shading[bi] = model
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
         inner = cv2.erode(disc.astype(np.uint8), _BOX3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         ratio = val / np.maximum(vclose, 1e-6)
@@ -569,6 +597,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
                                      disc, inner, limb_fraction, min_aspect))
     rows = [rw for rw in rows if rw is not None]
+    if shading:
+        for rw in rows:
+            model = shading.get(rw[6])
+            if model is not None:
+                np.add(rw[0], shading_blur_shift(model, rw[0], float(blur_px)), out=rw[0])
     if reject_foreshortened:
         rows = [rw for rw in rows if not rw[7] & MarkerFlag.FORESHORTENED]
     if not rows:
@@ -645,3 +678,63 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
             flags |= MarkerFlag.SHAPE_MISMATCH
     conf = col * shape_conf * min(1.0, aspect / 0.6)
     return cen, t.name, shape, area, conf, aspect, bi, flags
+
+
+def _fit_shading(luma, X, Y, cx, cy, r, sel, response):
+    """The ball's shading in linear light as a Lambertian sphere with ambient light:
+    ``S = a n_x + b n_y + c n_z + d`` (``n`` the sphere's normal at each pixel, (x, y) from the
+    image, ``n_z`` toward the camera), least squares over the leather pixels ``sel``. Exact for a
+    matte sphere lit by one distant light (and any ambient) wherever it is lit; near the
+    terminator the clipping at 0 departs from it. Returns ``(a, b, c, d, cx, cy, r)`` or None
+    when too few pixels are lit."""
+    if np.count_nonzero(sel) < 12:
+        return None
+    lin = response.linearize(np.clip(luma[sel] * 255.0, 0, 255)).astype(float)
+    nx = (np.broadcast_to(X, sel.shape)[sel] - cx) / r
+    ny = (np.broadcast_to(Y, sel.shape)[sel] - cy) / r
+    nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
+    A = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
+    coef, *_ = np.linalg.lstsq(A, lin, rcond=None)
+    peak = float(np.hypot(np.hypot(coef[0], coef[1]), coef[2]) + coef[3])
+    rms = float(np.sqrt(np.mean((A @ coef - lin) ** 2)))
+    if not (np.all(np.isfinite(coef)) and peak > 0 and rms <= 0.1 * peak):
+        return None  # not a matte shaded sphere (texture, clipping, several lights): no model
+    return (*coef, cx, cy, r)
+
+
+def _shading_at(model, X, Y):
+    """The shading model's linear brightness at pixels ``X`` (1, w), ``Y`` (h, 1), at least
+    1e-4 (beyond the terminator the model goes negative)."""
+    a, b, c, d, cx, cy, r = model
+    nx, ny = (X - cx) / r, (Y - cy) / r
+    nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
+    return np.maximum(a * nx + b * ny + c * nz + d, 1e-4)
+
+
+def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None = None) -> np.ndarray:
+    """The correction of a marker centroid for lens blur over the ball's shading, px (add it).
+
+    The detector weighs each pixel by its darkness *relative* to the local leather
+    brightness ``S``. Blur (Gaussian, variance ``s^2 = blur_px^2``) spreads the marker's
+    darkness before that division; dividing by the smaller ``S`` on the marker's darker side
+    then counts the spread darkness more there: to first order the centroid moves by
+    ``-s^2 grad(log S)``, down the shading, whatever the marker's shape and size (a sketch: the
+    weight at ``x`` is ``int P(x - y) D(y) S(y) dy / S(x)``, ``S(y) / S(x) ~ exp(g (y - x))``, and
+    the kernel ``P(z) exp(-g z)`` has its mean at ``-s^2 g``). On the studio's 15 px balls with
+    1.5 px of blur that is 0.15-0.2 px outward for markers face-on, about 1 deg of direction.
+    This returns ``+s^2 grad(log S)`` at ``center`` from the shading model
+    (:func:`_fit_shading`), at most ``max_shift_px`` (default ``blur_px``) long, and zero where the
+    model's shading is under 10 % of its brightest (near the terminator, where it is unreliable).
+    """
+    a, b, c, d, cx, cy, r = model
+    nx, ny = (center[0] - cx) / r, (center[1] - cy) / r
+    nz = np.sqrt(max(1.0 - nx * nx - ny * ny, 1e-4))
+    S = a * nx + b * ny + c * nz + d
+    peak = np.sqrt(a * a + b * b + c * c) + d
+    if not (np.isfinite(S) and peak > 0 and S > 0.1 * peak):
+        return np.zeros(2)
+    grad = np.array([a - c * nx / nz, b - c * ny / nz]) / r
+    shift = blur_px * blur_px * grad / S
+    cap = blur_px if max_shift_px is None else float(max_shift_px)
+    n = float(np.hypot(*shift))
+    return shift * (cap / n) if n > cap else shift

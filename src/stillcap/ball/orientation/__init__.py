@@ -48,10 +48,12 @@ Where things are (private modules, the names below are the public face):
 
 from stillcap.ball.orientation._flash import FlashOrientation, orient_flash
 from stillcap.ball.orientation._global import fit_spin
-from stillcap.ball.orientation._observations import MarkerObservations, rays_to_directions, strobe_period
+from stillcap.ball.orientation._observations import (MarkerObservations, direction_information, rays_to_directions,
+                                                  strobe_period)
 from stillcap.ball.orientation._result import RPM_PER_RAD_S, SpinResult
 from stillcap.ball.orientation._seed import fit_spin_seed
 from stillcap.ball.orientation._simulate import simulate_observations
 
-__all__ = ["RPM_PER_RAD_S", "FlashOrientation", "MarkerObservations", "SpinResult", "fit_spin", "fit_spin_seed",
+__all__ = ["RPM_PER_RAD_S", "FlashOrientation", "MarkerObservations", "SpinResult", "direction_information", "fit_spin",
+           "fit_spin_seed",
            "orient_flash", "rays_to_directions", "simulate_observations", "strobe_period"]

@@ -35,6 +35,65 @@ class _GlobalProblem:
         self.layout = layout
         self.flash = obs.flash
         self._same = layout.types[None, :] == obs.types[:, None]  # (M, 12): markers of each one's type
+        # per-observation weights: each residual pair (r1, r2) multiplied by W = L^T, L L^T the
+        # observation's information in the (t1, t2) basis, scaled so that the median observation's
+        # is about 1 (residuals stay in radians there; info_scale, px^2/rad^2, turns the fitted
+        # residual scale into the centroid noise in pixels)
+        self.W, self.info_scale = None, float("nan")
+        if obs.information is not None and len(obs):
+            B = np.stack([self.t1, self.t2], axis=2)  # (M, 3, 2)
+            M2 = np.swapaxes(B, 1, 2) @ obs.information @ B
+            M2 = 0.5 * (M2 + np.swapaxes(M2, 1, 2))
+            scale = float(np.median(np.trace(M2, axis1=1, axis2=2) / 2.0))
+            if np.isfinite(scale) and scale > 0:
+                M2 = M2 / scale + 1e-9 * np.eye(2)
+                self.W = np.swapaxes(np.linalg.cholesky(M2), 1, 2)  # upper: W[:, 1, 0] = 0
+                self.info_scale = scale
+        self.W_base = self.W
+        self.noise_class = obs.noise_class
+        self.class_scale = {}
+
+    def estimate_class_noise(self, x, R0_ref, j, sel, min_obs: int = 4):
+        """Each noise class's residual scale relative to class 0 (or to all observations when
+        class 0 has fewer than ``min_obs``): the weights of class ``c`` are divided by its
+        ``scale_c`` so that every class's weighted residuals have the same variance. A class with
+        fewer than ``min_obs`` observations keeps scale 1. Returns ``{class: scale}``."""
+        if self.W_base is None:
+            return {}
+        self.W = self.W_base
+        cls = self.noise_class[sel]
+        kinds = np.unique(cls)
+        if len(kinds) < 2:
+            self.class_scale = {}
+            return {}
+        e2 = self.observation_norms(x, R0_ref, j, sel) ** 2
+        pooled = float(np.mean(e2))
+        ref = float(np.mean(e2[cls == 0])) if np.count_nonzero(cls == 0) >= min_obs else pooled
+        if not ref > 0:
+            return {}
+        scales = {}
+        for c in kinds:
+            n_c = int(np.count_nonzero(cls == c))
+            scales[int(c)] = float(np.sqrt(np.mean(e2[cls == c]) / ref)) if n_c >= min_obs else 1.0
+        f = np.array([1.0 / max(scales.get(int(c), 1.0), 1e-6) for c in self.noise_class])
+        self.W = self.W_base * f[:, None, None]
+        self.class_scale = scales
+        return scales
+
+    def _whiten(self, a1, a2, sel):
+        """``W (a1, a2)`` per observation ``sel`` (rows of residuals or of the Jacobian)."""
+        if self.W is None:
+            return a1, a2
+        W = self.W[sel]
+        if a1.ndim == 2:
+            return (W[:, 0, 0, None] * a1 + W[:, 0, 1, None] * a2, W[:, 1, 1, None] * a2)
+        return W[:, 0, 0] * a1 + W[:, 0, 1] * a2, W[:, 1, 1] * a2
+
+    def observation_norms(self, x, R0_ref, j, sel):
+        """Length of each observation's (weighted) residual pair, shape (m,)."""
+        r = self.residuals(x, R0_ref, j, sel)
+        m = len(r) // 2
+        return np.hypot(r[:m], r[m:])
 
     def rotations(self, R0, w):
         """ball2world per flash, (K, 3, 3)."""
@@ -91,7 +150,7 @@ class _GlobalProblem:
         _, t1, t2, _ = self._subset(sel)
         r1 = g * np.einsum("ma,ma->m", t1, p)
         r2 = g * np.einsum("ma,ma->m", t2, p)
-        return np.concatenate([r1, r2])
+        return np.concatenate(self._whiten(r1, r2, sel))
 
     def jacobian(self, x, R0_ref, j, sel):
         """Analytic Jacobian of :meth:`residuals`, shape (2 m, 6)."""
@@ -113,6 +172,9 @@ class _GlobalProblem:
         J = np.empty((len(q), 6))
         J[:, :3] = -np.einsum("ma,mab->mb", y, np.concatenate([A, A])) @ Jl[0]
         J[:, 3:] = -np.einsum("ma,mab->mb", y, Jl[1:][fl2]) * self.dt[fl2][:, None]
+        if self.W is not None:
+            m = len(J) // 2
+            J = np.concatenate(self._whiten(J[:m], J[m:], sel))
         return J
 
 
@@ -181,6 +243,39 @@ def _time_offset_cov(prob, x, R0, j, sel, bread, J, time_groups, time_group_sigm
             out += sg ** 2 * np.outer(dx, dx)
     finally:
         prob.dt = dt0
+    return out
+
+
+def _center_shift_cov(prob, x, R0, j, sel, bread, J, modes):
+    """Covariance of (delta, w) from ball-centre errors shared by all flashes: for each
+    ``(mask, C)`` in ``modes`` (``C`` the 3x3 covariance of a centre offset common to the masked
+    observations, in ball radii, world frame) and each eigen-direction ``e`` of ``C``, the
+    directions from the moved centre (``u - h (e - (e.u) u)``, central differences) give
+    ``dx = -(J^T J)^-1 J^T dr/dh`` and ``cov += lambda dx dx^T``. The cluster-robust sandwich sees
+    a centre error that changes from flash to flash; one common to the flashes (a bias of the
+    centre refinement) it cannot."""
+    from stillcap.ball.orientation._observations import MarkerObservations
+
+    out = np.zeros((J.shape[1], J.shape[1]))
+    obs, u = prob.obs, prob.u
+    f = None if prob.W is None else prob.W[:, 0, 0] / prob.W_base[:, 0, 0]  # the noise classes' weights
+    h = 1e-4
+    for mask, C in modes:
+        m = np.ones(len(u), bool) if mask is None else np.asarray(mask, bool)
+        lam, V = np.linalg.eigh(0.5 * (np.asarray(C, float) + np.asarray(C, float).T))
+        for lk, e in zip(lam, V.T):
+            if not lk > 0:
+                continue
+            rs = []
+            for sgn in (1.0, -1.0):
+                d = u - sgn * h * (e[None, :] - (u @ e)[:, None] * u) * m[:, None]
+                p2 = _GlobalProblem(prob.dt, MarkerObservations(obs.flash, obs.types, d, obs.from_ray, obs.information,
+                                                                obs.noise_class), prob.layout, 0.0)
+                if f is not None and p2.W is not None:
+                    p2.W = p2.W_base * f[:, None, None]
+                rs.append(p2.residuals(x, R0, j, sel))
+            dx = -bread @ (J.T @ ((rs[0] - rs[1]) / (2.0 * h)))
+            out += lk * np.outer(dx, dx)
     return out
 
 
@@ -394,7 +489,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
              init: str = "auto", loss: str = "soft_l1", f_scale_deg: float = 3.0,
              outlier_deg: float | None = None, cap_deg: float = 8.0, max_outer: int = 10,
              grid_step_deg: float = 15.0, time_groups=None, time_group_sigma=None,
-             stop_fraction: float | None = None) -> SpinResult:
+             stop_fraction: float | None = None, center_shift_cov=None) -> SpinResult:
     """Fit one constant spin to all flashes' markers (robust least squares, SPEC "beyond").
 
     Model: ``R(t) = exp([w] (t - t0)) R0`` (``ball2world``); residuals: the angle (as a 2-D
@@ -459,6 +554,10 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         offset ``g``).
     time_group_sigma : array_like, shape (G,), optional
         1-sigma of the offset of groups 1..G, s (added to the spin covariance).
+    center_shift_cov : sequence of (mask, ndarray (3, 3)), optional
+        Ball-centre errors common to all flashes: per entry, the covariance (ball radii^2, world
+        frame) of an offset shared by the observations ``mask`` (bool (M,), or None for all),
+        propagated into the spin's covariance (:func:`_center_shift_cov`).
     stop_fraction : float, optional
         Skip the other starts when the first one, after fitting, has this fraction of the
         observations within ``cap_deg`` of their markers (the pitch pipeline uses 0.9: on the
@@ -524,7 +623,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
                       as_array(spin_init, (3,), "spin_init"))])
         if np.mean(first[4] < cap) >= 0.9:
             return _finish_global(prob, obs, times, first, spin_init, period, t0, f, cap, outlier_deg,
-                                  max_outer, x_scale, time_groups, time_group_sigma, t_start)
+                                  max_outer, x_scale, time_groups, time_group_sigma, t_start, center_shift_cov)
 
     flash_fit = {}
     for k in np.flatnonzero(counts >= 2):
@@ -562,11 +661,11 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         return _failed("global", times, obs, "no flash with 2 identifiable markers: cannot start "
                        "the fit (pass spin_init and ball2world_init)", t_start, f)
     return _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlier_deg, max_outer,
-                          x_scale, time_groups, time_group_sigma, t_start)
+                          x_scale, time_groups, time_group_sigma, t_start, center_shift_cov)
 
 
 def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlier_deg, max_outer, x_scale,
-                   time_groups, time_group_sigma, t_start) -> SpinResult:
+                   time_groups, time_group_sigma, t_start, center_shift_cov=None) -> SpinResult:
     """:func:`fit_spin` after the robust stage: outliers, least-squares polish, covariance."""
     _, R0, w, j, d = best
     assigned = (j, d)  # at (R0, w)
@@ -576,16 +675,25 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         assigned = None
 
     # outliers, then a plain least-squares polish on the inliers for the covariance
-    r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, np.ones(len(obs), bool))
+    every = np.ones(len(obs), bool)
+    r = prob.residuals(np.concatenate([np.zeros(3), w]), R0, j, every)
     sigma_robust = float(np.median(np.abs(r)) / 0.6745)
     thr = np.radians(outlier_deg) if outlier_deg is not None else max(4.0 * sigma_robust, np.radians(1.0))
-    inl = d < thr
+    # weighted observations: the outlier test on the weighted residual (a marker near the limb
+    # may lie further off in angle than one face-on, as its weight says)
+    inl = (d if prob.W is None else prob.observation_norms(np.concatenate([np.zeros(3), w]), R0, j, every)) < thr
     message = "ok"
     if inl.sum() < 4:
         inl = d <= np.sort(d)[min(3, len(d) - 1)]
         message = "few inliers"
     R0, w, j, d, res = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
                                      max_outer=max_outer, sel=inl, assigned=assigned)
+    # each noise class's own scale (markers cut by the limb are noisier than whole ones), then
+    # the polish again with those weights
+    if prob.estimate_class_noise(np.concatenate([np.zeros(3), w]), R0, j, inl):
+        R0, w, j, d, res2 = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
+                                          max_outer=max_outer, sel=inl)
+        res = res if res2 is None else res2
     x = np.concatenate([np.zeros(3), w])
     r = prob.residuals(x, R0, j, inl)
     J = prob.jacobian(x, R0, j, inl)
@@ -596,8 +704,18 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
     cov = _cluster_robust(cov, bread, J, r, prob.flash[inl])
     if time_groups is not None and time_group_sigma is not None:
         cov = cov + _time_offset_cov(prob, x, R0, j, inl, bread, J, time_groups, time_group_sigma)
+    if center_shift_cov:
+        cov = cov + _center_shift_cov(prob, x, R0, j, inl, bread, J, center_shift_cov)
     cov_w = cov[3:, 3:]
     rate, axis, sig_r, sig_a = _spin_summary(w, cov_w)
+    if prob.W is None:
+        rms_deg = float(np.degrees(np.sqrt(np.mean(d[inl] ** 2))))
+    else:
+        # weighted: the RMS of the weighted residuals (before the noise classes' scales) in the
+        # angle of the median observation's weight: a marker near the limb, whose direction its
+        # centroid fixes poorly toward the line of sight, counts as the precision it has there
+        prob.W = prob.W_base
+        rms_deg = float(np.degrees(np.sqrt(np.mean(prob.observation_norms(x, R0, j, inl) ** 2))))
     success = bool(res is None or res.status > 0) and int(inl.sum()) >= 4 and np.all(np.isfinite(w))
     if len(r) - 6 < 2:
         message = "as many parameters as residuals: no uncertainty"
@@ -606,6 +724,8 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         spin=w, spin_rpm=rate, axis=axis, sigma_rpm=sig_r, sigma_axis_deg=sig_a,
         spin_covariance=cov_w, ball2world_t0=R0, t0=t0, times=times, strobe_hz=f,
         orientations=prob.rotations(R0, w), residuals_deg=np.degrees(d), assigned=j, inliers=inl,
-        rms_deg=float(np.degrees(np.sqrt(np.mean(d[inl] ** 2)))), n_observations=len(obs),
+        rms_deg=rms_deg, n_observations=len(obs),
         n_inliers=int(inl.sum()), success=success, message=message, method="global",
-        fit_time_s=_time.perf_counter() - t_start)
+        fit_time_s=_time.perf_counter() - t_start,
+        noise_px=float(np.sqrt(s2 * prob.info_scale)) if prob.W is not None else float("nan"),
+        dof=int(len(r) - 6))

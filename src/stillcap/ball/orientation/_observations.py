@@ -24,6 +24,51 @@ def _unit_rows(a, name):
     return a / n[:, None]
 
 
+def direction_information(directions, view_directions, radius_px, min_cos: float = 0.1, radial=None):
+    """How precisely a marker centroid seen in one photo fixes its direction from the ball centre.
+
+    A centroid moved by ``e`` pixels moves the direction by ``e / r_px`` rad across the line of
+    sight (around it) and by ``e / (r_px cos theta)`` rad toward or away from it (``theta`` the
+    angle between the marker and the line of sight, ``r_px`` the ball's image radius): the sphere
+    is foreshortened there. With isotropic centroid noise ``s`` (pixels) the direction's
+    covariance is ``s^2`` times the inverse of ``r_px^2 (P_around + cos^2 theta P_toward)``,
+    which is returned (``P`` the projectors on those two tangent directions). ``cos theta`` is
+    kept above ``min_cos`` (a ray grazing the limb meets the sphere at its closest approach).
+
+    Parameters
+    ----------
+    directions : array_like, shape (M, 3)
+        Unit marker directions from the ball centre.
+    view_directions : array_like, shape (M, 3)
+        Unit vectors from the ball centre to the camera.
+    radius_px : array_like, shape (M,) or scalar
+        The ball's image radius in that camera, px.
+    radial : array_like of bool, shape (M,), optional
+        False where the centroid's position toward the ball's image centre is not measured (a
+        marker cut by the limb): only the direction around the line of sight is informed.
+
+    Returns
+    -------
+    ndarray, shape (M, 3, 3)
+        Information in each direction's tangent plane, px^2 per rad^2 (``cov = s^2 pinv(I)``
+        with ``s`` in pixels).
+    """
+    u = as_array(directions, (None, 3), "directions")
+    v = as_array(view_directions, (len(u), 3), "view_directions")
+    r = np.broadcast_to(np.asarray(radius_px, float), (len(u),))
+    c = np.einsum("ma,ma->m", u, v)
+    toward = v - c[:, None] * u  # the line of sight's direction in the tangent plane
+    n = np.linalg.norm(toward, axis=1)
+    face_on = n < 1e-9
+    toward = np.where(face_on[:, None], 0.0, toward / np.where(face_on, 1.0, n)[:, None])
+    tangent = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
+    P_toward = toward[:, :, None] * toward[:, None, :]
+    cos2 = np.clip(c, min_cos, 1.0) ** 2
+    if radial is not None:
+        cos2 = np.where(np.broadcast_to(np.asarray(radial, bool), (len(u),)), cos2, 0.0)
+    return (r * r)[:, None, None] * (tangent - (1.0 - cos2)[:, None, None] * P_toward)
+
+
 def rays_to_directions(ray_origins, ray_directions, ball_centers, radius: float = BASEBALL_RADIUS):
     """Where pixel rays meet the ball sphere, as directions from the ball centre.
 
@@ -80,12 +125,25 @@ class MarkerObservations:
         Unit vectors from the ball centre to the marker, world frame.
     from_ray : ndarray of bool, shape (M,)
         True for observations converted from a single camera's pixel ray.
+    information : ndarray, shape (M, 3, 3), optional
+        How precisely each direction is known, relative to the others: the inverse of its
+        covariance in its tangent plane up to one common factor, ``cov_m = s^2 pinv(I_m)``, with
+        ``s`` the marker-centroid noise in pixels that the spin fit estimates from its residuals
+        (:func:`direction_information`: a marker seen face-on in a large ball image is known
+        better than one near the limb of a small one). None: every direction equally well, in
+        every direction (the fits then weigh all residuals alike).
+    noise_class : ndarray of int, shape (M,), optional
+        Observations of one class share a centroid noise, which the global fit estimates per
+        class from its residuals (with ``information``): e.g. 0 for markers seen whole, 1 for
+        markers cut by the limb. Default all 0.
     """
 
     flash: np.ndarray
     types: np.ndarray
     directions: np.ndarray
     from_ray: np.ndarray = None
+    information: np.ndarray = None
+    noise_class: np.ndarray = None
 
     def __post_init__(self):
         self.flash = np.asarray(self.flash)
@@ -105,6 +163,13 @@ class MarkerObservations:
         self.directions = _unit_rows(d, "directions") if m else d.reshape(0, 3)
         self.from_ray = (np.zeros(m, bool) if self.from_ray is None
                          else as_array(self.from_ray, (m,), "from_ray", dtype=bool))
+        if self.information is not None:
+            info = as_array(self.information, (m, 3, 3), "information")
+            if not np.all(np.isfinite(info)):
+                raise ValueError("information must be finite")
+            self.information = info
+        self.noise_class = (np.zeros(m, int) if self.noise_class is None
+                            else as_array(self.noise_class, (m,), "noise_class").astype(int))
 
     def __len__(self) -> int:
         return len(self.flash)
@@ -178,13 +243,24 @@ class MarkerObservations:
 
     @classmethod
     def concatenate(cls, parts):
-        """Join several observation sets (e.g. stereo directions and single-camera rays)."""
+        """Join several observation sets (e.g. stereo directions and single-camera rays). The
+        result has ``information`` only when every part has it (the parts' weights are on one
+        scale only then)."""
         parts = list(parts)
         if not parts:
             return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
+        info = None
+        if all(p.information is not None for p in parts):
+            info = np.concatenate([p.information for p in parts]).reshape(-1, 3, 3)
         return cls(np.concatenate([p.flash for p in parts]), np.concatenate([p.types for p in parts]),
                    np.concatenate([p.directions for p in parts]),
-                   np.concatenate([p.from_ray for p in parts]))
+                   np.concatenate([p.from_ray for p in parts]), info,
+                   np.concatenate([p.noise_class for p in parts]))
+
+    def with_flash(self, flash):
+        """The same observations with other flash indices (e.g. on a joint clock)."""
+        return MarkerObservations(np.asarray(flash), self.types, self.directions, self.from_ray, self.information,
+                                  self.noise_class)
 
     def of_flash(self, k: int):
         """``(directions (n, 3), types (n,))`` of flash ``k``."""

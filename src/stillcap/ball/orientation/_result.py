@@ -53,13 +53,22 @@ class SpinResult:
     inliers : ndarray of bool, shape (M,)
         Observations used by the final fit.
     rms_deg : float
-        RMS residual angle of the inliers.
+        RMS residual angle of the inliers; with weighted observations
+        (``MarkerObservations.information``) the RMS of the weighted residuals in the angle of
+        the median observation's weight (a marker near the limb counts with the precision its
+        centroid has there).
     n_observations, n_inliers : int
     success : bool
     message : str
     method : str
         ``"global"`` or ``"seed"``.
     fit_time_s : float
+    noise_px : float
+        The marker-centroid noise the global fit's residuals show, px (1-sigma per image
+        coordinate), when the observations carry ``information``; NaN otherwise. The spin's
+        covariance is scaled by it.
+    dof : int
+        Residuals minus parameters of the final fit (0 when unknown).
     """
 
     spin: np.ndarray
@@ -83,6 +92,8 @@ class SpinResult:
     message: str
     method: str
     fit_time_s: float = 0.0
+    noise_px: float = float("nan")
+    dof: int = 0
 
     @property
     def rotation_per_interval_deg(self) -> float:
@@ -111,6 +122,7 @@ class SpinResult:
                 "sigma_axis_deg": f(self.sigma_axis_deg), "strobe_hz": f(self.strobe_hz),
                 "rms_deg": f(self.rms_deg), "n_observations": int(self.n_observations),
                 "n_inliers": int(self.n_inliers), "success": bool(self.success),
+                "marker_noise_px": f(self.noise_px),
                 "message": self.message, "method": self.method}
 
 

@@ -14,7 +14,7 @@ from stillcap.io.capture import Capture, capture_ball, stereo_pairs
 from stillcap.pipelines._response import apply_response, pitch_auto_estimates, pitch_response_checks
 from stillcap.pipelines.pitch.options import PitchOptions
 from stillcap.pipelines.pitch.result import PitchResult
-from stillcap.pipelines.pitch.spin import ball_layout_check, flight_spin_stage
+from stillcap.pipelines.pitch.spin import ball_layout_check, flight_spin_stage, spin_noise_check
 from stillcap.pipelines.pitch.stages import (StageLog, check_and_inflate, find_balls, fit_flight, markers_and_spin,
                                              metrics_and_uncertainty, number_flashes, refit_with_spin,
                                              start_markers_and_spin)
@@ -113,7 +113,7 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     checks, fit = check_and_inflate(cap, pairs, flight, spin, fit, flight_spin, spin_cmp, model, options, log)
     out = metrics_and_uncertainty(cap, pairs, flight, spin, fit, model, options, log)
     messages.extend(spin_messages)
-    checks += [c for c in (ball_layout_check(spin.spin, layout),) if c is not None]
+    checks += [c for c in (ball_layout_check(spin.spin, layout), spin_noise_check(spin.spin)) if c is not None]
 
     timings["total"] = _time.perf_counter() - t_all
     log.step(log.total, "done")

@@ -29,7 +29,8 @@ from stillcap.ball.physics import FlightModel
 from stillcap.ball.spin_from_flight import FlightSpin, SpinComparison, compare_spins, transverse_spin_from_fit
 from stillcap.pipelines.pitch.result import PairResult
 
-__all__ = ["pair_markers_and_spin", "spin_stage", "flight_spin_stage"]
+__all__ = ["pair_markers_and_spin", "spin_stage", "flight_spin_stage", "ball_layout_check", "spin_noise_check",
+           "MARKER_NOISE_PX"]
 
 
 def pair_markers_and_spin(cams, imgs, pair: PairResult, types, layout, radius_m: float, max_px: float,
@@ -47,7 +48,8 @@ def pair_markers_and_spin(cams, imgs, pair: PairResult, types, layout, radius_m:
     t_job = _time.perf_counter()
     out = pair_marker_observations(
         cams[0], imgs[0], cams[1], imgs[1], pair.centers_px[0], pair.centers_px[1], pair.radius_px[0],
-        pair.radius_px[1], pair.positions, types, layout, radius_m, max_px)
+        pair.radius_px[1], pair.positions, types, layout, radius_m, max_px,
+        blur_px=None if pair.stereo is None else pair.stereo.psf_px)
     t_mk = _time.perf_counter() - t_job
     try:
         spin = _fit_pair_spin(pair, spin_method, layout, observations=out[0])
@@ -138,7 +140,7 @@ def _combined_spin(pairs: list, spin_init, layout, messages) -> SpinResult | Non
     obs_parts, start = [], 0
     for p in parts:
         o = p.observations
-        obs_parts.append(MarkerObservations(rank[start + o.flash], o.types, o.directions, o.from_ray))
+        obs_parts.append(o.with_flash(rank[start + o.flash]))
         start += len(p)
     obs = MarkerObservations.concatenate(obs_parts)
     ref = parts[0]
@@ -244,3 +246,41 @@ def ball_layout_check(spin: SpinResult | None, layout) -> SelfCheck | None:
         msg += (f"; more than {LAYOUT_RMS_LIMIT_DEG:g} deg: the painted markers do not match the ball's layout - "
                 "give the ball file of the ball photographed (--ball, capture.json ball); the spin is unreliable")
     return SelfCheck("ball_layout", ok, rms, LAYOUT_RMS_LIMIT_DEG, msg, layout.name, "deg")
+
+
+#: The centroid noise, px (1-sigma per image coordinate), of markers seen whole that the
+#: ``spin_noise`` self-check states. Measured (``benchmarks/bench_spin_conditions.py``, the
+#: robustness benchmark's photos at 1280x960, 15 px ball radius): 0.08-0.13 px on clean photos,
+#: 0.28-0.45 px with 1.5 px of lens blur, up to 0.56 px with every condition varied at once, and
+#: 3.5 px where the markers matched no rotation of the layout (a wrong alias with a wrong ball
+#: file). A user whose photos are blurrier or whose markers are smaller states their own.
+MARKER_NOISE_PX = 0.7
+
+
+def spin_noise_check(spin: SpinResult | None, stated_px: float = MARKER_NOISE_PX,
+                     p_false: float = 1e-3) -> SelfCheck | None:
+    """Self-check ``spin_noise``: do the spin fit's residuals exceed the stated marker noise?
+
+    The global fit weighs every marker observation by how precisely its centroid fixes its
+    direction (:func:`stillcap.ball.orientation.direction_information`) and estimates the
+    centroid noise in pixels from its residuals (``SpinResult.noise_px``: markers seen whole;
+    the spin's intervals are scaled by it, so they grow with the misfit). The check fails when
+    that noise is larger than ``stated_px`` beyond chance: ``dof s^2 / stated^2`` above the
+    chi-square quantile ``1 - p_false`` with the fit's degrees of freedom. A failure means the
+    markers do not follow one constant spin as well as markers are found: misidentified markers,
+    wrong ball centres, a wrong layout or a ball that is not a rigid constant spinner; or photos
+    whose markers are blurrier than stated. None when the fit has no pixel noise (no weights)."""
+    if spin is None or not spin.success or not np.isfinite(getattr(spin, "noise_px", np.nan)):
+        return None
+    from scipy.stats import chi2
+
+    dof = max(int(spin.dof), 1)
+    stat = dof * (spin.noise_px / stated_px) ** 2
+    limit = float(chi2.ppf(1.0 - p_false, dof))
+    ok = bool(stat <= limit)
+    msg = (f"the markers lie {spin.noise_px:.2f} px (1-sigma) from the fitted constant spin, against "
+           f"{stated_px:g} px stated (chi-square {stat:.0f} for {dof} degrees of freedom, limit {limit:.0f})")
+    if not ok:
+        msg += (": the markers do not follow one spin - misidentified markers, wrong ball centres or a wrong "
+                "ball layout; the spin's intervals have been widened by the misfit, but the spin may be wrong")
+    return SelfCheck("spin_noise", ok, float(spin.noise_px), float(stated_px), msg, "", "px")
