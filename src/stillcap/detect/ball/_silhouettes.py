@@ -237,10 +237,13 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         (Default off.) Also find the thin, dim crescents that the threshold and the opening
         remove (:func:`stillcap.detect.ball._arcs.faint_mask`,
         :func:`~stillcap.detect.ball._arcs.thin_arcs`; with ``crescents``): flagged
-        ``CRESCENT | PARTIAL``. Off by default: their refined centres are ~1 px off towards the
-        light (the shading correction does not model so thin a rim) and the flight fit does not
-        yet weigh them by their ``center_sigma_px``; with them the pitch pipeline's positions
-        and direction got worse (measured on bench_robustness's "light to the side" captures).
+        ``CRESCENT | PARTIAL``. Off by default: their refined centres sit ~0.4 px toward the
+        light (``bench_ball_detect.py --only-missed``; their ``center_sigma_px`` covers it) and
+        the pitch pipeline weighs each by it, but with the search on (``bench_robustness.py
+        --quick --only pitch``, 6 captures per condition) 111 more ball images were used while
+        "light to the side" (spin rate 2.95 -> 3.16 rpm, axis 1.16 -> 1.27 deg) and "sensor
+        noise x3" (spin rate 1.54 -> 5.16 rpm) got worse: the spin, not the flight, suffers
+        (``docs/ball-detection.md``).
     edges : bool
         Fit the balls cut by the photo's border to their in-frame limb
         (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
@@ -304,15 +307,19 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         # from its outer limb (not a cut ball that its in-frame limb did not fix: less than
         # half a disc is no crescent). The silhouette's own ellipse stays (ellipse_centers,
         # ellipses, radii_px); the fit goes to ``centers`` (what stereo matching starts from
-        # for EDGE balls). A crescent's sigma is for a known-radius centre (the stereo step
-        # refines it); a cut ball's for a free radius (the stereo step refits its in-frame limb
-        # with the projected outline's shape, scale free: ball_centers_stereo)
+        # for EDGE balls). Both sigmas take a limb offset as a known-radius centre does
+        # (arc_center_sigma's systematic part): a crescent is refined with the known radius; a
+        # cut ball's in-frame limb is refitted with its scale free (ball_centers_stereo), which
+        # absorbs a common offset, but not one that varies along the one-sided arc (the lit
+        # side's limb farther out than the shaded side's, a marker's notch). With the random part
+        # only, the studio pitches' clean direction got worse with the cut balls in
+        # (0.008 -> 0.011 deg, bench_robustness --quick)
         arc = None
         if flag & BallFlag.TOUCHES_BORDER:
             fit = edge_circle(c, (W, H)) if edges else None
             if fit is not None:
                 flag |= BallFlag.EDGE
-                arc = (fit, False, False)
+                arc = (fit, True, False)
         elif flag & BallFlag.PARTIAL and crescents:
             fit = crescent_circle(c, area, image_size=(W, H))
             if fit is not None:
