@@ -157,3 +157,26 @@ def test_edge_view_is_refitted_with_the_outline_shape():
     assert out.flags[0] == 0 and np.all(out.shading_px[0] == 0)
     assert np.allclose(out.centers[1], c[1]) and out.flags[1] == 0 and np.all(out.shading_px[1] == 1)
     assert np.allclose(out.shifts, out.centers - det.ellipse_centers)
+
+
+def test_view_sigma_is_the_arcs_for_edge_views_and_faint_crescents_only():
+    """Crescent silhouettes (refined and shading-corrected on their lit limb) keep the pair's
+    sigma (NaN here); cut balls and faint crescents (no silhouette) carry their arc sigma."""
+    from stillcap.ball.stereo import StereoBalls, view_center_sigma_px
+    from stillcap.detect.ball import BallDetections
+
+    def det(flags, contour):
+        n = len(flags)
+        return BallDetections(centers=np.zeros((n, 2)), ellipse_centers=np.zeros((n, 2)), radii_px=np.ones(n),
+                              ellipses=np.zeros((n, 5)), areas=np.ones(n), hull_areas=np.ones(n),
+                              scores=np.ones(n), flags=np.array(flags), contour_index=np.array(contour),
+                              center_sigma_px=np.array([0.4, 0.5, 0.6, 0.7][:n]))
+
+    cres = int(BallFlag.CRESCENT | BallFlag.PARTIAL)
+    a = det([0, cres, cres, int(BallFlag.EDGE | BallFlag.TOUCHES_BORDER)], [0, 1, -1, 2])
+    b = det([0, 0, 0, 0], [0, 1, 2, 3])
+    z = np.zeros((4, 2))
+    st = StereoBalls(np.zeros((4, 3)), np.zeros((4, 3)), z, z, z, z, z, np.stack([np.arange(4)] * 2, 1),
+                     np.zeros(4), np.zeros(4), a.flags, a, b)
+    sig = view_center_sigma_px(st)
+    assert np.isnan(sig[:2, 0]).all() and list(sig[2:, 0]) == [0.6, 0.7] and np.isnan(sig[:, 1]).all()

@@ -202,11 +202,11 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0,
                                     shading=sh, response=cam_a.response,
                                     psf_px=_psf_of(psf, 0),
-                                    crescent=det_a.has(BallFlag.CRESCENT)[ia])
+                                    crescent=_faint(det_a)[ia])
         ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0,
                                     shading=sh, response=cam_b.response,
                                     psf_px=_psf_of(psf, 1),
-                                    crescent=det_b.has(BallFlag.CRESCENT)[ib])
+                                    crescent=_faint(det_b)[ib])
         # EDGE views: their in-frame limb refitted with the projected outline's shape
         ref_a = _edge_outline_fit(ref_a, det_a, ia, oa - pa[:, None])
         ref_b = _edge_outline_fit(ref_b, det_b, ib, ob - pb[:, None])
@@ -366,14 +366,26 @@ def _edge_outline_fit(ref: RefinedCenters, det: BallDetections, idx: np.ndarray,
                    shading_px=shading)
 
 
+def _faint(det: BallDetections) -> np.ndarray:
+    """Which detections are faint crescents (``CRESCENT`` found by the faint-rim search, without
+    a silhouette: ``contour_index`` -1), shape (N,) bool."""
+    return det.has(BallFlag.CRESCENT) & (det.contour_index < 0)
+
+
 def view_center_sigma_px(stereo: StereoBalls) -> np.ndarray:
     """Each match's own centre uncertainty in each view (1 sigma, px), shape (K, 2): the arc
-    fit's ``center_sigma_px`` for views whose centre rests on an arc (``CRESCENT``, ``EDGE``),
-    NaN for the others (a whole limb: its error is the pair's, from its residuals)."""
+    fit's ``center_sigma_px`` for views whose centre rests on an arc (``EDGE``; faint crescents,
+    whose thin rim's offset the refinement keeps), NaN for the others (a whole limb, or a
+    crescent silhouette refined on its lit limb: its error is the pair's, from its residuals).
+
+    Crescent silhouettes are left to the pair's sigma: refined and shading-corrected, their
+    centres were no worse than the pair's others (studio pitch, clean, 4 crescent views of 11 in
+    its back pair: weighed by their arc sigma, ~0.6 px, the direction error went from 0.008 to
+    0.011 deg; ``bench_ball_detect.py --only-missed``: their sigma is 1.5x their RMS error)."""
     out = np.full((len(stereo), 2), np.nan)
     for v, det in enumerate((stereo.detections_a, stereo.detections_b)):
         idx = stereo.pairs[:, v] if len(stereo) else np.zeros(0, int)
-        arc = det.has(BallFlag.CRESCENT | BallFlag.EDGE)[idx]
+        arc = (det.has(BallFlag.EDGE) | _faint(det))[idx]
         out[:, v] = np.where(arc, det.center_sigma_px[idx], np.nan)
     return out
 
