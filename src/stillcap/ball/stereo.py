@@ -4,6 +4,11 @@ Per photo the detector (:mod:`stillcap.detect.ball`) finds silhouettes; here the
 are matched by epipolar geometry and triangulated, the known-radius outline of each approximate
 3D centre is projected into both views, the image centres are refined against it
 (:func:`stillcap.detect.ball.refine_ball_centers`) and triangulated again.
+
+Balls cut by the photo's border (``EDGE``, issue 12) are matched from their in-frame limb's
+circle and their centre is that limb refitted with the projected outline's shape
+(:func:`_edge_outline_fit`); each view's own centre sigma, where its centre rests on an arc
+(``CRESCENT``, ``EDGE``), is :func:`view_center_sigma_px`.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from stillcap.detect.ball._shading import limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
 
-__all__ = ["StereoBalls", "ball_centers_stereo", "photo_blur_px"]
+__all__ = ["StereoBalls", "ball_centers_stereo", "photo_blur_px", "view_center_sigma_px"]
 
 #: lens blur (Gaussian sigma, px) assumed where a photo's own cannot be read from its ball images
 DEFAULT_PSF_PX = 0.5
@@ -162,14 +167,17 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
     if max_epipolar_px is None:
         rr = np.concatenate([det_a.radii_px, det_b.radii_px])
         max_epipolar_px = max(3.0, 0.5 * float(np.median(rr))) if len(rr) else 3.0
-    m = match_epipolar(cam_a, cam_b, det_a.ellipse_centers, det_b.ellipse_centers, max_px=max_epipolar_px)
+    # EDGE balls are matched (and refined) from their in-frame limb's circle: the cut shape's
+    # ellipse centre lies up to a radius inside the frame
+    start_a, start_b = _start_centers(det_a), _start_centers(det_b)
+    m = match_epipolar(cam_a, cam_b, start_a, start_b, max_px=max_epipolar_px)
     K = len(m.pairs)
     if K == 0:
         z3, z2 = np.zeros((0, 3)), np.zeros((0, 2))
         return StereoBalls(z3, z3.copy(), z2, z2.copy(), z2.copy(), z2.copy(), z2.copy(),
                            np.zeros((0, 2), int), np.zeros(0), np.zeros(0), np.zeros(0, int), det_a, det_b)
     ia, ib = m.pairs[:, 0], m.pairs[:, 1]
-    xa, xb = det_a.ellipse_centers[ia], det_b.ellipse_centers[ib]
+    xa, xb = start_a[ia], start_b[ib]
     X0 = triangulate([cam_a, cam_b], np.stack([xa, xb])).points
     X = X0
     ca, cb = xa.copy(), xb.copy()
@@ -192,9 +200,16 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         # only would move the triangulated depth)
         sh = (part if shading == "partial" else np.ones(K, bool)) if shading and it == iterations - 1 else False
         ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0,
-                                    shading=sh, response=cam_a.response, psf_px=_psf_of(psf, 0))
+                                    shading=sh, response=cam_a.response,
+                                    psf_px=_psf_of(psf, 0),
+                                    crescent=_faint(det_a)[ia])
         ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0,
-                                    shading=sh, response=cam_b.response, psf_px=_psf_of(psf, 1))
+                                    shading=sh, response=cam_b.response,
+                                    psf_px=_psf_of(psf, 1),
+                                    crescent=_faint(det_b)[ib])
+        # EDGE views: their in-frame limb refitted with the projected outline's shape
+        ref_a = _edge_outline_fit(ref_a, det_a, ia, oa - pa[:, None])
+        ref_b = _edge_outline_fit(ref_b, det_b, ib, ob - pb[:, None])
         ca, cb = ref_a.centers, ref_b.centers
         tri = triangulate([cam_a, cam_b], np.stack([ca, cb]))  # the last round's is the result
         X = tri.points
@@ -280,11 +295,99 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8) 
 
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:
-    """Semi-major axis of the detections' ellipses (split balls: their circle radius)."""
+    """Semi-major axis of the detections' ellipses (split balls: their circle radius; EDGE
+    balls: their in-frame limb's circle radius, the cut shape's ellipse is smaller)."""
     e = det.ellipses[idx]
     r = 0.5 * np.maximum(e[:, 2], e[:, 3])
     split = det.has(BallFlag.SPLIT)[idx]
-    return np.where(split, det.radii_px[idx], r)
+    r = np.where(split, det.radii_px[idx], r)
+    edge = det.has(BallFlag.EDGE)[idx] & np.isfinite(det.arc_radii_px[idx])
+    return np.where(edge, det.arc_radii_px[idx], r)
+
+
+# --------------------------------------------------------------------------------------------
+# balls cut by the frame edge (EDGE) and each view's own centre uncertainty (issue 12)
+# --------------------------------------------------------------------------------------------
+def _start_centers(det: BallDetections) -> np.ndarray:
+    """Centres that stereo matching and the first refinement start from: the ellipse centres,
+    but the in-frame limb's circle for ``EDGE`` balls."""
+    edge = det.has(BallFlag.EDGE)
+    return np.where(edge[:, None], det.centers, det.ellipse_centers) if len(det) else det.ellipse_centers
+
+
+def _edge_outline_fit(ref: RefinedCenters, det: BallDetections, idx: np.ndarray, outlines) -> RefinedCenters:
+    """``ref`` (refined centres of detections ``idx``) with every ``EDGE`` view's centre refitted
+    to its in-frame limb (``det.arc_points``) with the shape of the ball's projected outline
+    (``outlines``: (K, M, 2) offsets from the projected sphere centre, :func:`sphere_outline_px`),
+    its scale free; no longer ``REFINE_FAILED`` (the limb's own self-check passed; its
+    uncertainty is the view's ``center_sigma_px``).
+
+    Neither the detector's circle nor the known-radius refinement gives a cut ball's centre:
+    off axis the outline is an ellipse (13 % longer radially at 23 deg), which a circle fitted to
+    the in-frame side only misplaces, inward, and the refinement's known-radius template on a
+    one-sided arc moves with every offset of the blurred limb (lambertian limb darkening, the
+    blur: ``d (sum u u^T)^-1 sum u``). Here the limb points are mapped through the outline's
+    ellipse to a circle (its shape only, unit determinant), a circle with a free radius is fitted
+    there (the silhouette's limb lies ~1-2 px outside the true one all round: the radius takes
+    it), and its centre mapped back, less the outline middle's offset from the projected centre.
+    Measured on the front pair with a ball cut 0.2-0.9 radii inside the left edge, 28 deg off
+    axis (``tests/ball/test_stereo.py``): circle 1.4-3.0 px off, refined 0.07-0.9 px, this fit
+    """ + "see docs/ball-detection.md" + """.
+    """
+    edge = det.has(BallFlag.EDGE)[idx]
+    if not edge.any():
+        return ref
+    from stillcap.detect.ball._shading import _outline_affine
+    from stillcap.detect.circle_fit import fit_circle
+
+    out = np.asarray(outlines, float)
+    centers = ref.centers.copy()
+    fitted = np.zeros(len(idx), bool)
+    for k in np.flatnonzero(edge):
+        pts = det.arc_points[idx[k]]
+        off = out[k]
+        if pts is None or len(pts) < 6 or not np.all(np.isfinite(off)):
+            continue
+        mid = off.mean(axis=0)
+        A = _outline_affine(off - mid)
+        A = A / np.sqrt(max(float(np.linalg.det(A)), 1e-12))  # the shape only
+        Ai = np.linalg.inv(A)
+        q = (pts - pts.mean(axis=0)) @ Ai.T
+        qc, _, rms = fit_circle(q)
+        if not (np.all(np.isfinite(qc)) and rms <= 1.0):
+            continue
+        centers[k] = pts.mean(axis=0) + A @ qc - mid
+        fitted[k] = True
+    if not fitted.any():
+        return ref
+    flags = np.where(fitted, ref.flags & ~int(BallFlag.REFINE_FAILED), ref.flags)
+    shading = None if ref.shading_px is None else np.where(fitted[:, None], 0.0, ref.shading_px)
+    return replace(ref, centers=centers, shifts=centers - (ref.centers - ref.shifts), flags=flags,
+                   shading_px=shading)
+
+
+def _faint(det: BallDetections) -> np.ndarray:
+    """Which detections are faint crescents (``CRESCENT`` found by the faint-rim search, without
+    a silhouette: ``contour_index`` -1), shape (N,) bool."""
+    return det.has(BallFlag.CRESCENT) & (det.contour_index < 0)
+
+
+def view_center_sigma_px(stereo: StereoBalls) -> np.ndarray:
+    """Each match's own centre uncertainty in each view (1 sigma, px), shape (K, 2): the arc
+    fit's ``center_sigma_px`` for views whose centre rests on an arc (``EDGE``; faint crescents,
+    whose thin rim's offset the refinement keeps), NaN for the others (a whole limb, or a
+    crescent silhouette refined on its lit limb: its error is the pair's, from its residuals).
+
+    Crescent silhouettes are left to the pair's sigma: refined and shading-corrected, their
+    centres were no worse than the pair's others (studio pitch, clean, 4 crescent views of 11 in
+    its back pair: weighed by their arc sigma, ~0.6 px, the direction error went from 0.008 to
+    0.011 deg; ``bench_ball_detect.py --only-missed``: their sigma is 1.5x their RMS error)."""
+    out = np.full((len(stereo), 2), np.nan)
+    for v, det in enumerate((stereo.detections_a, stereo.detections_b)):
+        idx = stereo.pairs[:, v] if len(stereo) else np.zeros(0, int)
+        arc = (det.has(BallFlag.EDGE) | _faint(det))[idx]
+        out[:, v] = np.where(arc, det.center_sigma_px[idx], np.nan)
+    return out
 
 
 def _merge_refined(det: BallDetections, idx: np.ndarray, ref: RefinedCenters) -> BallDetections:

@@ -52,7 +52,8 @@ def _response_lut(response) -> np.ndarray:
 def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None, background=None,
                         response: Response | None = None, sigma: float = 0.7, power: float = 0.0, fine_step: float = 0.1,
                         min_score: float = 0.2, min_edge: float = 0.004, start_refined: bool = False,
-                        shading=False, psf_px: float = 0.5, shading_support: float = 0.7) -> RefinedCenters:
+                        shading=False, psf_px: float = 0.5, shading_support: float = 0.7,
+                        crescent=None) -> RefinedCenters:
     """Refine ball centres by a circular Hough transform of known radius (step 4).
 
     The radius is known, so the Hough space is 2D: the centre. Every candidate centre within
@@ -126,6 +127,9 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
         The correction is made where less than this share of the outline has a clear edge
         (a partly lit ball; fully lit balls, 0.77-1.0 on the studio pitches' front pair, have no
         measurable bias, 0.02 px, and the orthographic model does not hold for near ones).
+    crescent : array_like of bool, shape (N,), optional
+        Which balls are crescents (the detector's ``CRESCENT``): their shading correction reads
+        the light from a noise-robust centroid (:func:`_shading_bias`' ``thin_rim``).
 
     Returns
     -------
@@ -159,6 +163,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
         if bg.shape != img.shape:
             raise ValueError(f"background must have the image's shape {img.shape}, got {bg.shape}")
     shade = None if np.ndim(shading) == 0 else as_array(np.asarray(shading, float), (n,), "shading") > 0
+    thin = np.zeros(n, bool) if crescent is None else as_array(np.asarray(crescent, float), (n,), "crescent") > 0
     out_c = c0.copy()
     scores = np.zeros(n)
     flags = np.zeros(n, int)
@@ -242,7 +247,8 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
             flags[i] = BallFlag.REFINE_FAILED
             continue
         if shade[i] if shade is not None else (shading and support < shading_support):
-            corr[i] = _shading_bias(lin, best, off, tpl, power, np.hypot(sigma, psf_px), fine_step, smooth=sigma)
+            corr[i] = _shading_bias(lin, best, off, tpl, power, np.hypot(sigma, psf_px), fine_step, smooth=sigma,
+                                    thin_rim=bool(thin[i]))
             best = best - corr[i]
         out_c[i] = best + (xa, ya)
     return RefinedCenters(out_c, radii.copy(), scores, out_c - c0, flags, corr)

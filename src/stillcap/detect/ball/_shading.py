@@ -98,10 +98,11 @@ def _phase_from_centroid(m: float) -> float:
     return float(np.interp(m, table, alpha))
 
 
-def _lit_frame(lin: np.ndarray, center, off: np.ndarray):
+def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
     """The outline's middle, its ellipse ``A``, the outline-normalised coordinates ``q`` (2, H, W)
     of the crop's pixels and the light direction read from the ball image's radiance centroid
-    (:func:`_shading_bias`; None when the image has no radiance above its surroundings)."""
+    (:func:`_shading_bias`; None when the image has no radiance above its surroundings;
+    ``signed``: :func:`_radiance_centroid`'s)."""
     # the outline's own middle: off axis the image of the sphere centre is not the middle of
     # its (elongated) outline; the shading is modelled about the middle, orthographically
     mid = center + off.mean(axis=0)
@@ -112,7 +113,7 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray):
     xy[0] = np.arange(w) - mid[0]
     xy[1] = (np.arange(h) - mid[1])[:, None]
     q = np.einsum("ij,jhw->ihw", Ai, xy)
-    mq = _radiance_centroid(lin, q)
+    mq = _radiance_centroid(lin, q, signed)
     if mq is None:
         return mid, A, q, None
     mn = float(np.hypot(*mq))
@@ -123,7 +124,7 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray):
 
 
 def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
-                  blur: float, fine_step: float, smooth: float = 0.7) -> np.ndarray:
+                  blur: float, fine_step: float, smooth: float = 0.7, thin_rim: bool = False) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
     The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
@@ -144,8 +145,16 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     clipped, then smoothed. A flattened lit side has a hard edge and moves the Hough centre toward
     the light (studio pitch, light beside the back cameras: 0.24 px at 1280 px) which the
     unclipped model did not predict.
+
+    ``thin_rim``: a crescent (the detector's ``CRESCENT``: a ball lit from behind, a rim a few
+    pixels wide, often a few noise sigmas above the room). Its centroid is read with signed
+    weights about the ring's mean (:func:`_radiance_centroid`'s ``signed``): the noise of the
+    dark disc, rectified, pulled the centroid toward the middle and the phase read from it far
+    too low (faint crescents at 150-165 deg read as 80-100 deg; the correction then left
+    0.8-1.0 px of the ~1 px bias toward the light, 0.3-0.4 px with signed weights:
+    ``benchmarks/bench_ball_detect.py --only-missed``).
     """
-    mid, A, q, light = _lit_frame(lin, center, off)
+    mid, A, q, light = _lit_frame(lin, center, off, thin_rim)
     if light is None:
         return np.zeros(2)
     # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
@@ -244,13 +253,21 @@ def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
     return float("nan") if mq is None else float(np.hypot(*mq))
 
 
-def _radiance_centroid(img: np.ndarray, q: np.ndarray):
+def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False):
     """Centroid (outline radii, shape (2,)) of ``img``'s radiance above the level of the ring
-    beyond 1.3 radii, over the pixels within 1.15 radii; None when nothing is above it."""
+    beyond 1.3 radii, over the pixels within 1.15 radii; None when nothing is above it.
+
+    ``signed``: the level is the ring's mean and the weights are not clipped at 0, so zero-mean
+    noise (and noise clipped at black, whose mean the median misses) adds nothing on average
+    (for a faint ball whose noisy dark disc, rectified, outweighs a thin lit rim)."""
     r2 = q[0] ** 2 + q[1] ** 2
     ring = (r2 > 1.3 ** 2)
-    level = median(img[ring]) if np.any(ring) else 0.0
-    wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
+    if signed:
+        level = float(np.mean(img[ring])) if np.any(ring) else 0.0
+        wgt = np.where(r2 < 1.15 ** 2, img - level, 0.0)
+    else:
+        level = median(img[ring]) if np.any(ring) else 0.0
+        wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
         return None

@@ -237,10 +237,13 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         (Default off.) Also find the thin, dim crescents that the threshold and the opening
         remove (:func:`stillcap.detect.ball._arcs.faint_mask`,
         :func:`~stillcap.detect.ball._arcs.thin_arcs`; with ``crescents``): flagged
-        ``CRESCENT | PARTIAL``. Off by default: their refined centres are ~1 px off towards the
-        light (the shading correction does not model so thin a rim) and the flight fit does not
-        yet weigh them by their ``center_sigma_px``; with them the pitch pipeline's positions
-        and direction got worse (measured on bench_robustness's "light to the side" captures).
+        ``CRESCENT | PARTIAL``. Off by default: their refined centres sit ~0.4 px toward the
+        light (``bench_ball_detect.py --only-missed``; their ``center_sigma_px`` covers it) and
+        the pitch pipeline weighs each by it, but with the search on (``bench_robustness.py
+        --quick --only pitch``, 6 captures per condition) 111 more ball images were used while
+        "light to the side" (spin rate 2.95 -> 3.16 rpm, axis 1.16 -> 1.27 deg) and "sensor
+        noise x3" (spin rate 1.54 -> 5.16 rpm) got worse: the spin, not the flight, suffers
+        (``docs/ball-detection.md``).
     edges : bool
         Fit the balls cut by the photo's border to their in-frame limb
         (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
@@ -303,18 +306,25 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         # issue 12: the centre of a ball cut by the border from its in-frame limb, of a crescent
         # from its outer limb (not a cut ball that its in-frame limb did not fix: less than
         # half a disc is no crescent). The silhouette's own ellipse stays (ellipse_centers,
-        # ellipses, radii_px: what stereo matching uses, unchanged); the fit goes to ``centers``.
+        # ellipses, radii_px); the fit goes to ``centers`` (what stereo matching starts from
+        # for EDGE balls). Both sigmas take a limb offset as a known-radius centre does
+        # (arc_center_sigma's systematic part): a crescent is refined with the known radius; a
+        # cut ball's in-frame limb is refitted with its scale free (ball_centers_stereo), which
+        # absorbs a common offset, but not one that varies along the one-sided arc (the lit
+        # side's limb farther out than the shaded side's, a marker's notch). With the random part
+        # only, the studio pitches' clean direction got worse with the cut balls in
+        # (0.008 -> 0.011 deg, bench_robustness --quick)
         arc = None
         if flag & BallFlag.TOUCHES_BORDER:
             fit = edge_circle(c, (W, H)) if edges else None
             if fit is not None:
                 flag |= BallFlag.EDGE
-                arc = (fit, False)
+                arc = (fit, True, False)
         elif flag & BallFlag.PARTIAL and crescents:
             fit = crescent_circle(c, area, image_size=(W, H))
             if fit is not None:
                 flag |= BallFlag.CRESCENT
-                arc = (fit, True)
+                arc = (fit, True, False)
         rows.append((np.array([ex, ey]), semi_major, ell, area, hull_area, flag, ci, arc))
     if crescents and faint_crescents:
         kept = [s_[1] for s_ in sil]
@@ -330,9 +340,10 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
             px = arc["pixels"]
             if px[:, 0].min() <= 0 or px[:, 1].min() <= 0 or px[:, 0].max() >= W - 1 or px[:, 1].max() >= H - 1:
                 f |= BallFlag.EDGE
-            # no silhouette: its "ellipse" is the fitted circle
+            # no silhouette: its "ellipse" is the fitted circle. Its limb's place is uncertain
+            # by more than the blur (``thin=True``: arc_center_sigma's thin-rim offset)
             rows.append((np.array([cx, cy]), r, ((cx, cy), (2 * r, 2 * r), 0.0), float(len(px)),
-                         float(len(px)), f, -1, (arc, True)))
+                         float(len(px)), f, -1, (arc, True, True)))
     if not rows:
         return BallDetections.empty(mask)
     rows.sort(key=lambda r: (r[0][0], r[0][1]))
@@ -340,16 +351,20 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     centers = ellipse_centers.copy()
     arc_radii = np.full(len(rows), np.nan)
     sigma = np.full(len(rows), np.nan)
+    arc_points = [None] * len(rows)
     for i, r in enumerate(rows):
         if r[7] is not None:
-            fit, radius_known = r[7]
+            fit, radius_known, thin = r[7]
             centers[i] = fit["center"]
             arc_radii[i] = fit["radius"]
-            sigma[i] = arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=radius_known)
+            sigma[i] = arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=radius_known,
+                                        thin=thin)
+            if r[5] & BallFlag.EDGE:
+                arc_points[i] = np.asarray(fit["points"], float)
     ellipses = np.array([[r[2][0][0], r[2][0][1], r[2][1][0], r[2][1][1], r[2][2]] for r in rows], float)
     return BallDetections(
         centers=centers, ellipse_centers=ellipse_centers, radii_px=np.array([r[1] for r in rows], float),
         ellipses=ellipses, areas=np.array([r[3] for r in rows], float),
         hull_areas=np.array([r[4] for r in rows], float), scores=np.full(len(rows), np.nan),
         flags=np.array([int(r[5]) for r in rows], int), contour_index=np.array([r[6] for r in rows], int),
-        mask=mask, center_sigma_px=sigma, arc_radii_px=arc_radii)
+        mask=mask, center_sigma_px=sigma, arc_radii_px=arc_radii, arc_points=arc_points)

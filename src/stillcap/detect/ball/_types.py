@@ -84,6 +84,9 @@ class BallDetections:
         Centre uncertainty (1 sigma, px) of balls whose centre is an arc fit (``CRESCENT``,
         ``EDGE``: from the arc's length, residual and blur; larger the shorter the arc); NaN for
         whole silhouettes (their error is the pair's, from its residuals).
+    arc_points : list, optional
+        Per ball, the limb points its arc fit used (ndarray (M, 2), raw px) for ``EDGE`` balls,
+        else None: the stereo step refits them with the ball's projected outline shape.
     """
 
     centers: np.ndarray
@@ -98,12 +101,15 @@ class BallDetections:
     mask: np.ndarray | None = field(default=None, repr=False)
     center_sigma_px: np.ndarray | None = None
     arc_radii_px: np.ndarray | None = None
+    arc_points: list | None = field(default=None, repr=False)
 
     def __post_init__(self):
         if self.center_sigma_px is None:
             self.center_sigma_px = np.full(len(self.centers), np.nan)
         if self.arc_radii_px is None:
             self.arc_radii_px = np.full(len(self.centers), np.nan)
+        if self.arc_points is None:
+            self.arc_points = [None] * len(self.centers)
 
     def __len__(self) -> int:
         return len(self.centers)

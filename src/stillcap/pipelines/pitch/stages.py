@@ -11,7 +11,8 @@ reports to one :class:`StageLog` (messages, timings, progress):
    the seed's steps 1-5): colour background subtraction, contours, convex hull, ellipse,
    epipolar matching, approximate triangulation, projected radius, known-radius Hough refinement
    (half moons included), final triangulation. Matches whose refinement failed, whose size
-   disagrees with the projected radius or which the image border cuts are dropped.
+   disagrees with the projected radius or which the image border cuts are dropped (a cut ball
+   whose in-frame limb fixed its centre, ``EDGE``, is kept).
 2. **Number flashes** (:func:`number_flashes`; :func:`stillcap.ball.flashes.number_flashes_from_spacing`): the
    3D positions of a pair are ordered along the flight (off-path detections dropped); the flash
    index ``k`` of each comes from the spacing (``round(spacing / base spacing)``, a missed flash
@@ -21,9 +22,10 @@ reports to one :class:`StageLog` (messages, timings, progress):
    flight (``time_groups`` of the reference fit).
 3. **Fit flight** (:func:`fit_flight`): the seed's two-point release velocity, and the reference
    trajectory of the positions alone (:func:`stillcap.ball.fit.fit_reference_trajectory`): the
-   clock offsets and the curvature for the alias check, with each position's error shape and
-   the errors a pair's positions share (calibration, ball-centre bias:
-   :mod:`stillcap.ball.uncertainty`).
+   clock offsets and the curvature for the alias check, with each position's error shape (from
+   each view's own centre sigma: the pair's, or an arc fit's for ``CRESCENT`` / ``EDGE`` views,
+   :func:`image_sigma_px`) and the errors a pair's positions share (calibration, ball-centre
+   bias: :mod:`stillcap.ball.uncertainty`).
 4. **Markers and spin** (started by :func:`start_markers_and_spin` before the flight fit, on the
    workers; collected by :func:`markers_and_spin`). Markers
    (:func:`stillcap.ball.markers.pair_marker_observations`): coloured regions inside every ball
@@ -63,7 +65,7 @@ from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_t
                                    spin_axis_deg, spin_efficiency)
 from stillcap.ball.orientation import SpinResult
 from stillcap.ball.physics import cross_plane, simulate
-from stillcap.ball.stereo import StereoBalls
+from stillcap.ball.stereo import StereoBalls, view_center_sigma_px
 from stillcap.ball.uncertainty import (calibration_modes, center_bias_modes, metrics_sigma, pixel_sigma,
                                        position_covariances, remaining_bias_modes, speed_sigma, spin_decay_slope)
 from stillcap.detect.ball import BallFlag
@@ -74,12 +76,58 @@ from stillcap.pipelines.pitch.spin import spin_stage
 from stillcap._progress import report_progress
 
 __all__ = ["BallImages", "MeasuredSpin", "MetricsWithSigma", "PositionsFit", "StageLog", "check_and_inflate", "find_balls",
-           "fit_flight", "markers_and_spin", "metrics_and_uncertainty", "number_flashes", "refit_with_spin",
+           "fit_flight", "image_sigma_px", "markers_and_spin", "metrics_and_uncertainty", "number_flashes", "refit_with_spin",
            "start_markers_and_spin"]
 
 #: Matched ball images not used: refinement failed, size disagrees with the projected radius, or
-#: cut by the image border (its centre is off by millimetres: ``docs/pitch.md``).
+#: cut by the image border (its centre is off by millimetres: ``docs/pitch.md``) unless its
+#: in-frame limb fixed its centre (``EDGE``, :func:`_dropped`).
 _DROP_FLAGS = int(BallFlag.REFINE_FAILED | BallFlag.SIZE_MISMATCH | BallFlag.TOUCHES_BORDER)
+
+
+def _dropped(flags) -> np.ndarray:
+    """Which matches (their views' flags OR-ed) are not used: any of ``_DROP_FLAGS``, except
+    ``TOUCHES_BORDER`` with an ``EDGE`` fit (issue 12). The flags are OR-ed over the two views:
+    a match with one view fitted and the other cut but not fitted is caught per view by
+    :func:`_cut_unfitted`."""
+    f = np.asarray(flags, int)
+    drop = (f & (_DROP_FLAGS & ~int(BallFlag.TOUCHES_BORDER))) != 0
+    cut = (f & int(BallFlag.TOUCHES_BORDER)) != 0
+    return drop | (cut & ((f & int(BallFlag.EDGE)) == 0))
+
+
+def _cut_unfitted(st: StereoBalls) -> np.ndarray:
+    """Matches with a view cut by the border that its in-frame limb did not fix, shape (K,)."""
+    out = np.zeros(len(st), bool)
+    for v, det in enumerate((st.detections_a, st.detections_b)):
+        idx = st.pairs[:, v] if len(st) else np.zeros(0, int)
+        out |= det.has(BallFlag.TOUCHES_BORDER)[idx] & ~det.has(BallFlag.EDGE)[idx]
+    return out
+
+
+def image_sigma_px(pair_sigma_px: float, arc_sigma_px) -> np.ndarray:
+    """Each ball image's centre uncertainty per view (1 sigma, px), shape like ``arc_sigma_px``
+    ((2, K): camera, image): the pair's own (``pair_sigma_px``, from its residuals:
+    :func:`stillcap.ball.uncertainty.pixel_sigma`) where the centre rests on the whole limb, and
+    the larger of it and the arc fit's ``center_sigma_px`` where it rests on an arc (``CRESCENT``,
+    ``EDGE``; NaN in ``arc_sigma_px`` for the others): an arc's centre is no better than the
+    pair's noise, and worse the shorter the arc."""
+    a = np.asarray(arc_sigma_px, float)
+    return np.where(np.isfinite(a), np.maximum(a, pair_sigma_px), pair_sigma_px)
+
+
+def _weighted_shape(cams, centers_px, sigma_px, at_px: float | None = None) -> np.ndarray:
+    """Each position's error covariance shape (K, 3, 3), m^2, from a pixel error of
+    ``sigma_px`` ((2, K), per camera and image) on each centre, mapped to 3-D through the
+    re-triangulation (:func:`stillcap.ball.uncertainty.center_bias_modes` at ``at_px``, default
+    the median sigma, scaled per image and camera: the triangulation is linear over a pixel, and
+    where every sigma is ``at_px`` the shape is exactly the unweighted one)."""
+    s = np.asarray(sigma_px, float)
+    at = float(np.median(s)) if at_px is None else float(at_px)
+    d = center_bias_modes(cams, centers_px, at)  # (4, K, 3): camera 0 x, 0 y, 1 x, 1 y
+    if at > 0:
+        d = d * (s / at)[[0, 0, 1, 1]][:, :, None]
+    return np.einsum("mki,mkj->kij", d, d)
 
 
 # --------------------------------------------------------------------------------------------
@@ -164,7 +212,8 @@ def find_balls(specs: list, jobs, radius_m: float, where: str, log: StageLog) ->
     -------
     list of BallImages
         In the order of ``specs``; ``ok`` leaves out the matches whose refinement failed, whose
-        size disagrees with the projected radius or which the image border cuts.
+        size disagrees with the projected radius or which the image border cuts without an
+        ``EDGE`` fit.
 
     Raises
     ------
@@ -177,7 +226,7 @@ def find_balls(specs: list, jobs, radius_m: float, where: str, log: StageLog) ->
     raw = []
     for i, (sp, (cams, imgs, st)) in enumerate(zip(specs, found)):
         log.step(2 * i + 1, f"pair {sp.name}: ball images")
-        ok = st.ok & ((st.flags & _DROP_FLAGS) == 0)
+        ok = st.ok & ~_dropped(st.flags) & ~_cut_unfitted(st)
         nd = (len(st.detections_a), len(st.detections_b))
         if nd[0] == 0 or nd[1] == 0:
             none = [c for c, n in zip(sp.cameras, nd) if n == 0]
@@ -245,6 +294,8 @@ def number_flashes(cap: Capture, raw: list, options: PitchOptions, where: str, l
         pr = PairResult(sp.name, sp.cameras, sp.strobe_hz, k, st.points_3d[sel],
                         np.stack([st.centers_a[sel], st.centers_b[sel]]), st.radius_px[sel].T.copy(),
                         st.reproj_error_px[sel], st.flags[sel], nd, n_drop, spacing, stereo=st)
+        # each view's arc-fit centre sigma (NaN where the centre rests on the whole limb), (2, K)
+        pr.arc_sigma_px = view_center_sigma_px(st)[sel].T.copy()
         pr._imgs = imgs  # kept for the marker step, dropped afterwards (processes: the worker's token)
         pr._cams = cams
         pairs.append(pr)
@@ -338,8 +389,12 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
-        d = center_bias_modes(p._cams, p.centers_px, pixel_sigma(p.reproj_error_px))  # (4, K, 3)
-        pos_cov[pidx_a == i] = np.einsum("mki,mkj->kij", d, d)
+        # issue 12: each image weighed by its own centre sigma per view (an arc fit's, larger
+        # the shorter the arc, where the centre rests on one: CRESCENT, EDGE)
+        arc = getattr(p, "arc_sigma_px", None)
+        s_pair = pixel_sigma(p.reproj_error_px)
+        sig = image_sigma_px(s_pair, np.full((2, len(p)), np.nan) if arc is None else arc)
+        pos_cov[pidx_a == i] = _weighted_shape(p._cams, p.centers_px, sig, s_pair)
     fit_kw = dict(model=model, t0=0.0, method=options.fit_method, position_sigma=options.position_sigma_m,
                   time_groups=groups_a if g else None, time_offsets=np.array(off0) if g else None,
                   position_covariance=pos_cov)
