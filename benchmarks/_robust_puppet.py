@@ -4,30 +4,50 @@
 places (:func:`stillcap.studio.puppet_variation.another_puppet`, seeded), runs the pipeline with
 
 - the built-in skeleton and marker set (what a user gets without files),
-- a skeleton calibrated from a rest-pose capture plus two captures in other poses
-  (:func:`stillcap.body.puppet_calibrate.calibrate_skeleton`, as ``puppet calibrate-skeleton``),
+- a skeleton calibrated by the documented protocol (``docs/puppet.md``): a rest-pose capture plus
+  two captures in other poses (:func:`stillcap.body.puppet_calibrate.calibrate_skeleton`, as
+  ``puppet calibrate-skeleton rest --pose p1 --pose p2``), on the beads the pipeline recovered
+  whole,
 - the puppet's own skeleton and marker set (the user's files, ``--skeleton/--markers``),
 
 and reports wrong identifications, 3D RMS on beads seen whole, partly hidden beads (count and
-their RMS), fitted bone-direction RMS on the bones the beads fix (``full`` frames) for each
-skeleton, and the model-free bead-pair direction RMS. ``benchmarks/bench_robustness.py`` imports
-:func:`rows`; ``python benchmarks/_robust_puppet.py [--quick]`` prints the table alone.
+their RMS), fitted bone-direction RMS and max on the bones the beads fix (``full`` frames) for
+each skeleton, the calibration's own predicted direction error on those bones
+(:attr:`SkeletonCalibration.direction_sd_deg`, RMS) and the bones it names as uncertain, and the
+model-free bead-pair direction RMS. ``benchmarks/bench_robustness.py`` imports :func:`rows`;
 
-Timings are not measured here (the machine this was written on was shared).
+    python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...]
+
+prints one row per puppet (seed) and the table per condition. The conditions vary what real
+photos vary and the studio's puppet renderer can vary: proportions and bead placement, the
+marker set, lens blur and the camera response (declared in the rig the capture writes, as a
+user's rig file would). The light stays the webcam's LEDs at each camera (the puppet renderer
+has no other light placement yet).
+
+Timings are not measured here (the machine this was written on was shared by nine agents);
+``--quick`` (2 conditions x 2 puppets, 8 captures each) is meant to take under 10 minutes on a
+quiet machine; run it there to confirm.
 """
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
+_MOVED = dict(proportions=0.15)
 CONDITIONS = {
-    # name: (another_puppet keywords, marker set)
-    "default puppet": (dict(proportions=0.0, bead_shift_m=0.0, bead_turn_deg=0.0, bead_height=0.0), "puppet-16"),
-    "+-15 % proportions, beads moved": (dict(proportions=0.15), "puppet-16"),
-    "+-15 % proportions, beads moved, puppet-20": (dict(proportions=0.15), "puppet-20"),
+    # name: (another_puppet keywords, marker set, Sensor changes from the webcam's)
+    "default puppet": (dict(proportions=0.0, bead_shift_m=0.0, bead_turn_deg=0.0, bead_height=0.0), "puppet-16", {}),
+    "+-15 % proportions, beads moved": (_MOVED, "puppet-16", {}),
+    "+-15 % proportions, beads moved, puppet-20": (_MOVED, "puppet-20", {}),
+    "beads moved +-6 mm, turned +-60 deg": (dict(proportions=0.15, bead_shift_m=0.006, bead_turn_deg=60.0),
+                                            "puppet-16", {}),
+    "lens blur 1.5 px": (_MOVED, "puppet-16", dict(blur_px=1.5)),
+    "linear response": (_MOVED, "puppet-16", dict(gamma=1.0)),
+    "gamma 2.6 + tone curve": (_MOVED, "puppet-16", dict(gamma=2.6, tone=True)),
 }
 
 
@@ -45,75 +65,123 @@ def _save(scene, folder: Path) -> Path:
     return folder
 
 
-def rows(quick: bool = False) -> list[dict]:
-    """One dict per condition (see the module docstring). ``quick``: one puppet per condition
-    and the first two conditions only (about 1-2 minutes on a quiet machine)."""
+def _rms(v) -> float:
+    v = np.asarray(v, float)
+    v = v[np.isfinite(v)]
+    return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
+
+
+def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> dict:
+    """Render and measure one puppet (see the module docstring); a dict of its numbers."""
+    from dataclasses import replace
+
     from stillcap.body.markerset import MarkerSet
     from stillcap.body.puppet_calibrate import calibrate_skeleton
     from stillcap.body.skeleton import Skeleton
-    from stillcap.studio.puppet import puppet_scene
+    from stillcap.studio.puppet import puppet_scene, webcam_sensor
     from stillcap.studio.puppet_variation import another_puppet
 
-    n_puppets = 1 if quick else 4
-    conds = list(CONDITIONS.items())[:2] if quick else list(CONDITIONS.items())
+    sk, ms = another_puppet(seed, markerset=msname, **kw)
+    sensor = replace(webcam_sensor(), **sensor_kw)
+
+    def shoot(name, spec):
+        return _save(puppet_scene(pose=spec, rng=seed, markerset=ms, skeleton=sk, sensor=sensor), tmp / name)
+
+    test = shoot("test", f"random:{seed + 7}")
+    cal_pts = []
+    for name, spec in (("rest", "tpose"), ("p1", f"random:{seed + 1}"), ("p2", f"random:{seed + 2}")):
+        r, _ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
+        p = r.markers.points.copy()
+        p[r.markers.partly_hidden] = np.nan  # as calibrate-skeleton does
+        cal_pts.append(p)
+    cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:])
+    out = {"seed": seed}
+    for label, (m_, s_) in (("builtin", (MarkerSet.puppet(msname), Skeleton.puppet())),
+                            ("calibrated", (cal.markerset, cal.skeleton)), ("user", (ms, sk))):
+        res, cmp = _analyse(test, m_, s_)
+        out[f"{label}_rms"], out[f"{label}_max"] = cmp.bone_stats("full")
+        if label == "calibrated":
+            full = [b for b in cmp.bone_groups.get("full", [])]
+            out["predicted_rms"] = _rms([cal.direction_sd_deg.get(b, np.nan) for b in full])
+            out["uncertain"] = sorted(b for b in cal.uncertain if b in full)
+        if label == "user":
+            out["partial_user"] = cmp.bone_stats("partial")[0]
+            out["wrong"] = cmp.wrong
+            e, ph = cmp.marker_errors_m, cmp.partly_hidden
+            out["whole_m"] = list(e[~ph & np.isfinite(e)])
+            out["ph_m"] = list(e[ph & np.isfinite(e)])
+            out["ph_n"] = int(ph.sum())
+            out["pairs"] = cmp.bead_pair_stats()[0]
+    return out
+
+
+def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None = None, progress=None) -> list[dict]:
+    """One dict per condition (see the module docstring). ``quick``: 2 puppets in each of the
+    first two conditions; default 4 puppets per condition (seeds ``1000 * condition + k``).
+    ``seeds``: these seeds in every condition instead. ``per_seed``: a list that receives each
+    puppet's dict (:func:`one_puppet` with ``condition``)."""
+    conds = list(CONDITIONS.items())
+    if conditions is not None:
+        conds = [conds[i] for i in conditions]
+    elif quick:
+        conds = conds[:2]
     out = []
     with tempfile.TemporaryDirectory() as tmp:
-        for ci, (cname, (kw, msname)) in enumerate(conds):
-            acc = {k: [] for k in ("wrong", "whole", "ph", "ph_n", "builtin", "calibrated", "user", "pairs",
-                                   "partial_user")}
-            for k in range(n_puppets):
-                seed = 1000 * ci + k
-                sk, ms = another_puppet(seed, markerset=msname, **kw)
-                base = Path(tmp) / f"c{ci}_{k}"
+        for ci, (cname, (kw, msname, sensor_kw)) in enumerate(conds):
+            todo = list(seeds) if seeds is not None else [1000 * ci + k for k in range(2 if quick else 4)]
+            recs = []
+            for seed in todo:
+                r = one_puppet(seed, kw, msname, sensor_kw, Path(tmp) / f"c{ci}_{seed}")
+                r["condition"] = cname
+                recs.append(r)
+                if per_seed is not None:
+                    per_seed.append(r)
+                if progress is not None:
+                    progress(r)
+            out.append({"pipeline": "puppet", "condition": cname, "n": len(recs),
+                        "wrong_ids": int(sum(r["wrong"] for r in recs)),
+                        "whole_rms_mm": _rms([v for r in recs for v in r["whole_m"]]) * 1e3,
+                        "partly_hidden": int(sum(r["ph_n"] for r in recs)),
+                        "partly_hidden_rms_mm": _rms([v for r in recs for v in r["ph_m"]]) * 1e3,
+                        "bone_deg_builtin": _rms([r["builtin_rms"] for r in recs]),
+                        "bone_deg_calibrated": _rms([r["calibrated_rms"] for r in recs]),
+                        "bone_deg_calibrated_worst": float(np.nanmax([r["calibrated_rms"] for r in recs])),
+                        "bone_deg_predicted": _rms([r["predicted_rms"] for r in recs]),
+                        "bone_deg_user": _rms([r["user_rms"] for r in recs]),
+                        "partial_bone_deg_user": _rms([r["partial_user"] for r in recs]),
+                        "bead_pair_deg": _rms([r["pairs"] for r in recs])})
+    return out
 
-                def shoot(name, spec):
-                    return _save(puppet_scene(pose=spec, rng=seed, markerset=ms, skeleton=sk), base / name)
 
-                test = shoot("test", f"random:{seed + 7}")
-                # calibration captures: the rest pose and two others
-                cal_pts = []
-                for name, spec in (("rest", "tpose"), ("p1", f"random:{seed + 1}"), ("p2", f"random:{seed + 2}")):
-                    r, _ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
-                    p = r.markers.points.copy()
-                    p[r.markers.partly_hidden] = np.nan
-                    cal_pts.append(p)
-                cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:])
-                for label, (m_, s_) in (("builtin", (MarkerSet.puppet(msname), Skeleton.puppet())),
-                                        ("calibrated", (cal.markerset, cal.skeleton)), ("user", (ms, sk))):
-                    res, cmp = _analyse(test, m_, s_)
-                    acc[label].append(cmp.bone_stats("full")[0])
-                    if label == "user":
-                        acc["partial_user"].append(cmp.bone_stats("partial")[0])
-                        acc["wrong"].append(cmp.wrong)
-                        e = cmp.marker_errors_m
-                        ph = cmp.partly_hidden
-                        acc["whole"].extend(e[~ph & np.isfinite(e)])
-                        acc["ph"].extend(e[ph & np.isfinite(e)])
-                        acc["ph_n"].append(int(ph.sum()))
-                        acc["pairs"].append(cmp.bead_pair_stats()[0])
+def _seed_line(r: dict) -> str:
+    return (f"{r['condition'][:38]:38s} | {r['seed']:5d} | {r['builtin_rms']:5.2f} {r['builtin_max']:5.2f} | "
+            f"{r['calibrated_rms']:5.2f} {r['calibrated_max']:5.2f} | {r['predicted_rms']:5.2f} | "
+            f"{r['user_rms']:5.2f} {r['user_max']:5.2f} | {r['wrong']:3d} | {_rms(r['whole_m']) * 1e3:5.3f} | "
+            f"{','.join(r['uncertain']) or '-'}")
 
-            def rms(v):
-                v = np.asarray(v, float)
-                v = v[np.isfinite(v)]
-                return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
 
-            out.append({"pipeline": "puppet", "condition": cname, "n": n_puppets,
-                        "wrong_ids": int(sum(acc["wrong"])),
-                        "whole_rms_mm": rms(acc["whole"]) * 1e3,
-                        "partly_hidden": int(sum(acc["ph_n"])),
-                        "partly_hidden_rms_mm": rms(acc["ph"]) * 1e3,
-                        "bone_deg_builtin": rms(acc["builtin"]),
-                        "bone_deg_calibrated": rms(acc["calibrated"]),
-                        "bone_deg_user": rms(acc["user"]),
-                        "partial_bone_deg_user": rms(acc["partial_user"]),
-                        "bead_pair_deg": rms(acc["pairs"])})
+def _seeds(text: str) -> list[int]:
+    out = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out.extend(range(int(a), int(b) + 1) if b else [int(a)])
     return out
 
 
 def main(argv=None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
-    table = rows(quick="--quick" in argv)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2 puppets in each of the first two conditions")
+    ap.add_argument("--seeds", type=_seeds, default=None, help="seeds in every condition, e.g. 11-22")
+    ap.add_argument("--conditions", default=None, help="condition indices, e.g. 0,1,4 (default all)")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
+    conds = None if args.conditions is None else [int(c) for c in args.conditions.split(",")]
+    print("bones the beads fix, direction error deg (RMS max), per puppet; predicted = the calibration's own "
+          "estimate; 3D = RMS of beads seen whole (mm), own files")
+    print(f"{'condition':38s} |  seed | built-in    | calibrated  | pred. | own files   | wrong | 3D mm | "
+          "calibration names uncertain")
+    table = rows(args.quick, seeds=args.seeds, conditions=conds, progress=lambda r: print(_seed_line(r), flush=True))
     keys = list(table[0])
+    print()
     print(" | ".join(keys))
     for r in table:
         print(" | ".join(f"{r[k]:.3f}" if isinstance(r[k], float) else str(r[k]) for k in keys))

@@ -625,12 +625,13 @@ def calibrate_skeleton_cmd(
     cal.skeleton.save(out, "mm")
     cal.markerset.save(markers_out, "mm")
     t = Table(title=f"{cal.skeleton.name}: bone lengths (from {cal.n_poses} capture(s))")
-    for c in ("bone", "template mm", "calibrated mm", "ratio"):
+    for c in ("bone", "template mm", "calibrated mm", "ratio", "direction +- deg"):
         t.add_column(c, justify="right")
     for j, n in enumerate(cal.skeleton.names):
         if template.bone_lengths[j] > 0:
+            sd = cal.direction_sd_deg.get(n)
             t.add_row(n, f"{template.bone_lengths[j] * 1e3:.1f}", f"{cal.skeleton.bone_lengths[j] * 1e3:.1f}",
-                      f"{cal.scales[j]:.3f}")
+                      f"{cal.scales[j]:.3f}", "-" if sd is None else f"{sd:.2f}")
     console.print(t)
     console.print(f"beads fitted with RMS {cal.rms_m * 1e3:.3f} mm (per capture: "
                   + ", ".join(f"{v * 1e3:.3f}" for v in cal.per_pose_rms_m) + " mm)")
@@ -638,5 +639,7 @@ def calibrate_skeleton_cmd(
         console.print("[yellow]a rest pose alone places the beads but not where the joints lie between them; "
                       "add --pose captures with bent joints to fix them[/]")
     for bone, need in cal.unfixed.items():
+        console.print(f"[yellow]{bone}: {need}[/]")
+    for bone, need in cal.uncertain.items():
         console.print(f"[yellow]{bone}: {need}[/]")
     console.print(f"wrote [bold]{out}[/] and [bold]{markers_out}[/]")
