@@ -168,9 +168,9 @@ class MarkerPoints:
         The stereo pair(s) both of whose cameras the point uses, ``"left"``, ``"right"`` or
         ``"left+right"``; ``"cross"`` when it uses no stereo pair whole (one camera of each).
     ambiguous : ndarray of bool, shape (N,)
-        A two-view point one of whose blobs had another match that fits about as well (its
-        reprojection RMS within twice the centroid noise, estimated from the points with three or
-        more views), and no third view decided.
+        A two-view point one of whose blobs had another same-colour partner within the epipolar
+        tolerance, and no third view decided (the hand pipeline drops such points when partly
+        hidden).
     cameras : list of str
         Camera names (rig order).
     bias_corrected : bool
@@ -539,12 +539,13 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
         views = {int(k): int(tracks[t, k]) for k in np.flatnonzero(seen[t])}
         pn = [p for p, ab in pair_idx.items() if set(ab) <= set(views)]
         amb = False
-        if len(views) == 2:  # another match of one of its blobs fits about as well, no third view decides
+        if len(views) == 2:  # some blob had another admissible partner, and no third view decided
             (a, ja), (b, jb) = sorted(views.items())
+            amb = bool(admissible[(a, b)][ja].sum() > 1 or admissible[(a, b)][:, jb].sum() > 1)
+            # across the pairs, two views and a rival that fits about as well: a coin toss, no marker
             rival = two & ~is_chosen & seen[:, a] & seen[:, b] & ((tracks[:, a] == ja) ^ (tracks[:, b] == jb))
-            amb = bool(np.any(rms[rival] < rms[t] + 2.0 * noise_px))
-        if amb and not pn:
-            continue  # across the pairs, two views and a rival as good: a coin toss, no marker
+            if not pn and np.any(rms[rival] < rms[t] + 2.0 * noise_px):
+                continue
         merged.append({"views": views, "colour": col[min(views)][views[min(views)]],
                        "pairs": "+".join(sorted(pn)) or "cross", "ambiguous": bool(amb)})
     # a marker whose views the tracks split (a partly hidden view's centroid moved beyond the
