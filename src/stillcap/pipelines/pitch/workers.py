@@ -40,6 +40,7 @@ import threading
 from collections import OrderedDict
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -306,7 +307,9 @@ class ProcessJobs:
         their token); a Future."""
         # the worker holding the photos; the pair goes without them and its StereoBalls; the
         # pair's response estimates follow on that worker, which then releases the photos
-        ex, light = self.cached.pop(photos), replace(pair, stereo=None)
+        # (of its StereoBalls only the lens blur measured on the limbs, which the marker step uses)
+        ex = self.cached.pop(photos)
+        light = replace(pair, stereo=None if pair.stereo is None else SimpleNamespace(psf_px=pair.stereo.psf_px))
         fut = ex.submit(pair_markers_job, photos, light, *args, release=False)
         self.responses.append((self.images[pair.name], ex.submit(pair_response_job, photos, light)))
         return fut
