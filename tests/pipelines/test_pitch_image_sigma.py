@@ -1,5 +1,5 @@
 """Issue 12: every ball image of a pitch weighed by its own centre sigma per view (an arc fit's
-for CRESCENT / EDGE views), and cut balls kept where their in-frame limb fixed them
+for EDGE views and faint crescents), and cut balls kept where their in-frame limb fixed them
 (:mod:`stillcap.pipelines.pitch.stages`)."""
 
 import numpy as np
