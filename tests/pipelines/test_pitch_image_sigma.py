@@ -1,11 +1,10 @@
 """Issue 12: every ball image of a pitch weighed by its own centre sigma per view (an arc fit's
-for CRESCENT / EDGE views), and cut balls kept where their in-frame limb fixed them
+for EDGE views and faint crescents), and cut balls kept where their in-frame limb fixed them
 (:mod:`stillcap.pipelines.pitch.stages`)."""
 
 import numpy as np
-import pytest
-
 from detect.test_ball import front_pair
+
 from stillcap.ball.fit import fit_reference_trajectory
 from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
@@ -66,7 +65,7 @@ def test_an_image_with_a_large_sigma_weighs_less_in_the_flight_fit():
         x = x0 + rng.normal(size=x0.shape) * sig[:, :, None]
         pos = triangulate(cams, x).points
         v_two = (pos[1] - pos[0]) * 240.0
-        kw = dict(position_sigma=0.001)
+        kw = {"position_sigma": 0.001}
         w = fit_reference_trajectory(t, pos, pos[0], v_two, None, position_covariance=_weighted_shape(cams, x, sig), **kw)
         u = fit_reference_trajectory(t, pos, pos[0], v_two, None,
                                      position_covariance=_weighted_shape(cams, x, np.full_like(sig, 0.15)), **kw)

@@ -23,8 +23,8 @@ reports to one :class:`StageLog` (messages, timings, progress):
 3. **Fit flight** (:func:`fit_flight`): the seed's two-point release velocity, and the reference
    trajectory of the positions alone (:func:`stillcap.ball.fit.fit_reference_trajectory`): the
    clock offsets and the curvature for the alias check, with each position's error shape (from
-   each view's own centre sigma: the pair's, or an arc fit's for ``CRESCENT`` / ``EDGE`` views,
-   :func:`image_sigma_px`) and the errors a pair's positions share (calibration, ball-centre
+   each view's own centre sigma: the pair's, or an arc fit's for ``EDGE`` views and faint
+   crescents, :func:`image_sigma_px`) and the errors a pair's positions share (calibration, ball-centre
    bias: :mod:`stillcap.ball.uncertainty`).
 4. **Markers and spin** (started by :func:`start_markers_and_spin` before the flight fit, on the
    workers; collected by :func:`markers_and_spin`). Markers
@@ -109,9 +109,10 @@ def image_sigma_px(pair_sigma_px: float, arc_sigma_px) -> np.ndarray:
     """Each ball image's centre uncertainty per view (1 sigma, px), shape like ``arc_sigma_px``
     ((2, K): camera, image): the pair's own (``pair_sigma_px``, from its residuals:
     :func:`stillcap.ball.uncertainty.pixel_sigma`) where the centre rests on the whole limb, and
-    the larger of it and the arc fit's ``center_sigma_px`` where it rests on an arc (``CRESCENT``,
-    ``EDGE``; NaN in ``arc_sigma_px`` for the others): an arc's centre is no better than the
-    pair's noise, and worse the shorter the arc."""
+    the larger of it and the arc fit's ``center_sigma_px`` where it rests on an arc (``EDGE``
+    views, faint crescents: :func:`stillcap.ball.stereo.view_center_sigma_px`; NaN in
+    ``arc_sigma_px`` for the others): an arc's centre is no better than the pair's noise, and
+    worse the shorter the arc."""
     a = np.asarray(arc_sigma_px, float)
     return np.where(np.isfinite(a), np.maximum(a, pair_sigma_px), pair_sigma_px)
 
@@ -390,7 +391,7 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         if len(p) == 0:
             continue
         # issue 12: each image weighed by its own centre sigma per view (an arc fit's, larger
-        # the shorter the arc, where the centre rests on one: CRESCENT, EDGE)
+        # the shorter the arc, for EDGE views and faint crescents: view_center_sigma_px)
         arc = getattr(p, "arc_sigma_px", None)
         s_pair = pixel_sigma(p.reproj_error_px)
         sig = image_sigma_px(s_pair, np.full((2, len(p)), np.nan) if arc is None else arc)
