@@ -241,9 +241,9 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
         light (``bench_ball_detect.py --only-missed``; their ``center_sigma_px`` covers it) and
         the pitch pipeline weighs each by it, but with the search on (``bench_robustness.py
         --quick --only pitch``, 6 captures per condition) 111 more ball images were used while
-        "light to the side" (spin rate 2.95 -> 3.16 rpm, axis 1.16 -> 1.27 deg) and "sensor
-        noise x3" (spin rate 1.54 -> 5.16 rpm) got worse: the spin, not the flight, suffers
-        (``docs/ball-detection.md``).
+        "light to the side" (spin rate 2.93 -> 3.13 rpm, axis 1.16 -> 1.27 deg), "sensor noise
+        x3" (spin rate 1.55 -> 5.15 rpm) and "everything varied" (direction 0.024 -> 0.032 deg)
+        got worse: mostly the spin (``docs/ball-detection.md``).
     edges : bool
         Fit the balls cut by the photo's border to their in-frame limb
         (:func:`stillcap.detect.ball._arcs.edge_circle`): flagged ``EDGE`` where that fixes the
