@@ -53,7 +53,7 @@ def _ray_directions(cam: Camera, centers_px, ball_centers, radius_px, radius_m, 
     v, hit = rays_to_directions(o, dirs, ball_centers, radius_m * (1.0 - depth))
     view = cam.center[None, :] - ball_centers
     view /= np.linalg.norm(view, axis=1, keepdims=True)
-    return v, direction_information(v, view, radius_px, radial=radial), hit
+    return v, direction_information(v, view, radius_px, radial=radial), hit, view
 
 
 def _combine_directions(va, Ia, vb, Ib):
@@ -153,9 +153,10 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
         u, ok = _triangulated_direction(cam_a, cam_b, A.centers[ia], B.centers[ib], P[ball], radius_m)
         if directions == "rays":
             depth = layout.centroid_depth[layout.type_index(list(A.types[ia]))]
-            va, Ia, _ = _ray_directions(cam_a, A.centers[ia], P[ball], rad_a[ball], radius_m, depth, radial_a[ia])
-            vb, Ib, _ = _ray_directions(cam_b, B.centers[ib], P[ball], rad_b[ball], radius_m, depth, radial_b[ib])
+            va, Ia, _, wa = _ray_directions(cam_a, A.centers[ia], P[ball], rad_a[ball], radius_m, depth, radial_a[ia])
+            vb, Ib, _, wb = _ray_directions(cam_b, B.centers[ib], P[ball], rad_b[ball], radius_m, depth, radial_b[ib])
             u, info = _combine_directions(va, Ia, vb, Ib)
+            views = wa + wb
     else:
         ok = np.zeros(0, bool)
     # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
@@ -170,11 +171,11 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             # a centroid is the image of a point inside the ball (BallLayout.centroid_depth): the
             # ray meets that smaller sphere where the marker's axis does, the ball's surface
             # closer to the line of sight (a fixed-sign spin error otherwise, "Coverage audit")
-            v, I, hit = _ray_directions(cam, M.centers[idx], P[k_ray], rad[k_ray], radius_m,
-                                        layout.centroid_depth[ti], rdl[idx])
+            v, I, hit, view = _ray_directions(cam, M.centers[idx], P[k_ray], rad[k_ray], radius_m,
+                                              layout.centroid_depth[ti], rdl[idx])
         else:
-            v, I, hit = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, bool)
-        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx], 0, 1)))
+            v, I, hit, view = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, bool), np.zeros((0, 3))
+        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx], 0, 1), view))
     with_info = directions == "rays"
     parts, n3, nray, epi = [], 0, 0, []
     for k in range(K):
@@ -183,16 +184,17 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             o = MarkerObservations.from_directions(np.full(int(sel.sum()), k), list(A.types[ia[sel]]), u[sel], layout)
             if with_info:
                 o.information = info[sel]
+                o.views = views[sel] / np.linalg.norm(views[sel], axis=1, keepdims=True)
             o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]], 0, 1)
             parts.append(o)
             n3 += int(sel.sum())
             epi += list(m.distance_px[sel])
-        for ti, k_ray, v, I, hit, cls in rays:
+        for ti, k_ray, v, I, hit, cls, view in rays:
             sel = hit & (k_ray == k)
             if sel.any():
                 parts.append(MarkerObservations(np.full(int(sel.sum()), k), ti[sel], v[sel],
                                                 np.ones(int(sel.sum()), bool), I[sel] if with_info else None,
-                                                cls[sel]))
+                                                cls[sel], view[sel] if with_info else None))
                 nray += int(sel.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))

@@ -253,7 +253,12 @@ def _center_shift_cov(prob, x, R0, j, sel, bread, J, modes):
     directions from the moved centre (``u - h (e - (e.u) u)``, central differences) give
     ``dx = -(J^T J)^-1 J^T dr/dh`` and ``cov += lambda dx dx^T``. The cluster-robust sandwich sees
     a centre error that changes from flash to flash; one common to the flashes (a bias of the
-    centre refinement) it cannot."""
+    centre refinement) it cannot.
+
+    Directions from pixel rays (``obs.views`` given) move differently: the ray meets the moved
+    sphere, so ``du = -(e - v (e.u) / (v.u))`` with ``v`` the direction to the camera (a centre
+    error along the line of sight leaves them unchanged); ``v.u`` is kept above 0.1, as
+    :func:`direction_information` keeps ``cos theta``."""
     from stillcap.ball.orientation._observations import MarkerObservations
 
     out = np.zeros((J.shape[1], J.shape[1]))
@@ -266,11 +271,16 @@ def _center_shift_cov(prob, x, R0, j, sel, bread, J, modes):
         for lk, e in zip(lam, V.T):
             if not lk > 0:
                 continue
+            if obs.views is None:
+                du = e[None, :] - (u @ e)[:, None] * u
+            else:
+                vu = np.maximum(np.einsum("ij,ij->i", obs.views, u), 0.1)
+                du = e[None, :] - obs.views * ((u @ e) / vu)[:, None]
             rs = []
             for sgn in (1.0, -1.0):
-                d = u - sgn * h * (e[None, :] - (u @ e)[:, None] * u) * m[:, None]
+                d = u - sgn * h * du * m[:, None]
                 p2 = _GlobalProblem(prob.dt, MarkerObservations(obs.flash, obs.types, d, obs.from_ray, obs.information,
-                                                                obs.noise_class), prob.layout, 0.0)
+                                                                obs.noise_class, obs.views), prob.layout, 0.0)
                 if f is not None and p2.W is not None:
                     p2.W = p2.W_base * f[:, None, None]
                 rs.append(p2.residuals(x, R0, j, sel))

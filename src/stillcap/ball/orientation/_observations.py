@@ -136,6 +136,11 @@ class MarkerObservations:
         Observations of one class share a centroid noise, which the global fit estimates per
         class from its residuals (with ``information``): e.g. 0 for markers seen whole, 1 for
         markers cut by the limb. Default all 0.
+    views : ndarray, shape (M, 3), optional
+        Unit vector from the ball centre to the camera(s) whose pixel rays gave each direction
+        (the mean of the two for a pair's combined direction): a ball-centre error along it does
+        not move such a direction (the ray meets the moved sphere at the moved point). None: the
+        directions are taken as marker points seen in 3D (a centre error moves them all).
     """
 
     flash: np.ndarray
@@ -144,6 +149,7 @@ class MarkerObservations:
     from_ray: np.ndarray = None
     information: np.ndarray = None
     noise_class: np.ndarray = None
+    views: np.ndarray = None
 
     def __post_init__(self):
         self.flash = np.asarray(self.flash)
@@ -170,6 +176,9 @@ class MarkerObservations:
             self.information = info
         self.noise_class = (np.zeros(m, int) if self.noise_class is None
                             else as_array(self.noise_class, (m,), "noise_class").astype(int))
+        if self.views is not None:
+            v = as_array(self.views, (m, 3), "views")
+            self.views = _unit_rows(v, "views") if m else v.reshape(0, 3)
 
     def __len__(self) -> int:
         return len(self.flash)
@@ -249,18 +258,20 @@ class MarkerObservations:
         parts = list(parts)
         if not parts:
             return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
-        info = None
+        info = views = None
         if all(p.information is not None for p in parts):
             info = np.concatenate([p.information for p in parts]).reshape(-1, 3, 3)
+        if all(p.views is not None for p in parts):
+            views = np.concatenate([p.views for p in parts]).reshape(-1, 3)
         return cls(np.concatenate([p.flash for p in parts]), np.concatenate([p.types for p in parts]),
                    np.concatenate([p.directions for p in parts]),
                    np.concatenate([p.from_ray for p in parts]), info,
-                   np.concatenate([p.noise_class for p in parts]))
+                   np.concatenate([p.noise_class for p in parts]), views)
 
     def with_flash(self, flash):
         """The same observations with other flash indices (e.g. on a joint clock)."""
         return MarkerObservations(np.asarray(flash), self.types, self.directions, self.from_ray, self.information,
-                                  self.noise_class)
+                                  self.noise_class, self.views)
 
     def of_flash(self, k: int):
         """``(directions (n, 3), types (n,))`` of flash ``k``."""

@@ -489,7 +489,7 @@ def markers_and_spin(pairs: list, marker_jobs: list, flight: PositionsFit, model
             if spin_error is not None:
                 raise spin_error
             spin, alias, obs_times = spin_stage(pairs, fit_pos, model, layout, options.spin_method, messages,
-                                                pair_spins)
+                                                pair_spins, options.shading_model_error)
         except (ValueError, np.linalg.LinAlgError) as e:  # a spin that cannot be had must not cost the flight
             spin, alias, obs_times = None, None, None
             messages.append(f"spin fit failed ({e}): spin unavailable")
