@@ -238,3 +238,41 @@ def test_center_shift_cov_covers_the_error_of_a_centre_offset_shared_by_all_flas
         outside_plain += d @ np.linalg.solve(plain.spin_covariance, d) > chi2.ppf(0.99, 3)
     assert inside >= n - 2  # (linearised: the part of the move outside the offset's span is the plain fit's)
     assert outside_plain >= n // 2
+
+
+def test_center_shift_of_ray_directions_follows_the_ray_not_the_point():
+    """Directions from pixel rays (``views`` given): a centre offset along the line of sight
+    moves none of them, so it adds nothing to the spin's covariance; a lateral offset moves
+    them as the ray met with the moved sphere does (``u - (e - v (e.u)/(v.u))``), and the
+    covariance then covers that move."""
+    from scipy.stats import chi2
+
+    lateral = np.eye(3) - np.outer(VIEW, VIEW)
+    sigma = 0.005  # radii: 0.08 px on a 15 px ball, the size measured on the studio's pitches (0.07-0.15 px)
+    inside, n = 0, 12
+    for seed in range(n):
+        times, obs, w = _pixel_noise_observations(seed, 0.1)
+        views = np.repeat(VIEW[None, :], len(obs), axis=0)
+        rays = MarkerObservations(obs.flash, obs.types, obs.directions, np.ones(len(obs), bool), obs.information,
+                                  obs.noise_class, views)
+        base = fit_spin(times, rays, LAYOUT, spin_init=w)
+        along = fit_spin(times, rays, LAYOUT, spin_init=w, center_shift_cov=[(None, sigma ** 2 * np.outer(VIEW, VIEW))])
+        lat = fit_spin(times, rays, LAYOUT, spin_init=w, center_shift_cov=[(None, sigma ** 2 * lateral)])
+        added_along = np.trace(along.spin_covariance) - np.trace(base.spin_covariance)
+        added_lateral = np.trace(lat.spin_covariance) - np.trace(base.spin_covariance)
+        # (not exactly 0: near the limb v.u is kept above 0.1)
+        assert abs(added_along) < 0.01 * added_lateral
+        rng = np.random.default_rng(200 + seed)
+        e = lateral @ rng.normal(size=3) * sigma
+        u = rays.directions
+        vu = np.maximum(u @ VIEW, 0.1)
+        moved = u - (e[None, :] - VIEW[None, :] * ((u @ e) / vu)[:, None])
+        moved /= np.linalg.norm(moved, axis=1, keepdims=True)
+        shifted = MarkerObservations(obs.flash, obs.types, moved, np.ones(len(obs), bool), obs.information,
+                                     obs.noise_class, views)
+        plain = fit_spin(times, shifted, LAYOUT, spin_init=w)
+        wide = fit_spin(times, shifted, LAYOUT, spin_init=w, center_shift_cov=[(None, sigma ** 2 * lateral)])
+        assert np.trace(wide.spin_covariance) > 1.02 * np.trace(plain.spin_covariance)
+        d = plain.spin - base.spin
+        inside += d @ np.linalg.solve(wide.spin_covariance, d) <= chi2.ppf(0.99, 3)
+    assert inside >= n - 2
