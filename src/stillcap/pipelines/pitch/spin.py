@@ -311,11 +311,13 @@ def spin_noise_check(spin: SpinResult | None, stated_px: float = MARKER_NOISE_PX
     whose markers are blurrier than stated. None when the fit has no pixel noise (no weights)."""
     if spin is None or not spin.success or not np.isfinite(getattr(spin, "noise_px", np.nan)):
         return None
-    from scipy.stats import chi2
+    # chi2.ppf(q, k) is 2 gammaincinv(k / 2, q), as in pipelines/pitch/checks.py: importing
+    # scipy.stats would cost 0.1-1 s of every CLI call
+    from scipy.special import gammaincinv
 
     dof = max(int(spin.dof), 1)
     stat = dof * (spin.noise_px / stated_px) ** 2
-    limit = float(chi2.ppf(1.0 - p_false, dof))
+    limit = float(2.0 * gammaincinv(dof / 2.0, 1.0 - p_false))
     ok = bool(stat <= limit)
     msg = (f"the markers lie {spin.noise_px:.2f} px (1-sigma) from the fitted constant spin, against "
            f"{stated_px:g} px stated (chi-square {stat:.0f} for {dof} degrees of freedom, limit {limit:.0f})")
