@@ -69,3 +69,12 @@ def assert_same_reconstruction(one, two):
     np.testing.assert_array_equal(one.markers.observations, two.markers.observations)
     np.testing.assert_array_equal(one.markers.points, two.markers.points)
     np.testing.assert_array_equal(one.pose.positions, two.pose.positions)
+
+
+def untimed(x):
+    """A result's JSON without its timings (they differ from run to run)."""
+    if isinstance(x, dict):
+        return {k: untimed(v) for k, v in x.items() if k not in ("timings_s", "fit_time_s")}
+    if isinstance(x, list):
+        return [untimed(v) for v in x]
+    return x

@@ -126,21 +126,12 @@ def test_a_pitch_imports_only_what_it_needs(tmp_path_factory, tmp_path):
     assert not {m for m in modules for p in NOT_FOR_A_PITCH if m == p or m.startswith(p + ".")}
 
 
-def _untimed(x):
-    """A result's JSON without its timings (they differ from run to run)."""
-    if isinstance(x, dict):
-        return {k: _untimed(v) for k, v in x.items() if k not in ("timings_s", "fit_time_s")}
-    if isinstance(x, list):
-        return [_untimed(v) for v in x]
-    return x
-
-
 def test_the_pitch_command_gives_the_pipelines_result(tmp_path_factory, capsys):
     """Photos decoded ahead by the command (Capture.start_decoding) give the result of the
     pipeline reading them itself."""
     import json
 
-    from support import run_cli, studio_pitch
+    from support import run_cli, studio_pitch, untimed
 
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
@@ -151,4 +142,4 @@ def test_the_pitch_command_gives_the_pipelines_result(tmp_path_factory, capsys):
     assert code == 0, err
     cap = Capture.load(folder)
     direct = add_truth_comparison(analyse_pitch(cap, PitchOptions(processes=0)), cap.truth)
-    assert _untimed(json.loads(out)) == _untimed(json.loads(json.dumps(direct.to_dict(), allow_nan=False)))
+    assert untimed(json.loads(out)) == untimed(json.loads(json.dumps(direct.to_dict(), allow_nan=False)))

@@ -66,14 +66,6 @@ def status(sock: Path, src: Path = SRC) -> dict | None:
     return json.loads(r.stdout) if r.returncode == 0 else None
 
 
-def _untimed(x):
-    if isinstance(x, dict):
-        return {k: _untimed(v) for k, v in x.items() if k not in ("timings_s", "fit_time_s")}
-    if isinstance(x, list):
-        return [_untimed(v) for v in x]
-    return x
-
-
 @pytest.fixture(scope="module")
 def server(tmp_path_factory):
     sock = tmp_path_factory.mktemp("serve") / "run" / "s.sock"
@@ -98,13 +90,15 @@ def _via(r: subprocess.CompletedProcess, sock: Path) -> str:
 
 
 def test_a_pitch_through_the_server_is_the_run_in_its_own_process(server, pitch_capture):
+    from support import untimed
+
     sock, _ = server
     served = status(sock)["served"]
     warm = stillcap(["pitch", pitch_capture, "--json"], sock, "verbose")
     cold = stillcap(["pitch", pitch_capture, "--json"], sock, "off")
     assert (warm.returncode, cold.returncode) == (0, 0), (warm.stderr, cold.stderr)
     assert _via(warm, sock) == cold.stderr
-    assert _untimed(json.loads(warm.stdout)) == _untimed(json.loads(cold.stdout))
+    assert untimed(json.loads(warm.stdout)) == untimed(json.loads(cold.stdout))
     assert json.loads(warm.stdout)["self_checks"]  # a real result, with its self-checks
     assert status(sock)["served"] == served + 1  # the server ran it
 

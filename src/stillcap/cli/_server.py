@@ -237,21 +237,7 @@ class Server:
         """Stop listening (the socket file removed if still this server's), release the lock."""
         if os.getpid() != self.pid:
             return  # a run's process unwinding through the server's frames
-        if self.listener is not None:
-            try:  # the lock is still this server's: no other server can have bound the path meanwhile
-                os.unlink(self.path)
-            except OSError:
-                pass
-            if self.sel is not None:
-                try:
-                    self.sel.unregister(self.listener)
-                except (KeyError, ValueError):
-                    pass
-            self.listener.close()
-            self.listener = None
-        if self.lock_fd is not None:
-            os.close(self.lock_fd)
-            self.lock_fd = None
+        self.close_listener()
 
     # -- the loop ------------------------------------------------------------------------------
     def loop(self) -> None:
@@ -313,9 +299,14 @@ class Server:
 
     def close_listener(self) -> None:
         """No more connections: the socket file goes (new runs stay in their own process) and
-        the lock with it, so that a new server may start while this one waits for its runs."""
+        the lock with it, so that a new server may start while this one waits for its runs.
+        (The lock is still this server's: no other server can have bound the path meanwhile.)"""
         if self.listener is not None:
-            self.sel.unregister(self.listener)
+            if self.sel is not None:
+                try:
+                    self.sel.unregister(self.listener)
+                except (KeyError, ValueError):
+                    pass
             try:
                 os.unlink(self.path)
             except OSError:
