@@ -520,7 +520,13 @@ def refit_with_spin(pairs: list, flight: PositionsFit, spin: MeasuredSpin, optio
     pos_cov, cal_modes, shared_modes = flight.position_covariance, flight.cal_modes, flight.shared_modes
     spin_ok, w0, cov0 = spin.ok, spin.w0, spin.cov0
     t = _time.perf_counter()
-    if spin_ok:
+    # an ambiguous alias is not a measured spin: as a prior its wrong candidate would pull the
+    # flight (1.3 mph, 1.1 deg on a gamma-2.6 robustness capture), so the flight keeps the positions'
+    ambiguous = spin_ok and bool(getattr(spin.alias, "ambiguous", False))
+    if ambiguous:
+        messages.append("spin alias ambiguous: the flight is fitted from the ball positions alone, "
+                        "without the markers' spin as a prior")
+    if spin_ok and not ambiguous:
         # the spin priors' sigmas from the marker fit's covariance (at least 0.5 rad/s, ~5 rpm)
         e_v = v_two / np.linalg.norm(v_two)
         var_axial = max(float(e_v @ cov0 @ e_v), 0.0)
