@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from support import run_cli as run, studio_pitch
+from support import run_cli as run, studio_pitch, untimed
 
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
@@ -111,15 +111,6 @@ def scheduler(tmp_path_factory):
             log.close()
 
 
-def _without_times(d):
-    """A JSON document without its wall-clock measurements (``timings_s``, ``fit_time_s``)."""
-    if isinstance(d, dict):
-        return {k: _without_times(v) for k, v in d.items() if k not in ("timings_s", "fit_time_s")}
-    if isinstance(d, list):
-        return [_without_times(v) for v in d]
-    return d
-
-
 def _table(out: Path) -> dict:
     t = pq.read_table(out / "results.parquet")
     return {r["name"]: r for r in t.to_pylist()}
@@ -171,7 +162,7 @@ def test_batch_of_every_kind_on_a_cluster(captures, scheduler, tmp_path, capsys)
                             capture_output=True, text=True, env=_env())
     assert single.returncode == 0, single.stderr
     a, b = json.loads(single.stdout), json.loads((out / "captures/ff/pitch.json").read_text())
-    assert _without_times(a) == _without_times(b)  # digit for digit
+    assert untimed(a) == untimed(b)  # digit for digit
     # the session summary: per pitch type, with its plots
     summary = (out / "summary.md").read_text()
     assert "| FF | 1 |" in summary and "| CU | 1 |" in summary and "Failed captures" in summary

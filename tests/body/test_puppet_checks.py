@@ -25,6 +25,18 @@ def _full_bone_error_deg(sk, fit_pose_, true_pose, bones=("l-knee", "r-knee", "u
     return float(np.sqrt(np.mean(np.square(e))))
 
 
+def _noisy(seed, sigma_m):
+    """Bead positions with Gaussian noise of ``sigma_m`` per axis (one generator per test)."""
+    rng = np.random.default_rng(seed)
+    return lambda p: p + rng.normal(0, sigma_m, p.shape)
+
+
+def _rest_and_poses(sk, ms, noisy, first_pose_seed, n_poses):
+    """The puppet's beads at rest and in ``n_poses`` random poses, through ``noisy``."""
+    rest = noisy(ms.positions(Pose.rest(sk)))
+    return rest, [noisy(ms.positions(random_pose(sk, first_pose_seed + i, ms))) for i in range(n_poses)]
+
+
 def test_another_puppet_is_seeded_and_within_its_proportions():
     base = Skeleton.puppet()
     a, ma = another_puppet(5)
@@ -90,13 +102,8 @@ def test_bead_pair_directions_and_partly_hidden_checks():
 
 def test_calibration_from_a_rest_pose_and_further_poses_fixes_the_bones():
     sk, ms = another_puppet(0)
-    rng = np.random.default_rng(1)
-
-    def noisy(p):
-        return p + rng.normal(0, 0.05e-3, p.shape)
-
-    rest = noisy(ms.positions(Pose.rest(sk)))
-    others = [noisy(ms.positions(random_pose(sk, 100 + i, ms))) for i in range(3)]
+    noisy = _noisy(1, 0.05e-3)
+    rest, others = _rest_and_poses(sk, ms, noisy, 100, 3)
     only_rest = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet())
     cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others)
     assert cal.rms_m < 0.3e-3 and cal.n_poses == 4
@@ -119,13 +126,8 @@ def test_calibration_from_a_rest_pose_and_further_poses_fixes_the_bones():
 
 def test_joint_calibration_beats_the_alternating_warm_start_and_names_what_it_cannot_fix():
     sk, ms = another_puppet(5)
-    rng = np.random.default_rng(2)
-
-    def noisy(p):
-        return p + rng.normal(0, 0.05e-3, p.shape)
-
-    rest = noisy(ms.positions(Pose.rest(sk)))
-    others = [noisy(ms.positions(random_pose(sk, 200 + i, ms))) for i in range(2)]
+    noisy = _noisy(2, 0.05e-3)
+    rest, others = _rest_and_poses(sk, ms, noisy, 200, 2)
     alt = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, iterations=6, joint=False)
     cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, iterations=6)
     assert cal.joint_evaluations and alt.joint_evaluations is None
@@ -154,13 +156,8 @@ def test_joint_calibration_escapes_a_shoulder_near_gimbal_lock_and_predicts_its_
     # the truth's start) and the bones the beads fix came out 0.84 deg RMS off (0.41 from the
     # truth's start). Rotation vectors from the start rotation reach the truth's minimum.
     sk, ms = another_puppet(11)
-    rng = np.random.default_rng(11)
-
-    def noisy(p):
-        return p + rng.normal(0, 0.06e-3, p.shape)
-
-    rest = noisy(ms.positions(Pose.rest(sk)))
-    others = [noisy(ms.positions(random_pose(sk, 12 + i, ms))) for i in range(2)]
+    noisy = _noisy(11, 0.06e-3)
+    rest, others = _rest_and_poses(sk, ms, noisy, 12, 2)
     # the beads' noise stated as it is, so that the prediction below can be compared with it
     cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, marker_sigma_m=0.06e-3)
     full = ("l-knee", "r-knee", "upper-back", "head", "l-shoulder", "r-shoulder", "l-elbow", "r-elbow")
