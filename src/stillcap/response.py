@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Response", "CLASSES", "LINEAR_LIMIT", "parse_response_spec", "check_response_option",
+__all__ = ["Response", "EstimatedResponse", "CLASSES", "LINEAR_LIMIT", "parse_response_spec", "check_response_option",
            "effective_gamma_of_lut"]
 
 #: The response classes (:attr:`Response.response_class`).
@@ -294,3 +294,19 @@ def check_response_option(response):
     if isinstance(response, str):
         return parse_response_spec(response)
     return Response.from_json(response, "response option")
+
+
+class EstimatedResponse:
+    """What every response estimate shares (the balls' shading, a board's edges): a class or
+    None when it cannot tell (``response_class``), and the fitted ``gamma``."""
+
+    response_class: str | None
+    gamma: float
+
+    @property
+    def ok(self) -> bool:
+        return self.response_class is not None
+
+    def response(self) -> Response | None:
+        """The response it names (:meth:`Response.estimated`); None when it cannot tell."""
+        return Response.estimated(self.response_class, self.gamma) if self.ok else None

@@ -32,7 +32,7 @@ import numpy as np
 
 from stillcap.calibrate.detect import find_chessboard, image_name, read_gray
 from stillcap.calibrate.targets import Chessboard
-from stillcap.response import LINEAR_LIMIT, Response
+from stillcap.response import LINEAR_LIMIT, EstimatedResponse
 
 __all__ = ["EdgeResponseEstimate", "board_response", "combine_photos", "edge_response", "image_edge_gamma",
            "rig_responses", "MIN_PHOTOS"]
@@ -48,7 +48,7 @@ _CLIPPED = 0.05  # share of plateau samples at 0 or 255 above which the board is
 
 
 @dataclass
-class EdgeResponseEstimate:
+class EdgeResponseEstimate(EstimatedResponse):
     """What a camera's board photos say about its response.
 
     Attributes
@@ -79,14 +79,6 @@ class EdgeResponseEstimate:
     edge_width_px: float = float("nan")
     clipped: float = 0.0
     evidence: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return self.response_class is not None
-
-    def response(self) -> Response | None:
-        """The response to write (:meth:`Response.estimated`); None when it cannot tell."""
-        return Response.estimated(self.response_class, self.gamma) if self.ok else None
 
     def to_json(self) -> dict:
         r = self.response()

@@ -33,7 +33,7 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap._selfcheck import SelfCheck
-from stillcap.response import LINEAR_LIMIT, Response
+from stillcap.response import LINEAR_LIMIT, EstimatedResponse, Response
 
 __all__ = ["ResponseEstimate", "ball_shading_gamma", "estimate_response", "estimate_responses", "response_check",
            "MIN_SPHERES"]
@@ -56,7 +56,7 @@ _MAX_SPHERES = 40
 
 
 @dataclass
-class ResponseEstimate:
+class ResponseEstimate(EstimatedResponse):
     """What the photos say about the camera's response.
 
     Attributes
@@ -82,14 +82,6 @@ class ResponseEstimate:
     n_spheres: int
     gammas: np.ndarray = field(repr=False)
     evidence: str = ""
-
-    @property
-    def ok(self) -> bool:
-        return self.response_class is not None
-
-    def response(self) -> Response | None:
-        """The response to use (:meth:`Response.estimated`); None when it cannot tell."""
-        return Response.estimated(self.response_class, self.gamma) if self.ok else None
 
     def to_json(self) -> dict:
         r = self.response()
