@@ -3,9 +3,9 @@ and the ball detector's crescent and frame-edge fits (:mod:`stillcap.detect.ball
 
 - :func:`kasa_circle`: the algebraic (Kasa) fit, a 3-unknown linear least-squares problem; a
   start, and exact on points that lie on a circle.
-- :func:`fit_circle`: robust geometric least squares (soft-L1 loss; Gauss-Newton on reweighted
-  residuals, ``scipy.optimize.least_squares`` where that does not converge), with the radius
-  free or known.
+- :func:`fit_circle`: robust geometric least squares (soft-L1 loss), with the radius free
+  (Newton steps on the loss, ``scipy.optimize.least_squares`` where they do not converge) or
+  known (``least_squares``).
 - :func:`arc_span_deg`: how much of the circle the points cover, seen from a centre.
 - :func:`center_covariance`: the centre's covariance for a given radial noise (the Gauss-Newton
   normal matrix of the fit), which grows as the arc shortens.
@@ -53,21 +53,26 @@ def fit_circle(points, radius: float | None = None, start=None, f_scale: float =
         u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
         return np.column_stack([-u, -np.ones(len(d))]) if radius is None else -u
     x0 = np.array([start[0], start[1]] + ([float(np.mean(np.hypot(*(points - start).T)))] if radius is None else []))
-    x = _soft_l1_gauss_newton(res, jac, x0, f_scale)
-    if x is None:  # not converged (rare): scipy's trust-region solver, which always ends
+    # free radius: Newton steps on the loss (fast); not converged (rare), or a known radius (its
+    # short arcs have a mirror minimum on the arc's other side, which a trust region keeps away
+    # from): scipy's trust-region solver
+    x = _soft_l1_gauss_newton(res, jac, x0, f_scale) if radius is None else None
+    if x is None:
         x = least_squares(res, x0, jac=jac, loss="soft_l1", f_scale=f_scale).x
     r_fit = float(x[2]) if radius is None else float(radius)
     return x[:2], r_fit, float(np.sqrt(np.mean(res(x) ** 2)))
 
 
-def _soft_l1_gauss_newton(res, jac, x0, f_scale: float, tol: float = 1e-9, max_iter: int = 100):
-    """The minimum of the soft-L1 cost ``sum 2 ((1 + (r/f)^2)^0.5 - 1)`` near ``x0`` by Gauss-Newton
-    on iteratively reweighted residuals (weights ``(1 + (r/f)^2)^-0.5``, the loss's derivative:
-    the same stationary point as ``least_squares(..., loss="soft_l1")``); None when a step does
-    not shrink below ``tol`` within ``max_iter`` or the cost goes up.
+def _soft_l1_gauss_newton(res, jac, x0, f_scale: float, tol: float = 1e-10, max_iter: int = 50):
+    """The minimum of the soft-L1 cost ``sum 2 ((1 + (r/f)^2)^0.5 - 1)`` near ``x0`` by Newton
+    steps on the loss (gradient ``J^T (rho' r)``, Gauss-Newton Hessian ``J^T diag(h) J`` with ``h``
+    the loss's own curvature ``rho' + 2 z rho''``, ``z = (r/f)^2``, kept above ``rho'/10`` where a
+    far point makes it small or negative), halved while the cost goes up: the same stationary
+    point as ``least_squares(..., loss="soft_l1")``. None when the steps do not shrink below
+    ``tol`` (relative) within ``max_iter``.
 
     Hand-written for speed: a circle fit has 2-3 unknowns and a few hundred points, and
-    ``scipy.optimize.least_squares`` spends ~10x the arithmetic on its per-call and
+    ``scipy.optimize.least_squares`` spends several times the arithmetic on its per-call and
     per-iteration set-up (the ball detector fits ~60 circles a photo). The caller falls back to
     ``least_squares`` when this returns None.
     """
@@ -75,17 +80,17 @@ def _soft_l1_gauss_newton(res, jac, x0, f_scale: float, tol: float = 1e-9, max_i
     r = res(x)
     cost = float(np.sum(np.sqrt(1.0 + (r / f_scale) ** 2)))
     for _ in range(max_iter):
-        w = 1.0 / np.sqrt(1.0 + (r / f_scale) ** 2)
+        z = (r / f_scale) ** 2
+        rho1 = 1.0 / np.sqrt(1.0 + z)
+        h = np.maximum(rho1 - z * rho1 ** 3, 0.1 * rho1)  # rho' + 2 z rho'', rho'' = -(1+z)^-1.5 / 2
         J = jac(x)
-        Jw = J * w[:, None]
         try:
-            step = np.linalg.solve(Jw.T @ J, -(Jw.T @ r))
+            step = np.linalg.solve((J * h[:, None]).T @ J, -(J.T @ (rho1 * r)))
         except np.linalg.LinAlgError:
             return None
         if not np.all(np.isfinite(step)):
             return None
-        # halve a step that raises the cost (IRLS steps rarely do near the minimum)
-        for _h in range(30):
+        for _h in range(30):  # halve a step that raises the cost
             x_new = x + step
             r_new = res(x_new)
             cost_new = float(np.sum(np.sqrt(1.0 + (r_new / f_scale) ** 2)))
