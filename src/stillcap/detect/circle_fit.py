@@ -56,50 +56,58 @@ def fit_circle(points, radius: float | None = None, start=None, f_scale: float =
     # free radius: Newton steps on the loss (fast); not converged (rare), or a known radius (its
     # short arcs have a mirror minimum on the arc's other side, which a trust region keeps away
     # from): scipy's trust-region solver
-    x = _soft_l1_gauss_newton(res, jac, x0, f_scale) if radius is None else None
+    x = _soft_l1_newton(points, x0, f_scale) if radius is None else None
     if x is None:
         x = least_squares(res, x0, jac=jac, loss="soft_l1", f_scale=f_scale).x
     r_fit = float(x[2]) if radius is None else float(radius)
     return x[:2], r_fit, float(np.sqrt(np.mean(res(x) ** 2)))
 
 
-def _soft_l1_gauss_newton(res, jac, x0, f_scale: float, tol: float = 1e-10, max_iter: int = 50):
-    """The minimum of the soft-L1 cost ``sum 2 ((1 + (r/f)^2)^0.5 - 1)`` near ``x0`` by Newton
-    steps on the loss (gradient ``J^T (rho' r)``, Gauss-Newton Hessian ``J^T diag(h) J`` with ``h``
-    the loss's own curvature ``rho' + 2 z rho''``, ``z = (r/f)^2``, kept above ``rho'/10`` where a
-    far point makes it small or negative), halved while the cost goes up: the same stationary
-    point as ``least_squares(..., loss="soft_l1")``. None when the steps do not shrink below
-    ``tol`` (relative) within ``max_iter``.
+def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: float = 1e-10,
+                    max_iter: int = 50) -> np.ndarray | None:
+    """Centre and radius ``(cx, cy, r)`` of least soft-L1 cost ``sum 2 ((1 + (e/f)^2)^0.5 - 1)``
+    (``e`` a point's distance from the circle) near ``x0``: Newton steps on the loss (gradient
+    ``J^T (rho' e)``, Gauss-Newton Hessian ``J^T diag(h) J`` with ``h`` the loss's own curvature
+    ``rho' + 2 z rho''``, ``z = (e/f)^2``, kept above ``rho'/10`` where a far point makes it
+    small or negative), halved while the cost goes up: the same stationary point as
+    ``least_squares(..., loss="soft_l1")``. None when the steps do not shrink below ``tol``
+    (relative) within ``max_iter``.
 
-    Hand-written for speed: a circle fit has 2-3 unknowns and a few hundred points, and
+    Hand-written for speed: a circle fit has 3 unknowns and a few hundred points, and
     ``scipy.optimize.least_squares`` spends several times the arithmetic on its per-call and
-    per-iteration set-up (the ball detector fits ~60 circles a photo). The caller falls back to
-    ``least_squares`` when this returns None.
+    per-iteration set-up (the ball detector fits ~60 circles a photo; ~0.5 against ~2.4 ms a
+    fit of 150 points, best of 5 on a loaded machine). The caller falls back to ``least_squares`` when this returns None.
     """
     x = np.array(x0, float)
-    r = res(x)
-    cost = float(np.sum(np.sqrt(1.0 + (r / f_scale) ** 2)))
+    px, py = points[:, 0], points[:, 1]
+
+    def at(x):
+        dx, dy = px - x[0], py - x[1]
+        dist = np.hypot(dx, dy)
+        e = dist - x[2]
+        return dx, dy, dist, e, float(np.sum(np.sqrt(1.0 + (e / f_scale) ** 2)))
+    dx, dy, dist, e, cost = at(x)
     for _ in range(max_iter):
-        z = (r / f_scale) ** 2
+        z = (e / f_scale) ** 2
         rho1 = 1.0 / np.sqrt(1.0 + z)
         h = np.maximum(rho1 - z * rho1 ** 3, 0.1 * rho1)  # rho' + 2 z rho'', rho'' = -(1+z)^-1.5 / 2
-        J = jac(x)
+        inv = 1.0 / np.maximum(dist, 1e-12)
+        J = np.stack([-dx * inv, -dy * inv, -np.ones_like(dx)], 1)  # d e / d (cx, cy, r)
         try:
-            step = np.linalg.solve((J * h[:, None]).T @ J, -(J.T @ (rho1 * r)))
+            step = np.linalg.solve((J * h[:, None]).T @ J, -(J.T @ (rho1 * e)))
         except np.linalg.LinAlgError:
             return None
         if not np.all(np.isfinite(step)):
             return None
         for _h in range(30):  # halve a step that raises the cost
-            x_new = x + step
-            r_new = res(x_new)
-            cost_new = float(np.sum(np.sqrt(1.0 + (r_new / f_scale) ** 2)))
-            if cost_new <= cost * (1 + 1e-15):
+            got = at(x + step)
+            if got[4] <= cost * (1 + 1e-15):
                 break
             step = 0.5 * step
         else:
             return None
-        x, r, cost = x_new, r_new, cost_new
+        x = x + step
+        dx, dy, dist, e, cost = got
         if float(np.max(np.abs(step))) < tol * (1.0 + float(np.max(np.abs(x)))):
             return x
     return None
