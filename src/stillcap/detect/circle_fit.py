@@ -63,7 +63,7 @@ def fit_circle(points, radius: float | None = None, start=None, f_scale: float =
     return x[:2], r_fit, float(np.sqrt(np.mean(res(x) ** 2)))
 
 
-def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: float = 1e-10,
+def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: float = 1e-8,
                     max_iter: int = 50) -> np.ndarray | None:
     """Centre and radius ``(cx, cy, r)`` of least soft-L1 cost ``sum 2 ((1 + (e/f)^2)^0.5 - 1)``
     (``e`` a point's distance from the circle) near ``x0``: Newton steps on the loss (gradient
