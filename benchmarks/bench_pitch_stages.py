@@ -1,6 +1,6 @@
 """CPU time of the pitch pipeline's stages, per capture (where the time of ``analyse_pitch`` goes).
 
-    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6]
+    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6] [--repeat 5]
     python benchmarks/bench_pitch_stages.py --seeds 5
 
 ``--captures DIR``: capture folders kept by ``bench_pitch.py --keep DIR`` (every ``--every``-th);
@@ -9,7 +9,9 @@ Each capture runs ``analyse_pitch`` on threads (``processes=0``) after one warm-
 CPU times, which a shared machine disturbs far less than wall times: the whole call in
 ``time.process_time`` (every thread of the process, OpenCV's own included), and each stage
 function in ``time.thread_time`` of the thread that ran it (OpenCV's worker threads not
-included), summed per capture. To compare two versions of the code, run this script with each
+included), summed per capture. With ``--repeat N`` each capture runs N times and every row takes
+its least time over them (best of N, per stage and per capture: the least disturbed by other
+work on a loaded machine), then the mean over the captures. To compare two versions of the code, run this script with each
 version first on ``PYTHONPATH`` (e.g. ``git worktree add``), alternately, on the same captures.
 """
 
@@ -39,9 +41,12 @@ STAGES = (
     ("ball_centers_stereo", [("stillcap.pipelines.pitch.workers", "ball_centers_stereo"),
                              ("stillcap.pipelines.pitch", "ball_centers_stereo")]),
     ("  of which detect_balls", [("stillcap.ball.stereo", "detect_balls")]),
+    ("    of which crescent_circle (arc fits)", [("stillcap.detect.ball._silhouettes", "crescent_circle")]),
     ("  of which refine_ball_centers", [("stillcap.ball.stereo", "refine_ball_centers")]),
+    ("  of which photo_blur_px", [("stillcap.ball.stereo", "photo_blur_px")]),
     ("pair_marker_observations", [("stillcap.pipelines.pitch.spin", "pair_marker_observations"),
                                   ("stillcap.pipelines.pitch", "pair_marker_observations")]),
+    ("  of which detect_ball_markers", [("stillcap.ball.markers", "detect_ball_markers")]),
     ("fit_pair_spin", [("stillcap.pipelines.pitch.spin", "_fit_pair_spin"),
                        ("stillcap.pipelines.pitch", "_fit_pair_spin")]),
     ("combined_spin", [("stillcap.pipelines.pitch.spin", "_combined_spin"),
@@ -103,6 +108,7 @@ def main():
     ap.add_argument("--captures", type=Path, default=None, help="folders kept by bench_pitch.py --keep")
     ap.add_argument("--every", type=int, default=6, help="every n-th kept capture")
     ap.add_argument("--seeds", type=int, default=2, help="pitches per preset when rendering (no --captures)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per capture; each row the best of them")
     ap.add_argument("--workers", type=int, default=2,
                     help="PitchOptions.workers (1: every stage on the calling thread, so the rows add up)")
     args = ap.parse_args()
@@ -120,10 +126,21 @@ def main():
             return time.process_time() - t
 
         run(folders[0])  # warm-up: imports, caches
-        totals.clear()
-        whole = [run(f) for f in folders]
+        best: dict = defaultdict(float)  # stage -> sum over captures of its best time
+        whole = []
+        for f in folders:
+            runs = []
+            for _ in range(max(args.repeat, 1)):
+                totals.clear()
+                t = run(f)
+                runs.append((t, dict(totals)))
+            whole.append(min(t for t, _ in runs))
+            for name in {k for _, tot in runs for k in tot}:
+                best[name] += min(tot.get(name, 0.0) for _, tot in runs)
+        totals = best
     n = len(folders)
-    t = Table(title=f"pitch pipeline CPU per capture, ms ({n} captures, workers={args.workers}; stillcap from "
+    t = Table(title=f"pitch pipeline CPU per capture, ms ({n} captures, best of {args.repeat}, workers={args.workers}; "
+                    f"stillcap from "
                     f"{Path(stillcap.__file__).parent})")
     t.add_column("stage")
     t.add_column("ms per capture", justify="right")
