@@ -27,7 +27,9 @@ rendered by the studio into ``--cache`` once (a 2560x1920 JPEG pitch, a 640x480 
 views), so the benchmark needs no folder from elsewhere. Run it on a quiet machine: on a loaded
 one every ratio is distorted (the one-off costs of a fresh process suffer most).
 
-    python benchmarks/bench_speed.py [--cache DIR] [--repeat 3]
+    python benchmarks/bench_speed.py [--cache DIR] [--repeat 3] [--pitch-only]
+
+``--pitch-only``: the pitch rows only (rows 1 and 2, without the puppet's).
 """
 
 from __future__ import annotations
@@ -123,6 +125,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"))
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--pitch-only", action="store_true", help="the pitch rows only (no puppet)")
     args = ap.parse_args(argv)
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
@@ -146,21 +149,23 @@ def main(argv=None) -> None:
         if not said.startswith("stillcap: via the server"):
             raise SystemExit(f"the run did not go through the warm server: {said.splitlines()[:1]}")
         wall_warm = best_time(lambda: cli(env), args.repeat)
-    dec_puppet, dec_puppet_cpu = decode(puppet, args.repeat, cpu=True)
     runs = []
-    for _ in range(args.repeat):
+    for _ in range(0 if args.pitch_only else args.repeat):
         p = subprocess.run([sys.executable, "-c", PUPPET_RUN, str(puppet)], check=True, env=_env(),
                            capture_output=True, text=True)
         runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
-    cold, warm = min(r["cold"] for r in runs), min(r["warm"] for r in runs)
-    cold_cpu = min(r["cold_cpu"] for r in runs)
-    imp = min(r["import"] for r in runs)
+    if not args.pitch_only:
+        dec_puppet, dec_puppet_cpu = decode(puppet, args.repeat, cpu=True)
+        cold, warm = min(r["cold"] for r in runs), min(r["warm"] for r in runs)
+        cold_cpu = min(r["cold_cpu"] for r in runs)
+        imp = min(r["import"] for r in runs)
     rows = [(f"analyse_pitch (load included, threads) vs decoding its {n_pitch} JPEGs", api, dec_pitch, 2.0),
             ("  (the same, CPU time of all its threads vs the decode's CPU time, for comparison)", api_cpu,
              dec_pitch_cpu, None),
             ("  (the same with processes=2, worker pool started before, for comparison)", api_proc, dec_pitch, None),
             ("`stillcap pitch CAPTURE --json` wall time vs analyse_pitch (its own process)", wall, api, 1.3),
-            ("`stillcap pitch CAPTURE --json` through a warm `stillcap serve` vs analyse_pitch", wall_warm, api, 1.3),
+            ("`stillcap pitch CAPTURE --json` through a warm `stillcap serve` vs analyse_pitch", wall_warm, api, 1.3)]
+    rows += [] if args.pitch_only else [
             (f"puppet end to end, loading included (first call) vs decoding its {n_puppet} JPEGs", cold, dec_puppet, 4.0),
             ("  (the same, CPU time of all its threads vs the decode's CPU time, for comparison)", cold_cpu,
              dec_puppet_cpu, None),
