@@ -76,7 +76,8 @@ def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: flo
     Hand-written for speed: a circle fit has 3 unknowns and a few hundred points, and
     ``scipy.optimize.least_squares`` spends several times the arithmetic on its per-call and
     per-iteration set-up (the ball detector fits ~60 circles a photo; ~0.5 against ~2.4 ms a
-    fit of 150 points, best of 5 on a loaded machine). The caller falls back to ``least_squares`` when this returns None.
+    fit of 150 points, best of 5 on a loaded machine). The caller falls back to
+    ``least_squares`` when this returns None.
     """
     x = np.array(x0, float)
     px, py = points[:, 0], points[:, 1]
