@@ -488,8 +488,11 @@ def markers_and_spin(pairs: list, marker_jobs: list, flight: PositionsFit, model
         try:
             if spin_error is not None:
                 raise spin_error
+            # the spin's shared ball-centre error: the positions' own modes (calibration, remaining
+            # shading bias per camera along its lit direction)
+            center_modes = [flight.shared_modes.get(i) for i in range(len(pairs))]
             spin, alias, obs_times = spin_stage(pairs, fit_pos, model, layout, options.spin_method, messages,
-                                                pair_spins, options.shading_model_error)
+                                                pair_spins, center_modes, options.radius_m)
         except (ValueError, np.linalg.LinAlgError) as e:  # a spin that cannot be had must not cost the flight
             spin, alias, obs_times = None, None, None
             messages.append(f"spin fit failed ({e}): spin unavailable")
