@@ -422,7 +422,10 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
             if share is not None:
                 kappa = [share.of(f"{p.name}/{c}") for c in p.cameras]
                 p.shading_error = {c: share.to_dict()["cameras"].get(f"{p.name}/{c}") for c in p.cameras}
-            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px, kappa)
+            # how much of it the two cameras share: from the pair's epipolar residuals, which the
+            # flight cannot absorb (docs/pitch.md, "Shared by the pair's cameras")
+            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px, kappa,
+                                      correlation="epipolar")
         else:
             if sb is None:
                 sb = pixel_sigma(p.reproj_error_px, default_px=0.0)
