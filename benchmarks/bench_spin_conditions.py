@@ -71,12 +71,17 @@ VARIANTS = {"no share": {"shading_model_error": 0.0}, "no centre bias": {"center
 def decomposition(condition: str, rows: list) -> str:
     """The variance of each quantity's sigma split into its terms, mean over the captures:
     ``random`` (no shared centre error), ``model`` (the shading model's own error: no share
-    minus random) and ``share`` (the stated share: as is minus no share), in % of the whole."""
+    minus random) and ``share`` (the stated share: as is minus no share), in % of the whole.
+    Spin rate and axis leave out wrong aliases and ambiguous ones (sigma above 20 rpm: the
+    interval spans the aliases)."""
     ok = [r for r in rows if r.get("ok") and r.get("variants")]
     cells = []
     for label, key, i in DECOMPOSE:
         v = []
         for r in ok:
+            if key in ("rate_sigma_rpm", "axis_sigma_deg") and (not rp.alias_right(r)
+                                                                or (r.get("rate_sigma_rpm") or 0.0) > 20.0):
+                continue  # a wrong alias, or an ambiguous one whose sigma spans the aliases
             s = [r.get(key), r["variants"]["no share"].get(key), r["variants"]["no centre bias"].get(key)]
             if i is not None:
                 s = [x[i] if x is not None else None for x in s]
