@@ -70,8 +70,16 @@ def _mixed(rng: np.random.Generator) -> tuple[dict, dict, int | None]:
     return cap, sensor, q
 
 
-def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str) -> dict:
-    """Render, analyse and evaluate one capture of ``condition`` (a process-pool task)."""
+#: the sigmas a variant of the analysis records (``run_capture(variants=...)``)
+SIGMA_KEYS = ("speed_sigma_mph", "dir_sigma_hv_deg", "rate_sigma_rpm", "axis_sigma_deg")
+
+
+def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, variants: dict | None = None) -> dict:
+    """Render, analyse and evaluate one capture of ``condition`` (a process-pool task).
+
+    ``variants``: name -> ``analyse_pitch`` keywords; the same photos are analysed again with
+    each, and ``row["variants"][name]`` keeps their sigmas (``SIGMA_KEYS``), e.g. to split the
+    variance of each quantity into its terms (``bench_spin_conditions.py --decompose``)."""
     from bench_pitch import evaluate
 
     from stillcap.files.atomic import write_text
@@ -111,6 +119,12 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
         checks = getattr(res, "self_checks", None) or []
         row["checks_failed"] = [c.name for c in checks if not c.passed]
         row["ok"] = True
+        row["variants"] = {}
+        for name, kw in (variants or {}).items():
+            rv = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1, **kw)
+            add_truth_comparison(rv, loaded.truth)
+            ev = evaluate(rv, loaded.truth)
+            row["variants"][name] = {k: ev.get(k) for k in SIGMA_KEYS}
     except ValueError as e:  # a capture the pipeline rejects counts as a failure of the condition
         row["ok"] = False
         row["error"] = str(e)
@@ -144,18 +158,27 @@ def summarise(condition: str, rs: list) -> dict:
             out[f"cov_{k}_n"] = len(xs)
     # z = error / sigma (mean and spread over the captures): a mean off 0 is a shared bias the
     # intervals miss, a spread above 1 sigmas too small, below 1 too large
+    # (spin: captures whose alias is right only; a wrong alias's z says nothing of the width)
     for key, err, sig, i in (("speed", "speed_mph", "speed_sigma_mph", None),
                              ("dir_h", "dir_err_hv_deg", "dir_sigma_hv_deg", 0),
-                             ("dir_v", "dir_err_hv_deg", "dir_sigma_hv_deg", 1)):
+                             ("dir_v", "dir_err_hv_deg", "dir_sigma_hv_deg", 1),
+                             ("rate", "rate_rpm", "rate_sigma_rpm", None),
+                             ("axis", "axis_deg", "axis_sigma_deg", None)):
         z = []
         for r in ok:
+            if key in ("rate", "axis") and not alias_right(r):
+                continue
             e, s = r.get(err), r.get(sig)
             if i is not None:
                 e, s = (e[i], s[i]) if e is not None and s is not None else (None, None)
             if e is not None and s is not None and np.isfinite(e) and np.isfinite(s) and s > 0:
-                z.append(e / s)
+                # the axis: an angle over its per-component sigma, angle^2 / sigma^2 ~ chi2(2),
+                # so z per component is the angle / (sqrt(2) sigma) (its RMS is 1 when calibrated)
+                z.append(e / s / (np.sqrt(2.0) if key == "axis" else 1.0))
         out[f"z_{key}_mean"] = float(np.mean(z)) if z else float("nan")
         out[f"z_{key}_sd"] = float(np.std(z)) if z else float("nan")
+        out[f"z_{key}_rms"] = float(np.sqrt(np.mean(np.square(z)))) if z else float("nan")
+        out[f"z_{key}_n"] = len(z)
     out["checks_fired"] = float(np.mean([bool(r.get("checks_failed")) for r in ok])) if ok else float("nan")
     names = sorted({c for r in ok for c in r.get("checks_failed", [])})
     out["checks"] = {c: sum(c in r.get("checks_failed", []) for r in ok) for c in names}
@@ -163,33 +186,54 @@ def summarise(condition: str, rs: list) -> dict:
 
 
 def z_table(rows: list) -> tuple[list, list]:
-    """Per condition, z = error / sigma of speed and of the direction (horizontal / vertical
-    across the flight), mean +- spread over the captures: the coverage with n = 6 moves by
-    +-9 % per capture, these say more (a mean off 0: a shared bias the intervals miss; a
-    spread above 1: sigmas too small, below 1: too large)."""
+    """Per condition, z = error / sigma of speed, of the direction (horizontal / vertical across
+    the flight) and of the spin rate, mean +- spread over the captures, and of the spin axis
+    (per component, RMS): the coverage with n = 6 moves by +-9 % per capture, these say more (a
+    mean off 0: a shared bias the intervals miss; a spread or RMS above 1: sigmas too small,
+    below 1: too large). Spin columns count captures whose alias is right only; the last row
+    pools every condition (z RMS per quantity)."""
     def cell(r, key):
         m, s = r.get(f"z_{key}_mean"), r.get(f"z_{key}_sd")
         if m is None or s is None or not (np.isfinite(m) and np.isfinite(s)):
             return "-"
         return f"{m:+.2f} +- {s:.2f}"
-    head = ["condition", "n", "z speed", "z dir h", "z dir v"]
-    body = [[r["condition"], str(r["n"]), cell(r, "speed"), cell(r, "dir_h"), cell(r, "dir_v")] for r in rows]
-    return head, body
+
+    def rms(r, key):
+        v = r.get(f"z_{key}_rms")
+        return "-" if v is None or not np.isfinite(v) else f"{v:.2f}"
+    head = ["condition", "n", "z speed", "z dir h", "z dir v", "z rate", "z axis rms"]
+    body = [[r["condition"], str(r["n"]), cell(r, "speed"), cell(r, "dir_h"), cell(r, "dir_v"), cell(r, "rate"),
+             rms(r, "axis")] for r in rows]
+    pooled = ["pooled z RMS", str(sum(r["n"] for r in rows))]
+    for key in ("speed", "dir_h", "dir_v", "rate", "axis"):
+        num = sum(r.get(f"z_{key}_rms", np.nan) ** 2 * r.get(f"z_{key}_n", 0) for r in rows
+                  if np.isfinite(r.get(f"z_{key}_rms", np.nan)))
+        n = sum(r.get(f"z_{key}_n", 0) for r in rows if np.isfinite(r.get(f"z_{key}_rms", np.nan)))
+        pooled.append(f"{np.sqrt(num / n):.2f}" if n else "-")
+    return head, body + [pooled]
 
 
-def run(conditions, n: int, seed: int, size, jobs: int, progress=None) -> list[dict]:
-    """Every capture of every condition on ``jobs`` processes; rows per capture."""
+def alias_right(row: dict, max_rpm: float = 50.0) -> bool:
+    """Whether a capture's spin rate is within ``max_rpm`` of the truth (its alias right; the
+    wrong aliases of the benchmark are 180-800 rpm off)."""
+    r = row.get("rate_rpm")
+    return r is None or abs(r) < max_rpm
+
+
+def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants: dict | None = None) -> list[dict]:
+    """Every capture of every condition on ``jobs`` processes; rows per capture (``variants``:
+    :func:`run_capture`'s)."""
     tasks = [(c, i) for c in conditions for i in range(n)]
     rows = []
     with tempfile.TemporaryDirectory() as work:
         if jobs <= 1:
             for c, i in tasks:
-                rows.append(run_capture(c, i, seed, size, work))
+                rows.append(run_capture(c, i, seed, size, work, variants))
                 if progress:
                     progress(len(rows), len(tasks))
         else:
             with ProcessPoolExecutor(jobs) as ex:
-                futs = [ex.submit(run_capture, c, i, seed, size, work) for c, i in tasks]
+                futs = [ex.submit(run_capture, c, i, seed, size, work, variants) for c, i in tasks]
                 for f in futs:
                     rows.append(f.result())
                     if progress:

@@ -142,7 +142,8 @@ def main(argv=None):
             title, checks = f"{name}", {}
         print_text(title, head, body)
         if name == "pitch" and hasattr(mod, "z_table"):  # the intervals' calibration beside the coverage
-            print_text("pitch: z = error / sigma, mean +- spread over the captures", *mod.z_table(rs))
+            print_text("pitch: z = error / sigma, mean +- spread over the captures (axis: RMS per component; "
+                       "spin: right aliases only; last row: every condition pooled)", *mod.z_table(rs))
         if checks:
             print("self-checks that failed (captures per condition): "
                   + "; ".join(f"{c}: {', '.join(f'{k} {v}' for k, v in d.items())}" for c, d in checks.items()))

@@ -94,7 +94,7 @@ def test_remaining_bias_takes_a_share_per_camera():
     m0 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.0)
     m = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, [0.5, 0.0])
     both = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5)
-    assert m.shape == m0.shape == (12, len(st), 3)
+    assert m.shape == m0.shape == (14, len(st), 3)
     # camera 0's modes (0-5) grew, camera 1's (6-11) are the model's own error alone
     np.testing.assert_array_equal(m[6:], m0[6:])
     assert np.sum(m[:6] ** 2) > np.sum(m0[:6] ** 2)

@@ -276,3 +276,63 @@ def test_center_shift_of_ray_directions_follows_the_ray_not_the_point():
         d = plain.spin - base.spin
         inside += d @ np.linalg.solve(wide.spin_covariance, d) <= chi2.ppf(0.99, 3)
     assert inside >= n - 2
+
+
+def test_a_per_observation_centre_shift_mode_equals_the_same_shift_given_as_a_covariance():
+    """``center_shift_cov`` takes a mode as each observation's centre shift (M, 3) as well as a
+    (mask, 3x3 covariance): a shift that is the same for the masked observations gives the same
+    spin covariance either way, and a mode that moves only one flash's centre adds less than one
+    that moves every flash's."""
+    times, obs, w = _pixel_noise_observations(3, 0.1)
+    views = np.repeat(VIEW[None, :], len(obs), axis=0)
+    rays = MarkerObservations(obs.flash, obs.types, obs.directions, np.ones(len(obs), bool), obs.information,
+                              obs.noise_class, views)
+    e = np.cross(VIEW, [0.0, 0.0, 1.0])
+    e /= np.linalg.norm(e)
+    sigma = 0.01
+    mask = obs.flash >= 2
+    base = fit_spin(times, rays, LAYOUT, spin_init=w)
+    as_cov = fit_spin(times, rays, LAYOUT, spin_init=w, center_shift_cov=[(mask, sigma ** 2 * np.outer(e, e))])
+    as_shift = fit_spin(times, rays, LAYOUT, spin_init=w, center_shift_cov=[np.where(mask[:, None], sigma * e, 0.0)])
+    assert np.allclose(as_shift.spin, as_cov.spin)
+    assert np.allclose(as_shift.spin_covariance, as_cov.spin_covariance, rtol=1e-6, atol=1e-12)
+    added = np.trace(as_shift.spin_covariance) - np.trace(base.spin_covariance)
+    one = fit_spin(times, rays, LAYOUT, spin_init=w,
+                   center_shift_cov=[np.where((obs.flash == 2)[:, None], sigma * e, 0.0)])
+    assert 0 < np.trace(one.spin_covariance) - np.trace(base.spin_covariance) < added
+    with pytest.raises(ValueError, match="shape"):
+        fit_spin(times, rays, LAYOUT, spin_init=w, center_shift_cov=[np.zeros((len(obs) + 1, 3)) + e])
+
+
+def test_the_spins_centre_modes_are_the_pairs_position_modes_at_each_observations_flash():
+    """The pitch pipeline's spin takes each pair's shared position modes (metres, per ball image)
+    as the centre shift of every observation of that image, in ball radii, and leaves the other
+    pairs' observations unmoved."""
+    from types import SimpleNamespace
+
+    from stillcap.pipelines.pitch.spin import _center_shift_modes
+
+    class Part(SimpleNamespace):  # a pair: its observations and its number of ball images
+        def __len__(self):
+            return self.k
+
+    def rays(flash):
+        n = len(flash)
+        return MarkerObservations(np.asarray(flash), np.zeros(n, int), np.tile([0.0, 0.0, 1.0], (n, 1)), None, None,
+                                  None, np.tile(VIEW, (n, 1)))
+
+    a = Part(observations=rays([0, 0, 1, 2]), k=3)
+    b = Part(observations=rays([1, 1, 0]), k=2)
+    D = np.arange(2 * 3 * 3, dtype=float).reshape(2, 3, 3) * 1e-4  # 2 modes, 3 ball images
+    D[1] = 0.0  # an all-zero mode (e.g. full-disc modes of a pair whose images are all corrected) adds nothing
+    modes = _center_shift_modes([a, b], [D, None], 0.037)
+    assert len(modes) == 1
+    m = modes[0]
+    assert m.shape == (7, 3)
+    assert np.allclose(m[:4], D[0][[0, 0, 1, 2]] / 0.037)
+    assert np.all(m[4:] == 0)
+    assert _center_shift_modes([a, b], [D, None], None) == []
+    # directions not from rays (no views): a shared centre error was not modelled for them before either
+    a_plain = Part(observations=MarkerObservations(np.array([0, 1]), np.zeros(2, int), np.tile([0.0, 0.0, 1.0], (2, 1))),
+                   k=3)
+    assert _center_shift_modes([a_plain], [D], 0.037) == []

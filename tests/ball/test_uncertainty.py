@@ -3,6 +3,7 @@ the cluster-robust spin covariance with few flashes, the reference fit's respons
 spin whose error covariance is not the diagonal one it was weighted with."""
 
 import numpy as np
+import pytest
 
 from stillcap.ball.fit import FitPriors, fit_reference_trajectory
 from stillcap.ball.metrics import FT, spin_vector
@@ -384,3 +385,65 @@ def test_remaining_bias_grows_with_the_shading_correction_made():
     st.shading_px = None
     np.testing.assert_array_equal(remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5),
                                   remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.0))
+
+
+def _side_lit_pair():
+    from detect.test_ball import FLIGHT, R_BALL, draw_balls_camera, front_pair
+    from stillcap.ball.stereo import ball_centers_stereo
+
+    a, b = front_pair()
+    light = (1.0, 0.0, 0.3)  # half moons: a correction of ~0.1-0.2 px
+    st = ball_centers_stereo(a, draw_balls_camera(a, FLIGHT, R_BALL, light_world=light, rng=11),
+                             b, draw_balls_camera(b, FLIGHT, R_BALL, light_world=light, rng=12), R_BALL)
+    return a, b, st
+
+
+def test_share_correlation_reads_the_cameras_own_shares_from_the_epipolar_residuals():
+    """A bias both cameras share (each centre moved by the same share of its own size along its
+    lit direction) keeps the pair on its epipolar lines: the correlation comes out near 1. The
+    same bias in one camera only moves the centres off them: near 0, the former independent
+    model. With too few images the capture cannot tell: 0."""
+    from stillcap.ball.uncertainty import lit_geometry, share_correlation
+
+    a, b, st = _side_lit_pair()
+    x = np.stack([st.centers_a, st.centers_b])
+    u, _, _ = lit_geometry(st, x, np.zeros(len(st), int), st.radius_px.T)
+    s = np.full((2, len(st)), 0.2)
+    rng = np.random.default_rng(5)
+    # the true centres with a little random centre noise, then a bias of 1.5 sigma
+    xt = np.stack([a.project(st.points_3d), b.project(st.points_3d)]) + rng.normal(0.0, 0.01, x.shape)
+    shared = xt + 1.5 * s[:, :, None] * u
+    own = xt.copy()
+    own[0] += 1.5 * s[0][:, None] * u[0]
+    rho_shared = share_correlation([a, b], shared, u, s)
+    rho_own = share_correlation([a, b], own, u, s)
+    assert rho_shared.shape == (2,)
+    assert rho_shared[0] > 0.8
+    assert rho_own[0] < 0.2
+    np.testing.assert_array_equal(share_correlation([a, b], shared[:, :3], u[:, :3], s[:, :3]), [0.0, 0.0])
+
+
+def test_remaining_bias_keeps_each_cameras_variance_and_shares_part_of_it():
+    """``correlation`` moves part of each camera's along-u variance into two modes that move both
+    cameras at once; each camera's own variance (per image, along u) stays the same, and with a
+    correlation of 0 the shared modes are empty (the former model)."""
+    from stillcap.ball.uncertainty import remaining_bias_modes
+
+    a, b, st = _side_lit_pair()
+    x = np.stack([st.centers_a, st.centers_b])
+    flags = np.zeros(len(st), int)
+    m0 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5)
+    m1 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation=1.0)
+    mh = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation=0.5)
+    assert m0.shape == (14, len(st), 3) and np.all(m0[12:] == 0)
+    assert np.all(m1[[0, 1, 6, 7]] == 0) and np.any(m1[12:])
+    # a shared shift moves the triangulated point less in depth than two independent ones: the
+    # total position variance falls as the correlation grows
+    var = [float(np.sum(m ** 2)) for m in (m0, mh, m1)]
+    assert var[0] > var[1] > var[2] > 0
+    with pytest.raises(ValueError, match="correlation"):
+        remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation=1.5)
+    with pytest.raises(ValueError, match="correlation"):
+        remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation="guess")
+    rho = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation="epipolar")
+    assert rho.shape == (14, len(st), 3)

@@ -40,8 +40,8 @@ from stillcap.geometry.triangulate import triangulate
 
 __all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes", "lit_geometry",
            "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
-           "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "speed_sigma",
-           "spin_decay_slope"]
+           "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "share_correlation",
+           "speed_sigma", "spin_decay_slope"]
 
 #: Metric keys that are angles (their spread is taken on the circle).
 ANGLE_KEYS = ("spin_axis_deg", "spin_axis_from_movement_deg", "pitchfx_spin_dir_deg")
@@ -459,7 +459,83 @@ def correction_made(stereo, centers_px) -> np.ndarray | None:
     return np.asarray(shading_px, float)[row].T  # (2, K)
 
 
-def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0) -> np.ndarray:
+def _signed_epipolar_px(cams, x) -> np.ndarray:
+    """Signed distance (px) of each camera-1 centre from the epipolar line of its camera-0 centre
+    (undistorted pixels), ``x`` shape (2, K, 2) raw pixels."""
+    from stillcap.geometry.epipolar import fundamental_matrix
+
+    xa, xb = cams[0].undistort_points(x[0]), cams[1].undistort_points(x[1])
+    F = fundamental_matrix(cams[0], cams[1])
+    lines = np.concatenate([xa, np.ones((len(xa), 1))], axis=1) @ F.T
+    hb = np.concatenate([xb, np.ones((len(xb), 1))], axis=1)
+    return np.einsum("ij,ij->i", hb, lines) / np.linalg.norm(lines[:, :2], axis=1)
+
+
+def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndarray:
+    """How much of the two cameras' remaining shading bias a pair's epipolar residuals say is
+    shared (correlation 1) rather than each camera's own (0), for the constant and the trend mode.
+
+    A bias shared by both cameras (the same light, blur and ball: each centre moved by ``kappa
+    s_px`` along its own lit direction ``u``) keeps the two centres on each other's epipolar
+    lines; one camera's own part moves them off. The flight absorbs nothing of this: the signed
+    epipolar residuals of the pair's ball images are regressed (least squares, their scatter
+    scaling the variance) on the response to the difference ``delta`` of the two cameras' shares
+    (camera 0 moved by ``+delta/2``, camera 1 by ``-delta/2``), constant and trending along the
+    flight. With the former model's prior (each camera's share independent with the same 1-sigma:
+    ``delta`` of variance 2 in units of that sigma squared) the posterior's ``E[delta^2] = m2``
+    gives the correlation ``1 - m2 / 2``. Where the capture cannot tell (fewer than
+    ``min_images``, a light along the epipolar lines), the posterior is the prior: correlation 0,
+    the former independent model. Random centre errors show as scatter, not as a difference.
+
+    Parameters
+    ----------
+    cams : sequence of 2 Camera
+    centers_px : array_like, shape (2, K, 2)
+    u : array_like, shape (2, K, 2)
+        Lit direction per camera and image.
+    s_px : array_like, shape (2, K)
+        1-sigma of each image's remaining bias along ``u`` (px): the sizes of the modes.
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Correlation of the constant and of the trend mode, in [0, 1].
+    """
+    x = np.asarray(centers_px, float)
+    u, s = np.asarray(u, float), np.asarray(s_px, float)
+    K = x.shape[1]
+    if K < min_images or not np.all(np.isfinite(x)) or not np.any(s > 0):
+        return np.zeros(2)
+    e0 = _signed_epipolar_px(cams, x)
+    h = 0.01
+    g = np.zeros(K)
+    for c, sign in ((0, 0.5), (1, -0.5)):
+        xs = x.copy()
+        xs[c] += h * sign * s[c][:, None] * u[c]
+        g += (_signed_epipolar_px(cams, xs) - e0) / h
+    t = np.linspace(-1.0, 1.0, K)
+    A = np.stack([g, g * t], axis=1)  # (K, 2): delta constant, delta trend (in units of the sigma)
+    ok = np.all(np.isfinite(A), axis=1) & np.isfinite(e0)
+    A, e0 = A[ok], e0[ok]
+    if len(e0) < min_images:
+        return np.zeros(2)
+    AtA = A.T @ A
+    try:
+        d = np.linalg.solve(AtA + 1e-12 * np.eye(2), A.T @ e0)
+        s2 = float(np.sum((e0 - A @ d) ** 2) / max(len(e0) - 2, 1))
+        V = s2 * np.linalg.inv(AtA + 1e-12 * np.eye(2))
+    except np.linalg.LinAlgError:
+        return np.zeros(2)
+    out = np.zeros(2)
+    for i in range(2):
+        P, v = 2.0, max(float(V[i, i]), 1e-300)  # the prior of delta: two independent unit shares
+        post_var = 1.0 / (1.0 / P + 1.0 / v)
+        m2 = (post_var * d[i] / v) ** 2 + post_var
+        out[i] = float(np.clip(1.0 - m2 / P, 0.0, 1.0))
+    return out
+
+
+def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0, correlation=0.0) -> np.ndarray:
     """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
     (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras).
 
@@ -473,10 +549,17 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     ``docs/pitch.md``, "The correction's wrong share").
     ``model_error``: one share for both cameras, or one per camera (shape (2,)).
 
+    ``correlation``: how much of the two cameras' remaining bias along their lit directions is
+    shared by them (0: each camera's own, the former model; 1: the same share in both), a number
+    or ``"epipolar"`` (:func:`share_correlation`, from the pair's epipolar residuals; one value
+    for the constant and one for the trend mode). Each camera's own variance stays the same: the
+    along-``u`` modes keep ``1 - rho`` of it and two modes more move both cameras at once.
+
     Returns
     -------
-    ndarray, shape (12, K, 3)
-        :func:`lit_bias_modes`.
+    ndarray, shape (14, K, 3)
+        :func:`lit_bias_modes`' 12, then the shared constant and trend modes (zero with a
+        correlation of 0).
     """
     u, phase, corr = lit_geometry(stereo, centers_px, flags, radius_px)
     made = correction_made(stereo, centers_px)
@@ -493,7 +576,34 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
     if made is not None and np.any(k > 0):
         s = np.hypot(s, k[:, None] * made)
-    return lit_bias_modes(cams, centers_px, u, s, corr)
+    x = np.asarray(centers_px, float)
+    K = x.shape[1]
+    if isinstance(correlation, str):
+        if correlation != "epipolar":
+            raise ValueError(f"correlation must be a number in [0, 1] or 'epipolar', got {correlation!r}")
+        rho = share_correlation(cams, x, np.where(corr[None, :, None], u, 0.0), np.where(corr[None], s, 0.0))
+    else:
+        rho = np.broadcast_to(np.asarray(correlation, float), (2,))
+        if not np.all((rho >= 0) & (rho <= 1)):
+            raise ValueError(f"correlation must be in [0, 1], got {correlation}")
+    out = np.zeros((14, K, 3))
+    if K == 0:
+        return out
+    # the cameras' own parts: the along-u modes (0, 1 and 6, 7) with 1 - rho of the variance
+    own = lit_bias_modes(cams, centers_px, u, s, corr)
+    out[:12] = own
+    for i, m in ((0, 0), (1, 1)):
+        out[[m, m + 6]] *= np.sqrt(1.0 - rho[i])
+    if np.any(rho > 0) and np.any(corr):
+        profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
+        shifted = []
+        for i, prof in enumerate(profiles):
+            xs = x.copy()
+            for c in range(2):
+                xs[c] += np.where(corr[:, None], u[c], 0.0) * (np.sqrt(rho[i]) * s[c] * prof)[:, None]
+            shifted.append(xs)
+        out[12:] = _retriangulated_shifts(cams, x, shifted)
+    return out
 
 
 # --------------------------------------------------------------------------------------------

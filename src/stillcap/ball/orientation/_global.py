@@ -251,7 +251,10 @@ def _center_shift_cov(prob, x, R0, j, sel, bread, J, modes):
     ``(mask, C)`` in ``modes`` (``C`` the 3x3 covariance of a centre offset common to the masked
     observations, in ball radii, world frame) and each eigen-direction ``e`` of ``C``, the
     directions from the moved centre (``u - h (e - (e.u) u)``, central differences) give
-    ``dx = -(J^T J)^-1 J^T dr/dh`` and ``cov += lambda dx dx^T``. The cluster-robust sandwich sees
+    ``dx = -(J^T J)^-1 J^T dr/dh`` and ``cov += lambda dx dx^T``. A mode may also be an array
+    (M, 3): a 1-sigma centre shift per observation (ball radii; e.g. the shift of each flash's
+    triangulated centre when one camera's ball centres move along their lit direction), taken
+    with variance 1. The cluster-robust sandwich sees
     a centre error that changes from flash to flash; one common to the flashes (a bias of the
     centre refinement) it cannot.
 
@@ -265,27 +268,40 @@ def _center_shift_cov(prob, x, R0, j, sel, bread, J, modes):
     obs, u = prob.obs, prob.u
     f = None if prob.W is None else prob.W[:, 0, 0] / prob.W_base[:, 0, 0]  # the noise classes' weights
     h = 1e-4
-    for mask, C in modes:
-        m = np.ones(len(u), bool) if mask is None else np.asarray(mask, bool)
-        lam, V = np.linalg.eigh(0.5 * (np.asarray(C, float) + np.asarray(C, float).T))
-        for lk, e in zip(lam, V.T):
-            if not lk > 0:
+
+    def shifts():
+        """Every mode as ``(variance, per-observation centre shift (M, 3))``."""
+        for mode in modes:
+            if isinstance(mode, np.ndarray):  # a 1-sigma shift per observation (M, 3)
+                e = np.asarray(mode, float)
+                if e.shape != u.shape:
+                    raise ValueError(f"a centre-shift mode must have shape {u.shape}, got {e.shape}")
+                if np.any(e):
+                    yield 1.0, e
                 continue
-            if obs.views is None:
-                du = e[None, :] - (u @ e)[:, None] * u
-            else:
-                vu = np.maximum(np.einsum("ij,ij->i", obs.views, u), 0.1)
-                du = e[None, :] - obs.views * ((u @ e) / vu)[:, None]
-            rs = []
-            for sgn in (1.0, -1.0):
-                d = u - sgn * h * du * m[:, None]
-                p2 = _GlobalProblem(prob.dt, MarkerObservations(obs.flash, obs.types, d, obs.from_ray, obs.information,
-                                                                obs.noise_class, obs.views), prob.layout, 0.0)
-                if f is not None and p2.W is not None:
-                    p2.W = p2.W_base * f[:, None, None]
-                rs.append(p2.residuals(x, R0, j, sel))
-            dx = -bread @ (J.T @ ((rs[0] - rs[1]) / (2.0 * h)))
-            out += lk * np.outer(dx, dx)
+            mask, C = mode
+            m = np.ones(len(u), bool) if mask is None else np.asarray(mask, bool)
+            lam, V = np.linalg.eigh(0.5 * (np.asarray(C, float) + np.asarray(C, float).T))
+            for lk, e in zip(lam, V.T):
+                if lk > 0:
+                    yield lk, np.where(m[:, None], e[None, :], 0.0)
+
+    for lk, e in shifts():
+        if obs.views is None:
+            du = e - np.einsum("ij,ij->i", u, e)[:, None] * u
+        else:
+            vu = np.maximum(np.einsum("ij,ij->i", obs.views, u), 0.1)
+            du = e - obs.views * (np.einsum("ij,ij->i", u, e) / vu)[:, None]
+        rs = []
+        for sgn in (1.0, -1.0):
+            d = u - sgn * h * du
+            p2 = _GlobalProblem(prob.dt, MarkerObservations(obs.flash, obs.types, d, obs.from_ray, obs.information,
+                                                            obs.noise_class, obs.views), prob.layout, 0.0)
+            if f is not None and p2.W is not None:
+                p2.W = p2.W_base * f[:, None, None]
+            rs.append(p2.residuals(x, R0, j, sel))
+        dx = -bread @ (J.T @ ((rs[0] - rs[1]) / (2.0 * h)))
+        out += lk * np.outer(dx, dx)
     return out
 
 
@@ -564,9 +580,10 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         offset ``g``).
     time_group_sigma : array_like, shape (G,), optional
         1-sigma of the offset of groups 1..G, s (added to the spin covariance).
-    center_shift_cov : sequence of (mask, ndarray (3, 3)), optional
+    center_shift_cov : sequence of (mask, ndarray (3, 3)) or ndarray (M, 3), optional
         Ball-centre errors common to all flashes: per entry, the covariance (ball radii^2, world
-        frame) of an offset shared by the observations ``mask`` (bool (M,), or None for all),
+        frame) of an offset shared by the observations ``mask`` (bool (M,), or None for all), or
+        a 1-sigma error mode given as each observation's centre shift (ball radii, world frame),
         propagated into the spin's covariance (:func:`_center_shift_cov`).
     stop_fraction : float, optional
         Skip the other starts when the first one, after fitting, has this fraction of the

@@ -87,7 +87,10 @@ class PitchOptions:
         direction, the lens blur and the clipping are read from the photo and the leather is
         taken for lambertian, all of which a real ball and lens break. With
         ``estimate_shading_error`` it is the prior's 1-sigma of that share, what decides where
-        the capture cannot tell.
+        the capture cannot tell. How much of it a pair's two cameras share is read from the
+        pair's epipolar residuals (``remaining_bias_modes(correlation="epipolar")``); the same
+        modes size the spin's shared ball-centre error (``docs/pitch.md``, "The spin's centre
+        error and the pair's shared bias").
         Default 0.5 (``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
     estimate_shading_error : bool
         Experimental, off by default: estimate each camera's share of the correction that is

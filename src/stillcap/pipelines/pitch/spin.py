@@ -104,50 +104,51 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
     return res.best.spin.copy(), res
 
 
-def _center_shift_modes(parts: list, shading_model_error: float):
-    """Each pair's ball-centre error shared by its flashes, as ``fit_spin``'s ``center_shift_cov``
-    (a mask over the pairs' observations joined in order, and a 3x3 covariance in ball radii).
+def _center_shift_modes(parts: list, center_modes: list, radius_m: float | None):
+    """Each pair's ball-centre errors shared by its flashes, as ``fit_spin``'s
+    ``center_shift_cov``: one array (M, 3) per error mode, the shift (ball radii) of the centre
+    every observation's direction is measured from (the pairs' observations joined in order).
 
-    What is left of the shading correction after it is made (``shading_model_error`` times the
-    correction, the same stated share that sizes the positions' bias modes,
-    :func:`stillcap.ball.uncertainty.remaining_bias_modes`) moves both views' centres toward the
-    light, by about the same amount at every flash: the marker directions all turn with it,
-    which the spin fit's own residuals cannot show. Its size: the RMS correction of the pair's
-    images over their median image radius, in radii, spread evenly across the line of sight (the
-    direction of the light in the image is not kept here; along the line of sight a centre error
-    moves no ray-derived direction). Pairs without ray views or corrections add nothing."""
-    modes, start = [], 0
+    The modes are the pair's shared position modes (``center_modes``, one (n_modes, K, 3) array
+    in metres per part, or None; :func:`stillcap.ball.uncertainty.remaining_bias_modes` and the
+    calibration modes): each camera's remaining shading bias moved along its own lit direction,
+    constant and trending along the flight, re-triangulated. The same modes size the positions'
+    intervals, so the spin and the flight state one error of the ball centres, with the light's
+    direction in each image (an isotropic offset across the line of sight, the former model,
+    overstated it: a shift along one camera's epipolar line moves the point along the other
+    camera's ray, which turns none of that camera's marker directions). The marker directions
+    all turn with a shared centre error, which the spin fit's own residuals cannot show. Parts
+    without modes or without ray views add nothing."""
+    if not radius_m or not radius_m > 0:
+        return []
     n_all = sum(len(p.observations) for p in parts)
-    for p in parts:
+    out, start = [], 0
+    for p, D in zip(parts, center_modes):
         o = p.observations
         n = len(o)
-        st = getattr(p, "stereo", None)
-        if (o.views is not None and st is not None and st.shading_px is not None and len(st.shading_px)
-                and shading_model_error > 0):
-            corr = np.asarray(st.shading_px, float)  # (the stereo matches': more rows than the pair may keep)
-            corr = corr[np.isfinite(corr)]
-            r_px = np.asarray(p.radius_px, float)
-            r_px = r_px[np.isfinite(r_px) & (r_px > 0)]
-            if corr.size and r_px.size:
-                sigma = shading_model_error * float(np.sqrt(np.mean(corr ** 2))) / float(np.median(r_px))
-                v = o.views.mean(axis=0)
-                v /= np.linalg.norm(v)
-                mask = np.zeros(n_all, bool)
-                mask[start:start + n] = True
-                modes.append((mask, sigma ** 2 * (np.eye(3) - np.outer(v, v))))
+        if D is not None and o.views is not None and len(D) and D.shape[1] == len(p):
+            for d in np.asarray(D, float):
+                if not np.any(d):
+                    continue
+                e = np.zeros((n_all, 3))
+                e[start:start + n] = d[o.flash] / radius_m
+                out.append(e)
         start += n
-    return modes
+    return out
 
 
-def _combined_spin(pairs: list, spin_init, layout, messages, shading_model_error: float = 0.0):
-    """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``.
+def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, radius_m: float | None = None):
+    """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``;
+    ``center_modes`` (one per pair, or None) as :func:`_center_shift_modes`'s.
 
     Returns ``(SpinResult or None, reference-clock time of each observation)``."""
-    parts, times, groups = [], [], []
-    for p in pairs:
+    parts, times, groups, modes = [], [], [], []
+    center_modes = [None] * len(pairs) if center_modes is None else list(center_modes)
+    for p, D in zip(pairs, center_modes):
         if p.observations is None or len(p.observations) == 0:
             continue
         parts.append(p)
+        modes.append(D)
         times.append(p.times)
         groups.append(np.full(len(p), p.group))
     if not parts:
@@ -161,7 +162,7 @@ def _combined_spin(pairs: list, spin_init, layout, messages, shading_model_error
         p = parts[0]
         R_init = p.spin.ball2world_t0 if p is src else None
         return (fit_spin(p.local_times, p.observations, layout, strobe_hz=p.strobe_hz, spin_init=spin_init,
-                         ball2world_init=R_init, center_shift_cov=_center_shift_modes(parts, shading_model_error)),
+                         ball2world_init=R_init, center_shift_cov=_center_shift_modes(parts, modes, radius_m)),
                 p.times[p.observations.flash])
     R_init = None
     if src is not None:
@@ -191,16 +192,18 @@ def _combined_spin(pairs: list, spin_init, layout, messages, shading_model_error
             g_sig[p.group - 1] = p.time_offset_sigma_s
     return (fit_spin(t_sorted, obs, layout, t0=0.0, strobe_hz=ref.strobe_hz, spin_init=spin_init,
                      ball2world_init=R_init, time_groups=g_sorted, time_group_sigma=g_sig,
-                     center_shift_cov=_center_shift_modes(parts, shading_model_error)),
+                     center_shift_cov=_center_shift_modes(parts, modes, radius_m)),
             t_sorted[obs.flash])
 
 
-def spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None, shading_model_error: float = 0.0):
+def spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None, center_modes=None,
+               radius_m: float | None = None):
     """Per-pair spin fits, the alias choice and the final spin: ``(SpinResult or None, alias
     resolution or None, reference-clock time of each observation of the final fit)``.
     ``pair_spins``: the per-pair fits already made (one per pair, in order), e.g. on the pool.
-    ``shading_model_error``: the stated share of the ball centres' shading correction left wrong,
-    propagated into the final spin's covariance (:func:`_center_shift_modes`)."""
+    ``center_modes``: each pair's shared ball-centre error modes (n_modes, K, 3), metres, or
+    None (one per pair, in order), propagated into the final spin's covariance with the ball's
+    ``radius_m`` (:func:`_center_shift_modes`)."""
     from stillcap.ball.alias import alias_candidates
 
     for i, p in enumerate(pairs):
@@ -213,7 +216,7 @@ def spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None,
         return None, alias, None
     best = max((p for p in pairs if p.spin is not None and p.spin.success), key=lambda p: p.spin.n_inliers)
     if method == "global":
-        spin, obs_times = _combined_spin(pairs, w_alias, layout, messages, shading_model_error)
+        spin, obs_times = _combined_spin(pairs, w_alias, layout, messages, center_modes, radius_m)
         if spin is None or not spin.success:
             spin = _fit_pair_spin(best, "global", layout, spin_init=w_alias)
             obs_times = best.times[best.observations.flash]

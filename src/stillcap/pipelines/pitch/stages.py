@@ -422,7 +422,10 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
             if share is not None:
                 kappa = [share.of(f"{p.name}/{c}") for c in p.cameras]
                 p.shading_error = {c: share.to_dict()["cameras"].get(f"{p.name}/{c}") for c in p.cameras}
-            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px, kappa)
+            # how much of it the two cameras share: from the pair's epipolar residuals, which the
+            # flight cannot absorb (docs/pitch.md, "Shared by the pair's cameras")
+            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px, kappa,
+                                      correlation="epipolar")
         else:
             if sb is None:
                 sb = pixel_sigma(p.reproj_error_px, default_px=0.0)
@@ -488,8 +491,11 @@ def markers_and_spin(pairs: list, marker_jobs: list, flight: PositionsFit, model
         try:
             if spin_error is not None:
                 raise spin_error
+            # the spin's shared ball-centre error: the positions' own modes (calibration, remaining
+            # shading bias per camera along its lit direction)
+            center_modes = [flight.shared_modes.get(i) for i in range(len(pairs))]
             spin, alias, obs_times = spin_stage(pairs, fit_pos, model, layout, options.spin_method, messages,
-                                                pair_spins, options.shading_model_error)
+                                                pair_spins, center_modes, options.radius_m)
         except (ValueError, np.linalg.LinAlgError) as e:  # a spin that cannot be had must not cost the flight
             spin, alias, obs_times = None, None, None
             messages.append(f"spin fit failed ({e}): spin unavailable")
