@@ -208,6 +208,17 @@ def test_bead_noise_recovers_the_pixel_noise_and_the_3d_error_it_causes():
     # beads seen by more views are predicted (and are) better
     n = used.sum(axis=0)
     assert np.median(noise.sd_m[n == 6]) < 0.7 * np.median(noise.sd_m[n == 2])
+    # a bead whose own photos scatter more is predicted worse (its residuals count, shrunk)
+    x2 = np.stack([cam.project(X) for cam in rig]) + rng.normal(0, 0.45, (6, len(X), 2)) * np.where(
+        np.arange(len(X)) < 200, 1.0, 2.5)[None, :, None]
+    x2[hide] = np.nan
+    tri2 = triangulate(rig, x2)
+    n2 = bead_noise(rig, tri2.points, x2, used)
+    z2 = (tri2.points - X) / n2.sd_m[:, None]
+    assert np.median(n2.sd_m[200:]) > 1.3 * np.median(n2.sd_m[:200])  # pooled alone: the same (1.0)
+    # measured over predicted: 2.5 apart with the pooled variance alone (same geometry), nearer with
+    # each bead's own (few dof, shrunk towards the pool: not all the way)
+    assert np.sqrt(np.mean(z2[200:] ** 2)) / np.sqrt(np.mean(z2[:200] ** 2)) < 2.1
     # a bead left out of the pool still gets its 3D error; a wrong one does not spoil the pool
     x_bad = x.copy()
     x_bad[0, 0] += 5.0
@@ -225,7 +236,7 @@ def test_calibration_weighs_beads_by_their_own_noise_and_names_bad_noise_arrays(
     rng = np.random.default_rng(14)
     # half the beads ten times noisier than the others (seen by fewer views, say)
     sd = np.where(np.arange(len(ms)) % 2 == 0, 0.03e-3, 0.3e-3)
-    noisy = lambda p: p + rng.normal(0, 1, p.shape) * sd[:, None]  # noqa: E731
+    noisy = lambda p: p + rng.normal(0, 1, p.shape) * sd[:, None]
     rest, others = _rest_and_poses(sk, ms, noisy, 30, 2)
     cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, noise_m=[sd] * 3)
     flat = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others,
@@ -238,7 +249,7 @@ def test_calibration_weighs_beads_by_their_own_noise_and_names_bad_noise_arrays(
         for c_, e_ in ((cal, e_cal), (flat, e_flat)):
             fitted = fit_pose(c_.skeleton, c_.markerset, pts, marker_sigma_m=sd, root="free").pose
             e_.append([_full_bone_error_deg(sk, fitted, test, (b,)) for b in full])
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))  # noqa: E731
+    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))
     assert rms(e_cal) < rms(e_flat)
     # with every bead's noise stated as it is, the misfit is about 1 (not the flat sigma's)
     assert 0.5 < cal.misfit < 1.5

@@ -558,12 +558,13 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     local_rotations = [locals_of(x, p) for p in range(1, n_caps)]
     return s, beads, ts, local_rotations, res, bones, n_data, _direction_sd(
         res, n_data, lambda xx, p: _fk(offsets_of(xx), locals_of(xx, p), np.eye(4)), cap_slice, n_caps, bones,
-        template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0,
+        template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0, n_data + n_s + 3 * nm, n_a,
         [{k for k in bones if set(np.flatnonzero(frames == parents[k])) <= set(s_.tolist())} for s_ in seen])
 
 
 def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int], template: Skeleton,
-                  c: np.ndarray, n_v: int, data_rows, n_body: int, whole: list) -> tuple[dict[int, float], float]:
+                  c: np.ndarray, n_v: int, data_rows, n_body: int, prior_row0: int, n_a: int,
+                  whole: list) -> tuple[dict[int, float], float]:
     """Predicted direction error of each bone in a new pose fitted with the calibrated skeleton,
     radians, and the fit's misfit (chi-square of the beads per degree of freedom).
 
@@ -574,7 +575,8 @@ def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int]
 
         cov(r) = A cov(b) A^T + inv(J_r^T J_r),   A = -inv(J_r^T J_r) J_r^T J_b
 
-    (``J_r``, ``J_b``: the capture's bead residuals' Jacobian in its rotations and the body;
+    (``J_r``, ``J_b``: the Jacobian of the capture's bead residuals and its rotations' weak prior in
+    its rotations and the body;
     ``cov(b)``: the joint fit's ``inv(J^T J)``), carried to each bone's world direction (finite
     differences over the capture's rotations), RMS over the captures that saw every bead of the
     bone's parent frame (``whole[p]``: the bones so seen in capture ``p``; a bead missing there is
@@ -607,7 +609,9 @@ def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int]
             xx = res.x.copy()
             xx[b + q] += step
             G[:, :, q] = (directions(xx) - d0) / step
-        rows = slice(data_rows[p], data_rows[p + 1])
+        # the capture's bead rows and its rotations' weak prior (a turn no bead fixes, such as a
+        # one-bead frame's twist, keeps the prior's 180 deg instead of none)
+        rows = np.r_[data_rows[p]:data_rows[p + 1], prior_row0 + (p - 1) * n_a:prior_row0 + p * n_a]
         Jr, Jb = J[rows, b:end], J[rows, :n_body]
         own = np.linalg.pinv(Jr.T @ Jr)
         A = -own @ (Jr.T @ Jb)
