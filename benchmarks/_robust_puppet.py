@@ -13,8 +13,11 @@ places (:func:`stillcap.studio.puppet_variation.another_puppet`, seeded), runs t
 and reports wrong identifications, 3D RMS on beads seen whole, partly hidden beads (count and
 their RMS), fitted bone-direction RMS and max on the bones the beads fix (``full`` frames) for
 each skeleton, the calibration's own predicted direction error on those bones
-(:attr:`SkeletonCalibration.direction_sd_deg`, RMS) and the bones it names as uncertain, and the
-model-free bead-pair direction RMS. ``benchmarks/bench_robustness.py`` imports :func:`rows`;
+(:attr:`SkeletonCalibration.direction_sd_deg`, RMS; the calibration weighs each bead by the noise
+its capture's photos show, :func:`stillcap.body.puppet_checks.bead_noise`), ``z`` (measured over
+predicted error per bone, RMS: about 1 when the prediction is honest), the bones it names as
+uncertain (right: measured error over the 1 deg limit; wrong: not over it; missed: over it but not
+named), and the model-free bead-pair direction RMS. ``benchmarks/bench_robustness.py`` imports :func:`rows`;
 
     python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...]
 
@@ -77,6 +80,7 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
 
     from stillcap.body.markerset import MarkerSet
     from stillcap.body.puppet_calibrate import calibrate_skeleton
+    from stillcap.body.puppet_checks import bead_noise
     from stillcap.body.skeleton import Skeleton
     from stillcap.studio.puppet import puppet_scene, webcam_sensor
     from stillcap.studio.puppet_variation import another_puppet
@@ -88,13 +92,15 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
         return _save(puppet_scene(pose=spec, rng=seed, markerset=ms, skeleton=sk, sensor=sensor), tmp / name)
 
     test = shoot("test", f"random:{seed + 7}")
-    cal_pts = []
+    cal_pts, cal_noise = [], []
     for name, spec in (("rest", "tpose"), ("p1", f"random:{seed + 1}"), ("p2", f"random:{seed + 2}")):
         r, _ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
-        p = r.markers.points.copy()
-        p[r.markers.partly_hidden] = np.nan  # as calibrate-skeleton does
+        m = r.markers
+        p = m.points.copy()
+        p[m.partly_hidden] = np.nan  # as calibrate-skeleton does
         cal_pts.append(p)
-    cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:])
+        cal_noise.append(bead_noise(r.rig, m.points, m.observations, m.used, exclude=m.partly_hidden).sd_m)
+    cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:], noise_m=cal_noise)
     out = {"seed": seed}
     for label, (m_, s_) in (("builtin", (MarkerSet.puppet(msname), Skeleton.puppet())),
                             ("calibrated", (cal.markerset, cal.skeleton)), ("user", (ms, sk))):
@@ -102,8 +108,16 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
         out[f"{label}_rms"], out[f"{label}_max"] = cmp.bone_stats("full")
         if label == "calibrated":
             full = [b for b in cmp.bone_groups.get("full", [])]
-            out["predicted_rms"] = _rms([cal.direction_sd_deg.get(b, np.nan) for b in full])
+            pred = np.array([cal.direction_sd_deg.get(b, np.nan) for b in full])
+            err = np.array([cmp.bone_errors_deg.get(b, np.nan) for b in full])
+            out["predicted_rms"] = _rms(pred)
+            out["z"] = list(err / pred)  # measured over predicted, per bone: RMS about 1 when honest
             out["uncertain"] = sorted(b for b in cal.uncertain if b in full)
+            # the calibration's uncertain bones against the measured error over its limit (1 deg)
+            over = {b for b, e in zip(full, err) if e > 1.0}
+            out["uncertain_right"] = len(over & set(out["uncertain"]))
+            out["uncertain_wrong"] = len(set(out["uncertain"]) - over)
+            out["uncertain_missed"] = len(over - set(out["uncertain"]))
         if label == "user":
             out["partial_user"] = cmp.bone_stats("partial")[0]
             out["wrong"] = cmp.wrong
@@ -147,6 +161,10 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                         "bone_deg_calibrated": _rms([r["calibrated_rms"] for r in recs]),
                         "bone_deg_calibrated_worst": float(np.nanmax([r["calibrated_rms"] for r in recs])),
                         "bone_deg_predicted": _rms([r["predicted_rms"] for r in recs]),
+                        "z_rms": _rms([z for r in recs for z in r["z"]]),
+                        "uncertain_right": int(sum(r["uncertain_right"] for r in recs)),
+                        "uncertain_wrong": int(sum(r["uncertain_wrong"] for r in recs)),
+                        "uncertain_missed": int(sum(r["uncertain_missed"] for r in recs)),
                         "bone_deg_user": _rms([r["user_rms"] for r in recs]),
                         "partial_bone_deg_user": _rms([r["partial_user"] for r in recs]),
                         "bead_pair_deg": _rms([r["pairs"] for r in recs])})
@@ -157,7 +175,7 @@ def _seed_line(r: dict) -> str:
     return (f"{r['condition'][:38]:38s} | {r['seed']:5d} | {r['builtin_rms']:5.2f} {r['builtin_max']:5.2f} | "
             f"{r['calibrated_rms']:5.2f} {r['calibrated_max']:5.2f} | {r['predicted_rms']:5.2f} | "
             f"{r['user_rms']:5.2f} {r['user_max']:5.2f} | {r['wrong']:3d} | {_rms(r['whole_m']) * 1e3:5.3f} | "
-            f"{','.join(r['uncertain']) or '-'}")
+            f"{r['ph_n']:2d} {_rms(r['ph_m']) * 1e3:5.2f} | {_rms(r['z']):4.2f} | {','.join(r['uncertain']) or '-'}")
 
 
 def _seeds(text: str) -> list[int]:
@@ -178,7 +196,7 @@ def main(argv=None) -> None:
     print("bones the beads fix, direction error deg (RMS max), per puppet; predicted = the calibration's own "
           "estimate; 3D = RMS of beads seen whole (mm), own files")
     print(f"{'condition':38s} |  seed | built-in    | calibrated  | pred. | own files   | wrong | 3D mm | "
-          "calibration names uncertain")
+          "partly hidden n, mm | z | calibration names uncertain")
     table = rows(args.quick, seeds=args.seeds, conditions=conds, progress=lambda r: print(_seed_line(r), flush=True))
     keys = list(table[0])
     print()

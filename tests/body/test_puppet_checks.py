@@ -181,3 +181,79 @@ def test_joint_calibration_escapes_a_shoulder_near_gimbal_lock_and_predicts_its_
     assert calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet()).direction_sd_deg == {}
     strict = uncertain_bones(Skeleton.puppet(), MarkerSet.puppet(), cal.direction_sd_deg, 0.01)
     assert "add a capture (--pose) with l-elbow bent" in strict["l-elbow"] and set(strict) == set(cal.direction_sd_deg)
+
+
+def test_bead_noise_recovers_the_pixel_noise_and_the_3d_error_it_causes():
+    # beads seen by 2-6 of six turntable views with Gaussian pixel noise of a size the studio
+    # does not use (0.45 px): the pooled estimate finds it and carries it to 3D
+    from stillcap.body.puppet_checks import bead_noise
+    from stillcap.calibrate.turntable import turntable_rig
+    from stillcap.geometry.triangulate import triangulate
+
+    rig = turntable_rig(n_views=6, step_deg=60.0)
+    rng = np.random.default_rng(7)
+    X = rng.uniform(-0.06, 0.06, (400, 3)) + [0.0, 0.08, 0.0]
+    x = np.stack([cam.project(X) for cam in rig]) + rng.normal(0, 0.45, (6, len(X), 2))
+    hide = rng.random((6, len(X))) < 0.4
+    hide[:2] = False  # every bead in at least two views
+    x[hide] = np.nan
+    tri = triangulate(rig, x)
+    used = np.isfinite(x[..., 0])
+    noise = bead_noise(rig, tri.points, x, used)
+    assert noise.dof == int(np.sum(2 * used.sum(axis=0) - 3))
+    assert abs(noise.pixel_sd / 0.45 - 1) < 0.06
+    err = tri.points - X
+    z = err / noise.sd_m[:, None]
+    assert abs(np.sqrt(np.mean(z ** 2)) - 1) < 0.1
+    # beads seen by more views are predicted (and are) better
+    n = used.sum(axis=0)
+    assert np.median(noise.sd_m[n == 6]) < 0.7 * np.median(noise.sd_m[n == 2])
+    # a bead whose own photos scatter more is predicted worse (its residuals count, shrunk)
+    x2 = np.stack([cam.project(X) for cam in rig]) + rng.normal(0, 0.45, (6, len(X), 2)) * np.where(
+        np.arange(len(X)) < 200, 1.0, 2.5)[None, :, None]
+    x2[hide] = np.nan
+    tri2 = triangulate(rig, x2)
+    n2 = bead_noise(rig, tri2.points, x2, used)
+    z2 = (tri2.points - X) / n2.sd_m[:, None]
+    assert np.median(n2.sd_m[200:]) > 1.3 * np.median(n2.sd_m[:200])  # pooled alone: the same (1.0)
+    # measured over predicted: 2.5 apart with the pooled variance alone (same geometry), nearer with
+    # each bead's own (few dof, shrunk towards the pool: not all the way)
+    assert np.sqrt(np.mean(z2[200:] ** 2)) / np.sqrt(np.mean(z2[:200] ** 2)) < 2.1
+    # a bead left out of the pool still gets its 3D error; a wrong one does not spoil the pool
+    x_bad = x.copy()
+    x_bad[0, 0] += 5.0
+    tri_bad = triangulate(rig, x_bad)
+    excl = np.zeros(len(X), bool)
+    excl[0] = True
+    assert abs(bead_noise(rig, tri_bad.points, x_bad, used, exclude=excl).pixel_sd - noise.pixel_sd) < 0.01
+    assert bead_noise(rig, tri_bad.points, x_bad, used, exclude=excl).sd_m[0] > 0
+    with pytest.raises(ValueError, match="do not agree"):
+        bead_noise(rig, tri.points[:5], x, used)
+
+
+def test_calibration_weighs_beads_by_their_own_noise_and_names_bad_noise_arrays():
+    sk, ms = another_puppet(14)
+    rng = np.random.default_rng(14)
+    # half the beads ten times noisier than the others (seen by fewer views, say)
+    sd = np.where(np.arange(len(ms)) % 2 == 0, 0.03e-3, 0.3e-3)
+    noisy = lambda p: p + rng.normal(0, 1, p.shape) * sd[:, None]
+    rest, others = _rest_and_poses(sk, ms, noisy, 30, 2)
+    cal = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, noise_m=[sd] * 3)
+    flat = calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others,
+                              marker_sigma_m=float(np.sqrt(np.mean(sd ** 2))))
+    full = ("l-knee", "r-knee", "upper-back", "head", "l-shoulder", "r-shoulder", "l-elbow", "r-elbow")
+    e_cal, e_flat = [], []
+    for k in range(3):
+        test = random_pose(sk, 40 + 100 * k, ms)
+        pts = noisy(ms.positions(test))
+        for c_, e_ in ((cal, e_cal), (flat, e_flat)):
+            fitted = fit_pose(c_.skeleton, c_.markerset, pts, marker_sigma_m=sd, root="free").pose
+            e_.append([_full_bone_error_deg(sk, fitted, test, (b,)) for b in full])
+    rms = lambda v: float(np.sqrt(np.mean(np.square(v))))
+    assert rms(e_cal) < rms(e_flat)
+    # with every bead's noise stated as it is, the misfit is about 1 (not the flat sigma's)
+    assert 0.5 < cal.misfit < 1.5
+    with pytest.raises(ValueError, match="one array per capture"):
+        calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, noise_m=[sd] * 2)
+    with pytest.raises(ValueError, match=r"noise_m\[1\] must have shape"):
+        calibrate_skeleton(rest, Skeleton.puppet(), MarkerSet.puppet(), others, noise_m=[sd, sd[:3], sd])

@@ -98,7 +98,8 @@ def _paths(skeleton: Skeleton) -> list[list[int]]:
 def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, pose_points=(),
                        marker_sigma_m: float = 0.2e-3, scale_sd: float = 0.3, offset_sd_m: float = 0.01,
                        iterations: int = 30, tol_m: float = 1e-6, name: str | None = None,
-                       joint: bool = True, direction_limit_deg: float = 1.0) -> SkeletonCalibration:
+                       joint: bool = True, direction_limit_deg: float = 1.0,
+                       noise_m=None) -> SkeletonCalibration:
     """Estimate bone lengths and bead offsets (see the module docstring).
 
     Parameters
@@ -113,7 +114,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     pose_points : sequence of array_like, shape (n_markers, 3)
         3D beads of further captures in other poses (optional; they fix the joints).
     marker_sigma_m : float
-        Expected 3D bead error, metres.
+        Expected 3D bead error per axis, metres, where ``noise_m`` gives none.
     scale_sd, offset_sd_m : float
         The weak prior: bone scales about 1, bead offsets about the template's (metres).
     iterations : int
@@ -130,6 +131,11 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     direction_limit_deg : float
         A bone whose predicted direction error (:attr:`SkeletonCalibration.direction_sd_deg`)
         exceeds this is named in :attr:`SkeletonCalibration.uncertain` with the capture to add.
+    noise_m : sequence of array_like, shape (n_markers,), optional
+        Each bead's expected 3D error per axis in each capture (the rest capture first, then
+        ``pose_points``' order), metres, as the photos show it
+        (:attr:`~stillcap.body.puppet_checks.BeadNoise.sd_m`); NaN or missing entries take
+        ``marker_sigma_m``. Without it every bead has ``marker_sigma_m``.
 
     Returns
     -------
@@ -146,6 +152,8 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             raise ValueError(f"pose_points[{i}] must have shape ({nm}, 3), got {p.shape}")
     if np.all(np.isfinite(rest), axis=1).sum() < 3:
         raise ValueError("the rest capture needs at least 3 recovered beads to calibrate a skeleton")
+    all_points = [rest] + poses
+    sigmas = _bead_sigmas(noise_m, len(all_points), nm, marker_sigma_m)
     frames = markerset.bone_frames(template)
     c = template.offsets.copy()
     c[template.root] = 0.0
@@ -153,16 +161,15 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     col_s = {k: i for i, k in enumerate(bones)}
     n_s = len(bones)
     paths = _paths(template)
-    all_points = [rest] + poses
     n_par = n_s + 3 * nm + 3 * len(all_points)
 
     def solve(rotations: list[np.ndarray]) -> np.ndarray:
         """(s, o, t per pose) by linear least squares given the joint world rotations of the
         first ``len(rotations)`` poses (the others' ``t`` stay 0)."""
         rows, rhs = [], []
-        w = 1.0 / marker_sigma_m
         for p_i, (pts, W) in enumerate(zip(all_points, rotations)):
             for m in np.flatnonzero(np.all(np.isfinite(pts), axis=1)):
+                w = 1.0 / sigmas[p_i][m]
                 f = frames[m]
                 A = np.zeros((3, n_par))
                 for k in paths[f]:
@@ -202,7 +209,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     fits = []
     for _ in range(iterations if poses else 0):
         rots = [eye]
-        fits = [fit_pose(sk, ms, pts, marker_sigma_m=marker_sigma_m, root="free") for pts in poses]
+        fits = [fit_pose(sk, ms, pts, marker_sigma_m=sg, root="free") for pts, sg in zip(poses, sigmas[1:])]
         rots += [f.pose.joint2world[:, :3, :3] for f in fits]
         x_new = solve(rots)
         sk, ms, s = build(x_new)
@@ -213,7 +220,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             break
     joint_fit, unfixed, direction_sd, uncertain, misfit = None, {}, {}, {}, float("nan")
     if joint:
-        fits = [fit_pose(sk, ms, pts, marker_sigma_m=marker_sigma_m, root="free") for pts in poses]
+        fits = [fit_pose(sk, ms, pts, marker_sigma_m=sg, root="free") for pts, sg in zip(poses, sigmas[1:])]
         ts = [x[n_s + 3 * nm:n_s + 3 * nm + 3]] + [f.pose.root2world[:3, 3] for f in fits]
         locals_ = []
         for f in fits:
@@ -221,7 +228,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             loc[sk.root] = f.pose.root2world[:3, :3] @ loc[sk.root]
             locals_.append(loc)
         s_j, beads_j, ts_j, _, joint_fit, fitted_bones, _, (dir_sd, misfit) = _joint_fit(
-            template, markerset, all_points, s, ms.offsets, ts, locals_, marker_sigma_m, scale_sd, offset_sd_m)
+            template, markerset, all_points, s, ms.offsets, ts, locals_, sigmas, scale_sd, offset_sd_m)
         x = x.copy()
         for k, i in col_s.items():
             x[i] = s_j[k]
@@ -239,7 +246,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         if p_i == 0:
             model = ms.positions(Pose.rest(sk))
         else:
-            model = ms.positions(fit_pose(sk, ms, pts, marker_sigma_m=marker_sigma_m, root="free").pose)
+            model = ms.positions(fit_pose(sk, ms, pts, marker_sigma_m=sigmas[p_i], root="free").pose)
         ok = np.all(np.isfinite(pts), axis=1)
         d = np.linalg.norm(model[ok] - pts[ok], axis=1)
         per.append(float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan"))
@@ -249,6 +256,26 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
                                len(all_points), unfixed,
                                None if joint_fit is None else int(joint_fit.nfev), direction_sd, uncertain,
                                misfit)
+
+
+def _bead_sigmas(noise_m, n_caps: int, nm: int, marker_sigma_m: float) -> list[np.ndarray]:
+    """Each capture's per-bead expected error (``noise_m`` of :func:`calibrate_skeleton`), metres."""
+    if not marker_sigma_m > 0:
+        raise ValueError(f"marker_sigma_m must be > 0 metres, got {marker_sigma_m}")
+    if noise_m is None:
+        return [np.full(nm, float(marker_sigma_m)) for _ in range(n_caps)]
+    if len(noise_m) != n_caps:
+        raise ValueError(f"noise_m must give one array per capture ({n_caps}: the rest capture and each pose), "
+                         f"got {len(noise_m)}")
+    out = []
+    for i, a in enumerate(noise_m):
+        a = np.asarray(a, float)
+        if a.shape != (nm,):
+            raise ValueError(f"noise_m[{i}] must have shape ({nm},), got {a.shape}")
+        if np.any(a <= 0):
+            raise ValueError(f"noise_m[{i}] must be > 0 metres where given")
+        out.append(np.where(np.isfinite(a), a, float(marker_sigma_m)))
+    return out
 
 
 def uncertain_bones(template: Skeleton, markerset: MarkerSet, direction_sd_deg: dict,
@@ -325,7 +352,7 @@ def _unfixed_bones(template: Skeleton, frames: np.ndarray, bones: list[int], jac
 
 
 def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: np.ndarray, beads0: np.ndarray,
-               root_t: list, local0: list, marker_sigma_m: float, scale_sd: float, offset_sd_m: float,
+               root_t: list, local0: list, sigmas: list, scale_sd: float, offset_sd_m: float,
                loss_scale: float = 3.0, max_nfev: int = 200):
     """One nonlinear least-squares fit of every unknown together (see :func:`calibrate_skeleton`).
 
@@ -341,7 +368,8 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     its limits. The rest capture's joints are all at rest and its root upright: that fixes the
     gauge (where a bone frame's beads sit versus its rotation). Residuals: every measured bead
     over ``marker_sigma_m``, the weak priors (scales about 1, offsets about the template's,
-    rotations about their start with 180 deg), soft-L1 loss at ``loss_scale`` sigma.
+    rotations about their start with 180 deg), soft-L1 loss at ``loss_scale`` sigma. ``sigmas``: each
+    capture's per-bead expected error, metres (:func:`_bead_sigmas`).
     ``scipy.optimize.least_squares`` with ``jac_sparsity``: a bead's residual depends only on the
     scales and rotations on its frame's path, its own offset and its capture's root, so finite
     differences need few evaluations.
@@ -415,7 +443,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         if n_e:
             lower[e + n_v:end], upper[e + n_v:end] = lo[tuple(eidx.T)], hi[tuple(eidx.T)]
     x0 = np.clip(x0, lower + 1e-9 * np.isfinite(lower), upper - 1e-9 * np.isfinite(upper))
-    w = 1.0 / marker_sigma_m
+    w = [1.0 / np.asarray(sg, float)[idx, None] for sg, idx in zip(sigmas, seen)]
     n_data = 3 * sum(len(s) for s in seen)
     n_prior = n_s + 3 * nm + n_a * (n_caps - 1)
     prior_b = markerset.offsets.ravel()
@@ -456,7 +484,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
             j2w = _fk(off, local, r2w)
             idx = seen[p]
             model = np.einsum("nij,nj->ni", j2w[frames[idx], :3, :3], beads[idx]) + j2w[frames[idx], :3, 3]
-            out[r:r + 3 * len(idx)] = ((model - all_points[p][idx]) * w).ravel()
+            out[r:r + 3 * len(idx)] = ((model - all_points[p][idx]) * w[p]).ravel()
             r += 3 * len(idx)
         out[r:r + n_s] = (x[:n_s] - 1.0) / scale_sd
         r += n_s
@@ -530,18 +558,31 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     local_rotations = [locals_of(x, p) for p in range(1, n_caps)]
     return s, beads, ts, local_rotations, res, bones, n_data, _direction_sd(
         res, n_data, lambda xx, p: _fk(offsets_of(xx), locals_of(xx, p), np.eye(4)), cap_slice, n_caps, bones,
-        template, c, n_v)
+        template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0, n_data + n_s + 3 * nm, n_a,
+        [{k for k in bones if set(np.flatnonzero(frames == parents[k])) <= set(s_.tolist())} for s_ in seen])
 
 
 def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int], template: Skeleton,
-                  c: np.ndarray, n_v: int) -> tuple[dict[int, float], float]:
-    """Predicted direction error of each bone, radians, and the fit's misfit (chi-square of the
-    beads per degree of freedom): the joint fit's covariance of its unknowns (``inv(J^T J)`` with
-    the residuals in sigmas of the stated bead noise, times the misfit when it exceeds 1), carried
-    to each bone's world direction in the further captures (finite differences over that
-    capture's rotations) and RMS over them. A new pose fitted with the calibrated skeleton carries the calibration's error
-    (at most this capture's joint variance) plus its own fit noise, independent of it (the
-    variance with every other unknown held): the prediction adds the two."""
+                  c: np.ndarray, n_v: int, data_rows, n_body: int, prior_row0: int, n_a: int,
+                  whole: list) -> tuple[dict[int, float], float]:
+    """Predicted direction error of each bone in a new pose fitted with the calibrated skeleton,
+    radians, and the fit's misfit (chi-square of the beads per degree of freedom).
+
+    Each further capture stands in for a new pose. A new pose's rotations ``r`` are fitted to its
+    beads with the calibrated body ``b`` (bone scales and bead offsets, the joint fit's first
+    ``n_body`` unknowns) held, so their error is the body's error carried through that fit plus the
+    pose's own fit noise, independent of each other::
+
+        cov(r) = A cov(b) A^T + inv(J_r^T J_r),   A = -inv(J_r^T J_r) J_r^T J_b
+
+    (``J_r``, ``J_b``: the Jacobian of the capture's bead residuals and its rotations' weak prior in
+    its rotations and the body;
+    ``cov(b)``: the joint fit's ``inv(J^T J)``), carried to each bone's world direction (finite
+    differences over the capture's rotations), RMS over the captures that saw every bead of the
+    bone's parent frame (``whole[p]``: the bones so seen in capture ``p``; a bead missing there is
+    not what a new pose with all beads seen would show; all captures when none did). The residuals are in sigmas
+    of each bead's expected error, so the prediction is as honest as those errors; a misfit above
+    1 (the beads scatter more than expected) widens it."""
     if n_caps < 2:
         return {}, float("nan")
     J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
@@ -550,11 +591,8 @@ def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int]
     hat = float(np.sum((Jd @ cov) * Jd))  # parameters the data (not the priors) fix
     r = res.fun[:n_data]
     misfit = float(r @ r) / max(n_data - hat, 1.0)
-    # the stated bead noise is a floor: the observed misfit only ever widens the prediction. The
-    # pipeline's beads err together (the rest capture's errors go into the bead offsets whole),
-    # which residuals of beads free to move cannot show: on rendered captures the misfit alone
-    # predicted a third of the measured error (seed 11: 0.21 against 0.67 deg)
-    cov = cov * max(misfit, 1.0)
+    inflate = max(misfit, 1.0)
+    cov_b = cov[:n_body, :n_body]
     parents = template.parents
     var = {k: [] for k in bones}
     for p in range(1, n_caps):
@@ -565,17 +603,24 @@ def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int]
             return np.stack([j2w[parents[k], :3, :3] @ (c[k] / np.linalg.norm(c[k])) for k in bones])
 
         d0 = directions(res.x)
-        G = np.zeros((len(bones), 3, end - e))
-        for q in range(end - e):
-            step = 1e-6 if q < n_v else 1e-4  # radians (rotation vectors), degrees (Euler angles)
+        G = np.zeros((len(bones), 3, end - b))
+        for q in range(e - b, end - b):
+            step = 1e-6 if q - (e - b) < n_v else 1e-4  # radians (rotation vectors), degrees (Euler angles)
             xx = res.x.copy()
-            xx[e + q] += step
+            xx[b + q] += step
             G[:, :, q] = (directions(xx) - d0) / step
-        C = cov[e:end, e:end]
-        # a new pose's own fit noise, independent of the calibration's error: this capture's
-        # rotations with everything else held (the inverse of their block of J^T J)
-        H = J[:, b:end].T @ J[:, b:end]
-        C_own = np.linalg.pinv(H)[e - b:, e - b:] * max(misfit, 1.0)
+        # the capture's bead rows and its rotations' weak prior (a turn no bead fixes, such as a
+        # one-bead frame's twist, keeps the prior's 180 deg instead of none)
+        rows = np.r_[data_rows[p]:data_rows[p + 1], prior_row0 + (p - 1) * n_a:prior_row0 + p * n_a]
+        Jr, Jb = J[rows, b:end], J[rows, :n_body]
+        own = np.linalg.pinv(Jr.T @ Jr)
+        A = -own @ (Jr.T @ Jb)
+        C = (A @ cov_b @ A.T + own) * inflate
         for i, k in enumerate(bones):
-            var[k].append(float(np.trace(G[i] @ (C + C_own) @ G[i].T)))
-    return {k: float(np.sqrt(np.mean(v))) for k, v in var.items()}, misfit
+            var[k].append((k in whole[p], float(np.trace(G[i] @ C @ G[i].T))))
+
+    def rms(v):
+        seen_all = [x for w, x in v if w]
+        return float(np.sqrt(np.mean(seen_all or [x for _, x in v])))
+
+    return {k: rms(v) for k, v in var.items()}, misfit

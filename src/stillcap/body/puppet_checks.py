@@ -15,6 +15,7 @@ depth ``z`` (``f``: focal length in pixels). Metres and degrees inside; the chec
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,7 +23,8 @@ from stillcap._selfcheck import SelfCheck
 from stillcap.body.kinematics import normalised
 from stillcap.body.markerset import MarkerSet
 
-__all__ = ["bead_pair_directions", "marker_noise_m", "skeleton_checks", "partly_hidden_checks", "ADVICE"]
+__all__ = ["bead_pair_directions", "marker_noise_m", "BeadNoise", "bead_noise", "skeleton_checks", "partly_hidden_checks",
+           "ADVICE"]
 
 #: What to do when a bone's check fails.
 ADVICE = ("the skeleton does not match the puppet here: run `stillcap puppet calibrate-skeleton` on a rest-pose "
@@ -76,6 +78,108 @@ def marker_noise_m(rig, points, reproj_error_px, sigma_m: float) -> np.ndarray:
         z = np.linalg.norm(pts[:, None, :] - centers[None], axis=2).mean(axis=1)
         px = np.where(np.isfinite(e) & np.isfinite(z), e * z / f, 0.0)
     return np.sqrt(sigma_m ** 2 + px ** 2)
+
+
+#: Degrees of freedom the pooled pixel variance counts for in each bead's own (:func:`bead_noise`).
+BEAD_NOISE_PRIOR_DOF = 5.0
+
+
+@dataclass(frozen=True)
+class BeadNoise:
+    """The bead noise one capture's photos show (:func:`bead_noise`).
+
+    Attributes
+    ----------
+    pixel_sd : float
+        Pooled 1-sigma error of a bead centre in one photo, pixels (NaN without redundant views).
+    dof : int
+        Degrees of freedom behind ``pixel_sd`` (two per view beyond the first 1.5 views per bead).
+    sd_m : ndarray, shape (n_markers,)
+        Each recovered bead's expected 3D error per axis, metres (NaN where not recovered; its
+        own residuals shrunk towards ``pixel_sd``).
+    """
+
+    pixel_sd: float
+    dof: int
+    sd_m: np.ndarray
+
+    @property
+    def rms_m(self) -> float:
+        """RMS of ``sd_m`` over the recovered beads, metres (NaN without any)."""
+        v = self.sd_m[np.isfinite(self.sd_m)]
+        return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
+
+
+def bead_noise(rig, points, observations, used, exclude=None) -> BeadNoise:
+    """Estimate the bead noise from the photos: the triangulated beads' reprojection residuals.
+
+    A bead triangulated from ``n`` views leaves ``2n - 3`` degrees of freedom in its ``2n``
+    pixel residuals, so the pooled pixel variance is ``sum(r^2) / sum(2n - 3)`` over the beads seen
+    whole (``exclude``: partly hidden beads, whose centres are off for another reason). Each bead's
+    own variance is its residuals' ``sum(r^2) / (2n - 3)`` shrunk towards the pooled one (which
+    counts as :data:`BEAD_NOISE_PRIOR_DOF` further dof), and its 3D covariance that variance
+    carried through its own views' geometry, ``s^2 inv(sum_v J_v^T J_v)``
+    (``J_v``: the projection's 2x3 Jacobian at the bead); ``sd_m`` is its per-axis RMS. What the
+    residuals cannot show (an error every view shares, such as a centre pulled the same way in
+    each photo) is left to the fits' own misfit (:func:`~stillcap.body.puppet_calibrate.calibrate_skeleton`).
+
+    Parameters
+    ----------
+    rig : Rig
+        The cameras, in the order of ``observations``.
+    points : array_like, shape (n_markers, 3)
+        Metres, NaN where not recovered.
+    observations : array_like, shape (n_views, n_markers, 2)
+        Pixels.
+    used : array_like of bool, shape (n_views, n_markers)
+        The observations each point rests on.
+    exclude : array_like of bool, shape (n_markers,), optional
+        Beads left out of the pooled pixel variance (they still get an ``sd_m``).
+    """
+    pts = np.asarray(points, float)
+    obs = np.asarray(observations, float)
+    use = np.asarray(used, bool)
+    cams = list(rig)
+    if obs.shape[:2] != use.shape or len(cams) != use.shape[0] or pts.shape != (use.shape[1], 3):
+        raise ValueError(f"bead_noise: {len(cams)} cameras, observations {obs.shape}, used {use.shape} and points "
+                         f"{pts.shape} do not agree")
+    ok = np.all(np.isfinite(pts), axis=1)
+    use = use & ok[None] & np.all(np.isfinite(obs), axis=2)
+    skip = np.zeros(len(pts), bool) if exclude is None else np.asarray(exclude, bool)
+    X = np.where(ok[:, None], pts, 0.0)
+    H = np.zeros((len(pts), 3, 3))
+    sq = np.zeros(len(pts))
+    step = 1e-6  # metres: the projection's Jacobian by central differences
+    for v, cam in enumerate(cams):
+        sel = np.flatnonzero(use[v])
+        if not len(sel):
+            continue
+        x = X[sel]
+        r = cam.project(x) - obs[v, sel]
+        sq[sel] += np.sum(r ** 2, axis=1)
+        J = np.empty((len(sel), 2, 3))
+        for a in range(3):
+            d = np.zeros(3)
+            d[a] = step
+            J[:, :, a] = (cam.project(x + d) - cam.project(x - d)) / (2 * step)
+        H[sel] += np.einsum("nia,nib->nab", J, J)
+    n = use.sum(axis=0)
+    pool = ok & ~skip & (n >= 2)
+    dof = int(np.sum(2 * n[pool] - 3))
+    s_px = math.sqrt(float(sq[pool].sum()) / dof) if dof > 0 else float("nan")
+    # each bead's own pixel variance, its 2n - 3 dof shrunk towards the pooled one as PRIOR_DOF
+    # more: beads differ (on rendered captures the arms' beads, against the body in many views,
+    # scatter more: pooled alone, their 3D error was 1.56 of the predicted and the others' 0.90;
+    # shrunk with 5 dof 1.23 and 0.84, with 15 dof 1.28 and 0.83), and a bead's own few dof
+    # alone are too noisy a variance to divide by
+    s2 = (sq + BEAD_NOISE_PRIOR_DOF * s_px ** 2) / (2 * n - 3 + BEAD_NOISE_PRIOR_DOF)
+    sd = np.full(len(pts), np.nan)
+    for k in np.flatnonzero(ok & (n >= 2)):
+        try:
+            sd[k] = math.sqrt(s2[k] * np.trace(np.linalg.inv(H[k])) / 3.0)
+        except np.linalg.LinAlgError:  # views along one line: the depth is not fixed
+            sd[k] = np.inf
+    return BeadNoise(s_px, dof, sd)
 
 
 def skeleton_checks(markerset: MarkerSet, fit, points, noise_m, exclude=None) -> list[SelfCheck]:

@@ -601,6 +601,7 @@ def calibrate_skeleton_cmd(
     import numpy as np
 
     from stillcap.body.puppet_calibrate import calibrate_skeleton
+    from stillcap.body.puppet_checks import bead_noise
     from stillcap.body.skeleton import Skeleton
     from stillcap.pipelines.puppet import analyse_puppet
 
@@ -615,13 +616,17 @@ def calibrate_skeleton_cmd(
             raise ValueError(f"capture {folder} does not exist")
         with progress(f"detecting beads in {folder}") as update:
             res, _ = analyse_puppet(folder, progress=update, markerset=body.get("markerset"), skeleton=template)
-        pts = res.markers.points.copy()
-        pts[res.markers.partly_hidden] = np.nan  # partly hidden beads: 1-2 mm off, not to calibrate on
-        return res.markerset, pts
+        m = res.markers
+        pts = m.points.copy()
+        pts[m.partly_hidden] = np.nan  # partly hidden beads: 1-2 mm off, not to calibrate on
+        # the bead noise as this capture's photos show it (reprojection residuals), not a stated one
+        noise = bead_noise(res.rig, m.points, m.observations, m.used, exclude=m.partly_hidden)
+        return res.markerset, pts, noise
 
-    markerset, rest = beads(capture)
-    others = [beads(p)[1] for p in (poses or [])]
-    cal = calibrate_skeleton(rest, template, markerset, others)
+    markerset, rest, rest_noise = beads(capture)
+    others = [beads(p) for p in (poses or [])]
+    noises = [rest_noise] + [o[2] for o in others]
+    cal = calibrate_skeleton(rest, template, markerset, [o[1] for o in others], noise_m=[n.sd_m for n in noises])
     cal.skeleton.save(out, "mm")
     cal.markerset.save(markers_out, "mm")
     t = Table(title=f"{cal.skeleton.name}: bone lengths (from {cal.n_poses} capture(s))")
@@ -635,6 +640,10 @@ def calibrate_skeleton_cmd(
     console.print(t)
     console.print(f"beads fitted with RMS {cal.rms_m * 1e3:.3f} mm (per capture: "
                   + ", ".join(f"{v * 1e3:.3f}" for v in cal.per_pose_rms_m) + " mm)")
+    console.print("bead noise the photos show (per capture): " + ", ".join(
+        f"{n.pixel_sd:.2f} px = {n.rms_m * 1e3:.3f} mm" for n in noises)
+        + (f"; the calibration's misfit {cal.misfit:.2f} (above 1 widens the predicted errors)"
+           if np.isfinite(cal.misfit) else ""))
     if not poses:
         console.print("[yellow]a rest pose alone places the beads but not where the joints lie between them; "
                       "add --pose captures with bent joints to fix them[/]")
