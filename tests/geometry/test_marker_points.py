@@ -295,3 +295,47 @@ def test_wrong_match_cannot_take_a_blob_another_marker_explains(rig):
     truth = np.array([m1, m2])
     d = np.linalg.norm(res.points[:, None] - truth[None], axis=2).min(axis=0)
     assert np.all(d < 0.003), d * 1000
+
+
+class FluxBlobs(Blobs):
+    """Blobs with their light (``flux``), as ``find_color_markers`` measures it."""
+
+    def __init__(self, centers, colors, flux):
+        super().__init__(centers, colors)
+        self.flux = np.asarray(flux, float)
+
+
+def _model_flux(cam, points, light):
+    from stillcap.geometry.marker_points import lit_sphere_samples
+
+    _, w = lit_sphere_samples(cam, points, 0.005, light, 300)
+    return w.sum(axis=1) * (cam.K[0, 0] / cam.world_to_cam(points)[:, 2]) ** 2
+
+
+@pytest.mark.parametrize("share", [1.0, 0.3])
+def test_partly_hidden_views_cannot_make_a_cross_pair_point(rig, share):
+    """Issue 12 (another_hand(6), tests/test_cli_hand_files.py): two slivers of hidden markers,
+    one in a camera of each pair, met on the long cross-pair epipolar line and took a wrong label.
+    A two-view point across the pairs whose blobs hold ``share`` of a whole marker's light: a
+    whole one (1.0) is a marker, a partly hidden one (0.3; centroid unreliable, nothing else can
+    confirm it) is not triangulated."""
+    rng = np.random.default_rng(11)
+    pts, _ = hand_cloud(rig, 16, rng)
+    cols = np.array(["red", "green"] * 8)
+    light = rig.light.position
+    lonely = rig.aim + np.array([0.02, 0.01, 0.03])
+    blobs = []
+    for k, cam in enumerate(rig.rig):
+        c = lit_sphere_centroids(cam, pts, 0.005, light)
+        f = _model_flux(cam, pts, light)
+        names = list(cols)
+        if k in (0, 2):  # one camera of each pair
+            c = np.vstack([c, lit_sphere_centroids(cam, lonely[None], 0.005, light)])
+            f = np.append(f, share * _model_flux(cam, lonely[None], light))
+            names.append("red")
+        blobs.append(FluxBlobs(c, names, f))
+    res = triangulate_color_markers(rig.rig, rig.pairs, blobs, light_position=light)
+    d = np.linalg.norm(res.points - lonely, axis=1)
+    assert (d.min() < 1e-4) == (share == 1.0), d.min() * 1000
+    assert len(res) == 16 + (share == 1.0)
+    assert np.all(np.linalg.norm(res.points[:, None] - pts[None], axis=2).min(axis=0) < 1e-4)

@@ -370,6 +370,27 @@ def _seed_tracks(cams, obs, col, a, b, max_epi, light, radius, min_depth, conf):
     return np.array(tracks, int).reshape(-1, nc), allowed
 
 
+def _partly_hidden_tracks(cams, obs, flux, col, tracks, chosen, light, radius, min_flux_ratio) -> np.ndarray:
+    """Tracks (bool, shape (T,)) using a blob that is partly hidden in a chosen track: a view whose
+    flux ratio (:func:`_flux_ratios`, normalised over the chosen tracks) is below ``min_flux_ratio``."""
+    nc = len(cams)
+    sub = tracks[chosen]
+    x = np.full((nc, len(sub), 2), np.nan)
+    for k in range(nc):
+        has = sub[:, k] >= 0
+        x[k, has] = obs[k][sub[has, k]]
+    X, _, _, _ = _solve(cams, x, light, radius, 1)
+    colors = np.array([col[int(np.argmax(t >= 0))][t[np.argmax(t >= 0)]] for t in sub], dtype=object).astype(str)
+    ratio = _flux_ratios(cams, X, sub.T, flux, colors, radius, light)  # (n_cams, len(chosen))
+    low = (sub.T >= 0) & (ratio < min_flux_ratio)
+    out = np.zeros(len(tracks), bool)
+    for k in range(nc):
+        bad = np.unique(sub[low[k], k])  # this camera's partly hidden blobs
+        if len(bad):
+            out |= np.isin(tracks[:, k], bad)
+    return out
+
+
 def _pack_tracks(tracks: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """The tracks (indices) that together weigh most with every blob in at most one of them: a set
     packing, solved exactly as a mixed-integer programme (``scipy.optimize.milp``, HiGHS).
@@ -527,6 +548,13 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
     # wide baseline crosses many same-colour blobs, so it must fit within the noise (a partly hidden
     # centroid is no excuse: a stereo pair's own tolerance is for those), else packed again without it
     loose = two & cross & (rms > CROSS_PAIR_NOISE_FACTOR * noise_px)
+    if light is not None and min_flux_ratio is not None:
+        # ... nor a partly hidden view: its centroid moves by up to the marker's radius in pixels,
+        # so the epipolar check at its own noise cannot tell a match from a chance blob on the long
+        # cross-pair epipolar line (another_hand(6): two slivers of hidden markers, one in each
+        # pair, met within 2.5x the noise and took a wrong label); no second pair can confirm it
+        loose |= two & cross & _partly_hidden_tracks(cams, obs, flux, col, tracks, chosen, light, radius_m,
+                                                     min_flux_ratio)
     if loose[chosen].any():
         keep = np.flatnonzero(~loose)
         tracks, seen, n_views, cross, weights, rms, two = (v[keep] for v in (tracks, seen, n_views, cross, weights,
