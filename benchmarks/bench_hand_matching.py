@@ -32,13 +32,17 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 import tempfile
+from pathlib import Path
 
 import numpy as np
 
 from stillcap.pipelines.hand import HandOptions, analyse_hand
-from stillcap.studio.compare.hand import LABEL_TOLERANCE_M, compare_with_capture, truth_arrays
+from stillcap.studio.compare.hand import (
+    LABEL_TOLERANCE_M,
+    compare_with_capture,
+    truth_arrays,
+)
 from stillcap.studio.hand import hand_capture
 from stillcap.studio.hand_variation import another_hand
 
