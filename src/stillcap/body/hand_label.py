@@ -43,7 +43,7 @@ delete it.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -60,8 +60,8 @@ from stillcap.files.jsonable import to_jsonable
 from stillcap.files.jsonfile import read_json
 from stillcap.files.schema import ClosedModel, Model, Name, PositiveCount, Vec3, validate
 
-__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "hand_points_from_truth", "label_hand_markers",
-           "read_label_overrides"]
+__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "contradicted_labels", "hand_points_from_truth",
+           "label_hand_markers", "read_label_overrides", "unlabel_points"]
 
 #: Tolerance on each side of the back-of-hand triangle (m): noise of both ends plus margin.
 TRIANGLE_TOL_M = 0.006
@@ -265,7 +265,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
                        min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
-                       size_range=SIZE_RANGE, fill: bool = True) -> HandLabels:
+                       size_range=SIZE_RANGE, fill: bool = True, unconfirmed=None) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -301,12 +301,23 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         flashes without a back-of-hand triplet posed from their other markers and a neighbouring
         flash's pose, and points the gate did not reach labelled after the fits when only one
         marker can be theirs. False gives the first pass alone.
+    unconfirmed : array_like of bool, shape (N,), optional
+        Points that nothing but their own blobs supports (the hand pipeline: partly hidden and
+        seen by two cameras, so no third view checked the match). Such a point keeps its label
+        only beside another labelled marker of its digit: alone on a digit, the digit's joints
+        bend to it and its residual is zero whatever it is, so nothing tests it (on studio
+        hands 3 and 5, a sliver pair 17-21 mm from every marker took ``ring.dip``).
 
     Returns
     -------
     HandLabels
     """
     pts, cols, rep = _check_inputs(points, colors, reprojection_px)
+    if unconfirmed is not None:
+        unconfirmed = np.asarray(unconfirmed)
+        if unconfirmed.shape != (len(pts),) or unconfirmed.dtype != bool:
+            raise ValueError(f"unconfirmed must be {len(pts)} booleans (one per point), got "
+                             f"{unconfirmed.dtype} of shape {unconfirmed.shape}")
     strobe_hz = float(strobe_hz)
     if not (np.isfinite(strobe_hz) and strobe_hz > 0):
         raise ValueError(f"strobe_hz must be finite and > 0, got {strobe_hz}")
@@ -405,6 +416,8 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     for k, (_, labels, _, _, _) in enumerate(flashes):
         for mk, p in (labels or {}).items():
             point_index[k, mk] = p
+    if unconfirmed is not None:
+        _drop_lone_unconfirmed(model, point_index, unconfirmed)
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
                  [f[3] for f in flashes], np.array([], int), hand_scale, source)
     if overrides is not None:
@@ -412,6 +425,67 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
             overrides = read_label_overrides(overrides)
         out = apply_label_overrides(out, overrides)
     return out
+
+
+def _drop_lone_unconfirmed(model, point_index: np.ndarray, unconfirmed: np.ndarray) -> None:
+    """Unlabel (in place) the unconfirmed points that are the only labelled marker of their digit
+    in their flash: one marker (3 coordinates) on a digit of 3-4 free angles leaves no residual,
+    so the label is untested; with a second marker the digit's bone lengths test both."""
+    for k in range(len(point_index)):
+        for dig in model.digits:
+            lab = point_index[k, dig.markers]
+            have = lab >= 0
+            if have.sum() == 1 and unconfirmed[lab[have][0]]:
+                point_index[k, dig.markers[have][0]] = -1
+
+
+def contradicted_labels(labels: HandLabels, residuals, flashes, unconfirmed, gate_m: float = GATE_M) -> np.ndarray:
+    """Unconfirmed points (``label_hand_markers``' ``unconfirmed``) whose residual in a later fit
+    exceeds the labelling gate (``gate_m`` times the hand's size): the fit that weighs each point
+    by its own noise says they are not the marker their label names (the labeller's fit, which
+    weighs all points alike, bent the digit to them). Back-of-hand markers are never returned
+    (they define the flash).
+
+    Parameters
+    ----------
+    labels : HandLabels
+    residuals : array_like, shape (n, n_markers)
+        Distance of each labelled marker from the fitted model (m), NaN where unlabelled
+        (:attr:`HandSequence.residuals <stillcap.body.hand_track.HandSequence.residuals>`).
+    flashes : array_like of int, shape (n,)
+        The labels' flash of each row of ``residuals``.
+    unconfirmed : array_like of bool, shape (len(labels.points),)
+    gate_m : float
+
+    Returns
+    -------
+    ndarray of int
+        Point indices.
+    """
+    res = np.asarray(residuals, float)
+    unconfirmed = np.asarray(unconfirmed, bool)
+    back = {labels.marker_names.index(n) for n in BACK_MARKERS}
+    gate = float(gate_m) * labels.hand_scale
+    out = []
+    for i, k in enumerate(np.asarray(flashes, int)):
+        for j in np.flatnonzero(np.nan_to_num(res[i], nan=0.0) > gate):
+            p = int(labels.point_index[k, j])
+            if p >= 0 and j not in back and unconfirmed[p]:
+                out.append(p)
+    return np.array(sorted(out), int)
+
+
+def unlabel_points(labels: HandLabels, point_indices) -> HandLabels:
+    """The labels without the given points' labels (the points become unassigned)."""
+    drop = np.isin(labels.point_index, np.asarray(point_indices, int)) & (labels.point_index >= 0)
+    if not drop.any():
+        return labels
+    pi = np.where(drop, -1, labels.point_index)
+    pos = np.where(drop[..., None], np.nan, labels.positions)
+    used = set(pi[pi >= 0].tolist()) | set(np.asarray(labels.deleted).tolist())
+    unassigned = np.array([i for i in range(len(labels.points)) if i not in used
+                           and np.all(np.isfinite(labels.points[i]))], int)
+    return replace(labels, point_index=pi, positions=pos, unassigned=unassigned)
 
 
 def _build(model, pts, cols, strobe_hz, point_index, fits, skipped, members, deleted,

@@ -9,14 +9,15 @@ Two parts:
   weighted by ``max(n.l, 0) / d_light^2`` times its foreshortening toward the camera (visible
   side only). The studio's truth (:func:`stillcap.studio.hand.lit_centroids`) is this model
   plus occlusion by other bodies.
-- **Triangulation** (:func:`triangulate_color_markers`): per stereo pair, every same-colour
-  blob pair near each other's epipolar line is a candidate; each candidate is triangulated and
-  checked in the other cameras (a same-colour blob where it should appear confirms it); an
-  optimal one-to-one assignment (``scipy.optimize.linear_sum_assignment``, with the option of
-  leaving a blob unmatched) prefers confirmed, close candidates. The points of both pairs that
-  share a blob, or have the same colour and lie within ``merge_mm``, are one marker,
-  re-triangulated from all its views. With the light's position the half-lit bias is removed by
-  iteration: triangulate, predict each view's centroid offset at the point, subtract, again.
+- **Triangulation** (:func:`triangulate_color_markers`): every two cameras (not only the stereo
+  pairs: one strobe lights them all) propose same-colour blob pairs near each other's epipolar
+  line; each is triangulated and projected into the other cameras, where same-colour blobs near
+  its predicted centroid may confirm it. Of all these tracks, the set that explains most blobs
+  best, each blob used once, is chosen exactly (a set packing, ``scipy.optimize.milp``); tracks of
+  the same colour within ``merge_mm`` that share no camera are one marker, re-triangulated from
+  all its views. With the light's position the half-lit bias is removed by iteration:
+  triangulate, predict each view's centroid offset at the point, subtract, again.
+  ``docs/hand-markers.md`` gives the weights and why.
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from stillcap._checks import as_array
 from stillcap.camera import Camera, Rig
@@ -165,11 +165,12 @@ class MarkerPoints:
         Index of the blob in that camera's :class:`~stillcap.detect.color_markers.ColorBlobs`,
         -1 where unused.
     pairs : ndarray of str, shape (N,)
-        The stereo pair(s) whose matching made the point, ``"left"``, ``"right"`` or
-        ``"left+right"`` (merged).
+        The stereo pair(s) both of whose cameras the point uses, ``"left"``, ``"right"`` or
+        ``"left+right"``; ``"cross"`` when it uses no stereo pair whole (one camera of each).
     ambiguous : ndarray of bool, shape (N,)
-        Some blob of the point had another same-colour candidate within the epipolar tolerance
-        and the choice was not confirmed by a third view.
+        A two-view point one of whose blobs had another same-colour partner within the epipolar
+        tolerance, and no third view decided (the hand pipeline drops such points when partly
+        hidden).
     cameras : list of str
         Camera names (rig order).
     bias_corrected : bool
@@ -271,6 +272,14 @@ def _solve(cams: list, obs: np.ndarray, light, radius: float, iterations: int):
     return X, corr, tri.reproj_error_px, tri.errors_px
 
 
+def _track_pixels(obs, views: dict, nc: int) -> np.ndarray:
+    """The pixels of one track, shape (n_cams, 1, 2) (NaN where unused)."""
+    x = np.full((nc, 1, 2), np.nan)
+    for k, j in views.items():
+        x[k, 0] = obs[k][j]
+    return x
+
+
 def _flux_ratios(cams, X, bidx, flux, colors, radius, light) -> np.ndarray:
     """Blob flux over the model's (sum of the lit-sphere sample weights times the pixels per
     unit area, (f / z)^2), normalised by the median per camera and colour (per colour over all
@@ -299,42 +308,118 @@ def _flux_ratios(cams, X, bidx, flux, colors, radius, light) -> np.ndarray:
     return out
 
 
-def _assign_pair(pname, cand, obs, col, max_epi, vetoed) -> list:
-    """One stereo pair's optimal one-to-one matches (``linear_sum_assignment``): cost in [0, 1]
-    from the epipolar distance, minus one per confirmation not ``vetoed``; leaving a blob
-    unmatched costs 0.5 (so an admissible unconfirmed pair beats leaving both blobs alone, and
-    a confirmed pair beats any unconfirmed one)."""
-    a, b, ia, ib, X, ok, d, extra = cand
-    hits = {k: np.array([jj[q] if (pname, q, k) not in vetoed else -1 for q in range(len(ia))], int)
-            for k, jj in extra.items()}
-    support = np.zeros(len(ia))
-    for jj in hits.values():
-        support += jj >= 0
-    na, nb = len(obs[a]), len(obs[b])
-    cost_pairs = d[ia, ib] / max_epi - support
-    big = 1e6
-    C = np.full((na + nb, nb + na), big)
-    C[ia[ok], ib[ok]] = cost_pairs[ok]
-    C[np.arange(na), nb + np.arange(na)] = 0.5
-    C[na + np.arange(nb), np.arange(nb)] = 0.5
-    C[na:, nb:] = 0.0
-    rows, cols_ = linear_sum_assignment(C)
-    index = {(i, j): q for q, (i, j) in enumerate(zip(ia, ib))}
-    count_a = np.bincount(ia[ok], minlength=na)
-    count_b = np.bincount(ib[ok], minlength=nb)
-    out = []
-    for r, c_ in zip(rows, cols_):
-        if r >= na or c_ >= nb or C[r, c_] >= big:
+#: Weight lost by a two-view point that no stereo pair saw alone (a camera of each pair): a
+#: stereo pair's own explanation of the same blobs is preferred to it.
+CROSS_PAIR_PENALTY = 0.25
+#: Weight lost per unit of a candidate's reprojection RMS over its tolerance (half the epipolar
+#: tolerance): of two explanations of the same blobs, the better-fitting one wins.
+RESIDUAL_PENALTY = 0.5
+#: A two-view point across the pairs is kept only when its reprojection RMS is within this many
+#: times the centroid noise (estimated from the points with three or more views).
+CROSS_PAIR_NOISE_FACTOR = 3.0
+#: Confirming blobs tried per other camera (the nearest ones within the confirmation distance).
+CONFIRMATIONS_PER_CAMERA = 2
+
+
+def _seed_tracks(cams, obs, col, a, b, max_epi, light, radius, min_depth, conf):
+    """Candidate tracks (blob index per camera, -1 where unused; shape (T, n_cams)) seeded by the
+    same-colour blob pairs of cameras ``a`` and ``b`` near each other's epipolar line: each seed
+    alone and with every combination of the same-colour blobs near its predicted centroid in
+    the other cameras (the nearest :data:`CONFIRMATIONS_PER_CAMERA` within ``conf`` pixels).
+    Also the admissible seeds, shape (N_a, N_b) bool."""
+    nc = len(cams)
+    d = epipolar_distances(cams[a], cams[b], obs[a], obs[b])
+    allowed = np.isfinite(d) & (d <= max_epi) & (col[a][:, None] == col[b][None, :])
+    ia, ib = np.nonzero(allowed)
+    if len(ia) == 0:
+        return np.zeros((0, nc), int), allowed
+    x2 = np.full((nc, len(ia), 2), np.nan)
+    x2[a], x2[b] = obs[a][ia], obs[b][ib]
+    X, _, _, _ = _solve(cams, x2, light, radius, 1)  # one round: enough to tell candidates apart
+    ok = np.all(np.isfinite(X), axis=1)
+    for k in (a, b):
+        z = cams[k].world_to_cam(np.where(ok[:, None], X, 0.0))[:, 2]
+        ok &= z > min_depth
+    allowed[ia[~ok], ib[~ok]] = False
+    options = []  # (camera, (S, CONFIRMATIONS_PER_CAMERA) blob indices or -1)
+    for k in range(nc):
+        if k in (a, b) or len(obs[k]) == 0 or not ok.any():
             continue
-        q = index[(r, c_)]
-        views = {a: int(r), b: int(c_)}
-        for k, jj in hits.items():
-            if jj[q] >= 0:
-                views[k] = int(jj[q])
-        amb = (count_a[r] > 1 or count_b[c_] > 1) and support[q] == 0
-        out.append({"views": views, "pair": pname, "ambiguous": bool(amb), "colour": col[a][r],
-                    "point": X[q], "support": support[q], "epi": d[r, c_], "cand": q})
+        pred = np.full((len(ia), 2), np.nan)
+        pred[ok] = cams[k].project(X[ok])
+        if light is not None:
+            pred[ok] += np.nan_to_num(lit_sphere_offsets(cams[k], X[ok], radius, light))
+        dist = np.linalg.norm(pred[:, None] - obs[k][None], axis=2)
+        dist = np.where((col[a][ia][:, None] == col[k][None, :]) & ok[:, None], dist, np.inf)
+        near = np.argsort(dist, axis=1)[:, :CONFIRMATIONS_PER_CAMERA]
+        options.append((k, np.where(np.take_along_axis(dist, near, axis=1) <= conf, near, -1)))
+    tracks = []
+    for s in np.flatnonzero(ok):
+        base = np.full(nc, -1)
+        base[a], base[b] = ia[s], ib[s]
+        combos = [base]
+        for k, near in options:
+            more = []
+            for c in combos:
+                for j in near[s][near[s] >= 0]:
+                    c2 = c.copy()
+                    c2[k] = j
+                    more.append(c2)
+            combos += more
+        tracks += combos
+    return np.array(tracks, int).reshape(-1, nc), allowed
+
+
+def _partly_hidden_tracks(cams, obs, flux, col, tracks, chosen, light, radius, min_flux_ratio) -> np.ndarray:
+    """Tracks (bool, shape (T,)) using a blob that is partly hidden in a chosen track: a view whose
+    flux ratio (:func:`_flux_ratios`, normalised over the chosen tracks) is below ``min_flux_ratio``."""
+    nc = len(cams)
+    sub = tracks[chosen]
+    x = np.full((nc, len(sub), 2), np.nan)
+    for k in range(nc):
+        has = sub[:, k] >= 0
+        x[k, has] = obs[k][sub[has, k]]
+    X, _, _, _ = _solve(cams, x, light, radius, 1)
+    colors = np.array([col[int(np.argmax(t >= 0))][t[np.argmax(t >= 0)]] for t in sub], dtype=object).astype(str)
+    ratio = _flux_ratios(cams, X, sub.T, flux, colors, radius, light)  # (n_cams, len(chosen))
+    low = (sub.T >= 0) & (ratio < min_flux_ratio)
+    out = np.zeros(len(tracks), bool)
+    for k in range(nc):
+        bad = np.unique(sub[low[k], k])  # this camera's partly hidden blobs
+        if len(bad):
+            out |= np.isin(tracks[:, k], bad)
     return out
+
+
+def _pack_tracks(tracks: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The tracks (indices) that together weigh most with every blob in at most one of them: a set
+    packing, solved exactly as a mixed-integer programme (``scipy.optimize.milp``, HiGHS).
+
+    A greedy choice (most views first) or a per-pair assignment lets a wrong match that a
+    coincidental blob in a third camera "confirms" take a blob from the marker it belongs to;
+    the packing weighs every explanation of all the blobs at once (issue 12: markers seen by
+    two or more cameras that were never triangulated)."""
+    from scipy.optimize import Bounds, LinearConstraint, milp
+    from scipy.sparse import csr_matrix
+
+    nt, nc = tracks.shape
+    if nt == 0:
+        return np.zeros(0, int)
+    t_idx, k_idx = np.nonzero(tracks >= 0)
+    offset = np.concatenate([[0], np.cumsum(tracks.max(axis=0) + 1)])
+    row = offset[k_idx] + tracks[t_idx, k_idx]  # one row per (camera, blob)
+    A = csr_matrix((np.ones(len(t_idx)), (row, t_idx)), shape=(offset[-1], nt))
+    res = milp(-weights, constraints=LinearConstraint(A, 0, 1), integrality=np.ones(nt),
+               bounds=Bounds(0, 1), options={"time_limit": 30.0})
+    if res.x is None:  # no solution in the time (never seen): the greedy packing, best first
+        chosen, used = [], set()
+        for t in np.argsort(-weights, kind="stable"):
+            blobs = {(k, tracks[t, k]) for k in range(nc) if tracks[t, k] >= 0}
+            if not blobs & used:
+                chosen.append(t)
+                used |= blobs
+        return np.array(sorted(chosen), int)
+    return np.flatnonzero(res.x > 0.5)
 
 
 def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blobs_per_camera, *,
@@ -422,126 +507,89 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
     conf = max_epi if confirm_px is None else float(confirm_px)
     max_rep = 1.0 * scale if max_reprojection_px is None else float(max_reprojection_px)
 
-    # ---- 1. candidates per pair, triangulated and checked in the other cameras ----------------
-    cands = {}
-    for pname, (a, b) in pair_idx.items():
-        if len(obs[a]) == 0 or len(obs[b]) == 0:
-            continue
-        d = epipolar_distances(cams[a], cams[b], obs[a], obs[b])
-        allowed = np.isfinite(d) & (d <= max_epi) & (col[a][:, None] == col[b][None, :])
-        ia, ib = np.nonzero(allowed)
-        if len(ia) == 0:
-            continue
-        x2 = np.full((nc, len(ia), 2), np.nan)
-        x2[a], x2[b] = obs[a][ia], obs[b][ib]
-        X, _, _, _ = _solve(cams, x2, light, radius_m, 1)  # one round: enough to tell candidates apart
-        ok = np.all(np.isfinite(X), axis=1)
-        for k in (a, b):
-            z = cams[k].world_to_cam(np.where(ok[:, None], X, 0.0))[:, 2]
-            ok &= z > min_depth_m
-        # confirmation: a same-colour blob at the predicted centroid in each other camera
-        extra = {}
-        for k in range(nc):
-            if k in (a, b) or len(obs[k]) == 0 or not ok.any():
+    # ---- 1. candidate tracks: seeds of every two cameras, with their confirmations ----------
+    # every two cameras, not only the stereo pairs: one strobe lights them all, and a marker seen
+    # by one camera of each pair alone was never triangulated (issue 12)
+    in_pair = {frozenset(ab) for ab in pair_idx.values()}
+    found, admissible = [], {}
+    for a in range(nc):
+        for b in range(a + 1, nc):
+            if len(obs[a]) == 0 or len(obs[b]) == 0:
                 continue
-            pred = np.full((len(ia), 2), np.nan)
-            pred[ok] = cams[k].project(X[ok])
-            if light is not None:
-                pred[ok] += np.nan_to_num(lit_sphere_offsets(cams[k], X[ok], radius_m, light))
-            dist = np.linalg.norm(pred[:, None] - obs[k][None], axis=2)
-            dist = np.where(col[a][ia][:, None] == col[k][None, :], dist, np.inf)
-            j = np.argmin(dist, axis=1)
-            extra[k] = np.where(ok & (dist[np.arange(len(ia)), j] <= conf), j, -1)
-        cands[pname] = (a, b, ia, ib, X, ok, d, extra)
-
-    # ---- 1b. assignment per pair, again while a confirmation proves coincidental --------------
-    # A confirming blob that the other pair matched directly into a different 3D point (farther
-    # than merge_mm) belongs to another marker: the confirmation was a coincidence. It no longer
-    # counts, and the pairs are assigned again, so that a coincidental blob cannot make a wrong
-    # match win over the right one (issue 12: a flash lost to matching).
-    vetoed = set()  # (pair, candidate, camera)
-    for _ in range(4):
-        hyps = [h for pname, c in cands.items() for h in _assign_pair(pname, c, obs, col, max_epi, vetoed)]
-        direct = {}
-        for h in hyps:
-            for k in pair_idx[h["pair"]]:
-                direct[(k, h["views"][k])] = h
-        new = set()
-        for h in hyps:
-            own = {(k, h["views"][k]) for k in pair_idx[h["pair"]]}
-            for k, j in h["views"].items():
-                g = direct.get((k, j))
-                if k in pair_idx[h["pair"]] or g is None or np.linalg.norm(g["point"] - h["point"]) <= merge_mm / 1000.0:
-                    continue
-                # the other pair's point holds the blob; it is the blob's marker only when a view
-                # of this pair confirms it elsewhere than this match's own blobs
-                if any(kk in pair_idx[h["pair"]] and (kk, jj) not in own for kk, jj in g["views"].items()):
-                    new.add((h["pair"], h["cand"], k))
-        if new <= vetoed:
-            break
-        vetoed |= new
-    if not hyps:
+            t, allowed = _seed_tracks(cams, obs, col, a, b, max_epi, light, radius_m, min_depth_m, conf)
+            found.append(t)
+            admissible[(a, b)] = allowed
+    tracks = np.unique(np.concatenate(found), axis=0) if found else np.zeros((0, nc), int)
+    if len(tracks) == 0:
         return MarkerPoints.empty(names)
+    x = np.full((nc, len(tracks), 2), np.nan)
+    for k in range(nc):
+        has = tracks[:, k] >= 0
+        x[k, has] = obs[k][tracks[has, k]]
+    _, _, rms, _ = _solve(cams, x, light, radius_m, 1)
+    seen = tracks >= 0
+    n_views = seen.sum(axis=1)
+    err = rms / (0.5 * max_epi)  # two views at the epipolar tolerance: about 1
+    cross = np.array([not any(ab <= set(np.flatnonzero(v)) for ab in in_pair) for v in seen])
+    weights = n_views - 1.0 - RESIDUAL_PENALTY * np.nan_to_num(err, nan=np.inf) - CROSS_PAIR_PENALTY * (cross & (n_views == 2))
+    feasible = (err <= 1.0) & (weights > 0)
+    tracks, seen, n_views, cross, weights, rms = (v[feasible] for v in (tracks, seen, n_views, cross, weights, rms))
 
-    # ---- 2. merge the pairs' points: shared blobs, or same colour and close -------------------
-    parent = list(range(len(hyps)))
-
-    def find(i):
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    owner = {}
-    for h, hy in enumerate(hyps):
-        for k, j in hy["views"].items():
-            if (k, j) in owner:
-                parent[find(h)] = find(owner[(k, j)])
-            else:
-                owner[(k, j)] = h
-    P = np.array([hy["point"] for hy in hyps])
-    for h in range(len(hyps)):
-        for g in range(h + 1, len(hyps)):
-            if (hyps[h]["pair"] != hyps[g]["pair"] and hyps[h]["colour"] == hyps[g]["colour"]
-                    and np.linalg.norm(P[h] - P[g]) <= merge_mm / 1000.0):
-                parent[find(g)] = find(h)
-    groups = {}
-    for h in range(len(hyps)):
-        groups.setdefault(find(h), []).append(h)
-
-    # one blob per camera per group (the one most members vote for, then the best-supported);
-    # a blob claimed by two groups goes to the group that made it in its own pair
+    # ---- 2. the heaviest set of tracks using each blob at most once --------------------------
+    chosen = _pack_tracks(tracks, weights)
+    if len(chosen) == 0:
+        return MarkerPoints.empty(names)
+    # the centroids' noise, from the capture itself: the reprojection RMS of the chosen tracks with
+    # three or more views (they pass a test that two views do not); a tolerance's sixth without them
+    multi_rms = rms[chosen][n_views[chosen] >= 3]
+    noise_px = float(np.median(multi_rms)) if len(multi_rms) >= 5 else max_epi / 6.0
+    two = n_views == 2
+    # a two-view point across the pairs is what is left when each pair saw the marker once; its
+    # wide baseline crosses many same-colour blobs, so it must fit within the noise (a partly hidden
+    # centroid is no excuse: a stereo pair's own tolerance is for those), else packed again without it
+    loose = two & cross & (rms > CROSS_PAIR_NOISE_FACTOR * noise_px)
+    if light is not None and min_flux_ratio is not None:
+        # ... nor a partly hidden view: its centroid moves by up to the marker's radius in pixels,
+        # so the epipolar check at its own noise cannot tell a match from a chance blob on the long
+        # cross-pair epipolar line (another_hand(6): two slivers of hidden markers, one in each
+        # pair, met within 2.5x the noise and took a wrong label); no second pair can confirm it
+        loose |= two & cross & _partly_hidden_tracks(cams, obs, flux, col, tracks, chosen, light, radius_m,
+                                                     min_flux_ratio)
+    if loose[chosen].any():
+        keep = np.flatnonzero(~loose)
+        tracks, seen, n_views, cross, weights, rms, two = (v[keep] for v in (tracks, seen, n_views, cross, weights,
+                                                                             rms, two))
+        chosen = _pack_tracks(tracks, weights)
+    is_chosen = np.zeros(len(tracks), bool)
+    is_chosen[chosen] = True
     merged = []
-    for members in groups.values():
-        views = {}
-        for k in range(nc):
-            votes = {}
-            for h in members:
-                j = hyps[h]["views"].get(k)
-                if j is not None:
-                    direct = k in pair_idx[hyps[h]["pair"]]
-                    votes[j] = votes.get(j, 0) + (2 if direct else 1) + 0.1 * hyps[h]["support"]
-            if votes:
-                views[k] = max(votes, key=votes.get)
-        merged.append({"views": views, "colour": hyps[members[0]]["colour"],
-                       "pairs": "+".join(sorted({hyps[h]["pair"] for h in members})),
-                       "ambiguous": all(hyps[h]["ambiguous"] for h in members),
-                       "direct": {k for h in members for k in pair_idx[hyps[h]["pair"]]}})
-    claims = {}
-    for m, g in enumerate(merged):
-        for k, j in g["views"].items():
-            claims.setdefault((k, j), []).append(m)
-    for (k, j), ms in claims.items():
-        if len(ms) < 2:
-            continue
-        keep = [m for m in ms if k in merged[m]["direct"]] or ms
-        keep = max(keep, key=lambda m: len(merged[m]["views"]))
-        for m in ms:
-            if m != keep:
-                merged[m]["views"].pop(k, None)
-    merged = [g for g in merged if len(g["views"]) >= 2]
-    if not merged:
-        return MarkerPoints.empty(names)
+    for t in chosen:
+        views = {int(k): int(tracks[t, k]) for k in np.flatnonzero(seen[t])}
+        pn = [p for p, ab in pair_idx.items() if set(ab) <= set(views)]
+        amb = False
+        if len(views) == 2:  # some blob had another admissible partner, and no third view decided
+            (a, ja), (b, jb) = sorted(views.items())
+            amb = bool(admissible[(a, b)][ja].sum() > 1 or admissible[(a, b)][:, jb].sum() > 1)
+            # across the pairs, two views and a rival that fits about as well: a coin toss, no marker
+            rival = two & ~is_chosen & seen[:, a] & seen[:, b] & ((tracks[:, a] == ja) ^ (tracks[:, b] == jb))
+            if not pn and np.any(rms[rival] < rms[t] + 2.0 * noise_px):
+                continue
+        merged.append({"views": views, "colour": col[min(views)][views[min(views)]],
+                       "pairs": "+".join(sorted(pn)) or "cross", "ambiguous": bool(amb)})
+    # a marker whose views the tracks split (a partly hidden view's centroid moved beyond the
+    # confirmation distance): same colour, within merge_mm, no camera in common -> one marker
+    if len(merged) > 1:
+        P = np.array([_solve(cams, _track_pixels(obs, g["views"], nc), light, radius_m, 1)[0][0] for g in merged])
+        for h in range(len(merged)):
+            for g in range(h + 1, len(merged)):
+                A, B = merged[h], merged[g]
+                if (A["views"] and B["views"] and A["colour"] == B["colour"] and not set(A["views"]) & set(B["views"])
+                        and np.linalg.norm(P[h] - P[g]) <= merge_mm / 1000.0):
+                    A["views"].update(B["views"])
+                    A["pairs"] = "+".join(sorted({*A["pairs"].split("+"), *B["pairs"].split("+")} - {"cross"})) or "cross"
+                    A["ambiguous"] = A["ambiguous"] and B["ambiguous"]
+                    B["views"] = {}
+        merged = [g for g in merged if g["views"]]
 
     # ---- 3. final triangulation from all views, bias-corrected; drop views that disagree -----
     n = len(merged)

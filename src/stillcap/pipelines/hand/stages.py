@@ -34,7 +34,7 @@ from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS
 from stillcap.body.hand_checks import hand_self_checks
-from stillcap.body.hand_label import HandLabels, label_hand_markers
+from stillcap.body.hand_label import HandLabels, contradicted_labels, label_hand_markers, unlabel_points
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
 from stillcap.io.capture import stereo_pairs
@@ -143,9 +143,11 @@ def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, 
                   markerset=None) -> HandLabels:
     """Stage 4: the 3D markers labelled per flash with the hand model ``skeleton`` and ``markerset``
     (default the built-in ones; manual overrides from ``options.overrides``)."""
+    # a partly hidden point of two views: no third view checked its match, so it needs a second
+    # labelled marker on its digit to test its label (label_hand_markers' ``unconfirmed``)
     labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz, skeleton=skeleton,
                                 markerset=markerset, reprojection_px=points.reprojection_px,
-                                overrides=options.overrides)
+                                overrides=options.overrides, unconfirmed=points.partly_hidden & (points.n_views == 2))
     for k, why in enumerate(labels.skipped):
         if why:
             messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
@@ -171,8 +173,9 @@ def label_markers_adapted(points: MarkerPoints, strobe_hz: float, options: HandO
 
 
 def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list):
-    """Stage 5: ``(sequence, animation)``, the hand poses of the flashes with the three
-    back-of-hand markers and the animation through them (None where there are too few)."""
+    """Stage 5: ``(labels, sequence, animation)``, the hand poses of the flashes with the three
+    back-of-hand markers and the animation through them (None where there are too few); the
+    labels without those the fit contradicts (:func:`~stillcap.body.hand_label.contradicted_labels`)."""
     sequence = animation = None
     if labels.reconstructed.any():
         # partly hidden markers' centroids shift by up to a few mm (docs/hand-markers.md): they
@@ -183,13 +186,23 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
         sigma = np.where(points.partly_hidden, HIDDEN_SIGMA_M / flux, SEEN_SIGMA_M)
         sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
                                      point_sigma_m=sigma)
+        # a partly hidden point of two views that this fit (each point at its own noise) leaves
+        # beyond the labelling gate is not the marker its label names: unlabelled, fitted again
+        far = contradicted_labels(labels, sequence.residuals, sequence.flashes,
+                                  points.partly_hidden & (points.n_views == 2))
+        if len(far):
+            messages.append(f"{len(far)} partly hidden 3D marker(s) unlabelled: farther from the fitted hand "
+                            f"than the labelling gate")
+            labels = unlabel_points(labels, far)
+            sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
+                                         point_sigma_m=sigma)
         if sequence.n >= 2:
             animation = interpolate_animation(sequence, options.frame_rate, method=options.interpolation)
         else:
             messages.append("one pose only: no animation")
     else:
         messages.append("no flash shows the three back-of-hand markers: no hand pose")
-    return sequence, animation
+    return labels, sequence, animation
 
 
 def release_and_spin(rig, balls: HandBalls | None, sequence: HandSequence | None, strobe_hz: float, pairs: dict,
