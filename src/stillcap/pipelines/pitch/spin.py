@@ -97,6 +97,9 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
         except ValueError:
             curv = None
     res = resolve_aliases(meas, curv)
+    if res.left_out:
+        messages.append(f"spin alias chosen without {', '.join(res.left_out)}: it contradicts the rest of the evidence, "
+                        f"which agrees without it ({res.message})")
     if res.ambiguous:
         messages.append(f"spin rate ambiguous (aliasing above the strobe's Nyquist limit): {res.message}")
     elif len(meas) == 1 and curv is None:
