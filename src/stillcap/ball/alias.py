@@ -40,9 +40,9 @@ such removal points to the same spin, that spin is chosen and the item is named 
 ``left_out`` and the message. What this catches, measured on the robustness benchmark's
 ``mlb-high-spin`` pitches (3000 rpm, above both strobes' Nyquist limits) under a white-balance
 cast, JPEG 98 and gamma 2.6: the back pair saw about one marker per flash, so no flash fixed the
-ball's orientation, and its own constant-spin fit settled on a rotation 40-170 deg per interval
+ball's orientation, and its own constant-spin fit settled on a rotation 43-173 deg per interval
 from the truth with a covariance of a few rpm; the front pair and the curvature agreed on the
-right alias (chi-square 0.01-0.1 for 2 dof) but the back pair's chi-square of 1400-130000
+right alias (chi-square 0.01-0.1 for 2 dof) but the back pair's chi-square of 2600-130000
 outweighed them. With two items only (one pair and the curvature, or two pairs) nothing can tell
 which is wrong, and the result stays ambiguous.
 """
