@@ -5,7 +5,8 @@ thread or in a worker process), the alias choice, and one spin over all pairs.
   (:func:`stillcap.ball.markers.pair_marker_observations`) and the pair's own spin on its clock;
   it needs neither the flight fit nor the other pairs, so it runs alongside the positions-only fit.
 - :func:`spin_stage`: the alias above the strobe's Nyquist limit chosen with both strobe rates
-  and the flight's Magnus curvature (:mod:`stillcap.ball.alias`), then (``"global"``) all pairs'
+  and the flight's Magnus curvature (:mod:`stillcap.ball.alias`; a pair whose markers fix the
+  ball's orientation at fewer than 2 flashes is no evidence while another pair's do), then (``"global"``) all pairs'
   markers refitted together on the reference clock at that alias, or (``"seed"``) the best
   pair's per-flash fit moved to it.
 - :func:`flight_spin_stage`: the transverse spin the flight alone shows (the positions-only fit,
