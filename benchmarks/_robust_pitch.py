@@ -116,6 +116,9 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
         if res.spin is not None:  # the marker-centroid noise the spin fit's residuals show (px)
             nz = float(getattr(res.spin, "noise_px", float("nan")))
             row["marker_noise_px"] = nz if np.isfinite(nz) else None
+        if res.alias is not None:  # the alias chosen (what the per-capture alias lines print)
+            row["alias_chosen_rpm"] = float(res.alias.best.spin_rpm)
+            row["alias_left_out"] = list(getattr(res.alias, "left_out", []))
         checks = getattr(res, "self_checks", None) or []
         row["checks_failed"] = [c.name for c in checks if not c.passed]
         row["ok"] = True
@@ -179,6 +182,11 @@ def summarise(condition: str, rs: list) -> dict:
         out[f"z_{key}_sd"] = float(np.std(z)) if z else float("nan")
         out[f"z_{key}_rms"] = float(np.sqrt(np.mean(np.square(z)))) if z else float("nan")
         out[f"z_{key}_n"] = len(z)
+    # the spin alias: captures whose true rate is above a strobe's Nyquist limit, and how many of
+    # them got a wrong alias (rate off by 100+ rpm or axis by 10+ deg: any wrong alias is)
+    spun = [r for r in ok if r.get("spin_available") and r.get("rate_rpm") is not None]
+    out["alias_n"] = sum(bool(r.get("aliased")) for r in spun)
+    out["alias_wrong"] = sum(not r.get("alias_ok", True) for r in spun)
     out["checks_fired"] = float(np.mean([bool(r.get("checks_failed")) for r in ok])) if ok else float("nan")
     names = sorted({c for r in ok for c in r.get("checks_failed", [])})
     out["checks"] = {c: sum(c in r.get("checks_failed", []) for r in ok) for c in names}
@@ -262,3 +270,20 @@ def rows(quick: bool = False, n: int | None = None, seed: int = 0, jobs: int | N
     if captures is not None:
         captures.extend(per)
     return [summarise(c, [r for r in per if r["condition"] == c]) for c in conds]
+
+
+def wrong_alias_lines(captures: list) -> list[str]:
+    """One line per capture whose spin has a wrong alias: condition, index, preset, the chosen and
+    the true rate, the axis error, and whether a self-check flagged it."""
+    out = []
+    for r in captures:
+        if not r.get("ok") or r.get("rate_rpm") is None or r.get("alias_ok", True):
+            continue
+        true = r.get("true_rpm") or float("nan")
+        chosen = r.get("alias_chosen_rpm", true + r["rate_rpm"])
+        flagged = [c for c in r.get("checks_failed", []) if c in ("alias_margin", "spin_vs_flight")]
+        out.append(f"{r['condition']} #{r['index']} ({r['preset']}): alias {chosen:.0f} rpm chosen, true {true:.0f} rpm, "
+                   f"final rate off {r['rate_rpm']:+.0f} rpm, axis off {r['axis_deg']:.1f} deg; "
+                   + (f"flagged ({', '.join(flagged)})" if flagged else "NOT flagged")
+                   + (f"; left out {', '.join(r['alias_left_out'])}" if r.get("alias_left_out") else ""))
+    return out

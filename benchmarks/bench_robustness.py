@@ -9,6 +9,11 @@ flashes), the last one all of them at once. The pitch part is ``_robust_pitch.py
 and hand parts are ``_robust_puppet.py`` and ``_robust_hand.py`` when present (same
 ``rows(quick)`` signature), otherwise "not available" is printed.
 
+The pitch table's "wrong alias" column counts, per condition, the captures whose spin has a
+wrong alias (rate off by 100+ rpm or axis by 10+ deg) over those spinning faster than a strobe's
+Nyquist limit; each such capture is then listed with the alias chosen, the true rate and whether
+a self-check flagged it.
+
 Coverage is a binomial proportion: with ``n`` captures and a true coverage of 95 % its 1-sigma is
 ``sqrt(0.95 x 0.05 / n)`` (3.4 % at n = 40, 8.9 % at n = 6); the table prints it beside each
 figure. Positions are counted per ball image (about 20-25 per capture), so their figure is
@@ -57,7 +62,8 @@ def _cov(row, key):
 
 
 def pitch_table(rows: list) -> tuple[list, list]:
-    head = ["condition", "n"] + [h for _, h, _ in PITCH_COLUMNS] + [h for _, h in COV_COLUMNS] + ["checks fired"]
+    head = (["condition", "n"] + [h for _, h, _ in PITCH_COLUMNS] + [h for _, h in COV_COLUMNS]
+            + ["wrong alias", "checks fired"])
     body = []
     for r in rows:
         cells = [r["condition"], f"{r['n']}" + (f" ({r['n_failed']} failed)" if r.get("n_failed") else "")]
@@ -66,10 +72,13 @@ def pitch_table(rows: list) -> tuple[list, list]:
             cells.append(_fmt(v, 3 if k in ("speed_mph", "dir_deg") else 2)
                          + ("!" if v is not None and math.isfinite(v) and v > goal else ""))
         cells += [_cov(r, k) for k, _ in COV_COLUMNS]
+        # captures with a wrong spin alias / captures spinning above a strobe's Nyquist limit
+        cells.append(f"{r['alias_wrong']}/{r['alias_n']}" + ("!" if r["alias_wrong"] else "")
+                     if r.get("alias_n") is not None else "-")
         fired = r.get("checks_fired")
         cells.append("-" if fired is None or not math.isfinite(fired) else f"{100 * fired:.0f} %")
         body.append(cells)
-    body.append(["goal", ""] + [GOAL_TEXT[k] for k, _, _ in PITCH_COLUMNS] + ["90-98"] * len(COV_COLUMNS) + [""])
+    body.append(["goal", ""] + [GOAL_TEXT[k] for k, _, _ in PITCH_COLUMNS] + ["90-98"] * len(COV_COLUMNS) + ["0", ""])
     return head, body
 
 
@@ -144,6 +153,11 @@ def main(argv=None):
         if name == "pitch" and hasattr(mod, "z_table"):  # the intervals' calibration beside the coverage
             print_text("pitch: z = error / sigma, mean +- spread over the captures (axis: RMS per component; "
                        "spin: right aliases only; last row: every condition pooled)", *mod.z_table(rs))
+        if name == "pitch" and hasattr(mod, "wrong_alias_lines"):  # per capture: the alias chosen
+            lines = mod.wrong_alias_lines(captures)
+            print("pitch: captures with a wrong spin alias: " + ("none" if not lines else ""))
+            for line in lines:
+                print(f"  {line}")
         if checks:
             print("self-checks that failed (captures per condition): "
                   + "; ".join(f"{c}: {', '.join(f'{k} {v}' for k, v in d.items())}" for c, d in checks.items()))

@@ -3,7 +3,9 @@
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from stillcap.ball.alias import RPM_PER_RAD_S, StrobeMeasurement, resolve_aliases
+import pytest
+
+from stillcap.ball.alias import RPM_PER_RAD_S, CurvatureMeasurement, StrobeMeasurement, resolve_aliases
 
 
 def _principal(w, hz):
@@ -36,3 +38,83 @@ def test_consistent_aliases_stay_resolved():
     assert res.consistent and not res.ambiguous
     assert abs(res.best.spin_rpm - np.linalg.norm(w) * RPM_PER_RAD_S) < 20
     assert np.degrees(np.arccos(res.best.axis @ (w / np.linalg.norm(w)))) < 2
+
+
+# --- a contradicting item of evidence left out (deletion diagnostics) -------------------------
+
+W_TRUE = np.array([-275.8, -81.7, -135.9])  # the mlb-high-spin seed 0 pitch, 3038 rpm
+
+
+def _curvature(w, sigma=2.0):
+    """What a flight along +y shows of spin w (Nathan's transverse lift), with sigma rad/s."""
+    basis = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
+    return CurvatureMeasurement(basis, basis.T @ np.asarray(w, float), np.eye(2) * sigma ** 2, "transverse")
+
+
+def _front_back():
+    front = StrobeMeasurement([159.68359146, 46.16341887, 79.64197961], 80.0,
+                              np.diag([0.5375651, 1.05833232, 0.89884613]) ** 2, "front")
+    back = StrobeMeasurement([134.82022519, 35.99696013, 63.24013209], 50.0,
+                             np.diag([5.24650909, 1.69019024, 11.80555085]) ** 2, "back")
+    return front, back
+
+
+def _close(cand, w, rpm=20.0, deg=2.0):
+    return (abs(cand.spin_rpm - np.linalg.norm(w) * RPM_PER_RAD_S) < rpm
+            and np.degrees(np.arccos(np.clip(cand.axis @ (w / np.linalg.norm(w)), -1, 1))) < deg)
+
+
+def test_wrong_pair_is_left_out_when_the_rest_agrees():
+    # the recorded wrong back pair, with a curvature that agrees with the front pair's right
+    # alias: the back pair is the one item whose removal leaves agreeing evidence
+    front, back = _front_back()
+    full = resolve_aliases([front, back], _curvature(W_TRUE))
+    assert full.left_out == ["back"]
+    assert full.consistent and not full.ambiguous
+    assert _close(full.best, W_TRUE)
+    assert full.dof == 2  # front pair + curvature
+    assert "back left out" in full.message
+    # the left-out pair's contradiction is still on record
+    assert full.best.chi2_strobes[1] > 100
+    assert full.best.chi2 == pytest.approx(full.best.chi2_curvature)
+
+
+def test_nothing_left_out_when_the_evidence_agrees():
+    rng = np.random.default_rng(5)
+    meas = []
+    for hz in (80.0, 50.0):
+        cov = np.eye(3) * 0.5 ** 2
+        meas.append(StrobeMeasurement(_principal(W_TRUE, hz) + rng.multivariate_normal(np.zeros(3), cov), hz, cov))
+    res = resolve_aliases(meas, _curvature(W_TRUE))
+    assert res.left_out == [] and res.consistent and not res.ambiguous
+    assert res.dof == 5
+    assert _close(res.best, W_TRUE)
+
+
+def test_wrong_curvature_is_left_out():
+    # both pairs agree on the truth; the curvature (e.g. a wrong flight model) bends the flight
+    # 90 deg away from where this spin would: no alias of either pair matches it
+    rng = np.random.default_rng(6)
+    meas = []
+    for hz in (80.0, 50.0):
+        cov = np.eye(3) * 0.5 ** 2
+        meas.append(StrobeMeasurement(_principal(W_TRUE, hz) + rng.multivariate_normal(np.zeros(3), cov), hz, cov))
+    res = resolve_aliases(meas, _curvature(Rotation.from_rotvec([0, np.pi / 2, 0]).apply(W_TRUE)))
+    assert res.left_out == ["curvature"]
+    assert res.consistent and _close(res.best, W_TRUE)
+
+
+def test_two_items_that_disagree_stay_ambiguous():
+    # one pair and the curvature only: nothing tells which is wrong
+    front, back = _front_back()
+    res = resolve_aliases([back], _curvature(W_TRUE))
+    assert not res.consistent and res.ambiguous and res.left_out == []
+
+
+def test_removals_pointing_to_different_spins_stay_ambiguous():
+    # a vague curvature agrees with both pairs' own spins, which contradict each other: leaving
+    # out either pair gives agreeing evidence, about different spins - no removal is preferred
+    front, back = _front_back()
+    res = resolve_aliases([front, back], _curvature(W_TRUE, sigma=400.0))
+    assert res.left_out == []
+    assert not res.consistent and res.ambiguous

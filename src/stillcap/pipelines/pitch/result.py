@@ -345,5 +345,5 @@ def _alias_dict(alias) -> dict | None:
     return {"best_rpm": alias.best.spin_rpm, "ambiguous": bool(alias.ambiguous),
             "likelihood_ratio": alias.likelihood_ratio, "evidence": list(alias.evidence),
             "consistent": bool(alias.consistent), "dof": int(alias.dof),
-            "best_chi2": float(alias.best.chi2),
+            "best_chi2": float(alias.best.chi2), "left_out": list(getattr(alias, "left_out", [])),
             "message": alias.message, "candidates": cands}

@@ -5,7 +5,8 @@ thread or in a worker process), the alias choice, and one spin over all pairs.
   (:func:`stillcap.ball.markers.pair_marker_observations`) and the pair's own spin on its clock;
   it needs neither the flight fit nor the other pairs, so it runs alongside the positions-only fit.
 - :func:`spin_stage`: the alias above the strobe's Nyquist limit chosen with both strobe rates
-  and the flight's Magnus curvature (:mod:`stillcap.ball.alias`), then (``"global"``) all pairs'
+  and the flight's Magnus curvature (:mod:`stillcap.ball.alias`; a pair whose markers fix the
+  ball's orientation at fewer than 2 flashes is no evidence while another pair's do), then (``"global"``) all pairs'
   markers refitted together on the reference clock at that alias, or (``"seed"``) the best
   pair's per-flash fit moved to it.
 - :func:`flight_spin_stage`: the transverse spin the flight alone shows (the positions-only fit,
@@ -30,7 +31,7 @@ from stillcap.ball.spin_from_flight import FlightSpin, SpinComparison, compare_s
 from stillcap.pipelines.pitch.result import PairResult
 
 __all__ = ["pair_markers_and_spin", "spin_stage", "flight_spin_stage", "ball_layout_check", "spin_noise_check",
-           "MARKER_NOISE_PX"]
+           "MARKER_NOISE_PX", "MIN_ORIENTATION_FLASHES"]
 
 
 def pair_markers_and_spin(cams, imgs, pair: PairResult, types, layout, radius_m: float, max_px: float,
@@ -79,7 +80,7 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
     Returns ``(spin vector (3,) or None, AliasResolution or None)``."""
     from stillcap.ball.alias import CurvatureMeasurement, StrobeMeasurement, resolve_aliases
 
-    meas = []
+    meas, fixed = [], []
     for p in pairs:
         s = p.spin
         if s is None or not s.success or not np.all(np.isfinite(s.spin)):
@@ -88,8 +89,24 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
         if not np.all(np.isfinite(cov)):  # e.g. the seed method with one interval: no spread
             cov = np.eye(3) * (20.0 / RPM_PER_RAD_S) ** 2
         meas.append(StrobeMeasurement(s.spin, p.strobe_hz, cov, f"pair {p.name} ({p.strobe_hz:g} Hz)"))
+        fixed.append(_orientation_flashes(s, p.observations))
     if not meas:
         return None, None
+    # A pair whose markers fix the ball's orientation at fewer than 2 flashes measures no
+    # rotation per interval of its own: with about one marker per flash its constant-spin fit
+    # chains the flashes through the model and can settle on a wrong minimum (rotations 40-180
+    # deg per interval off, measured on the robustness benchmark's back pairs at 8-16 px ball
+    # radius) whose covariance, a local one, is a few rpm or even zero. Such a pair's spin
+    # chooses no alias while another pair's markers do fix two orientations (it still joins the
+    # combined fit at the chosen alias, which keeps only the markers that agree).
+    weak = [f is not None and f < MIN_ORIENTATION_FLASHES for f in fixed]
+    if any(weak) and not all(weak):
+        for m, f, w in zip(meas, fixed, weak):
+            if w:
+                messages.append(f"{m.name}: its own spin was not used to choose the alias (its markers fix the ball's "
+                                f"orientation at {f} flash{'es' if f != 1 else ''}, fewer than "
+                                f"{MIN_ORIENTATION_FLASHES})")
+        meas = [m for m, w in zip(meas, weak) if not w]
     curv = None
     if fit_curv is not None and np.all(np.isfinite(fit_curv.covariance[6:9, 6:9])):
         try:
@@ -97,11 +114,30 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
         except ValueError:
             curv = None
     res = resolve_aliases(meas, curv)
+    if res.left_out:
+        messages.append(f"spin alias chosen without {', '.join(res.left_out)}: it contradicts the rest of the evidence, "
+                        f"which agrees without it ({res.message})")
     if res.ambiguous:
         messages.append(f"spin rate ambiguous (aliasing above the strobe's Nyquist limit): {res.message}")
     elif len(meas) == 1 and curv is None:
         messages.append("spin alias checked with one strobe rate only")
     return res.best.spin.copy(), res
+
+
+#: Flashes at which a pair's own spin fit must have 2 or more inlier markers (the ball's
+#: orientation fixed there) for its spin to count as alias evidence (:func:`_resolve_alias`):
+#: two orientations give a rotation per interval of their own.
+MIN_ORIENTATION_FLASHES = 2
+
+
+def _orientation_flashes(spin: SpinResult, obs) -> int | None:
+    """How many flashes have 2+ of the fit's inlier markers (two directions fix the ball's
+    orientation); None when the fit does not say which observations it kept."""
+    inl = getattr(spin, "inliers", None)
+    if obs is None or inl is None or len(inl) != len(obs) or not len(obs):
+        return None
+    fl = np.asarray(obs.flash)[np.asarray(inl, bool)]
+    return int(np.sum(np.bincount(fl) >= 2)) if len(fl) else 0
 
 
 def _center_shift_modes(parts: list, center_modes: list, radius_m: float | None):
