@@ -513,12 +513,19 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     def pack(a):
         return np.concatenate([a[free], r2w[:3, 3]]) if n_t else a[free]
 
+    last = [None, None]  # the parameters of the latest model() and its value
+
     def model(x):
+        # least_squares asks for the Jacobian at the parameters it has just evaluated the
+        # residuals at: the same frames are not built twice (the same values, ~10 % of the fit)
+        if last[0] is not None and np.array_equal(last[0], x):
+            return last[1]
         a = unpack(x)
         Rx, Ry, Rz = _euler_matrices(a)
         local = Rx @ Ry @ Rz  # intrinsic XYZ
         j2w = forward_kinematics(skeleton, root_of(x), local)
-        return a, Rx, Ry, j2w
+        last[0], last[1] = np.array(x, copy=True), (a, Rx, Ry, j2w)
+        return last[1]
 
     def beads(j2w, idx):
         return np.einsum("nij,nj->ni", j2w[frames[idx], :3, :3], offs[idx]) + j2w[frames[idx], :3, 3]
