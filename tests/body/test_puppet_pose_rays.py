@@ -135,3 +135,67 @@ def test_fill_sets_the_ray_sigma_and_bad_input_is_refused():
         fit_pose(SK, MarkerSet.puppet(), MarkerSet.puppet().positions(SK.rest_pose()), rays=rays)
     with pytest.raises(ValueError, match="rays must be a MarkerRays"):
         fit_pose(SK, MS, MS.positions(SK.rest_pose()), rays=[(16, 0, 0)])
+
+
+def test_the_start_is_the_same_level_by_level_as_joint_by_joint(monkeypatch):
+    """_start_angles solves the joints of one depth together (one Euler conversion per level):
+    the same angles as one joint at a time, with rays and without, on both marker sets."""
+    import stillcap.body.puppet_pose as pp
+
+    levels = pp._levels(SK)
+    order = np.concatenate(levels)
+    assert sorted(order) == list(range(SK.n_joints))  # every joint once
+    depth = {int(j): d for d, lv in enumerate(levels) for j in lv}
+    assert all(SK.parents[j] < 0 or depth[SK.parents[j]] == depth[j] - 1 for j in range(SK.n_joints))
+    starts = []
+    real_start = pp._start_angles
+
+    def spy(*args, **kwargs):
+        starts.append(real_start(*args, **kwargs))
+        return starts[-1]
+
+    monkeypatch.setattr(pp, "_start_angles", spy)
+    for ms, seed in ((MS, 3), (MarkerSet.puppet("puppet-16"), 4)):
+        truth = random_pose(SK, seed, ms)
+        pts = ms.positions(truth) + np.random.default_rng(seed).normal(0, 0.3e-3, (len(ms), 3))
+        obs = np.stack([c.project(ms.positions(truth)) for c in RIG])
+        drop = [ms.index(n) for n in (("arm.L4", "leg.R4") if ms is MS else ("arm.L3",))]
+        pts[drop] = np.nan
+        obs[1:] = np.nan  # the dropped beads seen in the first view only
+        rays = MarkerRays.from_views(RIG, obs, ~np.all(np.isfinite(pts), axis=1)) if ms is MS else None
+        for rr in (None, rays):
+            starts.clear()
+            fit_pose(SK, ms, pts, truth.root2world, rays=rr)
+            batched = starts[0]
+            monkeypatch.setattr(pp, "_levels", lambda sk: [np.array([j]) for j in sk.depth_first])
+            starts.clear()
+            fit_pose(SK, ms, pts, truth.root2world, rays=rr)
+            monkeypatch.undo()
+            monkeypatch.setattr(pp, "_start_angles", spy)
+            np.testing.assert_array_equal(batched, starts[0])
+
+
+def test_the_jacobian_is_of_the_parameters_asked_whatever_came_before(monkeypatch):
+    """The residuals' frames are reused for the Jacobian at the same parameters only."""
+    import stillcap.body.puppet_pose as pp
+
+    calls = []
+    real = pp.least_squares
+
+    def spy(fun, x0, **kw):
+        calls.append((fun, kw["jac"], np.array(x0)))
+        return real(fun, x0, **kw)
+
+    monkeypatch.setattr(pp, "least_squares", spy)
+    truth, pts, one = _case(6)
+    fit_pose(SK, MS, pts, truth.root2world, rays=MarkerRays.from_views(RIG, one, ~np.all(np.isfinite(pts), axis=1)))
+    fun, jac, x0 = calls[0]
+    J0, f0 = jac(x0).copy(), fun(x0).copy()
+    x = x0.copy()
+    fun(x)
+    x += 0.5  # the same array, other values
+    J1 = jac(x)
+    assert not np.allclose(J1, J0)
+    np.testing.assert_array_equal(J1, jac(x0 + 0.5))
+    np.testing.assert_array_equal(fun(x0), f0)
+    np.testing.assert_array_equal(jac(x0), J0)

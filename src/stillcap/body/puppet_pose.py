@@ -285,6 +285,17 @@ def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(np.outer(angles_rad, axis)).as_matrix()
 
 
+def _levels(skeleton: Skeleton) -> list[np.ndarray]:
+    """Joint indices by depth from the root (the root's level first; each joint after its parent's
+    level), each level in :attr:`~stillcap.body.skeleton.Skeleton.depth_first` order."""
+    parents = skeleton.parents
+    depth = np.zeros(skeleton.n_joints, int)
+    for j in skeleton.depth_first:
+        depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
+    order = np.asarray(skeleton.depth_first, int)
+    return [order[depth[order] == d] for d in range(depth.max() + 1)]
+
+
 def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, center,
                   sd, rays: MarkerRays | None = None, ray_sigma_px: float = 1.0) -> np.ndarray:
     """A start for :func:`fit_pose`, joint by joint from the root (degrees, (n_joints, 3)).
@@ -297,9 +308,17 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
     limits, is taken, or, when ``rays`` hold single-view rays of the frame's other markers, the
     one that puts them nearest their rays (in sigma: ``ray_sigma_px`` at the bead's depth). No
     marker: the prior's centre.
+
+    The joints of one depth from the root depend only on their parents, so they are solved
+    together: one Euler conversion (:func:`euler_within_limits`) of every candidate rotation of
+    the level and one ``Rotation.from_euler`` for its frames. The angles are the same as one
+    joint at a time (the conversions work rotation by rotation); a level's conversion costs about
+    what one joint's did (its fixed cost is most of it: ~0.12 ms CPU for one rotation, ~0.21 ms
+    for 120), which took the start of the 20-joint puppet (7 levels) from 5.0 to 3.6 ms CPU.
     """
     n = skeleton.n_joints
     lim = np.stack([lo, hi], axis=-1)
+    lim_nan = np.where(np.isfinite(lim), lim, np.nan)
     frames = markerset.bone_frames(skeleton)
     seen = np.all(np.isfinite(pts), axis=1)
     offs = markerset.offsets
@@ -308,41 +327,54 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
     origin = np.zeros((n, 3))
     parents = skeleton.parents
     phis = np.radians(np.arange(0.0, 360.0, 3.0))
-    for j in skeleton.depth_first:
-        p = parents[j]
-        Wp = r2w[:3, :3] if p < 0 else world[p]
-        origin[j] = r2w[:3, 3] if p < 0 else origin[p] + world[p] @ skeleton.offsets[j]
-        locked = np.all(hi[j] <= lo[j])
-        sel = np.flatnonzero((frames == j) & seen)
-        cands = None
-        if not locked and len(sel):
-            meas = (pts[sel] - origin[j]) @ Wp  # measured offsets in the parent's frame (rows: Wp.T @ v)
-            model = offs[sel]
-            cloud = np.vstack([model, np.zeros((1, 3))])
-            sv = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
-            if len(sel) >= 2 and sv[1] > 1e-3 * sv[0]:
-                cands = Rotation.align_vectors(meas, model)[0].as_matrix()[None]
+    for level in _levels(skeleton):
+        todo, cand_list, parent_w = [], [], {}
+        for j in level:
+            p = parents[j]
+            Wp = r2w[:3, :3] if p < 0 else world[p]
+            parent_w[j] = Wp
+            origin[j] = r2w[:3, 3] if p < 0 else origin[p] + world[p] @ skeleton.offsets[j]
+            locked = np.all(hi[j] <= lo[j])
+            sel = np.flatnonzero((frames == j) & seen)
+            cands = None
+            if not locked and len(sel):
+                meas = (pts[sel] - origin[j]) @ Wp  # measured offsets in the parent's frame (rows: Wp.T @ v)
+                model = offs[sel]
+                cloud = np.vstack([model, np.zeros((1, 3))])
+                sv = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
+                if len(sel) >= 2 and sv[1] > 1e-3 * sv[0]:
+                    cands = Rotation.align_vectors(meas, model)[0].as_matrix()[None]
+                else:
+                    a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
+                    if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+                        R0 = Rotation.align_vectors(a[None], b[None])[0].as_matrix()
+                        cands = _rotations_about(a, phis) @ R0
+            if cands is None:
+                ang[j] = np.where(locked, lo[j], center[j])
             else:
-                a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
-                if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
-                    R0 = Rotation.align_vectors(a[None], b[None])[0].as_matrix()
-                    cands = _rotations_about(a, phis) @ R0
-        if cands is None:
-            ang[j] = np.where(locked, lo[j], center[j])
-        else:
-            e, viol = euler_within_limits(cands, np.where(np.isfinite(lim[j]), lim[j], np.nan))
-            cost = 100.0 * viol + np.sum(((e - center[j]) / sd[j]) ** 2, axis=1)
-            if rays is not None and len(cands) > 1:
-                for r in np.flatnonzero(frames[rays.marker] == j):
-                    bead = origin[j] + np.einsum("ij,cjk,k->ci", Wp, cands, offs[rays.marker[r]])  # (n_cands, 3)
-                    v = bead - rays.origin[r]
-                    z = v @ rays.direction[r]
-                    dist = np.linalg.norm(v - z[:, None] * rays.direction[r], axis=1)
-                    spx = rays.sigma_px[r] if np.isfinite(rays.sigma_px[r]) else ray_sigma_px
-                    sig = spx * np.maximum(np.abs(z), 1e-3) / rays.focal_px[r]
-                    cost = cost + np.minimum((dist / sig) ** 2, 1e4)  # a wrong ray: bounded say
-            ang[j] = np.clip(e[int(np.argmin(cost))], lo[j], hi[j])
-        world[j] = Wp @ Rotation.from_euler(EULER_LIMIT_SEQUENCE, ang[j], degrees=True).as_matrix()
+                todo.append(j)
+                cand_list.append(cands)
+        if todo:  # every candidate of the level converted at once
+            counts = [len(c) for c in cand_list]
+            e_all, viol_all = euler_within_limits(np.concatenate(cand_list), np.repeat(lim_nan[todo], counts, axis=0))
+            ends = np.cumsum(counts)
+            for j, cands, stop, k in zip(todo, cand_list, ends, counts):
+                e, viol = e_all[stop - k:stop], viol_all[stop - k:stop]
+                cost = 100.0 * viol + np.sum(((e - center[j]) / sd[j]) ** 2, axis=1)
+                if rays is not None and len(cands) > 1:
+                    Wp = parent_w[j]
+                    for r in np.flatnonzero(frames[rays.marker] == j):
+                        bead = origin[j] + np.einsum("ij,cjk,k->ci", Wp, cands, offs[rays.marker[r]])  # (n_cands, 3)
+                        v = bead - rays.origin[r]
+                        z = v @ rays.direction[r]
+                        dist = np.linalg.norm(v - z[:, None] * rays.direction[r], axis=1)
+                        spx = rays.sigma_px[r] if np.isfinite(rays.sigma_px[r]) else ray_sigma_px
+                        sig = spx * np.maximum(np.abs(z), 1e-3) / rays.focal_px[r]
+                        cost = cost + np.minimum((dist / sig) ** 2, 1e4)  # a wrong ray: bounded say
+                ang[j] = np.clip(e[int(np.argmin(cost))], lo[j], hi[j])
+        local = Rotation.from_euler(EULER_LIMIT_SEQUENCE, ang[level], degrees=True).as_matrix()
+        for j, L in zip(level, local):
+            world[j] = parent_w[j] @ L
     return ang
 
 
@@ -481,12 +513,19 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     def pack(a):
         return np.concatenate([a[free], r2w[:3, 3]]) if n_t else a[free]
 
+    last = [None, None]  # the parameters of the latest model() and its value
+
     def model(x):
+        # least_squares asks for the Jacobian at the parameters it has just evaluated the
+        # residuals at: the same frames are not built twice (the same values, ~10 % of the fit)
+        if last[0] is not None and np.array_equal(last[0], x):
+            return last[1]
         a = unpack(x)
         Rx, Ry, Rz = _euler_matrices(a)
         local = Rx @ Ry @ Rz  # intrinsic XYZ
         j2w = forward_kinematics(skeleton, root_of(x), local)
-        return a, Rx, Ry, j2w
+        last[0], last[1] = np.array(x, copy=True), (a, Rx, Ry, j2w)
+        return last[1]
 
     def beads(j2w, idx):
         return np.einsum("nij,nj->ni", j2w[frames[idx], :3, :3], offs[idx]) + j2w[frames[idx], :3, 3]

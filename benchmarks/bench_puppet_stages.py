@@ -1,0 +1,120 @@
+"""CPU time of the puppet pipeline's pieces in its first call (where ``bench_speed.py``'s puppet
+row goes), in fresh processes.
+
+    python benchmarks/bench_puppet_stages.py [--capture DIR | --cache DIR] [--repeat 8]
+
+Each of ``--repeat`` fresh processes imports ``stillcap.pipelines.puppet`` and calls
+``analyse_puppet`` on the capture twice (the default options, two threads, as ``bench_speed.py``).
+The pieces are the functions the pipeline calls, patched where it calls them; each is timed in
+``time.thread_time`` of the *main* thread only (the other thread decodes and prepares the photos;
+when the main thread has nothing to detect it decodes too, the ``decoding``/``preparing`` rows),
+so the rows show the main thread's path, whose end is the call's end. ``main thread`` is that
+thread's whole CPU time for the call, ``process`` every thread's (``time.process_time``). Every
+number is the least over the processes (the least disturbed by other work). CPU times hold on a
+loaded machine far better than wall times, but they are not the wall time of the call: run
+``bench_speed.py`` on a quiet machine for that. To compare two versions of the code, run this
+script from each version's tree (it puts its own ``src`` first on the path), alternately.
+
+Without ``--capture``, the puppet capture of ``bench_speed.py`` (rendered into ``--cache`` once).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+#: (row, module whose global the pipeline calls, name there); "Class.method" patches the class
+PIECES = (
+    ("loading the capture", "stillcap.pipelines.puppet.analyse", "_load_capture"),
+    ("BLAS controller (first use)", "stillcap._blas", "_blas_controller"),
+    ("cameras, marker set, skeleton", "stillcap.pipelines.puppet.analyse", "_capture_inputs"),
+    ("decoding (on the main thread)", "stillcap.io.capture", "Capture.read_image"),
+    ("preparing (on the main thread)", "stillcap.pipelines.puppet.analyse", "_prepare"),
+    ("candidates", "stillcap.pipelines.puppet.analyse", "find_bead_candidates"),
+    ("sub-pixel refinement", "stillcap.pipelines.puppet.analyse", "refine_bead_candidates"),
+    ("naming by colour", "stillcap.pipelines.puppet.analyse", "identify_views"),
+    ("triangulation (+ fill, re-identification)", "stillcap.pipelines.puppet.analyse", "triangulate_beads"),
+    ("pose stage", "stillcap.pipelines.puppet.analyse", "pose_skeleton"),
+    ("  fit_pose", "stillcap.pipelines.puppet.stages", "fit_pose"),
+    ("    its start (_start_angles)", "stillcap.body.puppet_pose", "_start_angles"),
+    ("    its thesis pose (pose_from_markers)", "stillcap.body.puppet_pose", "pose_from_markers"),
+    ("    its least squares", "stillcap.body.puppet_pose", "least_squares"),
+    ("self-checks", "stillcap.pipelines.puppet.analyse", "skeleton_checks"),
+)
+
+CHILD = r"""
+import functools, importlib, json, sys, threading, time
+pieces = json.loads(sys.argv[2])
+from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
+acc = {}
+main = threading.main_thread()
+
+def patch(row, mod, name):
+    owner = importlib.import_module(mod)
+    cls, _, attr = name.rpartition(".")
+    if cls:
+        owner = getattr(owner, cls)
+    f = getattr(owner, attr, None)
+    if f is None:
+        return
+    @functools.wraps(f)
+    def timed(*a, **k):
+        if threading.current_thread() is not main:
+            return f(*a, **k)
+        c = time.thread_time()
+        try:
+            return f(*a, **k)
+        finally:
+            acc[row] = acc.get(row, 0.0) + time.thread_time() - c
+    setattr(owner, attr, timed)
+
+for row, mod, name in pieces:
+    patch(row, mod, name)
+out = []
+for call in range(2):
+    acc.clear()
+    c, p = time.thread_time(), time.process_time()
+    analyse_puppet(sys.argv[1], DEFAULT, save=False)
+    r = dict(acc)
+    r["main thread"], r["process"] = time.thread_time() - c, time.process_time() - p
+    out.append(r)
+print(json.dumps(out))
+"""
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--capture", type=Path, default=None, help="a puppet capture folder")
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"),
+                    help="where bench_speed.py renders its captures (without --capture)")
+    ap.add_argument("--repeat", type=int, default=8, help="fresh processes")
+    args = ap.parse_args(argv)
+    folder = args.capture
+    if folder is None:
+        sys.path.insert(0, str(SRC))
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from bench_speed import render
+
+        folder = render(args.cache)[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
+    runs = []
+    for _ in range(args.repeat):
+        p = subprocess.run([sys.executable, "-c", CHILD, str(folder), json.dumps(PIECES)], check=True, env=env,
+                           capture_output=True, text=True)
+        runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    rows = [r for r, _, _ in PIECES] + ["main thread", "process"]
+    print(f"{folder}: CPU ms, least of {args.repeat} fresh processes (main thread unless said)")
+    print(f"{'piece':45s} | {'first call':>10s} | {'second call':>11s}")
+    for row in rows:
+        vals = [min(run[k].get(row, 0.0) for run in runs) * 1e3 for k in (0, 1)]
+        print(f"{row:45s} | {vals[0]:10.2f} | {vals[1]:11.2f}")
+
+
+if __name__ == "__main__":
+    main()
