@@ -89,12 +89,19 @@ def _f(v, d=2):
     return "-" if v is None else f"{v:.{d}f}"
 
 
+def _refusal(msg: str) -> str:
+    """A refusal without the capture folder's path (a temporary folder), with every name it gives."""
+    head, sep, rest = msg.partition(": ")
+    return rest if sep and ("/" in head or "\\" in head) else msg
+
+
 def report(rows) -> None:
     print(f"{'person':>6} {'model':>10} {'joints RMS':>10} {'max':>6} {'labels %':>8} {'seen2 lab %':>11} "
           f"{'marker mm':>9}  calibration")
     for r in rows:
         c = r.get("calibration", {})
-        cs = (f"refused: {c['refused'][-90:]}" if "refused" in c else
+        # the whole refusal (its last 90 characters cut the marker's name off: "refused: 's place ...")
+        cs = (f"refused: {_refusal(c['refused'])}" if "refused" in c else
               f"fit {c['rms_mm']:.2f} mm (flat {c['pose_rms_mm']:.2f}), {c['n_free']} free flashes, phalanx "
               f"lengths {c['phalanx_length_err_mm']['rms']:.2f} mm RMS (max {c['phalanx_length_err_mm']['max']:.2f}), "
               f"worst 1-sigma {c['worst_length_sigma_mm']:.2f} mm")
