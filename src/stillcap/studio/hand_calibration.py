@@ -13,7 +13,11 @@ Two motions (:data:`CALIBRATION_MOTIONS`):
   Every joint bends on its own at least once, by 45-100 deg, so every joint centre is seen
   turning its distal markers, and the knuckles abduct, so their sideways place is seen too;
 - ``curl`` (the first calibration motion, kept to compare): flat, then every joint curling
-  together toward a loose fist (MCP 55, PIP 75, DIP 45 deg).
+  together toward a loose fist (MCP 55, PIP 75, DIP 45 deg);
+- ``protocol-turned``: the protocol with its last two steps (flat again) replaced by a hook
+  (PIP and DIP 60 deg, thumb IP 60 deg) with the hand turned 60 deg about its long axis, the
+  thumb's side toward the cameras (:data:`PROTOCOL_TURNED_STEPS`, :data:`ROLL_DEG`): more
+  flashes in which the end joints bend with their nails in view (docs/hand-calibration.md).
 
 :func:`calibration_motion` wraps the throw's :class:`~stillcap.studio.hand.HandMotion` (so the
 person, light and cameras of the throw are kept); the angles after the flat flashes are the
