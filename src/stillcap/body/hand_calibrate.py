@@ -237,7 +237,7 @@ def _observability_check(params, pose: str):
     worst = max(rated, key=lambda q: q.fixed)
     if not unfixed:
         return SelfCheck("calibration_fixes_the_model", True, worst.fixed, UNFIXED_SIGMA_RATIO,
-                         f"the capture fixed every parameter (worst: {worst.name}, 1-sigma {worst.fixed:.2f} of "
+                         f"the capture fixed every joint parameter (worst: {worst.name}, 1-sigma {worst.fixed:.2f} of "
                          f"its prior's)", worst.name, "")
     names = ", ".join(f"{q.name} (+-{q.sigma:.1f} {q.unit}, {q.fixed:.2f} of the prior's)" for q in unfixed[:6])
     more = f" and {len(unfixed) - 6} more" if len(unfixed) > 6 else ""
