@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from stillcap.io.capture import Capture
+from stillcap.body.hand_calibrate import UNFIXED_SIGMA_RATIO
 from stillcap.pipelines.hand import analyse_hand
 from stillcap.pipelines.hand.calibration import calibrate_hand_capture
 from stillcap.studio.compare.hand import compare_with_capture
@@ -75,6 +76,9 @@ def run_person(p: int, size, motion: str) -> dict:
                    if not n.endswith("-tip") and not n.endswith("-mcp") and n != "thumb-cmc"]
             row["calibration"]["phalanx_length_err_mm"] = {"rms": float(np.sqrt(np.mean(np.square(err)))),
                                                            "max": float(np.max(err))}
+            # the joint parameters the capture did not fix (self-check calibration_fixes_the_model)
+            row["calibration"]["unfixed"] = [q.name for q in cal.parameters
+                                             if q.kind != "height" and q.fixed > UNFIXED_SIGMA_RATIO]
         except ValueError as e:
             row["calibration"] = {"refused": str(e)}
         throw = _write(hand_capture(100 + p, image_size=size, person=who), tmp / "throw")
@@ -89,15 +93,22 @@ def _f(v, d=2):
     return "-" if v is None else f"{v:.{d}f}"
 
 
+def _refusal(msg: str) -> str:
+    """A refusal without the capture folder's path (a temporary folder), with every name it gives."""
+    head, sep, rest = msg.partition(": ")
+    return rest if sep and ("/" in head or "\\" in head) else msg
+
+
 def report(rows) -> None:
     print(f"{'person':>6} {'model':>10} {'joints RMS':>10} {'max':>6} {'labels %':>8} {'seen2 lab %':>11} "
           f"{'marker mm':>9}  calibration")
     for r in rows:
         c = r.get("calibration", {})
-        cs = (f"refused: {c['refused'][-90:]}" if "refused" in c else
+        # the whole refusal (its last 90 characters cut the marker's name off: "refused: 's place ...")
+        cs = (f"refused: {_refusal(c['refused'])}" if "refused" in c else
               f"fit {c['rms_mm']:.2f} mm (flat {c['pose_rms_mm']:.2f}), {c['n_free']} free flashes, phalanx "
               f"lengths {c['phalanx_length_err_mm']['rms']:.2f} mm RMS (max {c['phalanx_length_err_mm']['max']:.2f}), "
-              f"worst 1-sigma {c['worst_length_sigma_mm']:.2f} mm")
+              f"worst 1-sigma {c['worst_length_sigma_mm']:.2f} mm; not fixed: {', '.join(c.get('unfixed', [])) or '-'}")
         for m in ("built-in", "calibrated", "own"):
             if m not in r:
                 continue

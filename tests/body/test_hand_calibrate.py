@@ -61,7 +61,10 @@ def test_a_wrong_pose_is_refused():
     # measured 0.18 mm: the back-of-hand triangle keeps the template's shape (only its size is
     # free), and this hand's back markers are placed +-1 mm otherwise
     assert cal.pose_rms < 0.0005
-    assert all(c.passed for c in cal.self_checks)
+    assert all(c.passed for c in cal.self_checks if c.name != "calibration_fixes_the_model")
+    # a flat flash alone bends no joint: the joint centres stay at the template's, and it says so
+    fixes = next(c for c in cal.self_checks if c.name == "calibration_fixes_the_model")
+    assert not fixes.passed and "did not fix" in fixes.message
 
 
 def _protocol_markers(person, steps, noise_m=0.0003, rng=0):
@@ -145,3 +148,55 @@ def test_protocol_capture_flashes_are_labelled_apart():
         n, wrong = n + ok.sum(), wrong + int((e > 0.003).sum())
     assert n >= 0.9 * (d["flash"] >= 0).sum()
     assert wrong <= 0.02 * n
+
+
+def test_the_protocol_fixes_the_finger_lengths_and_says_which_parameters_it_did_not(protocol_calibration):
+    """Every finger phalanx length is fixed by the protocol's steps (1-sigma well under the
+    prior's), and the self-check ``calibration_fixes_the_model`` names only parameters whose
+    1-sigma stayed above UNFIXED_SIGMA_RATIO of their prior's."""
+    from stillcap.body.hand_calibrate import UNFIXED_SIGMA_RATIO
+
+    _, cal = protocol_calibration
+    lengths = {p.name: p for p in cal.parameters if p.kind == "length"}
+    for n in PHALANGES:
+        p = lengths[f"{n.split('-')[0]}-{'mcp' if n.endswith('pip') else 'pip'} to {n}"]
+        assert p.fixed < UNFIXED_SIGMA_RATIO, p
+    check = next(c for c in cal.self_checks if c.name == "calibration_fixes_the_model")
+    unfixed = [p.name for p in cal.parameters if p.kind != "height" and p.fixed > UNFIXED_SIGMA_RATIO]
+    assert check.passed == (not unfixed)
+    for name in unfixed[:6]:
+        assert name in check.message
+
+
+def test_a_joint_the_capture_never_bends_is_named_unfixed():
+    """Flat and spread only: no finger joint bends, so the phalanx lengths stay at their prior and
+    the (warning) self-check names them; the calibration itself is kept."""
+    from stillcap.body.hand_calibrate import UNFIXED_SIGMA_RATIO
+
+    person = another_hand(4)
+    pts = _protocol_markers(person, ["flat", "spread"], rng=4)
+    cal = calibrate_hand(pts[:1], pts[1:])
+    check = next(c for c in cal.self_checks if c.name == "calibration_fixes_the_model")
+    assert not check.passed
+    assert check.value > UNFIXED_SIGMA_RATIO
+    # the middle phalanges (PIP to DIP): nothing bends about their ends (measured 0.83-0.89 of the
+    # prior's 1-sigma; the proximal ones 0.63-0.76: the flat flash fixes each one's sum with its
+    # marker's place along it, whose prior is narrower)
+    middle = [p for p in cal.parameters if p.kind == "length" and "-pip to " in p.name]
+    assert len(middle) == 4 and all(p.fixed > UNFIXED_SIGMA_RATIO for p in middle)
+    assert check.subject in {p.name for p in cal.parameters if p.kind != "height"}
+    assert "did not fix" in check.message and "height" not in check.message
+
+
+def test_a_parameter_the_capture_does_not_show_keeps_its_prior_sigma_never_more():
+    """Named for the fixed bug: noisier markers than assumed scaled the whole covariance by the
+    reduced chi-square, so a parameter the data do not touch (a nail marker's height when the
+    nail never turns in view) came out with a 1-sigma up to 1.35x its prior's (another_hand(5),
+    protocol capture). Only the data's weight is scaled now."""
+    person = another_hand(3)
+    steps = ["flat", "spread", "table top", "hook"]
+    pts = _protocol_markers(person, steps, noise_m=0.0012, rng=13)  # 3x the assumed noise
+    cal = calibrate_hand(pts[:1], pts[1:], noise_m=0.0004)
+    rated = [p for p in cal.parameters if np.isfinite(p.fixed)]
+    assert len(rated) == len(cal.parameters)
+    assert max(p.fixed for p in rated) <= 1.0 + 1e-6

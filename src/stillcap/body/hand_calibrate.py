@@ -38,7 +38,8 @@ from stillcap.body.hand import BACK_MARKERS, DIGITS, fit_hand, hand_markerset, h
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 
-__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "CalibratedParameter",
+__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO",
+           "CalibratedParameter",
            "HandCalibration", "calibration_angles", "calibrate_hand",
            "calibrate_hand_from_points", "phalanx_lengths"]
 
@@ -55,6 +56,10 @@ NOISE_M = 0.0004
 REFUSE_PRIOR_Z = 4.0
 #: The pipeline's limit of a length's 1-sigma (m): beyond it the capture did not bend that joint.
 MAX_LENGTH_SIGMA_M = 0.0015
+#: A parameter whose 1-sigma after the calibration is more than this share of its prior's was
+#: not fixed by the capture (its variance shrank by less than half): the self-check
+#: ``calibration_fixes_the_model`` names it (a warning; the value stays near the template's).
+UNFIXED_SIGMA_RATIO = 0.7
 
 
 def calibration_angles(pose: str, skeleton: Skeleton) -> np.ndarray:
@@ -75,8 +80,9 @@ def phalanx_lengths(skeleton: Skeleton) -> dict:
 class CalibratedParameter:
     """One estimated parameter of the person's hand (:attr:`HandCalibration.parameters`).
 
-    ``value``, ``sigma`` (1-sigma, from the fit's covariance) and ``template`` (the built-in
-    model scaled to the hand's size) in ``unit``; ``kind`` is ``length`` (a bone), ``knuckle``
+    ``value``, ``sigma`` (1-sigma, from the fit's covariance), ``template`` (the built-in
+    model scaled to the hand's size) and ``prior_sigma`` (the prior's spread about the template:
+    what ``sigma`` would be had the capture shown nothing of the parameter) in ``unit``; ``kind`` is ``length`` (a bone), ``knuckle``
     (a joint's place: ``x`` along the fingers, ``y`` toward the thumb, ``z`` out of the back of
     the hand), ``height`` (a marker over its bone's axis) or ``axis`` (the thumb's bone
     directions, their angle from the template's).
@@ -88,10 +94,18 @@ class CalibratedParameter:
     sigma: float
     template: float
     unit: str
+    prior_sigma: float = float("nan")
+
+    @property
+    def fixed(self) -> float:
+        """``sigma / prior_sigma``: near 0 the capture fixed the parameter, near 1 it stayed at
+        the prior (the template scaled to the hand: the capture did not show it)."""
+        return self.sigma / self.prior_sigma if self.prior_sigma > 0 else float("nan")
 
     def to_dict(self) -> dict:
         return {"name": self.name, "kind": self.kind, "value": self.value, "sigma": self.sigma,
-                "template": self.template, "unit": self.unit}
+                "template": self.template, "unit": self.unit, "prior_sigma": self.prior_sigma,
+                "sigma_over_prior": self.fixed}
 
 
 @dataclass(eq=False)
@@ -116,7 +130,9 @@ class HandCalibration:
     parameters : list of CalibratedParameter
         Every estimated length, knuckle place, marker height and thumb axis with its 1-sigma.
     self_checks : list of SelfCheck
-        The checks a calibration passed (a failed one refuses the capture with ValueError).
+        The calibration's checks: the pose's residual, the model's plausibility and (when asked)
+        the lengths' sigmas refuse the capture with ValueError when they fail;
+        ``calibration_fixes_the_model`` warns, naming the parameters the capture did not fix.
     """
 
     skeleton: Skeleton
@@ -164,6 +180,8 @@ def _parameters(sk0: Skeleton, ms0: MarkerSet, ad) -> list:
     """The estimated parameters with their 1-sigma (mm, deg), against the template ``sk0``/``ms0``."""
     sk, ms = ad.skeleton, ad.markerset
     o, o0 = sk.offsets, sk0.offsets
+    pj = ad.joint_prior_sigma if ad.joint_prior_sigma is not None else np.full(sk.n_joints, np.nan)
+    pm = ad.marker_prior_sigma if ad.marker_prior_sigma is not None else np.nan
     out = []
     for i, n in enumerate(sk.names):
         if i == sk.root or n.endswith("-tip"):
@@ -172,17 +190,17 @@ def _parameters(sk0: Skeleton, ms0: MarkerSet, ad) -> list:
         if sk.parents[i] == sk.root:  # a knuckle's (or the thumb base's) place on the palm
             for a, ax in enumerate("xyz"):
                 out.append(CalibratedParameter(f"{n} {ax}", "knuckle", o[i, a] * 1e3, np.sqrt(C[a, a]) * 1e3,
-                                               o0[i, a] * 1e3, "mm"))
+                                               o0[i, a] * 1e3, "mm", pj[i] * 1e3))
         else:
             out.append(CalibratedParameter(f"{sk.names[sk.parents[i]]} to {n}", "length", np.linalg.norm(o[i]) * 1e3,
-                                           _sd(o[i], C) * 1e3, np.linalg.norm(o0[i]) * 1e3, "mm"))
+                                           _sd(o[i], C) * 1e3, np.linalg.norm(o0[i]) * 1e3, "mm", pj[i] * 1e3))
     for i, n in enumerate(sk.names):  # the thumb's bone directions
         if n.startswith("thumb-") and sk.parents[i] != sk.root and not n.endswith("-tip"):
             u, u0 = o[i] / np.linalg.norm(o[i]), o0[i] / np.linalg.norm(o0[i])
             P = (np.eye(3) - np.outer(u, u)) / np.linalg.norm(o[i])
             sd = np.sqrt(max(0.0, np.trace(P @ ad.joint_cov[i] @ P.T) / 2))
             out.append(CalibratedParameter(f"{n} axis", "axis", np.degrees(np.arccos(np.clip(u @ u0, -1, 1))),
-                                           np.degrees(sd), 0.0, "deg"))
+                                           np.degrees(sd), 0.0, "deg", np.degrees(pj[i] / np.linalg.norm(o[i]))))
     frames = ms.bone_frames(sk)
     for k, m in enumerate(ms.markers):
         if m.name in BACK_MARKERS:
@@ -197,8 +215,36 @@ def _parameters(sk0: Skeleton, ms0: MarkerSet, ad) -> list:
         u0 = o0[j0[0]] / np.linalg.norm(o0[j0[0]])
         v0 = ms0.offsets[k] - (ms0.offsets[k] @ u0) * u0
         out.append(CalibratedParameter(f"{m.name} height", "height", np.linalg.norm(v) * 1e3,
-                                       _sd(v, ad.marker_cov[k]) * 1e3, np.linalg.norm(v0) * 1e3, "mm"))
+                                       _sd(v, ad.marker_cov[k]) * 1e3, np.linalg.norm(v0) * 1e3, "mm", pm * 1e3))
     return out
+
+
+def _observability_check(params, pose: str):
+    """The self-check ``calibration_fixes_the_model``: every joint parameter (length, knuckle
+    place, thumb axis) whose 1-sigma is more than :data:`UNFIXED_SIGMA_RATIO` of its prior's
+    stayed near the template (scaled to the hand):
+    the capture did not show it. It warns (the calibration is kept: the template's value is the
+    best the capture allows) and names them, worst first."""
+    from stillcap._selfcheck import SelfCheck
+
+    # the joints' places (lengths, knuckles, the thumb's axes) set the angles; a marker's height
+    # is fixed with them (the flat flash fixes each height plus its knuckle's height)
+    rated = [q for q in params if q.kind != "height" and np.isfinite(q.fixed)]
+    if not rated:
+        return SelfCheck("calibration_fixes_the_model", True, None, UNFIXED_SIGMA_RATIO,
+                         "no parameter's prior known: not checked", pose, "")
+    unfixed = sorted((q for q in rated if q.fixed > UNFIXED_SIGMA_RATIO), key=lambda q: -q.fixed)
+    worst = max(rated, key=lambda q: q.fixed)
+    if not unfixed:
+        return SelfCheck("calibration_fixes_the_model", True, worst.fixed, UNFIXED_SIGMA_RATIO,
+                         f"the capture fixed every joint parameter (worst: {worst.name}, 1-sigma {worst.fixed:.2f} of "
+                         f"its prior's)", worst.name, "")
+    names = ", ".join(f"{q.name} (+-{q.sigma:.1f} {q.unit}, {q.fixed:.2f} of the prior's)" for q in unfixed[:6])
+    more = f" and {len(unfixed) - 6} more" if len(unfixed) > 6 else ""
+    return SelfCheck("calibration_fixes_the_model", False, worst.fixed, UNFIXED_SIGMA_RATIO,
+                     f"the calibration capture did not fix {len(unfixed)} joint parameter(s), which stay near the "
+                     f"template scaled to the hand: {names}{more}; bend those joints, and turn the hand, so that the "
+                     f"cameras see the markers beyond them move (docs/hand-calibration.md)", worst.name, "")
 
 
 def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton | None = None,
@@ -290,6 +336,7 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
         checks.append(SelfCheck("bone_lengths_fixed", True, worst.sigma, max_length_sigma_m * 1e3,
                                 f"every length known to {max_length_sigma_m * 1e3:.1f} mm (worst {worst.name})",
                                 pose, "mm"))
+    checks.append(_observability_check(params, pose))
     msgs = []
     if len(free) == 0:
         msgs.append("only the calibration pose was seen: the joint centres along the fingers stay at the "

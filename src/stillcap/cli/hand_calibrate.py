@@ -9,7 +9,7 @@ import typer
 
 def hand_calibrate(
     capture: Path = typer.Argument(..., help="Calibration capture folder (a hand capture of the gloved hand held "
-                                   "in the pose, then curling its fingers; docs/hand.md)."),
+                                   "in the pose, then through the protocol's steps; docs/hand-calibration.md)."),
     out: Path = typer.Option(..., "--out", help="The hand model to write (stillcap-skeleton JSON), for "
                              "stillcap hand --hand-model."),
     markers_out: Path = typer.Option(None, "--markers-out", help="The glove marker set to write (default: "
@@ -34,7 +34,8 @@ def hand_calibrate(
     """
     from rich.console import Console
 
-    from stillcap.body.hand_calibrate import CALIBRATION_POSES
+    from stillcap.body.hand_calibrate import CALIBRATION_POSES, UNFIXED_SIGMA_RATIO
+    from stillcap.cli._selfchecks import print_failed_checks
     from stillcap.body.hand_files import load_hand
     from stillcap.pipelines.hand.calibration import calibrate_hand_capture
 
@@ -58,8 +59,11 @@ def hand_calibrate(
         con.print(f"[yellow]{m}[/]", highlight=False)
     con.print(f"hand size {cal.size:.3f} x the template; fit residual {cal.rms * 1e3:.2f} mm RMS "
               f"({cal.pose_rms * 1e3:.2f} mm in the {pose} pose; {cal.n_posed} flash(es) in it, {cal.n_free} curling)")
-    con.print("estimated (1-sigma; template scaled to the hand):")
+    con.print("estimated (1-sigma; template scaled to the hand, and the prior's 1-sigma about it; "
+              "'not fixed': the capture narrowed the prior little):")
     for p in cal.parameters:
-        con.print(f"  {p.name:26s} {p.value:7.1f} +- {p.sigma:4.1f} {p.unit:3s} (template {p.template:6.1f})",
-                  highlight=False)
+        flag = "  not fixed" if p.fixed > UNFIXED_SIGMA_RATIO else ""
+        con.print(f"  {p.name:26s} {p.value:7.1f} +- {p.sigma:4.1f} {p.unit:3s} (template {p.template:6.1f} "
+                  f"+- {p.prior_sigma:4.1f}){flag}", highlight=False)
     con.print(f"wrote {out} and {markers_out}: stillcap hand CAPTURE --hand-model {out} --markers {markers_out}")
+    print_failed_checks(cal.self_checks, "hand-calibrate")

@@ -296,8 +296,9 @@ def hand(
                                          "then moving (--calibration-motion)."),
     calibration_motion: str = typer.Option("curl", "--calibration-motion", help="The calibration capture's "
                                            "motion: protocol (flat, spread, table top, hook, fist, thumb "
-                                           "opposition, half curl, flat; docs/hand-calibration.md) or curl (flat, "
-                                           "then a loose fist)."),
+                                           "opposition, half curl, flat; docs/hand-calibration.md), protocol-turned "
+                                           "(the protocol ending in a hook with the hand turned 60 deg, the "
+                                           "thumb's side toward the cameras) or curl (flat, then a loose fist)."),
     person: int = typer.Option(None, "--person", help="Another person's hand, light and cameras "
                                "(studio.hand_variation.another_hand with this seed)."),
 ):

@@ -704,7 +704,7 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     HandCapture
     """
     rng = as_rng(rng)
-    if calibration_pose is not None and calibration_motion == "protocol" and window_s is WINDOW_S:
+    if calibration_pose is not None and calibration_motion.startswith("protocol") and window_s is WINDOW_S:
         from stillcap.studio.hand_calibration import PROTOCOL_WINDOW_S
 
         window_s = PROTOCOL_WINDOW_S

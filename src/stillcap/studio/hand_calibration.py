@@ -13,7 +13,11 @@ Two motions (:data:`CALIBRATION_MOTIONS`):
   Every joint bends on its own at least once, by 45-100 deg, so every joint centre is seen
   turning its distal markers, and the knuckles abduct, so their sideways place is seen too;
 - ``curl`` (the first calibration motion, kept to compare): flat, then every joint curling
-  together toward a loose fist (MCP 55, PIP 75, DIP 45 deg).
+  together toward a loose fist (MCP 55, PIP 75, DIP 45 deg);
+- ``protocol-turned``: the protocol with its last two steps (flat again) replaced by a hook
+  (PIP and DIP 60 deg, thumb IP 60 deg) with the hand turned 60 deg about its long axis, the
+  thumb's side toward the cameras (:data:`PROTOCOL_TURNED_STEPS`, :data:`ROLL_DEG`): more
+  flashes in which the end joints bend with their nails in view (docs/hand-calibration.md).
 
 :func:`calibration_motion` wraps the throw's :class:`~stillcap.studio.hand.HandMotion` (so the
 person, light and cameras of the throw are kept); the angles after the flat flashes are the
@@ -31,7 +35,7 @@ __all__ = ["CalibrationMotion", "calibration_motion", "CALIBRATION_MOTIONS", "CU
            "PROTOCOL_WINDOW_S"]
 
 #: The calibration motions of the studio (module docstring).
-CALIBRATION_MOTIONS = ("protocol", "curl")
+CALIBRATION_MOTIONS = ("protocol", "curl", "protocol-turned")
 #: Flexion (deg) at full curl of the ``curl`` motion: finger MCP, PIP, DIP; thumb CMC, MCP, IP.
 CURL_DEG = {"mcp": 55.0, "pip": 75.0, "dip": 45.0, "thumb-cmc": 25.0, "thumb-mcp": 30.0, "thumb-ip": 45.0}
 #: ``curl``: the hand is still in the pose until this long before the release time, then curls over CURL_S.
@@ -67,6 +71,18 @@ PROTOCOL_STEPS = (
     ("flat", _f(), (0.0, 0.0, 0.0), 0.0, 0.0),
     ("flat", _f(), (0.0, 0.0, 0.0), 0.0, 0.0),
 )
+
+#: ``protocol-turned``: the protocol with its last steps replaced by the hook again, the hand
+#: turned about its long axis (ROLL_DEG, the thumb's side toward the cameras), so that the
+#: nails stay in view while the end joints bend: with the back of the hand toward the cameras a
+#: bent end joint turns its nail marker away, and the middle phalanges' lengths (the DIP
+#: centres) and the thumb's distal length stay at their prior (docs/hand-calibration.md).
+PROTOCOL_TURNED_STEPS = PROTOCOL_STEPS[:8] + (
+    ("hook, turned", _f(pip=60.0, dip=60.0), (0.0, 0.0, 20.0), 10.0, 60.0),
+    ("hook, turned", _f(pip=60.0, dip=60.0), (0.0, 0.0, 20.0), 10.0, 60.0),
+)
+#: The hand's turn (deg, about its long axis, the thumb's side toward the cameras) per step name.
+ROLL_DEG = {"hook, turned": 60.0}
 
 
 def _step_angles(skeleton, step) -> np.ndarray:
@@ -111,21 +127,32 @@ class CalibrationMotion:
         # protocol: step k at start + k / strobe_hz; the flat steps are the calibration pose's angles
         self._period = 1.0 / float(strobe_hz)
         self._start = self.t0 + (PROTOCOL_WINDOW_S[0] if start_s is None else float(start_s))
+        steps = PROTOCOL_TURNED_STEPS if motion == "protocol-turned" else PROTOCOL_STEPS
         self._steps = np.stack([self._rest if s[0] == "flat" else np.clip(_step_angles(sk, s), lo, hi)
-                                for s in PROTOCOL_STEPS])
+                                for s in steps])
+        self._rolls = np.array([ROLL_DEG.get(s[0], 0.0) if motion == "protocol-turned" else 0.0 for s in steps])
+
+    def _step(self, t: float):
+        u = float(np.clip((float(t) - self._start) / self._period, 0.0, len(self._steps) - 1))
+        k = min(int(np.floor(u)), len(self._steps) - 2)
+        return k, u - k
 
     def root2world(self, t: float) -> np.ndarray:
         T = self._r2w0.copy()
         T[:3, 3] = T[:3, 3] + DRIFT * (float(t) - self.t0)
+        if self.motion != "curl" and self._rolls.any():
+            from scipy.spatial.transform import Rotation
+
+            k, w = self._step(t)
+            roll = (1 - w) * self._rolls[k] + w * self._rolls[k + 1]
+            T[:3, :3] = T[:3, :3] @ Rotation.from_euler("x", roll, degrees=True).as_matrix()
         return T
 
     def angles_deg(self, t: float) -> np.ndarray:
         if self.motion == "curl":
             u = float(np.clip((float(t) - (self.t0 - POSE_UNTIL_S)) / CURL_S, 0.0, 1.0))
             return self._rest + u * (self._curl - self._rest)
-        u = float(np.clip((float(t) - self._start) / self._period, 0.0, len(self._steps) - 1))
-        k = min(int(np.floor(u)), len(self._steps) - 2)
-        w = u - k
+        k, w = self._step(t)
         return (1 - w) * self._steps[k] + w * self._steps[k + 1]
 
     def pose(self, t: float) -> Pose:
