@@ -20,7 +20,7 @@ Per person ``p`` (``stillcap.studio.hand_variation.another_hand(p)``):
    flash) by each model on (a) the exact markers (the truth's, for the markers the pipeline
    labelled) and (b) the triangulated markers, all started from the own model's pose of the
    pipeline; the joint-angle error on the degrees of freedom the seen markers fix
-   (:func:`stillcap.body.hand_track.observed_dofs`'s rule), RMS per joint and overall.
+   (:func:`stillcap.body.hand_track.dofs_fixed_by`, the rule of ``observed_dofs``), RMS per joint and overall.
 
 Prints one table per person and the RMS over persons per arm and joint (``--report-only``: of
 the rows already in ``--jsonl``). Person 5 at 1280x960 took about 3 CPU-minutes (a loaded
@@ -36,9 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stillcap.body.hand import fit_hand, hand_dofs, hand_markerset, hand_skeleton
+from stillcap.body.hand import fit_hand, hand_markerset, hand_skeleton
 from stillcap.body.hand_calibrate import calibrate_hand_from_points
 from stillcap.body.hand_label import hand_points_from_truth
+from stillcap.body.hand_track import dofs_fixed_by
 from stillcap.body.skeleton import Pose
 from stillcap.io.capture import Capture
 from stillcap.pipelines.hand import analyse_hand
@@ -52,23 +53,6 @@ def _write(hc, root: Path) -> Capture:
     cap, images = hc.to_capture(".jpg")
     cap.save(root, images, jpeg_quality=92)
     return Capture.load(root)
-
-
-def _observed(sk, ms, seen) -> list:
-    """The DOFs the seen markers fix (the rule of :func:`stillcap.body.hand_track.observed_dofs`)."""
-    frames = ms.bone_frames(sk)
-    out = []
-    for j, a in hand_dofs(sk):
-        chain, c = [], j
-        while c != sk.root:
-            chain.append(c)
-            c = sk.parents[c]
-        need = np.isin(frames, chain)
-        if sk.names[j] == "thumb-cmc":
-            need |= frames == sk.index("thumb-mcp")
-        if seen[need].all():
-            out.append((j, a, need))
-    return out
 
 
 def split(models: dict, flashes) -> dict:
@@ -91,7 +75,7 @@ def split(models: dict, flashes) -> dict:
                 except ValueError:
                     continue
                 ang = sk.limit_angles_deg(f.pose.local_rotations)
-                for j, a, need in _observed(sk, ms, seen):
+                for j, a, need in dofs_fixed_by(sk, ms, seen):
                     key = f"{sk.names[j]} {'xyz'[a]}" + (" (wrong label)" if wrong[need].any() else "")
                     errs.setdefault(key, []).append(float(ang[j, a] - truth[j, a]))
             out[f"{mname}/{kind}"] = errs

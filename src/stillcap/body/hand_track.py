@@ -29,7 +29,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Animation, Pose, Skeleton
 
 __all__ = ["HandSequence", "JointAngleSeries", "fit_hand_sequence", "interpolate_animation", "joint_angle_series",
-           "observed_dofs"]
+           "observed_dofs", "dofs_fixed_by"]
 
 _PERSONALISE = (None, "best", "joint")
 _AXES = ("twist", "flexion", "abduction")
@@ -319,8 +319,14 @@ def observed_dofs(sequence: HandSequence, k: int) -> list[tuple[int, int]]:
     markers seen at pose ``k`` fix: every marker on the joint's chain, from the back of the hand
     down to the joint itself, was seen (the thumb CMC also needs the thumb MCP's marker). The
     others rest on the fit's pull toward its start and say nothing about the hand."""
-    sk, frames = sequence.skeleton, sequence.markerset.bone_frames(sequence.skeleton)
     seen = np.isfinite(sequence.residuals[k])
+    return [(j, a) for j, a, _ in dofs_fixed_by(sequence.skeleton, sequence.markerset, seen)]
+
+
+def dofs_fixed_by(skeleton, markerset, seen: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
+    """:func:`observed_dofs`'s rule for any set of seen markers (a bool per marker):
+    ``(joint, axis, the markers it needs)`` for each degree of freedom they fix."""
+    sk, frames = skeleton, markerset.bone_frames(skeleton)
     out = []
     for j, a in hand_dofs(sk):
         chain, c = [], j
@@ -331,5 +337,5 @@ def observed_dofs(sequence: HandSequence, k: int) -> list[tuple[int, int]]:
         if sk.names[j] == "thumb-cmc":
             need |= frames == sk.index("thumb-mcp")
         if seen[need].all():
-            out.append((j, a))
+            out.append((j, a, need))
     return out
