@@ -460,7 +460,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
-    prep, ch_peak, sat_lit, dk_lit = [], [], [], []
+    prep, ch_peak, sat_lit, dk_lit, vc_lit = [], [], [], [], []
     shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
@@ -533,7 +533,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if np.any(lit):
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
-        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area))
+            vc_lit.append(vclose[lit])
+        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
     # for markers whose cores reach the paint's full saturation (or darkness) ``ref``. Lens blur
     # and small marker images mix the paint with the leather, so the cores reach less (1.5 px
@@ -546,9 +547,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     # shows (or only noise) takes the scale the others show, blur being one for all colours.
     s_core, s_weak = np.full(len(chroma), min_saturation), np.full(len(chroma), weak_membership)
     d_core, d_weak = 1.0 - dark_ratio, weak_membership
+    d_floor = None  # the leather's darkness noise as a function of its brightness (below)
     if adapt_thresholds and prep and sat_lit:
         s_noise = _robust_ceiling(np.concatenate(sat_lit))
         d_noise = _robust_ceiling(np.concatenate(dk_lit))
+        d_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(dk_lit))
         ref = ch_sat.reshape(-1).astype(float)
         ref_d = max(1.0 - v_pal, 0.1)
         peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
@@ -567,7 +570,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
-    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area in prep:
+    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -586,7 +589,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             lit_free = lit & ~any_chroma
             soft = np.where(lit_free, np.clip((1.0 - ratio) / max(1.0 - v_pal, 0.1), 0, 1), 0.0)
             soft = soft.astype(np.float32, copy=False)
-            cand.append((dark, soft >= d_weak, lit_free & (1.0 - ratio > d_core), soft))
+            dc, dw = d_core, d_weak
+            if d_floor is not None:  # dimmer leather is noisier: its own ceiling, never below the pooled one
+                local = np.interp(vclose, *d_floor).astype(np.float32)
+                dc, dw = np.maximum(d_core, local), np.maximum(d_weak, local / max(1.0 - v_pal, 0.1))
+            cand.append((dark, soft >= dw, lit_free & (1.0 - ratio > dc), soft))
         for tl, weak, core, soft in cand:
             if not np.any(core):
                 continue
@@ -612,6 +619,32 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         shapes=np.array([rw[2] for rw in rows], object), areas=np.array([rw[3] for rw in rows], float),
         confidences=np.array([rw[4] for rw in rows], float), aspects=np.array([rw[5] for rw in rows], float),
         ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int))
+
+
+def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int = 6,
+                         min_pixels: int = 200) -> tuple[np.ndarray, np.ndarray] | None:
+    """The leather's darkness ceiling (:func:`_robust_ceiling`) per brightness bin of the lit
+    pixels, as ``(bin brightness, ceiling)`` for ``np.interp``, or None with too few pixels.
+
+    Darkness is relative (``1 - value / local white``), so a sensor's read noise, and the
+    encoding's steep slope near black, make it noisier on dimmer leather (a side light's
+    terminator): one ceiling pooled over the ball lets that noise through as "black markers"
+    where the leather is dim and is stricter than needed where it is bright. The ceiling is
+    kept non-increasing with brightness (noise never grows with light)."""
+    if brightness.size < bins * min_pixels:
+        return None
+    edges = np.quantile(brightness, np.linspace(0.0, 1.0, bins + 1))
+    idx = np.clip(np.searchsorted(edges, brightness, side="right") - 1, 0, bins - 1)
+    mids, ceil = [], []
+    for b in range(bins):
+        sel = idx == b
+        if sel.sum() >= min_pixels:
+            mids.append(float(np.median(brightness[sel])))
+            ceil.append(_robust_ceiling(darkness[sel]))
+    if len(mids) < 2:
+        return None
+    ceil = np.maximum.accumulate(np.asarray(ceil)[::-1])[::-1]  # brighter never noisier than dimmer
+    return np.asarray(mids), ceil
 
 
 def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:
