@@ -133,23 +133,29 @@ def main() -> None:
     persons, size = a.persons, tuple(int(v) for v in a.size.split("x"))
     if a.quick:
         persons, size = [6, 7], (960, 720)
+    rows = resumed_rows(a.jsonl, a.motion, size, persons, run_person, lambda r: print(json.dumps(r), flush=True))
+    report([r for r in rows if r["person"] in persons])
+
+
+def resumed_rows(jsonl: Path | None, motion: str, size: tuple, persons, run, say) -> list[dict]:
+    """The rows of ``jsonl`` for this motion and size, plus ``run(person, size, motion)`` for each
+    person not in it yet (appended to ``jsonl`` as it goes, then passed to ``say``)."""
     rows = []
-    done = set()
-    if a.jsonl is not None and a.jsonl.exists():
-        rows = [json.loads(s) for s in a.jsonl.read_text().splitlines() if s.strip()]
-        rows = [r for r in rows if r.get("motion") == a.motion and tuple(r["size"]) == size]
-        done = {r["person"] for r in rows}
+    if jsonl is not None and jsonl.exists():
+        rows = [json.loads(s) for s in jsonl.read_text().splitlines() if s.strip()]
+        rows = [r for r in rows if r.get("motion") == motion and tuple(r["size"]) == size]
+    done = {r["person"] for r in rows}
     for p in persons:
         if p in done:
             continue
-        r = run_person(p, size, a.motion)
+        r = run(p, size, motion)
         rows.append(r)
-        if a.jsonl is not None:
-            a.jsonl.parent.mkdir(parents=True, exist_ok=True)
-            with a.jsonl.open("a") as f:
+        if jsonl is not None:
+            jsonl.parent.mkdir(parents=True, exist_ok=True)
+            with jsonl.open("a") as f:
                 f.write(json.dumps(r) + "\n")
-        print(json.dumps(r), flush=True)
-    report([r for r in rows if r["person"] in persons])
+        say(r)
+    return rows
 
 
 if __name__ == "__main__":

@@ -48,6 +48,8 @@ from stillcap.studio.compare.hand import compare_with_capture
 from stillcap.studio.hand import hand_capture
 from stillcap.studio.hand_variation import another_hand
 
+from bench_hand_calibration import resumed_rows  # (run from benchmarks/, as the other scripts import theirs)
+
 
 def _write(hc, root: Path) -> Capture:
     cap, images = hc.to_capture(".jpg")
@@ -173,21 +175,8 @@ def main() -> None:
     ap.add_argument("--report-only", action="store_true", help="print the table of the rows in --jsonl")
     a = ap.parse_args()
     size = tuple(int(v) for v in a.size.split("x"))
-    rows, done = [], set()
-    if a.jsonl is not None and a.jsonl.exists():
-        rows = [json.loads(s) for s in a.jsonl.read_text().splitlines() if s.strip()]
-        rows = [r for r in rows if r.get("motion") == a.motion and tuple(r["size"]) == size]
-        done = {r["person"] for r in rows}
-    for p in ([] if a.report_only else a.persons):
-        if p in done:
-            continue
-        r = run_person(p, size, a.motion)
-        rows.append(r)
-        if a.jsonl is not None:
-            a.jsonl.parent.mkdir(parents=True, exist_ok=True)
-            with a.jsonl.open("a") as f:
-                f.write(json.dumps(r) + "\n")
-        print(f"person {p} done", flush=True)
+    rows = resumed_rows(a.jsonl, a.motion, size, [] if a.report_only else a.persons, run_person,
+                        lambda r: print(f"person {r['person']} done", flush=True))
     report([r for r in rows if r["person"] in a.persons])
 
 

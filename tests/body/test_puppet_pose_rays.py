@@ -90,7 +90,8 @@ def test_rays_of_triangulated_markers_are_ignored():
                                fit_pose(SK, MS, pts, truth.root2world).pose.positions, atol=1e-12)
 
 
-def test_the_ray_jacobian_is_the_residuals_derivative(monkeypatch):
+def _spy_least_squares(monkeypatch) -> list:
+    """Record ``(fun, jac, x0)`` of every ``least_squares`` call the pose fit makes."""
     import stillcap.body.puppet_pose as pp
 
     calls = []
@@ -101,6 +102,11 @@ def test_the_ray_jacobian_is_the_residuals_derivative(monkeypatch):
         return real(fun, x0, **kw)
 
     monkeypatch.setattr(pp, "least_squares", spy)
+    return calls
+
+
+def test_the_ray_jacobian_is_the_residuals_derivative(monkeypatch):
+    calls = _spy_least_squares(monkeypatch)
     truth, pts, one = _case(5)
     rays = MarkerRays.from_views(RIG, one, ~np.all(np.isfinite(pts), axis=1))
     fit_pose(SK, MS, pts, truth.root2world, rays=rays)
@@ -177,16 +183,7 @@ def test_the_start_is_the_same_level_by_level_as_joint_by_joint(monkeypatch):
 
 def test_the_jacobian_is_of_the_parameters_asked_whatever_came_before(monkeypatch):
     """The residuals' frames are reused for the Jacobian at the same parameters only."""
-    import stillcap.body.puppet_pose as pp
-
-    calls = []
-    real = pp.least_squares
-
-    def spy(fun, x0, **kw):
-        calls.append((fun, kw["jac"], np.array(x0)))
-        return real(fun, x0, **kw)
-
-    monkeypatch.setattr(pp, "least_squares", spy)
+    calls = _spy_least_squares(monkeypatch)
     truth, pts, one = _case(6)
     fit_pose(SK, MS, pts, truth.root2world, rays=MarkerRays.from_views(RIG, one, ~np.all(np.isfinite(pts), axis=1)))
     fun, jac, x0 = calls[0]
