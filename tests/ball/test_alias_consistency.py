@@ -27,13 +27,20 @@ def test_mlb_high_spin_seed0_wrong_back_pair_is_flagged():
     assert "disagrees" in res.message
 
 
-def test_consistent_aliases_stay_resolved():
-    rng = np.random.default_rng(3)
-    w = np.array([-275.8, -81.7, -135.9])  # 3038 rpm: above both strobes' Nyquist limits
+def _both_pairs(w, seed: int, named: bool = False) -> list:
+    """The 80 Hz and 50 Hz pairs' principal aliases of ``w``, each measured with 0.5 rad/s noise."""
+    rng = np.random.default_rng(seed)
     meas = []
     for hz, name in ((80.0, "front"), (50.0, "back")):
         cov = np.eye(3) * 0.5 ** 2
-        meas.append(StrobeMeasurement(_principal(w, hz) + rng.multivariate_normal(np.zeros(3), cov), hz, cov, name))
+        extra = (name,) if named else ()
+        meas.append(StrobeMeasurement(_principal(w, hz) + rng.multivariate_normal(np.zeros(3), cov), hz, cov, *extra))
+    return meas
+
+
+def test_consistent_aliases_stay_resolved():
+    w = np.array([-275.8, -81.7, -135.9])  # 3038 rpm: above both strobes' Nyquist limits
+    meas = _both_pairs(w, 3, named=True)
     res = resolve_aliases(meas)
     assert res.consistent and not res.ambiguous
     assert abs(res.best.spin_rpm - np.linalg.norm(w) * RPM_PER_RAD_S) < 20
@@ -80,11 +87,7 @@ def test_wrong_pair_is_left_out_when_the_rest_agrees():
 
 
 def test_nothing_left_out_when_the_evidence_agrees():
-    rng = np.random.default_rng(5)
-    meas = []
-    for hz in (80.0, 50.0):
-        cov = np.eye(3) * 0.5 ** 2
-        meas.append(StrobeMeasurement(_principal(W_TRUE, hz) + rng.multivariate_normal(np.zeros(3), cov), hz, cov))
+    meas = _both_pairs(W_TRUE, 5)
     res = resolve_aliases(meas, _curvature(W_TRUE))
     assert res.left_out == [] and res.consistent and not res.ambiguous
     assert res.dof == 5
@@ -94,11 +97,7 @@ def test_nothing_left_out_when_the_evidence_agrees():
 def test_wrong_curvature_is_left_out():
     # both pairs agree on the truth; the curvature (e.g. a wrong flight model) bends the flight
     # 90 deg away from where this spin would: no alias of either pair matches it
-    rng = np.random.default_rng(6)
-    meas = []
-    for hz in (80.0, 50.0):
-        cov = np.eye(3) * 0.5 ** 2
-        meas.append(StrobeMeasurement(_principal(W_TRUE, hz) + rng.multivariate_normal(np.zeros(3), cov), hz, cov))
+    meas = _both_pairs(W_TRUE, 6)
     res = resolve_aliases(meas, _curvature(Rotation.from_rotvec([0, np.pi / 2, 0]).apply(W_TRUE)))
     assert res.left_out == ["curvature"]
     assert res.consistent and _close(res.best, W_TRUE)

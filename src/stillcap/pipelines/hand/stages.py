@@ -139,15 +139,19 @@ def triangulate_glove_markers(rig, pairs: dict, blobs: list, light, options: Han
     return points
 
 
+def _unconfirmed(points: MarkerPoints) -> np.ndarray:
+    """Partly hidden points of two views: no third view checked their match, so a label needs a
+    second labelled marker on its digit to be tested (label_hand_markers' ``unconfirmed``)."""
+    return points.partly_hidden & (points.n_views == 2)
+
+
 def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list, skeleton=None,
                   markerset=None) -> HandLabels:
     """Stage 4: the 3D markers labelled per flash with the hand model ``skeleton`` and ``markerset``
     (default the built-in ones; manual overrides from ``options.overrides``)."""
-    # a partly hidden point of two views: no third view checked its match, so it needs a second
-    # labelled marker on its digit to test its label (label_hand_markers' ``unconfirmed``)
     labels = label_hand_markers(points.points, points.colors, strobe_hz=strobe_hz, skeleton=skeleton,
                                 markerset=markerset, reprojection_px=points.reprojection_px,
-                                overrides=options.overrides, unconfirmed=points.partly_hidden & (points.n_views == 2))
+                                overrides=options.overrides, unconfirmed=_unconfirmed(points))
     for k, why in enumerate(labels.skipped):
         if why:
             messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
@@ -188,8 +192,7 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
                                      point_sigma_m=sigma)
         # a partly hidden point of two views that this fit (each point at its own noise) leaves
         # beyond the labelling gate is not the marker its label names: unlabelled, fitted again
-        far = contradicted_labels(labels, sequence.residuals, sequence.flashes,
-                                  points.partly_hidden & (points.n_views == 2))
+        far = contradicted_labels(labels, sequence.residuals, sequence.flashes, _unconfirmed(points))
         if len(far):
             messages.append(f"{len(far)} partly hidden 3D marker(s) unlabelled: farther from the fitted hand "
                             f"than the labelling gate")
