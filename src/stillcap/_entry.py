@@ -21,9 +21,8 @@ way each run went (and why not through the server). ``STILLCAP_SOCKET`` names th
 
 from __future__ import annotations
 
+import _signal as signal  # (not ``signal``, which builds its enums at import: ~4 ms of the client)
 import os
-import signal
-import socket
 import sys
 import time
 
@@ -67,10 +66,9 @@ def forward(argv: list[str], verbose: bool = False):
     except (OSError, ValueError) as e:
         _say(verbose, f"in-process ({e})")
         return None
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    sock = None
     try:
-        sock.settimeout(ACCEPT_TIMEOUT_S)
-        sock.connect(path)
+        sock = link.connect(path, ACCEPT_TIMEOUT_S)
         _pid, uid = link.peer_uid(sock)
         if uid != os.getuid():
             sock.close()
@@ -80,20 +78,21 @@ def forward(argv: list[str], verbose: bool = False):
                    "argv0": sys.argv[0], "cwd": os.getcwd(), "env": dict(os.environ), "umask": _umask(),
                    "ignored": _ignored()}
         link.send_request(sock, request, (0, 1, 2))
-        lines = link.Lines(sock)
-        reply = lines.next()
+        messages = link.Messages(sock)
+        reply = messages.next()
         if reply is None or not reply.get("ok"):
             sock.close()
             why = "the server closed the connection" if reply is None else reply.get("reason", "refused")
             _say(verbose, f"in-process ({why})")
             return None
-        link.send_line(sock, {"go": True})
+        link.send_message(sock, {"go": True})
     except (OSError, ValueError) as e:  # refused (a stale socket), timed out, reset: nothing ran
-        sock.close()
+        if sock is not None:
+            sock.close()
         _say(verbose, f"in-process (server at {path}: {e})")
         return None
     _say(verbose, f"via the server at {path}")
-    return _wait(sock, lines)
+    return _wait(sock, messages, link)
 
 
 def _ignored() -> list[int]:
@@ -108,11 +107,11 @@ def _umask() -> int:
     return mask
 
 
-def _wait(sock: socket.socket, lines):
+def _wait(sock, messages, link):
     """The run's end: its status from the server; signals received meanwhile are sent on."""
     def pass_on(signum, _frame):
         try:
-            sock.sendall(f'{{"signal": {int(signum)}}}\n'.encode())
+            link.send_message(sock, {"signal": int(signum)})
         except OSError:
             pass
 
@@ -124,7 +123,7 @@ def _wait(sock: socket.socket, lines):
     child = None  # the run's process id, which the server sends first
     end = None
     try:
-        while (end := lines.next()) is not None and "pid" in end:
+        while (end := messages.next()) is not None and "pid" in end:
             child = int(end["pid"])
     except (OSError, ValueError):
         end = None
