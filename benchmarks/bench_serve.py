@@ -10,7 +10,8 @@ Rows (each the best and the median of ``--repeat`` runs, wall and CPU time):
 - ``python -m stillcap pitch CAPTURE --json`` through a warm server (started by the benchmark on
   a socket of its own), as ``bench_speed.py`` times it; CPU: the client process's own;
 - the run in the server's fork, from the server's log (fork to reap; its CPU and page faults are
-  logged since the server uses ``wait4``: not by older servers);
+  logged since the server uses ``wait4``; for an older server the CPU is the mean of its reaped
+  children's, from /proc);
 - outside the run: the whole minus the run (client start, request, reply, client exit);
 - ``Capture.load`` + ``analyse_pitch`` in a fork of a process that has imported what the server
   imports (:func:`stillcap.cli._server.preload`), with the settings the server gives its runs,
@@ -77,14 +78,26 @@ def _through_server(src: Path, capture: Path, repeat: int):
                               env=dict(env, STILLCAP_SERVER="verbose"), capture_output=True, text=True).stderr
         if not said.startswith("stillcap: via the server"):
             raise SystemExit(f"the run did not go through the warm server: {said.splitlines()[:1]}")
+        pid = json.loads(subprocess.run([sys.executable, "-m", "stillcap", "serve", "--status", "--json"], env=env,
+                                        check=True, capture_output=True, text=True).stdout)["pid"]
+        before = _reaped_cpu(pid)
         walls, cpus = _process([sys.executable, "-m", "stillcap", "pitch", str(capture), "--json"], env, repeat)
+        reaped = (_reaped_cpu(pid) - before) / (repeat + 1)  # _process runs one untimed first
     finally:
         subprocess.run([sys.executable, "-m", "stillcap", "serve", "--stop"], env=env, capture_output=True, check=False)
     runs = [m.groups() for m in LOG_LINE.finditer(Path(sock + ".log").read_text())][-repeat:]
     run_wall = [float(w) for w, _, _ in runs]
     run_cpu = [float(c) for _, c, _ in runs if c is not None]
     faults = [int(f) for _, _, f in runs if f is not None]
-    return walls, cpus, run_wall, run_cpu, faults
+    return walls, cpus, run_wall, run_cpu or [reaped], faults
+
+
+def _reaped_cpu(pid: int) -> float:
+    """The CPU time of the server's reaped children (``cutime`` + ``cstime`` of /proc/PID/stat):
+    the runs' CPU, in 1/100 s, for a server that does not log it."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[13]) + int(fields[14])) / os.sysconf("SC_CLK_TCK")
 
 
 FORKED = r"""

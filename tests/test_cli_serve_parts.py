@@ -145,3 +145,41 @@ def test_forgotten_modules_are_imported_again_from_the_code_compiled_once(tmp_pa
     finally:
         sys.modules.pop("kept_code_mod", None)
         sys.modules.pop("kept_code_other", None)
+
+
+FREED_AGAIN = r"""
+import ctypes, resource, sys
+if sys.argv[1] == "on":
+    from stillcap.cli._server import _keep_freed_memory
+    _keep_freed_memory()
+libc = ctypes.CDLL(None)
+libc.malloc.restype = ctypes.c_void_p
+libc.free.argtypes = [ctypes.c_void_p]
+n = 24 << 20
+
+def faults():
+    p = libc.malloc(n)
+    f = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    ctypes.memset(p, 1, n)
+    f = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f
+    libc.free(p)
+    return f
+
+print(faults(), faults())
+"""
+
+
+@pytest.mark.skipif(not os.confstr("CS_GNU_LIBC_VERSION").startswith("glibc"), reason="glibc's mallopt")
+def test_a_runs_process_keeps_the_memory_it_frees():
+    """In a run's process (the server's settings), 24 MiB written, freed and asked for again come
+    back without page faults; with glibc's defaults (the control) they are faulted in again."""
+    pages = (24 << 20) // os.sysconf("SC_PAGE_SIZE")
+    env = dict(os.environ, PYTHONPATH=str(SRC))
+    got = {}
+    for mode in ("on", "off"):
+        out = subprocess.run([sys.executable, "-c", FREED_AGAIN, mode], capture_output=True, text=True, env=env,
+                             check=True, timeout=120).stdout
+        got[mode] = [int(x) for x in out.split()]
+    assert got["on"][0] > pages // 2 and got["off"][0] > pages // 2  # the first time: fresh pages
+    assert got["on"][1] < pages // 10, got
+    assert got["off"][1] > pages // 2, got  # the control: without the settings they come back faulted
