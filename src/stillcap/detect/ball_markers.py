@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap._numeric import median
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -317,16 +318,23 @@ def ball_white_balance(image, centers, radii_px, inner_fraction: float = 0.85, l
         x1, y1 = min(int(cx + r) + 2, W), min(int(cy + r) + 2, H)
         if x1 - x0 < 3 or y1 - y0 < 3:
             continue
-        crop = img[y0:y1, x0:x1].astype(np.float32)
+        crop = img[y0:y1, x0:x1]
         X = np.arange(x0, x1, dtype=np.float32)[None, :]
         Y = np.arange(y0, y1, dtype=np.float32)[:, None]
         inside = np.hypot(X - cx, Y - cy) <= inner_fraction * r
-        v = crop.max(axis=2)
+        if crop.dtype == np.uint8 and crop.ndim == 3:
+            # the brightest channel of the 8-bit values, converted after (the same numbers:
+            # float32 holds every code exactly), by two np.maximum on channel views (max(axis=2)
+            # over 3 channels is a slow strided reduction); only the picked pixels converted
+            v = np.maximum(np.maximum(crop[:, :, 0], crop[:, :, 1]), crop[:, :, 2]).astype(np.float32)
+        else:
+            crop = crop.astype(np.float32)
+            v = crop.max(axis=2)
         if np.count_nonzero(inside) < 3:
             continue
         top = _percentile(v[inside], 99.0)
         sel = inside & (v >= lit_share * top) & (v < clip) & (v > 0)
-        picks.append(crop[sel])
+        picks.append(crop[sel].astype(np.float32, copy=False))
     px = np.concatenate(picks) if picks else np.zeros((0, 3), np.float32)
     if len(px) < min_pixels:
         return np.ones(3)
@@ -639,7 +647,7 @@ def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int
     for b in range(bins):
         sel = idx == b
         if sel.sum() >= min_pixels:
-            mids.append(float(np.median(brightness[sel])))
+            mids.append(median(brightness[sel]))
             ceil.append(_robust_ceiling(darkness[sel]))
     if len(mids) < 2:
         return None
@@ -651,8 +659,10 @@ def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:
     """``median + k x robust sigma`` of ``x``: the top of the leather's noise (the markers, a
     minority of the lit pixels, do not move it). The sigma (1.4826 MAD) is at least 2/255: 8-bit
     levels make a near-neutral surface's saturation and darkness step by about that much."""
-    med = float(np.median(x))
-    return med + k * max(1.4826 * float(np.median(np.abs(x - med))), 2.0 / 255.0)
+    # (medians by stillcap._numeric.median: np.median's numbers without its overhead)
+    x = np.ravel(x)
+    med = median(x)
+    return med + k * max(1.4826 * median(np.abs(x - med)), 2.0 / 255.0)
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):
