@@ -81,6 +81,9 @@ def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: flo
     """
     x = np.array(x0, float)
     px, py = points[:, 0], points[:, 1]
+    # the Jacobian d e / d (cx, cy, r), filled in place each step (its radius column is -1)
+    J = np.empty((len(px), 3))
+    J[:, 2] = -1.0
 
     def at(x):
         dx, dy = px - x[0], py - x[1]
@@ -93,7 +96,8 @@ def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: flo
         rho1 = 1.0 / np.sqrt(1.0 + z)
         h = np.maximum(rho1 - z * rho1 ** 3, 0.1 * rho1)  # rho' + 2 z rho'', rho'' = -(1+z)^-1.5 / 2
         inv = 1.0 / np.maximum(dist, 1e-12)
-        J = np.stack([-dx * inv, -dy * inv, -np.ones_like(dx)], 1)  # d e / d (cx, cy, r)
+        np.negative(np.multiply(dx, inv, out=J[:, 0]), out=J[:, 0])
+        np.negative(np.multiply(dy, inv, out=J[:, 1]), out=J[:, 1])
         try:
             step = np.linalg.solve((J * h[:, None]).T @ J, -(J.T @ (rho1 * e)))
         except np.linalg.LinAlgError:
