@@ -28,6 +28,7 @@ size except right at the limb).
 from __future__ import annotations
 
 import enum
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -44,6 +45,14 @@ __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "
 
 SHAPES = ("disc", "ring", "square", "triangle")
 _BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
+
+
+@functools.lru_cache(maxsize=64)
+def _ellipse_kernel(k: int) -> np.ndarray:
+    """``cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))``, once per size (read-only)."""
+    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    ker.flags.writeable = False
+    return ker
 
 
 @dataclass(frozen=True)
@@ -173,7 +182,8 @@ def _shape_features(region: np.ndarray):
         return holes / a_out, np.nan
     white = v @ np.diag(1 / np.sqrt(w)) @ v.T
     p = cs[main].reshape(-1, 2).astype(float) - (m["m10"] / m["m00"], m["m01"] / m["m00"])
-    rad = np.linalg.norm(p @ white.T, axis=1)
+    q = p @ white.T
+    rad = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1])  # np.linalg.norm(q, axis=1)'s numbers, without its overhead
     lo, hi = int(0.02 * (len(rad) - 1)), int(0.98 * (len(rad) - 1))
     rad = np.partition(rad, (lo, hi))  # the two order statistics only, not a full sort
     spread = float(rad[hi] / max(rad[lo], 1e-9))
@@ -484,7 +494,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if neutral:
             crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
         else:  # the cast divided out (clipped at full scale: a clipped channel stays clipped)
-            crop = np.minimum(img[y0:y1, x0:x1].astype(np.float32) * inv_wb, 1.0)
+            crop = img[y0:y1, x0:x1].astype(np.float32)
+            np.minimum(np.multiply(crop, inv_wb, out=crop), 1.0, out=crop)  # in place: the same numbers
         hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
         hue, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
         # pixel coordinates as a row (1, w) and a column (h, 1): they broadcast to the grid
@@ -508,7 +519,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
         # local ball brightness: closing fills markers up to ~0.35 r across
         k = max(3, int(round(0.35 * r)) | 1)
-        ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+        ker = _ellipse_kernel(k)
         vclose = cv2.morphologyEx(np.where(disc, val, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
         top = _percentile(vclose[disc], 99.0)
         # luma darkness relative to the local white: every palette colour is much darker than
