@@ -514,7 +514,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if np.count_nonzero(fg) < 3:
             continue
         disc &= cv2.erode(_hull_mask(fg), _BOX3).astype(bool)
-        if not np.any(disc):
+        if not disc.any():
             continue
         min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
         # local ball brightness: closing fills markers up to ~0.35 r across
@@ -549,7 +549,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             ch_peak.append(np.where(hue_ok & lit, sat, 0.0).reshape(len(chroma), -1).max(axis=1))
         else:
             hue_ok = None
-        if np.any(lit):
+        if lit.any():
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
@@ -614,7 +614,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 dc, dw = np.maximum(d_core, local), np.maximum(d_weak, local / max(1.0 - v_pal, 0.1))
             cand.append((dark, soft >= dw, lit_free & (1.0 - ratio > dc), soft))
         for tl, weak, core, soft in cand:
-            if not np.any(core):
+            if not core.any():
                 continue
             n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.view(np.uint8), connectivity=8)
             areas = stats[:, cv2.CC_STAT_AREA]
@@ -703,7 +703,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         flags |= MarkerFlag.NEAR_LIMB
     if aspect < min_aspect:
         flags |= MarkerFlag.FORESHORTENED
-    if np.any(comp & ~inner):
+    if (comp & ~inner).any():
         flags |= MarkerFlag.AT_EDGE
     # shape from the weights upsampled x4 and cut at half their peak: a smooth outline even
     # for a 5 px marker (a binary mask's staircase would pass for a square)
@@ -750,8 +750,8 @@ def _fit_shading(luma, X, Y, cx, cy, r, sel, response):
     A = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
     coef, *_ = np.linalg.lstsq(A, lin, rcond=None)
     peak = float(np.hypot(np.hypot(coef[0], coef[1]), coef[2]) + coef[3])
-    rms = float(np.sqrt(np.mean((A @ coef - lin) ** 2)))
-    if not (np.all(np.isfinite(coef)) and peak > 0 and rms <= 0.1 * peak):
+    rms = float(np.sqrt(((A @ coef - lin) ** 2).mean()))
+    if not (np.isfinite(coef).all() and peak > 0 and rms <= 0.1 * peak):
         return None  # not a matte shaded sphere (texture, clipping, several lights): no model
     return (*coef, cx, cy, r)
 

@@ -276,15 +276,15 @@ def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False):
     r2 = q[0] ** 2 + q[1] ** 2
     ring = (r2 > 1.3 ** 2)
     if signed:
-        level = float(np.mean(img[ring])) if np.any(ring) else 0.0
+        level = float(img[ring].mean()) if ring.any() else 0.0
         wgt = np.where(r2 < 1.15 ** 2, img - level, 0.0)
     else:
-        level = median(img[ring]) if np.any(ring) else 0.0
+        level = median(img[ring]) if ring.any() else 0.0
         wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
         return None
-    return np.array([np.sum(wgt * q[0]), np.sum(wgt * q[1])]) / tot
+    return np.array([(wgt * q[0]).sum(), (wgt * q[1]).sum()]) / tot
 
 
 def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:
