@@ -744,8 +744,9 @@ def _fit_shading(luma, X, Y, cx, cy, r, sel, response):
     if np.count_nonzero(sel) < 12:
         return None
     lin = response.linearize(np.clip(luma[sel] * 255.0, 0, 255)).astype(float)
-    nx = (np.broadcast_to(X, sel.shape)[sel] - cx) / r
-    ny = (np.broadcast_to(Y, sel.shape)[sel] - cy) / r
+    rows, cols = sel.nonzero()  # X (1, w) and Y (h, 1) at the selected pixels, in boolean-index order
+    nx = (X[0, cols] - cx) / r
+    ny = (Y[rows, 0] - cy) / r
     nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
     A = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
     coef, *_ = np.linalg.lstsq(A, lin, rcond=None)
