@@ -1,7 +1,13 @@
 """CPU time of the pitch pipeline's stages, per capture (where the time of ``analyse_pitch`` goes).
 
-    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6] [--repeat 5]
+    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6] [--repeat 5] [--workers 1] [--opencv]
     python benchmarks/bench_pitch_stages.py --seeds 5
+
+``--opencv`` adds a row: the CPU of every OpenCV call but decoding, which releases the GIL. The
+rest of the non-decoding CPU holds it (Python, NumPy on small arrays), so on threads a capture's
+wall time cannot fall below about "whole - decoding - OpenCV" however the stages are scheduled
+(issue 16, the 2560x1920 JPEG pitch of ``bench_speed.py``, loaded 2-core machine: of 377 ms of
+non-decoding CPU 60 ms were OpenCV's, ~317 ms held the GIL, against 95 ms of decoding).
 
 ``--captures DIR``: capture folders kept by ``bench_pitch.py --keep DIR`` (every ``--every``-th);
 without it ``--seeds`` pitches of each preset are rendered into a temporary folder (true rig).
