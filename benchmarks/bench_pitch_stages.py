@@ -1,7 +1,13 @@
 """CPU time of the pitch pipeline's stages, per capture (where the time of ``analyse_pitch`` goes).
 
-    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6] [--repeat 5]
+    python benchmarks/bench_pitch_stages.py --captures DIR [--every 6] [--repeat 5] [--workers 1] [--opencv]
     python benchmarks/bench_pitch_stages.py --seeds 5
+
+``--opencv`` adds a row: the CPU of every OpenCV call but decoding, which releases the GIL. The
+rest of the non-decoding CPU holds it (Python, NumPy on small arrays), so on threads a capture's
+wall time cannot fall below about "whole - decoding - OpenCV" however the stages are scheduled
+(issue 16, the 2560x1920 JPEG pitch of ``bench_speed.py``, loaded 2-core machine: of 377 ms of
+non-decoding CPU 60 ms were OpenCV's, ~317 ms held the GIL, against 95 ms of decoding).
 
 ``--captures DIR``: capture folders kept by ``bench_pitch.py --keep DIR`` (every ``--every``-th);
 without it ``--seeds`` pitches of each preset are rendered into a temporary folder (true rig).
@@ -41,12 +47,17 @@ STAGES = (
     ("ball_centers_stereo", [("stillcap.pipelines.pitch.workers", "ball_centers_stereo"),
                              ("stillcap.pipelines.pitch", "ball_centers_stereo")]),
     ("  of which detect_balls", [("stillcap.ball.stereo", "detect_balls")]),
+    ("    of which _foreground_contours (silhouettes)", [("stillcap.detect.ball._silhouettes",
+                                                          "_foreground_contours")]),
     ("    of which crescent_circle (arc fits)", [("stillcap.detect.ball._silhouettes", "crescent_circle")]),
     ("  of which refine_ball_centers", [("stillcap.ball.stereo", "refine_ball_centers")]),
+    ("    of which _shading_bias (shading model)", [("stillcap.detect.ball._refine", "_shading_bias")]),
     ("  of which photo_blur_px", [("stillcap.ball.stereo", "photo_blur_px")]),
     ("pair_marker_observations", [("stillcap.pipelines.pitch.spin", "pair_marker_observations"),
                                   ("stillcap.pipelines.pitch", "pair_marker_observations")]),
     ("  of which detect_ball_markers", [("stillcap.ball.markers", "detect_ball_markers")]),
+    ("    of which ball_white_balance", [("stillcap.detect.ball_markers", "ball_white_balance")]),
+    ("    of which _measure (marker centroids, shapes)", [("stillcap.detect.ball_markers", "_measure")]),
     ("fit_pair_spin", [("stillcap.pipelines.pitch.spin", "_fit_pair_spin"),
                        ("stillcap.pipelines.pitch", "_fit_pair_spin")]),
     ("combined_spin", [("stillcap.pipelines.pitch.spin", "_combined_spin"),
@@ -58,6 +69,31 @@ STAGES = (
     ("pair_response_estimates (response self-check)", [("stillcap.pipelines.pitch.workers",
                                                         "pair_response_estimates")]),
 )
+
+#: the row of ``--opencv``: every OpenCV call but decoding, whose thread CPU is GIL-free
+OPENCV_ROW = "OpenCV calls other than decoding (GIL released: may overlap)"
+
+
+def instrument_opencv(totals: dict) -> None:
+    """Wrap every function of the ``cv2`` module (OpenCV releases the GIL inside its calls) to
+    add its thread CPU time (s) to ``totals[OPENCV_ROW]``, decoding (``imdecode``/``imread``)
+    left out (its own row). What is left of a stage's CPU holds the GIL (Python, and NumPy on
+    small arrays): two threads cannot overlap it, so on threads a capture's wall time is at
+    least about the whole CPU less the decoding and this row. The wrappers cost ~1 us a call."""
+    import cv2
+
+    for name in dir(cv2):
+        fn = getattr(cv2, name)
+        if type(fn).__name__ != "builtin_function_or_method" or name in ("imdecode", "imread"):
+            continue
+
+        def timed(*a, _fn=fn, **k):
+            t = time.thread_time()
+            try:
+                return _fn(*a, **k)
+            finally:
+                totals[OPENCV_ROW] += time.thread_time() - t
+        setattr(cv2, name, timed)
 
 
 def instrument(totals: dict) -> None:
@@ -111,12 +147,16 @@ def main():
     ap.add_argument("--repeat", type=int, default=1, help="runs per capture; each row the best of them")
     ap.add_argument("--workers", type=int, default=2,
                     help="PitchOptions.workers (1: every stage on the calling thread, so the rows add up)")
+    ap.add_argument("--opencv", action="store_true",
+                    help="also time every OpenCV call but decoding (GIL-free CPU; adds ~1 us a call)")
     args = ap.parse_args()
     console = Console()
     with tempfile.TemporaryDirectory() as tmp:
         folders = _captures(args, Path(tmp))
         totals: dict = defaultdict(float)
         instrument(totals)
+        if args.opencv:
+            instrument_opencv(totals)
 
         def run(folder):
             cap = Capture.load(folder)
@@ -147,7 +187,7 @@ def main():
     t.add_column("share", justify="right")
     total = float(np.mean(whole))
     t.add_row("whole analyse_pitch (process CPU)", f"{1e3 * total:.1f}", "100 %")
-    for name, _ in STAGES:
+    for name in [n for n, _ in STAGES] + [OPENCV_ROW]:
         if name in totals:
             t.add_row(name, f"{1e3 * totals[name] / n:.1f}", f"{100 * totals[name] / n / total:.0f} %")
     console.print(t)

@@ -28,6 +28,7 @@ size except right at the limb).
 from __future__ import annotations
 
 import enum
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -35,6 +36,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap._numeric import median
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -43,6 +45,14 @@ __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "
 
 SHAPES = ("disc", "ring", "square", "triangle")
 _BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
+
+
+@functools.lru_cache(maxsize=64)
+def _ellipse_kernel(k: int) -> np.ndarray:
+    """``cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))``, once per size (read-only)."""
+    ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    ker.flags.writeable = False
+    return ker
 
 
 @dataclass(frozen=True)
@@ -172,7 +182,8 @@ def _shape_features(region: np.ndarray):
         return holes / a_out, np.nan
     white = v @ np.diag(1 / np.sqrt(w)) @ v.T
     p = cs[main].reshape(-1, 2).astype(float) - (m["m10"] / m["m00"], m["m01"] / m["m00"])
-    rad = np.linalg.norm(p @ white.T, axis=1)
+    q = p @ white.T
+    rad = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1])  # np.linalg.norm(q, axis=1)'s numbers, without its overhead
     lo, hi = int(0.02 * (len(rad) - 1)), int(0.98 * (len(rad) - 1))
     rad = np.partition(rad, (lo, hi))  # the two order statistics only, not a full sort
     spread = float(rad[hi] / max(rad[lo], 1e-9))
@@ -317,16 +328,23 @@ def ball_white_balance(image, centers, radii_px, inner_fraction: float = 0.85, l
         x1, y1 = min(int(cx + r) + 2, W), min(int(cy + r) + 2, H)
         if x1 - x0 < 3 or y1 - y0 < 3:
             continue
-        crop = img[y0:y1, x0:x1].astype(np.float32)
+        crop = img[y0:y1, x0:x1]
         X = np.arange(x0, x1, dtype=np.float32)[None, :]
         Y = np.arange(y0, y1, dtype=np.float32)[:, None]
         inside = np.hypot(X - cx, Y - cy) <= inner_fraction * r
-        v = crop.max(axis=2)
+        if crop.dtype == np.uint8 and crop.ndim == 3:
+            # the brightest channel of the 8-bit values, converted after (the same numbers:
+            # float32 holds every code exactly), by two np.maximum on channel views (max(axis=2)
+            # over 3 channels is a slow strided reduction); only the picked pixels converted
+            v = np.maximum(np.maximum(crop[:, :, 0], crop[:, :, 1]), crop[:, :, 2]).astype(np.float32)
+        else:
+            crop = crop.astype(np.float32)
+            v = crop.max(axis=2)
         if np.count_nonzero(inside) < 3:
             continue
         top = _percentile(v[inside], 99.0)
         sel = inside & (v >= lit_share * top) & (v < clip) & (v > 0)
-        picks.append(crop[sel])
+        picks.append(crop[sel].astype(np.float32, copy=False))
     px = np.concatenate(picks) if picks else np.zeros((0, 3), np.float32)
     if len(px) < min_pixels:
         return np.ones(3)
@@ -476,7 +494,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if neutral:
             crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
         else:  # the cast divided out (clipped at full scale: a clipped channel stays clipped)
-            crop = np.minimum(img[y0:y1, x0:x1].astype(np.float32) * inv_wb, 1.0)
+            crop = img[y0:y1, x0:x1].astype(np.float32)
+            np.minimum(np.multiply(crop, inv_wb, out=crop), 1.0, out=crop)  # in place: the same numbers
         hsv = cv2.cvtColor(crop, cv2.COLOR_BGR2HSV)
         hue, sat, val = hsv[..., 0], hsv[..., 1], hsv[..., 2]
         # pixel coordinates as a row (1, w) and a column (h, 1): they broadcast to the grid
@@ -495,12 +514,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if np.count_nonzero(fg) < 3:
             continue
         disc &= cv2.erode(_hull_mask(fg), _BOX3).astype(bool)
-        if not np.any(disc):
+        if not disc.any():
             continue
         min_area = max(5.0, 0.003 * np.pi * r * r) if min_area_px is None else float(min_area_px)
         # local ball brightness: closing fills markers up to ~0.35 r across
         k = max(3, int(round(0.35 * r)) | 1)
-        ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+        ker = _ellipse_kernel(k)
         vclose = cv2.morphologyEx(np.where(disc, val, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
         top = _percentile(vclose[disc], 99.0)
         # luma darkness relative to the local white: every palette colour is much darker than
@@ -530,7 +549,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             ch_peak.append(np.where(hue_ok & lit, sat, 0.0).reshape(len(chroma), -1).max(axis=1))
         else:
             hue_ok = None
-        if np.any(lit):
+        if lit.any():
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
@@ -595,7 +614,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 dc, dw = np.maximum(d_core, local), np.maximum(d_weak, local / max(1.0 - v_pal, 0.1))
             cand.append((dark, soft >= dw, lit_free & (1.0 - ratio > dc), soft))
         for tl, weak, core, soft in cand:
-            if not np.any(core):
+            if not core.any():
                 continue
             n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.view(np.uint8), connectivity=8)
             areas = stats[:, cv2.CC_STAT_AREA]
@@ -639,7 +658,7 @@ def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int
     for b in range(bins):
         sel = idx == b
         if sel.sum() >= min_pixels:
-            mids.append(float(np.median(brightness[sel])))
+            mids.append(median(brightness[sel]))
             ceil.append(_robust_ceiling(darkness[sel]))
     if len(mids) < 2:
         return None
@@ -651,8 +670,10 @@ def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:
     """``median + k x robust sigma`` of ``x``: the top of the leather's noise (the markers, a
     minority of the lit pixels, do not move it). The sigma (1.4826 MAD) is at least 2/255: 8-bit
     levels make a near-neutral surface's saturation and darkness step by about that much."""
-    med = float(np.median(x))
-    return med + k * max(1.4826 * float(np.median(np.abs(x - med))), 2.0 / 255.0)
+    # (medians by stillcap._numeric.median: np.median's numbers without its overhead)
+    x = np.ravel(x)
+    med = median(x)
+    return med + k * max(1.4826 * median(np.abs(x - med)), 2.0 / 255.0)
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):
@@ -682,7 +703,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         flags |= MarkerFlag.NEAR_LIMB
     if aspect < min_aspect:
         flags |= MarkerFlag.FORESHORTENED
-    if np.any(comp & ~inner):
+    if (comp & ~inner).any():
         flags |= MarkerFlag.AT_EDGE
     # shape from the weights upsampled x4 and cut at half their peak: a smooth outline even
     # for a 5 px marker (a binary mask's staircase would pass for a square)
@@ -723,14 +744,15 @@ def _fit_shading(luma, X, Y, cx, cy, r, sel, response):
     if np.count_nonzero(sel) < 12:
         return None
     lin = response.linearize(np.clip(luma[sel] * 255.0, 0, 255)).astype(float)
-    nx = (np.broadcast_to(X, sel.shape)[sel] - cx) / r
-    ny = (np.broadcast_to(Y, sel.shape)[sel] - cy) / r
+    rows, cols = sel.nonzero()  # X (1, w) and Y (h, 1) at the selected pixels, in boolean-index order
+    nx = (X[0, cols] - cx) / r
+    ny = (Y[rows, 0] - cy) / r
     nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
     A = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
     coef, *_ = np.linalg.lstsq(A, lin, rcond=None)
     peak = float(np.hypot(np.hypot(coef[0], coef[1]), coef[2]) + coef[3])
-    rms = float(np.sqrt(np.mean((A @ coef - lin) ** 2)))
-    if not (np.all(np.isfinite(coef)) and peak > 0 and rms <= 0.1 * peak):
+    rms = float(np.sqrt(((A @ coef - lin) ** 2).mean()))
+    if not (np.isfinite(coef).all() and peak > 0 and rms <= 0.1 * peak):
         return None  # not a matte shaded sphere (texture, clipping, several lights): no model
     return (*coef, cx, cy, r)
 

@@ -52,7 +52,7 @@ def fit_circle(points, radius: float | None = None, start=None, f_scale: float =
         d = points - x[:2]
         u = d / np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)[:, None]
         return np.column_stack([-u, -np.ones(len(d))]) if radius is None else -u
-    x0 = np.array([start[0], start[1]] + ([float(np.mean(np.hypot(*(points - start).T)))] if radius is None else []))
+    x0 = np.array([start[0], start[1]] + ([float(np.hypot(*(points - start).T).mean())] if radius is None else []))
     # free radius: Newton steps on the loss (fast); not converged (rare), or a known radius (its
     # short arcs have a mirror minimum on the arc's other side, which a trust region keeps away
     # from): scipy's trust-region solver
@@ -60,7 +60,7 @@ def fit_circle(points, radius: float | None = None, start=None, f_scale: float =
     if x is None:
         x = least_squares(res, x0, jac=jac, loss="soft_l1", f_scale=f_scale).x
     r_fit = float(x[2]) if radius is None else float(radius)
-    return x[:2], r_fit, float(np.sqrt(np.mean(res(x) ** 2)))
+    return x[:2], r_fit, float(np.sqrt((res(x) ** 2).mean()))
 
 
 def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: float = 1e-8,
@@ -81,24 +81,30 @@ def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: flo
     """
     x = np.array(x0, float)
     px, py = points[:, 0], points[:, 1]
+    # the Jacobian d e / d (cx, cy, r), filled in place each step (its radius column is -1)
+    J = np.empty((len(px), 3))
+    J[:, 2] = -1.0
 
     def at(x):
         dx, dy = px - x[0], py - x[1]
         dist = np.hypot(dx, dy)
         e = dist - x[2]
-        return dx, dy, dist, e, float(np.sum(np.sqrt(1.0 + (e / f_scale) ** 2)))
+        return dx, dy, dist, e, float(np.sqrt(1.0 + (e / f_scale) ** 2).sum())
     dx, dy, dist, e, cost = at(x)
     for _ in range(max_iter):
         z = (e / f_scale) ** 2
         rho1 = 1.0 / np.sqrt(1.0 + z)
         h = np.maximum(rho1 - z * rho1 ** 3, 0.1 * rho1)  # rho' + 2 z rho'', rho'' = -(1+z)^-1.5 / 2
         inv = 1.0 / np.maximum(dist, 1e-12)
-        J = np.stack([-dx * inv, -dy * inv, -np.ones_like(dx)], 1)  # d e / d (cx, cy, r)
+        np.negative(np.multiply(dx, inv, out=J[:, 0]), out=J[:, 0])
+        np.negative(np.multiply(dy, inv, out=J[:, 1]), out=J[:, 1])
         try:
             step = np.linalg.solve((J * h[:, None]).T @ J, -(J.T @ (rho1 * e)))
         except np.linalg.LinAlgError:
             return None
-        if not np.all(np.isfinite(step)):
+        # (array methods rather than np.all / np.max: the same numbers without the functions' dispatch,
+        # which cost as much as the arithmetic on a few dozen points)
+        if not np.isfinite(step).all():
             return None
         for _h in range(30):  # halve a step that raises the cost
             got = at(x + step)
@@ -109,7 +115,7 @@ def _soft_l1_newton(points: np.ndarray, x0: np.ndarray, f_scale: float, tol: flo
             return None
         x = x + step
         dx, dy, dist, e, cost = got
-        if float(np.max(np.abs(step))) < tol * (1.0 + float(np.max(np.abs(x)))):
+        if float(np.abs(step).max()) < tol * (1.0 + float(np.abs(x).max())):
             return x
     return None
 

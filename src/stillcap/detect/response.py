@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap._numeric import median
 from stillcap._selfcheck import SelfCheck
 from stillcap.response import LINEAR_LIMIT, EstimatedResponse, Response
 
@@ -53,6 +54,7 @@ _ITERS = 3  # solves per fit on the coarse grid (2 for the others, which start f
 _MAX_PIXELS = 400
 #: at most this many spheres (the largest) are fitted (estimate_response's ``max_spheres``)
 _MAX_SPHERES = 40
+_BOX3 = np.ones((3, 3), np.uint8)  # the 3x3 dilation of the dark pixels
 
 
 @dataclass
@@ -127,13 +129,16 @@ def _disc(image, center, radius_px: float, inner: float, max_pixels: int) -> _Di
     # inner disc (area pi (inner r)^2); the shading is smooth, its shape needs no more
     k = max(1, int(np.ceil(np.sqrt(np.pi * (inner * r) ** 2 / max(int(max_pixels), _MIN_PIXELS)))))
     v = _brightest(img[y0:y1:k, x0:x1:k]).astype(float)
-    X, Y = np.meshgrid(np.arange(x0, x1, k) - c[0], np.arange(y0, y1, k) - c[1])
+    # the grid's offsets as a row and a column (they broadcast: np.meshgrid's numbers without its
+    # overhead, which cost as much as the rest of this function)
+    X, Y = (np.arange(x0, x1, k) - c[0])[None, :], (np.arange(y0, y1, k) - c[1])[:, None]
     rho2 = (X * X + Y * Y) / (r * r)
     disc = rho2 <= inner * inner
     sel = disc & (v < 254.5) & (v > 0.5)
     if sel.sum() < _MIN_PIXELS:
         return None
-    xs, ys, vv = X[sel], Y[sel], v[sel] / 255.0
+    rows, cols = sel.nonzero()  # (the order of boolean indexing)
+    xs, ys, vv = X[0, cols], Y[rows, 0], v[sel] / 255.0
     if np.ptp(vv) < 12 / 255:  # flat: nothing to fit (a sphere lit by ambient light only)
         return None
     # The centre and radius stay fixed: fitted with the shading they trade off with the gamma
@@ -329,10 +334,10 @@ def _fit_discs(discs: list, f_scale: float = 4.0, terminator_px: float = 2.0) ->
             keep.append(np.zeros(len(d.v), bool))
             continue
         res = 255.0 * (d.v - _predict(d.N, m[j], b[j], g[j]))
-        sigma = 1.4826 * float(np.median(np.abs(res)))
+        sigma = 1.4826 * median(np.abs(res))  # (stillcap._numeric.median: np.median's number)
         dark = np.zeros(d.sel.shape, np.uint8)
         dark[d.sel] = res < -max(4.0 * sigma, 5.0)
-        dark = cv2.dilate(dark, np.ones((3, 3), np.uint8))[d.sel].astype(bool)
+        dark = cv2.dilate(dark, _BOX3)[d.sel].astype(bool)
         kj = (np.abs(d.N @ _unit(m[j])) >= terminator_px / d.r) & ~dark
         keep.append(kj)
         if kj.sum() >= _MIN_PIXELS:
@@ -350,7 +355,7 @@ def _fit_discs(discs: list, f_scale: float = 4.0, terminator_px: float = 2.0) ->
             continue
         s = _unit(m[j])
         res = 255.0 * (_predict(d.N, m[j], b[j], g[j]) - d.v)
-        out.append({"gamma": float(g[j]), "rms": float(np.sqrt(np.median(res ** 2))), "n": d.n_disc,
+        out.append({"gamma": float(g[j]), "rms": float(np.sqrt(median(res ** 2))), "n": d.n_disc,
                     "light": s, "lit": float(np.mean(d.N @ s > 0))})
     return out
 

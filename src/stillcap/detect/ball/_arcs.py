@@ -90,7 +90,7 @@ def _good_circle(pts, min_span_deg, rms_px, rms_rel, radius=None):
     if len(pts) < 6:
         return None
     c, r, rms = fit_circle(pts, radius=radius)
-    if not (np.all(np.isfinite(c)) and r >= 3.0 and rms <= max(rms_px, rms_rel * r)):
+    if not (np.isfinite(c).all() and r >= 3.0 and rms <= max(rms_px, rms_rel * r)):
         return None
     span = arc_span_deg(pts, c)
     if span < min_span_deg:
@@ -107,7 +107,7 @@ def _limb_circle(pts: np.ndarray, half_px: float, image_size, min_span_deg: floa
     c, r = kasa_circle(pts)
     got = outer = None
     for _ in range(iterations):
-        if not (np.all(np.isfinite(c)) and r >= 1.5):
+        if not (np.isfinite(c).all() and r >= 1.5):
             return None
         outer = _outer_points(pts, c, max(24, int(np.ceil(2 * np.pi * r / 2.0))), half_px)
         if image_size is not None:

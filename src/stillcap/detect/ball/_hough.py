@@ -25,7 +25,7 @@ def _template(offsets: np.ndarray):
     n[:, 0], n[:, 1] = ty, -tx
     n /= np.maximum(length, 1e-12)[:, None]
     # inward: towards the centre (the outline surrounds the origin)
-    if np.sum(n * offsets) > 0:
+    if (n * offsets).sum() > 0:
         n = -n
     return n, 0.5 * length
 

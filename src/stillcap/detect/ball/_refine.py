@@ -171,7 +171,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
     H, W = img.shape[:2]
     for i in range(n):
         r = radii[i]
-        if not (np.all(np.isfinite(c0[i])) and np.isfinite(r) and r > 1.0 and np.isfinite(search[i])):
+        if not (np.isfinite(c0[i]).all() and np.isfinite(r) and r > 1.0 and np.isfinite(search[i])):
             flags[i] = BallFlag.REFINE_FAILED
             scores[i] = np.nan
             continue
