@@ -323,8 +323,11 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 # detect_view's per photo; the photos named together share its small-matrix calls)
                 name(len(images))
                 detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
-                # the photos were re-encoded to sRGB as they were decoded: not again
-                rig, options = rig.with_responses(Response.srgb()), replace(options, response=None)
+                # the photos were re-encoded to sRGB as they were decoded: not again (a rig whose
+                # cameras are all sRGB already is kept: building its cameras again costs ~0.5 ms)
+                srgb = Response.srgb()
+                if options.response is not None or any(cam.response != srgb for cam in rig):
+                    rig, options = rig.with_responses(srgb), replace(options, response=None)
                 res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options,
                                            view_names=names, angles_deg=angles,
                                            source={"type": "capture", "path": str(folder)}, files=files,
