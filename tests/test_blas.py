@@ -3,18 +3,20 @@ search finds."""
 import sys
 
 
-
 def test_the_name_filtered_controller_finds_what_threadpoolctl_finds():
     import cv2  # noqa: F401  (OpenCV's own OpenBLAS, among ~140 loaded libraries)
     import scipy.linalg  # noqa: F401
     from threadpoolctl import ThreadpoolController
 
-    from stillcap._blas import _NamedLibrariesController, _blas_controller
+    from stillcap._blas import _blas_controller, _NamedLibrariesController
 
     full = ThreadpoolController().info()
     fast = _NamedLibrariesController().info()
-    key = lambda d: d["filepath"]  # noqa: E731
-    assert sorted(fast, key=key) == sorted(full, key=key)
+
+    def by_path(infos):
+        return sorted(infos, key=lambda d: d["filepath"])
+
+    assert by_path(fast) == by_path(full)
     assert any(d["user_api"] == "blas" for d in fast)
     if sys.platform.startswith("linux"):
         assert isinstance(_blas_controller(), _NamedLibrariesController)

@@ -41,7 +41,7 @@ def _blas_controller() -> ThreadpoolController:
 
     try:
         return _NamedLibrariesController()
-    except Exception:  # threadpoolctl's internals changed: its own full search
+    except (AttributeError, TypeError, OSError):  # threadpoolctl's internals changed: its own full search
         return ThreadpoolController()
 
 
