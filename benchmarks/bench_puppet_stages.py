@@ -25,7 +25,14 @@ the call's wall time is about the main thread's CPU time plus that blocked time:
 thread's path is the call's.
 
 ``--switch-interval S``: the children call ``sys.setswitchinterval(S)`` first (Python's default
-is 0.005 s), to see on a quiet machine whether the decoding thread waits for the GIL.
+is 0.005 s), to see whether the decoding thread waits for the GIL (measured: no; 5, 1 and 0.2 ms
+gave first calls of 79.1, 77.5 and 77.4 ms, best of 8, medians 81.2, 79.1 and 79.9 ms).
+
+On a loaded Linux machine, running as root under ``chrt -f 10`` (real-time scheduling: the
+benchmark's processes take the cores from every ordinary process for the seconds they run)
+gives near-quiet wall times: the main thread then waited 0.2 ms for a core in a 78.5 ms call.
+Decoding itself ran ~20 % slower that way than on the quiet machine (12 JPEGs: 19-20 ms
+against 16 ms), so compare two versions alternately rather than with quiet-machine numbers.
 
 Without ``--capture``, the puppet capture of ``bench_speed.py`` (rendered into ``--cache`` once).
 """
