@@ -20,7 +20,9 @@ decoding thread), how many photos the main thread decoded itself (it does when t
 thread is behind; the median over the processes), and, where Linux's per-thread scheduler
 statistics exist (``/proc/thread-self/schedstat``), the main thread's wall time split into its
 CPU time, its time waiting for a core (run queue: other processes, so large on a loaded machine)
-and the rest, its time blocked (waiting for a decoded photo or for the GIL). On a quiet machine
+and the rest, its time blocked (waiting for a decoded photo or for the GIL; to ~2 ms: the
+scheduler's counters move at its ticks, so a median can come out slightly below 0). On a quiet
+machine
 the call's wall time is about the main thread's CPU time plus that blocked time: the main
 thread's path is the call's.
 
