@@ -22,9 +22,8 @@ statistics exist (``/proc/thread-self/schedstat``), the main thread's wall time 
 CPU time, its time waiting for a core (run queue: other processes, so large on a loaded machine)
 and the rest, its time blocked (waiting for a decoded photo or for the GIL; to ~2 ms: the
 scheduler's counters move at its ticks, so a median can come out slightly below 0). On a quiet
-machine
-the call's wall time is about the main thread's CPU time plus that blocked time: the main
-thread's path is the call's.
+machine the call's wall time is about the main thread's CPU time plus that blocked time: the
+main thread's path is the call's.
 
 ``--switch-interval S``: the children call ``sys.setswitchinterval(S)`` first (Python's default
 is 0.005 s), to see whether the decoding thread waits for the GIL (measured: no; 5, 1 and 0.2 ms
