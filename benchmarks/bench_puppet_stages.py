@@ -15,6 +15,26 @@ loaded machine far better than wall times, but they are not the wall time of the
 ``bench_speed.py`` on a quiet machine for that. To compare two versions of the code, run this
 script from each version's tree (it puts its own ``src`` first on the path), alternately.
 
+Below the pieces, per call: the other threads' CPU (``process`` minus ``main thread``: the
+decoding thread), how many photos the main thread decoded itself (it does when the decoding
+thread is behind; the median over the processes), and, where Linux's per-thread scheduler
+statistics exist (``/proc/thread-self/schedstat``), the main thread's wall time split into its
+CPU time, its time waiting for a core (run queue: other processes, so large on a loaded machine)
+and the rest, its time blocked (waiting for a decoded photo or for the GIL; to ~2 ms: the
+scheduler's counters move at its ticks, so a median can come out slightly below 0). On a quiet
+machine the call's wall time is about the main thread's CPU time plus that blocked time: the
+main thread's path is the call's.
+
+``--switch-interval S``: the children call ``sys.setswitchinterval(S)`` first (Python's default
+is 0.005 s), to see whether the decoding thread waits for the GIL (measured: no; 5, 1 and 0.2 ms
+gave first calls of 79.1, 77.5 and 77.4 ms, best of 8, medians 81.2, 79.1 and 79.9 ms).
+
+On a loaded Linux machine, running as root under ``chrt -f 10`` (real-time scheduling: the
+benchmark's processes take the cores from every ordinary process for the seconds they run)
+gives near-quiet wall times: the main thread then waited 0.2 ms for a core in a 78.5 ms call.
+Decoding itself ran ~20 % slower that way than on the quiet machine (12 JPEGs: 19-20 ms
+against 16 ms), so compare two versions alternately rather than with quiet-machine numbers.
+
 Without ``--capture``, the puppet capture of ``bench_speed.py`` (rendered into ``--cache`` once).
 """
 
@@ -23,6 +43,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 from pathlib import Path
@@ -49,11 +70,28 @@ PIECES = (
 )
 
 CHILD = r"""
-import functools, importlib, json, sys, threading, time
+import functools, importlib, json, os, sys, threading, time
 pieces = json.loads(sys.argv[2])
+if float(sys.argv[3]) > 0:
+    sys.setswitchinterval(float(sys.argv[3]))
 from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
+from stillcap.io.capture import Capture
 acc = {}
 main = threading.main_thread()
+SCHED = "/proc/thread-self/schedstat"
+
+def sched():  # (CPU s, run-queue wait s) of this thread, or None
+    try:
+        with open(SCHED) as f:
+            run, wait = f.read().split()[:2]
+        return int(run) * 1e-9, int(wait) * 1e-9
+    except (OSError, ValueError):
+        return None
+
+def counted(*a, **k):
+    if threading.current_thread() is main:
+        acc["photos decoded on the main thread"] = acc.get("photos decoded on the main thread", 0) + 1
+    return read_image(*a, **k)
 
 def patch(row, mod, name):
     owner = importlib.import_module(mod)
@@ -76,16 +114,32 @@ def patch(row, mod, name):
 
 for row, mod, name in pieces:
     patch(row, mod, name)
+read_image = Capture.read_image  # the timed piece's wrapper: counted around it
+Capture.read_image = functools.wraps(read_image)(counted)
 out = []
 for call in range(2):
     acc.clear()
-    c, p = time.thread_time(), time.process_time()
+    s0 = sched()
+    t, c, p = time.perf_counter(), time.thread_time(), time.process_time()
     analyse_puppet(sys.argv[1], DEFAULT, save=False)
+    wall = time.perf_counter() - t
     r = dict(acc)
     r["main thread"], r["process"] = time.thread_time() - c, time.process_time() - p
+    r["other threads (process - main thread)"] = r["process"] - r["main thread"]
+    r.setdefault("photos decoded on the main thread", 0)
+    s1 = sched()
+    if s0 is not None and s1 is not None:
+        r["main thread: wall"] = wall
+        r["main thread: waiting for a core (run queue)"] = s1[1] - s0[1]
+        r["main thread: blocked (photos, GIL)"] = wall - (s1[0] - s0[0]) - (s1[1] - s0[1])
     out.append(r)
 print(json.dumps(out))
 """
+
+#: rows after the pieces: (row, how the processes' values are combined)
+EXTRA = (("main thread", "least"), ("process", "least"), ("other threads (process - main thread)", "least"),
+         ("photos decoded on the main thread", "median"), ("main thread: wall", "least"),
+         ("main thread: waiting for a core (run queue)", "median"), ("main thread: blocked (photos, GIL)", "median"))
 
 
 def main(argv=None) -> None:
@@ -94,6 +148,8 @@ def main(argv=None) -> None:
     ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"),
                     help="where bench_speed.py renders its captures (without --capture)")
     ap.add_argument("--repeat", type=int, default=8, help="fresh processes")
+    ap.add_argument("--switch-interval", type=float, default=0.0,
+                    help="sys.setswitchinterval in the children, seconds (default: Python's own)")
     args = ap.parse_args(argv)
     folder = args.capture
     if folder is None:
@@ -105,15 +161,24 @@ def main(argv=None) -> None:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
     runs = []
     for _ in range(args.repeat):
-        p = subprocess.run([sys.executable, "-c", CHILD, str(folder), json.dumps(PIECES)], check=True, env=env,
-                           capture_output=True, text=True)
+        p = subprocess.run([sys.executable, "-c", CHILD, str(folder), json.dumps(PIECES), str(args.switch_interval)],
+                           check=True, env=env, capture_output=True, text=True)
         runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
-    rows = [r for r, _, _ in PIECES] + ["main thread", "process"]
-    print(f"{folder}: CPU ms, least of {args.repeat} fresh processes (main thread unless said)")
+    how = {r: "least" for r, _, _ in PIECES} | dict(EXTRA)
+    print(f"{folder}: CPU ms, least of {args.repeat} fresh processes (main thread unless said; counts and "
+          f"waits: median)" + (f"; switch interval {args.switch_interval:g} s" if args.switch_interval > 0 else ""))
     print(f"{'piece':45s} | {'first call':>10s} | {'second call':>11s}")
-    for row in rows:
-        vals = [min(run[k].get(row, 0.0) for run in runs) * 1e3 for k in (0, 1)]
-        print(f"{row:45s} | {vals[0]:10.2f} | {vals[1]:11.2f}")
+    for row, combine in how.items():
+        if any(row not in run[0] for run in runs):
+            continue  # no scheduler statistics here
+        vals = []
+        for k in (0, 1):
+            v = [run[k].get(row, 0.0) for run in runs]
+            vals.append(min(v) if combine == "least" else statistics.median(v))
+        if row == "photos decoded on the main thread":
+            print(f"{row:45s} | {vals[0]:10.1f} | {vals[1]:11.1f}")
+        else:
+            print(f"{row:45s} | {vals[0] * 1e3:10.2f} | {vals[1] * 1e3:11.2f}")
 
 
 if __name__ == "__main__":

@@ -29,7 +29,8 @@ one every ratio is distorted (the one-off costs of a fresh process suffer most).
 
     python benchmarks/bench_speed.py [--cache DIR] [--repeat 3] [--pitch-only]
 
-``--pitch-only``: the pitch rows only (rows 1 and 2, without the puppet's).
+``--pitch-only``: the pitch rows only (rows 1 and 2, without the puppet's); ``--puppet-only``: the
+puppet's rows only (row 3).
 """
 
 from __future__ import annotations
@@ -127,13 +128,18 @@ def main(argv=None) -> None:
     ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"))
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--pitch-only", action="store_true", help="the pitch rows only (no puppet)")
+    ap.add_argument("--puppet-only", action="store_true", help="the puppet's rows only (no pitch)")
     args = ap.parse_args(argv)
+    if args.pitch_only and args.puppet_only:
+        raise SystemExit("give --pitch-only or --puppet-only, not both")
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import PitchOptions, analyse_pitch
 
     pitch, puppet = render(args.cache)
     n_pitch = len(list((pitch / "images").iterdir()))
     n_puppet = len(list((puppet / "images").iterdir()))
+    if args.puppet_only:
+        return _puppet_only(args, puppet, n_puppet)
     dec_pitch, dec_pitch_cpu = decode(pitch, args.repeat, cpu=True)
     analyse_pitch(Capture.load(pitch), PitchOptions())  # warm-up: first-call costs belong to row 2's process
     api, api_cpu = best_wall_cpu(lambda: analyse_pitch(Capture.load(pitch), PitchOptions()), args.repeat)
@@ -187,6 +193,33 @@ def main(argv=None) -> None:
     if forks:
         print(f"(the runs in the warm server's forks, fork to reap, from its log: best wall {min(w for w, _ in forks):.3f} s, "
               f"best CPU {min(c for _, c in forks):.3f} s; benchmarks/bench_serve.py splits the rest)")
+
+
+
+def _puppet_only(args, puppet: Path, n_puppet: int) -> None:
+    """``--puppet-only``: row 3 and its comparison rows."""
+    runs = []
+    for _ in range(args.repeat):
+        p = subprocess.run([sys.executable, "-c", PUPPET_RUN, str(puppet)], check=True, env=_env(),
+                           capture_output=True, text=True)
+        runs.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    dec, dec_cpu = decode(puppet, args.repeat, cpu=True)
+    cold, warm = min(r["cold"] for r in runs), min(r["warm"] for r in runs)
+    cold_cpu, imp = min(r["cold_cpu"] for r in runs), min(r["import"] for r in runs)
+    load = os.getloadavg()
+    print(f"bench_speed --puppet-only: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} "
+          f"{load[2]:.2f}; best of {args.repeat}")
+    print(f"{'ratio':<86} {'time s':>8} {'ref s':>8} {'ratio':>6} {'goal':>6}  met")
+    for what, t, ref, goal in [
+            (f"puppet end to end, loading included (first call) vs decoding its {n_puppet} JPEGs", cold, dec, 4.0),
+            ("  (the same, CPU time of all its threads vs the decode's CPU time, for comparison)", cold_cpu, dec_cpu,
+             None),
+            ("  (the same call again in that process, for comparison)", warm, dec, None),
+            ("  (import stillcap.pipelines.puppet, which loads io.capture's schema, + the first call)", imp + cold,
+             dec, None)]:
+        r = t / ref
+        met = "" if goal is None else ("yes" if r <= goal else "MISSED")
+        print(f"{what:<86} {t:8.3f} {ref:8.3f} {r:6.2f} {'' if goal is None else f'<= {goal:g}':>6}  {met}")
 
 
 if __name__ == "__main__":

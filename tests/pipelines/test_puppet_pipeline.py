@@ -338,6 +338,39 @@ def test_pipeline_runs_blas_on_one_thread_and_restores_the_callers_setting(monke
     assert inside == [[1]]
 
 
+def test_threads_give_the_serial_result_for_cameras_that_are_not_srgb(tmp_path, random3):
+    """The decoding thread re-encodes each photo through its camera's response (here a 2.6
+    power law, not sRGB): the same circles, names, markers and pose as the serial path, which
+    re-encodes them in analyse_puppet_views. The photos were made sRGB, so the stated response
+    changes the colours the beads are named by: the path taken is not the all-sRGB one."""
+    from dataclasses import replace
+
+    from stillcap.response import Response
+
+    cap, images = random3.to_capture(".jpg")
+    cap = replace(cap, rig=cap.rig.with_responses(Response.power(2.6)))
+    cap.save(tmp_path / "cap", images, jpeg_quality=85)
+    one, _ = analyse_puppet(tmp_path / "cap", workers=1)
+    two, _ = analyse_puppet(tmp_path / "cap", workers=2)
+    assert_same_reconstruction(one, two)
+    srgb, _ = analyse_puppet(tmp_path / "cap", workers=1, options=replace(DEFAULT, response=Response.srgb()))
+    assert not np.array_equal(srgb.views[0].identification.cost, one.views[0].identification.cost)
+
+
+def test_threads_keep_an_srgb_rig(tmp_path, random3):
+    """Cameras that are all sRGB already: the threaded path passes the capture's rig on as it is
+    (the same cameras and responses as the serial path's result)."""
+    cap, images = random3.to_capture(".jpg")
+    cap.save(tmp_path / "cap", images, jpeg_quality=85)
+    assert all(c.response.kind == "srgb" for c in cap.rig)
+    one, _ = analyse_puppet(tmp_path / "cap", workers=1)
+    two, _ = analyse_puppet(tmp_path / "cap", workers=2)
+    assert [c.response for c in two.rig] == [c.response for c in one.rig]
+    assert [c.name for c in two.rig] == [c.name for c in one.rig]
+    for a, b in zip(one.rig, two.rig):
+        np.testing.assert_array_equal(a.world2cam, b.world2cam)
+
+
 def test_capture_markerset_reads_the_entry_and_names_bad_ones():
     from types import SimpleNamespace
 

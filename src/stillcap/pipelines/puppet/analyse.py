@@ -271,11 +271,15 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 # the template detector's candidates are refined to sub-pixel centres when they
                 # are named, several photos' together (the same centres as one by one)
                 together = options.detector == "template"
-                # while the other thread decodes, found photos are named two or more at a time
-                # (refine_bead_candidates and identify_views on one photo cost more per photo,
-                # their small-array calls made for one); a single one waits while this thread
-                # decodes a photo instead, and is named when nothing is left to decode
-                min_batch = 2 if together else 1
+                # while the other thread decodes, found photos are named half the capture's photos
+                # at a time (at least two): refine_bead_candidates and identify_views cost ~0.75 ms
+                # per call besides their ~0.9 ms per photo, so fewer, larger batches cost less,
+                # and while fewer have been found this thread decodes a photo instead (which
+                # releases the GIL to the decoding thread), naming them when nothing is left to
+                # decode. Measured on the benchmark's 12 photos (first call in a fresh process,
+                # best of 10, the machine's other processes held off by real-time scheduling):
+                # 81.1 ms naming two or more at a time, 78.2 four, 76.3 six, 77.0 eight.
+                min_batch = max(2, len(pending) // 2) if together else 1
 
                 def name(upto) -> float:  # the photos found so far but not yet named, named by colour
                     # together; returns the seconds it took
@@ -323,8 +327,11 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
                 # detect_view's per photo; the photos named together share its small-matrix calls)
                 name(len(images))
                 detections = [ViewResult(c, i, t) for c, i, t in zip(candidates, idents, t_det)]
-                # the photos were re-encoded to sRGB as they were decoded: not again
-                rig, options = rig.with_responses(Response.srgb()), replace(options, response=None)
+                # the photos were re-encoded to sRGB as they were decoded: not again (a rig whose
+                # cameras are all sRGB already is kept: building its cameras again costs ~0.5 ms)
+                srgb = Response.srgb()
+                if options.response is not None or any(cam.response != srgb for cam in rig):
+                    rig, options = rig.with_responses(srgb), replace(options, response=None)
                 res = analyse_puppet_views(rig, images, markerset=markerset, palette=palette, options=options,
                                            view_names=names, angles_deg=angles,
                                            source={"type": "capture", "path": str(folder)}, files=files,
