@@ -410,6 +410,11 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
     share = None
     if options.center_bias_px is None and options.estimate_shading_error and options.shading_model_error > 0:
         share = _shading_share(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options.shading_model_error)
+    # the stated share scaled by how far the pairs disagree (docs/pitch.md, "Uncertainties")
+    scale = None
+    if (options.center_bias_px is None and share is None and options.shading_model_error > 0
+            and options.shading_share_scale == "pairs"):
+        scale = _share_scale(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options, calib)
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
@@ -419,6 +424,9 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         if sb is None and p.stereo is not None:
             # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
             kappa = options.shading_model_error
+            if scale is not None:
+                kappa = options.shading_model_error * scale.scale_used
+                p.shading_error = {"share_used": kappa, "share_scale": scale.to_dict()}
             if share is not None:
                 kappa = [share.of(f"{p.name}/{c}") for c in p.cameras]
                 p.shading_error = {c: share.to_dict()["cameras"].get(f"{p.name}/{c}") for c in p.cameras}
@@ -710,6 +718,38 @@ def _shading_share(pairs, fit, model, group_index, pair_index, shape_covariance,
                 a[pair_index == i] = src[c]
                 dst[f"{p.name}/{cam}"] = a
     return estimate_shading_share(fit, model, group_index, modes, shape_covariance, prior, placebo)
+
+
+def _share_scale(pairs, fit, model, group_index, pair_index, shape_covariance, options, calib):
+    """:func:`stillcap.ball.shading_error.share_scale_from_pairs` over the stereo pairs: their
+    remaining-bias modes at each scale of the stated share, their calibration modes fixed."""
+    from stillcap.ball.shading_error import share_scale_from_pairs
+
+    N = len(pair_index)
+    fixed, items = [], []
+    for i, p in enumerate(pairs):
+        if len(p) == 0 or p.stereo is None:
+            continue
+        board = None if calib is None else [board_points_world(calib, p.name, c.name) for c in p._cams]
+        cm = calibration_modes(p._cams, p.centers_px, board, options.calibration_focal_sigma)
+        if cm is not None:
+            full = np.zeros((len(cm), N, 3))
+            full[:, pair_index == i] = cm
+            fixed.append(full)
+        items.append((i, p))
+
+    def modes_at(s):
+        out = [np.zeros((0, N, 3))]
+        for i, p in items:
+            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px,
+                                      options.shading_model_error * s, correlation="epipolar")
+            full = np.zeros((len(mb), N, 3))
+            full[:, pair_index == i] = mb
+            out.append(full)
+        return np.concatenate(out)
+
+    return share_scale_from_pairs(fit, model, group_index, pair_index, shape_covariance, modes_at,
+                                  np.concatenate(fixed) if fixed else None)
 
 
 def _release_state(p0, v0, spin, model, t0, release_y_m):
