@@ -334,7 +334,10 @@ def share_scale_from_pairs(fit, model, group_index, pair_index, shape_covariance
     This sees what the pairs do not share: a wrong share common to every camera (the same blur
     missed by all four) moves both pairs alike and is sized by the prior alone. With one pair
     (or fewer than ``min_images`` positions in another) the capture cannot tell: ``s = 1``.
-    Written by hand: a marginal likelihood over one scale no library offers for these modes.
+    Pairs that see different stretches of the flight (the studio's rig) tell little: a shift of
+    one against the other is the flight's direction, which the joint fit takes up
+    (``docs/pitch.md``, "Coverage with 12 captures per condition, and the share scaled by the
+    pairs?": not adopted). Written by hand: a marginal likelihood over one scale no library offers for these modes.
 
     Parameters
     ----------
