@@ -414,7 +414,8 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
     scale = None
     if (options.center_bias_px is None and share is None and options.shading_model_error > 0
             and options.shading_share_scale == "pairs"):
-        scale = _share_scale(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options, calib)
+        from stillcap.pipelines.pitch.share_scale import pairs_share_scale
+        scale = pairs_share_scale(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options, calib)
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
@@ -718,38 +719,6 @@ def _shading_share(pairs, fit, model, group_index, pair_index, shape_covariance,
                 a[pair_index == i] = src[c]
                 dst[f"{p.name}/{cam}"] = a
     return estimate_shading_share(fit, model, group_index, modes, shape_covariance, prior, placebo)
-
-
-def _share_scale(pairs, fit, model, group_index, pair_index, shape_covariance, options, calib):
-    """:func:`stillcap.ball.shading_error.share_scale_from_pairs` over the stereo pairs: their
-    remaining-bias modes at each scale of the stated share, their calibration modes fixed."""
-    from stillcap.ball.shading_error import share_scale_from_pairs
-
-    N = len(pair_index)
-    fixed, items = [], []
-    for i, p in enumerate(pairs):
-        if len(p) == 0 or p.stereo is None:
-            continue
-        board = None if calib is None else [board_points_world(calib, p.name, c.name) for c in p._cams]
-        cm = calibration_modes(p._cams, p.centers_px, board, options.calibration_focal_sigma)
-        if cm is not None:
-            full = np.zeros((len(cm), N, 3))
-            full[:, pair_index == i] = cm
-            fixed.append(full)
-        items.append((i, p))
-
-    def modes_at(s):
-        out = [np.zeros((0, N, 3))]
-        for i, p in items:
-            mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px,
-                                      options.shading_model_error * s, correlation="epipolar")
-            full = np.zeros((len(mb), N, 3))
-            full[:, pair_index == i] = mb
-            out.append(full)
-        return np.concatenate(out)
-
-    return share_scale_from_pairs(fit, model, group_index, pair_index, shape_covariance, modes_at,
-                                  np.concatenate(fixed) if fixed else None)
 
 
 def _release_state(p0, v0, spin, model, t0, release_y_m):
