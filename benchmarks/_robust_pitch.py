@@ -72,6 +72,8 @@ def _mixed(rng: np.random.Generator) -> tuple[dict, dict, int | None]:
 
 #: the sigmas a variant of the analysis records (``run_capture(variants=...)``)
 SIGMA_KEYS = ("speed_sigma_mph", "dir_sigma_hv_deg", "rate_sigma_rpm", "axis_sigma_deg")
+#: and its errors and coverage flags (the final fit weighs the positions by their covariances)
+VARIANT_KEYS = ("coverage", "speed_mph", "dir_deg", "dir_err_hv_deg", "rate_rpm", "axis_deg")
 
 
 def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, variants: dict | None = None) -> dict:
@@ -127,7 +129,7 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
             rv = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1, **kw)
             add_truth_comparison(rv, loaded.truth)
             ev = evaluate(rv, loaded.truth)
-            row["variants"][name] = {k: ev.get(k) for k in SIGMA_KEYS}
+            row["variants"][name] = {k: ev.get(k) for k in SIGMA_KEYS + VARIANT_KEYS}
     except ValueError as e:  # a capture the pipeline rejects counts as a failure of the condition
         row["ok"] = False
         row["error"] = str(e)

@@ -2,7 +2,11 @@
 the ``response`` self-check fires with the response declared right and wrong, on N studio
 pitches per response (linear, sRGB, gamma 1.8, gamma 2.6, a consumer tone curve).
 
-    PYTHONPATH=src python benchmarks/bench_response_rates.py [N] [SIZE] [--cache DIR]
+    PYTHONPATH=src python benchmarks/bench_response_rates.py [N] [SIZE] [--cache DIR] [--condition NAME]
+
+``--condition`` photographs the pitches under a condition of ``bench_robustness.py`` (the light
+to the side, lens blur, JPEG, a ball radius; "everything varied" draws all of them per pitch)
+with each response under test: the goals hold per condition, not only in the plain studio.
 
 With ``--cache DIR`` the rendered captures are kept in DIR (``<response>-<seed>-<size>``) and
 read from there on later runs (rendering is most of the time: compare two versions of the
@@ -36,44 +40,68 @@ sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from bench_response import TRUE, wrong_for  # noqa: E402
 
 
-def fired(cap: Capture, declared: Response) -> tuple[bool, list]:
+def fired(cap: Capture, declared: Response, radius_m: float = BASEBALL_RADIUS) -> tuple[bool, list]:
     specs, _ = stereo_pairs(cap)
     values = []
     for sp in specs:
         cams = [cap.rig[c].with_response(declared) for c in sp.cameras]
         imgs = [cap.read_image(im) for im in sp.images]
-        for e in _pair_estimates(cams, imgs, BASEBALL_RADIUS):
+        for e in _pair_estimates(cams, imgs, radius_m):
             values.append(response_check(e, declared))
     return any(not c.passed for c in values), [round(c.value, 2) for c in values]
 
 
-def capture(name: str, true: Response, seed: int, size, cache: Path | None) -> Capture:
-    """The studio pitch of ``seed`` photographed with the response ``true`` (rendered, or read from ``cache``)."""
-    folder = None if cache is None else cache / f"{name.replace(':', '')}-{seed}-{size[0]}x{size[1]}"
+def conditions_of(condition: str | None, seed: int) -> tuple[dict, dict, int | None]:
+    """The studio's capture and sensor keywords and JPEG quality of a condition of
+    ``bench_robustness.py`` (``_robust_pitch.CONDITIONS``; "everything varied" draws its own per
+    seed), without the response, which is the one under test. None: the default studio."""
+    if condition is None:
+        return {}, {}, None
+    import numpy as np
+    from _robust_pitch import CONDITIONS, _mixed
+
+    if condition not in CONDITIONS:
+        raise ValueError(f"unknown condition {condition!r}; known: {list(CONDITIONS)}")
+    cap_kw, sensor_kw, quality = CONDITIONS[condition]
+    if cap_kw is None:
+        cap_kw, sensor_kw, quality = _mixed(np.random.default_rng([seed, sum(map(ord, condition))]))
+    return dict(cap_kw), {k: v for k, v in sensor_kw.items() if k not in ("gamma", "tone")}, quality
+
+
+def capture(name: str, true: Response, seed: int, size, cache: Path | None,
+            condition: str | None = None) -> tuple[Capture, float]:
+    """The studio pitch of ``seed`` photographed with the response ``true`` under ``condition``
+    (rendered, or read from ``cache``), and its ball radius (m)."""
+    tag = "" if condition is None else "-" + condition.replace(" ", "_")
+    folder = None if cache is None else cache / f"{name.replace(':', '')}-{seed}-{size[0]}x{size[1]}{tag}"
+    cap_kw, sensor_kw, quality = conditions_of(condition, seed)
+    radius = float(cap_kw.get("ball_radius_m", BASEBALL_RADIUS))
     if folder is not None and (folder / "capture.json").is_file():
-        return Capture.load(folder)
+        return Capture.load(folder), radius
     preset = list(PRESETS)[seed % len(PRESETS)]
-    r = pitch_capture(preset, rng=1000 + seed, calibrate=False, image_size=size, sensor=Sensor(gamma=true))
-    cap, photos = r.to_capture()
-    return Capture.load(cap.save(folder or tempfile.mkdtemp(prefix="bench-rates-"), photos))
+    r = pitch_capture(preset, rng=1000 + seed, calibrate=False, image_size=size,
+                      sensor=Sensor(gamma=true, **sensor_kw), **cap_kw)
+    cap, photos = r.to_capture(".jpg" if quality else ".png")
+    return Capture.load(cap.save(folder or tempfile.mkdtemp(prefix="bench-rates-"), photos,
+                                 jpeg_quality=quality or 95)), radius
 
 
-def main(n: int, size, cache: Path | None = None) -> None:
-    print(f"N = {n} pitches per response, {size[0]}x{size[1]}")
+def main(n: int, size, cache: Path | None = None, condition: str | None = None) -> None:
+    print(f"N = {n} pitches per response, {size[0]}x{size[1]}" + (f", condition {condition!r}" if condition else ""))
     print(f"{'true':>10} {'auto class right':>17} {'fires (right)':>13} {'fires (wrong)':>13}  auto gammas")
     for name, true in TRUE.items():
         ok = total = fr = fw = 0
         gammas = []
         for seed in range(n):
-            cap = capture(name, true, seed, size, cache)
+            cap, radius = capture(name, true, seed, size, cache, condition)
             blind = replace(cap, rig=cap.rig.with_responses(Response.srgb()))
-            est = pitch_auto_estimates(blind, BASEBALL_RADIUS)
+            est = pitch_auto_estimates(blind, radius)
             for e in est.values():
                 total += 1
                 ok += e.response_class == true.response_class
                 gammas.append(round(e.gamma, 2))
-            fr += fired(cap, true)[0]
-            fw += fired(cap, wrong_for(true))[0]
+            fr += fired(cap, true, radius)[0]
+            fw += fired(cap, wrong_for(true), radius)[0]
         print(f"{name:>10} {ok:>8}/{total:<8} {fr:>6}/{n:<6} {fw:>6}/{n:<6}  {sorted(gammas)[::max(1, len(gammas) // 12)]}",
               flush=True)
 
@@ -83,8 +111,11 @@ if __name__ == "__main__":
     ap.add_argument("n", nargs="?", type=int, default=12, help="pitches per response (default 12)")
     ap.add_argument("size", nargs="?", default="1280x960", help="image size WxH (default 1280x960)")
     ap.add_argument("--cache", type=Path, help="keep the rendered captures here and reuse them")
+    ap.add_argument("--condition", default=None,
+                    help="a condition of bench_robustness.py (light, blur, noise, JPEG, ball radius; "
+                         "'everything varied' draws them per pitch); default: the plain studio")
     a = ap.parse_args()
     cache = a.cache
     if cache is not None:
         cache.mkdir(parents=True, exist_ok=True)
-    main(a.n, tuple(int(v) for v in a.size.split("x")), cache)
+    main(a.n, tuple(int(v) for v in a.size.split("x")), cache, a.condition)

@@ -101,3 +101,64 @@ def test_remaining_bias_takes_a_share_per_camera():
     np.testing.assert_array_equal(m[:6], both[:6])
     with pytest.raises(ValueError, match="model_error must be >= 0"):
         remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, [0.5, -1.0])
+
+
+def _pair_modes(N):
+    """Remaining-bias modes (m) at the stated share: a shift across the flight of the second
+    pair's positions, a drift of its height, and a height shift of the first pair's."""
+    M = np.zeros((3, N, 3))
+    M[0, 10:, 0] = 2e-3
+    M[1, 10:, 2] = 2e-3 * np.linspace(-1.0, 1.0, 8)
+    M[2, :10, 2] = 2e-3
+    return M
+
+
+def test_share_scale_follows_how_far_the_pairs_disagree():
+    """``share_scale_from_pairs`` on two pairs whose positions carry the modes at a known scale:
+    pairs that agree (no bias) give a scale well below 1, pairs biased 3x the stated share one
+    well above 1, each over 12 noise draws; the posterior's ``E[s^2]`` tends to the prior's (1)
+    when the pairs' disagreement tells nothing (one pair)."""
+    from stillcap.ball.shading_error import share_scale_from_pairs
+
+    rng = np.random.default_rng(3)
+    # two pairs over the same stretch of the flight (a shift of one against the other is not
+    # a change of the flight's direction, as it is for pairs far apart)
+    t = np.r_[np.arange(10) / 300.0, 0.01 + np.arange(8) / 300.0]
+    groups = np.r_[np.zeros(10, int), np.ones(8, int)]
+    P_true = simulate(P0, V0, W, t, MODEL, t0=0.0).positions
+    local = t - np.where(groups == 1, 0.01, 0.0)
+
+    def _fit(local, P, groups):
+        return fit_reference_trajectory(local, P, P[0], V0, None, model=MODEL, t0=0.0, position_sigma=1e-3,
+                                        time_groups=groups, time_offsets=np.array([0.01]))
+    N = len(P_true)
+    M = _pair_modes(N)
+    S = np.broadcast_to(np.eye(3) * (5e-4) ** 2, (N, 3, 3))
+    pairs = groups.copy()
+    used = {}
+    for s_true in (0.0, 3.0):
+        used[s_true] = []
+        for _ in range(12):
+            bias = s_true * np.einsum("m,mnj->nj", rng.normal(size=len(M)), M)
+            P = P_true + bias + rng.normal(0.0, 5e-4, P_true.shape)
+            sc = share_scale_from_pairs(_fit(local, P, groups), MODEL, groups, pairs, S, lambda s: s * M)
+            assert sc.dof > 0 and np.isfinite(sc.chi2_stated)
+            used[s_true].append(sc.scale_used)
+    assert np.median(used[0.0]) < 0.6
+    assert np.median(used[3.0]) > 1.8
+    # one pair: nothing to compare, the stated share
+    P = P_true + rng.normal(0.0, 5e-4, P_true.shape)
+    one = share_scale_from_pairs(_fit(local, P, groups), MODEL, groups, np.zeros(N, int), S, lambda s: s * M)
+    assert one.scale_used == 1.0 and one.dof == 0 and "one pair" in one.note
+    with pytest.raises(ValueError, match="pair_index must have shape"):
+        share_scale_from_pairs(_fit(local, P, groups), MODEL, groups, pairs[:5], S, lambda s: s * M)
+
+
+def test_share_scale_option_is_checked():
+    """``PitchOptions.shading_share_scale`` takes ``"stated"`` (default) or ``"pairs"`` only."""
+    from stillcap.pipelines.pitch.options import PitchOptions
+
+    assert PitchOptions().shading_share_scale == "stated"
+    assert PitchOptions(shading_share_scale="pairs").to_dict()["shading_share_scale"] == "pairs"
+    with pytest.raises(ValueError, match="shading_share_scale must be"):
+        PitchOptions(shading_share_scale="capture")

@@ -30,7 +30,8 @@ import numpy as np
 
 from stillcap.ball.physics import simulate
 
-__all__ = ["ShadingShare", "estimate_shading_share", "fitted_response", "unit_modes"]
+__all__ = ["SCALE_GRID", "ShadingShare", "ShareScale", "estimate_shading_share", "fitted_response", "share_scale_from_pairs",
+           "unit_modes"]
 
 
 @dataclass
@@ -135,6 +136,29 @@ def fitted_response(fit, model, group_index, modes, shape_covariance=None) -> np
     N = len(fit.times)
     if D.ndim != 3 or D.shape[1:] != (N, 3) or g.shape != (N,):
         raise ValueError(f"modes must have shape (M, {N}, 3) and group_index ({N},), got {D.shape}, {g.shape}")
+    J, ok = _flight_jacobian(fit, model, g)
+    J = J[ok]  # (n, 3, P)
+    if shape_covariance is None:
+        Lw = np.broadcast_to(np.eye(3), (int(ok.sum()), 3, 3))
+    else:
+        Lw = _whitening(np.asarray(shape_covariance, float)[ok])
+    Jw = np.einsum("nij,njp->nip", Lw, J).reshape(-1, J.shape[-1])
+    Dw = np.einsum("nij,mnj->mni", Lw, D[:, ok]).reshape(len(D), -1)
+    # column scaling (metres, m/s, rad/s and seconds differ by orders): a least-squares solve
+    coef = np.linalg.lstsq(Jw, Dw.T, rcond=None)[0]  # (P, M)
+    out = np.zeros_like(D)
+    out[:, ok] = np.einsum("nip,pm->mni", J, coef)
+    return out
+
+
+def _whitening(S: np.ndarray) -> np.ndarray:
+    """``L_n^-1`` (n, 3, 3) of each covariance shape's Cholesky factor (a tiny ridge for flat ones)."""
+    return np.linalg.inv(np.linalg.cholesky(S + np.eye(3) * 1e-18 * np.trace(S, axis1=1, axis2=2)[:, None, None]))
+
+
+def _flight_jacobian(fit, model, g):
+    """The positions' derivatives (N, 3, P) by the release point, the velocity, the spin vector
+    and the clock offsets at the fit, and the rows with finite residuals (N,)."""
     ok = np.all(np.isfinite(fit.residuals), axis=1)
     x0 = np.concatenate([fit.p0, fit.v0, fit.spin])
     steps = np.r_[np.full(3, 1e-4), np.full(3, 1e-4), np.full(3, 1e-2)]
@@ -143,7 +167,7 @@ def fitted_response(fit, model, group_index, modes, shape_covariance=None) -> np
         tr = simulate(x[:3], x[3:6], x[6:9], fit.times, model, t0=fit.t0)
         return tr.positions, tr.velocities
 
-    base, vel = fly(x0)
+    _, vel = fly(x0)
     cols = []
     for j in range(9):
         dx = np.zeros(9)
@@ -151,19 +175,7 @@ def fitted_response(fit, model, group_index, modes, shape_covariance=None) -> np
         cols.append((fly(x0 + dx)[0] - fly(x0 - dx)[0]) / (2 * steps[j]))
     for k in range(1, len(fit.time_offsets) + 1):  # a clock offset moves its group along the flight
         cols.append(np.where((g == k)[:, None], vel, 0.0))
-    J = np.stack(cols, axis=-1)[ok]  # (n, 3, P)
-    if shape_covariance is None:
-        Lw = np.broadcast_to(np.eye(3), (int(ok.sum()), 3, 3))
-    else:
-        S = np.asarray(shape_covariance, float)[ok]
-        Lw = np.linalg.inv(np.linalg.cholesky(S + np.eye(3) * 1e-18 * np.trace(S, axis1=1, axis2=2)[:, None, None]))
-    Jw = np.einsum("nij,njp->nip", Lw, J).reshape(-1, J.shape[-1])
-    Dw = np.einsum("nij,mnj->mni", Lw, D[:, ok]).reshape(len(D), -1)
-    # column scaling (metres, m/s, rad/s and seconds differ by orders): a least-squares solve
-    coef = np.linalg.lstsq(Jw, Dw.T, rcond=None)[0]  # (P, M)
-    out = np.zeros_like(D)
-    out[:, ok] = np.einsum("nip,pm->mni", J, coef)
-    return out
+    return np.stack(cols, axis=-1), ok
 
 
 def estimate_shading_share(fit, model, group_index, unit_modes_by_camera, shape_covariance,
@@ -259,4 +271,159 @@ def estimate_shading_share(fit, model, group_index, unit_modes_by_camera, shape_
     out.kappa_sigma[idx] = np.sqrt(np.clip(np.diag(Sigma), 0.0, None))
     out.kappa_used[idx] = np.sqrt(second)
     out.misfit, out.dof = misfit, int(dof)
+    return out
+
+
+@dataclass
+class ShareScale:
+    """How far the stated share of the shading correction that is wrong fits what the pairs'
+    disagreement shows (:func:`share_scale_from_pairs`).
+
+    Attributes
+    ----------
+    scale_used : float
+        ``sqrt(E[s^2])`` under the prior and the data: the stated share is multiplied by it.
+    scale_map : float
+        The posterior's most probable ``s`` on the grid.
+    dof : int
+        Independent numbers the pairs' disagreement gave (0: the prior alone, ``scale_used`` 1).
+    chi2_stated : float
+        The disagreement's chi-square with the share as stated (``s = 1``), over ``dof``.
+    prior_log_sigma : float
+    note : str
+    """
+
+    scale_used: float = 1.0
+    scale_map: float = float("nan")
+    dof: int = 0
+    chi2_stated: float = float("nan")
+    prior_log_sigma: float = 0.7
+    note: str = ""
+    log_likelihood: np.ndarray | None = field(default=None, repr=False)
+
+    def to_dict(self) -> dict:
+        def f(x):
+            return None if not np.isfinite(x) else float(x)
+        return {"scale_used": f(self.scale_used), "scale_map": f(self.scale_map), "dof": int(self.dof),
+                "chi2_stated": f(self.chi2_stated), "prior_log_sigma": self.prior_log_sigma, "note": self.note}
+
+
+#: the grid of scales ``s`` of :func:`share_scale_from_pairs` (log-spaced: 1/16 to 16 x the stated share)
+SCALE_GRID = np.exp(np.linspace(np.log(1.0 / 16.0), np.log(16.0), 49))
+
+
+def share_scale_from_pairs(fit, model, group_index, pair_index, shape_covariance, modes_at, fixed_modes=None,
+                           prior_log_sigma: float = 0.7, grid=SCALE_GRID, min_images: int = 4) -> ShareScale:
+    """How much to scale the stated share of the shading correction that is wrong, from how far
+    the stereo pairs' positions disagree with each other.
+
+    Each pair sees the ball from its own side, lit by its own flash: a wrong share moves its
+    positions by its own pattern (:func:`stillcap.ball.uncertainty.remaining_bias_modes`),
+    which the joint flight cannot take up for both pairs at once. The positions-only fit's
+    residuals are regressed on a shift and a drift of each pair's positions against the
+    reference pair's (3 + 3 columns per other pair, whitened with each position's covariance
+    shape, the flight's own columns projected out): ``z``, at most 6 numbers per other pair,
+    whose covariance is ``I + B(s) B(s)^T`` for the random centre error (the shapes' stated
+    level) and the remaining-bias modes ``modes_at(s)`` at ``s`` times the stated share
+    (``fixed_modes``: others, e.g. calibration, at their stated size). The likelihood of ``z``
+    on a grid of ``s`` with the prior ``log s ~ N(-sigma^2, sigma^2)`` (``sigma`` =
+    ``prior_log_sigma``; its ``E[s^2]`` is 1, the stated share) gives the posterior's
+    ``E[s^2]``: the share used is the stated one times ``sqrt(E[s^2])`` (tighter where the pairs
+    agree better than the stated share allows, wider where they disagree more).
+
+    This sees what the pairs do not share: a wrong share common to every camera (the same blur
+    missed by all four) moves both pairs alike and is sized by the prior alone. With one pair
+    (or fewer than ``min_images`` positions in another) the capture cannot tell: ``s = 1``.
+    Pairs that see different stretches of the flight (the studio's rig) tell little: a shift of
+    one against the other is the flight's direction, which the joint fit takes up
+    (``docs/pitch.md``, "Coverage with 12 captures per condition, and the share scaled by the
+    pairs?": not adopted). Written by hand: a marginal likelihood over one scale no library offers for these modes.
+
+    Parameters
+    ----------
+    fit : ReferenceFit
+        The positions-only joint fit.
+    model : FlightModel
+    group_index, pair_index : array_like of int, shape (N,)
+        Clock group (as :func:`fitted_response`) and pair of each position.
+    shape_covariance : array_like, shape (N, 3, 3)
+        Each position's random-error covariance (m^2), the fit's weights.
+    modes_at : callable
+        ``modes_at(s)`` -> ndarray (M, N, 3): the remaining-bias modes of every pair (m) with
+        the stated share times ``s``.
+    fixed_modes : array_like, shape (M2, N, 3), optional
+
+    Returns
+    -------
+    ShareScale
+    """
+    out = ShareScale(prior_log_sigma=float(prior_log_sigma))
+    g = np.asarray(group_index, int)
+    pi = np.asarray(pair_index, int)
+    r = -np.asarray(fit.residuals, float)
+    S = np.asarray(shape_covariance, float)
+    N = len(r)
+    if g.shape != (N,) or pi.shape != (N,) or S.shape != (N, 3, 3):
+        raise ValueError(f"group_index and pair_index must have shape ({N},) and shape_covariance ({N}, 3, 3), "
+                         f"got {g.shape}, {pi.shape}, {S.shape}")
+    J, ok = _flight_jacobian(fit, model, g)
+    ok &= np.all(np.isfinite(S), axis=(1, 2))
+    pairs = [i for i in np.unique(pi[ok]) if np.count_nonzero(ok & (pi == i)) >= min_images]
+    ref = [i for i in pairs if np.all(g[pi == i] == 0)]
+    others = [i for i in pairs if i not in ref[:1]]
+    if len(pairs) < 2 or not others:
+        out.note = "one pair: the stated share"
+        return out
+    t = np.asarray(fit.times, float)
+    cols = []
+    for i in others:  # a shift and a drift of pair i's positions
+        m = (ok & (pi == i)).astype(float)
+        tc = (t - np.mean(t[ok & (pi == i)])) * m
+        for prof in (m, tc / max(np.ptp(t[ok]), 1e-9)):
+            for j in range(3):
+                c = np.zeros((N, 3))
+                c[:, j] = prof
+                cols.append(c)
+    Lw = _whitening(S[ok])
+
+    def white(v):  # (N, 3) -> (3n,)
+        return np.einsum("nij,nj->ni", Lw, v[ok]).ravel()
+
+    Jw = np.stack([white(J[:, :, p]) for p in range(J.shape[-1])], axis=1)
+    Uf, sf, _ = np.linalg.svd(Jw, full_matrices=False)
+    Qf = Uf[:, sf > 1e-9 * sf[0]]
+    X = np.stack([white(c) for c in cols], axis=1)
+    X = X - Qf @ (Qf.T @ X)
+    Ux, sx, _ = np.linalg.svd(X, full_matrices=False)
+    Q = Ux[:, sx > 1e-6 * sx[0]] if sx.size and sx[0] > 0 else Ux[:, :0]
+    k = Q.shape[1]
+    if k == 0:
+        out.note = "the pairs' shifts are the flight's: the stated share"
+        return out
+    z = Q.T @ white(r)
+
+    def proj(modes):
+        D = np.nan_to_num(np.asarray(modes, float))
+        return np.stack([Q.T @ white(d) for d in D], axis=1) if len(D) else np.zeros((k, 0))
+
+    F = proj(fixed_modes) if fixed_modes is not None else np.zeros((k, 0))
+    base = np.eye(k) + F @ F.T
+    grid = np.asarray(grid, float)
+    ll = np.empty(len(grid))
+    for n, s in enumerate(grid):
+        B = proj(modes_at(float(s)))
+        C = base + B @ B.T
+        _, logdet = np.linalg.slogdet(C)
+        ll[n] = -0.5 * (z @ np.linalg.solve(C, z) + logdet)
+        if np.isclose(s, 1.0):
+            out.chi2_stated = float(z @ np.linalg.solve(C, z))
+    sp = float(prior_log_sigma)
+    logprior = -0.5 * ((np.log(grid) + sp ** 2) / sp) ** 2  # the grid is uniform in log s
+    lp = ll + logprior
+    w = np.exp(lp - lp.max())
+    w /= w.sum()
+    out.log_likelihood = ll
+    out.scale_used = float(np.sqrt(w @ grid ** 2))
+    out.scale_map = float(grid[int(np.argmax(lp))])
+    out.dof = int(k)
     return out

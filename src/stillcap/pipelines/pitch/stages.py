@@ -410,6 +410,12 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
     share = None
     if options.center_bias_px is None and options.estimate_shading_error and options.shading_model_error > 0:
         share = _shading_share(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options.shading_model_error)
+    # the stated share scaled by how far the pairs disagree (docs/pitch.md, "Uncertainties")
+    scale = None
+    if (options.center_bias_px is None and share is None and options.shading_model_error > 0
+            and options.shading_share_scale == "pairs"):
+        from stillcap.pipelines.pitch.share_scale import pairs_share_scale
+        scale = pairs_share_scale(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options, calib)
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
@@ -419,6 +425,9 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         if sb is None and p.stereo is not None:
             # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
             kappa = options.shading_model_error
+            if scale is not None:
+                kappa = options.shading_model_error * scale.scale_used
+                p.shading_error = {"share_used": kappa, "share_scale": scale.to_dict()}
             if share is not None:
                 kappa = [share.of(f"{p.name}/{c}") for c in p.cameras]
                 p.shading_error = {c: share.to_dict()["cameras"].get(f"{p.name}/{c}") for c in p.cameras}
