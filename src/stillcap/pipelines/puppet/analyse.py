@@ -18,7 +18,7 @@ import numpy as np
 from stillcap._blas import one_blas_thread, single_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
-from stillcap.body.puppet_checks import marker_noise_m, partly_hidden_checks, skeleton_checks
+from stillcap.body.puppet_checks import bead_noise, marker_noise_m, partly_hidden_checks, skeleton_checks
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views, refine_bead_candidates
@@ -137,13 +137,28 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     fit = pose_skeleton(rig, skeleton, markerset, solve, root2world, options)
     timings["pose"] = time.perf_counter() - t0
     # 5. self-checks: does the skeleton fit the puppet (per bone), which beads are partly hidden
-    noise = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
+    # each bead's noise as the photos show it (bead_noise: the reprojection residuals of the beads
+    # seen whole, pooled and carried to 3D through each bead's views), not the stated
+    # marker_sigma_m (0.2 mm, 4-6x what the beads of a sharp capture show: a skeleton off by
+    # less than that passed every check); beads without an estimate (no redundant view) keep
+    # the stated error with their own reprojection error (marker_noise_m)
+    noise = _bead_noise_m(rig, solve, options)
     checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden)
               + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views))
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
                         list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
                         options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs,
                         checks)
+
+
+def _bead_noise_m(rig: Rig, solve, options: PuppetOptions) -> np.ndarray:
+    """Expected 3D error of every recovered bead for the per-bone checks, metres, shape
+    (n_markers,): :func:`~stillcap.body.puppet_checks.bead_noise` (partly hidden beads left
+    out of the pooled pixel noise), and where it has none,
+    :func:`~stillcap.body.puppet_checks.marker_noise_m` with ``options.marker_sigma_m``."""
+    stated = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
+    seen = bead_noise(rig, solve.points, solve.observations, solve.used, exclude=solve.partly_hidden).sd_m
+    return np.where(np.isfinite(seen) & (seen > 0), seen, stated)
 
 
 def capture_markerset(folder, cap=None) -> MarkerSet:

@@ -225,7 +225,7 @@ def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, 
     raw_obs = None
     if views is not None and options.reidentify:
         raw_obs = obs
-        final = reidentify(rig, solve.points, views, bead_r, options.reid_gate, options.reid_color)
+        final = reidentify(rig, solve.points, views, bead_r, options.reid_gate, options.reid_color, images)
         same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
         if not same.all():
             # solve_markers treats every marker on its own (its views' consensus, fill test and
