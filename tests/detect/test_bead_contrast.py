@@ -97,3 +97,47 @@ def test_reidentify_refuses_a_faint_candidate_it_names_only_by_the_wider_colour_
     np.testing.assert_array_equal(out[others], ref[others])
     with pytest.raises(ValueError, match=r"need one image per view \(12\), got 3"):
         reidentify(res.rig, res.markers.points, views, images=images[:3])
+
+
+def test_a_marker_without_3d_does_not_keep_a_colour_name_on_another_markers_bead(scene):
+    """Issue 12 (another puppet, seed 19, pose 1): a bead hidden all but a sliver lay 3.9 px
+    from its projection, outside the 0.6-radius gate, and the colour named that sliver as a
+    marker without a 3D point (208 px from its own bead). A colour name on another marker's
+    projected bead (within its radius) is refused; one elsewhere is kept."""
+    from dataclasses import replace
+
+    from stillcap.detect.beads import expected_radius_px
+    from stillcap.pipelines.puppet import analyse_puppet_views
+
+    res = analyse_puppet_views(scene.rig, scene.images)
+    obs, X = res.markers.observations, res.markers.points
+    v, j = next((v, j) for j in np.flatnonzero(res.markers.ok) for v in range(len(obs)) if np.isfinite(obs[v, j, 0]))
+    k = next(m for m in range(len(X)) if m != j)
+    cam, vr = res.rig[v], res.views[v]
+    cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
+    cj = int(np.argmin(np.linalg.norm(cand - obs[v, j], axis=1)))
+    r = float(expected_radius_px(res.rig, X, 0.003)[v, j])
+
+    def moved(pixels):  # X[j] moved across view v's line of sight so that it projects `pixels` away
+        u = X[j] - cam.center
+        e = np.cross(u, [0.0, 1.0, 0.0])
+        e /= np.linalg.norm(e)
+        step = np.linalg.norm(cam.project((X[j] + 1e-4 * e)[None])[0] - cam.project(X[j][None])[0]) / 1e-4
+        pts = X.copy()
+        pts[j] = X[j] + pixels / step * e
+        pts[k] = np.nan  # k: a marker without a 3D point
+        return pts
+
+    ident = vr.identification
+    cand_k = ident.candidate.copy()
+    cand_k[k] = cj
+    pts_k = ident.points.copy()
+    pts_k[k] = cand[cj]
+    views = list(res.views)
+    views[v] = replace(vr, identification=replace(ident, candidate=cand_k, points=pts_k))
+    # j projects 0.8 radius off its candidate: outside the gate, on its bead; k's colour name refused
+    out = reidentify(res.rig, moved(0.8 * r), views)
+    assert np.isnan(out[v, j]).all() and np.isnan(out[v, k]).all()
+    # j projects 3 radii away: the candidate is on no projected bead; k keeps the colour's choice
+    out = reidentify(res.rig, moved(3.0 * r), views)
+    np.testing.assert_array_equal(out[v, k], cand[cj])

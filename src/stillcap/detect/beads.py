@@ -453,7 +453,9 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
     marker's reference, is that marker (:func:`scipy.optimize.linear_sum_assignment` over
     pixel distance / gate + colour distance / colour gate, each candidate used once); a marker
     whose projection matches no candidate is left unidentified (hidden in that view). Markers
-    without a 3D point keep their colour identification where its candidate is not taken.
+    without a 3D point keep their colour identification where its candidate is not taken and
+    does not lie on another marker's projected bead (within its projected radius: that bead
+    partly hidden, its visible sliver's centre outside the pixel gate).
 
     With ``images``, a candidate named only thanks to the wider colour gate (its colour distance
     beyond the identification's ``max_distance``) must also look like a lit bead: its contrast
@@ -517,9 +519,16 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
                 taken[rows[good]] = True
                 beyond[v, cols[good]] = col[rows[good], cols[good]] > float(ident.max_distance)
         # markers without 3D: the colour's choice, unless a 3D-consistent marker took its candidate
+        # or the candidate lies on another marker's projected bead (within its radius: that bead,
+        # partly hidden, its centre pulled outside the pixel gate)
+        on_bead = np.zeros(len(cand), bool)
+        if len(cand) and have.any():
+            proj = cam.project(np.where(have[:, None], X, np.nan))
+            with np.errstate(invalid="ignore"):
+                on_bead = np.any(np.linalg.norm(cand[:, None, :] - proj[None], axis=2) <= r_exp[v][None], axis=1)
         for m in np.flatnonzero(~have & (ident.candidate >= 0)):
             c = int(ident.candidate[m])
-            if c < len(cand) and not taken[c]:
+            if c < len(cand) and not taken[c] and not on_bead[c]:
                 out[v, m] = ident.points[m]
     if images is not None and beyond.any():
         if len(images) != len(rig):
