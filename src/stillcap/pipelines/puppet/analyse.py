@@ -18,7 +18,8 @@ import numpy as np
 from stillcap._blas import one_blas_thread, single_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
-from stillcap.body.puppet_checks import bead_noise, marker_noise_m, partly_hidden_checks, skeleton_checks
+from stillcap.body.puppet_checks import (bead_noise, marker_noise_m, partly_hidden_checks, skeleton_checks,
+                                         stray_bead_checks)
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views, refine_bead_candidates
@@ -143,8 +144,12 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     # less than that passed every check); beads without an estimate (no redundant view) keep
     # the stated error with their own reprojection error (marker_noise_m)
     noise = _bead_noise_m(rig, solve, options)
-    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden)
-              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views))
+    # a bead nearer another bead's model position than its own is a wrong name or a stray point,
+    # not evidence against the skeleton: named on its own and left out of the per-bone checks
+    stray = stray_bead_checks(markerset, fit, solve.points)
+    off = np.isin(np.asarray(markerset.names), [c.subject for c in stray])
+    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden | off)
+              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views) + stray)
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
                         list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
                         options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs,
