@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from stillcap.body.puppet_checks import RESIDUAL_LIMIT_SIGMA, bead_noise
+from stillcap.body.puppet_checks import RESIDUAL_LIMIT_SIGMA, bead_noise, marker_noise_m
 from stillcap.body.skeleton import Skeleton
 from stillcap.pipelines.puppet import DEFAULT, analyse_puppet_views
 from stillcap.studio.puppet import puppet_scene
@@ -26,6 +26,10 @@ def test_a_forearm_4_percent_too_long_fails_its_check_the_stated_noise_would_pas
     # the stated 0.2 mm per bead would have allowed 3.5 x 0.2 = 0.7 mm: this misfit passed
     assert hand.value < RESIDUAL_LIMIT_SIGMA * DEFAULT.marker_sigma_m * 1e3
     m = res.markers
-    noise = bead_noise(res.rig, m.points, m.observations, m.used, exclude=m.partly_hidden).sd_m
+    # each bead's noise from its residuals, plus one view's pixel noise at its depth (shared by its views)
+    own = bead_noise(res.rig, m.points, m.observations, m.used, exclude=m.partly_hidden).sd_m
+    shared = marker_noise_m(res.rig, m.points, np.full(len(own), m.noise_px), 0.0)
+    assert np.isfinite(m.noise_px) and 0 < m.noise_px < 0.5
+    noise = np.sqrt(own ** 2 + shared ** 2)
     idx = [k for k, b in enumerate(res.markerset.markers) if b.bone == "r-hand"]
     assert hand.limit == pytest.approx(RESIDUAL_LIMIT_SIGMA * np.sqrt(np.mean(noise[idx] ** 2)) * 1e3)

@@ -159,10 +159,20 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
 def _bead_noise_m(rig: Rig, solve, options: PuppetOptions) -> np.ndarray:
     """Expected 3D error of every recovered bead for the per-bone checks, metres, shape
     (n_markers,): :func:`~stillcap.body.puppet_checks.bead_noise` (partly hidden beads left
-    out of the pooled pixel noise), and where it has none,
+    out of the pooled pixel noise) with one view's pixel noise at the bead's depth added in
+    quadrature (an error its views share), and where it has none,
     :func:`~stillcap.body.puppet_checks.marker_noise_m` with ``options.marker_sigma_m``."""
     stated = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
-    seen = bead_noise(rig, solve.points, solve.observations, solve.used, exclude=solve.partly_hidden).sd_m
+    bn = bead_noise(rig, solve.points, solve.observations, solve.used, exclude=solve.partly_hidden)
+    # plus an error every view of a bead shares (its shading, blur, a sliver of limb seen alike
+    # from neighbouring views), which the residuals cannot show: up to one view's pixel noise
+    # at the bead's depth (with the views off centre left out the residuals shrink to 0.01 mm
+    # per bead, and the puppet's own skeleton failed its head and torso checks by 0.05 mm)
+    px = solve.noise_px if np.isfinite(solve.noise_px) else bn.pixel_sd
+    seen = bn.sd_m
+    if np.isfinite(px):
+        shared = marker_noise_m(rig, solve.points, np.full(len(seen), px), 0.0)
+        seen = np.sqrt(seen ** 2 + shared ** 2)
     return np.where(np.isfinite(seen) & (seen > 0), seen, stated)
 
 
