@@ -201,6 +201,9 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
             good = good & ~demote
             tri = triangulate_markers(rig, x_used, method, refine, options.outlier_px, pair_errors=pair_err,
                                       views=views)
+        if np.isfinite(noise_px):
+            with np.errstate(invalid="ignore"):
+                off = tri.used & good & (tri.errors_px > OFF_CENTER_SIGMA * noise_px)
         good = good & ~off
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
@@ -222,8 +225,9 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
 
 
 #: :func:`solve_markers`: a view that looks whole is off centre beyond this many times the
-#: capture's pixel noise (:func:`_pixel_noise`). For a whole bead the 2D reprojection error is
-#: about Rayleigh with that sigma, so 4 sigma leaves ~0.03 % of them out by chance; on 72
+#: capture's pixel noise (:func:`_pixel_noise`). Were the whole beads' reprojection errors
+#: Rayleigh with that sigma, 4 sigma would leave ~0.03 % of them out by chance (rendered beads
+#: scatter more than that: a whole view left out costs little while two whole views remain); on 72
 #: rendered captures of other puppets (seeds 11-22 of six conditions) the views at 80-90 %
 #: visible were 0.6-0.7 px off (median) against 0.05-0.07 px for whole ones.
 OFF_CENTER_SIGMA = 4.0
