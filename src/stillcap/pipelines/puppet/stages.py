@@ -115,8 +115,9 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
        had (its whole views disagree) keeps the first estimate.
     4. With the fill test: views that look whole but lie more than :data:`OFF_CENTER_SIGMA` x
        the capture's pixel noise (``noise_px``; default :func:`_pixel_noise` of this
-       triangulation) off the consensus are left out (partial), the farthest off of each
-       marker at a time, triangulating again after each, while two other whole views remain;
+       triangulation) off the consensus are left out (partial), one of each marker at a time
+       (the least whole-looking: lowest fill), triangulating again after each, while two other
+       whole views remain;
        those still off then no longer count as whole (the marker may then be partly hidden).
 
     Parameters
@@ -182,15 +183,18 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         # whole beads are 0.05 px): left out where two whole views remain, else not counted whole
         if noise_px is None:
             noise_px = _pixel_noise(tri.errors_px, tri.used & good)
-        # one view per marker at a time, the farthest off first (one off view pulls the point
-        # and so the others' errors too), while two other whole views remain
+        # one view per marker at a time (one off view pulls the point and so the others' errors
+        # too), the off view that looks least whole first (lowest fill; two partly hidden views
+        # of one bead can agree with each other and leave the whole ones farther off), while
+        # two other whole views remain
         off = np.zeros_like(good)
         for _ in range(len(rig)):
             if not np.isfinite(noise_px):
                 break
             with np.errstate(invalid="ignore"):
                 off = tri.used & good & (tri.errors_px > OFF_CENTER_SIGMA * noise_px)
-            worst = np.argmax(np.where(off, tri.errors_px, -np.inf), axis=0)
+            worst = np.argmin(np.where(off, np.nan_to_num(fill, nan=np.inf), np.inf)
+                              - 1e-9 * np.where(off, tri.errors_px, 0.0), axis=0)
             cols = np.flatnonzero(off.any(axis=0) & ((tri.used & good).sum(axis=0) >= 3))
             if not len(cols):
                 break
