@@ -17,7 +17,9 @@ each skeleton, the calibration's own predicted direction error on those bones
 its capture's photos show, :func:`stillcap.body.puppet_checks.bead_noise`), ``z`` (measured over
 predicted error per bone, RMS: about 1 when the prediction is honest), the bones it names as
 uncertain (right: measured error over the 1 deg limit; wrong: not over it; missed: over it but not
-named), and the model-free bead-pair direction RMS. ``benchmarks/bench_robustness.py`` imports :func:`rows`;
+named), the model-free bead-pair direction RMS, and per skeleton the bones the result's self-checks
+name as not matching the puppet (``*_checks_failed``; ``*_over1_named_missed``: of the bones over
+1 deg, named / not named). ``benchmarks/bench_robustness.py`` imports :func:`rows`;
 
     python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...]
 
@@ -106,6 +108,15 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
                             ("calibrated", (cal.markerset, cal.skeleton)), ("user", (ms, sk))):
         res, cmp = _analyse(test, m_, s_)
         out[f"{label}_rms"], out[f"{label}_max"] = cmp.bone_stats("full")
+        # the per-bone self-checks (does the skeleton match the puppet?) against the measured
+        # error: bones named (a failed bone_residual or bead_pair_direction check), and of the
+        # bones the beads fix, those over 1 deg that were named / not named
+        named = {c.subject for c in res.self_checks
+                 if not c.passed and c.name in ("bone_residual", "bead_pair_direction")}
+        over = {b for b in cmp.bone_groups.get("full", []) if cmp.bone_errors_deg.get(b, 0.0) > 1.0}
+        out[f"{label}_checks_failed"] = len(named)
+        out[f"{label}_over1_named"] = len(over & named)
+        out[f"{label}_over1_missed"] = len(over - named)
         if label == "calibrated":
             full = [b for b in cmp.bone_groups.get("full", [])]
             pred = np.array([cal.direction_sd_deg.get(b, np.nan) for b in full])
@@ -167,7 +178,12 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                         "uncertain_missed": int(sum(r["uncertain_missed"] for r in recs)),
                         "bone_deg_user": _rms([r["user_rms"] for r in recs]),
                         "partial_bone_deg_user": _rms([r["partial_user"] for r in recs]),
-                        "bead_pair_deg": _rms([r["pairs"] for r in recs])})
+                        "bead_pair_deg": _rms([r["pairs"] for r in recs]),
+                        **{f"{lab}_checks_failed": int(sum(r[f"{lab}_checks_failed"] for r in recs))
+                           for lab in ("builtin", "calibrated", "user")},
+                        **{f"{lab}_over1_named_missed": f"{sum(r[f'{lab}_over1_named'] for r in recs)}/"
+                                                        f"{sum(r[f'{lab}_over1_missed'] for r in recs)}"
+                           for lab in ("builtin", "calibrated", "user")}})
     return out
 
 
@@ -175,7 +191,8 @@ def _seed_line(r: dict) -> str:
     return (f"{r['condition'][:38]:38s} | {r['seed']:5d} | {r['builtin_rms']:5.2f} {r['builtin_max']:5.2f} | "
             f"{r['calibrated_rms']:5.2f} {r['calibrated_max']:5.2f} | {r['predicted_rms']:5.2f} | "
             f"{r['user_rms']:5.2f} {r['user_max']:5.2f} | {r['wrong']:3d} | {_rms(r['whole_m']) * 1e3:5.3f} | "
-            f"{r['ph_n']:2d} {_rms(r['ph_m']) * 1e3:5.2f} | {_rms(r['z']):4.2f} | {','.join(r['uncertain']) or '-'}")
+            f"{r['ph_n']:2d} {_rms(r['ph_m']) * 1e3:5.2f} | {_rms(r['z']):4.2f} | {','.join(r['uncertain']) or '-'} | "
+            f"{r['builtin_checks_failed']} {r['calibrated_checks_failed']} {r['user_checks_failed']}")
 
 
 def _seeds(text: str) -> list[int]:
@@ -196,7 +213,7 @@ def main(argv=None) -> None:
     print("bones the beads fix, direction error deg (RMS max), per puppet; predicted = the calibration's own "
           "estimate; 3D = RMS of beads seen whole (mm), own files")
     print(f"{'condition':38s} |  seed | built-in    | calibrated  | pred. | own files   | wrong | 3D mm | "
-          "partly hidden n, mm | z | calibration names uncertain")
+          "partly hidden n, mm | z | calibration names uncertain | bones failing self-checks: built-in calibrated own")
     table = rows(args.quick, seeds=args.seeds, conditions=conds, progress=lambda r: print(_seed_line(r), flush=True))
     keys = list(table[0])
     print()

@@ -18,7 +18,8 @@ import numpy as np
 from stillcap._blas import one_blas_thread, single_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
-from stillcap.body.puppet_checks import marker_noise_m, partly_hidden_checks, skeleton_checks
+from stillcap.body.puppet_checks import (bead_noise, marker_noise_m, partly_hidden_checks, skeleton_checks,
+                                         stray_bead_checks)
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views, refine_bead_candidates
@@ -137,13 +138,42 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     fit = pose_skeleton(rig, skeleton, markerset, solve, root2world, options)
     timings["pose"] = time.perf_counter() - t0
     # 5. self-checks: does the skeleton fit the puppet (per bone), which beads are partly hidden
-    noise = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
-    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden)
-              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views))
+    # each bead's noise as the photos show it (bead_noise: the reprojection residuals of the beads
+    # seen whole, pooled and carried to 3D through each bead's views), not the stated
+    # marker_sigma_m (0.2 mm, 4-6x what the beads of a sharp capture show: a skeleton off by
+    # less than that passed every check); beads without an estimate (no redundant view) keep
+    # the stated error with their own reprojection error (marker_noise_m)
+    noise = _bead_noise_m(rig, solve, options)
+    # a bead nearer another bead's model position than its own is a wrong name or a stray point,
+    # not evidence against the skeleton: named on its own and left out of the per-bone checks
+    stray = stray_bead_checks(markerset, fit, solve.points)
+    off = np.isin(np.asarray(markerset.names), [c.subject for c in stray])
+    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden | off)
+              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views) + stray)
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
                         list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
                         options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs,
                         checks)
+
+
+def _bead_noise_m(rig: Rig, solve, options: PuppetOptions) -> np.ndarray:
+    """Expected 3D error of every recovered bead for the per-bone checks, metres, shape
+    (n_markers,): :func:`~stillcap.body.puppet_checks.bead_noise` (partly hidden beads left
+    out of the pooled pixel noise) with one view's pixel noise at the bead's depth added in
+    quadrature (an error its views share), and where it has none,
+    :func:`~stillcap.body.puppet_checks.marker_noise_m` with ``options.marker_sigma_m``."""
+    stated = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
+    bn = bead_noise(rig, solve.points, solve.observations, solve.used, exclude=solve.partly_hidden)
+    # plus an error every view of a bead shares (its shading, blur, a sliver of limb seen alike
+    # from neighbouring views), which the residuals cannot show: up to one view's pixel noise
+    # at the bead's depth (with the views off centre left out the residuals shrink to 0.01 mm
+    # per bead, and the puppet's own skeleton failed its head and torso checks by 0.05 mm)
+    px = solve.noise_px if np.isfinite(solve.noise_px) else bn.pixel_sd
+    seen = bn.sd_m
+    if np.isfinite(px):
+        shared = marker_noise_m(rig, solve.points, np.full(len(seen), px), 0.0)
+        seen = np.sqrt(seen ** 2 + shared ** 2)
+    return np.where(np.isfinite(seen) & (seen > 0), seen, stated)
 
 
 def capture_markerset(folder, cap=None) -> MarkerSet:

@@ -42,7 +42,11 @@ class MarkerSolve:
         Observations left out because they disagree with the other views (> ``outlier_px``):
         a wrong identification, or a bead so hidden that its centre is off.
     whole : ndarray of bool, shape (n_views, n_markers)
-        Observations whose bead looks whole (the fill test; all identified ones without it).
+        Observations whose bead looks whole (the fill test; all identified ones without it) and
+        sit on the other views' consensus within the capture's own pixel noise.
+    noise_px : float
+        The capture's pixel noise the off-centre test judged by (1-sigma per axis, pixels; NaN
+        when it did not run).
     reproj_error_px : ndarray, shape (n_markers,)
         RMS reprojection error over the used views, pixels.
     triangulation : Triangulation
@@ -59,6 +63,7 @@ class MarkerSolve:
     reproj_error_px: np.ndarray
     triangulation: Triangulation
     whole: np.ndarray | None = None
+    noise_px: float = float("nan")
 
     @property
     def n_views(self) -> np.ndarray:

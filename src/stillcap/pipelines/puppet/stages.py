@@ -102,7 +102,7 @@ def _arc_refit(images, x, x_used, good, hidden, r_exp):
 
 # --- stage 3: triangulation --------------------------------------------------------------------
 def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, options: PuppetOptions = DEFAULT,
-                  bead_radius_m: float = 0.003, radii_px=None) -> MarkerSolve:
+                  bead_radius_m: float = 0.003, radii_px=None, noise_px: float | None = None) -> MarkerSolve:
     """Triangulate identified markers, leaving out partly hidden beads and disagreeing views.
 
     1. A first triangulation (``outlier_px`` = 2 px consensus) gives each marker's depth, so
@@ -113,6 +113,12 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
     3. The final triangulation (``options.triangulation``, ``options.outlier_px``); markers
        with fewer than two agreeing views are NaN. A marker the final step loses but the first
        had (its whole views disagree) keeps the first estimate.
+    4. With the fill test: views that look whole but lie more than :data:`OFF_CENTER_SIGMA` x
+       the capture's pixel noise (``noise_px``; default :func:`_pixel_noise` of this
+       triangulation) off the consensus are left out (partial), one of each marker at a time
+       (the least whole-looking: lowest fill), triangulating again after each, while two other
+       whole views remain;
+       those still off then no longer count as whole (the marker may then be partly hidden).
 
     Parameters
     ----------
@@ -128,6 +134,9 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         Bead radius, metres (the thesis's beads: 3 mm).
     radii_px : array_like, shape (n_views, n_markers), optional
         Detected radii, used where a marker has no first 3D point.
+    noise_px : float, optional
+        The capture's pixel noise for step 4 (a second solve of some markers passes the first
+        solve's, :attr:`MarkerSolve.noise_px`).
     """
     x = np.asarray(points_2d, float)
     if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2 or x.shape[1] != len(names):
@@ -167,6 +176,39 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
             x_used, dropped = _arc_refit(images, x, x_used, good, hidden, r_exp)
             partial |= dropped
     tri = triangulate_markers(rig, x_used, method, refine, options.outlier_px, pair_errors=pair_err, views=views)
+    if first is not None:
+        # views that look whole but sit off the other views' consensus by more than the
+        # capture's own pixel noise allows (partly hidden beads the fill test passed: at 80-90 %
+        # of the bead visible the fill overlaps a whole bead's, the centre is 0.6 px off where
+        # whole beads are 0.05 px): left out where two whole views remain, else not counted whole
+        if noise_px is None:
+            noise_px = _pixel_noise(tri.errors_px, tri.used & good)
+        # one view per marker at a time (one off view pulls the point and so the others' errors
+        # too), the off view that looks least whole first (lowest fill; two partly hidden views
+        # of one bead can agree with each other and leave the whole ones farther off), while
+        # two other whole views remain
+        off = np.zeros_like(good)
+        for _ in range(len(rig)):
+            if not np.isfinite(noise_px):
+                break
+            with np.errstate(invalid="ignore"):
+                off = tri.used & good & (tri.errors_px > OFF_CENTER_SIGMA * noise_px)
+            worst = np.argmin(np.where(off, np.nan_to_num(fill, nan=np.inf), np.inf)
+                              - 1e-9 * np.where(off, tri.errors_px, 0.0), axis=0)
+            cols = np.flatnonzero(off.any(axis=0) & ((tri.used & good).sum(axis=0) >= 3))
+            if not len(cols):
+                break
+            demote = np.zeros_like(good)
+            demote[worst[cols], cols] = True
+            x_used = np.where(demote[..., None], np.nan, x_used)
+            partial |= demote
+            good = good & ~demote
+            tri = triangulate_markers(rig, x_used, method, refine, options.outlier_px, pair_errors=pair_err,
+                                      views=views)
+        if np.isfinite(noise_px):
+            with np.errstate(invalid="ignore"):
+                off = tri.used & good & (tri.errors_px > OFF_CENTER_SIGMA * noise_px)
+        good = good & ~off
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
     if first is not None and lost.any():
@@ -182,7 +224,26 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.where(k >= 2, np.sqrt(np.nansum(sq, axis=0) / k), np.nan)
     outlier = seen & ~used & ~partial
-    return MarkerSolve(tuple(names), points, x, used, fill, partial, outlier, rms, tri, good)
+    return MarkerSolve(tuple(names), points, x, used, fill, partial, outlier, rms, tri, good,
+                       float("nan") if noise_px is None else float(noise_px))
+
+
+#: :func:`solve_markers`: a view that looks whole is off centre beyond this many times the
+#: capture's pixel noise (:func:`_pixel_noise`). Were the whole beads' reprojection errors
+#: Rayleigh with that sigma, 4 sigma would leave ~0.03 % of them out by chance (rendered beads
+#: scatter more than that: a whole view left out costs little while two whole views remain); on 72
+#: rendered captures of other puppets (seeds 11-22 of six conditions) the views at 80-90 %
+#: visible were 0.6-0.7 px off (median) against 0.05-0.07 px for whole ones.
+OFF_CENTER_SIGMA = 4.0
+
+
+def _pixel_noise(errors_px, whole_used) -> float:
+    """The capture's 1-sigma pixel noise per axis from its whole beads' reprojection errors:
+    their median over 1.1774 (the Rayleigh median), robust to the partly hidden views among
+    them; NaN with fewer than 10 errors."""
+    e = np.asarray(errors_px, float)[np.asarray(whole_used, bool)]
+    e = e[np.isfinite(e)]
+    return float(np.median(e) / 1.1774) if len(e) >= 10 else float("nan")
 
 
 def _replace_markers(solve: MarkerSolve, cols: np.ndarray, sub: MarkerSolve, observations) -> MarkerSolve:
@@ -202,7 +263,8 @@ def _replace_markers(solve: MarkerSolve, cols: np.ndarray, sub: MarkerSolve, obs
     whole = None if solve.whole is None or sub.whole is None else put(solve.whole, sub.whole, 1)
     return MarkerSolve(solve.names, put(solve.points, sub.points, 0), np.asarray(observations, float),
                        put(solve.used, sub.used, 1), put(solve.fill, sub.fill, 1), put(solve.partial, sub.partial, 1),
-                       put(solve.outlier, sub.outlier, 1), put(solve.reproj_error_px, sub.reproj_error_px, 0), tri, whole)
+                       put(solve.outlier, sub.outlier, 1), put(solve.reproj_error_px, sub.reproj_error_px, 0), tri, whole,
+                       solve.noise_px)
 
 
 
@@ -225,7 +287,7 @@ def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, 
     raw_obs = None
     if views is not None and options.reidentify:
         raw_obs = obs
-        final = reidentify(rig, solve.points, views, bead_r, options.reid_gate, options.reid_color)
+        final = reidentify(rig, solve.points, views, bead_r, options.reid_gate, options.reid_color, images)
         same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
         if not same.all():
             # solve_markers treats every marker on its own (its views' consensus, fill test and
@@ -233,7 +295,7 @@ def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, 
             # again (with no detected radii, as a full second solve would use)
             cols = np.flatnonzero(~same)
             sub = solve_markers(rig, final[:, cols], [markerset.names[c] for c in cols], images, options,
-                                bead_radius_m=bead_r, radii_px=None)
+                                bead_radius_m=bead_r, radii_px=None, noise_px=solve.noise_px)
             solve = _replace_markers(solve, cols, sub, final)
     return solve, raw_obs
 
