@@ -8,7 +8,9 @@ Stages, in pipeline order (the first that fails names the cause):
   match); ``bench_hand_matching.py``'s ``seen2`` leaves these out, so they are counted apart;
 - ``detect: <2 cams``: fewer than two cameras that see the marker's centre have a blob of its
   colour within the gate of its true lit centroid (``markers_lit_px``); the gate is the
-  marker's projected radius (at least 2 px). Sub-causes: ``merged`` (a camera that missed it
+  marker's projected radius (at least 2 px). Sub-causes: ``on the ball`` (a camera that missed
+  it sees it on the ball's disc, which stage 2 masks out; the result's blobs hold such blobs
+  only when the pose-guided search used them), ``merged`` (a camera that missed it
   has the marker's disc within 2 px of another's, ``markers_isolated`` false), ``hidden``
   (coverage below 0.5 in a camera that missed it), ``other``;
 - ``3D: no point``: blobs in 2+ cameras but no 3D point of its colour within the label
@@ -32,6 +34,14 @@ from stillcap.studio.compare.hand import LABEL_TOLERANCE_M, truth_arrays
 from stillcap.files.jsonable import from_jsonable
 
 CAUSES = ("flash not found", "detect: <2 cams", "3D: no point", "flash without pose", "unlabelled", "wrong label")
+
+
+def _on_ball(balls, camera: int, px) -> bool:
+    """The pixel lies on a ball disc of the camera (stage 2 masks those out)."""
+    if balls is None or not len(balls) or not np.all(np.isfinite(px)):
+        return False
+    c, r = balls.ball_discs_px(camera)
+    return bool(len(r) and np.any(np.linalg.norm(c - px, axis=1) < r + 1.0))
 
 
 def causes(result, truth: dict, match, radius_m: float = 0.005) -> Counter:
@@ -89,7 +99,8 @@ def causes(result, truth: dict, match, radius_m: float = 0.005) -> Counter:
                         continue
                 missed.append(t)
             if len(near) < 2:
-                sub = ("merged" if any(not iso[t, j, m] for t in missed) else
+                sub = ("on the ball" if any(_on_ball(result.balls, cam_of[t], lit[t, j, m]) for t in missed) else
+                       "merged" if any(not iso[t, j, m] for t in missed) else
                        "hidden" if any(cov[t, j, m] < 0.5 for t in missed) else "other")
                 out["detect: <2 cams"] += 1
                 out[f"detect: <2 cams / {sub}"] += 1

@@ -178,16 +178,62 @@ def label_markers_adapted(points: MarkerPoints, strobe_hz: float, options: HandO
     return labels, adaptation is not None
 
 
+def blobs_over_ball(images, balls: HandBalls | None, blobs: list, rig=None) -> list:
+    """Per camera, the glove blobs that the ball's discs masked out (stage 2 masks them so that
+    the ball's painted markers are not taken): fingers in front of the ball in the image. Blobs of
+    the photo found without the mask whose centre lies on a ball disc and that no blob of stage 2
+    of the same colour explains (within the blob's own radius). Only the markers a posed hand
+    predicts are looked for among them, and a point on the ball's surface is not taken
+    (:func:`recover_markers`)."""
+    out = []
+    for i, img in enumerate(images):
+        if img is None or balls is None or not len(balls) or not len(balls.ball_discs_px(i)[1]):
+            out.append(ColorBlobs.empty(list(HAND_COLORS)))
+            continue
+        c, r = balls.ball_discs_px(i)
+        free = find_color_markers(img, HAND_COLORS, encoding="srgb" if rig is None else rig[i].response)
+        on = np.any(np.linalg.norm(free.centers[:, None] - c[None], axis=2) < r[None] + 1.0, axis=1)
+        have = blobs[i]
+        own = np.sqrt(np.maximum(free.areas, 1) / np.pi) + 1.0
+        for j in np.flatnonzero(on):
+            same = np.asarray(have.colors, object) == free.colors[j]
+            if same.any() and np.min(np.linalg.norm(have.centers[same] - free.centers[j], axis=1)) <= own[j]:
+                on[j] = False
+        out.append(free.select(on))
+    return out
+
+
+def _joined(a: ColorBlobs, b: ColorBlobs) -> ColorBlobs:
+    """The blobs of ``a`` then those of ``b`` (``b``'s index ``j`` becomes ``len(a) + j``)."""
+    if not len(b):
+        return a
+    return ColorBlobs(np.concatenate([a.centers, b.centers]), list(a.colors) + list(b.colors),
+                      np.concatenate([a.areas, b.areas]), np.concatenate([a.mean_hsb, b.mean_hsb]),
+                      np.concatenate([a.flags, b.flags]), np.concatenate([a.roundness, b.roundness]),
+                      np.concatenate([a.flux, b.flux]), list(a.color_names or b.color_names))
+
+
 def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, light, options: HandOptions,
-                    messages: list) -> tuple[MarkerPoints, HandLabels]:
-    """Stage 4b: ``(points, labels)`` with the markers the posed hands predict looked for again
-    (issue 12): the blobs of the marker's colour near its prediction in every camera, combined
-    and triangulated (:func:`~stillcap.geometry.marker_near.triangulate_near`), labelled only
-    when the labeller's tests pass (:func:`~stillcap.body.hand_label_fill.label_recovered`).
-    A point found so replaces the unlabelled point whose blobs it shares, else it is added."""
+                    messages: list, images=None, balls: HandBalls | None = None
+                    ) -> tuple[list, MarkerPoints, HandLabels]:
+    """Stage 4b: ``(blobs, points, labels)`` with the markers the posed hands predict looked for
+    again (issue 12): the blobs of the marker's colour near its prediction in every camera,
+    combined and triangulated (:func:`~stillcap.geometry.marker_near.triangulate_near`), labelled
+    only when the labeller's tests pass (:func:`~stillcap.body.hand_label_fill.label_recovered`).
+    A point found so replaces the unlabelled point whose blobs it shares, else it is added. With
+    ``images`` and ``balls``, the glove blobs the ball's discs masked out are looked among too
+    (:func:`blobs_over_ball`, appended to ``blobs``); a point they give that lies on the ball
+    (nearer its centre than its radius plus half a marker's) is the ball's paint, not taken."""
     flash, marker, pred = predicted_missing(labels)
+    blobs_in = blobs
     if not len(flash):
-        return points, labels
+        return blobs, points, labels
+    if images is not None and balls is not None and len(balls):
+        extra = blobs_over_ball(images, balls, blobs, rig)
+        n_own = [len(b) for b in blobs]
+        blobs = [_joined(b, e) for b, e in zip(blobs, extra)]
+    else:
+        n_own = None
     nc = len(rig.names)
     labelled = np.unique(labels.point_index[labels.point_index >= 0])
     used = [set(points.blob_index[c, labelled][points.blob_index[c, labelled] >= 0].tolist()) for c in range(nc)]
@@ -195,8 +241,13 @@ def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, 
     colours = np.asarray(labels.marker_colors)[marker]
     new, idx = triangulate_near(rig, blobs, pred, colours, LEFTOVER_GATE_FACTOR * gate, used=used, light_position=light,
                                 radius_m=options.marker_radius_m, reference=points)
+    if n_own is not None and len(new):
+        extra_used = np.any(new.blob_index >= np.array(n_own)[:, None], axis=0)
+        d_ball = np.min(np.linalg.norm(new.points[:, None] - balls.positions[None], axis=2), axis=1)
+        paint = extra_used & (d_ball < options.ball_radius_m + 0.5 * options.marker_radius_m)
+        new, idx = new.select(~paint), idx[~paint]
     if not len(new):
-        return points, labels
+        return blobs_in, points, labels
     # a blob two new points want is no one's; a point whose blobs an unlabelled point shares
     # takes its row (one blob, one marker), with two such points it is left out
     nb = new.blob_index
@@ -210,7 +261,7 @@ def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, 
         rows.append(int(over[0]) if len(over) else -1)
         keep.append(i)
     if not keep:
-        return points, labels
+        return blobs_in, points, labels
     before = int((labels.point_index >= 0).sum())
     for _ in range(3):  # the points that got no label are left as they were, and the rest labelled again
         combined, at = _put_points(points, new.select(np.array(keep, int)), rows)
@@ -223,13 +274,13 @@ def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, 
             break
         rows, keep = [r for r, g in zip(rows, got) if g], [i for i, g in zip(keep, got) if g]
     if not any(got):
-        return points, labels
+        return blobs_in, points, labels
     labels = out
     added = int((labels.point_index >= 0).sum()) - before
     if added:
         messages.append(f"{added} marker(s) labelled where the posed hand predicted them (found again from "
                         f"their blobs)")
-    return combined, labels
+    return blobs, combined, labels
 
 
 def _put_points(points: MarkerPoints, new: MarkerPoints, rows) -> tuple[MarkerPoints, list]:
