@@ -29,9 +29,9 @@ from collections import Counter
 
 import numpy as np
 
+from stillcap.files.jsonable import from_jsonable
 from stillcap.geometry.marker_points import triangulate_color_markers
 from stillcap.studio.compare.hand import LABEL_TOLERANCE_M, truth_arrays
-from stillcap.files.jsonable import from_jsonable
 
 CAUSES = ("flash not found", "detect: <2 cams", "3D: no point", "flash without pose", "unlabelled", "wrong label")
 
@@ -116,7 +116,7 @@ def causes(result, truth: dict, match, radius_m: float = 0.005) -> Counter:
                 out[f"3D: no point / {sub}"] += 1
                 continue
             p = int(np.argmin(dp))
-            fk, mk = point_label[p]
+            fk = point_label[p, 0]
             if fk < 0:
                 if not lab.reconstructed[k]:
                     out["flash without pose"] += 1

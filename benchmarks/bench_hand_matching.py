@@ -21,7 +21,8 @@ Columns (against the studio's truth, ``stillcap.studio.compare.hand``):
   ``seen2`` (``bench_hand_calibration.py``'s "seen2 lab %" column is ``whole %`` alone, which is
   why it reads lower than the end-to-end figure);
 - ``labels``, ``right %``: labels given and the share right (goal >= 99.5 %);
-- ``RMS mm``: fully seen right-labelled markers to the truth (goal <= 1 mm);
+- ``RMS mm``: fully seen right-labelled markers to the truth (goal <= 1 mm); ``hidden RMS``: the
+  partly hidden ones (their centroids shift; scored apart);
 - ``joints``: joint-angle RMS on the degrees of freedom the seen markers fix (deg);
 - ``posed``: flashes with a pose.
 
@@ -93,6 +94,7 @@ def run(p: int, model: str, size, root: Path, with_causes: bool = False) -> dict
     return {**extra, "person": p, "model": model, "seen2": n_seen, "labelled_pct": 100.0 * n_lab / n_seen if n_seen else None,
             "whole_pct": c["markers_recovered_pct"], "hidden_pct": c["markers_recovered_partly_hidden_pct"],
             "labels": c["labels"], "right_pct": c["labels_right_pct"], "rms_mm": c["marker_rms_mm"],
+            "hidden_rms_mm": c["partly_hidden_rms_mm"],
             "joints_deg": c["joint_angle_rms_deg"], "posed": int(r.labels.reconstructed.sum())}
 
 
@@ -116,14 +118,14 @@ def main(argv=None) -> None:
         root.mkdir(parents=True, exist_ok=True)
         rows = []
         print(f"{'person':>6} {'model':>8} {'seen2':>5} {'labelled %':>10} {'whole %':>7} {'hidden %':>8} "
-              f"{'labels':>6} {'right %':>7} {'RMS mm':>6} {'joints':>6} {'posed':>5}")
+              f"{'labels':>6} {'right %':>7} {'RMS mm':>6} {'hidden RMS':>10} {'joints':>6} {'posed':>5}")
         for model in a.models:
             for p in a.persons:
                 row = run(p, model, size, root, a.causes)
                 rows.append(row)
                 print(f"{p:>6} {model:>8} {row['seen2']:>5} {_f(row['labelled_pct']):>10} {_f(row['whole_pct']):>7} "
                       f"{_f(row['hidden_pct']):>8} {row['labels']:>6} {_f(row['right_pct'], 2):>7} "
-                      f"{_f(row['rms_mm'], 3):>6} {_f(row['joints_deg'], 2):>6} {row['posed']:>5}", flush=True)
+                      f"{_f(row['rms_mm'], 3):>6} {_f(row['hidden_rms_mm'], 2):>10} {_f(row['joints_deg'], 2):>6} {row['posed']:>5}", flush=True)
                 if a.jsonl:
                     with open(a.jsonl, "a") as fh:
                         fh.write(json.dumps(row) + "\n")

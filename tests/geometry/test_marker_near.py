@@ -5,7 +5,10 @@ import numpy as np
 import pytest
 
 from stillcap.geometry.marker_near import triangulate_near
-from stillcap.geometry.marker_points import lit_sphere_centroids, triangulate_color_markers
+from stillcap.geometry.marker_points import (
+    lit_sphere_centroids,
+    triangulate_color_markers,
+)
 from stillcap.studio.hand import hand_rig
 
 
@@ -69,10 +72,10 @@ def test_two_explanations_leave_the_prediction_without_a_point(hrig):
     col2 = np.concatenate([col, col[:1]])
     pts, idx = triangulate_near(hrig.rig, blobs_of(hrig, X2, col2), X[:1], col[:1], 0.012,
                                 light_position=hrig.light.position)
-    assert len(pts) == 0
+    assert len(pts) == 0 and len(idx) == 0
     # with the rival's blobs taken by another marker (used), the marker is found again
     used = [{len(X)} for _ in range(4)]
-    pts, idx = triangulate_near(hrig.rig, blobs_of(hrig, X2, col2), X[:1], col[:1], 0.012, used=used,
+    pts, _ = triangulate_near(hrig.rig, blobs_of(hrig, X2, col2), X[:1], col[:1], 0.012, used=used,
                                 light_position=hrig.light.position)
     assert len(pts) == 1 and np.linalg.norm(pts.points[0] - X[0]) < 1e-5
 

@@ -23,7 +23,12 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap.camera import Rig
-from stillcap.geometry.marker_points import MarkerPoints, _blob_arrays, _flux_ratios, _solve
+from stillcap.geometry.marker_points import (
+    MarkerPoints,
+    _blob_arrays,
+    _flux_ratios,
+    _solve,
+)
 
 __all__ = ["triangulate_near"]
 

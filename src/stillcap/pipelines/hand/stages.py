@@ -236,7 +236,9 @@ def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, 
         n_own = None
     nc = len(rig.names)
     labelled = np.unique(labels.point_index[labels.point_index >= 0])
-    used = [set(points.blob_index[c, labelled][points.blob_index[c, labelled] >= 0].tolist()) for c in range(nc)]
+    # blobs of labelled points are taken; those of points a manual override deleted stay deleted
+    taken = np.union1d(labelled, np.asarray(labels.deleted, int))
+    used = [set(points.blob_index[c, taken][points.blob_index[c, taken] >= 0].tolist()) for c in range(nc)]
     gate = GATE_M * labels.hand_scale
     colours = np.asarray(labels.marker_colors)[marker]
     new, idx = triangulate_near(rig, blobs, pred, colours, LEFTOVER_GATE_FACTOR * gate, used=used, light_position=light,
@@ -256,7 +258,7 @@ def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, 
     rows, keep = [], []
     for i in np.flatnonzero(~shared):
         over = np.flatnonzero(np.any((nb[:, i:i + 1] >= 0) & (points.blob_index == nb[:, i:i + 1]), axis=0))
-        if len(over) > 1 or np.isin(over, labelled).any():
+        if len(over) > 1 or np.isin(over, taken).any():
             continue
         rows.append(int(over[0]) if len(over) else -1)
         keep.append(i)
