@@ -275,3 +275,24 @@ def test_two_proposals_for_one_point_leave_it_unlabelled():
     p = len(pts) - 1
     out = label_recovered(lab, pts, cols, [(p, k, m), (p, k, m)], gate_m=GATE_M, predicted=[X, X])
     assert out.point_index[k, m] < 0
+
+
+def test_a_confirmed_point_beyond_the_gate_needs_its_digit_fixed_by_other_labels():
+    """A point three cameras agree on may be up to 2.5 gates from its prediction (a model of
+    other proportions), but only when its digit's other markers are labelled in that flash: a
+    digit without labels is wherever the fit left it, no evidence for a prediction."""
+    lab, X, colour, m, k = one_marker_taken_out()
+    R = lab.fits[k].pose.joint2world[lab.markerset.bone_frames(lab.skeleton)[m], :3, :3]
+    far = X + R @ [0.0, 0.0, 1.3 * GATE_M]  # beyond the gate, off the bone
+    pts = np.concatenate([lab.points, far[None]])
+    cols = np.concatenate([lab.colors, [colour]])
+    p = len(pts) - 1
+    confirmed = np.arange(len(pts)) == p
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X], confirmed=confirmed)
+    assert out.point_index[k, m] == p
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X])  # two views: the gate
+    assert out.point_index[k, m] < 0
+    digit = [j for j, n in enumerate(lab.marker_names) if n.startswith("middle.") and j != m]
+    lab.point_index[k, digit] = -1
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X], confirmed=confirmed)
+    assert out.point_index[k, m] < 0

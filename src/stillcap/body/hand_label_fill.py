@@ -387,6 +387,32 @@ def _digit_markers(labels) -> list[np.ndarray]:
     return [np.flatnonzero(names == d) for d in dict.fromkeys(names) if d != root]
 
 
+def _wide_gate_safe(labels, pi, k: int, m: int, X, colour: str) -> bool:
+    """Whether a point beyond the gate of marker ``m``'s prediction may still be it: the marker's
+    digit has another labelled marker in flash ``k`` (so the fitted digit, and the prediction,
+    rest on that flash's own points), and no digit of the flash without any labelled marker has
+    a marker of the point's colour that could reach it (such a digit's fitted angles are no
+    evidence: it may be its marker, wherever the fit left it)."""
+    sk, ms = labels.skeleton, labels.markerset
+    frames = ms.bone_frames(sk)
+    names = [n.split("-")[0] for n in sk.names]
+    mcol = np.asarray(labels.marker_colors).astype(str)
+    j2w = labels.fits[k].pose.joint2world
+    for d in _digit_markers(labels):
+        digit = names[frames[d[0]]]
+        if m in d:
+            if not np.any(pi[k, d[d != m]] >= 0):
+                return False
+            continue
+        if np.any(pi[k, d] >= 0) or not np.any(mcol[d] == colour):
+            continue
+        chain = [i for i in sk.depth_first if names[i] == digit]
+        reach = sum(np.linalg.norm(sk.offsets[i]) for i in chain[1:]) + max(np.linalg.norm(ms.offsets[d], axis=1))
+        if np.linalg.norm(X - j2w[chain[0], :3, 3]) <= reach:
+            return False
+    return True
+
+
 def label_recovered(labels, points, colors, proposals, *, gate_m: float, predicted=None, confirmed=None,
                     unconfirmed=None, factor: float = LEFTOVER_GATE_FACTOR):
     """Labels for points found where the fitted hands put unlabelled markers
@@ -459,6 +485,8 @@ def label_recovered(labels, points, colors, proposals, *, gate_m: float, predict
                                 & ((idx != m) | (q != k)))) for q in posed)
         if others:
             continue  # another marker of its colour is as near: not unambiguous
+        if np.linalg.norm(pts[p] - X0) > gate_m and not _wide_gate_safe(labels, pi, k, m, pts[p], cols[p]):
+            continue
         keep.append((p, k, m))
     digits = _digit_markers(labels)
     fits = list(labels.fits)
