@@ -109,7 +109,8 @@ def causes(result, truth: dict, match, radius_m: float = 0.005) -> Counter:
             dp = np.linalg.norm(pts.points - tr["markers"][j, m], axis=1)
             dp = np.where(same, dp, np.inf)
             if not len(dp) or dp.min() > LABEL_TOLERANCE_M:
-                draw = np.where(raw.colors == colours[m], np.linalg.norm(raw.points - tr["markers"][j, m], axis=1), np.inf)
+                draw = np.where(raw.colors == colours[m],
+                                np.linalg.norm(raw.points - tr["markers"][j, m], axis=1), np.inf)
                 sub = ("left out" if len(draw) and draw.min() <= LABEL_TOLERANCE_M else
                        "blob taken" if any(near[c] in used_blob[c] for c in near) else "unmatched")
                 out["3D: no point"] += 1

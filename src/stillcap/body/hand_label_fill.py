@@ -442,8 +442,8 @@ def label_recovered(labels, points, colors, proposals, *, gate_m: float, predict
         As :func:`~stillcap.body.hand_label.label_hand_markers`' ``unconfirmed``.
 
     A proposal is dropped when its point lies within the gate of another marker of its colour
-    in a fitted hand (of any posed flash, labelled or not: two markers could be its), when two proposals share a
-    point, when it is unconfirmed and no other marker of its digit is labelled in its flash,
+    in a fitted hand (of any posed flash, labelled or not: two markers could be its), when two
+    proposals share a point, when it is unconfirmed and no other marker of its digit is labelled in its flash,
     and when the flash refitted with the new labels leaves it farther than the gate (``factor``
     times the gate for a confirmed point) from its marker (then the flash is fitted again
     without it).
@@ -508,6 +508,9 @@ def label_recovered(labels, points, colors, proposals, *, gate_m: float, predict
             if not bad:
                 break
             pi[k, bad] = -1
+        else:  # the last labels taken back: the flash fitted without them
+            pos = np.where((pi[k] >= 0)[:, None], pts[np.maximum(pi[k], 0)], np.nan)
+            fits[k] = fit_hand(labels.skeleton, labels.markerset, pos, initial=fits[k].pose)
     positions = np.where((pi >= 0)[..., None], pts[np.maximum(pi, 0)], np.nan)
     used = set(pi[pi >= 0].tolist()) | set(np.asarray(labels.deleted).tolist())
     unassigned = np.array([i for i in range(len(pts)) if i not in used and np.all(np.isfinite(pts[i]))], int)

@@ -34,7 +34,8 @@ __all__ = ["triangulate_near"]
 
 
 def triangulate_near(rig: Rig, blobs_per_camera, predicted, colors, gate_m, *, used=None, light_position=None,
-                     radius_m: float = 0.005, max_epipolar_px: float | None = None, reference: MarkerPoints | None = None,
+                     radius_m: float = 0.005, max_epipolar_px: float | None = None,
+                     reference: MarkerPoints | None = None,
                      max_candidates: int = 3, min_depth_m: float = 0.1) -> tuple[MarkerPoints, np.ndarray]:
     """The one 3D point each predicted marker's blobs give, where there is exactly one.
 
