@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 from stillcap.body.hand import fit_hand, hand_markerset, hand_skeleton
 from stillcap.body.hand_checks import hand_self_checks
 from stillcap.body.hand_label import GATE_M, hand_points_from_truth, label_hand_markers
-from stillcap.body.hand_label_fill import LEFTOVER_GATE_FACTOR
+from stillcap.body.hand_label_fill import LEFTOVER_GATE_FACTOR, label_recovered, predicted_missing
 from stillcap.body.skeleton import Pose
 from stillcap.studio.hand import hand_capture
 from stillcap.studio.hand_variation import another_hand
@@ -204,3 +204,95 @@ def test_pose_without_back_markers_is_flagged_when_the_model_misfits():
     assert "neighbours" in lab.pose_source and rms["neighbours"] < 2.0  # measured: 1.37 deg
     c = next(c for c in hand_self_checks(lab, seq, noise_m=0.0003) if c.name == "pose_without_back")
     assert c.passed and "joint angles hold" in c.message
+
+
+# ---- markers found again where the posed hand predicts them (label_recovered) -------------------
+def one_marker_taken_out(seed=3):
+    """Points of the default hand labelled without one finger point, which is returned apart:
+    ``(labels, the point, its true marker, its flash in the labels)``."""
+    tr = truth(seed)
+    d = hand_points_from_truth(tr, noise_m=0.0003, drop=0.0, n_spurious=0, rng=1)
+    full = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0)
+    names = full.marker_names
+    m = names.index("middle.pip")
+    k = int(np.flatnonzero((full.point_index[:, m] >= 0) & full.reconstructed)[0])
+    p = int(full.point_index[k, m])
+    keep = np.arange(len(d["points"])) != p
+    lab = label_hand_markers(d["points"][keep], d["colours"][keep], strobe_hz=75.0)
+    j = int(np.argmin([np.nanmin(np.linalg.norm(lab.positions[q] - full.positions[k][None], axis=-1))
+                       for q in range(lab.n_flashes)]))
+    return lab, d["points"][p], str(d["colours"][p]), m, j
+
+
+def test_a_point_found_where_the_hand_predicts_its_marker_is_labelled():
+    lab, X, colour, m, k = one_marker_taken_out()
+    assert lab.point_index[k, m] < 0
+    flash, marker, pred = predicted_missing(lab)
+    i = int(np.flatnonzero((flash == k) & (marker == m))[0])
+    assert np.linalg.norm(pred[i] - X) < GATE_M
+    pts = np.concatenate([lab.points, X[None]])
+    cols = np.concatenate([lab.colors, [colour]])
+    out = label_recovered(lab, pts, cols, [(len(pts) - 1, k, m)], gate_m=GATE_M, predicted=pred[i:i + 1])
+    assert out.point_index[k, m] == len(pts) - 1
+    assert np.allclose(out.positions[k, m], X) and len(out.points) == len(pts)
+    assert (out.point_index >= 0).sum() == (lab.point_index >= 0).sum() + 1
+    assert out.rms[k] < 0.0015 and len(out.points) - 1 not in out.unassigned
+
+
+def test_a_point_claimed_for_the_wrong_marker_or_flash_stays_unlabelled():
+    lab, X, colour, m, k = one_marker_taken_out()
+    pts = np.concatenate([lab.points, X[None]])
+    cols = np.concatenate([lab.colors, [colour]])
+    p = len(pts) - 1
+    other = next(q for q in range(lab.n_flashes) if q != k and lab.fits[q] is not None)
+    out = label_recovered(lab, pts, cols, [(p, other, m)], gate_m=GATE_M)  # another flash's marker: far away
+    assert (out.point_index == p).sum() == 0
+    # a confirmed point (3+ views) may be farther from its prediction, but not beyond the wider gate
+    far = X + [0.0, 0.0, 2.6 * GATE_M]
+    out = label_recovered(lab, np.concatenate([lab.points, far[None]]), cols, [(p, k, m)], gate_m=GATE_M,
+                          predicted=[X], confirmed=np.arange(len(pts)) == p)
+    assert (out.point_index == p).sum() == 0
+
+
+def test_an_unconfirmed_point_alone_on_its_digit_stays_unlabelled():
+    lab, X, colour, m, k = one_marker_taken_out()
+    digit = [j for j, n in enumerate(lab.marker_names) if n.startswith("middle.")]
+    lab.point_index[k, digit] = -1  # the digit's other markers unlabelled too
+    pts = np.concatenate([lab.points, X[None]])
+    cols = np.concatenate([lab.colors, [colour]])
+    p = len(pts) - 1
+    unconfirmed = np.arange(len(pts)) == p
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X], unconfirmed=unconfirmed)
+    assert out.point_index[k, m] < 0
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X])
+    assert out.point_index[k, m] == p
+
+
+def test_two_proposals_for_one_point_leave_it_unlabelled():
+    lab, X, colour, m, k = one_marker_taken_out()
+    pts = np.concatenate([lab.points, X[None]])
+    cols = np.concatenate([lab.colors, [colour]])
+    p = len(pts) - 1
+    out = label_recovered(lab, pts, cols, [(p, k, m), (p, k, m)], gate_m=GATE_M, predicted=[X, X])
+    assert out.point_index[k, m] < 0
+
+
+def test_a_confirmed_point_beyond_the_gate_needs_its_digit_fixed_by_other_labels():
+    """A point three cameras agree on may be up to 2.5 gates from its prediction (a model of
+    other proportions), but only when its digit's other markers are labelled in that flash: a
+    digit without labels is wherever the fit left it, no evidence for a prediction."""
+    lab, X, colour, m, k = one_marker_taken_out()
+    R = lab.fits[k].pose.joint2world[lab.markerset.bone_frames(lab.skeleton)[m], :3, :3]
+    far = X + R @ [0.0, 0.0, 1.3 * GATE_M]  # beyond the gate, off the bone
+    pts = np.concatenate([lab.points, far[None]])
+    cols = np.concatenate([lab.colors, [colour]])
+    p = len(pts) - 1
+    confirmed = np.arange(len(pts)) == p
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X], confirmed=confirmed)
+    assert out.point_index[k, m] == p
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X])  # two views: the gate
+    assert out.point_index[k, m] < 0
+    digit = [j for j, n in enumerate(lab.marker_names) if n.startswith("middle.") and j != m]
+    lab.point_index[k, digit] = -1
+    out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X], confirmed=confirmed)
+    assert out.point_index[k, m] < 0

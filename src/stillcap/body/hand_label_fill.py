@@ -337,3 +337,186 @@ def label_leftovers(model: LabelModel, pts, cols, avail, flashes: list, *, gate:
             flashes[k][3] = np.array(sorted(new.values()), int)
     return n_new
 
+
+
+# --------------------------------------------------------------------------------------------
+# Markers looked for where the posed hand puts them (issue 12)
+# --------------------------------------------------------------------------------------------
+def _bone_offsets(labels, flash: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted model's markers of ``flash`` (n_markers, 3) and each marker's bone rotation
+    (n_markers, 3, 3), world frame."""
+    pose = labels.fits[flash].pose
+    frames = labels.markerset.bone_frames(labels.skeleton)
+    return labels.markerset.positions(pose), pose.joint2world[frames, :3, :3]
+
+
+def predicted_missing(labels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the posed flashes' fitted hands put their unlabelled markers.
+
+    Each prediction is the fitted model's marker moved by that marker's median offset from the
+    fitted model in the other posed flashes that label it, in the frame of the marker's bone: a
+    model of other proportions misses a marker the same way in every flash (a longer phalanx
+    puts it farther along its bone whatever the joint angles), so the offset the capture shows
+    elsewhere is the model's error here. Without such a flash the model's marker is used.
+
+    Returns
+    -------
+    flash, marker : ndarray of int, shape (P,)
+    predicted : ndarray, shape (P, 3)
+        World, m.
+    """
+    posed = [k for k in range(labels.n_flashes) if labels.fits[k] is not None]
+    model, rot = {}, {}
+    for k in posed:
+        model[k], rot[k] = _bone_offsets(labels, k)
+    pi, pts = labels.point_index, labels.points
+    flash, marker, out = [], [], []
+    for k in posed:
+        for m in np.flatnonzero(pi[k] < 0):
+            offs = [rot[q][m].T @ (pts[pi[q, m]] - model[q][m]) for q in posed if q != k and pi[q, m] >= 0]
+            shift = rot[k][m] @ np.median(offs, axis=0) if offs else np.zeros(3)
+            flash.append(k), marker.append(int(m)), out.append(model[k][m] + shift)
+    return np.array(flash, int), np.array(marker, int), np.array(out, float).reshape(-1, 3)
+
+
+def _digit_markers(labels) -> list[np.ndarray]:
+    """Marker indices per digit (the first part of the bone's joint name, e.g. ``index``)."""
+    frames = labels.markerset.bone_frames(labels.skeleton)
+    names = np.array([labels.skeleton.names[f].split("-")[0] for f in frames])
+    root = labels.skeleton.names[labels.skeleton.root]
+    return [np.flatnonzero(names == d) for d in dict.fromkeys(names) if d != root]
+
+
+def _wide_gate_safe(labels, pi, k: int, m: int, X, colour: str) -> bool:
+    """Whether a point beyond the gate of marker ``m``'s prediction may still be it: the marker's
+    digit has another labelled marker in flash ``k`` (so the fitted digit, and the prediction,
+    rest on that flash's own points), and no digit of the flash without any labelled marker has
+    a marker of the point's colour that could reach it (such a digit's fitted angles are no
+    evidence: it may be its marker, wherever the fit left it)."""
+    sk, ms = labels.skeleton, labels.markerset
+    frames = ms.bone_frames(sk)
+    names = [n.split("-")[0] for n in sk.names]
+    mcol = np.asarray(labels.marker_colors).astype(str)
+    j2w = labels.fits[k].pose.joint2world
+    for d in _digit_markers(labels):
+        digit = names[frames[d[0]]]
+        if m in d:
+            if not np.any(pi[k, d[d != m]] >= 0):
+                return False
+            continue
+        if np.any(pi[k, d] >= 0) or not np.any(mcol[d] == colour):
+            continue
+        chain = [i for i in sk.depth_first if names[i] == digit]
+        reach = sum(np.linalg.norm(sk.offsets[i]) for i in chain[1:]) + max(np.linalg.norm(ms.offsets[d], axis=1))
+        if np.linalg.norm(X - j2w[chain[0], :3, 3]) <= reach:
+            return False
+    return True
+
+
+def label_recovered(labels, points, colors, proposals, *, gate_m: float, predicted=None, confirmed=None,
+                    unconfirmed=None, factor: float = LEFTOVER_GATE_FACTOR):
+    """Labels for points found where the fitted hands put unlabelled markers
+    (:func:`predicted_missing`, :func:`stillcap.geometry.marker_near.triangulate_near`), given
+    only when they pass the labeller's own tests.
+
+    Parameters
+    ----------
+    labels : HandLabels
+    points : array_like, shape (N', 3)
+        The capture's points: ``labels.points`` with rows changed or appended for the points
+        found (a row of an unlabelled point may be replaced by the point its blobs give with
+        more views).
+    colours : array_like of str, shape (N',)
+    proposals : sequence of (point, flash, marker)
+    gate_m : float
+        The labelling gate (m), for a hand of the labels' size (already scaled).
+    predicted : array_like, shape (len(proposals), 3), optional
+        Where :func:`predicted_missing` put each proposal's marker (default: the fitted model's
+        marker).
+    confirmed : array_like of bool, shape (N',), optional
+        Points that three or more cameras agree on: no chance match of two blobs. Such a point
+        may lie up to ``factor`` times the gate from its prediction (a model of other
+        proportions misses markers by 9-18 mm, beyond the gate), when no other marker of its
+        colour lies within that wider gate; other points must lie within the gate.
+    unconfirmed : array_like of bool, shape (N',), optional
+        As :func:`~stillcap.body.hand_label.label_hand_markers`' ``unconfirmed``.
+
+    A proposal is dropped when its point lies within the gate of another marker of its colour
+    in a fitted hand (of any posed flash, labelled or not: two markers could be its), when two
+    proposals share a point, when it is unconfirmed and no other marker of its digit is labelled in its flash,
+    and when the flash refitted with the new labels leaves it farther than the gate (``factor``
+    times the gate for a confirmed point) from its marker (then the flash is fitted again
+    without it).
+
+    Returns
+    -------
+    HandLabels
+        With ``points``, ``colours``, ``point_index``, ``positions``, ``fits``, ``rms``,
+        ``members`` and ``unassigned`` updated; the number of labels added is
+        ``(result.point_index >= 0).sum() - (labels.point_index >= 0).sum()``.
+    """
+    from dataclasses import replace
+
+    from stillcap.body.hand import fit_hand
+
+    pts = np.asarray(points, float)
+    cols = np.asarray(colors).astype(str)
+    unconfirmed = np.zeros(len(pts), bool) if unconfirmed is None else np.asarray(unconfirmed, bool)
+    posed = [k for k in range(labels.n_flashes) if labels.fits[k] is not None]
+    mcol = np.asarray(labels.marker_colors).astype(str)
+    model = {k: labels.markerset.positions(labels.fits[k].pose) for k in posed}
+    props = [(int(p), int(k), int(m)) for p, k, m in proposals]
+    count = {}
+    for p, _, _ in props:
+        count[p] = count.get(p, 0) + 1
+    pred = (np.array([model[k][m] for _, k, m in props]).reshape(-1, 3) if predicted is None
+            else np.asarray(predicted, float).reshape(-1, 3))
+    confirmed = np.zeros(len(pts), bool) if confirmed is None else np.asarray(confirmed, bool)
+    idx = np.arange(len(mcol))
+    pi = labels.point_index.copy()
+    keep = []
+    for (p, k, m), X0 in zip(props, pred):
+        if count[p] > 1 or pi[k, m] >= 0 or p in pi:
+            continue
+        reach = gate_m * (factor if confirmed[p] else 1.0)
+        if not np.linalg.norm(pts[p] - X0) <= reach:
+            continue
+        others = sum(int(np.sum((mcol == cols[p]) & (np.linalg.norm(model[q] - pts[p], axis=1) <= reach)
+                                & ((idx != m) | (q != k)))) for q in posed)
+        if others:
+            continue  # another marker of its colour is as near: not unambiguous
+        if np.linalg.norm(pts[p] - X0) > gate_m and not _wide_gate_safe(labels, pi, k, m, pts[p], cols[p]):
+            continue
+        keep.append((p, k, m))
+    digits = _digit_markers(labels)
+    fits = list(labels.fits)
+    changed = set()
+    for p, k, m in keep:
+        pi[k, m] = p
+        changed.add(k)
+    for k in sorted(changed):
+        for _ in range(3):
+            new = [(p, kk, m) for p, kk, m in keep if kk == k and pi[k, m] == p]
+            for p, _, m in new:  # alone on its digit, an unconfirmed point is untested
+                dig = next((d for d in digits if m in d), None)  # None: a back-of-hand marker
+                if unconfirmed[p] and dig is not None and (pi[k, dig] >= 0).sum() < 2:
+                    pi[k, m] = -1
+            pos = np.where((pi[k] >= 0)[:, None], pts[np.maximum(pi[k], 0)], np.nan)
+            fits[k] = fit_hand(labels.skeleton, labels.markerset, pos, initial=fits[k].pose)
+            bad = [m for p, _, m in new if pi[k, m] == p
+                   and not fits[k].residuals[m] <= gate_m * (factor if confirmed[p] else 1.0)]
+            if not bad:
+                break
+            pi[k, bad] = -1
+        else:  # the last labels taken back: the flash fitted without them
+            pos = np.where((pi[k] >= 0)[:, None], pts[np.maximum(pi[k], 0)], np.nan)
+            fits[k] = fit_hand(labels.skeleton, labels.markerset, pos, initial=fits[k].pose)
+    positions = np.where((pi >= 0)[..., None], pts[np.maximum(pi, 0)], np.nan)
+    used = set(pi[pi >= 0].tolist()) | set(np.asarray(labels.deleted).tolist())
+    unassigned = np.array([i for i in range(len(pts)) if i not in used and np.all(np.isfinite(pts[i]))], int)
+    members = [np.array(sorted(set(pi[k][pi[k] >= 0].tolist()) | set(np.asarray(mem).tolist())), int)
+               if labels.fits[k] is not None else np.asarray(mem, int) for k, mem in enumerate(labels.members)]
+    rms = np.array([np.nan if f is None else f.rms for f in fits])
+    return replace(labels, points=pts, colors=cols, point_index=pi, positions=positions, fits=fits, rms=rms,
+                   members=members, unassigned=unassigned)
+

@@ -14,7 +14,7 @@ from stillcap.pipelines._response import apply_response, auto_report, auto_rig, 
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.result import HandResult
 from stillcap.pipelines.hand.stages import (check_hand, hand_setup, read_hand_photos, find_ball, find_glove_markers, fit_poses, label_markers,
-                                            label_markers_adapted, release_and_spin, triangulate_glove_markers)
+                                            label_markers_adapted, recover_markers, release_and_spin, triangulate_glove_markers)
 from stillcap._progress import report_progress
 
 __all__ = ["analyse_hand"]
@@ -98,6 +98,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
         labels, adapted = label_markers_adapted(points, strobe_hz, options, messages, skeleton, markerset)
     else:
         labels, adapted = label_markers(points, strobe_hz, options, messages, skeleton, markerset), False
+    blobs, points, labels = recover_markers(rig, blobs, points, labels, light, options, messages, images, balls)
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 5, total, "poses")

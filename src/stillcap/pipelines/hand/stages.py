@@ -34,15 +34,17 @@ from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS
 from stillcap.body.hand_checks import hand_self_checks
-from stillcap.body.hand_label import HandLabels, contradicted_labels, label_hand_markers, unlabel_points
+from stillcap.body.hand_label import GATE_M, HandLabels, contradicted_labels, label_hand_markers, unlabel_points
+from stillcap.body.hand_label_fill import LEFTOVER_GATE_FACTOR, label_recovered, predicted_missing
 from stillcap.body.hand_track import HandSequence, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
 from stillcap.io.capture import stereo_pairs
+from stillcap.geometry.marker_near import triangulate_near
 from stillcap.geometry.marker_points import MarkerPoints, triangulate_color_markers
 from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ball_spin
 from stillcap.pipelines.hand.options import HandOptions
 
-__all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "fit_poses",
+__all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "recover_markers", "fit_poses",
            "release_and_spin", "check_hand", "label_markers_adapted"]
 
 @dataclass
@@ -174,6 +176,141 @@ def label_markers_adapted(points: MarkerPoints, strobe_hz: float, options: HandO
         if why:
             messages.append(f"flash {int(labels.order[k])}: no pose ({why})")
     return labels, adaptation is not None
+
+
+def blobs_over_ball(images, balls: HandBalls | None, blobs: list, rig=None) -> list:
+    """Per camera, the glove blobs that the ball's discs masked out (stage 2 masks them so that
+    the ball's painted markers are not taken): fingers in front of the ball in the image. Blobs of
+    the photo found without the mask whose centre lies on a ball disc and that no blob of stage 2
+    of the same colour explains (within the blob's own radius). Only the markers a posed hand
+    predicts are looked for among them, and a point on the ball's surface is not taken
+    (:func:`recover_markers`)."""
+    out = []
+    for i, img in enumerate(images):
+        if img is None or balls is None or not len(balls) or not len(balls.ball_discs_px(i)[1]):
+            out.append(ColorBlobs.empty(list(HAND_COLORS)))
+            continue
+        c, r = balls.ball_discs_px(i)
+        free = find_color_markers(img, HAND_COLORS, encoding="srgb" if rig is None else rig[i].response)
+        on = np.any(np.linalg.norm(free.centers[:, None] - c[None], axis=2) < r[None] + 1.0, axis=1)
+        have = blobs[i]
+        own = np.sqrt(np.maximum(free.areas, 1) / np.pi) + 1.0
+        for j in np.flatnonzero(on):
+            same = np.asarray(have.colors, object) == free.colors[j]
+            if same.any() and np.min(np.linalg.norm(have.centers[same] - free.centers[j], axis=1)) <= own[j]:
+                on[j] = False
+        out.append(free.select(on))
+    return out
+
+
+def _joined(a: ColorBlobs, b: ColorBlobs) -> ColorBlobs:
+    """The blobs of ``a`` then those of ``b`` (``b``'s index ``j`` becomes ``len(a) + j``)."""
+    if not len(b):
+        return a
+    return ColorBlobs(np.concatenate([a.centers, b.centers]), list(a.colors) + list(b.colors),
+                      np.concatenate([a.areas, b.areas]), np.concatenate([a.mean_hsb, b.mean_hsb]),
+                      np.concatenate([a.flags, b.flags]), np.concatenate([a.roundness, b.roundness]),
+                      np.concatenate([a.flux, b.flux]), list(a.color_names or b.color_names))
+
+
+def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, light, options: HandOptions,
+                    messages: list, images=None, balls: HandBalls | None = None
+                    ) -> tuple[list, MarkerPoints, HandLabels]:
+    """Stage 4b: ``(blobs, points, labels)`` with the markers the posed hands predict looked for
+    again (issue 12): the blobs of the marker's colour near its prediction in every camera,
+    combined and triangulated (:func:`~stillcap.geometry.marker_near.triangulate_near`), labelled
+    only when the labeller's tests pass (:func:`~stillcap.body.hand_label_fill.label_recovered`).
+    A point found so replaces the unlabelled point whose blobs it shares, else it is added. With
+    ``images`` and ``balls``, the glove blobs the ball's discs masked out are looked among too
+    (:func:`blobs_over_ball`, appended to ``blobs``); a point they give that lies on the ball
+    (nearer its centre than its radius plus half a marker's) is the ball's paint, not taken."""
+    flash, marker, pred = predicted_missing(labels)
+    blobs_in = blobs
+    if not len(flash):
+        return blobs, points, labels
+    if images is not None and balls is not None and len(balls):
+        extra = blobs_over_ball(images, balls, blobs, rig)
+        n_own = [len(b) for b in blobs]
+        blobs = [_joined(b, e) for b, e in zip(blobs, extra)]
+    else:
+        n_own = None
+    nc = len(rig.names)
+    labelled = np.unique(labels.point_index[labels.point_index >= 0])
+    # blobs of labelled points are taken; those of points a manual override deleted stay deleted
+    taken = np.union1d(labelled, np.asarray(labels.deleted, int))
+    used = [set(points.blob_index[c, taken][points.blob_index[c, taken] >= 0].tolist()) for c in range(nc)]
+    gate = GATE_M * labels.hand_scale
+    colours = np.asarray(labels.marker_colors)[marker]
+    new, idx = triangulate_near(rig, blobs, pred, colours, LEFTOVER_GATE_FACTOR * gate, used=used, light_position=light,
+                                radius_m=options.marker_radius_m, reference=points)
+    if n_own is not None and len(new):
+        extra_used = np.any(new.blob_index >= np.array(n_own)[:, None], axis=0)
+        d_ball = np.min(np.linalg.norm(new.points[:, None] - balls.positions[None], axis=2), axis=1)
+        paint = extra_used & (d_ball < options.ball_radius_m + 0.5 * options.marker_radius_m)
+        new, idx = new.select(~paint), idx[~paint]
+    if not len(new):
+        return blobs_in, points, labels
+    # a blob two new points want is no one's; a point whose blobs an unlabelled point shares
+    # takes its row (one blob, one marker), with two such points it is left out
+    nb = new.blob_index
+    shared = np.array([any(np.any((nb[:, i] >= 0) & (nb[:, i] == nb[:, j])) for j in range(len(new)) if j != i)
+                       for i in range(len(new))], bool)
+    rows, keep = [], []
+    for i in np.flatnonzero(~shared):
+        over = np.flatnonzero(np.any((nb[:, i:i + 1] >= 0) & (points.blob_index == nb[:, i:i + 1]), axis=0))
+        if len(over) > 1 or np.isin(over, taken).any():
+            continue
+        rows.append(int(over[0]) if len(over) else -1)
+        keep.append(i)
+    if not keep:
+        return blobs_in, points, labels
+    before = int((labels.point_index >= 0).sum())
+    for _ in range(3):  # the points that got no label are left as they were, and the rest labelled again
+        combined, at = _put_points(points, new.select(np.array(keep, int)), rows)
+        proposals = [(p, int(flash[idx[i]]), int(marker[idx[i]])) for p, i in zip(at, keep)]
+        out = label_recovered(labels, combined.points, combined.colors, proposals, gate_m=gate,
+                              predicted=pred[idx[keep]], confirmed=combined.n_views >= 3,
+                              unconfirmed=_unconfirmed(combined))
+        got = [bool(np.any(out.point_index == p)) for p in at]
+        if all(got) or not any(got):
+            break
+        rows, keep = [r for r, g in zip(rows, got) if g], [i for i, g in zip(keep, got) if g]
+    if not any(got):
+        return blobs_in, points, labels
+    labels = out
+    added = int((labels.point_index >= 0).sum()) - before
+    if added:
+        messages.append(f"{added} marker(s) labelled where the posed hand predicted them (found again from "
+                        f"their blobs)")
+    return blobs, combined, labels
+
+
+def _put_points(points: MarkerPoints, new: MarkerPoints, rows) -> tuple[MarkerPoints, list]:
+    """``points`` with ``new``'s point ``i`` in row ``rows[i]`` (replacing it) or appended (-1);
+    also the row of each new point."""
+    import dataclasses
+
+    out = {f.name: getattr(points, f.name) for f in dataclasses.fields(MarkerPoints)}
+    out = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in out.items()}
+    out["colors"] = out["colors"].astype(object)
+    out["pairs"] = out["pairs"].astype(object)
+    at = []
+    for i, r in enumerate(rows):
+        if r < 0:
+            r = len(out["points"])
+            for key, axis in (("points", 0), ("colors", 0), ("n_views", 0), ("reprojection_px", 0), ("pixels", 1),
+                              ("blob_index", 1), ("pairs", 0), ("ambiguous", 0), ("flux_ratio", 1)):
+                v = getattr(new, key)
+                out[key] = np.concatenate([out[key], np.take(v, [i], axis=axis)], axis=axis)
+        else:
+            for key in ("points", "colors", "n_views", "reprojection_px", "pairs", "ambiguous"):
+                out[key][r] = getattr(new, key)[i]
+            for key in ("pixels", "blob_index", "flux_ratio"):
+                out[key][:, r] = getattr(new, key)[:, i]
+        at.append(r)
+    out["colors"] = out["colors"].astype(str)
+    out["pairs"] = out["pairs"].astype(str)
+    return MarkerPoints(**out), at
 
 
 def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list):
