@@ -167,7 +167,8 @@ def label_markers_adapted(points: MarkerPoints, strobe_hz: float, options: HandO
 
     labels, adaptation = label_and_adapt(points.points, points.colors, strobe_hz=strobe_hz,
                                          skeleton=skeleton or hand_skeleton(), markerset=markerset or hand_markerset(),
-                                         reprojection_px=points.reprojection_px, overrides=options.overrides)
+                                         reprojection_px=points.reprojection_px, overrides=options.overrides,
+                                         unconfirmed=_unconfirmed(points))
     if adaptation is None:
         messages.append("--adapt-model: no flash with a pose to adapt the model to; the model was not adapted")
     for k, why in enumerate(labels.skipped):
