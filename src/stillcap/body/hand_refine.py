@@ -37,7 +37,7 @@ from stillcap.body.hand import _fit_setup
 from stillcap.body.hand_track import HandSequence
 from stillcap.body.skeleton import Pose
 
-__all__ = ["SequenceRefinement", "acceleration_sigma", "refine_hand_sequence"]
+__all__ = ["SequenceRefinement", "acceleration_sigma", "model_misfit", "refine_hand_sequence"]
 
 
 @dataclass(eq=False)
@@ -121,7 +121,7 @@ def acceleration_sigma(angles, angle_sigma, times, observed) -> np.ndarray:
 
 
 def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observed=None, smooth: bool = True,
-                         regularise: float = 1e-4, max_nfev: int = 100) -> SequenceRefinement:
+                         misfit_from=None, regularise: float = 1e-4, max_nfev: int = 100) -> SequenceRefinement:
     """Fit the poses of ``sequence`` again, all flashes at once (see the module's text).
 
     Parameters
@@ -138,6 +138,13 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
         that flash's fit is below 1 rad); the acceleration prior is estimated on these only.
     smooth : bool
         Add the acceleration prior (off: each flash weighed by covariance only, independently).
+    misfit_from : array_like of bool, shape (n, n_markers), optional
+        The labelled markers whose residuals measure the model's misfit (default all; e.g. the
+        fully seen ones, whose covariance is the triangulation's alone). Each marker's
+        covariance gets a round term for what its residuals over the flashes hold beyond its
+        covariance (:func:`model_misfit`): the hand model's own error at that marker, which the
+        photos' noise does not include (a calibrated model's marker places are known to a few
+        tenths of a millimetre; the triangulation to less than a tenth).
     regularise : float
         Pull (m per radian, at the markers' median 1-sigma) of each angle toward its start, as
         :func:`~stillcap.body.hand.fit_hand`'s.
@@ -151,18 +158,9 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
     pts = as_array(positions, (n, M, 3), "positions")
     cov = as_array(point_cov, (n, M, 3, 3), "point_cov")
     seen = np.isfinite(pts).all(axis=2) & np.isfinite(cov).all(axis=(2, 3))
-    L_inv = np.zeros((n, M, 3, 3))
-    for k, m in zip(*np.nonzero(seen)):
-        try:
-            L_inv[k, m] = np.linalg.inv(np.linalg.cholesky(cov[k, m]))
-        except np.linalg.LinAlgError:
-            seen[k, m] = False
-    sig_m = np.sqrt(np.trace(cov[seen], axis1=1, axis2=2) / 3.0)
-    if not len(sig_m):
-        raise ValueError("refine_hand_sequence: no labelled marker with a valid covariance")
-    ref = float(np.median(sig_m))  # residuals in metres at the typical marker's 1-sigma
-    W = L_inv * ref
+    W, seen, ref = _whitening(cov, seen)
     pts0 = np.where(seen[..., None], pts, 0.0)
+    from_ = seen if misfit_from is None else seen & as_array(misfit_from, (n, M), "misfit_from").astype(bool)
 
     frames, dofs, gidx, mg, offsets, moffsets, parents, order, lim = _fit_setup(sk, ms)
     nd = len(dofs)
@@ -179,8 +177,8 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
         X0[k, 6:] = np.clip(ang[dof_j, dof_a], lo + 1e-9, hi - 1e-9)
     a0 = X0[:, 6:].copy()
 
-    def markers(X):
-        """Whitened marker residuals of every flash, shape (n, M * 3); zero where unseen."""
+    def markers_raw(X):
+        """The model's markers in every flash, shape (n, M, 3)."""
         R0 = Rotation.from_rotvec(X[:, :3]).as_matrix()
         ang = np.zeros((len(X), sk.n_joints, 3))
         ang[:, dof_j, dof_a] = X[:, 6:]
@@ -195,8 +193,11 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
             else:
                 tj[:, i] = np.einsum("pab,b->pa", Rj[:, q], offsets[i]) + tj[:, q]
                 Rj[:, i] = np.einsum("pab,pbc->pac", Rj[:, q], local[:, i])
-        m = np.einsum("pmab,mb->pma", Rj[:, frames], moffsets) + tj[:, frames]
-        return np.einsum("pmab,pmb->pma", W, m - pts0).reshape(len(X), -1)
+        return np.einsum("pmab,mb->pma", Rj[:, frames], moffsets) + tj[:, frames]
+
+    def markers(X):
+        """Whitened marker residuals of every flash, shape (n, M * 3); zero where unseen."""
+        return np.einsum("pmab,pmb->pma", W * seen[..., None, None], markers_raw(X) - pts0).reshape(len(X), -1)
 
     def block_jacobian(X):
         """d(markers)/d(params) per flash, shape (n, M * 3, npp), forward differences."""
@@ -211,10 +212,23 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
             J[:, :, q] = (markers(Xq) - F0) / h[:, q][:, None]
         return J
 
-    # each flash's own angle 1-sigma (whitened markers, the regulariser as the only prior)
-    J0 = block_jacobian(X0)
     reg_rows = np.zeros((nd, npp))
     reg_rows[:, 6:] = np.eye(nd) * regularise
+    # the model's misfit per marker, from the independent whitened fit's residuals and leverages
+    X0 = _solve(markers, block_jacobian, X0, a0, None, None, regularise, lo, hi, max_nfev)[0]
+    J0 = block_jacobian(X0)
+    lev = np.zeros((n, M))
+    for k in range(n):
+        A = np.vstack([J0[k], reg_rows])
+        H = np.einsum("ij,jk,ik->i", J0[k], np.linalg.pinv(A.T @ A), J0[k])  # hat matrix diagonal
+        lev[k] = H.reshape(M, 3).mean(axis=1)
+    r2 = np.sum((markers_raw(X0) - pts0) ** 2, axis=2)
+    extra = model_misfit(r2, np.trace(cov, axis1=2, axis2=3), lev, from_)
+    if np.any(extra > 0):
+        cov = cov + np.eye(3) * extra[None, :, None, None]
+        W, seen, ref = _whitening(cov, seen)
+        J0 = block_jacobian(X0)
+    # each flash's own angle 1-sigma (whitened markers, the regulariser as the only prior)
     angle_sigma = np.empty((n, nd))
     for k in range(n):
         A = np.vstack([J0[k], reg_rows])
@@ -224,13 +238,7 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
 
     D = _second_difference(sequence.times)
     accel = np.full(nd, np.inf)
-    if smooth and len(D):
-        # start from the whitened independent fit, so that the prior's spread is estimated from it
-        X0 = _solve(markers, block_jacobian, X0, a0, None, None, regularise, lo, hi, max_nfev)[0]
-        J0 = block_jacobian(X0)
-        for k in range(n):
-            A = np.vstack([J0[k], reg_rows])
-            angle_sigma[k] = np.sqrt(np.clip(np.diag(np.linalg.pinv(A.T @ A) * ref ** 2)[6:], 0, None))
+    if smooth and len(D):  # the prior's spread from the whitened independent fit
         accel = acceleration_sigma(X0[:, 6:], angle_sigma, sequence.times, obs)
     S = None
     if np.isfinite(accel).any():
@@ -256,6 +264,43 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
                        sequence.n_markers, np.asarray(sequence.success) & ok & (rms < 0.005), dict(sequence.scales),
                        sequence.personalise)
     return SequenceRefinement(out, list(dofs), np.degrees(angle_sigma), np.degrees(accel), ok, msg)
+
+
+def model_misfit(r2, cov_trace, leverage, use) -> np.ndarray:
+    """Each marker's round error beyond its covariance (m^2 per axis), shape (n_markers,).
+
+    ``r2`` (n, M): squared residual distances of a fit; ``cov_trace`` (n, M): the trace of each
+    marker's covariance; ``leverage`` (n, M): each residual's mean hat-matrix diagonal (the
+    share of its error the fit absorbed); ``use`` (n, M): the entries to count. By the moments
+    ``E[r^2] = (1 - h) (trace + 3 s^2)`` over the flashes:
+    ``s^2 = max(sum(r^2 - (1 - h) trace) / sum(3 (1 - h)), 0)``."""
+    r2, tr, h = (np.asarray(v, float) for v in (r2, cov_trace, leverage))
+    use = np.asarray(use, bool) & np.isfinite(r2) & np.isfinite(tr) & np.isfinite(h) & (h < 1)
+    out = np.zeros(r2.shape[1])
+    for m in range(r2.shape[1]):
+        u = use[:, m]
+        if u.any():
+            g = 1.0 - h[u, m]
+            out[m] = max(float(np.sum(r2[u, m] - g * tr[u, m]) / np.sum(3.0 * g)), 0.0)
+    return out
+
+
+def _whitening(cov, seen):
+    """``(W, seen, ref)``: each seen marker's whitening ``ref * L^-1`` (``cov = L L^T``; zero where
+    unseen or not positive definite, those then unseen) and ``ref``, the median marker 1-sigma
+    (m), which keeps residuals in metres."""
+    seen = seen.copy()
+    L_inv = np.zeros(cov.shape)
+    for k, m in zip(*np.nonzero(seen)):
+        try:
+            L_inv[k, m] = np.linalg.inv(np.linalg.cholesky(cov[k, m]))
+        except np.linalg.LinAlgError:
+            seen[k, m] = False
+    sig_m = np.sqrt(np.trace(cov[seen], axis1=1, axis2=2) / 3.0)
+    if not len(sig_m):
+        raise ValueError("refine_hand_sequence: no labelled marker with a valid covariance")
+    ref = float(np.median(sig_m))
+    return L_inv * ref, seen, ref
 
 
 def _solve(markers, block_jacobian, X0, a0, S, _unused, regularise, lo, hi, max_nfev):

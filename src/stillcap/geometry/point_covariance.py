@@ -20,7 +20,7 @@ import numpy as np
 
 from stillcap._checks import as_array
 
-__all__ = ["pixel_sigma_from_reprojection", "triangulation_covariance"]
+__all__ = ["marker_point_covariances", "pixel_sigma_from_reprojection", "triangulation_covariance"]
 
 #: Step of the central differences of the projection (m): a pixel is ~1 mm at the hand's
 #: distance, so 0.1 mm keeps the projection linear and far above rounding.
@@ -84,3 +84,24 @@ def pixel_sigma_from_reprojection(reprojection_px, n_views) -> float:
         return float("nan")
     dof = (2 * n[ok] - 3) / n[ok]
     return float(np.sqrt(np.sum(r[ok] ** 2) / np.sum(dof)))
+
+
+def marker_point_covariances(rig, points, hidden_sigma_m: float, sigma_px: float | None = None) -> np.ndarray:
+    """Each 3D glove marker's error covariance (m^2), shape (N, 3, 3): its triangulation's
+    (:func:`triangulation_covariance`, the pixel noise ``sigma_px`` or, by default, the one its
+    fully seen points' reprojection errors show: :func:`pixel_sigma_from_reprojection`), plus for
+    a partly hidden point a round error of ``hidden_sigma_m`` over its smallest flux ratio (its
+    centroid shifted by the part hidden; a sliver counts as 0.02).
+
+    ``points`` is a :class:`~stillcap.geometry.marker_points.MarkerPoints`. NaN for a point of
+    fewer than two views, and everywhere when no pixel noise can be had."""
+    whole = ~points.partly_hidden
+    if sigma_px is None:
+        sigma_px = pixel_sigma_from_reprojection(points.reprojection_px[whole], points.n_views[whole])
+    if not (np.isfinite(sigma_px) and sigma_px > 0):
+        return np.full((len(points), 3, 3), np.nan)
+    cov = triangulation_covariance(rig, points.pixels, points.points, sigma_px)
+    flux = np.where(np.isfinite(points.flux_ratio), points.flux_ratio, np.inf).min(axis=0)
+    flux = np.clip(np.where(np.isfinite(flux), flux, 1.0), 0.02, 1.0)
+    extra = np.where(points.partly_hidden, hidden_sigma_m / flux, 0.0)
+    return cov + np.eye(3)[None] * extra[:, None, None] ** 2
