@@ -81,10 +81,10 @@ def test_exact_markers_stay_exact():
 def test_covariance_weighting_beats_round_weights():
     """Markers fixed 10x worse along one direction (1.5 mm) than across it (0.15 mm): the fit that
     knows each marker's covariance gives smaller joint-angle errors than the per-flash fit that
-    weighs every direction alike (measured 3.5 -> 2.0 deg RMS over these seeds). With the model's
+    weighs every direction alike (measured 3.50 -> 1.43 deg RMS over these seeds). With the model's
     misfit estimated from the residuals (the default) part of the gain goes: five flashes per
     marker make a noisy estimate, and a noisy positive part adds a round error that is not
-    there (measured 3.5 -> 2.25)."""
+    there (measured 3.50 -> 2.25)."""
     iso, known, misfit = [], [], []
     for s in SEEDS:
         pts, cov = noisy(s, 0.0015, 0.00015)
@@ -93,7 +93,6 @@ def test_covariance_weighting_beats_round_weights():
         none = np.zeros(pts.shape[:2], bool)
         known.append(rms_error(refine_hand_sequence(seq, pts, cov, smooth=False, misfit_from=none).sequence, s))
         misfit.append(rms_error(refine_hand_sequence(seq, pts, cov, smooth=False).sequence, s))
-    print("round, known, misfit", [float(np.sqrt(np.mean(np.concatenate(v) ** 2))) for v in (iso, known, misfit)])
     a, b, c = (np.sqrt(np.mean(np.concatenate(v) ** 2)) for v in (iso, known, misfit))
     assert b < 0.6 * a, (a, b)
     assert c < 0.7 * a, (a, c)
