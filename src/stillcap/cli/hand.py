@@ -66,8 +66,8 @@ def hand(
                                      "capture before labelling (docs/hand.md: it did not reach 2 deg on other hands)."),
     covariance_weights: bool = typer.Option(False, "--covariance-weights", help="Fit the poses again over all "
                                             "flashes, each marker weighed by its triangulation covariance and the "
-                                            "model's measured misfit (docs/hand-pipeline.md: within 0.1 deg of the "
-                                            "per-flash fit on the studio's other hands)."),
+                                            "model's measured misfit (docs/hand-pipeline.md: no gain on the "
+                                            "studio's other hands, -0.4 to +0.35 deg)."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 

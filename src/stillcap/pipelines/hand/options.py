@@ -43,7 +43,7 @@ class HandOptions:
         else the built-in ones (:mod:`stillcap.body.hand_files`, ``docs/hand.md``).
     covariance_weights : bool
         Fit the poses again over all flashes with each marker weighed by its triangulation
-        covariance (:func:`stillcap.body.hand_refine.refine_hand_sequence`; ``docs/hand.md``
+        covariance (:func:`stillcap.body.hand_refine.refine_hand_sequence`; ``docs/hand-pipeline.md``
         has what it gave).
     smooth_poses : bool
         In that fit, hold each joint angle to the acceleration the capture shows beyond its
