@@ -215,7 +215,7 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
     reg_rows = np.zeros((nd, npp))
     reg_rows[:, 6:] = np.eye(nd) * regularise
     # the model's misfit per marker, from the independent whitened fit's residuals and leverages
-    X0 = _solve(markers, block_jacobian, X0, a0, None, None, regularise, lo, hi, max_nfev)[0]
+    X0 = _solve(markers, block_jacobian, X0, a0, None, regularise, lo, hi, max_nfev)[0]
     J0 = block_jacobian(X0)
     lev = np.zeros((n, M))
     for k in range(n):
@@ -243,7 +243,7 @@ def refine_hand_sequence(sequence: HandSequence, positions, point_cov, *, observ
     S = None
     if np.isfinite(accel).any():
         S = (D, np.where(np.isfinite(accel), ref / accel, 0.0))
-    X, ok, msg = _solve(markers, block_jacobian, X0, a0, S, None, regularise, lo, hi, max_nfev)
+    X, ok, msg = _solve(markers, block_jacobian, X0, a0, S, regularise, lo, hi, max_nfev)
 
     poses, angs, res, rms = [], [], [], []
     for k in range(n):
@@ -303,7 +303,7 @@ def _whitening(cov, seen):
     return L_inv * ref, seen, ref
 
 
-def _solve(markers, block_jacobian, X0, a0, S, _unused, regularise, lo, hi, max_nfev):
+def _solve(markers, block_jacobian, X0, a0, S, regularise, lo, hi, max_nfev):
     """The joint least-squares problem: whitened markers of every flash, the regulariser toward
     ``a0`` and (``S = (D, weight per dof)``) the acceleration prior. Returns (X, success, message)."""
     n, npp = X0.shape
