@@ -344,13 +344,16 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
 
 def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, markerset: MarkerSet,
                     adapt: bool = True, reprojection_px=None, overrides=None, hand_scale: float | None = None,
-                    min_flashes: int = 1):
+                    min_flashes: int = 1, unconfirmed=None):
     """Label a capture's markers with the model adapted to the person.
 
     1. :func:`~stillcap.body.hand_label.label_hand_markers` with the model scaled to the hand's
        size (estimated) and the assignment gate widened by :data:`ADAPT_GATE_FACTOR`;
     2. :func:`adapt_hand_model` on the reconstructed flashes;
     3. labelled again with the adapted model, the normal gates times the hand's size.
+
+    ``unconfirmed`` (a bool per point: partly hidden points no third view checked) goes to every
+    labelling, as :func:`~stillcap.body.hand_label.label_hand_markers` takes it.
 
     Returns
     -------
@@ -361,7 +364,7 @@ def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, mar
     """
     from stillcap.body.hand_label import GATE_M, GRID_GATE_M, TRIANGLE_TOL_M, label_hand_markers
 
-    kw = dict(strobe_hz=strobe_hz, reprojection_px=reprojection_px)
+    kw = dict(strobe_hz=strobe_hz, reprojection_px=reprojection_px, unconfirmed=unconfirmed)
     if not adapt:
         return label_hand_markers(points, colors, skeleton=skeleton, markerset=markerset, overrides=overrides,
                                   hand_scale=hand_scale, **kw), None

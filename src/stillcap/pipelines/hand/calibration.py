@@ -33,7 +33,7 @@ def calibrate_hand_capture(capture: Capture | str | Path, pose: str = "flat", *,
     setup = hand_setup(cap, strobe_position_m)
     where, messages = setup.where, setup.messages
     images = read_hand_photos(cap, setup.pairs)
-    blobs = find_glove_markers(images, None)
+    blobs = find_glove_markers(images, None, cap.rig)  # in linear light through each camera's response
     points = triangulate_glove_markers(cap.rig, setup.pairs, blobs, setup.light, HandOptions(), messages, where)
     try:
         cal = calibrate_hand_from_points(points.points, points.colors, strobe_hz=setup.strobe_hz, pose=pose,
