@@ -23,7 +23,8 @@ Columns (against the studio's truth, ``stillcap.studio.compare.hand``):
 - ``labels``, ``right %``: labels given and the share right (goal >= 99.5 %);
 - ``RMS mm``: fully seen right-labelled markers to the truth (goal <= 1 mm); ``hidden RMS``: the
   partly hidden ones (their centroids shift; scored apart);
-- ``joints``: joint-angle RMS on the degrees of freedom the seen markers fix (deg);
+- ``joints``: joint-angle RMS on the degrees of freedom the whole seen markers fix (deg);
+  ``hidden joints``: on those that only a partly hidden marker fixes (scored apart);
 - ``posed``: flashes with a pose.
 
 The times were not measured: the machine was loaded when this was written.
@@ -95,7 +96,8 @@ def run(p: int, model: str, size, root: Path, with_causes: bool = False) -> dict
             "whole_pct": c["markers_recovered_pct"], "hidden_pct": c["markers_recovered_partly_hidden_pct"],
             "labels": c["labels"], "right_pct": c["labels_right_pct"], "rms_mm": c["marker_rms_mm"],
             "hidden_rms_mm": c["partly_hidden_rms_mm"],
-            "joints_deg": c["joint_angle_rms_deg"], "posed": int(r.labels.reconstructed.sum())}
+            "joints_deg": c["joint_angle_rms_deg"],
+            "hidden_joints_deg": c["joint_angle_rms_partly_hidden_deg"], "posed": int(r.labels.reconstructed.sum())}
 
 
 def _f(v, nd=1):
@@ -118,14 +120,14 @@ def main(argv=None) -> None:
         root.mkdir(parents=True, exist_ok=True)
         rows = []
         print(f"{'person':>6} {'model':>8} {'seen2':>5} {'labelled %':>10} {'whole %':>7} {'hidden %':>8} "
-              f"{'labels':>6} {'right %':>7} {'RMS mm':>6} {'hidden RMS':>10} {'joints':>6} {'posed':>5}")
+              f"{'labels':>6} {'right %':>7} {'RMS mm':>6} {'hidden RMS':>10} {'joints':>6} {'hidden joints':>13} {'posed':>5}")
         for model in a.models:
             for p in a.persons:
                 row = run(p, model, size, root, a.causes)
                 rows.append(row)
                 print(f"{p:>6} {model:>8} {row['seen2']:>5} {_f(row['labelled_pct']):>10} {_f(row['whole_pct']):>7} "
                       f"{_f(row['hidden_pct']):>8} {row['labels']:>6} {_f(row['right_pct'], 2):>7} "
-                      f"{_f(row['rms_mm'], 3):>6} {_f(row['hidden_rms_mm'], 2):>10} {_f(row['joints_deg'], 2):>6} {row['posed']:>5}", flush=True)
+                      f"{_f(row['rms_mm'], 3):>6} {_f(row['hidden_rms_mm'], 2):>10} {_f(row['joints_deg'], 2):>6} {_f(row['hidden_joints_deg'], 2):>13} {row['posed']:>5}", flush=True)
                 if a.jsonl:
                     with open(a.jsonl, "a") as fh:
                         fh.write(json.dumps(row) + "\n")

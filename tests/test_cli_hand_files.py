@@ -152,3 +152,16 @@ def test_markers_the_posed_hand_predicts_are_found_again_and_labelled_right(othe
             d = np.linalg.norm(tr["markers"][r.truth["flash_match"][k]] - r.points.points[p], axis=1)
             assert int(np.nanargmin(d)) == m and d[m] <= LABEL_TOLERANCE_M, (name, r.labels.marker_names[m])
         assert any(f"{len(new)} marker(s) labelled where the posed hand predicted them" in msg for msg in r.messages)
+
+
+def test_angles_only_partly_hidden_markers_fix_are_scored_apart(results):
+    """A joint angle that only a partly hidden marker fixes (its centroid shifted by the
+    occlusion) is scored apart from those the whole markers fix, as its 3D error is; together
+    they are every angle the labelled markers fix."""
+    from stillcap.body.hand_track import observed_dofs
+
+    for r in results.values():
+        c, seq = r.truth, r.sequence
+        fixed = sum(len(observed_dofs(seq, i)) for i, k in enumerate(seq.flashes) if c["flash_match"][k] >= 0)
+        assert c["joint_angles_compared"] + c["joint_angles_compared_partly_hidden"] == fixed
+        assert c["joint_angles_compared"] > 0
