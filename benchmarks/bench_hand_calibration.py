@@ -16,11 +16,7 @@ proportions, knuckle splay, thumb axis, marker heights, light and cameras):
    (``--hand-model/--markers`` from step 1) and the person's own true model (the studio's);
 3. each against the truth (``stillcap.studio.compare.hand.compare_with_truth``): joint angles RMS
    and max on the degrees of freedom the seen markers fix, labels right, markers seen twice that
-   got a right label, marker RMS (fully seen markers). The joint angles twice: the pipeline's
-   by default (each flash's own fit, round weights) and, in the column ``refit``, the poses
-   fitted again over all flashes on the same labels, each marker weighed by its triangulation
-   covariance and the model's measured misfit (``--covariance-weights``,
-   ``stillcap.pipelines.hand.stages.refit_poses``; off by default, ``docs/hand-pipeline.md``).
+   got a right label, marker RMS (fully seen markers).
 
 Goals (issue 12): joints <= 2 deg RMS, labels >= 99.5 %, marker RMS <= 1 mm.
 
@@ -35,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -43,8 +38,6 @@ import numpy as np
 from stillcap.io.capture import Capture
 from stillcap.body.hand_calibrate import UNFIXED_SIGMA_RATIO
 from stillcap.pipelines.hand import analyse_hand
-from stillcap.pipelines.hand.options import HandOptions
-from stillcap.pipelines.hand.stages import refit_poses
 from stillcap.pipelines.hand.calibration import calibrate_hand_capture
 from stillcap.studio.compare.hand import compare_with_capture
 from stillcap.studio.hand import hand_capture
@@ -90,16 +83,9 @@ def run_person(p: int, size, motion: str) -> dict:
             row["calibration"] = {"refused": str(e)}
         throw = _write(hand_capture(100 + p, image_size=size, person=who), tmp / "throw")
         for name, kw in models.items():
-            # the pipeline as it runs by default (each flash's own fit), then on the same labels the
-            # refit over all flashes with covariance weights (HandOptions.covariance_weights)
             res = analyse_hand(throw, **kw)
             c = compare_with_capture(res) or {}
             row[name] = {k: c.get(k) for k in KEYS}
-            if res.sequence is not None:
-                refit = refit_poses(res.sequence, res.labels, res.points, res.capture.rig,
-                                    HandOptions(covariance_weights=True, **kw), [])
-                row[name]["refit_joint_angle_rms_deg"] = (compare_with_capture(replace(res, sequence=refit))
-                                                          or {}).get("joint_angle_rms_deg")
     return row
 
 
@@ -114,8 +100,8 @@ def _refusal(msg: str) -> str:
 
 
 def report(rows) -> None:
-    print(f"{'person':>6} {'model':>10} {'joints RMS':>10} {'max':>6} {'refit':>9} {'labels %':>8} "
-          f"{'seen2 lab %':>11} {'marker mm':>9}  calibration")
+    print(f"{'person':>6} {'model':>10} {'joints RMS':>10} {'max':>6} {'labels %':>8} {'seen2 lab %':>11} "
+          f"{'marker mm':>9}  calibration")
     for r in rows:
         c = r.get("calibration", {})
         # the whole refusal (its last 90 characters cut the marker's name off: "refused: 's place ...")
@@ -128,16 +114,12 @@ def report(rows) -> None:
                 continue
             v = r[m]
             print(f"{r['person']:>6} {m:>10} {_f(v['joint_angle_rms_deg']):>10} {_f(v['joint_angle_max_deg'], 1):>6} "
-                  f"{_f(v.get('refit_joint_angle_rms_deg')):>9} {_f(v['labels_right_pct'], 1):>8} {_f(v['markers_recovered_pct'], 1):>11} "
+                  f"{_f(v['labels_right_pct'], 1):>8} {_f(v['markers_recovered_pct'], 1):>11} "
                   f"{_f(v['marker_rms_mm']):>9}  {cs if m == 'calibrated' or 'calibrated' not in r and m == 'built-in' else ''}")
     for m in ("built-in", "calibrated", "own"):
         v = [r[m]["joint_angle_rms_deg"] for r in rows if m in r and r[m]["joint_angle_rms_deg"] is not None]
         if v:
-            w = [r[m].get("refit_joint_angle_rms_deg") for r in rows if m in r]
-            w = [x for x in w if x is not None]
-            print(f"{m}: joints RMS over persons (RMS of RMS) {np.sqrt(np.mean(np.square(v))):.2f} deg, worst {max(v):.2f}"
-                  + (f"; refit {np.sqrt(np.mean(np.square(w))):.2f}" if w else "")
-                  + f"; persons at <= 2 deg: {[r['person'] for r in rows if m in r and r[m]['joint_angle_rms_deg'] is not None and r[m]['joint_angle_rms_deg'] <= 2.0]}")
+            print(f"{m}: joints RMS over persons (RMS of RMS) {np.sqrt(np.mean(np.square(v))):.2f} deg, worst {max(v):.2f}")
 
 
 def main() -> None:

@@ -224,26 +224,3 @@ def test_partly_hidden_markers_are_listed_and_scored_apart(result):
         assert c["partly_hidden_rms_mm"] > c["marker_rms_mm"]
     d = result.to_dict()
     assert d["partly_hidden"] == hid
-
-
-def test_refit_with_covariance_weights(result):
-    """``covariance_weights``: the poses fitted again over all flashes (each marker weighed by its
-    triangulation covariance and the model's measured misfit) keep the flashes, the hand and the
-    issue's goal on the model's own hand, and reach the pipeline's pose stage."""
-    from dataclasses import replace
-
-    from stillcap.pipelines.hand.stages import fit_poses, refit_poses
-
-    seq = result.sequence
-    messages = []
-    refit = refit_poses(seq, result.labels, result.points, result.capture.rig, HandOptions(covariance_weights=True),
-                        messages)
-    assert messages == [] and refit is not seq
-    assert np.array_equal(refit.flashes, seq.flashes) and refit.skeleton is seq.skeleton
-    c = compare_with_capture(replace(result, sequence=refit))
-    assert c["joint_angle_rms_deg"] < 2.0, c["joint_angle_rms_deg"]
-    assert np.nanmax(refit.rms) < 0.002
-    # the option reaches the stage (without the rig the stage keeps each flash's own fit)
-    _, staged, _ = fit_poses(result.labels, result.points, HandOptions(covariance_weights=True), [],
-                             result.capture.rig)
-    assert np.allclose(staged.angles_deg, refit.angles_deg, atol=1e-6)

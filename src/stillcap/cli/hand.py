@@ -64,10 +64,6 @@ def hand(
                                 "hand-18."),
     adapt_model: bool = typer.Option(False, "--adapt-model", help="Experimental: adapt the hand model to this "
                                      "capture before labelling (docs/hand.md: it did not reach 2 deg on other hands)."),
-    covariance_weights: bool = typer.Option(False, "--covariance-weights", help="Fit the poses again over all "
-                                            "flashes, each marker weighed by its triangulation covariance and the "
-                                            "model's measured misfit (docs/hand-pipeline.md: no gain on the "
-                                            "studio's other hands, -0.4 to +0.35 deg)."),
 ):
     """Glove markers, labels, hand poses per flash, a smooth animation and the ball's release.
 
@@ -98,7 +94,7 @@ def hand(
     opts = HandOptions(strobe_position_m=_point(strobe_position, "--strobe-position"), overrides=overrides,
                        personalise=personalise, frame_rate=frame_rate, interpolation=interpolation,
                        response=parse_response_option(response), hand_model=hand_model, hand_markers=markers,
-                       adapt_model=adapt_model, covariance_weights=covariance_weights)
+                       adapt_model=adapt_model)
     if not (np.isfinite(slow_motion) and slow_motion > 0):
         raise typer.BadParameter(f"must be a positive factor, got {slow_motion}", param_hint="--slow-motion")
     from stillcap.io.export import EXPORTERS, known_extensions

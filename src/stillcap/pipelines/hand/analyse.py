@@ -102,7 +102,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 5, total, "poses")
-    labels, sequence, animation = fit_poses(labels, points, options, messages, rig)
+    labels, sequence, animation = fit_poses(labels, points, options, messages)
     timings["poses"] = _time.perf_counter() - t
 
     # -- release and spin ----------------------------------------------------------------------

@@ -41,13 +41,6 @@ class HandOptions:
         marker set (a ``stillcap-markerset`` file or a built-in name); default
         ``capture.json``'s ``hand_model`` / ``hand_markers`` (paths inside the capture folder),
         else the built-in ones (:mod:`stillcap.body.hand_files`, ``docs/hand.md``).
-    covariance_weights : bool
-        Fit the poses again over all flashes with each marker weighed by its triangulation
-        covariance (:func:`stillcap.body.hand_refine.refine_hand_sequence`; ``docs/hand-pipeline.md``
-        has what it gave).
-    smooth_poses : bool
-        In that fit, hold each joint angle to the acceleration the capture shows beyond its
-        noise (:func:`stillcap.body.hand_refine.acceleration_sigma`).
     adapt_model : bool
         Experimental, off by default: adapt the hand model to the capture before labelling
         (:func:`stillcap.body.hand_adapt.label_and_adapt`; ``docs/hand.md`` has what it gave).
@@ -65,8 +58,6 @@ class HandOptions:
     hand_model: str | Path | None = None
     hand_markers: str | Path | None = None
     adapt_model: bool = False
-    covariance_weights: bool = False
-    smooth_poses: bool = False
 
     def __post_init__(self):
         self.response = check_response_option(self.response)

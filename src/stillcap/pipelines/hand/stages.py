@@ -45,7 +45,7 @@ from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ba
 from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "recover_markers", "fit_poses",
-           "release_and_spin", "check_hand", "label_markers_adapted", "refit_poses"]
+           "release_and_spin", "check_hand", "label_markers_adapted"]
 
 @dataclass
 class HandSetup:
@@ -314,14 +314,10 @@ def _put_points(points: MarkerPoints, new: MarkerPoints, rows) -> tuple[MarkerPo
     return MarkerPoints(**out), at
 
 
-def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list, rig=None):
+def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, messages: list):
     """Stage 5: ``(labels, sequence, animation)``, the hand poses of the flashes with the three
     back-of-hand markers and the animation through them (None where there are too few); the
-    labels without those the fit contradicts (:func:`~stillcap.body.hand_label.contradicted_labels`).
-    With the ``rig`` the poses are fitted again over all flashes
-    (:func:`~stillcap.body.hand_refine.refine_hand_sequence`): each marker weighed by its
-    triangulation covariance (``options.covariance_weights``), and with ``options.smooth_poses``
-    the acceleration prior estimated from the capture."""
+    labels without those the fit contradicts (:func:`~stillcap.body.hand_label.contradicted_labels`)."""
     sequence = animation = None
     if labels.reconstructed.any():
         # partly hidden markers' centroids shift by up to a few mm (docs/hand-markers.md): they
@@ -341,8 +337,6 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
             labels = unlabel_points(labels, far)
             sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
                                          point_sigma_m=sigma)
-        if rig is not None and (options.covariance_weights or options.smooth_poses):
-            sequence = refit_poses(sequence, labels, points, rig, options, messages)
         if sequence.n >= 2:
             animation = interpolate_animation(sequence, options.frame_rate, method=options.interpolation)
         else:
@@ -350,38 +344,6 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
     else:
         messages.append("no flash shows the three back-of-hand markers: no hand pose")
     return labels, sequence, animation
-
-
-def refit_poses(sequence: HandSequence, labels: HandLabels, points: MarkerPoints, rig, options: HandOptions,
-           messages: list) -> HandSequence:
-    """The per-flash poses fitted again by :func:`~stillcap.body.hand_refine.refine_hand_sequence`
-    (kept, with a message, when the markers' covariances cannot be had or the fit fails)."""
-    from stillcap.body.hand_refine import refine_hand_sequence
-    from stillcap.geometry.point_covariance import marker_point_covariances
-
-    if options.covariance_weights:
-        cov = marker_point_covariances(rig, points, HIDDEN_SIGMA_M)
-    else:  # round errors, as the per-flash fit's weights
-        flux = np.where(np.isfinite(points.flux_ratio), points.flux_ratio, np.inf).min(axis=0)
-        flux = np.clip(np.where(np.isfinite(flux), flux, 1.0), 0.02, 1.0)
-        s = np.where(points.partly_hidden, HIDDEN_SIGMA_M / flux, SEEN_SIGMA_M)
-        cov = np.eye(3)[None] * s[:, None, None] ** 2
-    idx = labels.point_index[sequence.flashes]
-    per_marker = np.full(idx.shape + (3, 3), np.nan)
-    per_marker[idx >= 0] = cov[idx[idx >= 0]]
-    whole = np.zeros(idx.shape, bool)  # fully seen: their covariance is the triangulation's alone
-    whole[idx >= 0] = ~points.partly_hidden[idx[idx >= 0]]
-    try:
-        r = refine_hand_sequence(sequence, labels.positions[sequence.flashes], per_marker,
-                                 smooth=options.smooth_poses, misfit_from=whole)
-    except ValueError as e:
-        messages.append(f"poses not fitted again over the flashes ({e}); each flash's own fit kept")
-        return sequence
-    if not r.success:
-        messages.append(f"poses fitted again over the flashes did not converge ({r.message}); each flash's own "
-                        f"fit kept")
-        return sequence
-    return r.sequence
 
 
 def release_and_spin(rig, balls: HandBalls | None, sequence: HandSequence | None, strobe_hz: float, pairs: dict,
