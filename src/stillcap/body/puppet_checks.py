@@ -22,9 +22,10 @@ import numpy as np
 from stillcap._selfcheck import SelfCheck
 from stillcap.body.kinematics import normalised
 from stillcap.body.markerset import MarkerSet
+from stillcap.body.puppet_pose import frame_status
 
 __all__ = ["bead_pair_directions", "marker_noise_m", "BeadNoise", "bead_noise", "skeleton_checks", "partly_hidden_checks",
-           "stray_bead_checks", "ADVICE"]
+           "stray_bead_checks", "unmeasured_bone_checks", "ADVICE"]
 
 #: What to do when a bone's check fails.
 ADVICE = ("the skeleton does not match the puppet here: run `stillcap puppet calibrate-skeleton` on a rest-pose "
@@ -296,4 +297,30 @@ def stray_bead_checks(markerset: MarkerSet, fit, points) -> list[SelfCheck]:
                              f"it, nearer bead {markerset.names[j]}'s ({d_other[j] * 1e3:.1f} mm): a wrong "
                              "identification or a stray point; it is left out of the per-bone checks (check its "
                              "views, or leave it out)", name, "mm"))
+    return out
+
+
+_RANK = {"locked": 0, "full": 1, "partial": 2, "none": 3}
+
+
+def unmeasured_bone_checks(skeleton, markerset: MarkerSet, recovered) -> list[SelfCheck]:
+    """One failed ``bone_measured`` check per bone whose start frame the marker set measures but
+    the beads this capture recovered (``recovered``: bool, shape (n_markers,)) measure less
+    (:func:`~stillcap.body.puppet_pose.frame_status`; "full" -> "partial" or "none"): its beads
+    were seen in fewer than two views, so its direction (or twist) is the pose fit's guess from
+    its neighbours and limits, not a measurement, and its own checks cannot catch it."""
+    design = frame_status(skeleton, markerset)
+    seen = frame_status(skeleton, markerset, recovered)
+    out = []
+    for j, name in enumerate(skeleton.names):
+        p = skeleton.parents[j]
+        if p < 0 or skeleton.bone_lengths[j] <= 0:
+            continue
+        d, m = design[skeleton.names[p]], seen[skeleton.names[p]]
+        if _RANK[m] > _RANK[d]:
+            what = "direction" if m == "none" else "twist"
+            out.append(SelfCheck("bone_measured", False, float(_RANK[m]), float(_RANK[d]),
+                                 f"bone {name}: the beads of its frame ({skeleton.names[p]}) were not recovered "
+                                 f"(measured {m}, the marker set's design {d}): its {what} is the fit's guess, "
+                                 "not a measurement; photograph those beads from two views or more", name, "level"))
     return out

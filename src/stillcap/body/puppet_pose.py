@@ -36,8 +36,10 @@ from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_w
 __all__ = ["MarkerRays", "PoseFit", "fit_pose", "frame_status", "root_freedom"]
 
 
-def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
-    """What the markers measure of each joint's frame (its local rotation).
+def frame_status(skeleton: Skeleton, markerset: MarkerSet, recovered=None) -> dict[str, str]:
+    """What the markers measure of each joint's frame (its local rotation); with ``recovered``
+    (bool, shape (n_markers,)) what those markers alone measure (a capture's beads seen in two
+    views or more).
 
     ``"full"``: the frame carries 2+ markers not in one line with the joint (or 3+ markers), so
     its whole orientation, twist included, follows from them; ``"partial"``: one marker (or
@@ -45,6 +47,11 @@ def frame_status(skeleton: Skeleton, markerset: MarkerSet) -> dict[str, str]:
     marker; ``"locked"``: the joint cannot rotate (all limits ``[0, 0]``).
     """
     frames = markerset.bone_frames(skeleton)
+    if recovered is not None:
+        recovered = np.asarray(recovered, bool)
+        if recovered.shape != frames.shape:
+            raise ValueError(f"recovered must have shape {frames.shape}, got {recovered.shape}")
+        frames = np.where(recovered, frames, -1)
     lim = skeleton.limits_deg
     out = {}
     for j, name in enumerate(skeleton.names):

@@ -19,7 +19,7 @@ from stillcap._blas import one_blas_thread, single_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
 from stillcap.body.puppet_checks import (bead_noise, marker_noise_m, partly_hidden_checks, skeleton_checks,
-                                         stray_bead_checks)
+                                         stray_bead_checks, unmeasured_bone_checks)
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import ViewResult, find_bead_candidates, identify_views, refine_bead_candidates
@@ -149,7 +149,8 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     stray = stray_bead_checks(markerset, fit, solve.points)
     off = np.isin(np.asarray(markerset.names), [c.subject for c in stray])
     checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden | off)
-              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views) + stray)
+              + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views) + stray
+              + unmeasured_bone_checks(skeleton, markerset, solve.ok))
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
                         list(angles_deg) if angles_deg is not None else [None] * n, markerset, solve, fit,
                         options, views, dict(source or {}), timings, None, list(files) if files else None, raw_obs,

@@ -179,10 +179,7 @@ _ORDER = {"locked": 0, "full": 1, "partial": 2, "none": 3}
 def _groups(skeleton: Skeleton, markerset: MarkerSet, recovered=None) -> tuple[dict, dict]:
     """Bones and joints grouped by what the markers measure (see :class:`PuppetComparison`);
     with ``recovered`` (bool, shape (n_markers,)) by what those markers alone measure."""
-    if recovered is not None:
-        markerset = MarkerSet(tuple(m for m, ok in zip(markerset.markers, recovered) if ok), (), markerset.name,
-                              markerset.skeleton_name, markerset.source)
-    status = frame_status(skeleton, markerset)
+    status = frame_status(skeleton, markerset, recovered)
     bones: dict[str, list] = {"full": [], "partial": [], "none": []}
     for j, name in enumerate(skeleton.names):
         p = skeleton.parents[j]
