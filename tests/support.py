@@ -78,3 +78,34 @@ def untimed(x):
     if isinstance(x, list):
         return [untimed(v) for v in x]
     return x
+
+
+def bead_levels_one_by_one(image, centers, radii_px):
+    """The beads' levels by their definition, bead by bead (the reference the vectorised
+    :mod:`stillcap.detect.beads` functions are tested against): per bead ``(background, peak,
+    disc)`` = median of the ring r + 1.5 .. r + 3.5, 90th percentile within r / 2 and the disc's
+    pixels (grey: the channels' mean), or None where the bead is invalid, outside or a set is empty."""
+    import math
+
+    import numpy as np
+
+    img = np.asarray(image, float)
+    img = img.mean(axis=2) if img.ndim == 3 else img
+    h, w = img.shape
+    out = []
+    for (x, y), r in zip(centers, radii_px):
+        out.append(None)
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(r) and r > 0):
+            continue
+        R = int(math.ceil(r + 4))
+        xi, yi = int(round(x)), int(round(y))
+        y0, y1, x0, x1 = max(0, yi - R), min(h, yi + R + 1), max(0, xi - R), min(w, xi + R + 1)
+        if y1 <= y0 or x1 <= x0:
+            continue
+        ys, xs = np.mgrid[y0:y1, x0:x1]
+        rr = np.hypot(xs - x, ys - y)
+        p = img[y0:y1, x0:x1]
+        ring, core, disc = p[(rr > r + 1.5) & (rr < r + 3.5)], p[rr < 0.5 * r], p[rr <= r]
+        if ring.size and core.size and disc.size:
+            out[-1] = (float(np.median(ring)), float(np.percentile(core, 90)), disc)
+    return out

@@ -1,8 +1,7 @@
 """bead_contrast_views (a bead's level over its surroundings) and reidentify's contrast test."""
-import math
-
 import numpy as np
 import pytest
+from support import bead_levels_one_by_one
 
 from stillcap.body.markerset import MarkerSet
 from stillcap.detect.beads import bead_contrast_views, bead_fill_views, reidentify
@@ -13,25 +12,7 @@ from stillcap.studio.beads import random_bead_scene
 def _levels_one_by_one(image, centers, radii_px):
     """The definition, bead by bead: 90th percentile within r / 2 minus the median of the ring
     r + 1.5 .. r + 3.5 (NaN where a set is empty)."""
-    img = np.asarray(image, float)
-    img = img.mean(axis=2) if img.ndim == 3 else img
-    h, w = img.shape
-    out = np.full(len(centers), np.nan)
-    for i, ((x, y), r) in enumerate(zip(centers, radii_px)):
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(r) and r > 0):
-            continue
-        R = int(math.ceil(r + 4))
-        xi, yi = int(round(x)), int(round(y))
-        y0, y1, x0, x1 = max(0, yi - R), min(h, yi + R + 1), max(0, xi - R), min(w, xi + R + 1)
-        if y1 <= y0 or x1 <= x0:
-            continue
-        ys, xs = np.mgrid[y0:y1, x0:x1]
-        rr = np.hypot(xs - x, ys - y)
-        p = img[y0:y1, x0:x1]
-        ring, core, disc = p[(rr > r + 1.5) & (rr < r + 3.5)], p[rr < 0.5 * r], p[rr <= r]
-        if ring.size and core.size and disc.size:
-            out[i] = float(np.percentile(core, 90)) - float(np.median(ring))
-    return out
+    return np.array([np.nan if v is None else v[1] - v[0] for v in bead_levels_one_by_one(image, centers, radii_px)])
 
 
 def test_bead_contrast_is_the_per_bead_definition_and_fill_is_unchanged():

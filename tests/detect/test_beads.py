@@ -1,13 +1,19 @@
 """Bead stages of the puppet pipeline (stillcap.detect.beads): the fill test against a plain
 per-bead reference, and detection on a drawn photo."""
 
-import math
 
 import numpy as np
 import pytest
+from support import bead_levels_one_by_one
 
 from stillcap.body.markerset import MarkerSet
-from stillcap.detect.beads import DETECTORS, IDENTIFIERS, bead_fill, bead_fill_views, detect_beads
+from stillcap.detect.beads import (
+    DETECTORS,
+    IDENTIFIERS,
+    bead_fill,
+    bead_fill_views,
+    detect_beads,
+)
 from stillcap.detect.palette import Palette
 from stillcap.studio.beads import draw_beads, random_bead_scene
 
@@ -15,27 +21,11 @@ from stillcap.studio.beads import draw_beads, random_bead_scene
 def _fill_one_by_one(image, centers, radii_px):
     """The definition, bead by bead: median of the ring r + 1.5 .. r + 3.5 (background), 90th
     percentile within r / 2 (bead), share of the disc brighter than halfway between them."""
-    img = np.asarray(image)
     out = np.full(len(centers), np.nan)
-    h, w = img.shape[:2]
-    for i, ((x, y), r) in enumerate(zip(centers, radii_px)):
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(r) and r > 0):
-            continue
-        R = int(math.ceil(r + 4))
-        xi, yi = int(round(x)), int(round(y))
-        y0, y1, x0, x1 = max(0, yi - R), min(h, yi + R + 1), max(0, xi - R), min(w, xi + R + 1)
-        if y1 <= y0 or x1 <= x0:
-            continue
-        patch = img[y0:y1, x0:x1].astype(float)
-        if patch.ndim == 3:
-            patch = patch.mean(axis=2)
-        ys, xs = np.mgrid[y0:y1, x0:x1]
-        rr = np.hypot(xs - x, ys - y)
-        ring, core, disc = patch[(rr > r + 1.5) & (rr < r + 3.5)], patch[rr < 0.5 * r], patch[rr <= r]
-        if not (ring.size and core.size and disc.size):
-            continue
-        bg, peak = float(np.median(ring)), float(np.percentile(core, 90))
-        out[i] = 0.0 if peak <= bg else float(np.mean(disc > bg + 0.5 * (peak - bg)))
+    for i, v in enumerate(bead_levels_one_by_one(image, centers, radii_px)):
+        if v is not None:
+            bg, peak, disc = v
+            out[i] = 0.0 if peak <= bg else float(np.mean(disc > bg + 0.5 * (peak - bg)))
     return out
 
 
