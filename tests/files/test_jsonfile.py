@@ -19,3 +19,23 @@ def test_missing_and_invalid_files_name_the_file(tmp_path):
         Skeleton.load(tmp_path / "skel.json")
     with pytest.raises(ValueError, match="bad.json is not valid JSON"):
         MarkerSet.load(tmp_path / "bad.json")
+
+
+def test_package_json_is_the_file_importlib_resources_gives(monkeypatch):
+    """read_package_json reads stillcap/data's file directly where the package is a folder on
+    disk, and through importlib.resources otherwise (e.g. a zip): the same content both ways."""
+    import json
+    from importlib import resources
+
+    from stillcap.files import jsonfile
+
+    names = sorted(p.name for p in resources.files("stillcap").joinpath("data").iterdir() if p.name.endswith(".json"))
+    assert "puppet_skeleton.json" in names and "puppet_markers.json" in names
+    for name in names:
+        expected = json.loads(resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8"))
+        assert jsonfile.read_package_json(name) == (expected, f"stillcap/data/{name}")
+    # no folder on disk where the module says it lives: importlib.resources reads it
+    monkeypatch.setattr(jsonfile, "__file__", "/nonexistent-stillcap/stillcap/files/jsonfile.py")
+    for name in names:
+        expected = json.loads(resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8"))
+        assert jsonfile.read_package_json(name) == (expected, f"stillcap/data/{name}")

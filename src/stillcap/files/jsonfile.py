@@ -32,5 +32,12 @@ def read_json(path, what: str = ""):
 def read_package_json(name: str) -> tuple[dict, str]:
     """A JSON file shipped in ``stillcap/data`` (default skeletons and marker sets): its content
     and the source name models record (``stillcap/data/NAME``)."""
-    text = resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8")
+    # the file itself where the package is a folder on disk (any ordinary install): the first
+    # importlib.resources.files() of a process costs ~0.6 ms CPU (its readers' set-up), a share
+    # of the puppet pipeline's first call; resources for any other kind of install (a zip)
+    here = Path(__file__).parent.parent / "data" / name
+    if here.is_file():
+        text = here.read_text(encoding="utf-8")
+    else:
+        text = resources.files("stillcap").joinpath("data", name).read_text(encoding="utf-8")
     return json.loads(text), f"stillcap/data/{name}"
