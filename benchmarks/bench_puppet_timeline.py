@@ -21,10 +21,11 @@ time above their CPU time is waiting (for a core or the GIL).
 
 Wall times on a loaded machine are worthless: run this on a quiet one, or as root under
 ``chrt -f 10 python ...`` (real-time scheduling: the children take the cores from every
-ordinary process for the seconds they run; the children inherit it). Measured so (2 cores,
-main bbff8f2, 8 rounds): first call 88-96 ms wall, main thread 84-94 ms CPU, all threads ~128 ms;
-the calling thread read 6 of the 12 photos itself, and the decoding thread sat idle for the
-last ~19 ms of the detection (see ``docs/puppet.md``, "Speed").
+ordinary process for the seconds they run; the children inherit it). Measured so on the
+loaded 2-core machine (main bbff8f2, 6-8 rounds): first call 88-99 ms wall (least), the main
+thread 84-97 ms CPU, all threads 128-134 ms. The calling thread read 6 of the 12 photos itself,
+and the decoding thread sat idle for the detection's last ~16-19 ms (``docs/benchmarks.md``,
+"The puppet's two threads").
 """
 
 from __future__ import annotations
