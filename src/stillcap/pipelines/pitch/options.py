@@ -82,14 +82,15 @@ class PitchOptions:
         "Uncertainties".
     shading_model_error : float
         Share of each ball image's shading correction (``StereoBalls.shading_px``) the model may
-        have wrong, taken as a bias shared by a camera's ball images (with the default
-        ``center_bias_px``, ``stillcap.ball.uncertainty.remaining_bias_modes``): the light's
+        have wrong (1-sigma at every image), taken as a bias shared by a camera's ball images
+        that changes smoothly along the flight (with the default ``center_bias_px``,
+        ``stillcap.ball.uncertainty.remaining_bias_modes`` and ``bias_profiles``): the light's
         direction, the lens blur and the clipping are read from the photo and the leather is
         taken for lambertian, all of which a real ball and lens break. How much of it a pair's
-        two cameras share is read from the
-        pair's epipolar residuals (``remaining_bias_modes(correlation="epipolar")``); the same
-        modes size the spin's shared ball-centre error (``docs/pitch.md``, "The spin's centre
-        error and the pair's shared bias").
+        two cameras share is read from the pair's epipolar residuals
+        (``remaining_bias_modes(correlation="epipolar")``); the same modes size the spin's
+        shared ball-centre error (``docs/pitch.md``, "The spin's centre error and the pair's
+        shared bias").
         Default 0.5 (``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
     center_sigma_px : float
         Expected random error of a refined ball centre per image axis, px: the noise the
