@@ -1,5 +1,5 @@
 """How much of each shading correction the studio's photos leave, and how it changes along the
-flight: the truth behind ``PitchOptions.shading_model_error`` and ``ball.uncertainty.bias_profiles``.
+flight: the truth behind ``PitchOptions.shading_model_error`` and ``ball.uncertainty.remaining_bias_modes``.
 
     python benchmarks/bench_shading_share.py [--conditions "clean,light to the side"] [--n 6]
                                              [--seed 0] [--jobs 2] [--jsonl FILE]
@@ -16,8 +16,9 @@ model sizes apart). Printed per condition and pooled: the precision-weighted mea
 ``alpha`` and ``beta`` less those of their standard errors (what the noise adds), i.e. the
 variance of the true share's constant and change; their ratio gives the correlation of the
 share at the pair's first and last images, ``(A - B) / (A + B)``. The model
-(``bias_profiles``) states 1-sigma ``shading_model_error`` (0.5) at every image and the end
-images uncorrelated: in these linear terms ``A = B = 0.125``.
+(``ball.uncertainty.lit_bias_modes``: a constant and a linear trend mode per camera, each at
+``shading_model_error``, 0.5) has ``A = B = 0.25`` in these terms: the end images uncorrelated,
+the share's 1-sigma 0.5 in the middle of a pair's images and 0.71 at its ends.
 
 Also per camera: the speed shift (mph) that the fitted pattern, a unit constant share and a unit
 linear trend give through the final flight fit's linear response (``ReferenceFit.position_gain``).

@@ -233,7 +233,7 @@ def test_lit_bias_modes_shift_along_the_lit_direction():
     """Corrected images move along their lit direction only, full discs along both axes; each
     mode is the re-triangulated shift of one camera's centres."""
     from stillcap.geometry.triangulate import triangulate
-    from stillcap.ball.uncertainty import bias_profiles, lit_bias_modes
+    from stillcap.ball.uncertainty import lit_bias_modes
     from stillcap.studio.pitch import pitch_rig
 
     rig = pitch_rig(image_size=(640, 480)).rig
@@ -248,15 +248,13 @@ def test_lit_bias_modes_shift_along_the_lit_direction():
     assert m.shape == (12, 6, 3)
     X0 = triangulate(cams, x).points
     xs = x.copy()
-    c_prof, _ = bias_profiles(6)
-    xs[1, :3] += 0.05 * c_prof[:3, None] * u[1, :3]
+    xs[1, :3] += 0.05 * u[1, :3]
     assert np.allclose(m[6], triangulate(cams, xs).points - X0, atol=1e-12)
     assert np.all(np.abs(m[6, 3:]) < 1e-12) and np.all(np.abs(m[2:6, :3]) < 1e-12)  # u on corrected, axes on the rest
     assert np.all(np.linalg.norm(m[0, :3], axis=1) > 0) and np.all(np.linalg.norm(m[2, 3:], axis=1) > 0)
-    # the trend is tan(pi t / 4) times the constant shift (t from -1 to +1 over the 6 images)
-    k = np.tan(0.05 * np.pi)
-    assert np.allclose(m[1, 0], -m[0, 0], rtol=1e-3, atol=1e-12) and np.allclose(m[1, 2], -k * m[0, 2], rtol=1e-3, atol=1e-12)
-    assert np.allclose(m[4, 5], m[2, 5], rtol=1e-3, atol=1e-12) and np.allclose(m[4, 3], k * m[2, 3], rtol=1e-3, atol=1e-12)
+    # the trend runs from -1 to +1 times the constant shift along the flight (linspace over 6)
+    assert np.allclose(m[1, 0], -m[0, 0], rtol=1e-3, atol=1e-12) and np.allclose(m[1, 2], -0.2 * m[0, 2], rtol=1e-3, atol=1e-12)
+    assert np.allclose(m[4, 5], m[2, 5], rtol=1e-3, atol=1e-12) and np.allclose(m[4, 3], 0.2 * m[2, 3], rtol=1e-3, atol=1e-12)
     try:
         lit_bias_modes(cams, x, u[:, :5], s, corr)
     except ValueError as e:
@@ -474,25 +472,3 @@ def test_remaining_bias_takes_a_share_per_camera():
     np.testing.assert_array_equal(m[:6], both[:6])
     with pytest.raises(ValueError, match="model_error must be >= 0"):
         remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, [0.5, -1.0])
-
-
-def test_bias_profiles_keep_the_stated_sigma_at_every_image():
-    """A camera's shared bias ``s (a c + b t)`` (``a``, ``b`` unit normals, ``c``, ``t`` the
-    profiles): its 1-sigma is ``s`` at every image, not ``s sqrt(1 + t^2)`` as the former
-    constant-plus-linear-trend modes had it (twice the stated variance at the ends); it is
-    smooth along the flight (neighbours correlated), and the first and last images are
-    uncorrelated; one image has the constant alone."""
-    from stillcap.ball.uncertainty import bias_profiles
-
-    for K in (2, 5, 13):
-        c, t = bias_profiles(K)
-        assert c.shape == t.shape == (K,)
-        np.testing.assert_allclose(c ** 2 + t ** 2, 1.0, atol=1e-12)
-        corr = np.outer(c, c) + np.outer(t, t)  # correlation of the images' biases
-        assert abs(corr[0, -1]) < 1e-12
-        assert K < 5 or np.all(np.diag(corr, 1) > 0.7)
-        # the variance of the change from first to last image: 2 s^2 (the former model: 4 s^2)
-        assert (c[-1] - c[0]) ** 2 + (t[-1] - t[0]) ** 2 == pytest.approx(2.0)
-    c, t = bias_profiles(1)
-    assert c.tolist() == [1.0] and t.tolist() == [0.0]
-    assert bias_profiles(0)[0].shape == (0,)

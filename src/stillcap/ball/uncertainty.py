@@ -40,8 +40,8 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import BallFlag
 from stillcap.geometry.triangulate import triangulate
 
-__all__ = ["ANGLE_KEYS", "bias_profiles", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes",
-           "lit_geometry", "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
+__all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes", "lit_geometry",
+           "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
            "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "share_correlation",
            "speed_sigma", "spin_decay_slope"]
 
@@ -394,39 +394,14 @@ def lit_geometry(stereo, centers_px, flags, radius_px):
     return u, phase, corrected
 
 
-def bias_profiles(K: int) -> tuple[np.ndarray, np.ndarray]:
-    """The two profiles (each shape (K,)) over a pair's ``K`` ball images (flight order) with
-    which a camera's remaining centre bias enters the modes: ``cos(pi t / 4)`` and
-    ``sin(pi t / 4)``, ``t`` from -1 at the first image to +1 at the last.
-
-    The bias of image ``k`` is ``s_k (a cos(pi t_k / 4) + b sin(pi t_k / 4))`` with ``a``, ``b``
-    independent unit normals: its 1-sigma is the stated ``s_k`` at EVERY image (``cos^2 +
-    sin^2 = 1``), the bias is the same smooth function of the flight for all of a camera's images
-    (the light-ball-camera geometry changes slowly along the flight, so it is strongly correlated
-    from flash to flash: the correlation of images ``k`` and ``l`` is ``cos(pi (t_k - t_l) / 4)``),
-    and the first and last images' biases are uncorrelated (it may change by its whole size
-    along the pair's stretch: against the studio's truth the shading share's change along a
-    pair's images was as large as its constant part, ``docs/pitch.md``, "The share at every
-    image"). The former profiles, a constant and a linear trend (``1`` and ``t``), each at the
-    full ``s_k``, gave the first and last images twice the stated variance (the share's 1-sigma
-    0.71 where 0.5 was stated) and the change along the flight, which is what moves the speed,
-    twice the variance of this model.
-    """
-    if K <= 0:
-        return np.ones(0), np.zeros(0)
-    t = np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(1)
-    return np.cos(0.25 * np.pi * t), np.sin(0.25 * np.pi * t)
-
-
 def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     """How a pair's triangulated positions move with the ball-centre bias that remains after
     the shading correction (:func:`shading_residual_lookup`).
 
     Per camera: for corrected images a shift of ``sigma_px`` along their lit direction ``u``
-    (the correction's model error has that direction) in the two profiles of
-    :func:`bias_profiles` (the "constant" ``cos(pi t / 4)`` and the "trend" ``sin(pi t / 4)``:
-    ``sigma_px`` at every image, smooth along the flight as the phase angle is, the first and
-    last images uncorrelated); for the others (full discs, no lit direction)
+    (the correction's model error has that direction), the same for all (constant) and growing
+    linearly from ``-sigma_px`` at the pair's first image to ``+sigma_px`` at its last (trend:
+    the phase angle changes along the flight); for the others (full discs, no lit direction)
     the same two profiles along each image axis.
 
     Parameters
@@ -441,7 +416,7 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     -------
     ndarray, shape (12, K, 3)
         Position shift (m) per camera (6 each: along ``u`` constant, trend; x, y constant;
-        x, y trend; the profiles of :func:`bias_profiles`).
+        x, y trend).
     """
     x = np.asarray(centers_px, float)
     K = x.shape[1] if x.ndim == 3 else 0
@@ -453,7 +428,7 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     out = np.zeros((12, K, 3))
     if K == 0:
         return out
-    profiles = list(bias_profiles(K))
+    profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
     e = np.eye(2)
     modes, shifted = [], []
     for c in range(2):
@@ -504,8 +479,8 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
     lines; one camera's own part moves them off. The flight absorbs nothing of this: the signed
     epipolar residuals of the pair's ball images are regressed (least squares, their scatter
     scaling the variance) on the response to the difference ``delta`` of the two cameras' shares
-    (camera 0 moved by ``+delta/2``, camera 1 by ``-delta/2``) in the two profiles of
-    :func:`bias_profiles` (constant and trend). With the former model's prior (each camera's share independent with the same 1-sigma:
+    (camera 0 moved by ``+delta/2``, camera 1 by ``-delta/2``), constant and trending along the
+    flight. With the former model's prior (each camera's share independent with the same 1-sigma:
     ``delta`` of variance 2 in units of that sigma squared) the posterior's ``E[delta^2] = m2``
     gives the correlation ``1 - m2 / 2``. Where the capture cannot tell (fewer than
     ``min_images``, a light along the epipolar lines), the posterior is the prior: correlation 0,
@@ -537,8 +512,8 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
         xs = x.copy()
         xs[c] += h * sign * s[c][:, None] * u[c]
         g += (_signed_epipolar_px(cams, xs) - e0) / h
-    c_prof, s_prof = bias_profiles(K)
-    A = np.stack([g * c_prof, g * s_prof], axis=1)  # (K, 2): delta's two modes (bias_profiles), in units of the sigma
+    t = np.linspace(-1.0, 1.0, K)
+    A = np.stack([g, g * t], axis=1)  # (K, 2): delta constant, delta trend (in units of the sigma)
     ok = np.all(np.isfinite(A), axis=1) & np.isfinite(e0)
     A, e0 = A[ok], e0[ok]
     if len(e0) < min_images:
@@ -567,10 +542,9 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     length per image and camera, set), every image counts as corrected, and its remaining bias is
     the model's own error (:func:`shading_residual_lookup`) and ``model_error`` times the
     correction made, in quadrature: the share of the correction the model may have wrong (its
-    light, blur, clipping and lambertian leather are estimates or assumptions), a smooth function
-    of the flight for all images of a camera with that 1-sigma at every image (the
-    ``lit_bias_modes`` are shared by the camera's images: a constant and a trend mode per camera
-    in the profiles of :func:`bias_profiles`; one mode per camera for the share alone was tried,
+    light, blur, clipping and lambertian leather are estimates or assumptions), the same share
+    for every image of a camera (the ``lit_bias_modes`` are shared by the camera's images: a
+    constant and a trend mode per camera; one mode per camera for the share alone was tried,
     ``docs/pitch.md``, "The correction's wrong share").
     ``model_error``: one share for both cameras, or one per camera (shape (2,)).
 
@@ -620,7 +594,7 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     for i, m in ((0, 0), (1, 1)):
         out[[m, m + 6]] *= np.sqrt(1.0 - rho[i])
     if np.any(rho > 0) and np.any(corr):
-        profiles = list(bias_profiles(K))
+        profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
         shifted = []
         for i, prof in enumerate(profiles):
             xs = x.copy()

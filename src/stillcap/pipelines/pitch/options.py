@@ -82,9 +82,11 @@ class PitchOptions:
         "Uncertainties".
     shading_model_error : float
         Share of each ball image's shading correction (``StereoBalls.shading_px``) the model may
-        have wrong (1-sigma at every image), taken as a bias shared by a camera's ball images
-        that changes smoothly along the flight (with the default ``center_bias_px``,
-        ``stillcap.ball.uncertainty.remaining_bias_modes`` and ``bias_profiles``): the light's
+        have wrong, taken as a bias shared by a camera's ball images, a constant and a linear
+        trend along the pair's images each of this size (with the default ``center_bias_px``,
+        ``stillcap.ball.uncertainty.remaining_bias_modes``; so the share's 1-sigma is this at the
+        middle of a pair's images and up to sqrt(2) times it at the first and last: 0.5-0.71
+        with the default, ``docs/pitch.md``, "The share at every image"): the light's
         direction, the lens blur and the clipping are read from the photo and the leather is
         taken for lambertian, all of which a real ball and lens break. How much of it a pair's
         two cameras share is read from the pair's epipolar residuals
