@@ -447,3 +447,28 @@ def test_remaining_bias_keeps_each_cameras_variance_and_shares_part_of_it():
         remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation="guess")
     rho = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5, correlation="epipolar")
     assert rho.shape == (14, len(st), 3)
+
+
+def test_remaining_bias_takes_a_share_per_camera():
+    """``model_error`` one per camera (as an estimate per camera would give it): each camera's
+    modes grow with its own share only, and a negative share is refused."""
+    from detect.test_ball import FLIGHT, R_BALL, draw_balls_camera, front_pair
+    from stillcap.ball.stereo import ball_centers_stereo
+    from stillcap.ball.uncertainty import remaining_bias_modes
+
+    a, b = front_pair()
+    light = (1.0, 0.0, 0.3)
+    st = ball_centers_stereo(a, draw_balls_camera(a, FLIGHT, R_BALL, light_world=light, rng=11),
+                             b, draw_balls_camera(b, FLIGHT, R_BALL, light_world=light, rng=12), R_BALL)
+    x = np.stack([st.centers_a, st.centers_b])
+    flags = np.zeros(len(st), int)
+    m0 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.0)
+    m = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, [0.5, 0.0])
+    both = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.5)
+    assert m.shape == m0.shape == (14, len(st), 3)
+    # camera 0's modes (0-5) grew, camera 1's (6-11) are the model's own error alone
+    np.testing.assert_array_equal(m[6:], m0[6:])
+    assert np.sum(m[:6] ** 2) > np.sum(m0[:6] ** 2)
+    np.testing.assert_array_equal(m[:6], both[:6])
+    with pytest.raises(ValueError, match="model_error must be >= 0"):
+        remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, [0.5, -1.0])

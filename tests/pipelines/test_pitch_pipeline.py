@@ -264,32 +264,3 @@ def test_each_pair_reports_the_lens_blur_its_shading_correction_used(result):
         blur = p["blur_px"]
         assert len(blur) == 2 and all(0.3 < b < 0.8 for b in blur), (p["name"], blur)
         assert 0.5 not in blur  # read from the photos, not the fallback
-
-
-def test_share_scaled_by_the_pairs_is_reported_only_when_asked(fastball, result):
-    """``shading_share_scale="pairs"`` (experimental, off by default): each pair reports the
-    scale of the stated share its disagreement with the other pair gave and the share used
-    (stated share x scale); the positions do not depend on it, only the uncertainties."""
-    assert all(p["shading_error"] is None for p in result.to_dict()["pairs"])
-    sc = analysed(fastball, shading_share_scale="pairs", shading_model_error=0.5, n_samples=2)
-    for p in sc.to_dict()["pairs"]:
-        d = p["shading_error"]
-        assert d["share_scale"]["dof"] > 0 and 1.0 / 16.0 <= d["share_scale"]["scale_used"] <= 16.0
-        assert d["share_used"] == pytest.approx(0.5 * d["share_scale"]["scale_used"])
-    np.testing.assert_array_equal(sc.positions, result.positions)
-
-
-def test_shading_error_estimate_is_reported_per_camera_only_when_asked(fastball, result):
-    """``estimate_shading_error`` (experimental, off by default): each pair reports per camera
-    the estimated share of its shading correction that is wrong, its sigma and the share used
-    (between the smallest the data allow and, where they cannot tell, the prior); off, nothing
-    is reported and the share used is the option's."""
-    assert all(p["shading_error"] is None for p in result.to_dict()["pairs"])
-    est = analysed(fastball, estimate_shading_error=True, shading_model_error=0.5, n_samples=2)
-    for p in est.to_dict()["pairs"]:
-        assert set(p["shading_error"]) == set(p["cameras"])
-        for v in p["shading_error"].values():
-            assert v["kappa_used"] is not None and 0.0 < v["kappa_used"]
-            assert v["kappa_sigma"] is None or v["kappa_sigma"] > 0
-    # the positions do not depend on it: only the uncertainties
-    np.testing.assert_array_equal(est.positions, result.positions)

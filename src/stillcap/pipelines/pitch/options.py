@@ -82,35 +82,18 @@ class PitchOptions:
         "Uncertainties".
     shading_model_error : float
         Share of each ball image's shading correction (``StereoBalls.shading_px``) the model may
-        have wrong, taken as a bias shared by a camera's ball images (with the default
-        ``center_bias_px``, ``stillcap.ball.uncertainty.remaining_bias_modes``): the light's
+        have wrong, taken as a bias shared by a camera's ball images, a constant and a linear
+        trend along the pair's images each of this size (with the default ``center_bias_px``,
+        ``stillcap.ball.uncertainty.remaining_bias_modes``; so the share's 1-sigma is this at the
+        middle of a pair's images and up to sqrt(2) times it at the first and last: 0.5-0.71
+        with the default, ``docs/pitch.md``, "The share at every image"): the light's
         direction, the lens blur and the clipping are read from the photo and the leather is
-        taken for lambertian, all of which a real ball and lens break. With
-        ``estimate_shading_error`` it is the prior's 1-sigma of that share, what decides where
-        the capture cannot tell. How much of it a pair's two cameras share is read from the
-        pair's epipolar residuals (``remaining_bias_modes(correlation="epipolar")``); the same
-        modes size the spin's shared ball-centre error (``docs/pitch.md``, "The spin's centre
-        error and the pair's shared bias").
+        taken for lambertian, all of which a real ball and lens break. How much of it a pair's
+        two cameras share is read from the pair's epipolar residuals
+        (``remaining_bias_modes(correlation="epipolar")``); the same modes size the spin's
+        shared ball-centre error (``docs/pitch.md``, "The spin's centre error and the pair's
+        shared bias").
         Default 0.5 (``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
-    estimate_shading_error : bool
-        Experimental, off by default: estimate each camera's share of the correction that is
-        wrong from the capture (the positions-only fit's residuals regressed on the pattern the
-        share would leave: ``stillcap.ball.shading_error.estimate_shading_share``, reported per
-        camera in ``PairResult.shading_error``) and size the remaining bias with it, the prior
-        ``shading_model_error`` deciding where the capture cannot tell. Against the studio's
-        truth its estimates were confidently wrong (z -1.8 +- 1.4 over 60 cameras:
-        ``docs/pitch.md``, "The correction's wrong share"), so the default keeps the stated
-        ``shading_model_error`` for every camera.
-    shading_share_scale : str
-        ``"stated"``: the share ``shading_model_error`` as stated for every capture; ``"pairs"``:
-        scaled by how far the stereo pairs' positions disagree with each other beyond their
-        random error (``stillcap.ball.shading_error.share_scale_from_pairs``: tighter where they
-        agree, wider where they do not; the stated share where one pair measured), reported per
-        pair in ``PairResult.shading_error``. Experimental, off by default: on the robustness
-        benchmark's 216 captures it moved no interval's coverage by more than one capture and
-        the z RMS by -0.11 to +0.14 (pairs far apart along the flight see each other's shift as
-        the flight's direction; ``docs/pitch.md``, "Coverage with 12 captures per condition,
-        and the share scaled by the pairs?").
     center_sigma_px : float
         Expected random error of a refined ball centre per image axis, px: the noise the
         self-checks (:mod:`stillcap.pipelines.pitch.checks`) test the epipolar residuals and the
@@ -151,8 +134,6 @@ class PitchOptions:
     calibration_focal_sigma: float = 2.5e-4
     center_bias_px: float | None = None
     shading_model_error: float = 0.5
-    estimate_shading_error: bool = False
-    shading_share_scale: str = "stated"
     center_sigma_px: float = 0.2
     workers: int = 2
     processes: int = 0
@@ -189,8 +170,6 @@ class PitchOptions:
             raise ValueError(f"processes must be >= 0, got {self.processes}")
         if not (np.isfinite(self.center_sigma_px) and self.center_sigma_px > 0):
             raise ValueError(f"center_sigma_px must be a positive number of pixels, got {self.center_sigma_px}")
-        if self.shading_share_scale not in ("stated", "pairs"):
-            raise ValueError(f"shading_share_scale must be 'stated' or 'pairs', got {self.shading_share_scale!r}")
         if not (np.isfinite(self.shading_model_error) and self.shading_model_error >= 0):
             raise ValueError(f"shading_model_error must be >= 0, got {self.shading_model_error}")
         if not (np.isfinite(self.calibration_focal_sigma) and self.calibration_focal_sigma >= 0):
@@ -247,6 +226,4 @@ class PitchOptions:
                 "marker_epipolar_px": self.marker_epipolar_px, "n_samples": int(self.n_samples),
                 "calibration_focal_sigma": self.calibration_focal_sigma, "centre_bias_px": self.center_bias_px,
                 "center_sigma_px": self.center_sigma_px, "shading_model_error": self.shading_model_error,
-                "estimate_shading_error": bool(self.estimate_shading_error),
-                "shading_share_scale": self.shading_share_scale,
                 "response": self.response if self.response in (None, "auto") else self.response.to_json()}

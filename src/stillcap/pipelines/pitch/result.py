@@ -78,11 +78,6 @@ class PairResult:
         and centre-bias modes (:func:`stillcap.ball.uncertainty.position_covariances`). Test a
         position with ``e^T C^-1 e`` against chi-square(3); ``position_sigma_m`` is its
         isotropic summary.
-    shading_error : dict or None
-        Per camera name: ``kappa_hat`` (the share of its shading correction the capture says is
-        wrong), ``kappa_sigma`` (its 1-sigma) and ``kappa_used`` (the share that sized the
-        remaining-bias modes: :func:`stillcap.ball.shading_error.estimate_shading_share`);
-        None when not estimated.
     """
 
     name: str
@@ -110,7 +105,6 @@ class PairResult:
     stereo: StereoBalls | None = field(default=None, repr=False)
     calibration_sigma_m: float = float("nan")
     position_covariance_m2: np.ndarray | None = field(default=None, repr=False)
-    shading_error: dict | None = None
 
     @property
     def local_times(self) -> np.ndarray:
@@ -142,9 +136,6 @@ class PairResult:
             "spin": None if self.spin is None else self.spin.to_dict(),
             # the lens blur each camera's shading correction used (read from the balls' limbs)
             "blur_px": None if self.stereo is None else [float(v) for v in self.stereo.psf_px],
-            # per camera: the share of its shading correction estimated wrong (kappa_hat, its
-            # sigma) and the share the uncertainties used (ball.shading_error)
-            "shading_error": self.shading_error,
         }
 
 

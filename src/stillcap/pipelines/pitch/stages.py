@@ -405,17 +405,6 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
     # calibration error: shared by all positions of a pair (docs/pitch.md, "Uncertainties")
     calib = cap.meta.get("calibration") if isinstance(cap.meta.get("calibration"), dict) else None
     cal_modes, shared_modes = [], {}
-    # each camera's share of the shading correction that is wrong: estimated from the
-    # positions-only fit's residuals, the option the prior (docs/pitch.md, "Uncertainties")
-    share = None
-    if options.center_bias_px is None and options.estimate_shading_error and options.shading_model_error > 0:
-        share = _shading_share(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options.shading_model_error)
-    # the stated share scaled by how far the pairs disagree (docs/pitch.md, "Uncertainties")
-    scale = None
-    if (options.center_bias_px is None and share is None and options.shading_model_error > 0
-            and options.shading_share_scale == "pairs"):
-        from stillcap.pipelines.pitch.share_scale import pairs_share_scale
-        scale = pairs_share_scale(pairs, fit_pos, model, groups_a, pidx_a, pos_cov, options, calib)
     for i, p in enumerate(pairs):
         if len(p) == 0:
             continue
@@ -425,12 +414,6 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         if sb is None and p.stereo is not None:
             # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
             kappa = options.shading_model_error
-            if scale is not None:
-                kappa = options.shading_model_error * scale.scale_used
-                p.shading_error = {"share_used": kappa, "share_scale": scale.to_dict()}
-            if share is not None:
-                kappa = [share.of(f"{p.name}/{c}") for c in p.cameras]
-                p.shading_error = {c: share.to_dict()["cameras"].get(f"{p.name}/{c}") for c in p.cameras}
             # how much of it the two cameras share: from the pair's epipolar residuals, which the
             # flight cannot absorb (docs/pitch.md, "Shared by the pair's cameras")
             mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px, kappa,
@@ -696,31 +679,6 @@ def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured:
 # --------------------------------------------------------------------------------------------
 # Helpers of the stages
 # --------------------------------------------------------------------------------------------
-def _shading_share(pairs, fit, model, group_index, pair_index, shape_covariance, prior):
-    """:func:`stillcap.ball.shading_error.estimate_shading_share` over every pair's cameras
-    (``"pair/camera"``), their unit modes placed at the pair's rows of the joint fit."""
-    from stillcap.ball.shading_error import estimate_shading_share, unit_modes
-    from stillcap.ball.uncertainty import correction_made, lit_geometry
-
-    modes, placebo = {}, {}
-    for i, p in enumerate(pairs):
-        if len(p) == 0 or p.stereo is None:
-            continue
-        made = correction_made(p.stereo, p.centers_px)
-        if made is None or not np.any(made > 0):
-            continue
-        u, _, _ = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
-        um = unit_modes(p._cams, p.centers_px, u, made)  # (2, K, 3)
-        # the placebo: the same shifts across the lit direction
-        pm = unit_modes(p._cams, p.centers_px, np.stack([-u[..., 1], u[..., 0]], axis=-1), made)
-        for c, cam in enumerate(p.cameras):
-            for dst, src in ((modes, um), (placebo, pm)):
-                a = np.zeros((len(pair_index), 3))
-                a[pair_index == i] = src[c]
-                dst[f"{p.name}/{cam}"] = a
-    return estimate_shading_share(fit, model, group_index, modes, shape_covariance, prior, placebo)
-
-
 def _release_state(p0, v0, spin, model, t0, release_y_m):
     """Position, velocity and time where the flight crosses ``y = release_y_m`` (Newton on the
     reference integrator, before or after ``t0``)."""

@@ -1,0 +1,187 @@
+"""How much of each shading correction the studio's photos leave, and how it changes along the
+flight: the truth behind ``PitchOptions.shading_model_error`` and ``ball.uncertainty.remaining_bias_modes``.
+
+    python benchmarks/bench_shading_share.py [--conditions "clean,light to the side"] [--n 6]
+                                             [--seed 0] [--jobs 2] [--jsonl FILE]
+
+The same captures as ``bench_robustness.py --only pitch`` (``_robust_pitch``: same seeds and
+conditions; the true cameras, the truth declared as there). Per camera of each pair, the refined
+ball centres' error along their lit direction ``u`` against the true centre projected,
+``a_k = (x_k - proj(P_k)) . u_k`` (px), is regressed on the correction made ``m_k``
+(``StereoBalls.shading_px``) in the linear profiles ``a_k = (alpha + beta t_k) m_k`` (``t`` from
+-1 at the pair's first ball image to +1 at its last): ``alpha`` is the share of the correction
+left wrong, ``beta`` its change along the pair's stretch of flight (in the same units), each
+with its standard error from the regression's scatter (the random centre error, which the
+model sizes apart). Printed per condition and pooled: the precision-weighted mean squares of
+``alpha`` and ``beta`` less those of their standard errors (what the noise adds), i.e. the
+variance of the true share's constant and change; their ratio gives the correlation of the
+share at the pair's first and last images, ``(A - B) / (A + B)``. The model
+(``ball.uncertainty.lit_bias_modes``: a constant and a linear trend mode per camera, each at
+``shading_model_error``, 0.5) has ``A = B = 0.25`` in these terms: the end images uncorrelated,
+the share's 1-sigma 0.5 in the middle of a pair's images and 0.71 at its ends.
+
+Also per camera: the speed shift (mph) that the fitted pattern, a unit constant share and a unit
+linear trend give through the final flight fit's linear response (``ReferenceFit.position_gain``).
+Timings on a loaded machine are not the benchmark's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+
+import _robust_pitch as rp  # noqa: E402
+
+MPH = 0.44704
+
+
+def _camera_rows(res, rig, truth) -> list:
+    """Per camera of each pair: alpha, beta, their standard errors and the speed shifts."""
+    from stillcap.ball.uncertainty import _retriangulated_shifts, correction_made, lit_geometry
+    from stillcap.files.jsonable import from_jsonable
+
+    tpairs = {p["name"]: p for p in truth["pairs"]}
+    fit = res.fit
+    G = fit.position_gain  # (P, N, 3), the positions in pair order
+    ev = fit.v0 / np.linalg.norm(fit.v0)
+    out, off = [], 0
+    for p in res.pairs:
+        K = len(p)
+        if K == 0:
+            continue
+        P = from_jsonable(tpairs[p.name]["positions"]).reshape(-1, 3)
+        Pt = P[np.nanargmin(np.linalg.norm(P[None] - p.positions[:, None], axis=2), axis=1)]
+        cams = [rig[c] for c in p.cameras]
+        u, phase, _ = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
+        made = correction_made(p.stereo, p.centers_px)
+        t = np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)
+        for c in range(2):
+            m = made[c] if made is not None else np.zeros(K)
+            a = np.einsum("kj,kj->k", p.centers_px[c] - cams[c].project(Pt), u[c])
+            A = np.stack([m, m * t], 1)
+            row = {"pair": p.name, "camera": p.cameras[c], "K": K,
+                   "phase_deg": [float(np.degrees(phase[c].min())), float(np.degrees(phase[c].max()))]}
+            if K >= 4 and np.all(np.isfinite(A)) and np.linalg.matrix_rank(A) == 2:
+                coef, *_ = np.linalg.lstsq(A, a, rcond=None)
+                s2 = float(np.sum((a - A @ coef) ** 2) / (K - 2))
+                se = np.sqrt(np.diag(np.linalg.inv(A.T @ A)) * s2)
+                shifts = []
+                for prof in (coef[0] + coef[1] * t, np.ones(K), t):
+                    xs = p.centers_px.copy()
+                    xs[c] = xs[c] + (prof * m)[:, None] * u[c]
+                    shifts.append(xs)
+                dsp = []
+                for dp in _retriangulated_shifts(cams, p.centers_px, shifts):
+                    full = np.zeros(G.shape[1:])
+                    full[off:off + K] = dp
+                    dsp.append(float(ev @ np.einsum("pnk,nk->p", G, full)[3:6]) / MPH)
+                row.update(alpha=float(coef[0]), beta=float(coef[1]), se_alpha=float(se[0]), se_beta=float(se[1]),
+                           dspeed_fitted_mph=dsp[0], dspeed_unit_constant_mph=dsp[1], dspeed_unit_trend_mph=dsp[2])
+            out.append(row)
+        off += K
+    return out
+
+
+def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str) -> dict:
+    """Render and analyse one capture as ``_robust_pitch.run_capture`` does; its cameras' rows."""
+    from stillcap.files.atomic import write_text
+    from stillcap.io.capture import Capture
+    from stillcap.pipelines.pitch import analyse_pitch
+    from stillcap.studio.compare.pitch import compare_with_truth
+    from stillcap.studio.pitch import pitch_capture
+    from stillcap.studio.sensor import Sensor
+
+    rng = np.random.default_rng([seed, index, sum(map(ord, condition))])
+    cap_kw, sensor_kw, quality = rp.CONDITIONS[condition]
+    if cap_kw is None:
+        cap_kw, sensor_kw, quality = rp._mixed(rng)
+    preset = rp.PRESETS[index % len(rp.PRESETS)]
+    pc = pitch_capture(preset, rng=rng, calibrate=False, image_size=size, sensor=Sensor(**sensor_kw), **cap_kw)
+    cap, files = pc.to_capture(".jpg" if quality else ".png")
+    folder = Path(tempfile.mkdtemp(dir=workdir))
+    cap.save(folder, files, jpeg_quality=quality or 95)
+    rig_path = folder / "rig.json"
+    rig = json.loads(rig_path.read_text())
+    for c in rig["cameras"]:
+        c["response"] = pc.truth.studio["camera_response"][c["name"]]
+    write_text(rig_path, json.dumps(rig))
+    row = {"condition": condition, "index": index, "preset": preset}
+    try:
+        loaded = Capture.load(folder)
+        res = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1)
+        row["cameras"] = _camera_rows(res, loaded.rig, loaded.truth)
+        row["speed_mph"] = compare_with_truth(res, loaded.truth).get("speed_diff_mph_fitted")
+        row["ok"] = True
+    except ValueError as e:
+        row.update(ok=False, error=str(e))
+    finally:
+        for f in folder.rglob("*"):
+            if f.is_file():
+                f.unlink()
+    return row
+
+
+def summary(name: str, rows: list) -> str:
+    cams = [c for r in rows if r.get("ok") for c in r["cameras"] if "alpha" in c]
+    if not cams:
+        return f"{name:22s} no camera with 4+ ball images"
+    a, b = np.array([c["alpha"] for c in cams]), np.array([c["beta"] for c in cams])
+    sa, sb = np.array([c["se_alpha"] for c in cams]), np.array([c["se_beta"] for c in cams])
+    # precision weights (the noise floor 0.1 keeps one precise camera from deciding alone)
+    wa, wb = 1.0 / (sa ** 2 + 0.01), 1.0 / (sb ** 2 + 0.01)
+    A = float(np.sum(wa * (a ** 2 - sa ** 2)) / wa.sum())
+    B = float(np.sum(wb * (b ** 2 - sb ** 2)) / wb.sum())
+    rho = (A - B) / (A + B) if A + B > 0 else float("nan")
+    return (f"{name:22s} {len(cams):4d} cameras  constant share rms {np.sqrt(max(A, 0)):.2f}  change rms "
+            f"{np.sqrt(max(B, 0)):.2f}  end-to-end correlation {rho:+.2f}  (raw rms {np.sqrt(np.mean(a ** 2)):.2f} / "
+            f"{np.sqrt(np.mean(b ** 2)):.2f}, median se {np.median(sa):.2f} / {np.median(sb):.2f})")
+
+
+def main(argv=None):
+    from concurrent.futures import ProcessPoolExecutor
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--conditions", default=",".join(rp.CONDITIONS))
+    ap.add_argument("--n", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--full", action="store_true", help="2560x1920 photos instead of 1280x960")
+    ap.add_argument("--jsonl", type=Path, default=None, help="append each capture's row (resumes from it)")
+    args = ap.parse_args(argv)
+    conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    unknown = [c for c in conditions if c not in rp.CONDITIONS]
+    if unknown:
+        ap.error(f"unknown condition(s) {unknown}; known: {list(rp.CONDITIONS)}")
+    size = (2560, 1920) if args.full else (1280, 960)
+    rows = []
+    if args.jsonl is not None and args.jsonl.exists():
+        rows = [json.loads(line) for line in args.jsonl.read_text().splitlines() if line.strip()]
+    done = {(r["condition"], r["index"]) for r in rows}
+    tasks = [(c, i) for c in conditions for i in range(args.n) if (c, i) not in done]
+    with tempfile.TemporaryDirectory() as work, ProcessPoolExecutor(args.jobs) as ex:
+        futs = [ex.submit(run_capture, c, i, args.seed, size, work) for c, i in tasks]
+        for f in futs:
+            r = f.result()
+            rows.append(r)
+            if args.jsonl is not None:
+                with open(args.jsonl, "a") as fh:
+                    fh.write(json.dumps(r) + "\n")
+            print(f"  {r['condition']} #{r['index']}", file=sys.stderr, flush=True)
+    rows = [r for r in rows if r["condition"] in conditions and r["index"] < args.n]
+    for c in conditions:
+        print(summary(c, [r for r in rows if r["condition"] == c]))
+    print(summary("pooled", rows))
+
+
+if __name__ == "__main__":
+    main()
