@@ -1,0 +1,107 @@
+"""Linear algebra on the 2x2 and 3x3 matrices of the ball detector's per-ball fits, without
+``np.linalg``'s per-call set-up.
+
+``np.linalg.solve``, ``inv``, ``eigh`` and ``svd`` check their arguments, convert types and enter
+an ``np.errstate`` block around the LAPACK call: on a 3x3 system that set-up is ~95 % of the call
+(~7 of 7.5 us, while the GIL is held), and the ball detector makes ~1000 such calls a pitch
+capture (a circle fit's Newton steps, each ball's shading frame). Here NumPy's own LAPACK
+gufuncs (``numpy.linalg._umath_linalg``, the routines those functions call) are called directly
+on float64 arrays: the same numbers, bit for bit. Where the fast result is not finite (a
+singular matrix, NaN input) the ``np.linalg`` function is called instead, so its result or its
+error (``LinAlgError``) is exactly what it was; the fast call may then also have warned
+(``RuntimeWarning``: invalid value), which ``np.linalg``'s ``errstate`` would have kept quiet.
+Without the private module (another NumPy) every call is the ``np.linalg`` one.
+
+Hand-written rather than a library: the overhead removed is NumPy's own wrapper.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+
+def _lstsq_fast(u, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(a, b, rcond=None)[0]`` for a float64 ``a`` (m, n), m >= n >= 1, and ``b``
+    (m,), through the gufunc ``u.lstsq`` as ``np.linalg.lstsq`` calls it."""
+    m, n = a.shape
+    x = u.lstsq(a, b[:, None], _EPS * max(n, m), signature="ddd->ddid")[0]
+    return x.squeeze(axis=-1).astype(np.float64, copy=True)
+
+
+def _gufuncs():
+    """NumPy's LAPACK gufuncs, if this NumPy has them under the names and signatures used here
+    and they give ``np.linalg``'s numbers on a small example; else None (public functions only)."""
+    try:  # private, but the public functions have wrapped them since NumPy 1.8
+        from numpy.linalg import _umath_linalg as u
+
+        a = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.25], [0.5, 0.25, 2.0]])
+        b = np.array([1.0, -2.0, 0.5])
+        ok = (np.array_equal(u.solve1(a, b, signature="dd->d"), np.linalg.solve(a, b))
+              and np.array_equal(u.inv(a, signature="d->d"), np.linalg.inv(a))
+              and all(np.array_equal(x, y) for x, y in zip(u.eigh_lo(a, signature="d->dd"), np.linalg.eigh(a)))
+              and np.array_equal(u.svd(a, signature="d->d"), np.linalg.svd(a, compute_uv=False))
+              and np.array_equal(_lstsq_fast(u, a[:, :2], b), np.linalg.lstsq(a[:, :2], b, rcond=None)[0]))
+    except Exception:  # noqa: BLE001 - any other layout: the public functions
+        return None
+    return u if ok else None
+
+
+_U = _gufuncs()
+
+__all__ = ["eigh", "inv", "lstsq", "solve", "svdvals"]
+
+_F64 = np.dtype(np.float64)
+_EPS = float(np.finfo(np.float64).eps)
+
+
+def _fast(*arrays) -> bool:
+    return _U is not None and all(type(a) is np.ndarray and a.dtype == _F64 for a in arrays)
+
+
+def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` of a square float64 ``a`` (n, n) and ``b`` (n,)."""
+    if _fast(a, b) and a.ndim == 2 and b.ndim == 1:
+        x = _U.solve1(a, b, signature="dd->d")
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.solve(a, b)
+
+
+def inv(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.inv(a)`` of a square float64 ``a`` (n, n)."""
+    if _fast(a) and a.ndim == 2:
+        x = _U.inv(a, signature="d->d")
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.inv(a)
+
+
+def eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.linalg.eigh(a)`` (lower triangle) of a symmetric float64 ``a`` (n, n): eigenvalues
+    (ascending) and eigenvectors (columns)."""
+    if _fast(a) and a.ndim == 2:
+        w, v = _U.eigh_lo(a, signature="d->dd")
+        if np.isfinite(w).all() and np.isfinite(v).all():
+            return w, v
+    w, v = np.linalg.eigh(a)
+    return w, v
+
+
+def svdvals(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.svd(a, compute_uv=False)`` of a float64 ``a`` (m, n): singular values, descending."""
+    if _fast(a) and a.ndim == 2:
+        s = _U.svd(a, signature="d->d")
+        if np.isfinite(s).all():
+            return s
+    return np.linalg.svd(a, compute_uv=False)
+
+
+def lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.lstsq(a, b, rcond=None)[0]`` (the solution only) of a float64 ``a`` (m, n)
+    with m >= n >= 1 and ``b`` (m,)."""
+    if _fast(a, b) and a.ndim == 2 and b.ndim == 1 and a.shape[0] == b.shape[0] >= a.shape[1] >= 1:
+        x = _lstsq_fast(_U, a, b)
+        if np.isfinite(x).all():
+            return x
+    return np.linalg.lstsq(a, b, rcond=None)[0]
