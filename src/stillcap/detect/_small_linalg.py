@@ -19,6 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["eigh", "inv", "lstsq", "solve", "svdvals"]
+
+_F64 = np.dtype(np.float64)
+_EPS = float(np.finfo(np.float64).eps)
 
 
 def _lstsq_fast(u, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -42,17 +46,12 @@ def _gufuncs():
               and all(np.array_equal(x, y) for x, y in zip(u.eigh_lo(a, signature="d->dd"), np.linalg.eigh(a)))
               and np.array_equal(u.svd(a, signature="d->d"), np.linalg.svd(a, compute_uv=False))
               and np.array_equal(_lstsq_fast(u, a[:, :2], b), np.linalg.lstsq(a[:, :2], b, rcond=None)[0]))
-    except Exception:  # noqa: BLE001 - any other layout: the public functions
-        return None
+    except (ImportError, AttributeError, TypeError, ValueError, np.linalg.LinAlgError):
+        return None  # another layout or signature: the public functions
     return u if ok else None
 
 
 _U = _gufuncs()
-
-__all__ = ["eigh", "inv", "lstsq", "solve", "svdvals"]
-
-_F64 = np.dtype(np.float64)
-_EPS = float(np.finfo(np.float64).eps)
 
 
 def _fast(*arrays) -> bool:
