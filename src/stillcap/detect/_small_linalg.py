@@ -17,6 +17,8 @@ Hand-written rather than a library: the overhead removed is NumPy's own wrapper.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["eigh", "inv", "lstsq", "solve", "svdvals"]
@@ -58,11 +60,21 @@ def _fast(*arrays) -> bool:
     return _U is not None and all(type(a) is np.ndarray and a.dtype == _F64 for a in arrays)
 
 
+_SUM = np.add.reduce
+
+
+def _finite(x: np.ndarray) -> bool:
+    """All of ``x`` finite, or possibly not (then the caller takes np.linalg's result, the same
+    numbers): its sum is finite (one call, not ``np.isfinite(x).all()``'s two; a sum that
+    overflows only sends a finite result the slow way)."""
+    return math.isfinite(_SUM(x, axis=None))
+
+
 def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.solve(a, b)`` of a square float64 ``a`` (n, n) and ``b`` (n,)."""
     if _fast(a, b) and a.ndim == 2 and b.ndim == 1:
         x = _U.solve1(a, b, signature="dd->d")
-        if np.isfinite(x).all():
+        if _finite(x):
             return x
     return np.linalg.solve(a, b)
 
@@ -71,7 +83,7 @@ def inv(a: np.ndarray) -> np.ndarray:
     """``np.linalg.inv(a)`` of a square float64 ``a`` (n, n)."""
     if _fast(a) and a.ndim == 2:
         x = _U.inv(a, signature="d->d")
-        if np.isfinite(x).all():
+        if _finite(x):
             return x
     return np.linalg.inv(a)
 
@@ -81,7 +93,7 @@ def eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (ascending) and eigenvectors (columns)."""
     if _fast(a) and a.ndim == 2:
         w, v = _U.eigh_lo(a, signature="d->dd")
-        if np.isfinite(w).all() and np.isfinite(v).all():
+        if _finite(w) and _finite(v):
             return w, v
     w, v = np.linalg.eigh(a)
     return w, v
@@ -91,7 +103,7 @@ def svdvals(a: np.ndarray) -> np.ndarray:
     """``np.linalg.svd(a, compute_uv=False)`` of a float64 ``a`` (m, n): singular values, descending."""
     if _fast(a) and a.ndim == 2:
         s = _U.svd(a, signature="d->d")
-        if np.isfinite(s).all():
+        if _finite(s):
             return s
     return np.linalg.svd(a, compute_uv=False)
 
@@ -101,6 +113,6 @@ def lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     with m >= n >= 1 and ``b`` (m,)."""
     if _fast(a, b) and a.ndim == 2 and b.ndim == 1 and a.shape[0] == b.shape[0] >= a.shape[1] >= 1:
         x = _lstsq_fast(_U, a, b)
-        if np.isfinite(x).all():
+        if _finite(x):
             return x
     return np.linalg.lstsq(a, b, rcond=None)[0]
