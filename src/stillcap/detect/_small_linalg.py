@@ -6,11 +6,13 @@ an ``np.errstate`` block around the LAPACK call: on a 3x3 system that set-up is 
 (~7 of 7.5 us, while the GIL is held), and the ball detector makes ~1000 such calls a pitch
 capture (a circle fit's Newton steps, each ball's shading frame). Here NumPy's own LAPACK
 gufuncs (``numpy.linalg._umath_linalg``, the routines those functions call) are called directly
-on float64 arrays: the same numbers, bit for bit. Where the fast result is not finite (a
-singular matrix, NaN input) the ``np.linalg`` function is called instead, so its result or its
-error (``LinAlgError``) is exactly what it was; the fast call may then also have warned
-(``RuntimeWarning``: invalid value), which ``np.linalg``'s ``errstate`` would have kept quiet.
-Without the private module (another NumPy) every call is the ``np.linalg`` one.
+on float64 arrays: the same numbers, bit for bit. Only input LAPACK handles without a flag takes
+the fast call: finite, and for ``solve``/``inv`` a 2x2 or 3x3 matrix clearly away from singular
+(:func:`_clearly_regular`); anything else (a singular matrix, NaN input, other shapes or types),
+or a fast result that is not finite, is ``np.linalg``'s own call, so its result, its error
+(``LinAlgError``) and its silence are exactly what they were (the gufuncs called bare would warn
+``RuntimeWarning: invalid value`` on a singular matrix, which ``np.linalg``'s ``errstate``
+turns into its error). Without the private module (another NumPy) every call is ``np.linalg``'s.
 
 Hand-written rather than a library: the overhead removed is NumPy's own wrapper.
 """
@@ -70,9 +72,28 @@ def _finite(x: np.ndarray) -> bool:
     return math.isfinite(_SUM(x, axis=None))
 
 
+def _clearly_regular(a: np.ndarray) -> bool:
+    """A finite 2x2 or 3x3 ``a`` whose determinant (Python floats) is far from 0 relative to the
+    product of its rows' largest entries (> 1e-10 of it; below 1e150 so nothing overflows):
+    LAPACK's LU cannot meet an exactly zero pivot there (one makes the determinant a few
+    rounding errors of that product, ~1e-15), so the fast call never flags a singular matrix
+    (and warns); anything else takes ``np.linalg``'s own call."""
+    if a.shape == (3, 3):
+        (p, q, r), (s, t, u), (v, w, x) = a.tolist()
+        det = p * (t * x - u * w) - q * (s * x - u * v) + r * (s * w - t * v)
+        scale = max(abs(p), abs(q), abs(r)) * max(abs(s), abs(t), abs(u)) * max(abs(v), abs(w), abs(x))
+    elif a.shape == (2, 2):
+        (p, q), (s, t) = a.tolist()
+        det = p * t - q * s
+        scale = max(abs(p), abs(q)) * max(abs(s), abs(t))
+    else:
+        return False
+    return scale < 1e150 and abs(det) > 1e-10 * scale  # (False for NaN and inf)
+
+
 def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.solve(a, b)`` of a square float64 ``a`` (n, n) and ``b`` (n,)."""
-    if _fast(a, b) and a.ndim == 2 and b.ndim == 1:
+    if _fast(a, b) and b.ndim == 1 and _clearly_regular(a) and _finite(b):
         x = _U.solve1(a, b, signature="dd->d")
         if _finite(x):
             return x
@@ -81,7 +102,7 @@ def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def inv(a: np.ndarray) -> np.ndarray:
     """``np.linalg.inv(a)`` of a square float64 ``a`` (n, n)."""
-    if _fast(a) and a.ndim == 2:
+    if _fast(a) and _clearly_regular(a):
         x = _U.inv(a, signature="d->d")
         if _finite(x):
             return x
@@ -91,7 +112,7 @@ def inv(a: np.ndarray) -> np.ndarray:
 def eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.linalg.eigh(a)`` (lower triangle) of a symmetric float64 ``a`` (n, n): eigenvalues
     (ascending) and eigenvectors (columns)."""
-    if _fast(a) and a.ndim == 2:
+    if _fast(a) and a.ndim == 2 and _finite(a):
         w, v = _U.eigh_lo(a, signature="d->dd")
         if _finite(w) and _finite(v):
             return w, v
@@ -101,7 +122,7 @@ def eigh(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def svdvals(a: np.ndarray) -> np.ndarray:
     """``np.linalg.svd(a, compute_uv=False)`` of a float64 ``a`` (m, n): singular values, descending."""
-    if _fast(a) and a.ndim == 2:
+    if _fast(a) and a.ndim == 2 and _finite(a):
         s = _U.svd(a, signature="d->d")
         if _finite(s):
             return s
@@ -111,7 +132,8 @@ def svdvals(a: np.ndarray) -> np.ndarray:
 def lstsq(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``np.linalg.lstsq(a, b, rcond=None)[0]`` (the solution only) of a float64 ``a`` (m, n)
     with m >= n >= 1 and ``b`` (m,)."""
-    if _fast(a, b) and a.ndim == 2 and b.ndim == 1 and a.shape[0] == b.shape[0] >= a.shape[1] >= 1:
+    if (_fast(a, b) and a.ndim == 2 and b.ndim == 1 and a.shape[0] == b.shape[0] >= a.shape[1] >= 1
+            and _finite(a) and _finite(b)):
         x = _lstsq_fast(_U, a, b)
         if _finite(x):
             return x
