@@ -27,10 +27,14 @@ rendered by the studio into ``--cache`` once (a 2560x1920 JPEG pitch, a 640x480 
 views), so the benchmark needs no folder from elsewhere. Run it on a quiet machine: on a loaded
 one every ratio is distorted (the one-off costs of a fresh process suffer most).
 
-    python benchmarks/bench_speed.py [--cache DIR] [--repeat 3] [--pitch-only]
+    python benchmarks/bench_speed.py [--cache DIR] [--repeat 3] [--pitch-only] [--switch-interval MS]
 
 ``--pitch-only``: the pitch rows only (rows 1 and 2, without the puppet's); ``--puppet-only``: the
-puppet's rows only (row 3).
+puppet's rows only (row 3). ``--switch-interval MS``: row 1 again with Python's GIL hand-over
+interval set to MS milliseconds (default 5): a thread that released the GIL for an OpenCV call or
+a decode may wait up to that long to take it back from a thread running Python (the "convoy"
+effect), so on threads a shorter interval may overlap the capture's GIL-free work better (not
+measurable on a loaded machine; issue 16).
 """
 
 from __future__ import annotations
@@ -129,6 +133,8 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--pitch-only", action="store_true", help="the pitch rows only (no puppet)")
     ap.add_argument("--puppet-only", action="store_true", help="the puppet's rows only (no pitch)")
+    ap.add_argument("--switch-interval", type=float, default=None, metavar="MS",
+                    help="also row 1 with sys.setswitchinterval(MS / 1000) (Python's default 5 ms), for comparison")
     args = ap.parse_args(argv)
     if args.pitch_only and args.puppet_only:
         raise SystemExit("give --pitch-only or --puppet-only, not both")
@@ -143,6 +149,14 @@ def main(argv=None) -> None:
     dec_pitch, dec_pitch_cpu = decode(pitch, args.repeat, cpu=True)
     analyse_pitch(Capture.load(pitch), PitchOptions())  # warm-up: first-call costs belong to row 2's process
     api, api_cpu = best_wall_cpu(lambda: analyse_pitch(Capture.load(pitch), PitchOptions()), args.repeat)
+    api_switch = None
+    if args.switch_interval is not None:  # the same with a shorter (or longer) GIL hand-over interval
+        before = sys.getswitchinterval()
+        sys.setswitchinterval(args.switch_interval / 1000.0)
+        try:
+            api_switch = best_time(lambda: analyse_pitch(Capture.load(pitch), PitchOptions()), args.repeat)
+        finally:
+            sys.setswitchinterval(before)
     # for comparison: the pairs' work in 2 worker processes (the pool started by the warm-up)
     analyse_pitch(Capture.load(pitch), PitchOptions(processes=2))
     api_proc = best_time(lambda: analyse_pitch(Capture.load(pitch), PitchOptions(processes=2)), args.repeat)
@@ -172,6 +186,9 @@ def main(argv=None) -> None:
             ("  (the same, CPU time of all its threads vs the decode's CPU time, for comparison)", api_cpu,
              dec_pitch_cpu, None),
             ("  (the same with processes=2, worker pool started before, for comparison)", api_proc, dec_pitch, None),
+            *([] if api_switch is None else [
+                (f"  (the same on threads with sys.setswitchinterval({args.switch_interval:g} ms), for comparison)",
+                 api_switch, dec_pitch, None)]),
             ("`stillcap pitch CAPTURE --json` wall time vs analyse_pitch (its own process)", wall, api, 1.3),
             ("`stillcap pitch CAPTURE --json` through a warm `stillcap serve` vs analyse_pitch", wall_warm, api, 1.3)]
     rows += [] if args.pitch_only else [
