@@ -6,7 +6,12 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from stillcap.body.hand_label import GATE_M, GRID_GATE_M, hand_points_from_truth, label_hand_markers
+from stillcap.body.hand_label import (
+    GATE_M,
+    GRID_GATE_M,
+    hand_points_from_truth,
+    label_hand_markers,
+)
 from stillcap.body.hand_label_fill import digit_search, label_recovered
 from stillcap.studio.hand import hand_capture
 
