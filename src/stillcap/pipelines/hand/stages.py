@@ -221,9 +221,11 @@ def recover_markers(rig, blobs: list, points: MarkerPoints, labels: HandLabels, 
     """Stage 4b: :func:`recover_near` (the markers looked for where the posed hands put them),
     then, with ``pairs``, :func:`recover_digits` (the digits whose pose is a guess searched over
     their range of motion). ``(blobs, points, labels)``."""
+    n_own = [len(b) for b in blobs]  # recover_near may append the blobs on the ball's discs
     blobs, points, labels = recover_near(rig, blobs, points, labels, light, options, messages, images, balls)
     if pairs is not None:
-        points, labels = recover_digits(rig, pairs, blobs, points, labels, light, options, messages)
+        points, labels = recover_digits(rig, pairs, blobs, points, labels, light, options, messages, balls=balls,
+                                        n_own=n_own)
     return blobs, points, labels
 
 
@@ -305,7 +307,8 @@ MAX_FLUX_RATIO = 2.0
 
 
 def recover_digits(rig, pairs: dict, blobs: list, points: MarkerPoints, labels: HandLabels, light,
-                   options: HandOptions, messages: list) -> tuple[MarkerPoints, HandLabels]:
+                   options: HandOptions, messages: list, balls: HandBalls | None = None,
+                   n_own=None) -> tuple[MarkerPoints, HandLabels]:
     """Stage 4b, second part: ``(points, labels)`` with the markers of digits whose fitted pose is
     a guess found and labelled (issue 12).
 
@@ -323,6 +326,9 @@ def recover_digits(rig, pairs: dict, blobs: list, points: MarkerPoints, labels: 
        (:func:`~stillcap.body.hand_label_fill.label_recovered`).
 
     A new point replaces the unlabelled point whose blobs it shares (two such points: left out).
+    With ``balls`` and ``n_own`` (per camera, the blobs of stage 2; those after them are the
+    blobs on the ball's discs that :func:`recover_near` appended), a point from a blob on a
+    ball's disc that lies on the ball is the ball's paint, not taken (as in :func:`recover_near`).
     """
     from stillcap.body.hand_label import GRID_GATE_M, GRID_STEP_DEG
 
@@ -378,7 +384,12 @@ def recover_digits(rig, pairs: dict, blobs: list, points: MarkerPoints, labels: 
     # hands 99.9 % held at most 1.32 times the model's light, the most 1.63; a point with a view
     # of 2.4 gave a wrong label of a first try
     bright = np.any(np.nan_to_num(new.flux_ratio, nan=1.0) > MAX_FLUX_RATIO, axis=0)
-    new = new.select(~(new.partly_hidden & new.ambiguous) & ~bright)
+    paint = np.zeros(len(new), bool)
+    if n_own is not None and balls is not None and len(balls):
+        on_disc = np.any(new.blob_index >= np.array(n_own)[:, None], axis=0)
+        d_ball = np.min(np.linalg.norm(new.points[:, None] - balls.positions[None], axis=2), axis=1)
+        paint = on_disc & (d_ball < options.ball_radius_m + 0.5 * r)
+    new = new.select(~(new.partly_hidden & new.ambiguous) & ~bright & ~paint)
     if not len(new):
         return points, labels
     # a new point takes the row of the one unlabelled point whose blobs it shares; with two such
