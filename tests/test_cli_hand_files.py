@@ -57,7 +57,9 @@ def test_self_checks_fire_with_the_built_in_model_only(results):
     bad = failed_checks(results["built-in"].self_checks)
     assert any(c.name == "marker_fit_residual" for c in bad)
     assert sum(c.name == "finger_misfit" for c in bad) >= 2
-    assert failed_checks(results["own"].self_checks) == []
+    # with the hand's own model nothing misfits (which angles rest on partly hidden markers is said
+    # whatever the model: a property of the photos)
+    assert [c for c in failed_checks(results["own"].self_checks) if c.name != "angles_partly_hidden"] == []
 
 
 def test_cli_prints_failed_checks_and_takes_the_files(other, capsys):
@@ -69,8 +71,8 @@ def test_cli_prints_failed_checks_and_takes_the_files(other, capsys):
     code, out, err = run(["hand", other, "--json", "--hand-model", other / "my_hand.json", "--markers",
                           other / "my_markers.json"], capsys)
     assert code == 0, err
-    assert "self-check" not in err
-    assert all(c["passed"] for c in json.loads(out)["self_checks"])
+    assert [line for line in err.splitlines() if "self-check" in line and "angles_partly_hidden" not in line] == []
+    assert all(c["passed"] for c in json.loads(out)["self_checks"] if c["name"] != "angles_partly_hidden")
 
 
 def test_capture_json_names_the_hand(other, tmp_path, results):

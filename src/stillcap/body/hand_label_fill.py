@@ -45,7 +45,7 @@ from scipy.spatial.transform import Rotation
 from stillcap.body.hand_grid import LabelModel, assign_points, fit_labels, grid_match
 from stillcap.body.skeleton import Pose
 
-__all__ = ["COMPETE_MARKERS", "LEFTOVER_GATE_FACTOR", "PAIR_TOL_M", "label_leftovers", "pose_from_neighbours",
+__all__ = ["COMPETE_MARKERS", "LEFTOVER_GATE_FACTOR", "PAIR_TOL_M", "digit_search", "label_leftovers", "pose_from_neighbours",
            "pose_one_flash", "template_markers"]
 
 #: Tolerance on each distance between three points of a flash and the three template markers
@@ -520,3 +520,95 @@ def label_recovered(labels, points, colors, proposals, *, gate_m: float, predict
     return replace(labels, points=pts, colors=cols, point_index=pi, positions=positions, fits=fits, rms=rms,
                    members=members, unassigned=unassigned)
 
+
+
+def digit_search(labels, points, colors, candidates, *, grid_gate_m: float, gate_m: float,
+                 grid_step_deg: float = 15.0, min_markers: int = 2):
+    """Labels proposed for points on digits whose fitted pose is a guess (issue 12).
+
+    A posed flash's digit with few labelled markers has its joint angles from the fit's start,
+    not from its own points, so :func:`predicted_missing` can put its other markers 30-130 mm
+    from where they are (on the studio's other hands), far beyond any gate. Here the digit's
+    whole range of motion is searched instead, as the first labelling pass does for a flash with
+    a back-of-hand triplet: the flash's fitted root pose fixed, the best grid pose per digit
+    (:func:`~stillcap.body.hand_grid.grid_match`, the digit's labelled points available with the
+    candidates) and the flash fitted with the new labels. A digit's new labels are proposed only
+    when the digit's grid labelling keeps every label the digit already has, at least
+    ``min_markers`` of its markers are labelled so (two markers on one kinematic chain check each
+    other: a stray point alone fits some angle of any digit) and the refitted hand puts every one
+    of them within ``gate_m`` of its point. A candidate that two (flash, marker) proposals want is
+    proposed for neither. The labeller's own tests follow
+    (:func:`label_recovered`, with the refitted positions as the predictions).
+
+    Parameters
+    ----------
+    labels : HandLabels
+    points : array_like, shape (N', 3)
+        ``labels.points`` with rows changed or appended for the candidates.
+    colours : array_like of str, shape (N',)
+    candidates : array_like of int
+        Rows of ``points`` that may be labelled (unlabelled points not shared with labelled ones).
+    grid_gate_m, gate_m : float
+        The labeller's grid and assignment gates (m), already scaled to the hand.
+    grid_step_deg : float
+        Grid step of the digit search (degrees).
+    min_markers : int
+        Markers a digit needs labelled, old and new, for its new labels to be proposed.
+
+    Returns
+    -------
+    proposals : list of (point, flash, marker)
+    predicted : ndarray, shape (len(proposals), 3)
+        The refitted hand's marker for each proposal (world, m).
+    """
+    from stillcap.body.hand import fit_hand
+
+    pts = np.asarray(points, float)
+    cols = np.asarray(colors).astype(str)
+    cand = np.asarray(candidates, int)
+    if pts.ndim != 2 or pts.shape[1] != 3 or cols.shape != (len(pts),):
+        raise ValueError(f"points must have shape (N, 3) and colours (N,), got {pts.shape} and {cols.shape}")
+    if len(cand) and (cand.min() < 0 or cand.max() >= len(pts)):
+        raise ValueError(f"candidates must be rows of points (0..{len(pts) - 1})")
+    out, pred = [], []
+    if not len(cand):
+        return out, np.zeros((0, 3))
+    model = LabelModel(labels.skeleton, labels.markerset, grid_step_deg)
+    pi = labels.point_index
+    for k in range(labels.n_flashes):
+        fit = labels.fits[k]
+        if fit is None:
+            continue
+        own = pi[k][pi[k] >= 0]
+        avail = np.zeros(len(pts), bool)
+        avail[cand] = True
+        avail[own] = True
+        grid, _, _, _ = grid_match(model, fit.pose.root2world, pts, cols, avail, grid_gate_m, fit.angles_deg)
+        tentative = {int(m): int(p) for m, p in enumerate(pi[k]) if p >= 0}
+        new = {}
+        for dig in model.digits:
+            have = {int(m): tentative[int(m)] for m in dig.markers if int(m) in tentative}
+            got = {int(m): grid[int(m)] for m in dig.markers if int(m) in grid}
+            if any(got.get(m) != p for m, p in have.items()):
+                continue  # the grid pose contradicts the digit's labels
+            add = {m: p for m, p in got.items() if m not in have and p in cand}
+            if add and len(have) + len(add) >= min_markers:
+                new.update(add)
+        if not new:
+            continue
+        pos = np.full((len(labels.marker_names), 3), np.nan)
+        for m, p in {**tentative, **new}.items():
+            pos[m] = pts[p]
+        refit = fit_hand(labels.skeleton, labels.markerset, pos, initial=fit.pose)
+        X = labels.markerset.positions(refit.pose)
+        for dig in model.digits:
+            add = [int(m) for m in dig.markers if int(m) in new]
+            if add and all(refit.residuals[m] <= gate_m for m in add):
+                for m in add:
+                    out.append((new[m], k, m))
+                    pred.append(X[m])
+    wanted = {}
+    for p, _, _ in out:
+        wanted[p] = wanted.get(p, 0) + 1
+    keep = [i for i, (p, _, _) in enumerate(out) if wanted[p] == 1]
+    return [out[i] for i in keep], np.array([pred[i] for i in keep], float).reshape(-1, 3)

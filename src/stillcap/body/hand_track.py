@@ -29,7 +29,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Animation, Pose, Skeleton
 
 __all__ = ["HandSequence", "JointAngleSeries", "fit_hand_sequence", "interpolate_animation", "joint_angle_series",
-           "observed_dofs", "dofs_fixed_by"]
+           "observed_dofs", "dofs_fixed_by", "dofs_on_partly_hidden"]
 
 _PERSONALISE = (None, "best", "joint")
 _AXES = ("twist", "flexion", "abduction")
@@ -338,4 +338,38 @@ def dofs_fixed_by(skeleton, markerset, seen: np.ndarray) -> list[tuple[int, int,
             need |= frames == sk.index("thumb-mcp")
         if seen[need].all():
             out.append((j, a, need))
+    return out
+
+
+def dofs_on_partly_hidden(sequence: HandSequence, point_index, partly_hidden) -> np.ndarray:
+    """Which fitted joint angles rest only on partly hidden markers (issue 12): bool, shape
+    ``(n, n_joints, 3)`` like ``sequence.angles_deg``, True for a degree of freedom the markers
+    seen at that pose fix (:func:`observed_dofs`) but the fully seen ones alone do not
+    (:func:`dofs_fixed_by`). A partly hidden marker's centroid shifts by up to a few mm
+    (docs/hand-markers.md), so such an angle is less sure than the others (on the studio's other
+    hands 3-15 deg off against about 1 deg; ``joint_angle_rms_partly_hidden_deg``).
+
+    Parameters
+    ----------
+    sequence : HandSequence
+    point_index : array_like of int, shape (n_flashes, n_markers)
+        The labels' point per (flash, marker), -1 for none (``HandLabels.point_index``).
+    partly_hidden : array_like of bool, shape (n_points,)
+        Per point (``MarkerPoints.partly_hidden``).
+    """
+    pi = np.asarray(point_index)
+    hidden = np.asarray(partly_hidden, bool)
+    if pi.ndim != 2 or pi.shape[1] != sequence.residuals.shape[1]:
+        raise ValueError(f"point_index must have shape (n_flashes, {sequence.residuals.shape[1]}), got {pi.shape}")
+    if hidden.ndim != 1 or (pi.size and pi.max() >= len(hidden)):
+        raise ValueError(f"partly_hidden must have one flag per point (at least {int(pi.max()) + 1}), "
+                         f"got shape {hidden.shape}")
+    out = np.zeros(np.shape(sequence.angles_deg), bool)
+    for i, k in enumerate(sequence.flashes):
+        p = pi[k]
+        whole = np.isfinite(sequence.residuals[i]) & (p >= 0)
+        whole[whole] = ~hidden[p[whole]]
+        by_whole = {(q, ax) for q, ax, _ in dofs_fixed_by(sequence.skeleton, sequence.markerset, whole)}
+        for q, ax in observed_dofs(sequence, i):
+            out[i, q, ax] = (q, ax) not in by_whole
     return out

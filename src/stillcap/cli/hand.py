@@ -183,8 +183,13 @@ def print_hand_result(res) -> None:
         for o in lab.order[seq.flashes]:
             a.add_column(f"flash {int(o)}", justify="right")
         sk = seq.skeleton
+        hidden = res.angles_partly_hidden()[seq.flashes]
         for i in sorted({i for i, ax in hand_dofs(sk) if ax == 1}):
-            a.add_row(sk.names[i], *(_f(ang[i, 1], 1) for ang in seq.angles_deg))
+            a.add_row(sk.names[i], *(_f(ang[i, 1], 1) + ("*" if h[i, 1] else "")
+                                     for ang, h in zip(seq.angles_deg, hidden)))
+        if hidden[:, :, 1].any():
+            a.caption = ("*: rests only on partly hidden markers (their centroids shift by up to a few mm): "
+                         "less sure than the others")
         console.print(a)
         if res.animation is not None:
             console.print(f"animation: {res.animation.n_frames} frames at {res.animation.frame_rate or 0:.0f} fps "

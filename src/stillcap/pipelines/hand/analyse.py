@@ -98,7 +98,8 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
         labels, adapted = label_markers_adapted(points, strobe_hz, options, messages, skeleton, markerset)
     else:
         labels, adapted = label_markers(points, strobe_hz, options, messages, skeleton, markerset), False
-    blobs, points, labels = recover_markers(rig, blobs, points, labels, light, options, messages, images, balls)
+    blobs, points, labels = recover_markers(rig, blobs, points, labels, light, options, messages, images, balls,
+                                            pairs)
     timings["labels"] = _time.perf_counter() - t
     t = _time.perf_counter()
     report_progress(progress, 5, total, "poses")

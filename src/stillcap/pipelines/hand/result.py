@@ -47,13 +47,13 @@ class HandResult:
     timings_s : dict
     self_checks : list of SelfCheck
         What the markers show against what the hand model and the noise allow
-        (:func:`~stillcap.body.hand_checks.hand_self_checks`); JSON key ``self_checks``.
+        (:func:`~stillcap.body.hand_checks.hand_self_checks`), the joints whose angle rests only
+        on partly hidden markers (``angles_partly_hidden``), and ``response``: the ball's shading
+        against each camera's response; JSON key ``self_checks``.
     truth : dict or None
         The comparison with the capture's truth file, for synthetic captures: set by the caller
         that has the truth (:func:`stillcap.studio.compare.hand.compare_with_capture`); the
         pipeline leaves it None.
-    self_checks : list of SelfCheck
-        ``response``: the ball's shading against each camera's response.
     response : dict or None
         The cameras' responses used and where they came from (rig, option, auto).
     """
@@ -73,7 +73,6 @@ class HandResult:
     timings_s: dict = field(default_factory=dict)
     self_checks: list = field(default_factory=list)
     truth: dict | None = None
-    self_checks: list = field(default_factory=list)
     response: dict | None = None
 
     @property
@@ -109,6 +108,19 @@ class HandResult:
                         "marker": None if j is None else lab.marker_names[j], "fit_residual_mm": r})
         return out
 
+    def angles_partly_hidden(self) -> np.ndarray | None:
+        """Which joint angles rest only on partly hidden markers, per flash: bool, shape
+        ``(n_flashes, n_joints, 3)`` like the JSON's ``flashes.angles_deg`` (False where the flash
+        has no pose; :func:`~stillcap.body.hand_track.dofs_on_partly_hidden`); None without poses."""
+        from stillcap.body.hand_track import dofs_on_partly_hidden
+
+        seq, lab = self.sequence, self.labels
+        if seq is None:
+            return None
+        out = np.zeros((lab.n_flashes, seq.skeleton.n_joints, 3), bool)
+        out[seq.flashes] = dofs_on_partly_hidden(seq, lab.point_index, self.points.partly_hidden)
+        return out
+
     def ball_held(self) -> dict:
         """``{flash number (labels.order): True if the ball is in the hand, False if free}`` for
         the flashes that show the ball (empty without a release estimate)."""
@@ -130,7 +142,8 @@ class HandResult:
                                 np.full((nf, nj, 3), np.nan))
             for k, p, a in zip(seq.flashes, seq.poses, seq.angles_deg):
                 ang[k], r2w[k], joints[k] = a, p.root2world, p.positions
-            flashes.update(angles_deg=ang, root2world=r2w, joints=joints)
+            flashes.update(angles_deg=ang, root2world=r2w, joints=joints,
+                           angles_partly_hidden=self.angles_partly_hidden())
         d = {"kind": "hand", "frame": self.capture.rig.world,
              "units": {"length": "m", "time": "s (after the first flash with the hand)", "angle": "deg"},
              "strobe_hz": self.strobe_hz, "pairs": self.pairs, "marker_names": list(lab.marker_names),
@@ -144,7 +157,6 @@ class HandResult:
              "self_checks": checks_to_json(self.self_checks),
              "messages": list(self.messages), "timings_s": dict(self.timings_s)}
         d["response"] = self.response
-        d["self_checks"] = checks_to_json(self.self_checks)
         if self.truth is not None:
             d["truth_comparison"] = self.truth
         return to_jsonable(d)
