@@ -38,6 +38,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap._numeric import median
 from stillcap.detect.ball._hough import _percentile
+from stillcap.detect._marker_chroma import chroma_per_darkness, recolor_dark
 from stillcap.response import Response
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
@@ -365,7 +366,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                         lit_fraction: float = 0.2, disc_fraction: float = 0.97, limb_fraction: float = 0.8,
                         min_aspect: float = 0.4, reject_foreshortened: bool = False,
                         white_balance="auto", adapt_thresholds: bool = True, blur_px: float | None = None,
-                        response=None, shading_model: bool = True) -> BallMarkers:
+                        response=None, shading_model: bool = True, chroma_check: bool = True) -> BallMarkers:
     """Painted markers inside ball images (seed section 4.1: coloured regions inside each ball).
 
     Parameters
@@ -424,6 +425,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         (:func:`_fit_shading`) where that model explains the leather (residual RMS within
         10 % of its brightest), else against a morphological closing of the brightness; False:
         always the closing (as before issue 12).
+    chroma_check : bool
+        A dark region whose chroma (summed over it and 2 px around: JPEG keeps chroma at half
+        resolution and quantises it coarsely, which takes a small coloured marker's saturation
+        below the colour thresholds but keeps most of its summed chroma) is mostly explained by
+        a chromatic palette colour is that colour's paint, not black (:func:`stillcap.detect._marker_chroma.recolor_dark`):
+        it is given that colour, or left out where the evidence is mixed. False: as before.
 
     Returns
     -------
@@ -478,7 +485,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
-    prep, ch_peak, sat_lit, dk_lit, vc_lit = [], [], [], [], []
+    prep, ch_peak, sat_lit, dk_lit, vc_lit, ch_noise = [], [], [], [], [], []
     shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
@@ -534,6 +541,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # pulls every centroid down the shading (0.1-0.3 px with 1.5 px of blur, "Blur" in
         # docs/spin.md); the model has no such pull.
         model = _fit_shading(luma, X, Y, cx, cy, r, lit & (dark_luma < 0.1), resp) if shading_model else None
+        white = lclose
         if model is not None:
             white = (resp.encode(_shading_at(model, X, Y)) / 255.0).astype(np.float32)
             dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(white, 1e-6), 0, 1), 0).astype(np.float32)
@@ -553,7 +561,15 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
-        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose))
+        # the chroma relative to the local white (what paint adds to the leather's colour), for
+        # telling a coloured marker whose saturation JPEG took from black paint (_chroma_shares)
+        ckm = ((crop - luma[..., None]) / np.maximum(white, 1e-6)[..., None]) if (dark and chroma_check) else None
+        if ckm is not None:
+            leather = lit & (dark_luma < 0.1)
+            if leather.any():
+                ch_noise.append(ckm[leather])
+        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
+                     ckm))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
     # for markers whose cores reach the paint's full saturation (or darkness) ``ref``. Lens blur
     # and small marker images mix the paint with the leather, so the cores reach less (1.5 px
@@ -589,7 +605,15 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
-    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose in prep:
+    # the chromatic palette colours' chroma per unit of luma darkness, and the leather's chroma
+    # noise per pixel (a robust sigma over its lit pixels and the three channels)
+    pal_u = np.array([chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
+    k_leather, k_noise = np.zeros(3), float("nan")
+    if ch_noise:
+        allk = np.concatenate(ch_noise)
+        k_leather = np.median(allk, 0)  # the leather's own chroma (a cast the balance left)
+        k_noise = float(np.mean(1.4826 * np.median(np.abs(allk - k_leather), 0)))
+    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -620,8 +644,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             areas = stats[:, cv2.CC_STAT_AREA]
             has_core = np.bincount(lab[core], minlength=n) > 0
             for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
-                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
-                                     disc, inner, limb_fraction, min_aspect))
+                rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
+                              disc, inner, limb_fraction, min_aspect)
+                if rw is not None and tl is dark and ck is not None and len(pal_u):
+                    rw = recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
+                                      k_leather)
+                rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
     if shading:
         for rw in rows:
