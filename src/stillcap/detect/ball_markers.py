@@ -612,7 +612,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     if ch_noise:
         allk = np.concatenate(ch_noise)
         k_leather = np.median(allk, 0)  # the leather's own chroma (a cast the balance left)
-        k_noise = float(np.mean(1.4826 * np.median(np.abs(allk - k_leather), 0)))
+        # (at least a code value: JPEG can leave smooth leather with no chroma noise at all)
+        k_noise = max(float(np.mean(1.4826 * np.median(np.abs(allk - k_leather), 0))), 1.0 / 255.0)
     for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
