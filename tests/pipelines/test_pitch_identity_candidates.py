@@ -7,8 +7,8 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-
 from pipelines.test_pitch_ambiguous_alias import _covers, _spin
+
 from stillcap._selfcheck import SelfCheck
 from stillcap.pipelines.pitch.checks import identity_candidates, widen_spin_for_aliases
 

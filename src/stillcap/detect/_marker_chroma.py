@@ -18,7 +18,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["chroma_per_darkness", "recolor_dark", "SHARE_COLOR", "SHARE_MIXED", "NOISE_Z", "MAX_ANGLE_DEG", "MARGIN_DEG"]
+__all__ = ["MARGIN_DEG", "MAX_ANGLE_DEG", "NOISE_Z", "SHARE_COLOR", "SHARE_MIXED", "chroma_per_darkness", "recolor_dark"]
 
 #: share of a dark region's darkness a palette colour's chroma must explain for the region to
 #: be that colour's paint (half: more colour than black in it)
@@ -35,6 +35,30 @@ MARGIN_DEG = 20.0
 _BOX5 = np.ones((5, 5), np.uint8)  # grows a region by 2 px: the reach of 4:2:0 chroma
 # BGR -> luma weights of cv2.cvtColor(..., COLOR_BGR2GRAY)
 _LUMA = np.array([0.114, 0.587, 0.299])
+
+
+def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
+    """``|(hue - h + 180) % 360 - 180|``: hue difference in degrees (0-180), float32.
+
+    Both in [0, 360] (OpenCV's float hue; ``h`` a float32 array broadcasting against ``hue``),
+    so ``a = hue - h + 180`` is in [-180, 540] and ``a % 360`` is ``a + 360`` below 0 and
+    ``a - 360`` (exact there) from 360 on: the same numbers as NumPy's float remainder, which
+    (fmod and a sign fix-up) costs ten times more.
+    """
+    a = hue - h + 180.0
+    a = np.where(a >= 360.0, a - 360.0, np.where(a < 0.0, a + 360.0, a))
+    return np.abs(a - 180.0)
+
+
+def leather_chroma(samples: list) -> tuple:
+    """The leather's own chroma (median, (3,): a cast the white balance left) and its noise per
+    pixel and channel (a robust sigma, at least a code value: JPEG can leave smooth leather with
+    none) from its lit pixels' chroma (a list of (n, 3) arrays); NaN noise without samples."""
+    if not samples:
+        return np.zeros(3), float("nan")
+    allk = np.concatenate(samples)
+    med = np.median(allk, 0)
+    return med, max(float(np.mean(1.4826 * np.median(np.abs(allk - med), 0))), 1.0 / 255.0)
 
 
 def chroma_per_darkness(color_bgr) -> np.ndarray:

@@ -37,8 +37,8 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap._numeric import median
+from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect.ball._hough import _percentile
-from stillcap.detect._marker_chroma import chroma_per_darkness, recolor_dark
 from stillcap.response import Response
 
 __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "SHAPES",
@@ -288,19 +288,6 @@ def _hull_mask(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
-    """``|(hue - h + 180) % 360 - 180|``: hue difference in degrees (0-180), float32.
-
-    Both in [0, 360] (OpenCV's float hue; ``h`` a float32 array broadcasting against ``hue``),
-    so ``a = hue - h + 180`` is in [-180, 540] and ``a % 360`` is ``a + 360`` below 0 and
-    ``a - 360`` (exact there) from 360 on: the same numbers as NumPy's float remainder, which
-    (fmod and a sign fix-up) costs ten times more.
-    """
-    a = hue - h + 180.0
-    a = np.where(a >= 360.0, a - 360.0, np.where(a < 0.0, a + 360.0, a))
-    return np.abs(a - 180.0)
-
-
 def ball_white_balance(image, centers, radii_px, inner_fraction: float = 0.85, lit_share: float = 0.6,
                        clip: float = 250.0, min_pixels: int = 30) -> np.ndarray:
     """The photo's white balance measured on the balls: BGR gains (largest 1) of the ball's lit
@@ -426,11 +413,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         10 % of its brightest), else against a morphological closing of the brightness; False:
         always the closing (as before issue 12).
     chroma_check : bool
-        A dark region whose chroma (summed over it and 2 px around: JPEG keeps chroma at half
-        resolution and quantises it coarsely, which takes a small coloured marker's saturation
-        below the colour thresholds but keeps most of its summed chroma) is mostly explained by
-        a chromatic palette colour is that colour's paint, not black (:func:`stillcap.detect._marker_chroma.recolor_dark`):
-        it is given that colour, or left out where the evidence is mixed. False: as before.
+        A dark region whose summed chroma a palette colour mostly explains is that colour's
+        paint (JPEG takes a small marker's saturation, not its summed chroma), or left out when
+        mixed (:func:`stillcap.detect._marker_chroma.recolor_dark`); False: always black.
 
     Returns
     -------
@@ -552,7 +537,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         ratio = val / np.maximum(vclose, 1e-6)
         # what the photo's markers reach and the leather's noise (for the thresholds below)
         if chroma:
-            dh = _hue_distance(hue, ch_hue)  # (types, h, w)
+            dh = _mc._hue_distance(hue, ch_hue)  # (types, h, w)
             hue_ok = (disc & (val >= min_value)) & (dh <= hue_tol_deg)
             ch_peak.append(np.where(hue_ok & lit, sat, 0.0).reshape(len(chroma), -1).max(axis=1))
         else:
@@ -561,13 +546,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
-        # the chroma relative to the local white (what paint adds to the leather's colour), for
-        # telling a coloured marker whose saturation JPEG took from black paint (_chroma_shares)
+        # the chroma relative to the local white, for telling coloured paint from black (JPEG)
         ckm = ((crop - luma[..., None]) / np.maximum(white, 1e-6)[..., None]) if (dark and chroma_check) else None
-        if ckm is not None:
-            leather = lit & (dark_luma < 0.1)
-            if leather.any():
-                ch_noise.append(ckm[leather])
+        if ckm is not None and (lit & (dark_luma < 0.1)).any():
+            ch_noise.append(ckm[lit & (dark_luma < 0.1)])
         prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
                      ckm))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
@@ -605,15 +587,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
-    # the chromatic palette colours' chroma per unit of luma darkness, and the leather's chroma
-    # noise per pixel (a robust sigma over its lit pixels and the three channels)
-    pal_u = np.array([chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
-    k_leather, k_noise = np.zeros(3), float("nan")
-    if ch_noise:
-        allk = np.concatenate(ch_noise)
-        k_leather = np.median(allk, 0)  # the leather's own chroma (a cast the balance left)
-        # (at least a code value: JPEG can leave smooth leather with no chroma noise at all)
-        k_noise = max(float(np.mean(1.4826 * np.median(np.abs(allk - k_leather), 0))), 1.0 / 255.0)
+    pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
+    k_leather, k_noise = _mc.leather_chroma(ch_noise)
     for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
@@ -648,7 +623,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
                               disc, inner, limb_fraction, min_aspect)
                 if rw is not None and tl is dark and ck is not None and len(pal_u):
-                    rw = recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
+                    rw = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
                                       k_leather)
                 rows.append(rw)
     rows = [rw for rw in rows if rw is not None]

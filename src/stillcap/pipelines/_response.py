@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from stillcap.ball.stereo import ball_centers_stereo
-from stillcap.detect.response import ResponseEstimate, estimate_response, estimate_responses, response_check
+from stillcap.detect.response import ResponseEstimate, estimate_responses, response_check
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.response import Response, check_response_option
 

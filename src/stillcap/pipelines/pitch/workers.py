@@ -46,8 +46,8 @@ import numpy as np
 
 from stillcap.ball.stereo import ball_centers_stereo
 from stillcap.detect.response import estimate_responses
-from stillcap.pipelines._response import _blur_of
 from stillcap.io.capture import Capture
+from stillcap.pipelines._response import _blur_of
 from stillcap.pipelines.pitch.spin import pair_markers_and_spin
 
 __all__ = [
