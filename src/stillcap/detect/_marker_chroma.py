@@ -69,7 +69,7 @@ def chroma_per_darkness(color_bgr) -> np.ndarray:
 
 
 def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: float, classes,
-                 leather=(0.0, 0.0, 0.0)):
+                 leather=(0.0, 0.0, 0.0), mismatch_flag: int = 4):
     """A dark region's row (of ``_measure``) kept as black, given the colour whose chroma
     explains most of its darkness, or None (mixed evidence: left out).
 
@@ -91,6 +91,8 @@ def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: f
         The chromatic colour classes, in the order of ``pal_u``.
     leather : array_like, shape (3,)
         The leather's own chroma (its median), taken off every pixel first.
+    mismatch_flag : int
+        The ``MarkerFlag.SHAPE_MISMATCH`` bit (passed in: this module is below ball_markers).
     """
     if not np.isfinite(k_noise) or len(pal_u) == 0:
         return rw
@@ -121,12 +123,10 @@ def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: f
     if share < SHARE_COLOR:
         return None
     cen, _, shape, area, conf, aspect, bi, flags = rw
-    from stillcap.detect.ball_markers import MarkerFlag
-
     types = classes[p][0]
     match = [t for t in types if t.shape == shape]
     t = match[0] if match else types[0]
-    flags = flags & ~MarkerFlag.SHAPE_MISMATCH
+    flags = flags & ~mismatch_flag
     if not match and shape != "unknown":
-        flags |= MarkerFlag.SHAPE_MISMATCH
+        flags |= mismatch_flag
     return cen, t.name, shape, area, conf * min(float(share), 1.0), aspect, bi, flags

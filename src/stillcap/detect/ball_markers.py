@@ -38,6 +38,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap._numeric import median
 from stillcap.detect import _marker_chroma as _mc
+from stillcap.detect._marker_chroma import _hue_distance
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -413,9 +414,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         10 % of its brightest), else against a morphological closing of the brightness; False:
         always the closing (as before issue 12).
     chroma_check : bool
-        A dark region whose summed chroma a palette colour mostly explains is that colour's
-        paint (JPEG takes a small marker's saturation, not its summed chroma), or left out when
-        mixed (:func:`stillcap.detect._marker_chroma.recolor_dark`); False: always black.
+        A dark region whose summed chroma a palette colour mostly explains is that colour's paint,
+        or left out if mixed (JPEG, :func:`stillcap.detect._marker_chroma.recolor_dark`); False: black.
 
     Returns
     -------
@@ -537,7 +537,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         ratio = val / np.maximum(vclose, 1e-6)
         # what the photo's markers reach and the leather's noise (for the thresholds below)
         if chroma:
-            dh = _mc._hue_distance(hue, ch_hue)  # (types, h, w)
+            dh = _hue_distance(hue, ch_hue)  # (types, h, w)
             hue_ok = (disc & (val >= min_value)) & (dh <= hue_tol_deg)
             ch_peak.append(np.where(hue_ok & lit, sat, 0.0).reshape(len(chroma), -1).max(axis=1))
         else:
@@ -624,7 +624,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                               disc, inner, limb_fraction, min_aspect)
                 if rw is not None and tl is dark and ck is not None and len(pal_u):
                     rw = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
-                                      k_leather)
+                                      k_leather, MarkerFlag.SHAPE_MISMATCH)
                 rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
     if shading:
