@@ -154,9 +154,9 @@ def test_response_check_tolerance_follows_the_estimates_scatter():
     srgb = Response.srgb()
     gd = srgb.effective_gamma
 
-    def est(gamma, spread, n=10):
-        return response_module.ResponseEstimate("gamma" if gamma > 1.35 else "linear", gamma, spread, n,
-                                                np.full(n, gamma))
+    def est(gamma, spread, n=10):  # n spheres whose log-gammas have the robust sigma ``spread``
+        g = gamma * np.exp(spread * np.resize([-0.6745, 0.6745], n))
+        return response_module.ResponseEstimate("gamma" if gamma > 1.35 else "linear", gamma, spread, n, g)
 
     tight, loose = est(gd * np.exp(-0.4), 0.02), est(gd * np.exp(-0.4), 0.4)
     assert loose.log_gamma_se == pytest.approx(1.2533 * 0.4 / np.sqrt(10))
@@ -167,3 +167,8 @@ def test_response_check_tolerance_follows_the_estimates_scatter():
     assert not response_check(est(1.0, 0.4), srgb, "cam").passed  # a linear camera declared sRGB
     one = est(gd * np.exp(-0.25), float("nan"), n=1)  # no scatter known: the floor alone
     assert one.log_gamma_se == 0.0
+    # spheres stuck at one gamma collapse the MAD, not the trimmed deviation
+    ties = response_module.ResponseEstimate("gamma", 1.26, 0.0, 8, np.array([1.26, 0.84, 1.72, 1.95, 1.26, 1.26,
+                                                                               1.17, 1.26]))
+    trimmed = np.std(np.sort(np.log(ties.gammas))[1:-1], ddof=1)
+    assert ties.log_gamma_se == pytest.approx(1.2533 * trimmed / np.sqrt(8)) and ties.log_gamma_se > 0.05
