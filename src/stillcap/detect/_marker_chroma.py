@@ -18,7 +18,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["MARGIN_DEG", "MAX_ANGLE_DEG", "NOISE_Z", "SHARE_COLOR", "SHARE_MIXED", "chroma_per_darkness", "recolor_dark"]
+__all__ = ["MARGIN_DEG", "MAX_ANGLE_DEG", "MAX_SHARE", "MIN_WHITE", "NOISE_Z", "SHARE_COLOR", "SHARE_MIXED", "chroma_per_darkness", "recolor_dark"]
 
 #: share of a dark region's darkness a palette colour's chroma must explain for the region to
 #: be that colour's paint (half: more colour than black in it)
@@ -27,6 +27,13 @@ SHARE_COLOR = 0.5
 SHARE_MIXED = 0.3
 #: the explained darkness must exceed this many sigmas of the leather's chroma noise
 NOISE_Z = 3.0
+#: a share above this is more chroma than paint gives (1 is paint alone): not paint (measured:
+#: 0.47-1.35 on JPEG 70's markers; 3-8 on a side-lit ball's shadow edge, whose residual cast
+#: the white balance, divided out of encoded values, leaves)
+MAX_SHARE = 2.0
+#: regions whose local white is below this share of the lit leather's (median) are in the
+#: shadow, where the paint's chroma is buried (detect_ball_markers' ``lit_fraction``)
+MIN_WHITE = 0.2
 #: the region's chroma direction within this angle of the colour's (a palette's colours lie
 #: ~120 deg apart: halfway) ...
 MAX_ANGLE_DEG = 60.0
@@ -51,14 +58,19 @@ def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
 
 
 def leather_chroma(samples: list) -> tuple:
-    """The leather's own chroma (median, (3,): a cast the white balance left) and its noise per
-    pixel and channel (a robust sigma, at least a code value: JPEG can leave smooth leather with
-    none) from its lit pixels' chroma (a list of (n, 3) arrays); NaN noise without samples."""
+    """The leather's own chroma relative to its white (median, (3,): a cast the white balance
+    left) and the noise of its chroma per pixel and channel on the 0-1 code scale (a robust
+    sigma of what that cast leaves, at least a code value: JPEG can leave smooth leather with
+    none) and its median white, from its lit pixels' ``(chroma, white)`` (a list of ((n, 3),
+    (n,)) pairs); NaN noise and white without samples."""
     if not samples:
-        return np.zeros(3), float("nan")
-    allk = np.concatenate(samples)
-    med = np.median(allk, 0)
-    return med, max(float(np.mean(1.4826 * np.median(np.abs(allk - med), 0))), 1.0 / 255.0)
+        return np.zeros(3), float("nan"), float("nan")
+    ck = np.concatenate([c for c, _ in samples])
+    w = np.concatenate([w for _, w in samples])
+    med = np.median(ck / np.maximum(w, 1e-6)[:, None], 0)
+    res = ck - w[:, None] * med
+    return (med, max(float(np.mean(1.4826 * np.median(np.abs(res - np.median(res, 0)), 0))), 1.0 / 255.0),
+            float(np.median(w)))
 
 
 def chroma_per_darkness(color_bgr) -> np.ndarray:
@@ -69,7 +81,7 @@ def chroma_per_darkness(color_bgr) -> np.ndarray:
 
 
 def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: float, classes,
-                 leather=(0.0, 0.0, 0.0), mismatch_flag: int = 4):
+                 leather=(0.0, 0.0, 0.0), mismatch_flag: int = 4, lit_white: float = 0.0, prior=()):
     """A dark region's row (of ``_measure``) kept as black, given the colour whose chroma
     explains most of its darkness, or None (mixed evidence: left out).
 
@@ -80,31 +92,51 @@ def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: f
     lab, j, st : the labels, the region's label and its ``cv2`` stats row.
     dark_luma : ndarray (h, w)
         Luma darkness relative to the local white.
-    chroma : ndarray (h, w, 3)
-        BGR chroma ``(pixel - luma)`` relative to the local white.
+    chroma : (ndarray (h, w, 3), ndarray (h, w))
+        BGR chroma ``pixel - luma`` (0-1 code scale) and the local white's luma.
     disc : ndarray of bool (h, w)
     pal_u : ndarray (P, 3)
         The chromatic palette colours' :func:`chroma_per_darkness`.
     k_noise : float
-        The leather's chroma noise per pixel and channel (robust sigma).
+        The leather's chroma noise per pixel and channel, 0-1 code scale (robust sigma).
     classes : list of (types, hue, saturation)
         The chromatic colour classes, in the order of ``pal_u``.
     leather : array_like, shape (3,)
         The leather's own chroma (its median), taken off every pixel first.
     mismatch_flag : int
         The ``MarkerFlag.SHAPE_MISMATCH`` bit (passed in: this module is below ball_markers).
+    lit_white : float
+        The lit leather's median white (luma, 0-1): regions under ``MIN_WHITE`` of it keep black.
+    prior : sequence of rows
+        The rows found so far: a region next to a marker of its colour on the same ball (within
+        its diameter + 2 px) is the rest of that marker (the dark path takes the pixels the
+        colour path left), and is left out.
     """
     if not np.isfinite(k_noise) or len(pal_u) == 0:
         return rw
     bx, by, bw, bh = (int(v) for v in st[:4])
-    y0, x0 = max(by - 3, 0), max(bx - 3, 0)
-    y1, x1 = min(by + bh + 3, lab.shape[0]), min(bx + bw + 3, lab.shape[1])
+    y0, x0 = max(by - 7, 0), max(bx - 7, 0)
+    y1, x1 = min(by + bh + 7, lab.shape[0]), min(bx + bw + 7, lab.shape[1])
     comp = (lab[y0:y1, x0:x1] == j).astype(np.uint8)
     grown = cv2.dilate(comp, _BOX5).astype(bool) & disc[y0:y1, x0:x1]
-    D = float(dark_luma[y0:y1, x0:x1][grown].sum())
+    # on the code scale, not relative to the local white: dim pixels (a shadow line, a
+    # crescent's dark side) carry less paint signal and the same noise, so they weigh less
+    # (relative to a dim white, a side-lit ball's shadow edge read as red and green paint)
+    ck, white = chroma
+    W = white[y0:y1, x0:x1][grown].astype(float)
+    D = float((dark_luma[y0:y1, x0:x1][grown] * W).sum())
     if D <= 0:
         return rw
-    K = chroma[y0:y1, x0:x1][grown].sum(0) - grown.sum() * np.asarray(leather, float)
+    # the leather's cast from the leather around the region where there is enough of it (the
+    # white balance is divided out of encoded values, so a cast left by it changes with the
+    # brightness: a side-lit ball's dim shadow edge has its own), else the ball's lit leather's
+    ring = (cv2.dilate(grown.astype(np.uint8), _BOX5, iterations=2).astype(bool) & ~grown & disc[y0:y1, x0:x1]
+            & (dark_luma[y0:y1, x0:x1] < 0.1))
+    if ring.sum() >= 8:
+        leather = np.median(ck[y0:y1, x0:x1][ring] / np.maximum(white[y0:y1, x0:x1][ring], 1e-6)[:, None], 0)
+    if not W.mean() >= MIN_WHITE * lit_white:  # in the shadow: no paint signal to read there
+        return rw
+    K = ck[y0:y1, x0:x1][grown].sum(0) - np.asarray(leather, float) * W.sum()
     uu = (pal_u * pal_u).sum(1)
     a = (pal_u @ K) / np.maximum(uu, 1e-12)  # darkness each colour's chroma explains
     # the colour whose chroma direction is nearest the region's, decisively: within MAX_ANGLE
@@ -118,12 +150,16 @@ def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: f
         return rw
     sig = np.sqrt(grown.sum()) * k_noise / np.sqrt(max(uu[p], 1e-12))
     share = a[p] / D
-    if a[p] <= NOISE_Z * sig or share < SHARE_MIXED:
+    if a[p] <= NOISE_Z * sig or share < SHARE_MIXED or share > MAX_SHARE:
         return rw
     if share < SHARE_COLOR:
         return None
     cen, _, shape, area, conf, aspect, bi, flags = rw
     types = classes[p][0]
+    names = {t.name for t in types}
+    reach = 2.0 * np.sqrt(area / np.pi) + 2.0
+    if any(q is not None and q[6] == bi and q[1] in names and np.hypot(*(q[0] - cen)) <= reach for q in prior):
+        return None
     match = [t for t in types if t.shape == shape]
     t = match[0] if match else types[0]
     flags = flags & ~mismatch_flag

@@ -547,9 +547,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
         # the chroma relative to the local white, for telling coloured paint from black (JPEG)
-        ckm = ((crop - luma[..., None]) / np.maximum(white, 1e-6)[..., None]) if (dark and chroma_check) else None
+        ckm = (crop - luma[..., None], np.asarray(white, np.float32)) if (dark and chroma_check) else None
         if ckm is not None and (lit & (dark_luma < 0.1)).any():
-            ch_noise.append(ckm[lit & (dark_luma < 0.1)])
+            ch_noise.append((ckm[0][lit & (dark_luma < 0.1)], ckm[1][lit & (dark_luma < 0.1)]))
         prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
                      ckm))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
@@ -588,7 +588,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
     pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
-    k_leather, k_noise = _mc.leather_chroma(ch_noise)
+    k_leather, k_noise, w_lit = _mc.leather_chroma(ch_noise)
     for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
@@ -624,7 +624,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                               disc, inner, limb_fraction, min_aspect)
                 if rw is not None and tl is dark and ck is not None and len(pal_u):
                     rw = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
-                                      k_leather, MarkerFlag.SHAPE_MISMATCH)
+                                      k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
                 rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
     if shading:
