@@ -17,7 +17,9 @@ Runs the pitch pipeline's response stages, not the whole pipeline (for speed): "
 state the response; the self-check is :func:`stillcap.detect.response.response_check` on each
 camera's ball images found with the declared response (:func:`ball_centers_stereo`, as the
 pipeline's first stage). A capture "fires" when any camera's check fails. Wrong declaration: sRGB
-for a linear camera, linear for an encoded one. Accuracy only: no timing.
+for a linear camera, linear for an encoded one. The margins: over the captures, the largest
+worst-camera ``value / limit`` with the right response (below 1: no false alarm) and the
+smallest with the wrong one (above 1: every capture fires). Accuracy only: no timing.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ import sys
 import tempfile
 from pathlib import Path
 from dataclasses import replace
+
+import numpy as np
 
 from stillcap.ball.layout import BASEBALL_RADIUS
 from stillcap.detect.response import response_check
@@ -40,7 +44,9 @@ sys.path.insert(0, __file__.rsplit("/", 1)[0])
 from bench_response import TRUE, wrong_for  # noqa: E402
 
 
-def fired(cap: Capture, declared: Response, radius_m: float = BASEBALL_RADIUS) -> tuple[bool, list]:
+def fired(cap: Capture, declared: Response, radius_m: float = BASEBALL_RADIUS) -> tuple[bool, list, float]:
+    """Whether any camera's check fails, the values, and the worst camera's value over its limit
+    (the capture's margin: above 1 it fires; NaN when no camera could tell)."""
     specs, _ = stereo_pairs(cap)
     values = []
     for sp in specs:
@@ -48,7 +54,9 @@ def fired(cap: Capture, declared: Response, radius_m: float = BASEBALL_RADIUS) -
         imgs = [cap.read_image(im) for im in sp.images]
         for e in _pair_estimates(cams, imgs, radius_m):
             values.append(response_check(e, declared))
-    return any(not c.passed for c in values), [round(c.value, 2) for c in values]
+    ratios = [c.value / c.limit for c in values if c.value is not None]
+    return (any(not c.passed for c in values), [None if c.value is None else round(c.value, 2) for c in values],
+            max(ratios) if ratios else float("nan"))
 
 
 def conditions_of(condition: str | None, seed: int) -> tuple[dict, dict, int | None]:
@@ -88,10 +96,11 @@ def capture(name: str, true: Response, seed: int, size, cache: Path | None,
 
 def main(n: int, size, cache: Path | None = None, condition: str | None = None) -> None:
     print(f"N = {n} pitches per response, {size[0]}x{size[1]}" + (f", condition {condition!r}" if condition else ""))
-    print(f"{'true':>10} {'auto class right':>17} {'fires (right)':>13} {'fires (wrong)':>13}  auto gammas")
+    print(f"{'true':>10} {'auto class right':>17} {'fires (right)':>13} {'fires (wrong)':>13} "
+          f"{'margin right':>12} {'margin wrong':>12}  auto gammas")
     for name, true in TRUE.items():
         ok = total = fr = fw = 0
-        gammas = []
+        gammas, mr, mw = [], [], []
         for seed in range(n):
             cap, radius = capture(name, true, seed, size, cache, condition)
             blind = replace(cap, rig=cap.rig.with_responses(Response.srgb()))
@@ -100,10 +109,14 @@ def main(n: int, size, cache: Path | None = None, condition: str | None = None) 
                 total += 1
                 ok += e.response_class == true.response_class
                 gammas.append(round(e.gamma, 2))
-            fr += fired(cap, true, radius)[0]
-            fw += fired(cap, wrong_for(true), radius)[0]
-        print(f"{name:>10} {ok:>8}/{total:<8} {fr:>6}/{n:<6} {fw:>6}/{n:<6}  {sorted(gammas)[::max(1, len(gammas) // 12)]}",
-              flush=True)
+            right, wrong = fired(cap, true, radius), fired(cap, wrong_for(true), radius)
+            fr, fw = fr + right[0], fw + wrong[0]
+            mr.append(right[2])
+            mw.append(wrong[2])
+        # margins: the largest worst-camera value/limit with the right response (below 1: no
+        # false alarm) and the smallest with the wrong one (above 1: every capture fires)
+        print(f"{name:>10} {ok:>8}/{total:<8} {fr:>6}/{n:<6} {fw:>6}/{n:<6} {np.nanmax(mr):>12.2f} {np.nanmin(mw):>12.2f}  "
+              f"{sorted(gammas)[::max(1, len(gammas) // 12)]}", flush=True)
 
 
 if __name__ == "__main__":

@@ -129,3 +129,46 @@ def test_only_the_largest_spheres_are_fitted():
     e = estimate_response([p[0] for p in photos], [p[1][None] for p in photos], [p[2] for p in photos],
                           max_spheres=3)
     assert e.n_spheres == 3 and e.response_class == "linear"
+
+
+@pytest.mark.parametrize("gamma, value", [("linear", 1.0), ({"gamma": 1.8}, 1.8), ({"gamma": 2.6}, 2.6)])
+def test_the_measured_blur_removes_the_gamma_bias(gamma, value):
+    """1.5 px of lens blur on 8 px spheres flattens the shading (a gamma ~25 % low with a sharp
+    model); given the blur (as the ball step measures it on the limbs), the model blurs the
+    radiance and the estimate comes within 10 %."""
+    photos = [sphere_photo(gamma, light, r=8.0, size=30, blur=1.5, noise=0.002, rng=i, markers=False)
+              for i, light in enumerate([(0, 0, -1), (0.5, -0.3, -0.81), (-0.9, 0.1, -0.42), (0.6, 0.5, -0.62),
+                                         (0.3, 0.2, -0.93)])]
+    args = ([p[0] for p in photos], [p[1][None] for p in photos], [p[2] for p in photos])
+    sharp, = response_module.estimate_responses([args])
+    blurred, = response_module.estimate_responses([args + (1.5,)])
+    assert abs(np.log(sharp.gamma / value)) > 0.2
+    assert abs(np.log(blurred.gamma / value)) < 0.1
+    assert blurred.blur_px == 1.5 and blurred.radius_px == pytest.approx(8.0)
+    assert np.isnan(sharp.blur_px)
+
+
+def test_response_check_tolerance_follows_the_estimates_scatter():
+    """The check passes up to 0.3 + 2.5 standard errors of the estimate (its spheres' scatter):
+    the same gap fails a tight estimate and passes a scattered one; a wrong class still fails."""
+    srgb = Response.srgb()
+    gd = srgb.effective_gamma
+
+    def est(gamma, spread, n=10):  # n spheres whose log-gammas have the robust sigma ``spread``
+        g = gamma * np.exp(spread * np.resize([-0.6745, 0.6745], n))
+        return response_module.ResponseEstimate("gamma" if gamma > 1.35 else "linear", gamma, spread, n, g)
+
+    tight, loose = est(gd * np.exp(-0.4), 0.02), est(gd * np.exp(-0.4), 0.4)
+    assert loose.log_gamma_se == pytest.approx(1.2533 * 0.4 / np.sqrt(10))
+    a, b = response_check(tight, srgb, "cam"), response_check(loose, srgb, "cam")
+    assert not a.passed and b.passed
+    assert b.limit == pytest.approx(0.3 + 2.5 * loose.log_gamma_se) and b.value == pytest.approx(0.4)
+    assert "scatter" in b.message
+    assert not response_check(est(1.0, 0.4), srgb, "cam").passed  # a linear camera declared sRGB
+    one = est(gd * np.exp(-0.25), float("nan"), n=1)  # no scatter known: the floor alone
+    assert one.log_gamma_se == 0.0
+    # spheres stuck at one gamma collapse the MAD, not the trimmed deviation
+    ties = response_module.ResponseEstimate("gamma", 1.26, 0.0, 8, np.array([1.26, 0.84, 1.72, 1.95, 1.26, 1.26,
+                                                                               1.17, 1.26]))
+    trimmed = np.std(np.sort(np.log(ties.gammas))[1:-1], ddof=1)
+    assert ties.log_gamma_se == pytest.approx(1.2533 * trimmed / np.sqrt(8)) and ties.log_gamma_se > 0.05

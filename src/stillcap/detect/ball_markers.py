@@ -37,6 +37,8 @@ import numpy as np
 
 from stillcap._checks import as_array
 from stillcap._numeric import median
+from stillcap.detect import _marker_chroma as _mc
+from stillcap.detect._marker_chroma import _hue_distance
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -287,19 +289,6 @@ def _hull_mask(mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hue_distance(hue: np.ndarray, h) -> np.ndarray:
-    """``|(hue - h + 180) % 360 - 180|``: hue difference in degrees (0-180), float32.
-
-    Both in [0, 360] (OpenCV's float hue; ``h`` a float32 array broadcasting against ``hue``),
-    so ``a = hue - h + 180`` is in [-180, 540] and ``a % 360`` is ``a + 360`` below 0 and
-    ``a - 360`` (exact there) from 360 on: the same numbers as NumPy's float remainder, which
-    (fmod and a sign fix-up) costs ten times more.
-    """
-    a = hue - h + 180.0
-    a = np.where(a >= 360.0, a - 360.0, np.where(a < 0.0, a + 360.0, a))
-    return np.abs(a - 180.0)
-
-
 def ball_white_balance(image, centers, radii_px, inner_fraction: float = 0.85, lit_share: float = 0.6,
                        clip: float = 250.0, min_pixels: int = 30) -> np.ndarray:
     """The photo's white balance measured on the balls: BGR gains (largest 1) of the ball's lit
@@ -365,7 +354,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                         lit_fraction: float = 0.2, disc_fraction: float = 0.97, limb_fraction: float = 0.8,
                         min_aspect: float = 0.4, reject_foreshortened: bool = False,
                         white_balance="auto", adapt_thresholds: bool = True, blur_px: float | None = None,
-                        response=None, shading_model: bool = True) -> BallMarkers:
+                        response=None, shading_model: bool = True, chroma_check: bool = True) -> BallMarkers:
     """Painted markers inside ball images (seed section 4.1: coloured regions inside each ball).
 
     Parameters
@@ -424,6 +413,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         (:func:`_fit_shading`) where that model explains the leather (residual RMS within
         10 % of its brightest), else against a morphological closing of the brightness; False:
         always the closing (as before issue 12).
+    chroma_check : bool
+        A dark region whose summed chroma a palette colour mostly explains is that colour's paint,
+        or left out if mixed (JPEG, :func:`stillcap.detect._marker_chroma.recolor_dark`); False: black.
 
     Returns
     -------
@@ -478,7 +470,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
-    prep, ch_peak, sat_lit, dk_lit, vc_lit = [], [], [], [], []
+    prep, ch_peak, sat_lit, dk_lit, vc_lit, ch_noise = [], [], [], [], [], []
     shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
@@ -534,6 +526,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # pulls every centroid down the shading (0.1-0.3 px with 1.5 px of blur, "Blur" in
         # docs/spin.md); the model has no such pull.
         model = _fit_shading(luma, X, Y, cx, cy, r, lit & (dark_luma < 0.1), resp) if shading_model else None
+        white = lclose
         if model is not None:
             white = (resp.encode(_shading_at(model, X, Y)) / 255.0).astype(np.float32)
             dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(white, 1e-6), 0, 1), 0).astype(np.float32)
@@ -553,7 +546,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
-        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose))
+        # the chroma relative to the local white, for telling coloured paint from black (JPEG)
+        ckm = (crop - luma[..., None], np.asarray(white, np.float32)) if (dark and chroma_check) else None
+        if ckm is not None and (lit & (dark_luma < 0.1)).any():
+            ch_noise.append((ckm[0][lit & (dark_luma < 0.1)], ckm[1][lit & (dark_luma < 0.1)]))
+        prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
+                     ckm))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
     # for markers whose cores reach the paint's full saturation (or darkness) ``ref``. Lens blur
     # and small marker images mix the paint with the leather, so the cores reach less (1.5 px
@@ -589,7 +587,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
-    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose in prep:
+    pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
+    k_leather, k_noise, w_lit = _mc.leather_chroma(ch_noise)
+    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -620,8 +620,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             areas = stats[:, cv2.CC_STAT_AREA]
             has_core = np.bincount(lab[core], minlength=n) > 0
             for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
-                rows.append(_measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
-                                     disc, inner, limb_fraction, min_aspect))
+                rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
+                              disc, inner, limb_fraction, min_aspect)
+                if rw is not None and tl is dark and ck is not None and len(pal_u):
+                    rw = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
+                                      k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
+                rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
     if shading:
         for rw in rows:

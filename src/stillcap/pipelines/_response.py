@@ -17,7 +17,7 @@ from dataclasses import replace
 import numpy as np
 
 from stillcap.ball.stereo import ball_centers_stereo
-from stillcap.detect.response import ResponseEstimate, estimate_response, estimate_responses, response_check
+from stillcap.detect.response import ResponseEstimate, estimate_responses, response_check
 from stillcap.io.capture import Capture, stereo_pairs
 from stillcap.response import Response, check_response_option
 
@@ -81,8 +81,14 @@ def _pair_estimates(cams, imgs, radius_m: float) -> tuple:
     responses, radii projected from the triangulated balls (the geometry the shading fit needs)."""
     st = ball_centers_stereo(cams[0], imgs[0], cams[1], imgs[1], radius_m)
     ok = st.ok
-    return tuple(estimate_responses([(imgs[k], (st.centers_a, st.centers_b)[k][ok], st.radius_px[ok, k])
-                                     for k in range(2)]))
+    return tuple(estimate_responses([(imgs[k], (st.centers_a, st.centers_b)[k][ok], st.radius_px[ok, k],
+                                      _blur_of(st, k)) for k in range(2)]))
+
+
+def _blur_of(stereo, k: int) -> float | None:
+    """Camera ``k``'s lens blur (px) the ball step read from the limbs (None: not known)."""
+    psf = None if stereo is None else getattr(stereo, "psf_px", None)
+    return None if psf is None else float(np.asarray(psf, float)[k])
 
 
 def pitch_auto_estimates(cap: Capture, radius_m: float, rounds: int = 3) -> dict:
@@ -128,7 +134,8 @@ def pitch_response_checks(cap: Capture, pairs: list, estimates: dict | None = No
             e: ResponseEstimate | None = estimates.get((name, ims[0].file))
             if e is None:
                 img = cap.read_image(ims[0])
-                e = estimate_response(img, np.asarray(p.centers_px[k]), np.asarray(p.radius_px[k]))
+                e = estimate_responses([(img, np.asarray(p.centers_px[k]), np.asarray(p.radius_px[k]),
+                                         _blur_of(getattr(p, "stereo", None), k))])[0]
             found[name] = e.to_json()
             checks.append(response_check(e, cap.rig[name].response, subject=name))
     return checks, found

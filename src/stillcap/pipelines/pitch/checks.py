@@ -49,7 +49,7 @@ from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
 
 __all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images", "disagreement_factor",
-           "ambiguous_alias_candidates", "widen_spin_for_aliases"]
+           "ambiguous_alias_candidates", "widen_spin_for_aliases", "identity_candidates"]
 
 #: False-alarm probability of each check on a capture where the model holds.
 CHECK_P = 1e-3
@@ -345,3 +345,43 @@ def widen_spin_for_aliases(spin, candidates):
     # on the rate is meaningless for a reversed alias, whose rate is close and vector opposite)
     return replace(spin, spin_covariance=cov, sigma_rpm=max(s_rate0, need_rate),
                    sigma_axis_deg=max(s_axis0, need_axis)), extra
+
+
+class _Candidate:
+    """A spin the photos cannot rule out (:func:`widen_spin_for_aliases` reads ``spin``)."""
+
+    def __init__(self, spin):
+        self.spin = np.asarray(spin, float)
+        self.spin_rpm = float(np.linalg.norm(self.spin)) * RPM_PER_RAD_S
+        n = np.linalg.norm(self.spin)
+        self.axis = self.spin / n if n > 0 else np.full(3, np.nan)
+
+
+def identity_candidates(spin, layout_check, flight_spin, spin_cmp, scale: float = 1.0) -> list:
+    """The spin the flight's curvature points to, when the markers' identities failed.
+
+    With misidentified markers (the ``ball_layout`` check failed: the markers lie further from
+    every rotation of the ball's layout than markers are found) the spin fit's errors are
+    systematic, and its residual-scaled covariance does not cover them (issue 12: JPEG 70
+    typed small green and blue markers black, and the spin came out 83 rpm off with a sigma of
+    11 rpm while the flight's curvature was 9 rpm off). Where the flight's curvature also
+    disagrees with the marker spin (``spin_vs_flight``), the spin the flight shows is a second
+    candidate: the marker spin with its transverse part the flight's (with the seed's lift law,
+    whose flight sees the total rate, its rate the flight's). Empty when the identities held,
+    the flight agrees or there is no flight spin.
+
+    ``scale``: the marker spin's magnitude over ``spin_cmp``'s (which compares the spin at the
+    flight's ``t0``).
+    """
+    if (spin is None or layout_check is None or layout_check.passed or spin_cmp is None or flight_spin is None
+            or spin_cmp.agree):
+        return []
+    w = np.asarray(spin.spin, float)
+    if getattr(flight_spin, "lift_from", "") == "total":
+        rm = float(spin_cmp.marker_transverse_rpm)
+        if not rm > 0:
+            return []
+        c = w * (float(spin_cmp.flight_rpm) / rm)
+    else:
+        c = w + (np.asarray(flight_spin.spin, float) - np.asarray(spin_cmp.marker_transverse, float)) / scale
+    return [_Candidate(c)] if np.all(np.isfinite(c)) else []

@@ -664,6 +664,24 @@ def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured:
                           "from the reported one)" for c in others)
             + f": the reported intervals cover them all (+-{1.96 * measured.spin.sigma_rpm:.0f} rpm, "
             f"axis +-{2.45 * measured.spin.sigma_axis_deg:.0f} deg); photograph with two strobe rates")
+    # misidentified markers (ball_layout failed) and a flight that disagrees: the spin's
+    # intervals cover the spin the flight shows as well (checks.identity_candidates)
+    if measured.ok and measured.spin is not None:
+        from stillcap.pipelines.pitch.checks import identity_candidates
+        from stillcap.pipelines.pitch.spin import ball_layout_check
+
+        r = float(np.linalg.norm(measured.w0)) / max(float(np.linalg.norm(measured.spin.spin)), 1e-12)
+        cands = identity_candidates(measured.spin, ball_layout_check(measured.spin, options.marker_layout),
+                                    flight_spin, spin_cmp, r)
+        if cands:
+            spin0 = measured.spin
+            measured.spin, extra = widen_spin_for_aliases(spin0, cands)
+            measured.cov0 = measured.cov0 + extra * r * r
+            log.messages.append(
+                f"spin unreliable: the markers do not fit the ball's layout (misidentified?) and the flight's "
+                f"curvature points to {cands[0].spin_rpm:.0f} rpm against the markers' {spin0.spin_rpm:.0f} rpm: "
+                f"the reported intervals cover both (+-{1.96 * measured.spin.sigma_rpm:.0f} rpm, "
+                f"axis +-{2.45 * measured.spin.sigma_axis_deg:.1f} deg)")
     f = disagreement_factor(checks)
     if f > 1.0:
         fit = fit.with_extra_covariance((f - 1.0) * fit.covariance)

@@ -47,6 +47,7 @@ import numpy as np
 from stillcap.ball.stereo import ball_centers_stereo
 from stillcap.detect.response import estimate_responses
 from stillcap.io.capture import Capture
+from stillcap.pipelines._response import _blur_of
 from stillcap.pipelines.pitch.spin import pair_markers_and_spin
 
 __all__ = [
@@ -109,7 +110,8 @@ def pair_response_estimates(photos, pair) -> dict:
     at its refined centres and projected radii: what the ``response`` self-check
     (:func:`stillcap.pipelines._response.pitch_response_checks`) computes, on the photos the
     pair step decoded, where they are."""
-    found = estimate_responses([(photos[k], np.asarray(pair.centers_px[k]), np.asarray(pair.radius_px[k]))
+    found = estimate_responses([(photos[k], np.asarray(pair.centers_px[k]), np.asarray(pair.radius_px[k]),
+                                 _blur_of(pair.stereo, k))
                                 for k in range(len(pair.cameras))])  # both cameras in one batch
     return dict(zip(pair.cameras, found))
 
