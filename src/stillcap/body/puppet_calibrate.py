@@ -229,17 +229,20 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             locals_.append(loc)
         fit_args = (template, markerset, all_points)
         out = _joint_fit(*fit_args, s, ms.offsets, ts, locals_, sigmas, scale_sd, offset_sd_m)
-        if any(np.any(sg < COARSE_SIGMA_M) for sg in sigmas):
-            # beads sharper than COARSE_SIGMA_M: first fitted with that error, then with their
-            # own from there, and the better of the two kept. From the template's start the
-            # beads sit millimetres off, hundreds of their own sigmas, where the soft-L1 loss
-            # treats nearly every bead as an outlier (seed 19 of another_puppet, beads at
-            # 0.01-0.03 mm: the direct fit stalled at 1.5 mm RMS, its bones 5.5 deg off; with
-            # the beads' noise doubled it reached 0.013 mm)
-            coarse = [np.maximum(sg, COARSE_SIGMA_M) for sg in sigmas]
-            c_s, c_beads, c_ts, c_loc = _joint_fit(*fit_args, s, ms.offsets, ts, locals_, coarse, scale_sd,
-                                                   offset_sd_m)[:4]
-            out2 = _joint_fit(*fit_args, c_s, c_beads, c_ts, c_loc, sigmas, scale_sd, offset_sd_m)
+        if any(np.any(sg < COARSE_SIGMAS_M[-1]) for sg in sigmas):
+            # beads sharper than the coarsest levels: fitted with each level of COARSE_SIGMAS_M in
+            # turn (every bead's error at least that), then with their own from there, and the
+            # better of that and the direct fit kept. From the template's start the beads sit
+            # millimetres off, hundreds of their own sigmas, where the soft-L1 loss treats nearly
+            # every bead as an outlier and the fit settles with some bones turned (seed 19 of
+            # another_puppet, beads at 0.01-0.03 mm: the direct fit stalled at 1.5 mm RMS, its
+            # bones 5.5 deg off; seed 18 with beads turned +-60 deg: after one level at 0.1 mm
+            # still 3.5 mm RMS, 18.5 deg on the bones, with levels 1 and 0.25 mm 0.02 mm, 0.18 deg)
+            start = (s, ms.offsets, ts, locals_)
+            for level in COARSE_SIGMAS_M:
+                coarse = [np.maximum(sg, level) for sg in sigmas]
+                start = _joint_fit(*fit_args, *start, coarse, scale_sd, offset_sd_m)[:4]
+            out2 = _joint_fit(*fit_args, *start, sigmas, scale_sd, offset_sd_m)
             if out2[4].cost < out[4].cost:
                 out = out2
         s_j, beads_j, ts_j, _, joint_fit, fitted_bones, _, (dir_sd, misfit) = out
@@ -272,9 +275,12 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
                                misfit)
 
 
-#: :func:`calibrate_skeleton`: beads whose expected error is below this (metres) are first fitted
-#: with it (a numerical start for the joint fit, not a statement about the beads).
-COARSE_SIGMA_M = 0.1e-3
+#: :func:`calibrate_skeleton`: beads whose expected error is below the last level (metres) are
+#: first fitted with every bead's error at least each level in turn, coarse to fine (a numerical
+#: path for the joint fit, graduated as in graduated non-convexity; not a statement about the
+#: beads). The first level is of the order of a template's bead misplacement on another puppet
+#: (millimetres), the last a little above a sharp capture's bead noise.
+COARSE_SIGMAS_M = (1.0e-3, 0.25e-3)
 
 
 def _bead_sigmas(noise_m, n_caps: int, nm: int, marker_sigma_m: float) -> list[np.ndarray]:
