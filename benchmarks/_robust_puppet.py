@@ -19,7 +19,11 @@ predicted error per bone, RMS: about 1 when the prediction is honest), the bones
 uncertain (right: measured error over the 1 deg limit; wrong: not over it; missed: over it but not
 named), the model-free bead-pair direction RMS, and per skeleton the bones the result's self-checks
 name as not matching the puppet (``*_checks_failed``; ``*_over1_named_missed``: of the bones over
-1 deg, named / not named). ``benchmarks/bench_robustness.py`` imports :func:`rows`;
+1 deg, named / not named). ``*_measured`` columns: the bone RMS over the bones whose beads this
+capture recovered (the comparison's measured grouping; a bone whose beads no photo shows, e.g.
+a hand raised above every photo's frame, is the fit's guess and named by the self-check
+``bone_measured``); ``calibrations_over_1deg``: puppets whose calibrated skeleton gave over 1 deg
+RMS; ``calibration_wrong_ids``: wrong names in the three calibration captures (built-in body). ``benchmarks/bench_robustness.py`` imports :func:`rows`;
 
     python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...]
 
@@ -94,20 +98,24 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
         return _save(puppet_scene(pose=spec, rng=seed, markerset=ms, skeleton=sk, sensor=sensor), tmp / name)
 
     test = shoot("test", f"random:{seed + 7}")
-    cal_pts, cal_noise = [], []
+    cal_pts, cal_noise, cal_wrong = [], [], 0
     for name, spec in (("rest", "tpose"), ("p1", f"random:{seed + 1}"), ("p2", f"random:{seed + 2}")):
-        r, _ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
+        r, c_ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
+        cal_wrong += c_.wrong  # wrong names in the calibration's own captures (built-in body)
         m = r.markers
         p = m.points.copy()
         p[m.partly_hidden] = np.nan  # as calibrate-skeleton does
         cal_pts.append(p)
         cal_noise.append(bead_noise(r.rig, m.points, m.observations, m.used, exclude=m.partly_hidden).sd_m)
     cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:], noise_m=cal_noise)
-    out = {"seed": seed}
+    out = {"seed": seed, "cal_wrong": cal_wrong}
     for label, (m_, s_) in (("builtin", (MarkerSet.puppet(msname), Skeleton.puppet())),
                             ("calibrated", (cal.markerset, cal.skeleton)), ("user", (ms, sk))):
         res, cmp = _analyse(test, m_, s_)
         out[f"{label}_rms"], out[f"{label}_max"] = cmp.bone_stats("full")
+        # the same over the bones whose beads this capture recovered (a bone whose frame's beads
+        # no photo shows is the fit's guess, named by the self-check bone_measured)
+        out[f"{label}_rms_measured"] = cmp.bone_stats("full", measured=True)[0]
         # the per-bone self-checks (does the skeleton match the puppet?) against the measured
         # error: bones named (a failed bone_residual or bead_pair_direction check), and of the
         # bones the beads fix, those over 1 deg that were named / not named
@@ -171,6 +179,10 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                         "bone_deg_builtin": _rms([r["builtin_rms"] for r in recs]),
                         "bone_deg_calibrated": _rms([r["calibrated_rms"] for r in recs]),
                         "bone_deg_calibrated_worst": float(np.nanmax([r["calibrated_rms"] for r in recs])),
+                        "bone_deg_calibrated_measured": _rms([r["calibrated_rms_measured"] for r in recs]),
+                        "bone_deg_user_measured": _rms([r["user_rms_measured"] for r in recs]),
+                        "calibrations_over_1deg": int(sum(r["calibrated_rms"] > 1.0 for r in recs)),
+                        "calibration_wrong_ids": int(sum(r["cal_wrong"] for r in recs)),
                         "bone_deg_predicted": _rms([r["predicted_rms"] for r in recs]),
                         "z_rms": _rms([z for r in recs for z in r["z"]]),
                         "uncertain_right": int(sum(r["uncertain_right"] for r in recs)),
@@ -192,7 +204,8 @@ def _seed_line(r: dict) -> str:
             f"{r['calibrated_rms']:5.2f} {r['calibrated_max']:5.2f} | {r['predicted_rms']:5.2f} | "
             f"{r['user_rms']:5.2f} {r['user_max']:5.2f} | {r['wrong']:3d} | {_rms(r['whole_m']) * 1e3:5.3f} | "
             f"{r['ph_n']:2d} {_rms(r['ph_m']) * 1e3:5.2f} | {_rms(r['z']):4.2f} | {','.join(r['uncertain']) or '-'} | "
-            f"{r['builtin_checks_failed']} {r['calibrated_checks_failed']} {r['user_checks_failed']}")
+            f"{r['builtin_checks_failed']} {r['calibrated_checks_failed']} {r['user_checks_failed']} | "
+            f"{r['calibrated_rms_measured']:5.2f} {r['user_rms_measured']:5.2f} | {r['cal_wrong']}")
 
 
 def _seeds(text: str) -> list[int]:
@@ -213,7 +226,8 @@ def main(argv=None) -> None:
     print("bones the beads fix, direction error deg (RMS max), per puppet; predicted = the calibration's own "
           "estimate; 3D = RMS of beads seen whole (mm), own files")
     print(f"{'condition':38s} |  seed | built-in    | calibrated  | pred. | own files   | wrong | 3D mm | "
-          "partly hidden n, mm | z | calibration names uncertain | bones failing self-checks: built-in calibrated own")
+          "partly hidden n, mm | z | calibration names uncertain | bones failing self-checks: built-in calibrated own | "
+          "calibrated, own files: RMS over the bones whose beads were recovered | wrong IDs in the calibration captures")
     table = rows(args.quick, seeds=args.seeds, conditions=conds, progress=lambda r: print(_seed_line(r), flush=True))
     keys = list(table[0])
     print()

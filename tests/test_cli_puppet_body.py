@@ -61,7 +61,7 @@ def test_calibrate_skeleton_writes_files_the_run_reads(other, tmp_path, capsys):
     code, text, err = run(["puppet", "calibrate-skeleton", other / "rest", "--out", out], capsys)
     assert code == 0, err
     assert out.is_file() and (tmp_path / "cal-markers.json").is_file() and "add --pose" in text and "direction" in text
-    assert "bead noise the photos show" in text and " px = " in text
+    assert "bead noise the photos show" in text and " px = " in text and "rest capture turned" in text
     from stillcap.body.skeleton import Skeleton
 
     cal = Skeleton.load(out)

@@ -68,6 +68,9 @@ class SkeletonCalibration:
     misfit : float
         The joint fit's chi-square of the beads per degree of freedom with ``marker_sigma_m``
         (NaN without further captures); above 1 it widens :attr:`direction_sd_deg`.
+    rest_turn_deg : float
+        How far the rest capture's root is turned from the template's rest frame, degrees (a
+        puppet set on the turntable at another angle): estimated, not assumed zero.
     """
 
     skeleton: Skeleton
@@ -81,6 +84,32 @@ class SkeletonCalibration:
     direction_sd_deg: dict = field(default_factory=dict)
     uncertain: dict = field(default_factory=dict)
     misfit: float = float("nan")
+    rest_turn_deg: float = 0.0
+
+
+def _rest_turn(template: Skeleton, markerset: MarkerSet, rest: np.ndarray) -> np.ndarray:
+    """The rest capture's turn about the vertical (the skeleton's y axis, as a turntable turns):
+    the angle that best carries the template's rest beads onto the measured ones, both centred
+    (the Kabsch solution in the horizontal plane, closed form, any angle), as a matrix, shape
+    (3, 3). The template's bead offsets and proportions differ from the puppet's by millimetres
+    over a body of a few hundred, so this is a start for the joint fit, which refines the angle.
+    Only the turn: a turn about all three axes left free traded against the hips' and the back's
+    lengths (0.43 and 0.76 deg on the bones of two puppets whose rest pose was upright, against
+    0.18 and 0.16 deg with none)."""
+    model = markerset.positions(Pose.rest(template))
+    ok = np.all(np.isfinite(rest), axis=1) & np.all(np.isfinite(model), axis=1)
+    if ok.sum() < 3:
+        return np.eye(3)
+    a = rest[ok] - rest[ok].mean(axis=0)
+    b = model[ok] - model[ok].mean(axis=0)
+    return _turn_y(float(np.arctan2(np.sum(a[:, 0] * b[:, 2] - a[:, 2] * b[:, 0]),
+                                    np.sum(a[:, 0] * b[:, 0] + a[:, 2] * b[:, 2]))))
+
+
+def _turn_y(angle_rad: float) -> np.ndarray:
+    """Rotation by ``angle_rad`` about the y axis (as scipy's ``Rotation.from_euler("y", angle_rad)``)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
 def _paths(skeleton: Skeleton) -> list[list[int]]:
@@ -154,6 +183,12 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         raise ValueError("the rest capture needs at least 3 recovered beads to calibrate a skeleton")
     all_points = [rest] + poses
     sigmas = _bead_sigmas(noise_m, len(all_points), nm, marker_sigma_m)
+    # the rest capture need not face the template's way (a puppet set on the turntable at another
+    # angle: turned 20 deg, its calibration was 19 deg off on the bones): its turn is estimated
+    # and the alternation below works on the rest beads turned back; the joint fit frees it
+    turn0 = _rest_turn(template, markerset, rest)
+    center0 = np.nanmean(rest, axis=0)
+    rest_upright = (rest - center0) @ turn0 + center0
     frames = markerset.bone_frames(template)
     c = template.offsets.copy()
     c[template.root] = 0.0
@@ -167,7 +202,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         """(s, o, t per pose) by linear least squares given the joint world rotations of the
         first ``len(rotations)`` poses (the others' ``t`` stay 0)."""
         rows, rhs = [], []
-        for p_i, (pts, W) in enumerate(zip(all_points, rotations)):
+        for p_i, (pts, W) in enumerate(zip([rest_upright] + poses, rotations)):
             for m in np.flatnonzero(np.all(np.isfinite(pts), axis=1)):
                 w = 1.0 / sigmas[p_i][m]
                 f = frames[m]
@@ -221,28 +256,34 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     joint_fit, unfixed, direction_sd, uncertain, misfit = None, {}, {}, {}, float("nan")
     if joint:
         fits = [fit_pose(sk, ms, pts, marker_sigma_m=sg, root="free") for pts, sg in zip(poses, sigmas[1:])]
-        ts = [x[n_s + 3 * nm:n_s + 3 * nm + 3]] + [f.pose.root2world[:3, 3] for f in fits]
-        locals_ = []
+        ts = [center0 + turn0 @ (x[n_s + 3 * nm:n_s + 3 * nm + 3] - center0)] + [f.pose.root2world[:3, 3] for f in fits]
+        rest_loc = np.tile(np.eye(3), (nj, 1, 1))
+        rest_loc[template.root] = turn0
+        locals_ = [rest_loc]
         for f in fits:
             loc = f.pose.local_rotations.copy()
             loc[sk.root] = f.pose.root2world[:3, :3] @ loc[sk.root]
             locals_.append(loc)
         fit_args = (template, markerset, all_points)
         out = _joint_fit(*fit_args, s, ms.offsets, ts, locals_, sigmas, scale_sd, offset_sd_m)
-        if any(np.any(sg < COARSE_SIGMA_M) for sg in sigmas):
-            # beads sharper than COARSE_SIGMA_M: first fitted with that error, then with their
-            # own from there, and the better of the two kept. From the template's start the
-            # beads sit millimetres off, hundreds of their own sigmas, where the soft-L1 loss
-            # treats nearly every bead as an outlier (seed 19 of another_puppet, beads at
-            # 0.01-0.03 mm: the direct fit stalled at 1.5 mm RMS, its bones 5.5 deg off; with
-            # the beads' noise doubled it reached 0.013 mm)
-            coarse = [np.maximum(sg, COARSE_SIGMA_M) for sg in sigmas]
-            c_s, c_beads, c_ts, c_loc = _joint_fit(*fit_args, s, ms.offsets, ts, locals_, coarse, scale_sd,
-                                                   offset_sd_m)[:4]
-            out2 = _joint_fit(*fit_args, c_s, c_beads, c_ts, c_loc, sigmas, scale_sd, offset_sd_m)
+        if any(np.any(sg < COARSE_SIGMAS_M[-1]) for sg in sigmas):
+            # beads sharper than the coarsest levels: fitted with each level of COARSE_SIGMAS_M in
+            # turn (every bead's error at least that), then with their own from there, and the
+            # better of that and the direct fit kept. From the template's start the beads sit
+            # millimetres off, hundreds of their own sigmas, where the soft-L1 loss treats nearly
+            # every bead as an outlier and the fit settles with some bones turned (seed 19 of
+            # another_puppet, beads at 0.01-0.03 mm: the direct fit stalled at 1.5 mm RMS, its
+            # bones 5.5 deg off; seed 18 with beads turned +-60 deg: after one level at 0.1 mm
+            # still 3.5 mm RMS, 18.5 deg on the bones, with levels 1 and 0.25 mm 0.02 mm, 0.18 deg)
+            start = (s, ms.offsets, ts, locals_)
+            for level in COARSE_SIGMAS_M:
+                coarse = [np.maximum(sg, level) for sg in sigmas]
+                start = _joint_fit(*fit_args, *start, coarse, scale_sd, offset_sd_m)[:4]
+            out2 = _joint_fit(*fit_args, *start, sigmas, scale_sd, offset_sd_m)
             if out2[4].cost < out[4].cost:
                 out = out2
-        s_j, beads_j, ts_j, _, joint_fit, fitted_bones, _, (dir_sd, misfit) = out
+        s_j, beads_j, ts_j, locals_j, joint_fit, fitted_bones, _, (dir_sd, misfit) = out
+        turn0 = locals_j[0][template.root]
         x = x.copy()
         for k, i in col_s.items():
             x[i] = s_j[k]
@@ -253,12 +294,18 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         direction_sd = {template.names[k]: float(np.degrees(sd)) for k, sd in dir_sd.items()
                         if frame_status(template, markerset)[template.names[template.parents[k]]] not in ("locked", "none")}
         uncertain = uncertain_bones(template, markerset, direction_sd, direction_limit_deg)
+    else:  # the root where the rest capture has it (the alternation worked on it turned back)
+        x = x.copy()
+        x[n_s + 3 * nm:n_s + 3 * nm + 3] = center0 + turn0 @ (x[n_s + 3 * nm:n_s + 3 * nm + 3] - center0)
+        sk, ms, s = build(x)
     # how well the calibrated model explains every capture
     per = []
     sq = []
     for p_i, pts in enumerate(all_points):
         if p_i == 0:
-            model = ms.positions(Pose.rest(sk))
+            r2w = sk.rest_root2world()
+            r2w[:3, :3] = turn0 @ r2w[:3, :3]
+            model = ms.positions(Pose.rest(sk, r2w))
         else:
             model = ms.positions(fit_pose(sk, ms, pts, marker_sigma_m=sigmas[p_i], root="free").pose)
         ok = np.all(np.isfinite(pts), axis=1)
@@ -269,12 +316,15 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     return SkeletonCalibration(sk, ms, s, float(np.sqrt(np.mean(allsq))) if len(allsq) else float("nan"), per,
                                len(all_points), unfixed,
                                None if joint_fit is None else int(joint_fit.nfev), direction_sd, uncertain,
-                               misfit)
+                               misfit, float(np.degrees(np.arccos(np.clip((np.trace(turn0) - 1) / 2, -1, 1)))))
 
 
-#: :func:`calibrate_skeleton`: beads whose expected error is below this (metres) are first fitted
-#: with it (a numerical start for the joint fit, not a statement about the beads).
-COARSE_SIGMA_M = 0.1e-3
+#: :func:`calibrate_skeleton`: beads whose expected error is below the last level (metres) are
+#: first fitted with every bead's error at least each level in turn, coarse to fine (a numerical
+#: path for the joint fit, graduated as in graduated non-convexity; not a statement about the
+#: beads). The first level is of the order of a template's bead misplacement on another puppet
+#: (millimetres), the last a little above a sharp capture's bead noise.
+COARSE_SIGMAS_M = (1.0e-3, 0.25e-3)
 
 
 def _bead_sigmas(noise_m, n_caps: int, nm: int, marker_sigma_m: float) -> list[np.ndarray]:
@@ -384,8 +434,11 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     ``x = -90`` with ``y = 95`` where the truth has ``y = 76``, 0.8 deg on the bones against
     0.4 deg from the truth's start). The limits are the template's, a guide for fitting poses, not
     a fact about this puppet. A joint free about only some axes keeps Euler angles on those, within
-    its limits. The rest capture's joints are all at rest and its root upright: that fixes the
-    gauge (where a bone frame's beads sit versus its rotation). Residuals: every measured bead
+    its limits. The rest capture's joints are all at rest: that fixes the gauge (where a bone
+    frame's beads sit versus its rotation); its root turns by a rotation vector from its start
+    (``local0[0]``'s root: the puppet set on the turntable at another angle) about the vertical
+    (the skeleton's y axis) only, with no prior.
+    ``local0``: one entry per capture, the rest capture's first. Residuals: every measured bead
     over ``marker_sigma_m``, the weak priors (scales about 1, offsets about the template's,
     rotations about their start with 180 deg), soft-L1 loss at ``loss_scale`` sigma. ``sigmas``: each
     capture's per-bead expected error, metres (:func:`_bead_sigmas`).
@@ -393,7 +446,8 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     scales and rotations on its frame's path, its own offset and its capture's root, so finite
     differences need few evaluations.
 
-    Returns ``(s, beads, root_t, local_rotations, result, bones, n_data)``.
+    Returns ``(s, beads, root_t, local_rotations, result, bones, n_data, (direction_sd, misfit))``,
+    ``local_rotations`` one per capture (the rest capture's: identity but its root's turn).
     """
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
@@ -420,11 +474,13 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     n_a = n_v + n_e
     n_s = len(bones)
     n_caps = len(all_points)
-    # layout: scales | bead offsets | rest root t | per further capture: t (3), rotation vectors (n_v), angles (n_e)
+    # layout: scales | bead offsets | rest root t | rest root turn about y (rad) |
+    # per further capture: t (3), rotation vectors (n_v), angles (n_e)
     o_b = n_s
     o_t0 = o_b + 3 * nm
+    o_r0 = o_t0 + 3
     per = 3 + n_a
-    o_caps = o_t0 + 3
+    o_caps = o_r0 + 1
 
     def cap_slice(p):
         b = o_caps + per * (p - 1)
@@ -444,11 +500,12 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     x0[:n_s] = s0[bones]
     x0[o_b:o_t0] = beads0.ravel()
     x0[o_t0:o_t0 + 3] = root_t[0]
+    rest_turn = np.asarray(local0[0], float)[root]
     starts, a_start = [], []
     for p in range(1, n_caps):
         b, e, end = cap_slice(p)
         x0[b:e] = root_t[p]
-        loc = np.asarray(local0[p - 1], float)
+        loc = np.asarray(local0[p], float)
         a = np.clip(template.limit_angles_deg(loc), lo, hi)
         if n_e:
             x0[e + n_v:end] = a[tuple(eidx.T)]
@@ -474,7 +531,11 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         return off
 
     def locals_of(x, p):
-        """Local rotations of further capture ``p`` (1-based)."""
+        """Local rotations of capture ``p`` (0: the rest capture)."""
+        if p == 0:
+            local = np.tile(np.eye(3), (nj, 1, 1))
+            local[root] = _turn_y(x[o_r0]) @ rest_turn
+            return local
         _, e, end = cap_slice(p)
         a = a_start[p - 1].copy()
         if n_e:
@@ -492,7 +553,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         r = 0
         for p in range(n_caps):
             if p == 0:
-                local = np.tile(np.eye(3), (nj, 1, 1))
+                local = locals_of(x, 0)
                 t = x[o_t0:o_t0 + 3]
             else:
                 b, e, end = cap_slice(p)
@@ -548,7 +609,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
                     S[rows, i] = 1
             S[rows, o_b + 3 * m:o_b + 3 * m + 3] = 1
             if p == 0:
-                S[rows, o_t0:o_t0 + 3] = 1
+                S[rows, o_t0:o_r0 + 1] = 1
             else:
                 b, e, end = cap_slice(p)
                 S[rows, b:e] = 1
@@ -574,7 +635,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     s[bones] = x[:n_s]
     beads = x[o_b:o_t0].reshape(nm, 3)
     ts = [x[o_t0:o_t0 + 3]] + [x[cap_slice(p)[0]:cap_slice(p)[1]] for p in range(1, n_caps)]
-    local_rotations = [locals_of(x, p) for p in range(1, n_caps)]
+    local_rotations = [locals_of(x, p) for p in range(n_caps)]
     return s, beads, ts, local_rotations, res, bones, n_data, _direction_sd(
         res, n_data, lambda xx, p: _fk(offsets_of(xx), locals_of(xx, p), np.eye(4)), cap_slice, n_caps, bones,
         template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0, n_data + n_s + 3 * nm, n_a,

@@ -638,6 +638,8 @@ def calibrate_skeleton_cmd(
             t.add_row(n, f"{template.bone_lengths[j] * 1e3:.1f}", f"{cal.skeleton.bone_lengths[j] * 1e3:.1f}",
                       f"{cal.scales[j]:.3f}", "-" if sd is None else f"{sd:.2f}")
     console.print(t)
+    console.print(f"rest capture turned {cal.rest_turn_deg:.1f} deg about the vertical from the template's rest frame "
+                  "(estimated)")
     console.print(f"beads fitted with RMS {cal.rms_m * 1e3:.3f} mm (per capture: "
                   + ", ".join(f"{v * 1e3:.3f}" for v in cal.per_pose_rms_m) + " mm)")
     console.print("bead noise the photos show (per capture): " + ", ".join(

@@ -32,7 +32,7 @@ from stillcap.detect.palette import Palette
 
 __all__ = ["DETECTORS", "IDENTIFIERS", "ViewResult", "PreparedView", "detect_beads", "find_bead_candidates",
            "refine_bead_candidates", "identify_views", "prepare_view", "bright_region", "bead_fill", "bead_fill_views",
-           "bead_contrast_views", "reidentify", "REID_CONTRAST_SHARE",
+           "bead_contrast_views", "reidentify", "one_name_per_bead", "REID_CONTRAST_SHARE",
            "expected_radius_px", "roi_box"]
 
 #: Bead detectors (:func:`stillcap.detect.circles.find_circles` methods) the puppet pipeline offers.
@@ -545,3 +545,70 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
             faint &= np.isfinite(ref)
             out[v, faint] = np.nan
     return out
+
+
+def one_name_per_bead(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: float = 0.003,
+                      gate_radius: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """Two markers triangulated onto one bead: keep the name whose colour the bead shows.
+
+    Two beads cannot lie closer than one bead diameter (centre to centre), so two markers whose
+    3D points do are one physical bead under two names: colour named it one way in some views
+    and the other way in others (two references of nearby colours, e.g. ``head.2`` and
+    ``leg.L3`` of the built-in puppet; the beads turned on another puppet change their shading),
+    and each name's views agree because they see the same bead. :func:`reidentify` would then
+    keep both. Here, for each such pair, the candidate at the point's projection in every view
+    (within ``gate_radius`` x the projected radius, at least 2 px, as :func:`reidentify`) is
+    scored against both references (colour distance over the view's acceptance distance,
+    summed over the views); the name whose reference the bead is farther from loses its 3D
+    point (NaN), so :func:`reidentify` gives the bead's views to the other name.
+
+    Parameters
+    ----------
+    rig : Rig, n_views cameras
+    points_3d : array_like, shape (n_markers, 3)
+        Triangulated markers, NaN where missing.
+    views : sequence of ViewResult, length n_views
+    bead_radius_m : float
+    gate_radius : float
+
+    Returns
+    -------
+    points : ndarray, shape (n_markers, 3)
+        ``points_3d`` with the losing names' points NaN.
+    dropped : ndarray of bool, shape (n_markers,)
+    """
+    X = np.array(points_3d, float)
+    if X.ndim != 2 or X.shape[1] != 3:
+        raise ValueError(f"points_3d must have shape (n_markers, 3), got {X.shape}")
+    if len(views) != len(rig):
+        raise ValueError(f"need one ViewResult per view ({len(rig)}), got {len(views)}")
+    dropped = np.zeros(len(X), bool)
+    have = np.flatnonzero(np.all(np.isfinite(X), axis=1))
+    if len(have) < 2:
+        return X, dropped
+    d = np.linalg.norm(X[have, None] - X[None, have], axis=2)
+    pairs = [(have[a], have[b]) for a, b in zip(*np.nonzero(np.triu(d < 2.0 * bead_radius_m, 1)))]
+    if not pairs:
+        return X, dropped
+    r_exp = expected_radius_px(rig, X[have], bead_radius_m)
+    for i, j in sorted(pairs, key=lambda p: float(np.linalg.norm(X[p[0]] - X[p[1]]))):
+        if dropped[i] or dropped[j]:
+            continue
+        mid = 0.5 * (X[i] + X[j])
+        score = np.zeros(2)
+        for v, (cam, vr) in enumerate(zip(rig, views)):
+            cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
+            if not len(cand):
+                continue
+            ident = vr.identification
+            dist = np.linalg.norm(cand - cam.project(mid[None])[0], axis=1)
+            c = int(np.argmin(dist))
+            gate = max(2.0, gate_radius * float(r_exp[v, int(np.flatnonzero(have == i)[0])]))
+            if not dist[c] <= gate:
+                continue
+            cost = np.asarray(ident.cost, float).reshape(len(cand), -1)
+            score += cost[c, [i, j]] / float(ident.max_distance)
+        loser = j if score[0] <= score[1] else i
+        X[loser] = np.nan
+        dropped[loser] = True
+    return X, dropped

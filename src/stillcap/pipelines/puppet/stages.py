@@ -24,7 +24,8 @@ from stillcap.body.puppet_pose import PoseFit, fit_pose
 from stillcap.body.skeleton import Skeleton
 from stillcap.camera import Rig
 from stillcap.detect.beads import (PreparedView, ViewResult, bead_fill_views, detect_beads, expected_radius_px,
-                                   find_bead_candidates, identify_views, prepare_view, reidentify)
+                                   find_bead_candidates, identify_views, one_name_per_bead, prepare_view,
+                                   reidentify)
 from stillcap.detect.palette import Palette
 from stillcap.geometry.triangulate import StackedViews, Triangulation, triangulate_markers, view_pair_errors
 from stillcap.pipelines.puppet.options import DEFAULT, PuppetOptions
@@ -287,7 +288,10 @@ def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, 
     raw_obs = None
     if views is not None and options.reidentify:
         raw_obs = obs
-        final = reidentify(rig, solve.points, views, bead_r, options.reid_gate, options.reid_color, images)
+        # one bead under two names (their 3D points closer than a bead's diameter): the name its
+        # colour fits worse loses its point first, so the bead's views go to the other name
+        points, _ = one_name_per_bead(rig, solve.points, views, bead_r, options.reid_gate)
+        final = reidentify(rig, points, views, bead_r, options.reid_gate, options.reid_color, images)
         same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
         if not same.all():
             # solve_markers treats every marker on its own (its views' consensus, fill test and
