@@ -81,10 +81,6 @@ class HandAdaptation:
     chi2_scale : float
         The data's reduced chi-square when above 1 (else 1): the data's weight in the
         covariance is divided by it (the priors keep theirs).
-    shape_cov : ndarray, shape (n_shape, n_shape)
-        The whole shape's covariance in the fit's own parameters (the back-of-hand triangle's
-        log size, the free components of every joint offset, every digit marker's offset), as
-        ``shape_prior_cov`` takes it.
     """
 
     skeleton: Skeleton
@@ -102,7 +98,6 @@ class HandAdaptation:
     joint_prior_sigma: np.ndarray | None = None
     marker_prior_sigma: float | None = None
     chi2_scale: float = 1.0
-    shape_cov: np.ndarray | None = None
 
     def digit_rms(self) -> dict:
         """RMS residual (m) of each digit's markers and of the back of the hand (NaN if unseen)."""
@@ -129,8 +124,7 @@ def _digit_rms(markerset: MarkerSet, skeleton: Skeleton, residuals) -> dict:
 def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, initial=None,
                      joint_sigma: float = 0.12, marker_sigma_m: float = 0.004, noise_m: float = NOISE_M,
                      regularise: float = 1e-4, max_nfev: int = 60, known_deg=None, loss: str = "soft_l1",
-                     joint_prior_cov=None, marker_prior_cov=None, point_sigma_m=None,
-                     shape_prior_cov=None) -> HandAdaptation:
+                     point_sigma_m=None) -> HandAdaptation:
     """Adapt the hand model to the person from labelled markers of one or more flashes.
 
     Parameters
@@ -138,8 +132,7 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     skeleton, markerset : Skeleton, MarkerSet
         The model to start from (e.g. scaled to the hand's size).
     marker_positions : array_like, shape (n_flashes, n_markers, 3)
-        Labelled markers (m), NaN where unseen; every flash needs its back-of-hand markers or a
-        start pose in ``initial``.
+        Labelled markers (m), NaN where unseen; every flash needs its back-of-hand markers.
     initial : sequence of Pose, optional
         A start per flash (default: the rest pose, the root from the back of the hand).
     joint_sigma : float
@@ -156,19 +149,9 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         marker places cannot trade against the angles; None for a flash in an unknown pose.
     loss : str
         SciPy's loss of the residuals (default soft-L1, see below).
-    joint_prior_cov, marker_prior_cov : array_like, shape (n_joints, 3, 3) and (n_markers, 3, 3), optional
-        The priors' covariance (m^2) of every joint offset and every digit marker's offset about
-        the model given, in place of ``joint_sigma`` and ``marker_sigma_m`` (a calibrated model's
-        own uncertainty, :attr:`HandAdaptation.joint_cov`: :func:`refine_hand_model`); only the
-        components the fit frees are used.
-    shape_prior_cov : array_like, shape (n_shape, n_shape), optional
-        One prior over all the shape parameters together (:attr:`HandAdaptation.shape_cov` of a
-        calibration of this model: its correlations kept, e.g. a joint's place along the finger
-        and its marker's, whose sum a flat flash fixes), in place of the per-joint and per-marker
-        priors.
     point_sigma_m : array_like, shape (n_flashes, n_markers), optional
         Each labelled marker's noise (m) in place of ``noise_m`` (a partly hidden marker's
-        larger; the pose fit's weights).
+        larger, as the pose fit weighs it).
 
     Returns
     -------
@@ -181,10 +164,8 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     markerset.check_skeleton(skeleton)
     seen = np.all(np.isfinite(pts), axis=2)
     back = np.array([markerset.index(b) for b in BACK_MARKERS])
-    no_back = ~seen[:, back].all(axis=1)
-    if np.any(no_back & np.array([initial is None or initial[k] is None for k in range(F)])):
-        raise ValueError("adapting the hand model needs the back-of-hand markers seen in every flash (or a start "
-                         "pose for a flash without them)")
+    if not seen[:, back].all():
+        raise ValueError("adapting the hand model needs the back-of-hand markers seen in every flash")
     frames = markerset.bone_frames(skeleton)
     root = skeleton.root
     parents, order = skeleton.parents, skeleton.depth_first
@@ -210,26 +191,14 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     ns = 1 + nj_free + 3 * len(mk_free)
     npp = 6 + nd
     sig_j = joint_sigma * np.linalg.norm(o0[joints_free], axis=1) + 0.002
-    # the priors' whitening: prior residual = W @ (offset - start), per joint and per marker
-    Wj = _whitening(joint_prior_cov, (J, 3, 3), "joint_prior_cov", joints_free, comp_free, 1.0 / sig_j)
-    Wm = _whitening(marker_prior_cov, (M, 3, 3), "marker_prior_cov", mk_free, np.ones((len(mk_free), 3), bool),
-                    np.full(len(mk_free), 1.0 / marker_sigma_m))
+    # each marker's noise (every coordinate), 1 where unseen (those rows are left out)
     if point_sigma_m is None:
-        wpt = np.full((F, M), 1.0 / noise_m)
+        s3 = np.full((F, M, 3), noise_m)
     else:
         ps = as_array(point_sigma_m, (F, M), "point_sigma_m")
         if np.any(~(ps[seen] > 0)):
             raise ValueError("point_sigma_m must be positive for every seen marker")
-        wpt = np.where(seen, 1.0 / np.where(seen, ps, 1.0), 0.0)
-    w3 = np.repeat(wpt[..., None], 3, axis=2)
-    Ws = None
-    if shape_prior_cov is not None:
-        C = as_array(shape_prior_cov, (ns, ns), "shape_prior_cov")
-        lam, V = np.linalg.eigh(0.5 * (C + C.T))
-        if not (np.all(np.isfinite(C)) and lam.min() > 0):
-            raise ValueError(f"shape_prior_cov must be a finite positive definite covariance (smallest eigenvalue "
-                             f"{lam.min():.3g})")
-        Ws = (V / np.sqrt(lam)).T
+        s3 = np.repeat(np.where(seen, ps, 1.0)[..., None], 3, axis=2)
 
     # start: per flash, the root from the back of the hand, the angles from ``initial``
     known = [None] * F if known_deg is None else list(known_deg)
@@ -243,12 +212,8 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         elif initial is not None and initial[k] is not None:
             ang = np.radians(skeleton.limit_angles_deg(initial[k].local_rotations))
         a = np.clip([ang[i, ax] for i, ax in dofs], lo + 1e-9, hi - 1e-9)
-        if no_back[k]:  # the start pose's root (a flash posed from a neighbour's)
-            r2w = np.asarray(initial[k].root2world, float) @ _homogeneous(initial[k].local_rotations[root])
-            x0.append(np.concatenate([Rotation.from_matrix(r2w[:3, :3]).as_rotvec(), r2w[:3, 3], a]))
-        else:
-            fit0 = rigid_alignment(m0[back], pts[k, back])
-            x0.append(np.concatenate([fit0.rotation.as_rotvec(), fit0.translation, a]))
+        fit0 = rigid_alignment(m0[back], pts[k, back])
+        x0.append(np.concatenate([fit0.rotation.as_rotvec(), fit0.translation, a]))
         a0s.append(a)
     x0 = np.concatenate(x0)
     a0s = np.array(a0s)
@@ -289,14 +254,10 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         joff, moff = shape(X)
         Y = X[:, ns:].reshape(P, F, npp)
         m = markers_at(joff, moff, Y)
-        data = ((m - pts[None]) * w3[None])[:, seen].reshape(P, -1)
-        prior_j = np.einsum("rab,prb->pra", Wj, joff[:, joints_free] - o0[joints_free][None]).reshape(P, -1)
-        prior_m = np.einsum("rab,prb->pra", Wm, moff[:, mk_free] - m0[mk_free][None]).reshape(P, -1)
+        data = ((m - pts[None]) / s3[None])[:, seen].reshape(P, -1)
+        prior_j = ((joff[:, joints_free] - o0[joints_free][None]) / sig_j[None, :, None]).reshape(P, -1)
+        prior_m = ((moff[:, mk_free] - m0[mk_free][None]) / marker_sigma_m).reshape(P, -1)
         prior_s = X[:, :1] / 0.2
-        if Ws is not None:  # one prior over the whole shape (same number of rows, the rest zero)
-            prior = np.zeros((P, prior_j.shape[1] + prior_m.shape[1] + 1))
-            prior[:, :ns] = X[:, :ns] @ Ws.T
-            prior_j, prior_m, prior_s = prior, prior[:, :0], prior[:, :0]
         reg = (regularise / noise_m) * (Y[..., 6:] - a0s[None]).reshape(P, -1)
         return np.concatenate([data, prior_j, prior_m, prior_s, reg], axis=1)
 
@@ -329,8 +290,10 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
             sl = slice(ns + k * npp, ns + (k + 1) * npp)
             yk = x[sl]
             Yk = (yk[None] + np.diag(h[sl]))[:, None]
-            rk = ((markers_at(joff, moff, Yk)[:, 0] - pts[k][None]) * w3[k][None])[:, seen[k]].reshape(npp, -1)
-            Jm[data_at[k]:data_at[k + 1], sl] = ((rk - f0[data_at[k]:data_at[k + 1]]) / h[sl, None]).T
+            sig_k = s3[k][seen[k]].ravel()
+            mk = markers_at(joff, moff, Yk)[:, 0][:, seen[k]].reshape(npp, -1) / sig_k
+            Jm[data_at[k]:data_at[k + 1], sl] = ((mk - (f0[data_at[k]:data_at[k + 1]] + pts[k][seen[k]].ravel() / sig_k))
+                                                 / h[sl, None]).T
             r = reg_at + k * nd
             Jm[r:r + nd, sl][np.arange(nd), 6 + np.arange(nd)] = regularise / noise_m
         return Jm
@@ -383,42 +346,13 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         q = 1 + nj_free + 3 * r + np.arange(3)
         mcov[k] = cov[np.ix_(q, q)]
     jz = np.zeros(J)
-    jz[joints_free] = np.abs(np.einsum("rab,rb->ra", Wj, joff[0, joints_free] - o0[joints_free])).max(axis=1)
+    jz[joints_free] = np.abs((joff[0, joints_free] - o0[joints_free]) / sig_j[:, None]).max(axis=1)
     mz = np.zeros(M)
-    mz[mk_free] = np.abs(np.einsum("rab,rb->ra", Wm, moff[0, mk_free] - m0[mk_free])).max(axis=1)
+    mz[mk_free] = np.abs(moff[0, mk_free] - m0[mk_free]).max(axis=1) / marker_sigma_m
     jsig = np.zeros(J)
     jsig[joints_free] = sig_j
     return HandAdaptation(sk, ms, poses, res, rms, F, bool(sol.success), str(sol.message), jcov, mcov, jz, mz,
-                          jsig, float(marker_sigma_m), float(scale), cov)
-
-
-def _homogeneous(R) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, :3] = R
-    return m
-
-
-def _whitening(cov, shape, what: str, rows, free, inv_sigma) -> np.ndarray:
-    """Per row of ``rows`` a 3x3 ``W`` with ``W.T @ W`` the inverse of ``cov[row]`` over the
-    ``free`` components (zero elsewhere); without ``cov``, ``inv_sigma[r]`` times the identity."""
-    W = np.zeros((len(rows), 3, 3))
-    if cov is None:
-        W[:] = np.eye(3)[None] * np.asarray(inv_sigma, float)[:, None, None]
-        return W
-    C = as_array(cov, shape, what)
-    for r, i in enumerate(rows):
-        f = np.flatnonzero(free[r])
-        if len(f) == 0:
-            continue
-        c = C[i][np.ix_(f, f)]
-        if not (np.all(np.isfinite(c)) and np.allclose(c, c.T, atol=1e-15 + 1e-9 * np.abs(c).max())):
-            raise ValueError(f"{what}[{i}] must be a finite symmetric covariance, got {c.tolist()}")
-        lam, V = np.linalg.eigh(c)
-        if lam.min() <= 0:
-            raise ValueError(f"{what}[{i}] must be positive definite over the free components (eigenvalues "
-                             f"{lam.tolist()})")
-        W[r][np.ix_(f, f)] = (V / np.sqrt(lam)).T  # (V diag(1/sqrt(lam)))^T: W^T W = C^-1
-    return W
+                          jsig, float(marker_sigma_m), float(scale))
 
 
 def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, markerset: MarkerSet,

@@ -133,10 +133,6 @@ class HandCalibration:
         The calibration's checks: the pose's residual, the model's plausibility and (when asked)
         the lengths' sigmas refuse the capture with ValueError when they fail;
         ``calibration_fixes_the_model`` warns, naming the parameters the capture did not fix.
-    joint_cov, marker_cov : ndarray, shape (n_joints, 3, 3) and (n_markers, 3, 3), or None
-        Covariance (m^2) of every joint offset and every marker offset of :attr:`skeleton` and
-        :attr:`markerset` (:attr:`~stillcap.body.hand_adapt.HandAdaptation.joint_cov`; zero for
-        components held), written into the model files (:func:`stillcap.body.hand_files.save_hand`).
     """
 
     skeleton: Skeleton
@@ -151,9 +147,6 @@ class HandCalibration:
     messages: list = field(default_factory=list)
     parameters: list = field(default_factory=list)
     self_checks: list = field(default_factory=list)
-    joint_cov: np.ndarray | None = None
-    marker_cov: np.ndarray | None = None
-    shape_cov: np.ndarray | None = None
 
     def lengths(self) -> dict:
         return phalanx_lengths(self.skeleton)
@@ -358,8 +351,7 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     if len(free) == 0:
         msgs.append("only the calibration pose was seen: the joint centres along the fingers stay at the "
                     "template's (scaled); flashes of the fingers curling fix them")
-    return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks,
-                           ad.joint_cov, ad.marker_cov, ad.shape_cov)
+    return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks)
 
 
 def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = "flat",
