@@ -123,7 +123,8 @@ def _digit_rms(markerset: MarkerSet, skeleton: Skeleton, residuals) -> dict:
 
 def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, initial=None,
                      joint_sigma: float = 0.12, marker_sigma_m: float = 0.004, noise_m: float = NOISE_M,
-                     regularise: float = 1e-4, max_nfev: int = 60, known_deg=None, loss: str = "soft_l1") -> HandAdaptation:
+                     regularise: float = 1e-4, max_nfev: int = 60, known_deg=None, loss: str = "soft_l1",
+                     point_sigma_m=None) -> HandAdaptation:
     """Adapt the hand model to the person from labelled markers of one or more flashes.
 
     Parameters
@@ -148,6 +149,9 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         marker places cannot trade against the angles; None for a flash in an unknown pose.
     loss : str
         SciPy's loss of the residuals (default soft-L1, see below).
+    point_sigma_m : array_like, shape (n_flashes, n_markers), optional
+        Each labelled marker's noise (m) in place of ``noise_m`` (a partly hidden marker's
+        larger, as the pose fit weighs it).
 
     Returns
     -------
@@ -187,6 +191,14 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     ns = 1 + nj_free + 3 * len(mk_free)
     npp = 6 + nd
     sig_j = joint_sigma * np.linalg.norm(o0[joints_free], axis=1) + 0.002
+    # each marker's noise (every coordinate), 1 where unseen (those rows are left out)
+    if point_sigma_m is None:
+        s3 = np.full((F, M, 3), noise_m)
+    else:
+        ps = as_array(point_sigma_m, (F, M), "point_sigma_m")
+        if np.any(~(ps[seen] > 0)):
+            raise ValueError("point_sigma_m must be positive for every seen marker")
+        s3 = np.repeat(np.where(seen, ps, 1.0)[..., None], 3, axis=2)
 
     # start: per flash, the root from the back of the hand, the angles from ``initial``
     known = [None] * F if known_deg is None else list(known_deg)
@@ -242,7 +254,7 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         joff, moff = shape(X)
         Y = X[:, ns:].reshape(P, F, npp)
         m = markers_at(joff, moff, Y)
-        data = ((m - pts[None]) / noise_m)[:, seen].reshape(P, -1)
+        data = ((m - pts[None]) / s3[None])[:, seen].reshape(P, -1)
         prior_j = ((joff[:, joints_free] - o0[joints_free][None]) / sig_j[None, :, None]).reshape(P, -1)
         prior_m = ((moff[:, mk_free] - m0[mk_free][None]) / marker_sigma_m).reshape(P, -1)
         prior_s = X[:, :1] / 0.2
@@ -278,8 +290,9 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
             sl = slice(ns + k * npp, ns + (k + 1) * npp)
             yk = x[sl]
             Yk = (yk[None] + np.diag(h[sl]))[:, None]
-            mk = markers_at(joff, moff, Yk)[:, 0][:, seen[k]].reshape(npp, -1) / noise_m
-            Jm[data_at[k]:data_at[k + 1], sl] = ((mk - (f0[data_at[k]:data_at[k + 1]] + (pts[k][seen[k]] / noise_m).ravel()))
+            sig_k = s3[k][seen[k]].ravel()
+            mk = markers_at(joff, moff, Yk)[:, 0][:, seen[k]].reshape(npp, -1) / sig_k
+            Jm[data_at[k]:data_at[k + 1], sl] = ((mk - (f0[data_at[k]:data_at[k + 1]] + pts[k][seen[k]].ravel() / sig_k))
                                                  / h[sl, None]).T
             r = reg_at + k * nd
             Jm[r:r + nd, sl][np.arange(nd), 6 + np.arange(nd)] = regularise / noise_m

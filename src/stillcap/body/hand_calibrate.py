@@ -250,7 +250,7 @@ def _observability_check(params, pose: str):
 def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton | None = None,
                    markerset: MarkerSet | None = None, noise_m: float = NOISE_M, max_nfev: int = 200,
                    refuse_rms_m: float = REFUSE_RMS_M, refuse_prior_z: float = REFUSE_PRIOR_Z,
-                   max_length_sigma_m: float | None = None) -> HandCalibration:
+                   max_length_sigma_m: float | None = None, posed_sigma_m=None, free_sigma_m=None) -> HandCalibration:
     """The person's hand model from labelled markers in a calibration pose (module docstring).
 
     Parameters
@@ -278,6 +278,9 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
         ValueError when a finger phalanx's or the thumb's length is known worse than this
         (1-sigma, m): the capture did not bend that joint enough (the protocol's steps were not
         done); None: not checked.
+    posed_sigma_m, free_sigma_m : array_like, shape (n_posed, n_markers) and (n_free, n_markers), optional
+        Each labelled marker's noise (m) in place of ``noise_m`` (a partly hidden marker's
+        centroid shifts by millimetres: :func:`calibrate_hand_from_points` gives it less weight).
     """
     from stillcap._selfcheck import SelfCheck
     from stillcap.body.hand_adapt import adapt_hand_model
@@ -295,7 +298,14 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     kd = [known] * len(posed) + [None] * len(free)
     # each free flash starts from its pose fitted with the scaled template (a fist is far from rest)
     init = [None] * len(posed) + [fit_hand(sk, ms, f).pose for f in free]
-    ad = adapt_hand_model(sk, ms, pts, known_deg=kd, initial=init, noise_m=noise_m, loss="linear", max_nfev=max_nfev)
+    sig = None
+    if posed_sigma_m is not None or free_sigma_m is not None:
+        sig = np.concatenate([np.full(posed.shape[:2], noise_m) if posed_sigma_m is None else
+                              np.asarray(posed_sigma_m, float).reshape(posed.shape[:2]),
+                              np.full(free.shape[:2], noise_m) if free_sigma_m is None else
+                              np.asarray(free_sigma_m, float).reshape(free.shape[:2])])
+    ad = adapt_hand_model(sk, ms, pts, known_deg=kd, initial=init, noise_m=noise_m, loss="linear", max_nfev=max_nfev,
+                          point_sigma_m=sig)
     res = ad.residuals
     pose_rms = float(np.sqrt(np.nanmean(res[:len(posed)] ** 2)))
     checks = []
@@ -346,14 +356,17 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
 
 def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = "flat",
                                skeleton: Skeleton | None = None, markerset: MarkerSet | None = None,
-                               reprojection_px=None, max_free: int = 12, **kw) -> HandCalibration:
+                               reprojection_px=None, max_free: int = 12, point_sigma_m=None, unconfirmed=None,
+                               **kw) -> HandCalibration:
     """Label the unlabelled 3D markers of a calibration capture and calibrate the hand.
 
     The markers are labelled with the template scaled to the hand
     (:func:`~stillcap.body.hand_label.label_hand_markers`); the flash whose fitted angles are
     nearest the calibration pose is taken as posed; a first calibration on it alone labels the
     capture again (a model nearer the hand labels more), and the final calibration uses it with
-    up to ``max_free`` other flashes. Keyword arguments go to :func:`calibrate_hand`.
+    up to ``max_free`` other flashes. ``point_sigma_m`` (one per point, m): each point's noise in
+    the calibration (default :data:`NOISE_M` for all); ``unconfirmed`` (a bool per point) goes to
+    the labelling. Keyword arguments go to :func:`calibrate_hand`.
     """
     from stillcap.body.hand_label import label_hand_markers
 
@@ -361,17 +374,26 @@ def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = 
     ms0 = markerset or hand_markerset()
     target = calibration_angles(pose, sk0)
     lab = label_hand_markers(points, colors, strobe_hz=strobe_hz, skeleton=sk0, markerset=ms0,
-                             reprojection_px=reprojection_px, fill=False)  # flashes with their back triplet
+                             reprojection_px=reprojection_px, fill=False,
+                             unconfirmed=unconfirmed)  # flashes with their back triplet
     rec = np.flatnonzero(lab.reconstructed)
     if len(rec) == 0:
         why = "; ".join(sorted({s for s in lab.skipped if s})) or "no back-of-hand markers found"
         raise ValueError(f"no flash of the calibration capture has a hand pose ({why})")
     dist = [float(np.sqrt(np.mean((lab.fits[k].angles_deg - target) ** 2))) for k in rec]
     k0 = int(rec[int(np.argmin(dist))])
-    first = calibrate_hand(lab.positions[k0], pose=pose, skeleton=sk0, markerset=ms0, **kw)
+    def sigma(lab, ks):
+        if point_sigma_m is None:
+            return None
+        ps = np.asarray(point_sigma_m, float)
+        pi = lab.point_index[ks]
+        return np.where(pi >= 0, ps[np.maximum(pi, 0)], np.nan)
+
+    first = calibrate_hand(lab.positions[k0], pose=pose, skeleton=sk0, markerset=ms0,
+                           posed_sigma_m=sigma(lab, [k0]), **kw)
     lab2 = label_hand_markers(points, colors, strobe_hz=strobe_hz, skeleton=first.skeleton,
                               markerset=first.markerset, reprojection_px=reprojection_px, hand_scale=1.0,
-                              fill=False)
+                              fill=False, unconfirmed=unconfirmed)
     rec2 = np.flatnonzero(lab2.reconstructed)
     if len(rec2) == 0:
         return first
@@ -380,7 +402,8 @@ def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = 
     others = [int(k) for k in rec2 if k != k1 and np.isfinite(lab2.positions[k]).all(axis=1).sum() >= 9]
     others = sorted(others, key=lambda k: -np.isfinite(lab2.positions[k]).all(axis=1).sum())[:max_free]
     cal = calibrate_hand(lab2.positions[k1], lab2.positions[others] if others else None, pose=pose,
-                         skeleton=sk0, markerset=ms0, **kw)
+                         skeleton=sk0, markerset=ms0, posed_sigma_m=sigma(lab2, [k1]),
+                         free_sigma_m=sigma(lab2, others) if others else None, **kw)
     cal.messages.append(f"calibration pose in flash {int(lab2.order[k1])}, {len(others)} other flash(es) "
                         f"used, {int(lab2.reconstructed.sum())} with a pose of {lab2.n_flashes}")
     return cal
