@@ -11,21 +11,26 @@ places (:func:`stillcap.studio.puppet_variation.another_puppet`, seeded), runs t
 - the puppet's own skeleton and marker set (the user's files, ``--skeleton/--markers``),
 
 and reports wrong identifications, 3D RMS on beads seen whole, partly hidden beads (count and
-their RMS), fitted bone-direction RMS and max on the bones the beads fix (``full`` frames) for
-each skeleton, the calibration's own predicted direction error on those bones
+their RMS), fitted bone-direction RMS and max on the bones the beads fix (``full`` frames of the
+marker set's design) for each skeleton, and beside it the same over the bones the beads this
+capture recovered fix (``*_measured``: a bone whose frame's beads were not recovered is the fit's
+guess, named by the ``bone_measured`` self-check), the calibration's own predicted direction error on those bones
 (:attr:`SkeletonCalibration.direction_sd_deg`, RMS; the calibration weighs each bead by the noise
 its capture's photos show, :func:`stillcap.body.puppet_checks.bead_noise`), ``z`` (measured over
 predicted error per bone, RMS: about 1 when the prediction is honest), the bones it names as
 uncertain (right: measured error over the 1 deg limit; wrong: not over it; missed: over it but not
 named), the model-free bead-pair direction RMS, and per skeleton the bones the result's self-checks
 name as not matching the puppet (``*_checks_failed``; ``*_over1_named_missed``: of the bones over
-1 deg, named / not named). ``*_measured`` columns: the bone RMS over the bones whose beads this
-capture recovered (the comparison's measured grouping; a bone whose beads no photo shows, e.g.
-a hand raised above every photo's frame, is the fit's guess and named by the self-check
-``bone_measured``); ``calibrations_over_1deg``: puppets whose calibrated skeleton gave over 1 deg
-RMS; ``calibration_wrong_ids``: wrong names in the three calibration captures (built-in body). ``benchmarks/bench_robustness.py`` imports :func:`rows`;
+1 deg, named / not named; ``*_bones_checked``: bones with a per-bone check; ``*_captures_named``:
+captures with a bone named). On the default puppet (condition 0) every skeleton matches, so the
+bones named are false alarms (each check's rate: ``puppet_checks.FALSE_ALARM_P``); with the
+built-in skeleton on other puppets they are detections. ``--no-calibration`` leaves out the
+calibrated skeleton (one capture per puppet instead of four). ``calibrations_over_1deg``: puppets
+whose calibrated skeleton gave over 1 deg RMS; ``calibration_wrong_ids``: wrong names in the three
+calibration captures (built-in body).
+``benchmarks/bench_robustness.py`` imports :func:`rows`;
 
-    python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...]
+    python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...] [--no-calibration]
 
 prints one row per puppet (seed) and the table per condition. The conditions vary what real
 photos vary and the studio's puppet renderer can vary: proportions and bead placement, the
@@ -80,7 +85,7 @@ def _rms(v) -> float:
     return float(np.sqrt(np.mean(v ** 2))) if len(v) else float("nan")
 
 
-def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> dict:
+def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path, calibrate: bool = True) -> dict:
     """Render and measure one puppet (see the module docstring); a dict of its numbers."""
     from dataclasses import replace
 
@@ -98,24 +103,29 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
         return _save(puppet_scene(pose=spec, rng=seed, markerset=ms, skeleton=sk, sensor=sensor), tmp / name)
 
     test = shoot("test", f"random:{seed + 7}")
-    cal_pts, cal_noise, cal_wrong = [], [], 0
-    for name, spec in (("rest", "tpose"), ("p1", f"random:{seed + 1}"), ("p2", f"random:{seed + 2}")):
-        r, c_ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
-        cal_wrong += c_.wrong  # wrong names in the calibration's own captures (built-in body)
-        m = r.markers
-        p = m.points.copy()
-        p[m.partly_hidden] = np.nan  # as calibrate-skeleton does
-        cal_pts.append(p)
-        cal_noise.append(bead_noise(r.rig, m.points, m.observations, m.used, exclude=m.partly_hidden).sd_m)
-    cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:], noise_m=cal_noise)
+    cal_wrong = 0
+    bodies = [("builtin", (MarkerSet.puppet(msname), Skeleton.puppet()))]
+    if calibrate:
+        cal_pts, cal_noise = [], []
+        for name, spec in (("rest", "tpose"), ("p1", f"random:{seed + 1}"), ("p2", f"random:{seed + 2}")):
+            r, c_ = _analyse(shoot(name, spec), MarkerSet.puppet(msname), Skeleton.puppet())
+            cal_wrong += c_.wrong  # wrong names in the calibration's own captures (built-in body)
+            m = r.markers
+            p = m.points.copy()
+            p[m.partly_hidden] = np.nan  # as calibrate-skeleton does
+            cal_pts.append(p)
+            cal_noise.append(bead_noise(r.rig, m.points, m.observations, m.used, exclude=m.partly_hidden).sd_m)
+        cal = calibrate_skeleton(cal_pts[0], Skeleton.puppet(), MarkerSet.puppet(msname), cal_pts[1:],
+                                 noise_m=cal_noise)
+        bodies.append(("calibrated", (cal.markerset, cal.skeleton)))
+    bodies.append(("user", (ms, sk)))
     out = {"seed": seed, "cal_wrong": cal_wrong}
-    for label, (m_, s_) in (("builtin", (MarkerSet.puppet(msname), Skeleton.puppet())),
-                            ("calibrated", (cal.markerset, cal.skeleton)), ("user", (ms, sk))):
+    for label, (m_, s_) in bodies:
         res, cmp = _analyse(test, m_, s_)
         out[f"{label}_rms"], out[f"{label}_max"] = cmp.bone_stats("full")
-        # the same over the bones whose beads this capture recovered (a bone whose frame's beads
-        # no photo shows is the fit's guess, named by the self-check bone_measured)
-        out[f"{label}_rms_measured"] = cmp.bone_stats("full", measured=True)[0]
+        # the same over the bones the beads this capture recovered fix (the design's "full"
+        # bones less those whose frame's beads were not recovered: the fit's guess)
+        out[f"{label}_measured_rms"], out[f"{label}_measured_max"] = cmp.bone_stats("full", measured=True)
         # the per-bone self-checks (does the skeleton match the puppet?) against the measured
         # error: bones named (a failed bone_residual or bead_pair_direction check), and of the
         # bones the beads fix, those over 1 deg that were named / not named
@@ -123,6 +133,8 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
                  if not c.passed and c.name in ("bone_residual", "bead_pair_direction")}
         over = {b for b in cmp.bone_groups.get("full", []) if cmp.bone_errors_deg.get(b, 0.0) > 1.0}
         out[f"{label}_checks_failed"] = len(named)
+        out[f"{label}_bones_checked"] = len({c.subject for c in res.self_checks
+                                             if c.name in ("bone_residual", "bead_pair_direction")})
         out[f"{label}_over1_named"] = len(over & named)
         out[f"{label}_over1_missed"] = len(over - named)
         if label == "calibrated":
@@ -148,11 +160,13 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path) -> 
     return out
 
 
-def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None = None, progress=None) -> list[dict]:
+def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None = None, progress=None,
+         calibrate: bool = True) -> list[dict]:
     """One dict per condition (see the module docstring). ``quick``: 2 puppets in each of the
     first two conditions; default 4 puppets per condition (seeds ``1000 * condition + k``).
     ``seeds``: these seeds in every condition instead. ``per_seed``: a list that receives each
-    puppet's dict (:func:`one_puppet` with ``condition``)."""
+    puppet's dict (:func:`one_puppet` with ``condition``). ``calibrate=False``: without the
+    calibrated skeleton (its keys NaN)."""
     conds = list(CONDITIONS.items())
     if conditions is not None:
         conds = [conds[i] for i in conditions]
@@ -164,7 +178,13 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
             todo = list(seeds) if seeds is not None else [1000 * ci + k for k in range(2 if quick else 4)]
             recs = []
             for seed in todo:
-                r = one_puppet(seed, kw, msname, sensor_kw, Path(tmp) / f"c{ci}_{seed}")
+                r = one_puppet(seed, kw, msname, sensor_kw, Path(tmp) / f"c{ci}_{seed}", calibrate)
+                if not calibrate:
+                    r.update({"calibrated_rms": np.nan, "calibrated_max": np.nan, "calibrated_measured_rms": np.nan,
+                              "calibrated_measured_max": np.nan, "predicted_rms": np.nan, "z": [], "uncertain": [],
+                              "uncertain_right": 0, "uncertain_wrong": 0, "uncertain_missed": 0,
+                              "calibrated_checks_failed": 0, "calibrated_bones_checked": 0,
+                              "calibrated_over1_named": 0, "calibrated_over1_missed": 0})
                 r["condition"] = cname
                 recs.append(r)
                 if per_seed is not None:
@@ -177,11 +197,12 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                         "partly_hidden": int(sum(r["ph_n"] for r in recs)),
                         "partly_hidden_rms_mm": _rms([v for r in recs for v in r["ph_m"]]) * 1e3,
                         "bone_deg_builtin": _rms([r["builtin_rms"] for r in recs]),
+                        "bone_deg_builtin_measured": _rms([r["builtin_measured_rms"] for r in recs]),
                         "bone_deg_calibrated": _rms([r["calibrated_rms"] for r in recs]),
-                        "bone_deg_calibrated_worst": float(np.nanmax([r["calibrated_rms"] for r in recs])),
-                        "bone_deg_calibrated_measured": _rms([r["calibrated_rms_measured"] for r in recs]),
-                        "bone_deg_user_measured": _rms([r["user_rms_measured"] for r in recs]),
-                        "calibrations_over_1deg": int(sum(r["calibrated_rms"] > 1.0 for r in recs)),
+                        "bone_deg_calibrated_measured": _rms([r["calibrated_measured_rms"] for r in recs]),
+                        "bone_deg_calibrated_worst": (float(np.nanmax([r["calibrated_rms"] for r in recs]))
+                                                      if calibrate else float("nan")),
+                        "calibrations_over_1deg": int(sum(r["calibrated_rms"] > 1.0 for r in recs)) if calibrate else 0,
                         "calibration_wrong_ids": int(sum(r["cal_wrong"] for r in recs)),
                         "bone_deg_predicted": _rms([r["predicted_rms"] for r in recs]),
                         "z_rms": _rms([z for r in recs for z in r["z"]]),
@@ -189,9 +210,14 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                         "uncertain_wrong": int(sum(r["uncertain_wrong"] for r in recs)),
                         "uncertain_missed": int(sum(r["uncertain_missed"] for r in recs)),
                         "bone_deg_user": _rms([r["user_rms"] for r in recs]),
+                        "bone_deg_user_measured": _rms([r["user_measured_rms"] for r in recs]),
                         "partial_bone_deg_user": _rms([r["partial_user"] for r in recs]),
                         "bead_pair_deg": _rms([r["pairs"] for r in recs]),
                         **{f"{lab}_checks_failed": int(sum(r[f"{lab}_checks_failed"] for r in recs))
+                           for lab in ("builtin", "calibrated", "user")},
+                        **{f"{lab}_bones_checked": int(sum(r[f"{lab}_bones_checked"] for r in recs))
+                           for lab in ("builtin", "calibrated", "user")},
+                        **{f"{lab}_captures_named": int(sum(r[f"{lab}_checks_failed"] > 0 for r in recs))
                            for lab in ("builtin", "calibrated", "user")},
                         **{f"{lab}_over1_named_missed": f"{sum(r[f'{lab}_over1_named'] for r in recs)}/"
                                                         f"{sum(r[f'{lab}_over1_missed'] for r in recs)}"
@@ -200,12 +226,15 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
 
 
 def _seed_line(r: dict) -> str:
-    return (f"{r['condition'][:38]:38s} | {r['seed']:5d} | {r['builtin_rms']:5.2f} {r['builtin_max']:5.2f} | "
-            f"{r['calibrated_rms']:5.2f} {r['calibrated_max']:5.2f} | {r['predicted_rms']:5.2f} | "
-            f"{r['user_rms']:5.2f} {r['user_max']:5.2f} | {r['wrong']:3d} | {_rms(r['whole_m']) * 1e3:5.3f} | "
+    def bones(lab):  # design grouping RMS max, then the measured grouping's RMS in brackets
+        return f"{r[lab + '_rms']:5.2f} {r[lab + '_max']:5.2f} ({r[lab + '_measured_rms']:5.2f})"
+
+    return (f"{r['condition'][:38]:38s} | {r['seed']:5d} | {bones('builtin')} | {bones('calibrated')} | "
+            f"{r['predicted_rms']:5.2f} | {bones('user')} | {r['wrong']:3d} | {_rms(r['whole_m']) * 1e3:5.3f} | "
             f"{r['ph_n']:2d} {_rms(r['ph_m']) * 1e3:5.2f} | {_rms(r['z']):4.2f} | {','.join(r['uncertain']) or '-'} | "
-            f"{r['builtin_checks_failed']} {r['calibrated_checks_failed']} {r['user_checks_failed']} | "
-            f"{r['calibrated_rms_measured']:5.2f} {r['user_rms_measured']:5.2f} | {r['cal_wrong']}")
+            + " ".join(f"{r[lab + '_checks_failed']}/{r[lab + '_bones_checked']}"
+                       for lab in ("builtin", "calibrated", "user"))
+            + f" | {r['cal_wrong']}")
 
 
 def _seeds(text: str) -> list[int]:
@@ -221,14 +250,18 @@ def main(argv=None) -> None:
     ap.add_argument("--quick", action="store_true", help="2 puppets in each of the first two conditions")
     ap.add_argument("--seeds", type=_seeds, default=None, help="seeds in every condition, e.g. 11-22")
     ap.add_argument("--conditions", default=None, help="condition indices, e.g. 0,1,4 (default all)")
+    ap.add_argument("--no-calibration", action="store_true",
+                    help="leave out the calibrated skeleton (built-in and own files only: one capture per puppet)")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     conds = None if args.conditions is None else [int(c) for c in args.conditions.split(",")]
-    print("bones the beads fix, direction error deg (RMS max), per puppet; predicted = the calibration's own "
-          "estimate; 3D = RMS of beads seen whole (mm), own files")
-    print(f"{'condition':38s} |  seed | built-in    | calibrated  | pred. | own files   | wrong | 3D mm | "
-          "partly hidden n, mm | z | calibration names uncertain | bones failing self-checks: built-in calibrated own | "
-          "calibrated, own files: RMS over the bones whose beads were recovered | wrong IDs in the calibration captures")
-    table = rows(args.quick, seeds=args.seeds, conditions=conds, progress=lambda r: print(_seed_line(r), flush=True))
+    print("bones the beads fix, direction error deg (RMS max, and in brackets the RMS over the bones whose beads "
+          "this capture recovered), per puppet; predicted = the calibration's own estimate; 3D = RMS of beads seen "
+          "whole (mm), own files")
+    print(f"{'condition':38s} |  seed | built-in            | calibrated          | pred. | own files           | "
+          "wrong | 3D mm | partly hidden n, mm | z | calibration names uncertain | bones failing self-checks / "
+          "checked: built-in calibrated own | wrong IDs in the calibration captures")
+    table = rows(args.quick, seeds=args.seeds, conditions=conds, progress=lambda r: print(_seed_line(r), flush=True),
+                 calibrate=not args.no_calibration)
     keys = list(table[0])
     print()
     print(" | ".join(keys))

@@ -133,22 +133,27 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     t0 = time.perf_counter()
     solve, raw_obs = triangulate_beads(rig, obs, markerset, images, options, radii, views)
     timings["triangulate"] = time.perf_counter() - t0
-    # 4. the pose
+    # 4. the pose, each bead weighted by the noise its photos show (bead_noise: the pooled
+    # reprojection residuals and each bead's own leave-one-view-out spread), not one stated
+    # error for all: fitted that way, a bead resting on three views, one of them partly hidden
+    # (0.6 mm off), pulled the pose off the well-measured beads (0.01-0.02 mm) by 0.1-0.4 mm,
+    # which the per-bone checks then blamed on the skeleton. The weights are relative: scaled so
+    # that the median recovered bead keeps the stated marker_sigma_m, the scale of the fit's
+    # robust loss (with the photos' own 0.01-0.1 mm the loss turned every bead of a skeleton
+    # unlike the puppet into an outlier: the built-in skeleton on +-15 % puppets went from 6.6
+    # to 17.9 deg RMS)
+    noise, noise_dof = _bead_noise_m(rig, solve, options)
     t0 = time.perf_counter()
-    fit = pose_skeleton(rig, skeleton, markerset, solve, root2world, options)
+    fit = pose_skeleton(rig, skeleton, markerset, solve, root2world, options,
+                        sigma_m=_relative_sigma(noise, solve, options))
     timings["pose"] = time.perf_counter() - t0
     # 5. self-checks: does the skeleton fit the puppet (per bone), which beads are partly hidden
-    # each bead's noise as the photos show it (bead_noise: the reprojection residuals of the beads
-    # seen whole, pooled and carried to 3D through each bead's views), not the stated
-    # marker_sigma_m (0.2 mm, 4-6x what the beads of a sharp capture show: a skeleton off by
-    # less than that passed every check); beads without an estimate (no redundant view) keep
-    # the stated error with their own reprojection error (marker_noise_m)
-    noise = _bead_noise_m(rig, solve, options)
     # a bead nearer another bead's model position than its own is a wrong name or a stray point,
     # not evidence against the skeleton: named on its own and left out of the per-bone checks
     stray = stray_bead_checks(markerset, fit, solve.points)
     off = np.isin(np.asarray(markerset.names), [c.subject for c in stray])
-    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden | off)
+    checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden | off,
+                              noise_dof=noise_dof)
               + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views) + stray
               + unmeasured_bone_checks(skeleton, markerset, solve.ok))
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),
@@ -157,24 +162,26 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
                         checks)
 
 
-def _bead_noise_m(rig: Rig, solve, options: PuppetOptions) -> np.ndarray:
-    """Expected 3D error of every recovered bead for the per-bone checks, metres, shape
-    (n_markers,): :func:`~stillcap.body.puppet_checks.bead_noise` (partly hidden beads left
-    out of the pooled pixel noise) with one view's pixel noise at the bead's depth added in
-    quadrature (an error its views share), and where it has none,
-    :func:`~stillcap.body.puppet_checks.marker_noise_m` with ``options.marker_sigma_m``."""
+def _bead_noise_m(rig: Rig, solve, options: PuppetOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Expected 3D error of every recovered bead, metres, shape (n_markers,), and the dof behind
+    each: :func:`~stillcap.body.puppet_checks.bead_noise` (partly hidden beads left out of the
+    pooled pixel noise), and where it has none,
+    :func:`~stillcap.body.puppet_checks.marker_noise_m` with ``options.marker_sigma_m`` (stated:
+    infinite dof)."""
     stated = marker_noise_m(rig, solve.points, solve.reproj_error_px, options.marker_sigma_m)
     bn = bead_noise(rig, solve.points, solve.observations, solve.used, exclude=solve.partly_hidden)
-    # plus an error every view of a bead shares (its shading, blur, a sliver of limb seen alike
-    # from neighbouring views), which the residuals cannot show: up to one view's pixel noise
-    # at the bead's depth (with the views off centre left out the residuals shrink to 0.01 mm
-    # per bead, and the puppet's own skeleton failed its head and torso checks by 0.05 mm)
-    px = solve.noise_px if np.isfinite(solve.noise_px) else bn.pixel_sd
-    seen = bn.sd_m
-    if np.isfinite(px):
-        shared = marker_noise_m(rig, solve.points, np.full(len(seen), px), 0.0)
-        seen = np.sqrt(seen ** 2 + shared ** 2)
-    return np.where(np.isfinite(seen) & (seen > 0), seen, stated)
+    have = np.isfinite(bn.sd_m) & (bn.sd_m > 0)
+    return np.where(have, bn.sd_m, stated), np.where(have, bn.sd_dof, np.inf)
+
+
+def _relative_sigma(noise: np.ndarray, solve, options: PuppetOptions) -> np.ndarray:
+    """The pose fit's per-bead error: ``noise`` scaled so that its median over the beads seen
+    whole is ``options.marker_sigma_m`` (``options.marker_sigma_m`` for all without any)."""
+    whole = solve.ok & ~solve.partly_hidden & np.isfinite(noise) & (noise > 0)
+    if not whole.any():
+        return np.full(len(noise), options.marker_sigma_m)
+    scale = options.marker_sigma_m / float(np.median(noise[whole]))
+    return np.where(np.isfinite(noise) & (noise > 0), noise * scale, options.marker_sigma_m)
 
 
 def capture_markerset(folder, cap=None) -> MarkerSet:

@@ -310,11 +310,12 @@ PARTLY_HIDDEN_SIGMA_M = 1.0e-3
 
 
 def pose_skeleton(rig: Rig, skeleton: Skeleton, markerset: MarkerSet, solve: MarkerSolve, root2world=None,
-                  options: PuppetOptions = DEFAULT) -> PoseFit:
+                  options: PuppetOptions = DEFAULT, sigma_m=None) -> PoseFit:
     """Stage 4: the skeleton posed on the 3D markers (:func:`~stillcap.body.puppet_pose.fit_pose`).
 
-    Markers that fewer than two views show whole (partly hidden beads: 1-2 mm off) count with an
-    expected error of :data:`PARTLY_HIDDEN_SIGMA_M` instead of ``options.marker_sigma_m``."""
+    Each marker counts with its expected 3D error ``sigma_m`` (metres, shape (n_markers,); default
+    ``options.marker_sigma_m``); markers that fewer than two views show whole (partly hidden
+    beads: 1-2 mm off) with at least :data:`PARTLY_HIDDEN_SIGMA_M`."""
     # markers without a 3D point (seen in one view, or their views disagree) still constrain the
     # pose: their final identification's rays, less sure the less of the bead shows (fill);
     # fit_pose rejects those its fit leaves > 5 sigma off
@@ -322,6 +323,8 @@ def pose_skeleton(rig: Rig, skeleton: Skeleton, markerset: MarkerSet, solve: Mar
 
     rays = MarkerRays.from_views(rig, solve.observations, ~solve.ok, fill=solve.fill)
     root = root_freedom(skeleton, markerset) if options.root == "auto" else options.root
-    sigma = np.where(solve.partly_hidden, max(options.marker_sigma_m, PARTLY_HIDDEN_SIGMA_M), options.marker_sigma_m)
+    sigma = np.broadcast_to(np.asarray(options.marker_sigma_m if sigma_m is None else sigma_m, float),
+                            solve.partly_hidden.shape)
+    sigma = np.where(solve.partly_hidden, np.maximum(sigma, PARTLY_HIDDEN_SIGMA_M), sigma)
     return fit_pose(skeleton, markerset, solve.points, root2world, marker_sigma_m=sigma,
                     rays=rays if len(rays) else None, root=root)
