@@ -57,9 +57,8 @@ def test_self_checks_fire_with_the_built_in_model_only(results):
     bad = failed_checks(results["built-in"].self_checks)
     assert any(c.name == "marker_fit_residual" for c in bad)
     assert sum(c.name == "finger_misfit" for c in bad) >= 2
-    # with the hand's own model nothing misfits (which angles rest on partly hidden markers is said
-    # whatever the model: a property of the photos)
-    assert [c for c in failed_checks(results["own"].self_checks) if c.name != "angles_partly_hidden"] == []
+    # with the hand's own model nothing misfits
+    assert failed_checks(results["own"].self_checks) == []
 
 
 def test_cli_prints_failed_checks_and_takes_the_files(other, capsys):
@@ -71,8 +70,8 @@ def test_cli_prints_failed_checks_and_takes_the_files(other, capsys):
     code, out, err = run(["hand", other, "--json", "--hand-model", other / "my_hand.json", "--markers",
                           other / "my_markers.json"], capsys)
     assert code == 0, err
-    assert [line for line in err.splitlines() if "self-check" in line and "angles_partly_hidden" not in line] == []
-    assert all(c["passed"] for c in json.loads(out)["self_checks"] if c["name"] != "angles_partly_hidden")
+    assert "self-check" not in err
+    assert all(c["passed"] for c in json.loads(out)["self_checks"])
 
 
 def test_capture_json_names_the_hand(other, tmp_path, results):

@@ -111,7 +111,7 @@ def analyse_hand(capture: Capture | str | Path, options: HandOptions | None = No
     report_progress(progress, 6, total, "release")
     balls, release, spin = release_and_spin(rig, balls, sequence, strobe_hz, pairs, images, options, messages)
     timings["release"] = _time.perf_counter() - t
-    checks = check_hand(labels, sequence, points, adapted)
+    checks = check_hand(labels, sequence, points, adapted, messages)
     report_progress(progress, total, total, "done")
     timings["total"] = _time.perf_counter() - t_all
     checks += response_checks(rig, camera_estimates(rig.names, images, balls.centers_px, balls.radius_px)) \

@@ -47,8 +47,7 @@ class HandResult:
     timings_s : dict
     self_checks : list of SelfCheck
         What the markers show against what the hand model and the noise allow
-        (:func:`~stillcap.body.hand_checks.hand_self_checks`), the joints whose angle rests only
-        on partly hidden markers (``angles_partly_hidden``), and ``response``: the ball's shading
+        (:func:`~stillcap.body.hand_checks.hand_self_checks`) and ``response``: the ball's shading
         against each camera's response; JSON key ``self_checks``.
     truth : dict or None
         The comparison with the capture's truth file, for synthetic captures: set by the caller

@@ -30,7 +30,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stillcap._checks import as_array
-from stillcap._selfcheck import SelfCheck
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS
@@ -46,7 +45,7 @@ from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ba
 from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "recover_markers", "recover_near", "recover_digits", "fit_poses",
-           "release_and_spin", "check_hand", "partly_hidden_angle_checks", "label_markers_adapted"]
+           "release_and_spin", "check_hand", "partly_hidden_angle_note", "label_markers_adapted"]
 
 @dataclass
 class HandSetup:
@@ -529,32 +528,38 @@ def _on_hand_clock(balls: HandBalls, hold_times, root2world, strobe_hz: float, m
     return replace(balls, flash_index=np.asarray(fn.flash, int), times=np.asarray(fn.times, float))
 
 
-def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints, adapted: bool = False) -> list:
+def check_hand(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints, adapted: bool = False,
+               messages: list | None = None) -> list:
     """Stage 7: the self-checks (:func:`~stillcap.body.hand_checks.hand_self_checks`), fully seen
-    markers against :data:`SEEN_SIGMA_M`, partly hidden ones against :data:`HIDDEN_SIGMA_M`."""
+    markers against :data:`SEEN_SIGMA_M`, partly hidden ones against :data:`HIDDEN_SIGMA_M`; the
+    note on angles that rest only on partly hidden markers (:func:`partly_hidden_angle_note`) is
+    added to ``messages``."""
     checks = hand_self_checks(labels, sequence, partly_hidden=points.partly_hidden, noise_m=SEEN_SIGMA_M,
                               hidden_noise_m=HIDDEN_SIGMA_M, adapted=adapted)
-    return checks + partly_hidden_angle_checks(labels, sequence, points)
+    note = partly_hidden_angle_note(labels, sequence, points)
+    if note and messages is not None:
+        messages.append(note)
+    return checks
 
 
-def partly_hidden_angle_checks(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints) -> list:
-    """A failed ``angles_partly_hidden`` check when some fitted joint angle rests only on partly
-    hidden markers (:func:`~stillcap.body.hand_track.dofs_on_partly_hidden`): the markers fix it,
-    but a partly hidden marker's centroid shifts by up to a few mm, so the angle is less sure than
-    those fully seen markers fix (on the studio's other hands 1-12, with the hand's own model
-    1.5-4.1 deg RMS against 0.3-1.0 deg; ``joint_angle_rms_partly_hidden_deg``). The check names the
-    joints and counts the angles (value) and poses; the JSON lists them per flash
-    (``flashes.angles_partly_hidden``) and the terminal's joint-angle table marks them. Like the
-    puppet's ``bone_measured``: the angle is reported, the user is told what it rests on."""
+def partly_hidden_angle_note(labels: HandLabels, sequence: HandSequence | None, points: MarkerPoints) -> str | None:
+    """A note naming the joint angles that rest only on partly hidden markers
+    (:func:`~stillcap.body.hand_track.dofs_on_partly_hidden`), or None: the markers fix them, but a
+    partly hidden marker's centroid shifts by up to a few mm, so the angle is less sure than those
+    fully seen markers fix (on the studio's other hands 1-12, with the hand's own model 1.5-4.1 deg
+    RMS against 0.3-1.0 deg; ``joint_angle_rms_partly_hidden_deg``). A note, not a failed
+    self-check: the ball hides part of some finger in nearly every throw (the studio's own demo
+    among them), so it says what an angle rests on, not that the photos disagree with the model.
+    The JSON lists the angles per flash (``flashes.angles_partly_hidden``) and the terminal's
+    joint-angle table marks them."""
     if sequence is None or not sequence.n:
-        return []
+        return None
     flag = dofs_on_partly_hidden(sequence, labels.point_index, points.partly_hidden)
     if not flag.any():
-        return []
+        return None
     sk = sequence.skeleton
     joints = ", ".join(sk.names[j] for j in np.flatnonzero(flag.any(axis=(0, 2))))
     n_poses = int(flag.any(axis=(1, 2)).sum())
-    return [SelfCheck("angles_partly_hidden", False, float(flag.sum()), 0.0,
-                      f"{int(flag.sum())} joint angle(s) in {n_poses} of {sequence.n} poses rest only on partly hidden "
-                      f"markers (joints {joints}): their centroids shift by up to a few mm, so expect several degrees "
-                      "more error there (per flash in the JSON's flashes.angles_partly_hidden)", "", "angles")]
+    return (f"{int(flag.sum())} joint angle(s) in {n_poses} of {sequence.n} poses rest only on partly hidden "
+            f"markers (joints {joints}): their centroids shift by up to a few mm, so expect several degrees "
+            "more error there (per flash in the JSON's flashes.angles_partly_hidden)")
