@@ -76,18 +76,11 @@ SIGMA_KEYS = ("speed_sigma_mph", "dir_sigma_hv_deg", "rate_sigma_rpm", "axis_sig
 VARIANT_KEYS = ("coverage", "speed_mph", "dir_deg", "dir_err_hv_deg", "rate_rpm", "axis_deg")
 
 
-def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, variants: dict | None = None) -> dict:
-    """Render, analyse and evaluate one capture of ``condition`` (a process-pool task).
-
-    ``variants``: name -> ``analyse_pitch`` keywords; the same photos are analysed again with
-    each, and ``row["variants"][name]`` keeps their sigmas (``SIGMA_KEYS``), e.g. to split the
-    variance of each quantity into its terms (``bench_spin_conditions.py --decompose``)."""
-    from bench_pitch import evaluate
-
+def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: str):
+    """Render capture ``index`` of ``condition`` into a new folder under ``workdir``, each camera's
+    true response declared in its rig file (what a user can declare); returns the studio capture,
+    the folder and ``(preset, capture keywords, sensor keywords, JPEG quality or None)``."""
     from stillcap.files.atomic import write_text
-    from stillcap.io.capture import Capture
-    from stillcap.pipelines.pitch import analyse_pitch
-    from stillcap.studio.compare.pitch import add_truth_comparison
     from stillcap.studio.pitch import pitch_capture
     from stillcap.studio.sensor import Sensor
 
@@ -96,20 +89,35 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
     if cap_kw is None:
         cap_kw, sensor_kw, quality = _mixed(rng)
     preset = PRESETS[index % len(PRESETS)]
-    row = {"condition": condition, "index": index, "preset": preset, "capture_kw": cap_kw,
-           "sensor_kw": {k: v for k, v in sensor_kw.items()}, "jpeg_quality": quality}
-    t = time.perf_counter()
     pc = pitch_capture(preset, rng=rng, calibrate=False, image_size=size, sensor=Sensor(**sensor_kw), **cap_kw)
     cap, files = pc.to_capture(".jpg" if quality else ".png")
     folder = Path(tempfile.mkdtemp(dir=workdir))
     cap.save(folder, files, jpeg_quality=quality or 95)
-    # declare what a user can declare: each camera's response in the rig file
     rig_path = folder / "rig.json"
     rig = json.loads(rig_path.read_text())
     responses = pc.truth.studio["camera_response"]
     for c in rig["cameras"]:
         c["response"] = responses[c["name"]]
     write_text(rig_path, json.dumps(rig))
+    return pc, folder, (preset, cap_kw, sensor_kw, quality)
+
+
+def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, variants: dict | None = None) -> dict:
+    """Render, analyse and evaluate one capture of ``condition`` (a process-pool task).
+
+    ``variants``: name -> ``analyse_pitch`` keywords; the same photos are analysed again with
+    each, and ``row["variants"][name]`` keeps their sigmas (``SIGMA_KEYS``), e.g. to split the
+    variance of each quantity into its terms (``bench_spin_conditions.py --decompose``)."""
+    from bench_pitch import evaluate
+
+    from stillcap.io.capture import Capture
+    from stillcap.pipelines.pitch import analyse_pitch
+    from stillcap.studio.compare.pitch import add_truth_comparison
+
+    t = time.perf_counter()
+    pc, folder, (preset, cap_kw, sensor_kw, quality) = render_capture(condition, index, seed, size, workdir)
+    row = {"condition": condition, "index": index, "preset": preset, "capture_kw": cap_kw,
+           "sensor_kw": {k: v for k, v in sensor_kw.items()}, "jpeg_quality": quality}
     try:
         loaded = Capture.load(folder)
         res = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1)

@@ -142,22 +142,33 @@ EXTRA = (("main thread", "least"), ("process", "least"), ("other threads (proces
          ("main thread: waiting for a core (run queue)", "median"), ("main thread: blocked (photos, GIL)", "median"))
 
 
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_capture_arguments(ap: argparse.ArgumentParser) -> None:
+    """``--capture`` and ``--cache``: the puppet capture a benchmark times (shared with
+    ``bench_puppet_timeline.py``; :func:`capture_folder` reads them)."""
     ap.add_argument("--capture", type=Path, default=None, help="a puppet capture folder")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"),
                     help="where bench_speed.py renders its captures (without --capture)")
+
+
+def capture_folder(args) -> Path:
+    """``--capture``, or bench_speed.py's puppet capture rendered (once) into ``--cache``."""
+    if args.capture is not None:
+        return args.capture
+    sys.path.insert(0, str(SRC))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_speed import render
+
+    return render(args.cache)[1]
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_capture_arguments(ap)
     ap.add_argument("--repeat", type=int, default=8, help="fresh processes")
     ap.add_argument("--switch-interval", type=float, default=0.0,
                     help="sys.setswitchinterval in the children, seconds (default: Python's own)")
     args = ap.parse_args(argv)
-    folder = args.capture
-    if folder is None:
-        sys.path.insert(0, str(SRC))
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from bench_speed import render
-
-        folder = render(args.cache)[1]
+    folder = capture_folder(args)
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(SRC), os.environ.get("PYTHONPATH", "")]))
     runs = []
     for _ in range(args.repeat):

@@ -82,22 +82,16 @@ print(json.dumps({"first": first, "second": second,
 
 
 def main(argv=None) -> None:
+    from bench_puppet_stages import add_capture_arguments, capture_folder
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--capture", type=Path, default=None, help="a puppet capture folder")
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/stillcap-bench-speed"),
-                    help="where bench_speed.py renders its captures (without --capture)")
+    add_capture_arguments(ap)
     ap.add_argument("--repeat", type=int, default=8, help="rounds (fresh processes per tree)")
     ap.add_argument("--tree", action="append", type=Path, default=None,
                     help="a source folder (src) to compare; give it twice or more (default: this tree's)")
     ap.add_argument("--timeline", action="store_true", help="print the first call's timeline per tree")
     args = ap.parse_args(argv)
-    folder = args.capture
-    if folder is None:
-        sys.path.insert(0, str(SRC))
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from bench_speed import render
-
-        folder = render(args.cache)[1]
+    folder = capture_folder(args)
     trees = [t.resolve() for t in (args.tree or [SRC])]
     runs = {t: [] for t in trees}
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}

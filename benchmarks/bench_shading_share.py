@@ -94,27 +94,11 @@ def _camera_rows(res, rig, truth) -> list:
 
 def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str) -> dict:
     """Render and analyse one capture as ``_robust_pitch.run_capture`` does; its cameras' rows."""
-    from stillcap.files.atomic import write_text
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import analyse_pitch
     from stillcap.studio.compare.pitch import compare_with_truth
-    from stillcap.studio.pitch import pitch_capture
-    from stillcap.studio.sensor import Sensor
 
-    rng = np.random.default_rng([seed, index, sum(map(ord, condition))])
-    cap_kw, sensor_kw, quality = rp.CONDITIONS[condition]
-    if cap_kw is None:
-        cap_kw, sensor_kw, quality = rp._mixed(rng)
-    preset = rp.PRESETS[index % len(rp.PRESETS)]
-    pc = pitch_capture(preset, rng=rng, calibrate=False, image_size=size, sensor=Sensor(**sensor_kw), **cap_kw)
-    cap, files = pc.to_capture(".jpg" if quality else ".png")
-    folder = Path(tempfile.mkdtemp(dir=workdir))
-    cap.save(folder, files, jpeg_quality=quality or 95)
-    rig_path = folder / "rig.json"
-    rig = json.loads(rig_path.read_text())
-    for c in rig["cameras"]:
-        c["response"] = pc.truth.studio["camera_response"][c["name"]]
-    write_text(rig_path, json.dumps(rig))
+    pc, folder, (preset, *_) = rp.render_capture(condition, index, seed, size, workdir)
     row = {"condition": condition, "index": index, "preset": preset}
     try:
         loaded = Capture.load(folder)
