@@ -330,3 +330,18 @@ def test_skeleton_checks_false_alarms_stay_at_their_stated_rate_and_a_wrong_skel
     assert all(f.limit > w.limit for f, w in zip(few, wrong))
     with pytest.raises(ValueError, match="p must be in"):
         skeleton_checks(ms, fit_pose(sk, ms, pts, root="free"), pts, sd, p=0.0)
+
+
+def test_the_check_limits_do_not_import_scipy_stats():
+    """The per-bone checks' quantiles come from scipy.special: importing scipy.stats cost the
+    puppet's first call ~0.25 s (bench_speed.py); the values are scipy.stats' own."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from stillcap.body.puppet_checks import _limit; "
+            "v = (_limit(1e-3, 3, 7.5), _limit(1e-3, 2, float('inf'))); "
+            "assert 'scipy.stats' not in sys.modules, 'scipy.stats imported'; "
+            "from scipy import stats; "
+            "assert abs(v[0] - 3 * stats.f.isf(1e-3, 3, 7.5)) < 1e-9 * v[0]; "
+            "assert abs(v[1] - stats.chi2.isf(1e-3, 2)) < 1e-9 * v[1]")
+    subprocess.run([sys.executable, "-c", code], check=True)
