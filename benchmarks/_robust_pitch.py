@@ -238,34 +238,52 @@ def alias_right(row: dict, max_rpm: float = 50.0) -> bool:
     return r is None or abs(r) < max_rpm
 
 
-def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants: dict | None = None) -> list[dict]:
+def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants: dict | None = None,
+        done: list | None = None, on_row=None) -> list[dict]:
     """Every capture of every condition on ``jobs`` processes; rows per capture (``variants``:
-    :func:`run_capture`'s)."""
-    tasks = [(c, i) for c in conditions for i in range(n)]
-    rows = []
+    :func:`run_capture`'s).
+
+    ``done``: rows of an earlier run (e.g. read back from ``bench_robustness.py --jsonl``); the
+    captures they hold (same condition, index, seed and photo size) are not run again and their
+    rows are returned with the new ones. ``on_row(row)`` is called with each new row as it
+    finishes (to append it to a file, so that a stopped run resumes)."""
+    size = tuple(size)
+    old = {(r["condition"], r["index"]): r for r in (done or [])
+           if r.get("seed") == seed and tuple(r.get("size") or ()) == size and r["condition"] in conditions
+           and r["index"] < n}
+    tasks = [(c, i) for c in conditions for i in range(n) if (c, i) not in old]
+    rows = list(old.values())
+    total = len(rows) + len(tasks)
+
+    def add(row):
+        row["seed"], row["size"] = seed, list(size)
+        rows.append(row)
+        if on_row is not None:
+            on_row(row)
+        if progress:
+            progress(len(rows), total)
     with tempfile.TemporaryDirectory() as work:
         if jobs <= 1:
             for c, i in tasks:
-                rows.append(run_capture(c, i, seed, size, work, variants))
-                if progress:
-                    progress(len(rows), len(tasks))
+                add(run_capture(c, i, seed, size, work, variants))
         else:
             with ProcessPoolExecutor(jobs) as ex:
                 futs = [ex.submit(run_capture, c, i, seed, size, work, variants) for c, i in tasks]
                 for f in futs:
-                    rows.append(f.result())
-                    if progress:
-                        progress(len(rows), len(tasks))
-    return rows
+                    add(f.result())
+    order = {(c, i): k for k, (c, i) in enumerate((c, i) for c in conditions for i in range(n))}
+    return sorted(rows, key=lambda r: order[(r["condition"], r["index"])])
 
 
 def rows(quick: bool = False, n: int | None = None, seed: int = 0, jobs: int | None = None,
-         progress=None, captures: list | None = None, conditions=None) -> list[dict]:
+         progress=None, captures: list | None = None, conditions=None, done: list | None = None,
+         on_row=None) -> list[dict]:
     """One dict per condition (``pipeline``, ``condition``, ``n``, the metric keys).
 
     quick: 1280x960 photos and 6 captures per condition (about 3 min on 2 cores); else
     2560x1920 and 40 per condition (about 30 min on 2 quiet cores). ``captures``, a list, gets
-    the per-capture rows as well; ``conditions`` (names of ``CONDITIONS``) runs only those.
+    the per-capture rows as well; ``conditions`` (names of ``CONDITIONS``) runs only those;
+    ``done`` and ``on_row`` as :func:`run`'s (resuming a stopped run).
     Each row also has the z-scores' mean and spread (``z_speed_mean``, ``z_speed_sd``,
     ``z_dir_h_*``, ``z_dir_v_*``).
     """
@@ -276,7 +294,7 @@ def rows(quick: bool = False, n: int | None = None, seed: int = 0, jobs: int | N
     unknown = [c for c in conds if c not in CONDITIONS]
     if unknown:
         raise ValueError(f"unknown pitch conditions {unknown}; known: {list(CONDITIONS)}")
-    per = run(conds, n, seed, size, jobs, progress)
+    per = run(conds, n, seed, size, jobs, progress, done=done, on_row=on_row)
     if captures is not None:
         captures.extend(per)
     return [summarise(c, [r for r in per if r["condition"] == c]) for c in conds]

@@ -1,7 +1,7 @@
 """Robustness: accuracy and 95 % interval coverage per photographic condition, per pipeline.
 
     python benchmarks/bench_robustness.py [--quick] [--n N] [--seed S] [--jobs J] [--markdown]
-                                          [--jsonl FILE]
+                                          [--jsonl FILE] [--conditions "clean,blur 1.5 px"]
 
 Each condition varies one thing the photos of a real lab vary (light placement, lens blur,
 sensor noise, white balance, JPEG quality, camera response, ball radius, a room lit by the
@@ -13,6 +13,11 @@ The pitch table's "wrong alias" column counts, per condition, the captures whose
 wrong alias (rate off by 100+ rpm or axis by 10+ deg) over those spinning faster than a strobe's
 Nyquist limit; each such capture is then listed with the alias chosen, the true rate and whether
 a self-check flagged it.
+
+``--jsonl FILE`` appends each pitch capture's row to FILE as it finishes, and a run started
+again with the same file (and the same ``--seed``, ``--quick`` or not) runs only the captures it
+does not hold yet: a long run can be stopped and resumed. ``--conditions`` runs only the named
+pitch conditions.
 
 Coverage is a binomial proportion: with ``n`` captures and a true coverage of 95 % its 1-sigma is
 ``sqrt(0.95 x 0.05 / n)`` (3.4 % at n = 40, 8.9 % at n = 6); the table prints it beside each
@@ -115,7 +120,9 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--jobs", type=int, default=None, help="worker processes (default 2)")
     ap.add_argument("--markdown", action="store_true", help="print markdown tables as well")
-    ap.add_argument("--jsonl", type=Path, default=None, help="write every capture's row to this file")
+    ap.add_argument("--jsonl", type=Path, default=None,
+                    help="append every pitch capture's row to this file; a run with the same file resumes")
+    ap.add_argument("--conditions", default=None, help="pitch conditions to run (comma-separated names)")
     ap.add_argument("--only", default="pitch,puppet,hand", help="pipelines to run (comma-separated)")
     args = ap.parse_args(argv)
     wanted = [w.strip() for w in args.only.split(",") if w.strip()]
@@ -133,12 +140,21 @@ def main(argv=None):
 
             def prog(done, total):
                 print(f"\r  pitch: {done}/{total} captures", end="", file=sys.stderr, flush=True)
-            rs = mod.rows(args.quick, n=args.n, seed=args.seed, jobs=args.jobs, progress=prog, captures=captures)
-            print(file=sys.stderr)
+            done, on_row = None, None
             if args.jsonl is not None:
-                with open(args.jsonl, "w") as f:
-                    for c in captures:
-                        f.write(json.dumps(c, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+                if args.jsonl.exists():
+                    done = [json.loads(line) for line in args.jsonl.read_text().splitlines() if line.strip()]
+
+                def on_row(row, path=args.jsonl):
+                    with open(path, "a") as f:
+                        f.write(json.dumps(row, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+            conds = None if args.conditions is None else [c.strip() for c in args.conditions.split(",") if c.strip()]
+            try:
+                rs = mod.rows(args.quick, n=args.n, seed=args.seed, jobs=args.jobs, progress=prog, captures=captures,
+                              conditions=conds, done=done, on_row=on_row)
+            except ValueError as e:
+                ap.error(str(e))
+            print(file=sys.stderr)
             head, body = pitch_table(rs)
             n = rs[0]["n"] if rs else 0
             title = (f"pitch: mean absolute errors and 95 % interval coverage (%), n = {n} captures per condition "
