@@ -22,6 +22,18 @@ the share's 1-sigma 0.5 in the middle of a pair's images and 0.71 at its ends.
 
 Also per camera: the speed shift (mph) that the fitted pattern, a unit constant share and a unit
 linear trend give through the final flight fit's linear response (``ReferenceFit.position_gain``).
+
+**The blur estimate behind the share** (issue 12, "a share each capture measures"): per camera
+also the lens blur the correction used (``StereoBalls.psf_px``, the median of the ball images'
+limb estimates), the photos' true blur (the condition's ``Sensor.blur_px``), the spread of the
+per-image limb estimates (their standard deviation; what the capture itself shows of the
+estimate's uncertainty) and ``alpha_blur``: the share the blur's error alone explains through
+the correction's model, ``sum_k (o_k(true) - o_k(used)) m_k / sum_k m_k^2`` with ``o_k`` the
+model's offset (``shading_model_offset_px`` at the image's phase and radius). The summary adds
+per condition the mean blur error, the median per-image spread and the RMS of ``alpha_blur``.
+The per-image estimates are recorded by wrapping ``stillcap.ball.stereo.limb_blur_px`` in the
+benchmark's own process (the analysis runs with ``workers=1``); the library reports only the
+median.
 Timings on a loaded machine are not the benchmark's.
 """
 
@@ -92,18 +104,81 @@ def _camera_rows(res, rig, truth) -> list:
     return out
 
 
+class _BlurRecorder:
+    """Records each photo's per-image limb blur estimates while the analysis runs (wraps
+    ``stillcap.ball.stereo``'s ``photo_blur_px`` and ``limb_blur_px`` in this process)."""
+
+    def __enter__(self):
+        import stillcap.ball.stereo as st
+
+        self.st, self.photos = st, []
+        self.orig = st.photo_blur_px, st.limb_blur_px
+
+        def limb(*a, **k):
+            v = self.orig[1](*a, **k)
+            if self.photos:
+                self.photos[-1][1].append(v)
+            return v
+
+        def photo(*a, **k):
+            self.photos.append([float("nan"), []])
+            v = self.orig[0](*a, **k)
+            self.photos[-1][0] = v
+            return v
+        st.photo_blur_px, st.limb_blur_px = photo, limb
+        return self
+
+    def __exit__(self, *exc):
+        self.st.photo_blur_px, self.st.limb_blur_px = self.orig
+
+    def estimates(self, psf_px: float) -> np.ndarray:
+        """The per-image estimates of the photo whose median was ``psf_px``."""
+        est = [e for med, lst in self.photos if np.isfinite(med) and abs(med - psf_px) < 1e-12 for e in lst]
+        est = np.asarray(est, float)
+        return est[np.isfinite(est)]
+
+
+def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float) -> None:
+    """Adds to each camera's row the blur used, the true blur, the per-image spread and ``alpha_blur``."""
+    from stillcap.ball.uncertainty import correction_made, lit_geometry, shading_model_offset_px
+
+    i = 0
+    for p in res.pairs:
+        if len(p) == 0:
+            continue
+        _, phase, _ = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
+        made = correction_made(p.stereo, p.centers_px)
+        for c in range(2):
+            row = rows[i]
+            i += 1
+            psf = float(p.stereo.psf_px[c])
+            est = recorder.estimates(psf)
+            row.update(psf_px=psf, psf_true_px=true_blur_px, psf_images=len(est),
+                       psf_image_sd_px=float(np.std(est, ddof=1)) if len(est) > 1 else None)
+            if made is None or not np.any(made[c] > 0):
+                continue
+            m = made[c]
+            o_used = np.array([shading_model_offset_px(a, r, psf) for a, r in zip(phase[c], p.radius_px[c])])
+            o_true = np.array([shading_model_offset_px(a, r, true_blur_px) for a, r in zip(phase[c], p.radius_px[c])])
+            row["alpha_blur"] = float(np.sum((o_true - o_used) * m) / np.sum(m * m))
+
+
 def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str) -> dict:
     """Render and analyse one capture as ``_robust_pitch.run_capture`` does; its cameras' rows."""
     from stillcap.io.capture import Capture
     from stillcap.pipelines.pitch import analyse_pitch
     from stillcap.studio.compare.pitch import compare_with_truth
 
-    pc, folder, (preset, *_) = rp.render_capture(condition, index, seed, size, workdir)
+    pc, folder, (preset, _, sensor_kw, _) = rp.render_capture(condition, index, seed, size, workdir)
     row = {"condition": condition, "index": index, "preset": preset}
     try:
         loaded = Capture.load(folder)
-        res = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1)
+        with _BlurRecorder() as rec:
+            res = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1)
         row["cameras"] = _camera_rows(res, loaded.rig, loaded.truth)
+        from stillcap.studio.sensor import Sensor
+
+        _blur_rows(res, row["cameras"], rec, float(sensor_kw.get("blur_px", Sensor().blur_px)))
         row["speed_mph"] = compare_with_truth(res, loaded.truth).get("speed_diff_mph_fitted")
         row["ok"] = True
     except ValueError as e:
@@ -126,9 +201,18 @@ def summary(name: str, rows: list) -> str:
     A = float(np.sum(wa * (a ** 2 - sa ** 2)) / wa.sum())
     B = float(np.sum(wb * (b ** 2 - sb ** 2)) / wb.sum())
     rho = (A - B) / (A + B) if A + B > 0 else float("nan")
-    return (f"{name:22s} {len(cams):4d} cameras  constant share rms {np.sqrt(max(A, 0)):.2f}  change rms "
+    text = (f"{name:22s} {len(cams):4d} cameras  constant share rms {np.sqrt(max(A, 0)):.2f}  change rms "
             f"{np.sqrt(max(B, 0)):.2f}  end-to-end correlation {rho:+.2f}  (raw rms {np.sqrt(np.mean(a ** 2)):.2f} / "
             f"{np.sqrt(np.mean(b ** 2)):.2f}, median se {np.median(sa):.2f} / {np.median(sb):.2f})")
+    blur = [c for c in cams if c.get("psf_px") is not None and c.get("psf_true_px") is not None]
+    if blur:  # the blur estimate: its error, the spread its images show, the share its error explains
+        err = np.array([c["psf_px"] - c["psf_true_px"] for c in blur])
+        sd = [c["psf_image_sd_px"] for c in blur if c.get("psf_image_sd_px") is not None]
+        ab = np.array([c["alpha_blur"] for c in blur if c.get("alpha_blur") is not None])
+        text += (f"\n{'':22s} blur estimate error {np.mean(err):+.3f} px mean, {np.sqrt(np.mean(err ** 2)):.3f} rms, "
+                 f"worst {err[np.argmax(np.abs(err))]:+.3f}; per-image spread {np.median(sd) if sd else float('nan'):.3f} px "
+                 f"median; share the blur error explains rms {np.sqrt(np.mean(ab ** 2)) if len(ab) else float('nan'):.2f}")
+    return text
 
 
 def main(argv=None):
