@@ -30,7 +30,10 @@ per-image limb estimates (their standard deviation; what the capture itself show
 estimate's uncertainty) and ``alpha_blur``: the share the blur's error alone explains through
 the correction's model, ``sum_k (o_k(true) - o_k(used)) m_k / sum_k m_k^2`` with ``o_k`` the
 model's offset (``shading_model_offset_px`` at the image's phase and radius). The summary adds
-per condition the mean blur error, the median per-image spread and the RMS of ``alpha_blur``.
+per condition the mean blur error, the median per-image spread and the RMS of ``alpha_blur``,
+and the error of the phase angle the uncertainty reads from each silhouette's area
+(``lit_geometry``) against the true light-ball-camera angle (mean per camera, its spread over
+the camera's images). ``alpha_blur`` uses that phase.
 The per-image estimates are recorded by wrapping ``stillcap.ball.stereo.limb_blur_px`` in the
 benchmark's own process (the analysis runs with ``workers=1``); the library reports only the
 median.
@@ -138,16 +141,22 @@ class _BlurRecorder:
         return est[np.isfinite(est)]
 
 
-def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float) -> None:
-    """Adds to each camera's row the blur used, the true blur, the per-image spread and ``alpha_blur``."""
+def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float, rig, truth, lights: dict) -> None:
+    """Adds to each camera's row the blur used, the true blur, the per-image spread and ``alpha_blur``,
+    and the error of the phase angle read from the silhouette's area against the true one
+    (``lights``: pair name -> its strobe's position)."""
     from stillcap.ball.uncertainty import correction_made, lit_geometry, shading_model_offset_px
+    from stillcap.files.jsonable import from_jsonable
 
+    tpairs = {p["name"]: p for p in truth["pairs"]}
     i = 0
     for p in res.pairs:
         if len(p) == 0:
             continue
         _, phase, _ = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
         made = correction_made(p.stereo, p.centers_px)
+        P = from_jsonable(tpairs[p.name]["positions"]).reshape(-1, 3)
+        Pt = P[np.nanargmin(np.linalg.norm(P[None] - p.positions[:, None], axis=2), axis=1)]
         for c in range(2):
             row = rows[i]
             i += 1
@@ -155,6 +164,11 @@ def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float) ->
             est = recorder.estimates(psf)
             row.update(psf_px=psf, psf_true_px=true_blur_px, psf_images=len(est),
                        psf_image_sd_px=float(np.std(est, ddof=1)) if len(est) > 1 else None)
+            if p.name in lights:  # the true phase: the angle light-ball-camera
+                to_l, to_c = lights[p.name] - Pt, rig[p.cameras[c]].center - Pt
+                cos = np.sum(to_l * to_c, 1) / (np.linalg.norm(to_l, axis=1) * np.linalg.norm(to_c, axis=1))
+                d = np.degrees(phase[c] - np.arccos(np.clip(cos, -1.0, 1.0)))
+                row.update(phase_error_deg=float(np.mean(d)), phase_error_sd_deg=float(np.std(d)))
             if made is None or not np.any(made[c] > 0):
                 continue
             m = made[c]
@@ -178,7 +192,8 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
         row["cameras"] = _camera_rows(res, loaded.rig, loaded.truth)
         from stillcap.studio.sensor import Sensor
 
-        _blur_rows(res, row["cameras"], rec, float(sensor_kw.get("blur_px", Sensor().blur_px)))
+        _blur_rows(res, row["cameras"], rec, float(sensor_kw.get("blur_px", Sensor().blur_px)), loaded.rig,
+                   loaded.truth, {pr.name: np.asarray(pr.light.position, float) for pr in pc.rig.pairs})
         row["speed_mph"] = compare_with_truth(res, loaded.truth).get("speed_diff_mph_fitted")
         row["ok"] = True
     except ValueError as e:
@@ -212,6 +227,12 @@ def summary(name: str, rows: list) -> str:
         text += (f"\n{'':22s} blur estimate error {np.mean(err):+.3f} px mean, {np.sqrt(np.mean(err ** 2)):.3f} rms, "
                  f"worst {err[np.argmax(np.abs(err))]:+.3f}; per-image spread {np.median(sd) if sd else float('nan'):.3f} px "
                  f"median; share the blur error explains rms {np.sqrt(np.mean(ab ** 2)) if len(ab) else float('nan'):.2f}")
+    ph = [c for c in cams if c.get("phase_error_deg") is not None]
+    if ph:  # the phase angle the uncertainty reads from the silhouette's area, against the truth
+        e = np.array([c["phase_error_deg"] for c in ph])
+        text += (f"\n{'':22s} silhouette phase error per camera {np.mean(e):+.1f} deg mean ({e.min():+.1f} to "
+                 f"{e.max():+.1f}), spread over a camera's images {np.median([c['phase_error_sd_deg'] for c in ph]):.1f} "
+                 "deg median")
     return text
 
 
