@@ -21,7 +21,10 @@ share at the pair's first and last images, ``(A - B) / (A + B)``. The model
 the share's 1-sigma 0.5 in the middle of a pair's images and 0.71 at its ends.
 
 Also per camera: the speed shift (mph) that the fitted pattern, a unit constant share and a unit
-linear trend give through the final flight fit's linear response (``ReferenceFit.position_gain``).
+linear trend give through the final flight fit's linear response (``ReferenceFit.position_gain``);
+per condition the RMS over the captures of the fitted patterns' speed shift (summed over the
+cameras; the regression's noise included, so an upper bound) over the stated share's speed sigma
+(``shading_model_error`` times the root sum of squares of the unit shifts).
 
 **The blur estimate behind the share** (issue 12, "a share each capture measures"): per camera
 also the lens blur the correction used (``StereoBalls.psf_px``, the median of the ball images'
@@ -33,7 +36,10 @@ model's offset (``shading_model_offset_px`` at the image's phase and radius). Th
 per condition the mean blur error, the median per-image spread and the RMS of ``alpha_blur``,
 and the error of the phase angle the uncertainty reads from each silhouette's area
 (``lit_geometry``) against the true light-ball-camera angle (mean per camera, its spread over
-the camera's images). ``alpha_blur`` uses that phase.
+the camera's images). ``alpha_blur`` uses that phase. And the share a model carried from the
+blur estimate's own uncertainty would state: the model's offset at the blur used +- sigma (half
+the change), regressed on the correction made like ``alpha`` (``share_blur_se``: sigma the
+median's standard error ``1.2533 sd / sqrt(n)``; ``share_blur_sd``: one image's spread ``sd``).
 The per-image estimates are recorded by wrapping ``stillcap.ball.stereo.limb_blur_px`` in the
 benchmark's own process (the analysis runs with ``workers=1``); the library reports only the
 median.
@@ -175,6 +181,16 @@ def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float, ri
             o_used = np.array([shading_model_offset_px(a, r, psf) for a, r in zip(phase[c], p.radius_px[c])])
             o_true = np.array([shading_model_offset_px(a, r, true_blur_px) for a, r in zip(phase[c], p.radius_px[c])])
             row["alpha_blur"] = float(np.sum((o_true - o_used) * m) / np.sum(m * m))
+            # the share the blur estimate's own uncertainty would state through the model: the
+            # offset's half-change as the blur moves by +-sigma, regressed on the correction made,
+            # sigma the median's standard error (1.2533 sd / sqrt(n)) or one image's spread (sd)
+            sd = row["psf_image_sd_px"]
+            if sd is not None:
+                for key, sig in (("share_blur_se", 1.2533 * sd / np.sqrt(len(est))), ("share_blur_sd", sd)):
+                    d = np.array([0.5 * (shading_model_offset_px(a, r, psf + sig)
+                                         - shading_model_offset_px(a, r, max(psf - sig, 0.0)))
+                                  for a, r in zip(phase[c], p.radius_px[c])])
+                    row[key] = float(abs(np.sum(d * m)) / np.sum(m * m))
 
 
 def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str) -> dict:
@@ -227,6 +243,23 @@ def summary(name: str, rows: list) -> str:
         text += (f"\n{'':22s} blur estimate error {np.mean(err):+.3f} px mean, {np.sqrt(np.mean(err ** 2)):.3f} rms, "
                  f"worst {err[np.argmax(np.abs(err))]:+.3f}; per-image spread {np.median(sd) if sd else float('nan'):.3f} px "
                  f"median; share the blur error explains rms {np.sqrt(np.mean(ab ** 2)) if len(ab) else float('nan'):.2f}")
+    sh = [c for c in cams if c.get("share_blur_se") is not None]
+    if sh:  # what a share carried from the blur estimate's own sigma would state
+        text += (f"\n{'':22s} share stated by the blur estimate's sigma through the model: rms "
+                 f"{np.sqrt(np.mean([c['share_blur_se'] ** 2 for c in sh])):.3f} (its standard error), "
+                 f"{np.sqrt(np.mean([c['share_blur_sd'] ** 2 for c in sh])):.3f} (one image's spread)")
+    z = []  # per capture: the fitted patterns' speed shift over the stated share's speed sigma
+    from stillcap.pipelines.pitch import PitchOptions
+
+    k = PitchOptions().shading_model_error
+    for r in rows:
+        cs = [c for c in r.get("cameras", []) if "dspeed_fitted_mph" in c] if r.get("ok") else []
+        sig = k * np.sqrt(sum(c["dspeed_unit_constant_mph"] ** 2 + c["dspeed_unit_trend_mph"] ** 2 for c in cs))
+        if cs and sig > 0:
+            z.append(sum(c["dspeed_fitted_mph"] for c in cs) / sig)
+    if z:
+        text += (f"\n{'':22s} speed shift of the fitted shares over the stated share's speed sigma: rms "
+                 f"{np.sqrt(np.mean(np.square(z))):.2f} over {len(z)} captures")
     ph = [c for c in cams if c.get("phase_error_deg") is not None]
     if ph:  # the phase angle the uncertainty reads from the silhouette's area, against the truth
         e = np.array([c["phase_error_deg"] for c in ph])
