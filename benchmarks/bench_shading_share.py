@@ -59,16 +59,19 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import numpy as np  # noqa: E402
-
 import _robust_pitch as rp  # noqa: E402
+import numpy as np  # noqa: E402
 
 MPH = 0.44704
 
 
 def _camera_rows(res, rig, truth) -> list:
     """Per camera of each pair: alpha, beta, their standard errors and the speed shifts."""
-    from stillcap.ball.uncertainty import _retriangulated_shifts, correction_made, lit_geometry
+    from stillcap.ball.uncertainty import (
+        _retriangulated_shifts,
+        correction_made,
+        lit_geometry,
+    )
     from stillcap.files.jsonable import from_jsonable
 
     tpairs = {p["name"]: p for p in truth["pairs"]}
@@ -151,7 +154,11 @@ def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float, ri
     """Adds to each camera's row the blur used, the true blur, the per-image spread and ``alpha_blur``,
     and the error of the phase angle read from the silhouette's area against the true one
     (``lights``: pair name -> its strobe's position)."""
-    from stillcap.ball.uncertainty import correction_made, lit_geometry, shading_model_offset_px
+    from stillcap.ball.uncertainty import (
+        correction_made,
+        lit_geometry,
+        shading_model_offset_px,
+    )
     from stillcap.files.jsonable import from_jsonable
 
     tpairs = {p["name"]: p for p in truth["pairs"]}
