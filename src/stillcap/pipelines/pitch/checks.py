@@ -49,7 +49,8 @@ from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
 
 __all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images",
-           "expected_flight", "disagreement_factor", "ambiguous_alias_candidates", "widen_spin_for_aliases", "identity_candidates"]
+           "expected_flight", "disagreement_factor", "ambiguous_alias_candidates", "widen_spin_for_aliases",
+           "identity_candidates"]
 
 #: False-alarm probability of each check on a capture where the model holds.
 CHECK_P = 1e-3
