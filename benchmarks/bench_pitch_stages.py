@@ -65,12 +65,16 @@ STAGES = (
                        ("stillcap.pipelines.pitch", "_fit_pair_spin")]),
     ("combined_spin", [("stillcap.pipelines.pitch.spin", "_combined_spin"),
                        ("stillcap.pipelines.pitch", "_combined_spin")]),
+    ("  spin fits' _center_shift_cov (covariance, centre shifts)", [("stillcap.ball.orientation._global",
+                                                                    "_center_shift_cov")]),
     ("fit_reference_trajectory", [("stillcap.pipelines.pitch.stages", "fit_reference_trajectory"),
                                   ("stillcap.pipelines.pitch", "fit_reference_trajectory")]),
     ("metrics_sigma", [("stillcap.pipelines.pitch.stages", "metrics_sigma"),
                        ("stillcap.pipelines.pitch", "_metrics_sigma")]),
+    ("check_and_inflate (self-checks)", [("stillcap.pipelines.pitch.analyse", "check_and_inflate")]),
     ("pair_response_estimates (response self-check)", [("stillcap.pipelines.pitch.workers",
                                                         "pair_response_estimates")]),
+    ("  of which _fit_discs (the shading fits)", [("stillcap.detect.response", "_fit_discs")]),
 )
 
 #: the row of ``--opencv``: every OpenCV call but decoding, whose thread CPU is GIL-free

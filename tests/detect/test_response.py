@@ -172,3 +172,22 @@ def test_response_check_tolerance_follows_the_estimates_scatter():
                                                                                1.17, 1.26]))
     trimmed = np.std(np.sort(np.log(ties.gammas))[1:-1], ddof=1)
     assert ties.log_gamma_se == pytest.approx(1.2533 * trimmed / np.sqrt(8)) and ties.log_gamma_se > 0.05
+
+
+def test_radiance_is_the_where_form_bit_for_bit_on_edge_values():
+    # the fit's lit radiance (speed only, issue 16): np.fmax in place gives np.where's numbers,
+    # also for -0.0, NaN, +-inf and an ambient of +-0 (fmax keeps -0.0; adding b and the clip
+    # must turn it into the same number)
+    from stillcap.detect.response import _radiance
+
+    rng = np.random.default_rng(3)
+    edge = np.array([-0.0, 0.0, np.nan, np.inf, -np.inf, 1e-300, -1e-300, 2.0, -2.0, 1e-9, 0.5])
+    ns = np.concatenate([edge, rng.normal(0, 0.5, 200)])
+    for b in (0.0, -0.0, 1e-12, 0.05, 0.3, 1.0):
+        for shape in ((1, 1), (2, 3)):
+            n = np.broadcast_to(ns, shape + ns.shape).copy()
+            bb = np.full(shape, b)
+            want = np.clip(np.where(n > 0.0, n, 0.0) + bb[..., None], 1e-9, 1.0)
+            got = _radiance(n.copy(), bb)
+            assert np.array_equal(np.signbit(got), np.signbit(want))
+            assert np.array_equal(got, want, equal_nan=True)

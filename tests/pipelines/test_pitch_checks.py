@@ -96,3 +96,19 @@ def test_pair_disagreement_and_the_inflation_factor():
     checks = [SelfCheck("pair_agreement", False, 30.0, 16.3, "", "back")]
     assert disagreement_factor(checks) == pytest.approx(10.0)
     assert disagreement_factor([SelfCheck("pair_agreement", True, 15.0, 16.3, "", "back")]) == 1.0
+
+
+def test_missed_ball_images_integrate_the_flight_once_per_pair(tmp_path, clean, monkeypatch):
+    # speed only (issue 16): both cameras of a pair need the same expected positions, so the
+    # flight is integrated once per pair, and each camera's check is what it was
+    import stillcap.pipelines.pitch.checks as checks_module
+
+    calls = []
+    simulate = checks_module.simulate
+    monkeypatch.setattr(checks_module, "simulate", lambda *a, **k: calls.append(1) or simulate(*a, **k))
+    res = _analyse(tmp_path, clean)
+    per_camera = [c for c in res.self_checks if c.name == "missed_ball_images"]
+    assert len(per_camera) == 4 and len(calls) == 2
+    pair = res.pairs[0]
+    ks, P = checks_module.expected_flight(res.fit, res.options.flight_model(), pair)
+    assert len(ks) == len(P) and np.isin(ks, pair.flash_index).sum() == 0

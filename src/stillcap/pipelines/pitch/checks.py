@@ -48,8 +48,9 @@ from stillcap._selfcheck import SelfCheck
 from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
 
-__all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images", "disagreement_factor",
-           "ambiguous_alias_candidates", "widen_spin_for_aliases", "identity_candidates"]
+__all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images",
+           "expected_flight", "disagreement_factor", "ambiguous_alias_candidates", "widen_spin_for_aliases",
+           "identity_candidates"]
 
 #: False-alarm probability of each check on a capture where the model holds.
 CHECK_P = 1e-3
@@ -114,28 +115,19 @@ def pair_disagreement(residuals, covariances) -> tuple[float, int]:
     return float(m @ np.linalg.solve(W + np.eye(3) * 1e-14, m)), 3
 
 
-def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2.0, extend: int = 2,
-                         span=None):
-    """Flashes of ``pair`` where the fitted flight puts the whole ball disc inside ``cam``'s photo
-    but no silhouette was found near it.
-
-    Flash indices from ``min(flash_index) - extend`` to ``max(flash_index) + extend`` (the
-    span the pair photographed and ``extend`` flashes either side), kept only where the flight
-    surely passed: ``span = (s_min, s_max)``, the stretch along the initial velocity between
-    the first and the last ball position any pair found (before it the ball may still be in the
-    hand, after it caught).
-
-    Returns
-    -------
-    list of (flash index, (x, y) px)
-    """
+def expected_flight(fit, model, pair, extend: int = 2, span=None) -> tuple[np.ndarray, np.ndarray]:
+    """The flashes of ``pair`` it did not find and where the fitted flight puts the ball then
+    (:func:`expected_ball_images`): flash indices (K,) and positions (K, 3), m (both empty when
+    there are none). The same for both cameras of the pair: computed once for them (one
+    integration of the flight, not one per camera)."""
     k = np.asarray(pair.flash_index, int)
+    none = np.zeros(0, int), np.zeros((0, 3))
     if len(k) == 0:
-        return []
+        return none
     ks = np.arange(k.min() - extend, k.max() + extend + 1)
     ks = ks[~np.isin(ks, k)]
     if not len(ks):
-        return []
+        return none
     t = pair.time_offset_s + ks / pair.strobe_hz
     tr = simulate(fit.p0, fit.v0, fit.spin, t, model, t0=fit.t0)
     P = tr.positions
@@ -144,8 +136,28 @@ def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2
         s_along = (P - fit.p0) @ u
         keep = (s_along >= span[0]) & (s_along <= span[1])
         ks, P = ks[keep], P[keep]
-        if not len(ks):
-            return []
+    return ks, P
+
+
+def expected_ball_images(fit, model, pair, cam, which: int, margin_px: float = 2.0, extend: int = 2,
+                         span=None, flight=None):
+    """Flashes of ``pair`` where the fitted flight puts the whole ball disc inside ``cam``'s photo
+    but no silhouette was found near it.
+
+    Flash indices from ``min(flash_index) - extend`` to ``max(flash_index) + extend`` (the
+    span the pair photographed and ``extend`` flashes either side), kept only where the flight
+    surely passed: ``span = (s_min, s_max)``, the stretch along the initial velocity between
+    the first and the last ball position any pair found (before it the ball may still be in the
+    hand, after it caught). ``flight``: :func:`expected_flight` of the same arguments, computed
+    before (the pair's other camera needs the same; None: computed here).
+
+    Returns
+    -------
+    list of (flash index, (x, y) px)
+    """
+    ks, P = expected_flight(fit, model, pair, extend, span) if flight is None else flight
+    if not len(ks):
+        return []
     pc = cam.world_to_cam(P)
     px = cam.project(P)
     r_m = float(np.nanmedian(pair.radius_px[which])) if np.any(np.isfinite(pair.radius_px[which])) else 20.0
@@ -270,8 +282,9 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
     for p in pairs:
         if not len(p) or p.stereo is None or getattr(p, "_check_cams", None) is None:
             continue
+        expected = expected_flight(fit, model, p, span=span)  # the same for both cameras: once
         for which, cam in enumerate(p._check_cams):
-            missed = expected_ball_images(fit, model, p, cam, which, span=span)
+            missed = expected_ball_images(fit, model, p, cam, which, span=span, flight=expected)
             checks.append(SelfCheck(
                 "missed_ball_images", not missed, float(len(missed)), 0.0,
                 (f"{len(missed)} ball image(s) the fitted flight puts inside the photo were not found: "
