@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from stillcap._blas import single_blas_thread
-from stillcap.body.kinematics import bone_directions, normalised, pose_from_markers
+from stillcap.body.kinematics import align_matrix, bone_directions, normalised, pose_from_markers
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
 
@@ -359,11 +359,11 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
                 cloud = np.vstack([model, np.zeros((1, 3))])
                 sv = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
                 if len(sel) >= 2 and sv[1] > 1e-3 * sv[0]:
-                    cands = Rotation.align_vectors(meas, model)[0].as_matrix()[None]
+                    cands = align_matrix(meas, model)[None]
                 else:
                     a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
                     if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
-                        R0 = Rotation.align_vectors(a[None], b[None])[0].as_matrix()
+                        R0 = align_matrix(a[None], b[None])
                         cands = _rotations_about(a, phis) @ R0
             if cands is None:
                 ang[j] = np.where(locked, lo[j], center[j])
