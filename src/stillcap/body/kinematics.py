@@ -23,6 +23,7 @@ __all__ = [
     "normalised",
     "bone_directions",
     "rotation_between",
+    "align_matrix",
     "RigidAlignment",
     "rigid_alignment",
     "pose_from_bone_directions",
