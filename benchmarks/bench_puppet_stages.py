@@ -61,6 +61,7 @@ PIECES = (
     ("sub-pixel refinement", "stillcap.pipelines.puppet.analyse", "refine_bead_candidates"),
     ("naming by colour", "stillcap.pipelines.puppet.analyse", "identify_views"),
     ("triangulation (+ fill, re-identification)", "stillcap.pipelines.puppet.analyse", "triangulate_beads"),
+    ("bead noise (jackknife)", "stillcap.pipelines.puppet.analyse", "bead_noise"),
     ("pose stage", "stillcap.pipelines.puppet.analyse", "pose_skeleton"),
     ("  fit_pose", "stillcap.pipelines.puppet.stages", "fit_pose"),
     ("    its start (_start_angles)", "stillcap.body.puppet_pose", "_start_angles"),

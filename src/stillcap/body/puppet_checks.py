@@ -167,27 +167,38 @@ def bead_noise(rig, points, observations, used, exclude=None) -> BeadNoise:
     use = use & ok[None] & np.all(np.isfinite(obs), axis=2)
     skip = np.zeros(len(pts), bool) if exclude is None else np.asarray(exclude, bool)
     X = np.where(ok[:, None], pts, 0.0)
-    J = np.zeros((len(cams), len(pts), 2, 3))
-    r = np.zeros((len(cams), len(pts), 2))
+    n_pts = len(pts)
+    J = np.zeros((len(cams), n_pts, 2, 3))
+    r = np.zeros((len(cams), n_pts, 2))
     step = 1e-6  # metres: the projection's Jacobian by central differences
+    # the points and their six offsets projected in one call per camera (7 before)
+    shifted = np.concatenate([X] + [X + d for a in range(3) for d in (step * np.eye(3)[a], -step * np.eye(3)[a])])
     for v, cam in enumerate(cams):
         sel = np.flatnonzero(use[v])
         if not len(sel):
             continue
-        x = X[sel]
-        r[v, sel] = obs[v, sel] - cam.project(x)
-        for a in range(3):
-            d = np.zeros(3)
-            d[a] = step
-            J[v, sel, :, a] = (cam.project(x + d) - cam.project(x - d)) / (2 * step)
+        p = cam.project(shifted.reshape(7, n_pts, 3)[:, sel].reshape(-1, 3)).reshape(7, len(sel), 2)
+        r[v, sel] = obs[v, sel] - p[0]
+        J[v, sel] = np.stack([(p[1 + 2 * a] - p[2 + 2 * a]) / (2 * step) for a in range(3)], axis=-1)
     sq = np.sum(r ** 2, axis=(0, 2))
     n = use.sum(axis=0)
     pool = ok & ~skip & (n >= 2)
     dof = int(np.sum(2 * n[pool] - 3))
     s_px = math.sqrt(float(sq[pool].sum()) / dof) if dof > 0 else float("nan")
-    sd = np.full(len(pts), np.nan)
-    sd_dof = np.full(len(pts), np.nan)
-    for k in np.flatnonzero(ok & (n >= 2)):
+    beads = np.flatnonzero(ok & (n >= 2))
+    try:
+        sd, sd_dof = _bead_sd(J, r, use, sq, n, beads, s_px)
+    except np.linalg.LinAlgError:  # views along one line (the depth is not fixed): bead by bead
+        sd, sd_dof = _bead_sd_each(J, r, use, sq, beads, s_px)
+    return BeadNoise(s_px, dof, sd, sd_dof)
+
+
+def _bead_sd_each(J, r, use, sq, beads, s_px) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`bead_noise`'s per-bead ``sd_m`` and ``sd_dof``, one bead at a time (infinite where
+    a bead's normal equations or one of its leave-one-out systems are singular)."""
+    sd = np.full(J.shape[1], np.nan)
+    sd_dof = np.full(J.shape[1], np.nan)
+    for k in beads:
         vs = np.flatnonzero(use[:, k])
         Jk, rk = J[vs, k], r[vs, k]
         H = np.einsum("via,vib->ab", Jk, Jk)
@@ -210,7 +221,45 @@ def bead_noise(rig, points, observations, used, exclude=None) -> BeadNoise:
             sd[k] = math.sqrt(max(float(np.trace(cov)), 0.0) / 3.0)
         except np.linalg.LinAlgError:  # views along one line: the depth is not fixed
             sd[k] = np.inf
-    return BeadNoise(s_px, dof, sd, sd_dof)
+    return sd, sd_dof
+
+
+def _bead_sd(J, r, use, sq, n, beads, s_px) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_bead_sd_each` for all beads at once: every bead's normal equations and every
+    (bead, left-out view) system stacked into one batched inverse and one batched solve (the
+    same LAPACK calls per system; ~0.05 ms per bead in a Python loop before). Raises
+    ``LinAlgError`` when any system is singular (the caller then goes bead by bead)."""
+    sd = np.full(J.shape[1], np.nan)
+    sd_dof = np.full(J.shape[1], np.nan)
+    if not len(beads):
+        return sd, sd_dof
+    Jb, rb, ub = J[:, beads], r[:, beads], use[:, beads]  # unused views are zero rows
+    H = np.einsum("vkia,vkib->kab", Jb, Jb)
+    Hinv = np.linalg.inv(H)
+    nb = n[beads]
+    own = 2 * nb - 3
+    mine = sq[beads, None, None] / own[:, None, None] * Hinv  # two views: their one dof of residual
+    three = nb >= 3
+    if three.any():
+        # the point's step with view i left out (one Gauss-Newton step from the point, whose
+        # normal equations sum(J_v^T r_v) are ~0): hand-written, as no library gives a
+        # triangulation's leave-one-out covariance
+        g = np.einsum("vkia,vki->ka", Jb, rb)
+        vi, ki = np.nonzero(ub & three[None])
+        Jv, rv = Jb[vi, ki], rb[vi, ki]  # (m, 2, 3), (m, 2)
+        A = H[ki] - np.einsum("mia,mib->mab", Jv, Jv)
+        d = np.linalg.solve(A, (g[ki] - np.einsum("mia,mi->ma", Jv, rv))[..., None])[..., 0]
+        cnt = nb[ki][:, None]
+        mean = np.zeros((len(beads), 3))
+        np.add.at(mean, ki, d)
+        d = d - mean[ki] / cnt
+        outer = np.zeros((len(beads), 3, 3))
+        np.add.at(outer, ki, d[:, :, None] * d[:, None, :])
+        mine = np.where(three[:, None, None], (nb - 1)[:, None, None] / nb[:, None, None] * outer, mine)
+    cov = (own[:, None, None] * mine + BEAD_NOISE_PRIOR_DOF * s_px ** 2 * Hinv) / (own + BEAD_NOISE_PRIOR_DOF)[:, None, None]
+    sd_dof[beads] = own + BEAD_NOISE_PRIOR_DOF
+    sd[beads] = np.sqrt(np.maximum(np.trace(cov, axis1=1, axis2=2), 0.0) / 3.0)
+    return sd, sd_dof
 
 
 def _limit(p: float, dof: int, noise_dof: float) -> float:
