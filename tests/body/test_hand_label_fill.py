@@ -296,3 +296,49 @@ def test_a_confirmed_point_beyond_the_gate_needs_its_digit_fixed_by_other_labels
     lab.point_index[k, digit] = -1
     out = label_recovered(lab, pts, cols, [(p, k, m)], gate_m=GATE_M, predicted=[X], confirmed=confirmed)
     assert out.point_index[k, m] < 0
+
+
+def _first_flash_of_hand_8(seed):
+    """Points of another person's hand (studio hand 8, as ``bench_hand_matching.py`` renders it) with
+    the first flash showing the ten markers the rendered capture gives (``back.2`` seen by one
+    camera only: no back-of-hand triplet), the other flashes every marker seen twice."""
+    tr = truth(8, 8)
+    names = list(tr.marker_names)
+    first = [names.index(n) for n in ("back.1", "back.3", "thumb.mcp", "thumb.ip", "thumb.nail", "middle.pip",
+                                      "ring.nail", "little.pip", "little.dip", "little.nail")]
+    d = hand_points_from_truth(tr, noise_m=0.0003, drop=0.0, n_spurious=0, rng=seed)
+    keep = (d["flash"] != 0) | np.isin(d["marker"], first)
+    mp = names.index("middle.pip")  # seen by one camera in the truth; the capture's 3D stage had it
+    extra = tr.markers[0, mp] + np.random.default_rng(seed).normal(0, 0.0003, 3)
+    return {"points": np.concatenate([d["points"][keep], extra[None]]),
+            "colours": np.concatenate([d["colours"][keep], [tr.marker_colors[mp]]]),
+            "flash": np.append(d["flash"][keep], 0), "marker": np.append(d["marker"][keep], mp)}
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3])
+def test_rival_labellings_that_bend_the_hand_more_do_not_compete(seed, monkeypatch):
+    # issue 12: on studio hand 8 with its own model the first flash got no pose: its rivals, two
+    # markers fewer, disagreed with the right labelling; they bend the hand 2-9 times as much
+    # from the neighbouring flash as it does
+    import stillcap.body.hand_label_fill as fill
+
+    d = _first_flash_of_hand_8(seed)
+    v = another_hand(8)
+    lab = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0, skeleton=v.skeleton, markerset=v.markerset)
+    assert lab.reconstructed.all() and lab.pose_source[0] == "neighbours"
+    wrong, _, _ = wrong_and_missing(lab, d)
+    assert wrong == 0
+    assert (lab.point_index[0] >= 0).sum() >= 8  # the flash's ten points, both back markers among them
+    monkeypatch.setattr(fill, "SHAPE_RATIO", np.inf)  # every rival competes: the flash is lost
+    lab = label_hand_markers(d["points"], d["colours"], strobe_hz=75.0, skeleton=v.skeleton, markerset=v.markerset)
+    assert not lab.reconstructed[0] and "competing labellings" in lab.skipped[0]
+
+
+def test_shape_change_is_the_rms_of_the_angle_differences():
+    from stillcap.body.hand_label_fill import shape_change_deg
+
+    a = np.zeros((4, 3))
+    b = a.copy()
+    b[0, 1] = 12.0
+    assert shape_change_deg(b, a) == pytest.approx(np.sqrt(144 / 12))
+    assert shape_change_deg(a, a) == 0.0

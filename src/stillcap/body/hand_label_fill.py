@@ -19,7 +19,9 @@ without trading correctness for coverage:
     the hand fitted, points assigned optimally (:func:`scipy.optimize.linear_sum_assignment`)
     until the labels stop changing. A label is kept only when every competitive hypothesis
     (within :data:`COMPETE_MARKERS` markers of the best and fitting as well) gives that point
-    the same marker: ambiguous evidence leaves the points unlabelled. The flash is posed when
+    the same marker: ambiguous evidence leaves the points unlabelled. A hypothesis with fewer
+    markers than the best that bends the hand :data:`SHAPE_RATIO` times as much from the
+    neighbouring flash (:func:`shape_change_deg`) does not compete. The flash is posed when
     :data:`~stillcap.body.hand_label.MIN_MARKERS` agreed labels remain. Flashes are posed
     nearest a posed flash first, so a newly posed flash is a neighbour for the next.
 :func:`label_leftovers`
@@ -45,8 +47,8 @@ from scipy.spatial.transform import Rotation
 from stillcap.body.hand_grid import LabelModel, assign_points, fit_labels, grid_match
 from stillcap.body.skeleton import Pose
 
-__all__ = ["COMPETE_MARKERS", "LEFTOVER_GATE_FACTOR", "PAIR_TOL_M", "digit_search", "label_leftovers", "pose_from_neighbours",
-           "pose_one_flash", "template_markers"]
+__all__ = ["COMPETE_MARKERS", "LEFTOVER_GATE_FACTOR", "PAIR_TOL_M", "SHAPE_RATIO", "digit_search", "label_leftovers",
+           "pose_from_neighbours", "pose_one_flash", "shape_change_deg", "template_markers"]
 
 #: Tolerance on each distance between three points of a flash and the three template markers
 #: they are taken for (m, for a hand of the model's size): the fingers move between flashes.
@@ -58,12 +60,25 @@ N_REFINE = 12
 #: A refined hypothesis competes with the best when it labels at most this many markers fewer
 #: than the one labelling most and fits within the assignment gate.
 COMPETE_MARKERS = 2
+#: A labelling with fewer markers than the best one does not compete with it when its fit changes
+#: the hand's joint angles from the neighbouring flash's (RMS, :func:`shape_change_deg`) more than
+#: this many times as much as the best one's. On the studio's first flashes without a back-of-hand
+#: triplet (hands 2 and 8, both models) the right labelling changed them 1.9-10 deg and its rivals
+#: 1.9-9 times as much (15.8-30 deg).
+SHAPE_RATIO = 1.5
 #: The second pass's gate, in multiples of the assignment gate (8 mm x the hand's size): on
 #: hands of other proportions the unreached markers were 9-18 mm from the fitted model, the
 #: nearest other marker of their colour 29 mm or more.
 LEFTOVER_GATE_FACTOR = 2.5
 #: Rounds of the second pass.
 LEFTOVER_ROUNDS = 3
+
+
+def shape_change_deg(angles_deg, prior_deg) -> float:
+    """RMS change of the joint angles from a neighbouring flash's (deg): how much a labelling makes
+    the hand change shape between flashes."""
+    d = np.asarray(angles_deg, float) - np.asarray(prior_deg, float)
+    return float(np.sqrt(np.nanmean(d ** 2)))
 
 
 def template_markers(model: LabelModel, angles_deg) -> np.ndarray:
@@ -207,8 +222,14 @@ def pose_one_flash(model: LabelModel, pts, cols, members, templates, *, grid_gat
     if not good:
         return None, "no pose from its other markers fits within the gate"
     most = max(len(lab) for lab, _, _ in good)
-    compete = [lab for lab, _, _ in good if len(lab) >= most - COMPETE_MARKERS]
     best = max(good, key=lambda x: (len(x[0]), -x[1].rms))
+    # the whole hand's fit judges the rivals too: a labelling with fewer markers than the best
+    # that also needs the hand to change shape from the neighbouring flash SHAPE_RATIO times as
+    # much does not compete (the hand changes shape little from one flash to the next; a wrong
+    # labelling bends the digits to reach its points)
+    best_change = shape_change_deg(best[1].angles_deg, best[2])
+    compete = [lab for lab, f, a in good if len(lab) >= most - COMPETE_MARKERS
+               and not (len(lab) < len(best[0]) and shape_change_deg(f.angles_deg, a) > SHAPE_RATIO * best_change)]
     # a label is kept when no competing labelling gives its marker another point or its point
     # another marker (a labelling that leaves either out does not contradict it)
     inverse = [{p: m for m, p in lab.items()} for lab in compete]
