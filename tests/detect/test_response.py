@@ -172,3 +172,15 @@ def test_response_check_tolerance_follows_the_estimates_scatter():
                                                                                1.17, 1.26]))
     trimmed = np.std(np.sort(np.log(ties.gammas))[1:-1], ddof=1)
     assert ties.log_gamma_se == pytest.approx(1.2533 * trimmed / np.sqrt(8)) and ties.log_gamma_se > 0.05
+
+
+@pytest.mark.parametrize("key, bad", [("limit", -0.1), ("limit", float("nan")), ("limit", float("inf")),
+                                      ("limit", "0.3"), ("z", -1.0), ("z", float("nan")), ("z", None)])
+def test_response_check_rejects_bad_limit_and_z(key, bad):
+    """A negative, non-finite or non-numeric ``limit`` or ``z`` is one ValueError naming the keyword
+    (a negative or NaN tolerance would fail every camera, right or wrong)."""
+    e = response_module.ResponseEstimate("gamma", 2.2, 0.05, 10, np.full(10, 2.2))
+    with pytest.raises(ValueError, match=rf"response_check: {key} must be a finite number >= 0"):
+        response_check(e, Response.srgb(), "cam", **{key: bad})
+    # the edges are allowed: a zero floor, a zero z
+    assert response_check(e, Response.srgb(), "cam", **{key: 0.0}).limit >= 0.0
