@@ -192,8 +192,9 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         if psf is None and it == iterations - 1 and it > 0 and shading:
             # the photos' blur from the ball images at the latest refined centres (the first
             # round's start, the ellipse centres, lies up to 0.4 r off)
-            psf = np.array([photo_blur_px(img_a, ca, oa - pa[:, None], cam_a.response),
-                            photo_blur_px(img_b, cb, ob - pb[:, None], cam_b.response)])
+            # (uncorrected for shading: read again at corrected centres, ``shading=True``)
+            psf = np.array([photo_blur_px(img_a, ca, oa - pa[:, None], cam_a.response, shading=True),
+                            photo_blur_px(img_b, cb, ob - pb[:, None], cam_b.response, shading=True)])
         # the Hough template is the outline relative to the projected sphere centre, so the
         # refined point is the image of the sphere centre (not the centre of its ellipse)
         # the shading correction only in the last round: earlier rounds only place the outlines
@@ -257,7 +258,7 @@ def _psf_of(psf, i: int) -> float:
     return float(psf[i])
 
 
-def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, shading: bool = True) -> float:
+def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, shading: bool = False) -> float:
     """Lens blur (Gaussian sigma, px) of a photo: the median of :func:`limb_blur_px` over up to
     ``max_images`` of its ball images (spread evenly over them), NaN when none gives one.
 
@@ -272,13 +273,16 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
     response : Response or its rig-file form, optional
         The camera's response (default sRGB).
     shading : bool
-        (Default on.) Read the blur again at shading-corrected centres, twice: each picked
+        ``centers`` are known-radius Hough centres not corrected for shading (what
+        ``ball_centers_stereo`` has when it reads the blur): read the blur again at
+        shading-corrected centres, twice: each picked
         image's centre less its shading bias (:func:`_shading_bias` at the blur read so far, the
         refinement's 0.7 px smoothing) and the median again. A partly lit ball's refined but
         uncorrected centre sits toward the light (8 px half moons under 1.5 px of blur: 0.8 px),
         the limb model placed there and lit from the phase read there misfits the limb, and the
         blur read is too small (drawn 8 px half moons: 1.24 px for 1.5; the studio's back cameras
-        1.16-1.28 px); at the true centres it is right (1.53 px).
+        1.16-1.28 px); at the true centres it is right (1.53 px). Not for centres already
+        corrected (or true ones): their correction would move them off.
     """
     img = _check_image(image)
     c = np.asarray(centers, float).reshape(-1, 2)

@@ -220,22 +220,34 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     if size < 1e-6:
         return bias
     u = bias / size
-    # h(t) = t - bias(center - t u) . u, zero at the corrected centre; h(0) = -size
-    t0, h0, t = 0.0, -size, size
+    # h(t) = t - bias(center - t u) . u, zero at the corrected centre; h(0) = -size < 0. Secant
+    # steps, kept inside the bracket once one is found (bisection when a step leaves it); the
+    # bias of the evaluated centre with the smallest |h| is returned
+    lo, hi = (0.0, -size), None
+    t_prev, h_prev, t = 0.0, -size, size
+    best_h, best_bias = size, bias
     for _ in range(FRAME_ROUNDS):
         b = bias_at(center - t * u)
         if b is None:
             break
-        bias = b
         h = t - float(b @ u)
-        if abs(h) < 0.005 or h == h0:
+        if abs(h) < best_h:
+            best_h, best_bias = abs(h), b
+        if abs(h) < 0.005:
             break
-        t, t0, h0 = float(np.clip(t - h * (t - t0) / (h - h0), -size, 4.0 * size + 0.2)), t, h
-    return bias
+        if h < 0:
+            lo = (t, h)
+        else:
+            hi = (t, h)
+        t_new = t - h * (t - t_prev) / (h - h_prev) if h != h_prev else t + size
+        if hi is not None and not (min(lo[0], hi[0]) < t_new < max(lo[0], hi[0])):
+            t_new = 0.5 * (lo[0] + hi[0])
+        t_prev, h_prev, t = t, h, float(np.clip(t_new, -size, 4.0 * size + 0.2))
+    return best_bias
 
 
 #: secant rounds of the corrected centre in :func:`_shading_bias`
-FRAME_ROUNDS = 5
+FRAME_ROUNDS = 8
 
 
 def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed: bool = False,
