@@ -147,10 +147,15 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     that moves the lit limb's gradient peak in or out by a fraction of a pixel, and the Hough
     centre with it along the lit direction (noise-free model: -0.1 px at a 45 deg phase angle,
     +0.1 px at 90 deg, +0.25 px at 110 deg for a 20 px ball). The phase angle is read from the
-    image: the radiance centroid of the ball (blur does not move it) lies a known distance from
-    the centre for each phase angle (:func:`_centroid_table`), toward the light. The model ball
-    lit so is rendered at the Hough centre, blurred like the photo (``blur``: lens PSF and the
-    refinement's own smoothing), and the same Hough run on it gives the offset.
+    image: the radiance centroid of the ball lies a known distance from the centre for each
+    phase angle (:func:`_centroid_table`), toward the light; measured over a window, blur pulls
+    it toward the middle, so the phase is the one whose lens-blurred model has the photo's
+    windowed centroid (:func:`_blurred_phase_light`). The model ball lit so is rendered at the
+    centre, blurred like the photo (``blur``: lens PSF and the refinement's own smoothing), and
+    the same Hough run on it gives the offset. The light is read in the frame of the corrected
+    centre (``c = center - bias(c)``, secant steps): read about the uncorrected Hough centre,
+    which sits toward the light by the bias itself, the phase came out far too small on small
+    half-lit balls under heavy blur (``docs/ball-detection.md``, "Blurred phase").
 
     A ball image with clipped pixels (at least ``MIN_SATURATED_PX`` at the top code, the
     brightest channel, within the outline) is modelled as the sensor made it
