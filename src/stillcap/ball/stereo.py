@@ -21,8 +21,8 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
                                   sphere_outline_px)
 from stillcap.detect.ball._foreground import _check_image
-from stillcap.detect.ball._refine import _linear_max, _response_lut
 from stillcap.detect.ball._hough import _template
+from stillcap.detect.ball._refine import _linear_max, _response_lut
 from stillcap.detect.ball._shading import _shading_bias, limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
