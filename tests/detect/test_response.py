@@ -191,3 +191,15 @@ def test_radiance_is_the_where_form_bit_for_bit_on_edge_values():
             got = _radiance(n.copy(), bb)
             assert np.array_equal(np.signbit(got), np.signbit(want))
             assert np.array_equal(got, want, equal_nan=True)
+
+
+@pytest.mark.parametrize("key, bad", [("limit", -0.1), ("limit", float("nan")), ("limit", float("inf")),
+                                      ("limit", "0.3"), ("z", -1.0), ("z", float("nan")), ("z", None)])
+def test_response_check_rejects_bad_limit_and_z(key, bad):
+    """A negative, non-finite or non-numeric ``limit`` or ``z`` is one ValueError naming the keyword
+    (a negative or NaN tolerance would fail every camera, right or wrong)."""
+    e = response_module.ResponseEstimate("gamma", 2.2, 0.05, 10, np.full(10, 2.2))
+    with pytest.raises(ValueError, match=rf"response_check: {key} must be a finite number >= 0"):
+        response_check(e, Response.srgb(), "cam", **{key: bad})
+    # the edges are allowed: a zero floor, a zero z
+    assert response_check(e, Response.srgb(), "cam", **{key: 0.0}).limit >= 0.0

@@ -21,8 +21,9 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
                                   sphere_outline_px)
 from stillcap.detect.ball._foreground import _check_image
+from stillcap.detect.ball._hough import _template
 from stillcap.detect.ball._refine import _linear_max, _response_lut
-from stillcap.detect.ball._shading import limb_blur_px
+from stillcap.detect.ball._shading import _shading_bias, limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
 
@@ -191,8 +192,9 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         if psf is None and it == iterations - 1 and it > 0 and shading:
             # the photos' blur from the ball images at the latest refined centres (the first
             # round's start, the ellipse centres, lies up to 0.4 r off)
-            psf = np.array([photo_blur_px(img_a, ca, oa - pa[:, None], cam_a.response),
-                            photo_blur_px(img_b, cb, ob - pb[:, None], cam_b.response)])
+            # (uncorrected for shading: read again at corrected centres, ``shading=True``)
+            psf = np.array([photo_blur_px(img_a, ca, oa - pa[:, None], cam_a.response, shading=True),
+                            photo_blur_px(img_b, cb, ob - pb[:, None], cam_b.response, shading=True)])
         # the Hough template is the outline relative to the projected sphere centre, so the
         # refined point is the image of the sphere centre (not the centre of its ellipse)
         # the shading correction only in the last round: earlier rounds only place the outlines
@@ -256,7 +258,7 @@ def _psf_of(psf, i: int) -> float:
     return float(psf[i])
 
 
-def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8) -> float:
+def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, shading: bool = False) -> float:
     """Lens blur (Gaussian sigma, px) of a photo: the median of :func:`limb_blur_px` over up to
     ``max_images`` of its ball images (spread evenly over them), NaN when none gives one.
 
@@ -270,6 +272,17 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8) 
         Each ball's projected outline relative to its centre (:func:`sphere_outline_px`).
     response : Response or its rig-file form, optional
         The camera's response (default sRGB).
+    shading : bool
+        ``centers`` are known-radius Hough centres not corrected for shading (what
+        ``ball_centers_stereo`` has when it reads the blur): read the blur again at
+        shading-corrected centres, twice: each picked
+        image's centre less its shading bias (:func:`_shading_bias` at the blur read so far, the
+        refinement's 0.7 px smoothing) and the median again. A partly lit ball's refined but
+        uncorrected centre sits toward the light (8 px half moons under 1.5 px of blur: 0.8 px),
+        the limb model placed there and lit from the phase read there misfits the limb, and the
+        blur read is too small (drawn 8 px half moons: 1.24 px for 1.5; the studio's back cameras
+        1.16-1.28 px); at the true centres it is right (1.53 px). Not for centres already
+        corrected (or true ones): their correction would move them off.
     """
     img = _check_image(image)
     c = np.asarray(centers, float).reshape(-1, 2)
@@ -280,18 +293,53 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8) 
     pick = ok[np.unique(np.linspace(0, len(ok) - 1, min(max_images, len(ok))).round().astype(int))]
     lut = _response_lut(response)
     H, W = img.shape[:2]
-    est = []
+    crops = []
     for i in pick:
         ext = float(np.abs(off[i]).max()) + 6.0
         x0, y0 = int(np.floor(c[i, 0] - ext)), int(np.floor(c[i, 1] - ext))
         x1, y1 = int(np.ceil(c[i, 0] + ext)) + 1, int(np.ceil(c[i, 1] + ext)) + 1
         if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
             continue  # a ball cut by the photo's edge: its limb is not all there
-        lin = _linear_max(img[y0:y1, x0:x1], lut)
-        est.append(limb_blur_px(lin, c[i] - (x0, y0), off[i]))
-    est = np.asarray(est, float)
-    est = est[np.isfinite(est)]
-    return float(np.median(est)) if len(est) else float("nan")
+        crops.append((_linear_max(img[y0:y1, x0:x1], lut), c[i] - (x0, y0), off[i]))
+
+    def median_blur(centers_in_crops):
+        est = np.asarray([limb_blur_px(lin, cc, o) for (lin, _, o), cc in zip(crops, centers_in_crops)], float)
+        est = est[np.isfinite(est)]
+        return float(np.median(est)) if len(est) else float("nan")
+
+    blur = median_blur([cc for _, cc, _ in crops])
+    for _ in range(BLUR_ROUNDS if shading else 0):
+        if not np.isfinite(blur):
+            break
+        corrected = []
+        for lin, cc, o in crops:
+            tpl = _hough_template(o)
+            corrected.append(cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(_SMOOTH_PX, blur)), 0.1,
+                                                smooth=_SMOOTH_PX))
+        new = median_blur(corrected)
+        if not np.isfinite(new):
+            break
+        done = abs(new - blur) < 0.02
+        blur = new
+        if done:
+            break
+    return blur
+
+
+#: rounds of :func:`photo_blur_px` at shading-corrected centres
+BLUR_ROUNDS = 2
+
+#: the refinement's smoothing before its gradient (``refine_ball_centers``' ``sigma`` default)
+_SMOOTH_PX = 0.7
+
+
+def _hough_template(off: np.ndarray) -> tuple:
+    """The known-radius Hough's template of an outline (M, 2), as ``refine_ball_centers`` builds
+    it: offsets, inward normals and arc-length weights (summing to 1), float32 rows."""
+    nrm, wt = _template(off)
+    wt = (wt / wt.sum()).astype(np.float32)
+    off32, nrm32 = off.T.astype(np.float32), nrm.T.astype(np.float32)
+    return (off32[0], off32[1], nrm32[0], nrm32[1], wt)
 
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:

@@ -584,6 +584,9 @@ def response_check(estimate: ResponseEstimate, declared: Response, subject: str 
     spheres scatter widely and their estimate is that much less certain, which the photos
     themselves show. When the photos cannot tell, the check passes and says so.
     """
+    for key, v in (("limit", limit), ("z", z)):
+        if not (isinstance(v, (int, float, np.integer, np.floating)) and np.isfinite(v) and v >= 0):
+            raise ValueError(f"response_check: {key} must be a finite number >= 0, got {v!r}")
     decl = Response.from_json(declared, "declared response")
     gd = decl.effective_gamma
     if not estimate.ok:

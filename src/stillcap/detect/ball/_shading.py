@@ -147,10 +147,15 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     that moves the lit limb's gradient peak in or out by a fraction of a pixel, and the Hough
     centre with it along the lit direction (noise-free model: -0.1 px at a 45 deg phase angle,
     +0.1 px at 90 deg, +0.25 px at 110 deg for a 20 px ball). The phase angle is read from the
-    image: the radiance centroid of the ball (blur does not move it) lies a known distance from
-    the centre for each phase angle (:func:`_centroid_table`), toward the light. The model ball
-    lit so is rendered at the Hough centre, blurred like the photo (``blur``: lens PSF and the
-    refinement's own smoothing), and the same Hough run on it gives the offset.
+    image: the radiance centroid of the ball lies a known distance from the centre for each
+    phase angle (:func:`_centroid_table`), toward the light; measured over a window, blur pulls
+    it toward the middle, so the phase is the one whose lens-blurred model has the photo's
+    windowed centroid (:func:`_blurred_phase_light`). The model ball lit so is rendered at the
+    centre, blurred like the photo (``blur``: lens PSF and the refinement's own smoothing), and
+    the same Hough run on it gives the offset. The light is read in the frame of the corrected
+    centre (``c = center - bias(c)``, secant steps): read about the uncorrected Hough centre,
+    which sits toward the light by the bias itself, the phase came out far too small on small
+    half-lit balls under heavy blur (``docs/ball-detection.md``, "Blurred phase").
 
     A ball image with clipped pixels (at least ``MIN_SATURATED_PX`` at the top code, the
     brightest channel, within the outline) is modelled as the sensor made it
@@ -196,9 +201,115 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
             c = c_new
         if bias is not None:
             return bias
-    model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light, band_px=band, q=q), (0, 0), blur)
+    # the frame the light is read in follows the corrected centre here too: the uncorrected
+    # Hough centre of a small half-lit ball under heavy blur sits up to a tenth of a radius
+    # toward the light, and the centroid's offset from it then reads a phase far too small
+    # (drawn 8 px balls, 1.5 px blur: 90 deg read as 71, 130 as 88). The corrected centre ``c``
+    # solves ``c = center - bias(c)``; plain fixed-point steps crawl (the bias grows with the
+    # phase the frame reads), so secant steps along the first bias's direction
+    psf = float(np.sqrt(max(blur * blur - smooth * smooth, 0.0)))
     kf = max(2, int(round(0.3 / fine_step)))
-    return np.array(_model_peak(model, center, tpl, power, fine_step, kf)) - center
+    center = np.asarray(center, float)
+
+    def bias_at(c, frame=None):
+        mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim) if frame is None else frame
+        if light_c is None:
+            return None
+        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim)
+        model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid_c, A_c, light_c, band_px=band, q=q_c),
+                                 (0, 0), blur)
+        return np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
+
+    bias = bias_at(center, (mid, A, q, light))
+    size = float(np.hypot(*bias))
+    if size < 1e-6:
+        return bias
+    u = bias / size
+    # h(t) = t - bias(center - t u) . u, zero at the corrected centre; h(0) = -size < 0. Secant
+    # steps, kept inside the bracket once one is found (bisection when a step leaves it); the
+    # bias of the evaluated centre with the smallest |h| is returned
+    lo, hi = (0.0, -size), None
+    t_prev, h_prev, t = 0.0, -size, size
+    best_h, best_bias = size, bias
+    for _ in range(FRAME_ROUNDS):
+        b = bias_at(center - t * u)
+        if b is None:
+            break
+        h = t - float(b @ u)
+        if abs(h) < best_h:
+            best_h, best_bias = abs(h), b
+        if abs(h) < 0.005:
+            break
+        if h < 0:
+            lo = (t, h)
+        else:
+            hi = (t, h)
+        t_new = t - h * (t - t_prev) / (h - h_prev) if h != h_prev else t + size
+        if hi is not None and not (min(lo[0], hi[0]) < t_new < max(lo[0], hi[0])):
+            t_new = 0.5 * (lo[0] + hi[0])
+        t_prev, h_prev, t = t, h, float(np.clip(t_new, -size, 4.0 * size + 0.2))
+    return best_bias
+
+
+#: secant rounds of the corrected centre in :func:`_shading_bias`
+FRAME_ROUNDS = 8
+
+
+def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed: bool = False,
+                         rounds: int = 6):
+    """The light direction whose lit sphere, blurred by the lens (``psf``, Gaussian sigma px),
+    has the photo's radiance centroid as :func:`_lit_frame` measures it (same window, level and
+    weights); its azimuth is ``light``'s, its phase angle found by secant steps from ``light``'s.
+
+    :func:`_lit_frame` reads the phase from the sharp sphere's centroid (:func:`_centroid_table`).
+    Blur does not move a whole image's centroid, but the centroid is measured over a window (the
+    radiance above the ring beyond 1.3 radii, within 1.15 radii): the blur spreads the lit limb's
+    light past the window and into the ring, so the measured centroid lies nearer the middle and
+    the sharp table reads too small a phase. The loss grows as blur / radius and as the light
+    gathers at the limb (half moons, crescents): drawn 8 px balls under 1.5 px of blur read 90 deg
+    as 71 deg and 130 deg as 88 deg, and the correction then left 0.25 and 0.8 px toward the light
+    (0.07 and 0.08 px with the true phase). The model measured through the same window has the
+    same loss, so its phase is the light's (``docs/ball-detection.md``, "blurred phase").
+    Written by hand: the window's loss depends on the outline, blur and phase together; no
+    library tabulates it."""
+    r2 = q[0] ** 2 + q[1] ** 2
+    if psf < 0.05 or not np.any(r2 > 1.3 ** 2):
+        return light
+    mq = _radiance_centroid(lin, q, signed)
+    if mq is None:
+        return light
+    m_obs = float(np.hypot(*mq))
+    az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
+    a_max = np.radians(175.0)
+
+    def light_at(a):
+        return (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
+
+    def miss(a):
+        img = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light_at(a), band_px=band, q=q), (0, 0), psf)
+        m = _radiance_centroid(img, q, signed)
+        return float("nan") if m is None else float(np.hypot(*m)) - m_obs
+
+    a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
+    f = miss(a)
+    if not np.isfinite(f):
+        return light
+    # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+    a_prev, f_prev = a, f
+    a = float(np.clip(a + np.radians(5.0) * (1.0 if f < 0 else -1.0), 0.0, a_max))
+    best_a, best_f = a_prev, abs(f_prev)
+    for _ in range(rounds):
+        f = miss(a)
+        if not np.isfinite(f):
+            break
+        if abs(f) < best_f:
+            best_a, best_f = a, abs(f)
+        if abs(f) < 1e-4 or f == f_prev:
+            break
+        a, a_prev, f_prev = float(np.clip(a - f * (a - a_prev) / (f - f_prev), 0.0, a_max)), a, f
+        if a == a_prev:  # held at an end of the range
+            break
+    return light_at(best_a)
 
 
 #: linear radiance from which a pixel counts as clipped: code ~250 of 255 in sRGB (JPEG
