@@ -72,6 +72,14 @@ def test_calibrate_skeleton_writes_files_the_run_reads(other, tmp_path, capsys):
     assert json.loads(text)["skeleton"]["name"] == "puppet-210mm-calibrated"
 
 
+def test_calibrate_skeleton_names_a_rest_turn_that_is_not_an_angle(tmp_path, capsys):
+    # checked before any capture is read (the folder does not exist)
+    code, _, err = run(["puppet", "calibrate-skeleton", tmp_path / "rest", "--out", tmp_path / "cal.json",
+                           "--rest-turn-deg", "nan"], capsys)
+    assert code == 2 and "--rest-turn-deg must be a finite angle in degrees" in err
+    assert not (tmp_path / "cal.json").exists()
+
+
 def test_new_keeps_the_puppets_files_in_the_project_and_reconstruct_names_a_missing_one(tmp_path, capsys):
     from stillcap.io.project import Project
 

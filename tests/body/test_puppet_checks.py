@@ -89,6 +89,37 @@ def test_skeleton_checks_fire_per_bone_on_a_wrong_skeleton_and_pass_on_the_right
     assert {c.name for c in bad} <= {"bone_residual", "bead_pair_direction"}
 
 
+def test_skeleton_checks_name_bad_noise_dof_p_and_shapes():
+    sk, ms = another_puppet(2)
+    pts = ms.positions(random_pose(sk, 21, ms))
+    fit = fit_pose(sk, ms, pts, root="free")
+    noise = np.full(len(ms), 0.1e-3)
+    for p in (0.0, 1.0, -0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="p must be in"):
+            skeleton_checks(ms, fit, pts, noise, p=p)
+    dof = np.full(len(ms), 10.0)
+    for bad in (0.0, -3.0):
+        d = dof.copy()
+        d[4] = bad
+        with pytest.raises(ValueError, match=f"noise_dof must be > 0 where given \\(bead {ms.names[4]}"):
+            skeleton_checks(ms, fit, pts, noise, noise_dof=d)
+    with pytest.raises(ValueError, match="noise_dof must have shape"):
+        skeleton_checks(ms, fit, pts, noise, noise_dof=dof[:-1])
+    with pytest.raises(ValueError, match="noise_m must have shape"):
+        skeleton_checks(ms, fit, pts, noise[:-1])
+    with pytest.raises(ValueError, match="points must have shape"):
+        skeleton_checks(ms, fit, pts[:, :2], noise)
+    with pytest.raises(ValueError, match="exclude must have shape"):
+        skeleton_checks(ms, fit, pts, noise, exclude=np.zeros(3, bool))
+    # NaN (a bead not recovered) and inf (an exact noise) are allowed, and inf is the default
+    d = dof.copy()
+    d[0], d[1] = np.nan, np.inf
+    assert skeleton_checks(ms, fit, pts, noise, noise_dof=d)
+    exact = skeleton_checks(ms, fit, pts, noise)
+    assert [c.limit for c in exact] == [c.limit for c in skeleton_checks(ms, fit, pts, noise,
+                                                                          noise_dof=np.full(len(ms), np.inf))]
+
+
 def test_bead_pair_directions_and_partly_hidden_checks():
     ms = MarkerSet.puppet()
     pts = ms.positions(Pose.rest(Skeleton.puppet()))

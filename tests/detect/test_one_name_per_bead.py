@@ -47,3 +47,9 @@ def test_bad_shapes_are_named():
         one_name_per_bead(rig, np.zeros((3, 2)), [None] * len(rig))
     with pytest.raises(ValueError, match="one ViewResult per view"):
         one_name_per_bead(rig, np.zeros((3, 3)), [])
+    with pytest.raises(ValueError, match="points_3d must have shape"):
+        one_name_per_bead(rig, np.zeros(3), [None] * len(rig))
+    with pytest.raises(ValueError, match="bead_radius_m must be > 0"):
+        one_name_per_bead(rig, np.zeros((3, 3)), [None] * len(rig), 0.0)
+    with pytest.raises(ValueError, match="gate_radius must be > 0"):
+        one_name_per_bead(rig, np.zeros((3, 3)), [None] * len(rig), 0.003, float("nan"))

@@ -69,8 +69,14 @@ class SkeletonCalibration:
         The joint fit's chi-square of the beads per degree of freedom with ``marker_sigma_m``
         (NaN without further captures); above 1 it widens :attr:`direction_sd_deg`.
     rest_turn_deg : float
-        How far the rest capture's root is turned from the template's rest frame, degrees (a
-        puppet set on the turntable at another angle): estimated, not assumed zero.
+        How far the rest capture's root is turned about the vertical from the template's rest
+        frame in the calibration, degrees (a puppet set on the turntable at another angle,
+        signed): the stated turn, or the estimate where the beads reject the stated one.
+    rest_turn_estimated_deg, rest_turn_sd_deg : float
+        The joint fit's estimate of that turn and its 1-sigma uncertainty, degrees (NaN without
+        the joint fit).
+    rest_turn_stated : bool
+        The calibration kept the stated turn (the estimate within :data:`REST_TURN_Z` sigmas of it).
     """
 
     skeleton: Skeleton
@@ -85,6 +91,9 @@ class SkeletonCalibration:
     uncertain: dict = field(default_factory=dict)
     misfit: float = float("nan")
     rest_turn_deg: float = 0.0
+    rest_turn_estimated_deg: float = float("nan")
+    rest_turn_sd_deg: float = float("nan")
+    rest_turn_stated: bool = False
 
 
 def _rest_turn(template: Skeleton, markerset: MarkerSet, rest: np.ndarray) -> np.ndarray:
@@ -128,7 +137,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
                        marker_sigma_m: float = 0.2e-3, scale_sd: float = 0.3, offset_sd_m: float = 0.01,
                        iterations: int = 30, tol_m: float = 1e-6, name: str | None = None,
                        joint: bool = True, direction_limit_deg: float = 1.0,
-                       noise_m=None) -> SkeletonCalibration:
+                       noise_m=None, rest_turn_deg: float | None = 0.0) -> SkeletonCalibration:
     """Estimate bone lengths and bead offsets (see the module docstring).
 
     Parameters
@@ -165,6 +174,14 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         ``pose_points``' order), metres, as the photos show it
         (:attr:`~stillcap.body.puppet_checks.BeadNoise.sd_m`); NaN or missing entries take
         ``marker_sigma_m``. Without it every bead has ``marker_sigma_m``.
+    rest_turn_deg : float or None
+        The rest capture's turn about the vertical from the template's rest frame as the user
+        states it, degrees (default 0: the puppet set facing the template's way, as
+        ``docs/puppet.md`` asks). The joint fit also estimates the turn with its 1-sigma
+        uncertainty (:attr:`SkeletonCalibration.rest_turn_estimated_deg`,
+        :attr:`~SkeletonCalibration.rest_turn_sd_deg`); the stated turn is kept unless the
+        estimate differs from it by more than :data:`REST_TURN_Z` sigmas (then the estimate is
+        used and :attr:`~SkeletonCalibration.rest_turn_deg` says so). None: always the estimate.
 
     Returns
     -------
@@ -186,6 +203,8 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     # the rest capture need not face the template's way (a puppet set on the turntable at another
     # angle: turned 20 deg, its calibration was 19 deg off on the bones): its turn is estimated
     # and the alternation below works on the rest beads turned back; the joint fit frees it
+    if rest_turn_deg is not None and not np.isfinite(rest_turn_deg):
+        raise ValueError(f"rest_turn_deg must be a finite angle in degrees or None, got {rest_turn_deg}")
     turn0 = _rest_turn(template, markerset, rest)
     center0 = np.nanmean(rest, axis=0)
     rest_upright = (rest - center0) @ turn0 + center0
@@ -254,6 +273,8 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         if moved < tol_m:
             break
     joint_fit, unfixed, direction_sd, uncertain, misfit = None, {}, {}, {}, float("nan")
+    turn_est = turn_sd = float("nan")
+    turn_stated = False
     if joint:
         fits = [fit_pose(sk, ms, pts, marker_sigma_m=sg, root="free") for pts, sg in zip(poses, sigmas[1:])]
         ts = [center0 + turn0 @ (x[n_s + 3 * nm:n_s + 3 * nm + 3] - center0)] + [f.pose.root2world[:3, 3] for f in fits]
@@ -282,6 +303,17 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             out2 = _joint_fit(*fit_args, *start, sigmas, scale_sd, offset_sd_m)
             if out2[4].cost < out[4].cost:
                 out = out2
+        turn_est, turn_sd = _turn_estimate(out, template.root, n_s + 3 * nm + 3)
+        turn_stated = False
+        if rest_turn_deg is not None and abs(_wrap_deg(turn_est - rest_turn_deg)) <= REST_TURN_Z * turn_sd:
+            # the beads do not reject the stated turn: held there (a free turn is a nuisance the
+            # rest capture fixes only through where its joints lie, a few tenths of a degree on
+            # a puppet set as stated, and every bone's direction carries that error)
+            held = [loc.copy() for loc in out[3]]
+            held[0][template.root] = _turn_y(np.radians(rest_turn_deg))
+            out = _joint_fit(*fit_args, out[0], out[1], out[2], held, sigmas, scale_sd, offset_sd_m,
+                             turn_free=False)
+            turn_stated = True
         s_j, beads_j, ts_j, locals_j, joint_fit, fitted_bones, _, (dir_sd, misfit) = out
         turn0 = locals_j[0][template.root]
         x = x.copy()
@@ -316,7 +348,8 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     return SkeletonCalibration(sk, ms, s, float(np.sqrt(np.mean(allsq))) if len(allsq) else float("nan"), per,
                                len(all_points), unfixed,
                                None if joint_fit is None else int(joint_fit.nfev), direction_sd, uncertain,
-                               misfit, float(np.degrees(np.arccos(np.clip((np.trace(turn0) - 1) / 2, -1, 1)))))
+                               misfit, float(np.degrees(np.arctan2(turn0[0, 2], turn0[0, 0]))),
+                               turn_est, turn_sd, turn_stated)
 
 
 #: :func:`calibrate_skeleton`: beads whose expected error is below the last level (metres) are
@@ -325,6 +358,27 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
 #: beads). The first level is of the order of a template's bead misplacement on another puppet
 #: (millimetres), the last a little above a sharp capture's bead noise.
 COARSE_SIGMAS_M = (1.0e-3, 0.25e-3)
+
+#: :func:`calibrate_skeleton`: the stated rest turn is kept unless the joint fit's estimate lies
+#: more than this many of its own sigmas from it (two-sided normal, a 1e-3 chance that a puppet
+#: set as stated is turned by the data instead: :data:`~stillcap.body.puppet_checks.FALSE_ALARM_P`).
+REST_TURN_Z = 3.29
+
+
+def _wrap_deg(a: float) -> float:
+    """An angle in degrees wrapped to [-180, 180)."""
+    return float((a + 180.0) % 360.0 - 180.0)
+
+
+def _turn_estimate(out, root: int, col: int) -> tuple[float, float]:
+    """The joint fit's rest turn about the vertical and its 1-sigma uncertainty, degrees: the
+    ``col``-th unknown's variance from ``inv(J^T J)`` (residuals in sigmas), widened by the fit's
+    misfit when above 1, as :func:`_direction_sd` widens the directions."""
+    turn = out[3][0][root]
+    res, misfit = out[4], out[7][1]
+    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
+    var = float(np.linalg.pinv(J.T @ J)[col, col]) * max(float(misfit) if np.isfinite(misfit) else 1.0, 1.0)
+    return float(np.degrees(np.arctan2(turn[0, 2], turn[0, 0]))), float(np.degrees(np.sqrt(max(var, 0.0))))
 
 
 def _bead_sigmas(noise_m, n_caps: int, nm: int, marker_sigma_m: float) -> list[np.ndarray]:
@@ -422,7 +476,7 @@ def _unfixed_bones(template: Skeleton, frames: np.ndarray, bones: list[int], jac
 
 def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: np.ndarray, beads0: np.ndarray,
                root_t: list, local0: list, sigmas: list, scale_sd: float, offset_sd_m: float,
-               loss_scale: float = 3.0, max_nfev: int = 200):
+               loss_scale: float = 3.0, max_nfev: int = 200, turn_free: bool = True):
     """One nonlinear least-squares fit of every unknown together (see :func:`calibrate_skeleton`).
 
     Unknowns: the bone scales, the bead offsets in their bone frames, and per capture the root's
@@ -437,7 +491,8 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     its limits. The rest capture's joints are all at rest: that fixes the gauge (where a bone
     frame's beads sit versus its rotation); its root turns by a rotation vector from its start
     (``local0[0]``'s root: the puppet set on the turntable at another angle) about the vertical
-    (the skeleton's y axis) only, with no prior.
+    (the skeleton's y axis) only, with no prior; ``turn_free=False`` holds it at ``local0[0]``'s
+    (its unknown stays in the layout with no residual depending on it).
     ``local0``: one entry per capture, the rest capture's first. Residuals: every measured bead
     over ``marker_sigma_m``, the weak priors (scales about 1, offsets about the template's,
     rotations about their start with 180 deg), soft-L1 loss at ``loss_scale`` sigma. ``sigmas``: each
@@ -534,7 +589,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         """Local rotations of capture ``p`` (0: the rest capture)."""
         if p == 0:
             local = np.tile(np.eye(3), (nj, 1, 1))
-            local[root] = _turn_y(x[o_r0]) @ rest_turn
+            local[root] = (_turn_y(x[o_r0]) if turn_free else np.eye(3)) @ rest_turn
             return local
         _, e, end = cap_slice(p)
         a = a_start[p - 1].copy()
@@ -609,7 +664,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
                     S[rows, i] = 1
             S[rows, o_b + 3 * m:o_b + 3 * m + 3] = 1
             if p == 0:
-                S[rows, o_t0:o_r0 + 1] = 1
+                S[rows, o_t0:o_r0 + int(turn_free)] = 1
             else:
                 b, e, end = cap_slice(p)
                 S[rows, b:e] = 1

@@ -315,10 +315,23 @@ def skeleton_checks(markerset: MarkerSet, fit, points, noise_m, exclude=None, no
     """
     if not 0 < p < 1:
         raise ValueError(f"skeleton_checks: p must be in (0, 1), got {p}")
+    nm = len(markerset)
     pts = np.asarray(points, float)
+    if pts.shape != (nm, 3):
+        raise ValueError(f"skeleton_checks: points must have shape ({nm}, 3), got {pts.shape}")
     noise = np.asarray(noise_m, float)
-    dofs = np.full(len(noise), np.inf) if noise_dof is None else np.asarray(noise_dof, float)
-    skip = np.zeros(len(markerset), bool) if exclude is None else np.asarray(exclude, bool)
+    if noise.shape != (nm,):
+        raise ValueError(f"skeleton_checks: noise_m must have shape ({nm},), got {noise.shape}")
+    dofs = np.full(nm, np.inf) if noise_dof is None else np.asarray(noise_dof, float)
+    if dofs.shape != (nm,):
+        raise ValueError(f"skeleton_checks: noise_dof must have shape ({nm},), got {dofs.shape}")
+    if np.any(dofs <= 0):  # NaN (a bead not recovered) and inf (an exact noise) are allowed
+        bad = markerset.names[int(np.flatnonzero(dofs <= 0)[0])]
+        raise ValueError(f"skeleton_checks: noise_dof must be > 0 where given (bead {bad}: "
+                         f"{float(dofs[markerset.index(bad)]):g}); a dof of 0 or less has no quantile")
+    skip = np.zeros(nm, bool) if exclude is None else np.asarray(exclude, bool)
+    if skip.shape != (nm,):
+        raise ValueError(f"skeleton_checks: exclude must have shape ({nm},), got {skip.shape}")
     model = markerset.positions(fit.pose)
     r2 = np.sum((model - pts) ** 2, axis=1)
     checks = []

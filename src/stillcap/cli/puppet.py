@@ -594,6 +594,12 @@ def calibrate_skeleton_cmd(
                                   "directions); default the built-in puppet."),
     markers: Path = typer.Option(None, "--markers", help="Template marker set (which bead is on which bone); "
                                  "default the capture's."),
+    rest_turn_deg: float = typer.Option(0.0, "--rest-turn-deg", help="How far the puppet in the rest capture is "
+                                        "turned about the vertical from the template's rest frame, degrees (0: "
+                                        "facing the template's way). Kept unless the beads reject it, then the "
+                                        "estimated turn is used and printed."),
+    estimate_rest_turn: bool = typer.Option(False, "--estimate-rest-turn", help="Use the estimated rest turn "
+                                            "even where the beads do not reject --rest-turn-deg."),
     force: Force = False,
 ):
     """Estimate the puppet's bone lengths and bead offsets from a rest-pose capture and write a
@@ -605,6 +611,8 @@ def calibrate_skeleton_cmd(
     from stillcap.body.skeleton import Skeleton
     from stillcap.pipelines.puppet import analyse_puppet
 
+    if not np.isfinite(rest_turn_deg):
+        raise ValueError(f"--rest-turn-deg must be a finite angle in degrees, got {rest_turn_deg}")
     markers_out = markers_out or out.with_name(out.stem + "-markers.json")
     check(out, "file", "--out", force)
     check(markers_out, "file", "--markers-out", force)
@@ -626,7 +634,8 @@ def calibrate_skeleton_cmd(
     markerset, rest, rest_noise = beads(capture)
     others = [beads(p) for p in (poses or [])]
     noises = [rest_noise] + [o[2] for o in others]
-    cal = calibrate_skeleton(rest, template, markerset, [o[1] for o in others], noise_m=[n.sd_m for n in noises])
+    cal = calibrate_skeleton(rest, template, markerset, [o[1] for o in others], noise_m=[n.sd_m for n in noises],
+                             rest_turn_deg=None if estimate_rest_turn else rest_turn_deg)
     cal.skeleton.save(out, "mm")
     cal.markerset.save(markers_out, "mm")
     t = Table(title=f"{cal.skeleton.name}: bone lengths (from {cal.n_poses} capture(s))")
@@ -638,8 +647,13 @@ def calibrate_skeleton_cmd(
             t.add_row(n, f"{template.bone_lengths[j] * 1e3:.1f}", f"{cal.skeleton.bone_lengths[j] * 1e3:.1f}",
                       f"{cal.scales[j]:.3f}", "-" if sd is None else f"{sd:.2f}")
     console.print(t)
-    console.print(f"rest capture turned {cal.rest_turn_deg:.1f} deg about the vertical from the template's rest frame "
-                  "(estimated)")
+    if np.isfinite(cal.rest_turn_estimated_deg):
+        how = ("as stated: the estimate's " if cal.rest_turn_stated else "estimated, ") + (
+            f"{cal.rest_turn_estimated_deg:.2f} +- {cal.rest_turn_sd_deg:.2f} deg (1 sigma)")
+        if not cal.rest_turn_stated and not estimate_rest_turn:
+            how += f", rejects the stated {rest_turn_deg:g} deg"
+        console.print(f"rest capture turned {cal.rest_turn_deg:.2f} deg about the vertical from the template's "
+                      f"rest frame ({how})")
     console.print(f"beads fitted with RMS {cal.rms_m * 1e3:.3f} mm (per capture: "
                   + ", ".join(f"{v * 1e3:.3f}" for v in cal.per_pose_rms_m) + " mm)")
     console.print("bead noise the photos show (per capture): " + ", ".join(

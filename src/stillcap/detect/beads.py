@@ -562,14 +562,8 @@ def one_name_per_bead(rig: Rig, points_3d, views: Sequence[ViewResult], bead_rad
     summed over the views); the name whose reference the bead is farther from loses its 3D
     point (NaN), so :func:`reidentify` gives the bead's views to the other name.
 
-    Parameters
-    ----------
-    rig : Rig, n_views cameras
-    points_3d : array_like, shape (n_markers, 3)
-        Triangulated markers, NaN where missing.
-    views : sequence of ViewResult, length n_views
-    bead_radius_m : float
-    gate_radius : float
+    ``rig``, ``points_3d`` (shape (n_markers, 3)), ``views`` (one per camera), ``bead_radius_m``
+    and ``gate_radius`` are as :func:`reidentify`'s.
 
     Returns
     -------
@@ -582,6 +576,10 @@ def one_name_per_bead(rig: Rig, points_3d, views: Sequence[ViewResult], bead_rad
         raise ValueError(f"points_3d must have shape (n_markers, 3), got {X.shape}")
     if len(views) != len(rig):
         raise ValueError(f"need one ViewResult per view ({len(rig)}), got {len(views)}")
+    if not bead_radius_m > 0:
+        raise ValueError(f"bead_radius_m must be > 0 metres, got {bead_radius_m}")
+    if not gate_radius > 0:
+        raise ValueError(f"gate_radius must be > 0 (a share of the projected bead radius), got {gate_radius}")
     dropped = np.zeros(len(X), bool)
     have = np.flatnonzero(np.all(np.isfinite(X), axis=1))
     if len(have) < 2:
