@@ -3,6 +3,7 @@ sensor's read noise made "black markers" of the noise near the terminator)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from detect.test_ball import baseball_markers, draw_balls, flight_balls
 from detect.test_ball_markers import score
@@ -55,14 +56,18 @@ def test_coloured_markers_on_a_noisy_side_lit_ball_are_found():
     assert false <= 0.1 * found, (n, found, false)
 
 
-def test_saturation_ceiling_may_rise_on_the_brightest_leather():
-    """``monotone=False`` keeps a ceiling that grows again on the brightest leather (a clipped
-    channel divided down by the white balance makes it saturated), which the darkness
-    ceiling's monotone rule would spread over all the dimmer leather."""
+def test_saturation_ceiling_is_an_isotonic_fit():
+    """``monotone="isotonic"`` (the saturation ceiling's): a bright bin estimated too high (here
+    the brightest sixth's saturation raised by 0.1, as a clipped channel or JPEG chroma near the
+    markers raise it) is averaged with its neighbours, where the darkness ceiling's ``"lift"``
+    raises every dimmer bin to it; the dim leather's own higher ceiling stays."""
     rng = np.random.default_rng(1)
     bright = rng.uniform(0.1, 1.0, 20000)
     sat = np.abs(rng.normal(0.0, 0.01 / bright)) + np.where(bright > 0.85, 0.1, 0.0)
-    mids, ceil = _noise_by_brightness(bright, sat, monotone=False)
-    assert ceil[-1] > ceil[-2] + 0.05 and ceil[0] > ceil[-2]
-    _, mono = _noise_by_brightness(bright, sat)
-    assert np.all(mono[:-1] >= ceil[-1])  # the monotone rule lifts every bin to the top one's
+    _, lift = _noise_by_brightness(bright, sat)
+    _, iso = _noise_by_brightness(bright, sat, monotone="isotonic")
+    assert np.all(np.diff(iso) <= 0) and np.all(np.diff(lift) <= 0)
+    assert np.all(lift[1:] >= lift[-1]) and lift[2] > 0.15  # lifted to the top bin's 0.15
+    assert np.all(iso[2:] < 0.1) and iso[0] > 2 * iso[-1]  # averaged; the dim bin keeps its own
+    with pytest.raises(ValueError, match="monotone"):
+        _noise_by_brightness(bright, sat, monotone="max")

@@ -10,7 +10,7 @@ from stillcap._numeric import median
 
 
 def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int = 6,
-                         min_pixels: int = 200, monotone: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
+                         min_pixels: int = 200, monotone: str = "lift") -> tuple[np.ndarray, np.ndarray] | None:
     """The leather's darkness ceiling (:func:`_robust_ceiling`) per brightness bin of the lit
     pixels, as ``(bin brightness, ceiling)`` for ``np.interp``, or None with too few pixels.
 
@@ -18,9 +18,14 @@ def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int
     encoding's steep slope near black, make it noisier on dimmer leather (a side light's
     terminator): one ceiling pooled over the ball lets that noise through as "black markers"
     where the leather is dim and is stricter than needed where it is bright. The ceiling is
-    kept non-increasing with brightness (noise never grows with light) unless ``monotone`` is
-    False: the leather's saturation (passed as ``darkness``) also grows on the brightest leather,
-    where a channel clips and the white balance divides it down."""
+    kept non-increasing with brightness (noise never grows with light): ``monotone="lift"``
+    raises each bin to the largest ceiling of the brighter ones; ``"isotonic"`` takes the
+    least-squares non-increasing fit of the bins (``scipy.optimize.isotonic_regression``), so a
+    bright bin the estimate puts too high (the leather's saturation near the markers' JPEG chroma,
+    or where a channel clips and the white balance divides it down) is averaged with its
+    neighbours instead of lifting every dimmer bin; with no trend it is about the pooled ceiling."""
+    if monotone not in ("lift", "isotonic"):
+        raise ValueError(f"monotone must be 'lift' or 'isotonic', got {monotone!r}")
     if brightness.size < bins * min_pixels:
         return None
     edges = np.quantile(brightness, np.linspace(0.0, 1.0, bins + 1))
@@ -33,9 +38,13 @@ def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int
             ceil.append(_robust_ceiling(darkness[sel]))
     if len(mids) < 2:
         return None
-    ceil = np.asarray(ceil)
-    if monotone:
+    ceil = np.asarray(ceil, float)
+    if monotone == "lift":
         ceil = np.maximum.accumulate(ceil[::-1])[::-1]  # brighter never noisier than dimmer
+    else:
+        from scipy.optimize import isotonic_regression
+
+        ceil = np.asarray(isotonic_regression(ceil, increasing=False).x, float)
     return np.asarray(mids), ceil
 
 

@@ -578,7 +578,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         s_noise = _robust_ceiling(np.concatenate(sat_lit))
         d_noise = _robust_ceiling(np.concatenate(dk_lit))
         d_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(dk_lit))
-        s_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(sat_lit), monotone=False)
+        s_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(sat_lit), monotone="isotonic")
         ref_d = max(1.0 - v_pal, 0.1)
         peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
         if chroma and ch_peak and s_floor is not None:
