@@ -573,7 +573,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     s_core, s_weak = np.full(len(chroma), min_saturation), np.full(len(chroma), weak_membership)
     d_core, d_weak = 1.0 - dark_ratio, weak_membership
     d_floor = None  # the leather's darkness noise as a function of its brightness (below)
-    s_floor, s_noise, ref = None, None, ch_sat.reshape(-1).astype(float)
+    s_floor, s_noise, ref, floors = None, None, ch_sat.reshape(-1).astype(float), None
     if adapt_thresholds and prep and sat_lit:
         s_noise = _robust_ceiling(np.concatenate(sat_lit))
         d_noise = _robust_ceiling(np.concatenate(dk_lit))
@@ -582,8 +582,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         ref_d = max(1.0 - v_pal, 0.1)
         peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
         if chroma and ch_peak and s_floor is not None:
-            over = np.stack([np.where(pp[9] & pp[11], pp[8] / np.interp(pp[15], *s_floor), 0.0)
-                             .reshape(len(chroma), -1).max(axis=1) for pp in prep])
+            floors = [np.interp(pp[15], *s_floor) for pp in prep]
+            over = np.stack([np.where(pp[9] & pp[11], pp[8] / fl, 0.0).reshape(len(chroma), -1).max(axis=1)
+                             for pp, fl in zip(prep, floors)])
             evidence = list(np.percentile(over, 90, axis=0) > 1.5)
         else:
             evidence = [pk > 1.5 * s_noise for pk in peaks]
@@ -605,7 +606,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     ref32 = ref.astype(np.float32).reshape(-1, 1, 1)
     pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
     k_leather, k_noise, w_lit = _mc.leather_chroma(ch_noise)
-    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
+    for pi, (bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
+             ck) in enumerate(prep):
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -615,7 +617,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             soft = np.where(hue_ok, np.clip(sat / ch_sat, 0, 1), 0.0).astype(np.float32, copy=False)
             sw, sc_ = s_weak32, s_core32
             if s_noise is not None:  # never below the leather's noise at this brightness
-                floor = np.float32(s_noise) if s_floor is None else np.interp(vclose, *s_floor).astype(np.float32)
+                floor = np.float32(s_noise) if floors is None else floors[pi].astype(np.float32)
                 sw, sc_ = np.maximum(sw, floor / ref32), np.maximum(sc_, floor)
             weak = soft >= sw
             core = hue_ok & (sat >= sc_)
