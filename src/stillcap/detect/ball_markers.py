@@ -566,10 +566,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     # one does): HSV saturation divides by the value, so a sensor's noise makes dim leather (a
     # side light's terminator, a noisy sensor) far more saturated than bright leather. Pooled
     # over the ball, the dim pixels set the ceiling for all: measured on the robustness
-    # benchmark's side-lit, blurred captures, 0.2-0.34 pooled against 0.12-0.15 on the brightest
+    # benchmark's side-lit, blurred captures, 0.18-0.39 pooled against 0.11-0.15 on the brightest
     # leather, above the blurred markers' 0.2-0.4, so whole captures lost every coloured marker.
-    # Each pixel's noise floor is the ceiling at its own local white (``vclose``), and a colour's
-    # peaks are evidence where they stand 1.5x above the ceiling at their own brightness.
+    # Each pixel's noise floor is the ceiling at its own local white (``vclose``; the bins made
+    # non-increasing by an isotonic fit), and a colour's peaks are evidence where they stand
+    # 1.5x above the ceiling at their own brightness.
     s_core, s_weak = np.full(len(chroma), min_saturation), np.full(len(chroma), weak_membership)
     d_core, d_weak = 1.0 - dark_ratio, weak_membership
     d_floor = None  # the leather's darkness noise as a function of its brightness (below)
