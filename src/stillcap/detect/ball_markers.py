@@ -36,9 +36,9 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
-from stillcap._numeric import median
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
+from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -562,34 +562,53 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     # lit pixels' saturation or darkness), so noise alone never makes a marker.
     # A colour's peak is evidence only above the noise (1.5x its ceiling): a colour no ball
     # shows (or only noise) takes the scale the others show, blur being one for all colours.
+    # The saturation ceiling depends on the leather's brightness (``s_floor``, as the darkness
+    # one does): HSV saturation divides by the value, so a sensor's noise makes dim leather (a
+    # side light's terminator, a noisy sensor) far more saturated than bright leather. Pooled
+    # over the ball, the dim pixels set the ceiling for all: measured on the robustness
+    # benchmark's side-lit, blurred captures, 0.18-0.39 pooled against 0.11-0.15 on the brightest
+    # leather, above the blurred markers' 0.2-0.4, so whole captures lost every coloured marker.
+    # Each pixel's noise floor is the ceiling at its own local white (``vclose``; the bins made
+    # non-increasing by an isotonic fit), and a colour's peaks are evidence where they stand
+    # 1.5x above the ceiling at their own brightness.
     s_core, s_weak = np.full(len(chroma), min_saturation), np.full(len(chroma), weak_membership)
     d_core, d_weak = 1.0 - dark_ratio, weak_membership
     d_floor = None  # the leather's darkness noise as a function of its brightness (below)
+    s_floor, s_noise, ref, floors = None, None, ch_sat.reshape(-1).astype(float), None
     if adapt_thresholds and prep and sat_lit:
         s_noise = _robust_ceiling(np.concatenate(sat_lit))
         d_noise = _robust_ceiling(np.concatenate(dk_lit))
         d_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(dk_lit))
-        ref = ch_sat.reshape(-1).astype(float)
+        s_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(sat_lit), monotone="isotonic")
         ref_d = max(1.0 - v_pal, 0.1)
         peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
-        scales = [(pk / rf, pk > 1.5 * s_noise) for pk, rf in zip(peaks, ref)]
+        if chroma and ch_peak and s_floor is not None:
+            floors = [np.interp(pp[15], *s_floor) for pp in prep]
+            over = np.stack([np.where(pp[9] & pp[11], pp[8] / fl, 0.0).reshape(len(chroma), -1).max(axis=1)
+                             for pp, fl in zip(prep, floors)])
+            evidence = list(np.percentile(over, 90, axis=0) > 1.5)
+        else:
+            evidence = [pk > 1.5 * s_noise for pk in peaks]
+        scales = [(pk / rf, ok) for pk, rf, ok in zip(peaks, ref, evidence)]
         # (the dark types take the chromatic ones' scale: the leather's shading and limb make
         # darkness without paint, never saturation, so darkness peaks are no evidence of blur)
         scales.append((1.0, False))
         seen = [min(sc, 1.0) for sc, ok in scales if ok]
         common = float(np.median(seen)) if seen else 1.0
         sc = np.array([min(v, 1.0) if ok else common for v, ok in scales])
-        if chroma:
-            s_core = np.maximum(min_saturation * sc[:len(chroma)], s_noise)
-            s_weak = np.maximum(weak_membership * sc[:len(chroma)], s_noise / ref)
+        if chroma:  # the noise floor per pixel below (s_noise, or s_floor at the pixel's brightness)
+            s_core = min_saturation * sc[:len(chroma)]
+            s_weak = weak_membership * sc[:len(chroma)]
         if dark:
             d_core = max((1.0 - dark_ratio) * sc[-1], d_noise)
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
+    ref32 = ref.astype(np.float32).reshape(-1, 1, 1)
     pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
     k_leather, k_noise, w_lit = _mc.leather_chroma(ch_noise)
-    for bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose, ck in prep:
+    for pi, (bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
+             ck) in enumerate(prep):
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -597,8 +616,12 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         cand = []  # (types, weak mask, core mask, soft)
         if chroma:
             soft = np.where(hue_ok, np.clip(sat / ch_sat, 0, 1), 0.0).astype(np.float32, copy=False)
-            weak = soft >= s_weak32
-            core = hue_ok & (sat >= s_core32)
+            sw, sc_ = s_weak32, s_core32
+            if s_noise is not None:  # never below the leather's noise at this brightness
+                floor = np.float32(s_noise) if floors is None else floors[pi].astype(np.float32)
+                sw, sc_ = np.maximum(sw, floor / ref32), np.maximum(sc_, floor)
+            weak = soft >= sw
+            core = hue_ok & (sat >= sc_)
             any_chroma = weak.any(axis=0)
             for i, (tl, _, _) in enumerate(chroma):
                 cand.append((tl, weak[i], core[i], soft[i]))
@@ -642,42 +665,6 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         shapes=np.array([rw[2] for rw in rows], object), areas=np.array([rw[3] for rw in rows], float),
         confidences=np.array([rw[4] for rw in rows], float), aspects=np.array([rw[5] for rw in rows], float),
         ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int))
-
-
-def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int = 6,
-                         min_pixels: int = 200) -> tuple[np.ndarray, np.ndarray] | None:
-    """The leather's darkness ceiling (:func:`_robust_ceiling`) per brightness bin of the lit
-    pixels, as ``(bin brightness, ceiling)`` for ``np.interp``, or None with too few pixels.
-
-    Darkness is relative (``1 - value / local white``), so a sensor's read noise, and the
-    encoding's steep slope near black, make it noisier on dimmer leather (a side light's
-    terminator): one ceiling pooled over the ball lets that noise through as "black markers"
-    where the leather is dim and is stricter than needed where it is bright. The ceiling is
-    kept non-increasing with brightness (noise never grows with light)."""
-    if brightness.size < bins * min_pixels:
-        return None
-    edges = np.quantile(brightness, np.linspace(0.0, 1.0, bins + 1))
-    idx = np.clip(np.searchsorted(edges, brightness, side="right") - 1, 0, bins - 1)
-    mids, ceil = [], []
-    for b in range(bins):
-        sel = idx == b
-        if sel.sum() >= min_pixels:
-            mids.append(median(brightness[sel]))
-            ceil.append(_robust_ceiling(darkness[sel]))
-    if len(mids) < 2:
-        return None
-    ceil = np.maximum.accumulate(np.asarray(ceil)[::-1])[::-1]  # brighter never noisier than dimmer
-    return np.asarray(mids), ceil
-
-
-def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:
-    """``median + k x robust sigma`` of ``x``: the top of the leather's noise (the markers, a
-    minority of the lit pixels, do not move it). The sigma (1.4826 MAD) is at least 2/255: 8-bit
-    levels make a near-neutral surface's saturation and darkness step by about that much."""
-    # (medians by stillcap._numeric.median: np.median's numbers without its overhead)
-    x = np.ravel(x)
-    med = median(x)
-    return med + k * max(1.4826 * median(np.abs(x - med)), 2.0 / 255.0)
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):

@@ -1,0 +1,58 @@
+"""The leather's noise ceilings that the marker detector's thresholds never go below
+(:func:`stillcap.detect.ball_markers.detect_ball_markers`): pooled over a photo's lit leather
+(:func:`_robust_ceiling`) and per brightness bin (:func:`_noise_by_brightness`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from stillcap._numeric import median
+
+
+def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int = 6,
+                         min_pixels: int = 200, monotone: str = "lift") -> tuple[np.ndarray, np.ndarray] | None:
+    """The leather's darkness ceiling (:func:`_robust_ceiling`) per brightness bin of the lit
+    pixels, as ``(bin brightness, ceiling)`` for ``np.interp``, or None with too few pixels.
+
+    Darkness is relative (``1 - value / local white``), so a sensor's read noise, and the
+    encoding's steep slope near black, make it noisier on dimmer leather (a side light's
+    terminator): one ceiling pooled over the ball lets that noise through as "black markers"
+    where the leather is dim and is stricter than needed where it is bright. The ceiling is
+    kept non-increasing with brightness (noise never grows with light): ``monotone="lift"``
+    raises each bin to the largest ceiling of the brighter ones; ``"isotonic"`` takes the
+    least-squares non-increasing fit of the bins (``scipy.optimize.isotonic_regression``), so a
+    bright bin the estimate puts too high (the leather's saturation near the markers' JPEG chroma,
+    or where a channel clips and the white balance divides it down) is averaged with its
+    neighbours instead of lifting every dimmer bin; with no trend it is about the pooled ceiling."""
+    if monotone not in ("lift", "isotonic"):
+        raise ValueError(f"monotone must be 'lift' or 'isotonic', got {monotone!r}")
+    if brightness.size < bins * min_pixels:
+        return None
+    edges = np.quantile(brightness, np.linspace(0.0, 1.0, bins + 1))
+    idx = np.clip(np.searchsorted(edges, brightness, side="right") - 1, 0, bins - 1)
+    mids, ceil = [], []
+    for b in range(bins):
+        sel = idx == b
+        if sel.sum() >= min_pixels:
+            mids.append(median(brightness[sel]))
+            ceil.append(_robust_ceiling(darkness[sel]))
+    if len(mids) < 2:
+        return None
+    ceil = np.asarray(ceil, float)
+    if monotone == "lift":
+        ceil = np.maximum.accumulate(ceil[::-1])[::-1]  # brighter never noisier than dimmer
+    else:
+        from scipy.optimize import isotonic_regression
+
+        ceil = np.asarray(isotonic_regression(ceil, increasing=False).x, float)
+    return np.asarray(mids), ceil
+
+
+def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:
+    """``median + k x robust sigma`` of ``x``: the top of the leather's noise (the markers, a
+    minority of the lit pixels, do not move it). The sigma (1.4826 MAD) is at least 2/255: 8-bit
+    levels make a near-neutral surface's saturation and darkness step by about that much."""
+    # (medians by stillcap._numeric.median: np.median's numbers without its overhead)
+    x = np.ravel(x)
+    med = median(x)
+    return med + k * max(1.4826 * median(np.abs(x - med)), 2.0 / 255.0)
