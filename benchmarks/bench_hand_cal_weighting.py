@@ -17,8 +17,8 @@ second run only scores.
 
 Arms (both as ``stillcap hand-calibrate`` does, :func:`calibrate_hand_capture`'s stages):
 
-- ``common``: every labelled marker at ``hand_calibrate.NOISE_M`` (main before this change);
-- ``own noise``: each marker at its own noise from what the photos show
+- ``common``: every labelled marker at ``hand_calibrate.NOISE_M`` (``--marker-noise common``);
+- ``own noise`` (``--marker-noise own``, the default): each marker at its own noise from what the photos show
   (:func:`stillcap.pipelines.hand.stages.marker_sigma`: fully seen markers at ``NOISE_M``,
   partly hidden ones at ``HIDDEN_SIGMA_M`` divided by the share of their light the worst view
   got), and partly hidden two-view points need a second labelled marker on their digit
@@ -31,7 +31,9 @@ the degrees of freedom the fully seen markers fix, RMS on those fixed only by pa
 and (``--joints``) the RMS per joint degree of freedom. Labels and marker RMS do not depend on
 the model here (fixed labels): end to end is ``bench_hand_calibration.py``.
 
-Times: person 5 took about 2-3 CPU-minutes per arm on a loaded machine (no quiet time measured).
+Times (process CPU, a loaded machine, no quiet time measured): 12-42 s per arm's calibration on
+hands 5, 7 and 8; the calibrations of hands 6 and 10-14 took longer than the session allowed at
+load 25-40 (20-40 minutes of wall time each).
 """
 
 from __future__ import annotations
@@ -166,7 +168,7 @@ def run_person(cache: Path, work: Path, p: int, motion: str, labels: str, joints
     for arm in arms:
         t = time.process_time()
         try:
-            cal = _pickled(work / f"p{p}" / f"cal-{motion}.{arm.replace(' ', '-')}.pkl", lambda: calibrate(pts, hz, arm))
+            cal = _pickled(work / f"p{p}" / f"cal-{motion}.{arm.replace(' ', '-')}.pkl", lambda arm=arm: calibrate(pts, hz, arm))
         except ValueError as e:
             row[arm] = {"refused": str(e)}
             continue

@@ -38,3 +38,42 @@ def test_the_calibration_weights_follow_the_points_and_flag_two_view_partly_hidd
     assert np.allclose(w["point_sigma_m"], [NOISE_M, HIDDEN_SIGMA_M / 0.5, HIDDEN_SIGMA_M / 0.2, HIDDEN_SIGMA_M / 0.3])
     # partly hidden and only two views: no third view checked the match
     assert w["unconfirmed"].tolist() == [False, False, True, True]
+
+
+def test_hand_calibrate_passes_the_weights_only_when_asked(monkeypatch, tmp_path):
+    """``calibrate_hand_capture(marker_noise=...)`` gives the fit the points' own noise ("own") or
+    none (every marker at the common noise); another word is refused."""
+    import pytest
+
+    from stillcap.pipelines.hand import calibration as mod
+    from stillcap.studio.hand import hand_capture
+
+    hc = hand_capture(7, image_size=(320, 240), supersample=1, calibration_pose="flat")
+    cap, images = hc.to_capture(".png")
+    cap.save(tmp_path / "cal", images)
+    got = {}
+
+    def fake(points, colors, **kw):
+        got.update(kw, n=len(points))
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(mod, "calibrate_hand_from_points", fake)
+    with pytest.raises(ValueError, match="stop here"):
+        mod.calibrate_hand_capture(tmp_path / "cal", marker_noise="common")
+    assert "point_sigma_m" not in got and "unconfirmed" not in got
+    got.clear()
+    with pytest.raises(ValueError, match="stop here"):
+        mod.calibrate_hand_capture(tmp_path / "cal", marker_noise="own")
+    assert got["point_sigma_m"].shape == (got["n"],) and np.all(got["point_sigma_m"] >= NOISE_M)
+    assert got["unconfirmed"].shape == (got["n"],)
+    with pytest.raises(ValueError, match="marker noise 'loud' is not one of own, common"):
+        mod.calibrate_hand_capture(tmp_path / "cal", marker_noise="loud")
+
+
+def test_the_cli_refuses_an_unknown_marker_noise(tmp_path, capsys):
+    from support import run_cli
+
+    code, _out, err = run_cli(["hand-calibrate", tmp_path / "nothing", "--out", tmp_path / "h.json",
+                              "--marker-noise", "loud"], capsys)
+    assert code == 2 and "'loud' is not one of own, common" in err
+    assert not (tmp_path / "h.json").exists()

@@ -26,7 +26,7 @@ def hand_calibrate(
     max_length_sigma: float = typer.Option(None, "--max-length-sigma", help="Refuse (exit 2) when a bone length "
                                            "is known worse than this 1-sigma (mm): the capture did not bend that "
                                            "joint enough."),
-    marker_noise: str = typer.Option("common", "--marker-noise", help="How the fit weighs each 3D marker: own (its "
+    marker_noise: str = typer.Option("own", "--marker-noise", help="How the fit weighs each 3D marker: own (its "
                                      "own noise from the photos: a partly hidden marker, whose centre shifts, counts "
                                      "less the less of it a camera saw) or common (every marker alike, 0.4 mm)."),
 ):

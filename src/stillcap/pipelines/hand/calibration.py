@@ -21,7 +21,7 @@ __all__ = ["MARKER_NOISES", "MARKER_NOISE", "calibrate_hand_capture", "calibrati
 #: How the calibration weighs its 3D markers (:func:`calibrate_hand_capture`'s ``marker_noise``).
 MARKER_NOISES = ("own", "common")
 #: The default (benchmarks/bench_hand_cal_weighting.py, docs/hand-calibration.md).
-MARKER_NOISE = "common"
+MARKER_NOISE = "own"
 
 
 def calibration_weights(points) -> dict:
@@ -49,14 +49,14 @@ def calibrate_hand_capture(capture: Capture | str | Path, pose: str = "flat", *,
         Not a hand capture, no glove marker in 3D, no flash with a hand pose, or the flash
         nearest the stated pose does not fit it (the capture is not in the pose).
     """
+    if marker_noise not in MARKER_NOISES:
+        raise ValueError(f"marker noise {marker_noise!r} is not one of {', '.join(MARKER_NOISES)}")
     cap = capture if isinstance(capture, Capture) else Capture.load(capture)
     setup = hand_setup(cap, strobe_position_m)
     where, messages = setup.where, setup.messages
     images = read_hand_photos(cap, setup.pairs)
     blobs = find_glove_markers(images, None, cap.rig)  # in linear light through each camera's response
     points = triangulate_glove_markers(cap.rig, setup.pairs, blobs, setup.light, HandOptions(), messages, where)
-    if marker_noise not in MARKER_NOISES:
-        raise ValueError(f"marker noise {marker_noise!r} is not one of {', '.join(MARKER_NOISES)}")
     weights = calibration_weights(points) if marker_noise == "own" else {}
     try:
         cal = calibrate_hand_from_points(points.points, points.colors, strobe_hz=setup.strobe_hz, pose=pose,
