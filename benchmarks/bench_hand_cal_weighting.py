@@ -32,7 +32,7 @@ and (``--joints``) the RMS per joint degree of freedom. Labels and marker RMS do
 the model here (fixed labels): end to end is ``bench_hand_calibration.py``.
 
 Times (process CPU, a loaded machine, no quiet time measured): 12-42 s per arm's calibration on
-hands 5, 7 and 8; the calibrations of hands 6 and 10-14 took longer than the session allowed at
+hands 5, 7 and 8; the calibrations of hands 6, 10-12 and 14 took longer than the session allowed at
 load 25-40 (20-40 minutes of wall time each).
 """
 
