@@ -2,7 +2,7 @@
 from rendered photos.
 
     python benchmarks/bench_hand_calibration.py [--persons 5 6 7 8 9] [--motion protocol|curl]
-        [--size 1280x960] [--quick] [--jsonl runs/hand_calibration.jsonl]
+        [--size 1280x960] [--quick] [--jsonl runs/hand_calibration.jsonl] [--marker-noise own|common]
 
 Per person ``p`` (``stillcap.studio.hand_variation.another_hand(p)``: its own size, per-phalanx
 proportions, knuckle splay, thumb axis, marker heights, light and cameras):
@@ -38,7 +38,7 @@ import numpy as np
 from stillcap.io.capture import Capture
 from stillcap.body.hand_calibrate import UNFIXED_SIGMA_RATIO
 from stillcap.pipelines.hand import analyse_hand
-from stillcap.pipelines.hand.calibration import calibrate_hand_capture
+from stillcap.pipelines.hand.calibration import MARKER_NOISE, MARKER_NOISES, calibrate_hand_capture
 from stillcap.studio.compare.hand import compare_with_capture
 from stillcap.studio.hand import hand_capture
 from stillcap.studio.hand_variation import another_hand
@@ -52,9 +52,9 @@ def _write(hc, root: Path) -> Capture:
     return Capture.load(root)
 
 
-def run_person(p: int, size, motion: str) -> dict:
+def run_person(p: int, size, motion: str, marker_noise: str = MARKER_NOISE) -> dict:
     who = another_hand(p)
-    row = {"person": p, "size": list(size), "motion": motion}
+    row = {"person": p, "size": list(size), "motion": motion, "marker_noise": marker_noise}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cal_cap = _write(hand_capture(200 + p, image_size=size, person=who, calibration_pose="flat",
@@ -64,7 +64,7 @@ def run_person(p: int, size, motion: str) -> dict:
         who.markerset.save(tmp / "own.markers.json")
         models["own"] = {"hand_model": str(tmp / "own.json"), "hand_markers": str(tmp / "own.markers.json")}
         try:
-            cal = calibrate_hand_capture(cal_cap)
+            cal = calibrate_hand_capture(cal_cap, marker_noise=marker_noise)
             cal.skeleton.save(tmp / "cal.json")
             cal.markerset.save(tmp / "cal.markers.json")
             models["calibrated"] = {"hand_model": str(tmp / "cal.json"), "hand_markers": str(tmp / "cal.markers.json")}
@@ -129,11 +129,19 @@ def main() -> None:
     ap.add_argument("--size", default="1280x960")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--jsonl", type=Path)
+    ap.add_argument("--marker-noise", choices=MARKER_NOISES, default=MARKER_NOISE,
+                    help="how hand-calibrate weighs its markers (as stillcap hand-calibrate --marker-noise)")
     a = ap.parse_args()
     persons, size = a.persons, tuple(int(v) for v in a.size.split("x"))
     if a.quick:
         persons, size = [6, 7], (960, 720)
-    rows = resumed_rows(a.jsonl, a.motion, size, persons, run_person, lambda r: print(json.dumps(r), flush=True))
+    if a.jsonl is not None and a.jsonl.exists():  # rows are resumed by person: a file holds one weighting
+        other = {json.loads(s).get("marker_noise", "common") for s in a.jsonl.read_text().splitlines()
+                 if s.strip()} - {a.marker_noise}
+        if other:
+            raise SystemExit(f"{a.jsonl} holds rows with --marker-noise {', '.join(sorted(other))}: use another --jsonl")
+    rows = resumed_rows(a.jsonl, a.motion, size, persons, lambda p, s, m: run_person(p, s, m, a.marker_noise),
+                        lambda r: print(json.dumps(r), flush=True))
     report([r for r in rows if r["person"] in persons])
 
 

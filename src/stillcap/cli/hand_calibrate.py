@@ -26,6 +26,9 @@ def hand_calibrate(
     max_length_sigma: float = typer.Option(None, "--max-length-sigma", help="Refuse (exit 2) when a bone length "
                                            "is known worse than this 1-sigma (mm): the capture did not bend that "
                                            "joint enough."),
+    marker_noise: str = typer.Option("own", "--marker-noise", help="How the fit weighs each 3D marker: own (its "
+                                     "own noise from the photos: a partly hidden marker, whose centre shifts, counts "
+                                     "less the less of it a camera saw) or common (every marker alike, 0.4 mm)."),
 ):
     """Estimate the person's hand model (phalanx lengths, marker places, knuckles, thumb) from a
     capture of the hand in a known pose; write it and its marker set.
@@ -37,14 +40,18 @@ def hand_calibrate(
     from stillcap.body.hand_calibrate import CALIBRATION_POSES, UNFIXED_SIGMA_RATIO
     from stillcap.cli._selfchecks import print_failed_checks
     from stillcap.body.hand_files import load_hand
-    from stillcap.pipelines.hand.calibration import calibrate_hand_capture
+    from stillcap.pipelines.hand.calibration import MARKER_NOISES, calibrate_hand_capture
 
     if pose not in CALIBRATION_POSES:
         raise typer.BadParameter(f"{pose!r} is not one of {', '.join(CALIBRATION_POSES)}", param_hint="--pose")
+    if marker_noise not in MARKER_NOISES:
+        raise typer.BadParameter(f"{marker_noise!r} is not one of {', '.join(MARKER_NOISES)}",
+                                 param_hint="--marker-noise")
     sk, ms = load_hand(template, markers, model_what="--template")
     markers_out = markers_out or out.with_name(out.name.removesuffix(".json") + ".markers.json")
     cal = calibrate_hand_capture(capture, pose, skeleton=sk, markerset=ms,
-                                 max_length_sigma_m=None if max_length_sigma is None else max_length_sigma * 1e-3)
+                                 max_length_sigma_m=None if max_length_sigma is None else max_length_sigma * 1e-3,
+                                 marker_noise=marker_noise)
     cal.skeleton.save(out)
     cal.markerset.save(markers_out)
     if report is not None:

@@ -45,7 +45,8 @@ from stillcap.pipelines.hand.ball import HandBalls, hand_ball_positions, hand_ba
 from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "recover_markers", "recover_near", "recover_digits", "fit_poses",
-           "release_and_spin", "check_hand", "partly_hidden_angle_note", "label_markers_adapted"]
+           "release_and_spin", "check_hand", "partly_hidden_angle_note", "label_markers_adapted",
+           "marker_sigma"]
 
 @dataclass
 class HandSetup:
@@ -145,6 +146,16 @@ def _unconfirmed(points: MarkerPoints) -> np.ndarray:
     """Partly hidden points of two views: no third view checked their match, so a label needs a
     second labelled marker on its digit to be tested (label_hand_markers' ``unconfirmed``)."""
     return points.partly_hidden & (points.n_views == 2)
+
+
+def marker_sigma(points: MarkerPoints, seen_m: float = SEEN_SIGMA_M) -> np.ndarray:
+    """Each 3D marker's position noise (m) from what the photos show: ``seen_m`` for a fully seen
+    marker, :data:`HIDDEN_SIGMA_M` for a partly hidden one (its centroid shifts by up to a few mm,
+    docs/hand-markers.md) divided by the share of its light the worst view got (flux ratio: 1
+    unhidden, 0.01 a sliver; clipped to 0.02-1)."""
+    flux = np.where(np.isfinite(points.flux_ratio), points.flux_ratio, np.inf).min(axis=0)
+    flux = np.clip(np.where(np.isfinite(flux), flux, 1.0), 0.02, 1.0)
+    return np.where(points.partly_hidden, HIDDEN_SIGMA_M / flux, seen_m)
 
 
 def label_markers(points: MarkerPoints, strobe_hz: float, options: HandOptions, messages: list, skeleton=None,
@@ -474,9 +485,7 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
         # partly hidden markers' centroids shift by up to a few mm (docs/hand-markers.md): they
         # count 10x less in the pose fit than fully seen ones, and less still the less of their
         # light a view got (flux ratio: 1 unhidden, 0.01 a sliver)
-        flux = np.where(np.isfinite(points.flux_ratio), points.flux_ratio, np.inf).min(axis=0)
-        flux = np.clip(np.where(np.isfinite(flux), flux, 1.0), 0.02, 1.0)
-        sigma = np.where(points.partly_hidden, HIDDEN_SIGMA_M / flux, SEEN_SIGMA_M)
+        sigma = marker_sigma(points)
         sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
                                      point_sigma_m=sigma)
         # a partly hidden point of two views that this fit (each point at its own noise) leaves
