@@ -54,6 +54,18 @@ def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px:
         qx = Ai[0, 0] * xs[None, :] + Ai[0, 1] * ys[:, None]
         qy = Ai[1, 0] * xs[None, :] + Ai[1, 1] * ys[:, None]
         return rad_of(qx, qy).reshape(h, ss, w, ss).mean(axis=(1, 3)).astype(np.float32)
+    return _render_sphere(_sphere_normals(shape, center, A, band_px, q, ss), light)
+
+
+def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3):
+    """The light-independent part of :func:`_lit_sphere_image`'s band path (``band_px`` given):
+    the sphere's normals at the pixel centres and at the band pixels' ``ss x ss`` samples, with
+    their masks, for :func:`_render_sphere`. The phase searches of :func:`_shading_bias` render
+    the same outline in the same crop at several lights: its geometry (most of a render's time)
+    is computed once (the same numbers as computing it each time)."""
+    h, w = shape
+    o = (np.arange(ss) + 0.5) / ss - 0.5
+    Ai = _small_linalg.inv(np.asarray(A, float))
     if q is None:
         yy, xx = np.mgrid[0:h, 0:w]
         q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - center[0], yy - center[1]]).astype(float))
@@ -64,27 +76,38 @@ def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px:
     # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
     r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
     r_out = 1.0 + 1.5 / sv[-1]
-    out = rad_of(q[0], q[1], r2)
+    qz = np.sqrt(np.maximum(1.0 - r2, 0.0))  # np.clip(., 0, None), without its overhead
     band = (r2 > r_in * r_in) & (r2 < r_out * r_out)
     qxb, qyb = q[0][band], q[1][band]
+    samples = None
     if len(qxb):
         # the samples of pixel (y, x): its centre's coordinates plus A^-1 (o_j, o_i)
         dqx = Ai[0, 0] * o[None, :] + Ai[0, 1] * o[:, None]  # (ss_y, ss_x)
         dqy = Ai[1, 0] * o[None, :] + Ai[1, 1] * o[:, None]
-        # rad_of on the samples (nb, ss, ss), its arithmetic in place (the same operations in
-        # the same order, without its temporaries: most of this function's time)
-        qx = qxb[:, None, None] + dqx[None]
-        qy = qyb[:, None, None] + dqy[None]
-        r2s = qx * qx
-        r2s += qy * qy
-        qz = np.subtract(1.0, r2s)
-        np.sqrt(np.maximum(qz, 0.0, out=qz), out=qz)
-        qx *= lx
-        qx += np.multiply(qy, ly, out=qy)
-        qx += np.multiply(qz, lz, out=qz)
-        np.maximum(qx, 0.0, out=qx)
-        np.putmask(qx, ~(r2s < 1.0), 0.0)
-        out[band] = qx.mean(axis=(1, 2))
+        sx = qxb[:, None, None] + dqx[None]
+        sy = qyb[:, None, None] + dqy[None]
+        r2s = sx * sx
+        r2s += sy * sy
+        sz = np.subtract(1.0, r2s)
+        np.sqrt(np.maximum(sz, 0.0, out=sz), out=sz)
+        samples = (sx, sy, sz, ~(r2s < 1.0))
+    return q, qz, r2 < 1.0, band, samples
+
+
+def _render_sphere(normals, light) -> np.ndarray:
+    """:func:`_lit_sphere_image` (band path) at ``light`` from :func:`_sphere_normals`' geometry:
+    the same operations in the same order on the same numbers (bit-identical)."""
+    q, qz, inside, band, samples = normals
+    lx, ly, lz = light
+    out = np.where(inside, np.maximum(q[0] * lx + q[1] * ly + qz * lz, 0.0), 0.0)
+    if samples is not None:
+        sx, sy, sz, outside = samples
+        v = sx * lx
+        v += sy * ly
+        v += sz * lz
+        np.maximum(v, 0.0, out=v)
+        np.putmask(v, outside, 0.0)
+        out[band] = v.mean(axis=(1, 2))
     return out.astype(np.float32)
 
 
@@ -215,9 +238,9 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
         mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim) if frame is None else frame
         if light_c is None:
             return None
-        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim)
-        model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid_c, A_c, light_c, band_px=band, q=q_c),
-                                 (0, 0), blur)
+        render = _renderer(lin.shape, mid_c, A_c, band, q_c)
+        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim, render=render)
+        model = cv2.GaussianBlur(render(light_c), (0, 0), blur)
         return np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
 
     bias = bias_at(center, (mid, A, q, light))
@@ -251,12 +274,27 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     return best_bias
 
 
+def _renderer(shape, mid, A: np.ndarray, band: float, q):
+    """``light -> _lit_sphere_image(shape, mid, A, light, band_px=band, q=q)``: the geometry
+    computed once (:func:`_sphere_normals`) and the renders kept (the phase search's chosen
+    light is the model's: rendered once, not twice). The images are shared: do not write to them."""
+    normals = _sphere_normals(shape, mid, A, band, q)
+    done = {}
+
+    def render(light):
+        key = tuple(float(v) for v in light)
+        if key not in done:
+            done[key] = _render_sphere(normals, key)
+        return done[key]
+    return render
+
+
 #: secant rounds of the corrected centre in :func:`_shading_bias`
 FRAME_ROUNDS = 8
 
 
 def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed: bool = False,
-                         rounds: int = 6):
+                         rounds: int = 6, render=None):
     """The light direction whose lit sphere, blurred by the lens (``psf``, Gaussian sigma px),
     has the photo's radiance centroid as :func:`_lit_frame` measures it (same window, level and
     weights); its azimuth is ``light``'s, its phase angle found by secant steps from ``light``'s.
@@ -270,14 +308,17 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
     as 71 deg and 130 deg as 88 deg, and the correction then left 0.25 and 0.8 px toward the light
     (0.07 and 0.08 px with the true phase). The model measured through the same window has the
     same loss, so its phase is the light's (``docs/ball-detection.md``, "blurred phase").
-    Written by hand: the window's loss depends on the outline, blur and phase together; no
+    ``render``: the sharp model at a light (:func:`_renderer`'s, to share its geometry and renders
+    with the caller). Written by hand: the window's loss depends on the outline, blur and phase together; no
     library tabulates it."""
-    r2 = q[0] ** 2 + q[1] ** 2
-    if psf < 0.05 or not np.any(r2 > 1.3 ** 2):
+    win = _centroid_window(q)
+    if psf < 0.05 or not np.any(win[1]):
         return light
-    mq = _radiance_centroid(lin, q, signed)
+    mq = _radiance_centroid(lin, q, signed, win)
     if mq is None:
         return light
+    if render is None:
+        render = _renderer(lin.shape, mid, A, band, q)
     m_obs = float(np.hypot(*mq))
     az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
     a_max = np.radians(175.0)
@@ -286,8 +327,8 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         return (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
 
     def miss(a):
-        img = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light_at(a), band_px=band, q=q), (0, 0), psf)
-        m = _radiance_centroid(img, q, signed)
+        img = cv2.GaussianBlur(render(light_at(a)), (0, 0), psf)
+        m = _radiance_centroid(img, q, signed, win)
         return float("nan") if m is None else float(np.hypot(*m)) - m_obs
 
     a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
@@ -338,10 +379,11 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
     level = float(median(lin[ring]))
     a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
     az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
+    normals = _sphere_normals(lin.shape, mid, A, band, q)
 
     def clipped_at(a):
         lt = (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
-        sharp = _lit_sphere_image(lin.shape, mid, A, lt, band_px=band, q=q)
+        sharp = _render_sphere(normals, lt)
         m = cv2.GaussianBlur(sharp, (0, 0), psf) if psf > 0.05 else sharp
         # the gain that clips as many pixels as the photo has clipped (the clipped area is what
         # pins it: a fit to the unclipped pixels leans on the dim limb and the background)
@@ -378,21 +420,27 @@ def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
     return float("nan") if mq is None else float(np.hypot(*mq))
 
 
-def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False):
+def _centroid_window(q: np.ndarray):
+    """:func:`_radiance_centroid`'s masks for the coordinates ``q``: (within 1.15 radii, the ring
+    beyond 1.3), to compute once for several images over the same crop."""
+    r2 = q[0] ** 2 + q[1] ** 2
+    return r2 < 1.15 ** 2, r2 > 1.3 ** 2
+
+
+def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win=None):
     """Centroid (outline radii, shape (2,)) of ``img``'s radiance above the level of the ring
     beyond 1.3 radii, over the pixels within 1.15 radii; None when nothing is above it.
 
     ``signed``: the level is the ring's mean and the weights are not clipped at 0, so zero-mean
     noise (and noise clipped at black, whose mean the median misses) adds nothing on average
     (for a faint ball whose noisy dark disc, rectified, outweighs a thin lit rim)."""
-    r2 = q[0] ** 2 + q[1] ** 2
-    ring = (r2 > 1.3 ** 2)
+    inside, ring = _centroid_window(q) if win is None else win
     if signed:
         level = float(img[ring].mean()) if ring.any() else 0.0
-        wgt = np.where(r2 < 1.15 ** 2, img - level, 0.0)
+        wgt = np.where(inside, img - level, 0.0)
     else:
         level = median(img[ring]) if ring.any() else 0.0
-        wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
+        wgt = np.where(inside, np.maximum(img - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
         return None
