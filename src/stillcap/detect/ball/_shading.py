@@ -161,7 +161,8 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
 
 
 def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
-                  blur: float, fine_step: float, smooth: float = 0.7, thin_rim: bool = False) -> np.ndarray:
+                  blur: float, fine_step: float, smooth: float = 0.7, thin_rim: bool = False,
+                  start=None) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
     The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
@@ -195,6 +196,11 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     too low (faint crescents at 150-165 deg read as 80-100 deg; the correction then left
     0.8-1.0 px of the ~1 px bias toward the light, 0.3-0.4 px with signed weights:
     ``benchmarks/bench_ball_detect.py --only-missed``).
+
+    ``start``: a centre (crop px) near the corrected one, such as this ball's corrected centre at
+    a slightly different ``blur`` (:func:`stillcap.ball.stereo.photo_blur_px`' next round): the
+    corrected centre's first secant step goes there (its projection on the bias's direction)
+    instead of to ``center - bias``; the steps after it and the tolerance are the same.
     """
     mid, A, q, light = _lit_frame(lin, center, off, thin_rim)
     if light is None:
@@ -233,13 +239,15 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     psf = float(np.sqrt(max(blur * blur - smooth * smooth, 0.0)))
     kf = max(2, int(round(0.3 / fine_step)))
     center = np.asarray(center, float)
+    warm = {}  # the phase search's last phase and slope, from one frame to the next
 
     def bias_at(c, frame=None):
         mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim) if frame is None else frame
         if light_c is None:
             return None
         render = _renderer(lin.shape, mid_c, A_c, band, q_c)
-        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim, render=render)
+        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim, render=render,
+                                       warm=warm)
         model = cv2.GaussianBlur(render(light_c), (0, 0), blur)
         return np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
 
@@ -253,6 +261,10 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     # bias of the evaluated centre with the smallest |h| is returned
     lo, hi = (0.0, -size), None
     t_prev, h_prev, t = 0.0, -size, size
+    if start is not None:
+        t_start = float((center - np.asarray(start, float)) @ u)
+        if np.isfinite(t_start) and t_start > 0.0:
+            t = min(t_start, 4.0 * size + 0.2)
     best_h, best_bias = size, bias
     for _ in range(FRAME_ROUNDS):
         b = bias_at(center - t * u)
@@ -294,7 +306,7 @@ FRAME_ROUNDS = 8
 
 
 def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed: bool = False,
-                         rounds: int = 6, render=None):
+                         rounds: int = 6, render=None, warm: dict | None = None):
     """The light direction whose lit sphere, blurred by the lens (``psf``, Gaussian sigma px),
     has the photo's radiance centroid as :func:`_lit_frame` measures it (same window, level and
     weights); its azimuth is ``light``'s, its phase angle found by secant steps from ``light``'s.
@@ -309,8 +321,12 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
     (0.07 and 0.08 px with the true phase). The model measured through the same window has the
     same loss, so its phase is the light's (``docs/ball-detection.md``, "blurred phase").
     ``render``: the sharp model at a light (:func:`_renderer`'s, to share its geometry and renders
-    with the caller). Written by hand: the window's loss depends on the outline, blur and phase together; no
-    library tabulates it."""
+    with the caller). ``warm``: a dict the search leaves its phase, the sharp table's phase and its
+    last secant slope in; given them back (the next frame of :func:`_shading_bias`' corrected
+    centre, a fraction of a pixel away), it starts from that phase moved as the table's moved and
+    takes its first step along that slope (2 renders where a cold start takes 3; the same phase to
+    the search's tolerance, 1e-4 radii of centroid). Written by hand: the window's loss depends
+    on the outline, blur and phase together; no library tabulates it."""
     win = _centroid_window(q)
     if psf < 0.05 or not np.any(win[1]):
         return light
@@ -331,18 +347,38 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         m = _radiance_centroid(img, q, signed, win)
         return float("nan") if m is None else float(np.hypot(*m)) - m_obs
 
-    a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
-    f = miss(a)
-    if not np.isfinite(f):
-        return light
-    # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+    a_sharp = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
+    f = float("nan")
+    if warm:
+        # the search of a nearby frame of the same ball: its phase, moved as the sharp table's
+        # moved, and its slope for the first step
+        a = float(np.clip(warm["a"] + (a_sharp - warm["a_sharp"]), 0.0, a_max))
+        f = miss(a)
+        if np.isfinite(f) and abs(f) < 1e-4:
+            warm.update(a=a, a_sharp=a_sharp)
+            return light_at(a)
+    if np.isfinite(f):
+        if warm["slope"] > 0:
+            step = float(np.clip(-f / warm["slope"], -np.radians(10.0), np.radians(10.0)))
+        else:
+            step = np.radians(5.0) * (1.0 if f < 0 else -1.0)
+    else:
+        a = a_sharp
+        f = miss(a)
+        if not np.isfinite(f):
+            return light
+        # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+        step = np.radians(5.0) * (1.0 if f < 0 else -1.0)
     a_prev, f_prev = a, f
-    a = float(np.clip(a + np.radians(5.0) * (1.0 if f < 0 else -1.0), 0.0, a_max))
+    a = float(np.clip(a + step, 0.0, a_max))
     best_a, best_f = a_prev, abs(f_prev)
+    slope = float("nan")
     for _ in range(rounds):
         f = miss(a)
         if not np.isfinite(f):
             break
+        if a != a_prev:
+            slope = (f - f_prev) / (a - a_prev)
         if abs(f) < best_f:
             best_a, best_f = a, abs(f)
         if abs(f) < 1e-4 or f == f_prev:
@@ -350,6 +386,8 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         a, a_prev, f_prev = float(np.clip(a - f * (a - a_prev) / (f - f_prev), 0.0, a_max)), a, f
         if a == a_prev:  # held at an end of the range
             break
+    if warm is not None:
+        warm.update(a=best_a, a_sharp=a_sharp, slope=slope if np.isfinite(slope) else float("nan"))
     return light_at(best_a)
 
 
