@@ -57,12 +57,13 @@ def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px:
     return _render_sphere(_sphere_normals(shape, center, A, band_px, q, ss), light)
 
 
-def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3):
+def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3, r2=None):
     """The light-independent part of :func:`_lit_sphere_image`'s band path (``band_px`` given):
     the sphere's normals at the pixel centres and at the band pixels' ``ss x ss`` samples, with
     their masks, for :func:`_render_sphere`. The phase searches of :func:`_shading_bias` render
     the same outline in the same crop at several lights: its geometry (most of a render's time)
-    is computed once (the same numbers as computing it each time)."""
+    is computed once (the same numbers as computing it each time). ``r2``: ``q[0]**2 + q[1]**2``
+    if the caller has it."""
     h, w = shape
     o = (np.arange(ss) + 0.5) / ss - 0.5
     Ai = _small_linalg.inv(np.asarray(A, float))
@@ -70,7 +71,8 @@ def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: in
         yy, xx = np.mgrid[0:h, 0:w]
         q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - center[0], yy - center[1]]).astype(float))
     sv = _small_linalg.svdvals(np.asarray(A, float))  # the outline's semi-axes (px)
-    r2 = q[0] ** 2 + q[1] ** 2
+    if r2 is None:
+        r2 = q[0] ** 2 + q[1] ** 2
     # a pixel within band_px of the limb lies beyond 1 - band / (largest semi-axis) in these
     # coordinates; a pixel whose samples (<= 0.5 px from its centre) are all outside the outline,
     # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
@@ -135,11 +137,13 @@ def _phase_from_centroid(m: float) -> float:
     return float(np.interp(m, table, alpha))
 
 
-def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
+def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False, more: dict | None = None):
     """The outline's middle, its ellipse ``A``, the outline-normalised coordinates ``q`` (2, H, W)
     of the crop's pixels and the light direction read from the ball image's radiance centroid
     (:func:`_shading_bias`; None when the image has no radiance above its surroundings;
-    ``signed``: :func:`_radiance_centroid`'s)."""
+    ``signed``: :func:`_radiance_centroid`'s). ``more``: a dict given the centroid's window
+    (``"win"``, :func:`_centroid_window`) and the centroid itself (``"mq"``), for its callers to
+    reuse."""
     # the outline's own middle: off axis the image of the sphere centre is not the middle of
     # its (elongated) outline; the shading is modelled about the middle, orthographically
     mid = center + off.mean(axis=0)
@@ -150,7 +154,10 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
     xy[0] = np.arange(w) - mid[0]
     xy[1] = (np.arange(h) - mid[1])[:, None]
     q = np.einsum("ij,jhw->ihw", Ai, xy)
-    mq = _radiance_centroid(lin, q, signed)
+    win = _centroid_window(q)
+    mq = _radiance_centroid(lin, q, signed, win)
+    if more is not None:
+        more.update(win=win, mq=mq)
     if mq is None:
         return mid, A, q, None
     mn = float(np.hypot(*mq))
@@ -202,7 +209,8 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     corrected centre's first secant step goes there (its projection on the bias's direction)
     instead of to ``center - bias``; the steps after it and the tolerance are the same.
     """
-    mid, A, q, light = _lit_frame(lin, center, off, thin_rim)
+    more0 = {}
+    mid, A, q, light = _lit_frame(lin, center, off, thin_rim, more0)
     if light is None:
         return np.zeros(2)
     # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
@@ -241,17 +249,19 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     center = np.asarray(center, float)
     warm = {}  # the phase search's last phase and slope, from one frame to the next
 
-    def bias_at(c, frame=None):
-        mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim) if frame is None else frame
+    def bias_at(c, frame=None, more=None):
+        more = {} if more is None else more
+        mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim, more) if frame is None else frame
         if light_c is None:
             return None
-        render = _renderer(lin.shape, mid_c, A_c, band, q_c)
+        win = more.get("win") or _centroid_window(q_c)
+        render = _renderer(lin.shape, mid_c, A_c, band, q_c, win[2])
         light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim, render=render,
-                                       warm=warm)
+                                       warm=warm, win=win, mq=more.get("mq"))
         model = cv2.GaussianBlur(render(light_c), (0, 0), blur)
         return np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
 
-    bias = bias_at(center, (mid, A, q, light))
+    bias = bias_at(center, (mid, A, q, light), more0)
     size = float(np.hypot(*bias))
     if size < 1e-6:
         return bias
@@ -286,11 +296,11 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     return best_bias
 
 
-def _renderer(shape, mid, A: np.ndarray, band: float, q):
+def _renderer(shape, mid, A: np.ndarray, band: float, q, r2=None):
     """``light -> _lit_sphere_image(shape, mid, A, light, band_px=band, q=q)``: the geometry
     computed once (:func:`_sphere_normals`) and the renders kept (the phase search's chosen
     light is the model's: rendered once, not twice). The images are shared: do not write to them."""
-    normals = _sphere_normals(shape, mid, A, band, q)
+    normals = _sphere_normals(shape, mid, A, band, q, r2=r2)
     done = {}
 
     def render(light):
@@ -306,7 +316,7 @@ FRAME_ROUNDS = 8
 
 
 def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed: bool = False,
-                         rounds: int = 6, render=None, warm: dict | None = None):
+                         rounds: int = 6, render=None, warm: dict | None = None, win=None, mq=None):
     """The light direction whose lit sphere, blurred by the lens (``psf``, Gaussian sigma px),
     has the photo's radiance centroid as :func:`_lit_frame` measures it (same window, level and
     weights); its azimuth is ``light``'s, its phase angle found by secant steps from ``light``'s.
@@ -321,16 +331,19 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
     (0.07 and 0.08 px with the true phase). The model measured through the same window has the
     same loss, so its phase is the light's (``docs/ball-detection.md``, "blurred phase").
     ``render``: the sharp model at a light (:func:`_renderer`'s, to share its geometry and renders
-    with the caller). ``warm``: a dict the search leaves its phase, the sharp table's phase and its
+    with the caller); ``win``, ``mq``: the window and the photo's centroid if the caller has them
+    (:func:`_lit_frame`'s ``more``). ``warm``: a dict the search leaves its phase, the sharp table's phase and its
     last secant slope in; given them back (the next frame of :func:`_shading_bias`' corrected
     centre, a fraction of a pixel away), it starts from that phase moved as the table's moved and
     takes its first step along that slope (2 renders where a cold start takes 3; the same phase to
     the search's tolerance, 1e-4 radii of centroid). Written by hand: the window's loss depends
     on the outline, blur and phase together; no library tabulates it."""
-    win = _centroid_window(q)
+    if win is None:
+        win = _centroid_window(q)
     if psf < 0.05 or not np.any(win[1]):
         return light
-    mq = _radiance_centroid(lin, q, signed, win)
+    if mq is None:
+        mq = _radiance_centroid(lin, q, signed, win)
     if mq is None:
         return light
     if render is None:
@@ -460,9 +473,10 @@ def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
 
 def _centroid_window(q: np.ndarray):
     """:func:`_radiance_centroid`'s masks for the coordinates ``q``: (within 1.15 radii, the ring
-    beyond 1.3), to compute once for several images over the same crop."""
+    beyond 1.3, and the squared radius ``r2`` itself), to compute once for several images over the
+    same crop."""
     r2 = q[0] ** 2 + q[1] ** 2
-    return r2 < 1.15 ** 2, r2 > 1.3 ** 2
+    return r2 < 1.15 ** 2, r2 > 1.3 ** 2, r2
 
 
 def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win=None):
@@ -472,7 +486,7 @@ def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win
     ``signed``: the level is the ring's mean and the weights are not clipped at 0, so zero-mean
     noise (and noise clipped at black, whose mean the median misses) adds nothing on average
     (for a faint ball whose noisy dark disc, rectified, outweighs a thin lit rim)."""
-    inside, ring = _centroid_window(q) if win is None else win
+    inside, ring = (_centroid_window(q) if win is None else win)[:2]
     if signed:
         level = float(img[ring].mean()) if ring.any() else 0.0
         wgt = np.where(inside, img - level, 0.0)
