@@ -78,9 +78,14 @@ def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: in
     # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
     r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
     r_out = 1.0 + 1.5 / sv[-1]
-    qz = np.sqrt(np.maximum(1.0 - r2, 0.0))  # np.clip(., 0, None), without its overhead
     band = (r2 > r_in * r_in) & (r2 < r_out * r_out)
-    qxb, qyb = q[0][band], q[1][band]
+    # the pixels inside the outline and off the band: one sample at their centre (the rest of
+    # the crop is 0); flat indices and their coordinates, rendered as a 1-D array
+    core = np.flatnonzero((r2 < 1.0) & ~band)
+    cx, cy, cr2 = q[0].ravel()[core], q[1].ravel()[core], r2.ravel()[core]
+    cz = np.sqrt(np.maximum(1.0 - cr2, 0.0))  # np.clip(., 0, None), without its overhead
+    band = np.flatnonzero(band)
+    qxb, qyb = q[0].ravel()[band], q[1].ravel()[band]
     samples = None
     if len(qxb):
         # the samples of pixel (y, x): its centre's coordinates plus A^-1 (o_j, o_i)
@@ -93,15 +98,17 @@ def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: in
         sz = np.subtract(1.0, r2s)
         np.sqrt(np.maximum(sz, 0.0, out=sz), out=sz)
         samples = (sx, sy, sz, ~(r2s < 1.0))
-    return q, qz, r2 < 1.0, band, samples
+    return (h, w), (core, cx, cy, cz), band, samples
 
 
 def _render_sphere(normals, light) -> np.ndarray:
     """:func:`_lit_sphere_image` (band path) at ``light`` from :func:`_sphere_normals`' geometry:
     the same operations in the same order on the same numbers (bit-identical)."""
-    q, qz, inside, band, samples = normals
+    shape, (core, cx, cy, cz), band, samples = normals
     lx, ly, lz = light
-    out = np.where(inside, np.maximum(q[0] * lx + q[1] * ly + qz * lz, 0.0), 0.0)
+    # float32 throughout: each float64 value is rounded once on assignment, as astype rounds it
+    out = np.zeros(shape[0] * shape[1], np.float32)
+    out[core] = np.maximum(cx * lx + cy * ly + cz * lz, 0.0)
     if samples is not None:
         sx, sy, sz, outside = samples
         v = sx * lx
@@ -110,7 +117,7 @@ def _render_sphere(normals, light) -> np.ndarray:
         np.maximum(v, 0.0, out=v)
         np.putmask(v, outside, 0.0)
         out[band] = v.mean(axis=(1, 2))
-    return out.astype(np.float32)
+    return out.reshape(shape)
 
 
 @functools.lru_cache(maxsize=1)
