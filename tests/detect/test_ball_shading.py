@@ -139,7 +139,7 @@ def test_blurred_phase_search_warm_started_from_a_nearby_frame(phase):
     and slope, finds the cold search's phase (to its tolerance) with fewer renders."""
     from stillcap.detect.ball._shading import _blurred_phase_light, _lit_frame, _renderer
     img, balls, outl = _row_of_balls(8.0, 1.5, phase)
-    psf = float(np.sqrt(1.5 ** 2 + 0.7 ** 2 - 0.7 ** 2))
+    psf = 1.5  # the lens blur the balls are drawn with
     n_cold = n_warm = 0
     for lin, c, o in _ball_crops(img, balls, outl)[:4]:
         warm = {}
