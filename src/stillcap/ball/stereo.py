@@ -308,14 +308,14 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         return float(np.median(est)) if len(est) else float("nan")
 
     blur = median_blur([cc for _, cc, _ in crops])
+    corrected = [None] * len(crops)
     for _ in range(BLUR_ROUNDS if shading else 0):
         if not np.isfinite(blur):
             break
-        corrected = []
-        for lin, cc, o in crops:
-            tpl = _hough_template(o)
-            corrected.append(cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(_SMOOTH_PX, blur)), 0.1,
-                                                smooth=_SMOOTH_PX))
+        # each round's corrected centre starts the next round's search (the blur moved a little)
+        corrected = [cc - _shading_bias(lin, cc, o, _hough_template(o), 0.0, float(np.hypot(_SMOOTH_PX, blur)), 0.1,
+                                        smooth=_SMOOTH_PX, start=prev)
+                     for (lin, cc, o), prev in zip(crops, corrected)]
         new = median_blur(corrected)
         if not np.isfinite(new):
             break

@@ -54,38 +54,70 @@ def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px:
         qx = Ai[0, 0] * xs[None, :] + Ai[0, 1] * ys[:, None]
         qy = Ai[1, 0] * xs[None, :] + Ai[1, 1] * ys[:, None]
         return rad_of(qx, qy).reshape(h, ss, w, ss).mean(axis=(1, 3)).astype(np.float32)
+    return _render_sphere(_sphere_normals(shape, center, A, band_px, q, ss), light)
+
+
+def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3, r2=None):
+    """The light-independent part of :func:`_lit_sphere_image`'s band path (``band_px`` given):
+    the sphere's normals at the pixel centres and at the band pixels' ``ss x ss`` samples, with
+    their masks, for :func:`_render_sphere`. The phase searches of :func:`_shading_bias` render
+    the same outline in the same crop at several lights: its geometry (most of a render's time)
+    is computed once (the same numbers as computing it each time). ``r2``: ``q[0]**2 + q[1]**2``
+    if the caller has it."""
+    h, w = shape
+    o = (np.arange(ss) + 0.5) / ss - 0.5
+    Ai = _small_linalg.inv(np.asarray(A, float))
     if q is None:
         yy, xx = np.mgrid[0:h, 0:w]
         q = np.einsum("ij,jhw->ihw", Ai, np.stack([xx - center[0], yy - center[1]]).astype(float))
     sv = _small_linalg.svdvals(np.asarray(A, float))  # the outline's semi-axes (px)
-    r2 = q[0] ** 2 + q[1] ** 2
+    if r2 is None:
+        r2 = q[0] ** 2 + q[1] ** 2
     # a pixel within band_px of the limb lies beyond 1 - band / (largest semi-axis) in these
     # coordinates; a pixel whose samples (<= 0.5 px from its centre) are all outside the outline,
     # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
     r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
     r_out = 1.0 + 1.5 / sv[-1]
-    out = rad_of(q[0], q[1], r2)
     band = (r2 > r_in * r_in) & (r2 < r_out * r_out)
-    qxb, qyb = q[0][band], q[1][band]
+    # the pixels inside the outline and off the band: one sample at their centre (the rest of
+    # the crop is 0); flat indices and their coordinates, rendered as a 1-D array
+    core = np.flatnonzero((r2 < 1.0) & ~band)
+    cx, cy, cr2 = q[0].ravel()[core], q[1].ravel()[core], r2.ravel()[core]
+    cz = np.sqrt(np.maximum(1.0 - cr2, 0.0))  # np.clip(., 0, None), without its overhead
+    band = np.flatnonzero(band)
+    qxb, qyb = q[0].ravel()[band], q[1].ravel()[band]
+    samples = None
     if len(qxb):
         # the samples of pixel (y, x): its centre's coordinates plus A^-1 (o_j, o_i)
         dqx = Ai[0, 0] * o[None, :] + Ai[0, 1] * o[:, None]  # (ss_y, ss_x)
         dqy = Ai[1, 0] * o[None, :] + Ai[1, 1] * o[:, None]
-        # rad_of on the samples (nb, ss, ss), its arithmetic in place (the same operations in
-        # the same order, without its temporaries: most of this function's time)
-        qx = qxb[:, None, None] + dqx[None]
-        qy = qyb[:, None, None] + dqy[None]
-        r2s = qx * qx
-        r2s += qy * qy
-        qz = np.subtract(1.0, r2s)
-        np.sqrt(np.maximum(qz, 0.0, out=qz), out=qz)
-        qx *= lx
-        qx += np.multiply(qy, ly, out=qy)
-        qx += np.multiply(qz, lz, out=qz)
-        np.maximum(qx, 0.0, out=qx)
-        np.putmask(qx, ~(r2s < 1.0), 0.0)
-        out[band] = qx.mean(axis=(1, 2))
-    return out.astype(np.float32)
+        sx = qxb[:, None, None] + dqx[None]
+        sy = qyb[:, None, None] + dqy[None]
+        r2s = sx * sx
+        r2s += sy * sy
+        sz = np.subtract(1.0, r2s)
+        np.sqrt(np.maximum(sz, 0.0, out=sz), out=sz)
+        samples = (sx, sy, sz, ~(r2s < 1.0))
+    return (h, w), (core, cx, cy, cz), band, samples
+
+
+def _render_sphere(normals, light) -> np.ndarray:
+    """:func:`_lit_sphere_image` (band path) at ``light`` from :func:`_sphere_normals`' geometry:
+    the same operations in the same order on the same numbers (bit-identical)."""
+    shape, (core, cx, cy, cz), band, samples = normals
+    lx, ly, lz = light
+    # float32 throughout: each float64 value is rounded once on assignment, as astype rounds it
+    out = np.zeros(shape[0] * shape[1], np.float32)
+    out[core] = np.maximum(cx * lx + cy * ly + cz * lz, 0.0)
+    if samples is not None:
+        sx, sy, sz, outside = samples
+        v = sx * lx
+        v += sy * ly
+        v += sz * lz
+        np.maximum(v, 0.0, out=v)
+        np.putmask(v, outside, 0.0)
+        out[band] = v.mean(axis=(1, 2))
+    return out.reshape(shape)
 
 
 @functools.lru_cache(maxsize=1)
@@ -112,11 +144,13 @@ def _phase_from_centroid(m: float) -> float:
     return float(np.interp(m, table, alpha))
 
 
-def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
+def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False, more: dict | None = None):
     """The outline's middle, its ellipse ``A``, the outline-normalised coordinates ``q`` (2, H, W)
     of the crop's pixels and the light direction read from the ball image's radiance centroid
     (:func:`_shading_bias`; None when the image has no radiance above its surroundings;
-    ``signed``: :func:`_radiance_centroid`'s)."""
+    ``signed``: :func:`_radiance_centroid`'s). ``more``: a dict given the centroid's window
+    (``"win"``, :func:`_centroid_window`) and the centroid itself (``"mq"``), for its callers to
+    reuse."""
     # the outline's own middle: off axis the image of the sphere centre is not the middle of
     # its (elongated) outline; the shading is modelled about the middle, orthographically
     mid = center + off.mean(axis=0)
@@ -127,7 +161,10 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
     xy[0] = np.arange(w) - mid[0]
     xy[1] = (np.arange(h) - mid[1])[:, None]
     q = np.einsum("ij,jhw->ihw", Ai, xy)
-    mq = _radiance_centroid(lin, q, signed)
+    win = _centroid_window(q)
+    mq = _radiance_centroid(lin, q, signed, win)
+    if more is not None:
+        more.update(win=win, mq=mq)
     if mq is None:
         return mid, A, q, None
     mn = float(np.hypot(*mq))
@@ -138,7 +175,8 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False):
 
 
 def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
-                  blur: float, fine_step: float, smooth: float = 0.7, thin_rim: bool = False) -> np.ndarray:
+                  blur: float, fine_step: float, smooth: float = 0.7, thin_rim: bool = False,
+                  start=None) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
     The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
@@ -172,8 +210,14 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     too low (faint crescents at 150-165 deg read as 80-100 deg; the correction then left
     0.8-1.0 px of the ~1 px bias toward the light, 0.3-0.4 px with signed weights:
     ``benchmarks/bench_ball_detect.py --only-missed``).
+
+    ``start``: a centre (crop px) near the corrected one, such as this ball's corrected centre at
+    a slightly different ``blur`` (:func:`stillcap.ball.stereo.photo_blur_px`' next round): the
+    corrected centre's first secant step goes there (its projection on the bias's direction)
+    instead of to ``center - bias``; the steps after it and the tolerance are the same.
     """
-    mid, A, q, light = _lit_frame(lin, center, off, thin_rim)
+    more0 = {}
+    mid, A, q, light = _lit_frame(lin, center, off, thin_rim, more0)
     if light is None:
         return np.zeros(2)
     # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
@@ -210,17 +254,21 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     psf = float(np.sqrt(max(blur * blur - smooth * smooth, 0.0)))
     kf = max(2, int(round(0.3 / fine_step)))
     center = np.asarray(center, float)
+    warm = {}  # the phase search's last phase and slope, from one frame to the next
 
-    def bias_at(c, frame=None):
-        mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim) if frame is None else frame
+    def bias_at(c, frame=None, more=None):
+        more = {} if more is None else more
+        mid_c, A_c, q_c, light_c = _lit_frame(lin, c, off, thin_rim, more) if frame is None else frame
         if light_c is None:
             return None
-        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim)
-        model = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid_c, A_c, light_c, band_px=band, q=q_c),
-                                 (0, 0), blur)
+        win = more.get("win") or _centroid_window(q_c)
+        render = _renderer(lin.shape, mid_c, A_c, band, q_c, win[2])
+        light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim, render=render,
+                                       warm=warm, win=win, mq=more.get("mq"))
+        model = cv2.GaussianBlur(render(light_c), (0, 0), blur)
         return np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
 
-    bias = bias_at(center, (mid, A, q, light))
+    bias = bias_at(center, (mid, A, q, light), more0)
     size = float(np.hypot(*bias))
     if size < 1e-6:
         return bias
@@ -230,6 +278,10 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     # bias of the evaluated centre with the smallest |h| is returned
     lo, hi = (0.0, -size), None
     t_prev, h_prev, t = 0.0, -size, size
+    if start is not None:
+        t_start = float((center - np.asarray(start, float)) @ u)
+        if np.isfinite(t_start) and t_start > 0.0:
+            t = min(t_start, 4.0 * size + 0.2)
     best_h, best_bias = size, bias
     for _ in range(FRAME_ROUNDS):
         b = bias_at(center - t * u)
@@ -251,12 +303,27 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     return best_bias
 
 
+def _renderer(shape, mid, A: np.ndarray, band: float, q, r2=None):
+    """``light -> _lit_sphere_image(shape, mid, A, light, band_px=band, q=q)``: the geometry
+    computed once (:func:`_sphere_normals`) and the renders kept (the phase search's chosen
+    light is the model's: rendered once, not twice). The images are shared: do not write to them."""
+    normals = _sphere_normals(shape, mid, A, band, q, r2=r2)
+    done = {}
+
+    def render(light):
+        key = tuple(float(v) for v in light)
+        if key not in done:
+            done[key] = _render_sphere(normals, key)
+        return done[key]
+    return render
+
+
 #: secant rounds of the corrected centre in :func:`_shading_bias`
 FRAME_ROUNDS = 8
 
 
 def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed: bool = False,
-                         rounds: int = 6):
+                         rounds: int = 6, render=None, warm: dict | None = None, win=None, mq=None):
     """The light direction whose lit sphere, blurred by the lens (``psf``, Gaussian sigma px),
     has the photo's radiance centroid as :func:`_lit_frame` measures it (same window, level and
     weights); its azimuth is ``light``'s, its phase angle found by secant steps from ``light``'s.
@@ -270,14 +337,24 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
     as 71 deg and 130 deg as 88 deg, and the correction then left 0.25 and 0.8 px toward the light
     (0.07 and 0.08 px with the true phase). The model measured through the same window has the
     same loss, so its phase is the light's (``docs/ball-detection.md``, "blurred phase").
-    Written by hand: the window's loss depends on the outline, blur and phase together; no
-    library tabulates it."""
-    r2 = q[0] ** 2 + q[1] ** 2
-    if psf < 0.05 or not np.any(r2 > 1.3 ** 2):
+    ``render``: the sharp model at a light (:func:`_renderer`'s, to share its geometry and renders
+    with the caller); ``win``, ``mq``: the window and the photo's centroid if the caller has them
+    (:func:`_lit_frame`'s ``more``). ``warm``: a dict the search leaves its phase, the sharp table's phase and its
+    last secant slope in; given them back (the next frame of :func:`_shading_bias`' corrected
+    centre, a fraction of a pixel away), it starts from that phase moved as the table's moved and
+    takes its first step along that slope (2 renders where a cold start takes 3; the same phase to
+    the search's tolerance, 1e-4 radii of centroid). Written by hand: the window's loss depends
+    on the outline, blur and phase together; no library tabulates it."""
+    if win is None:
+        win = _centroid_window(q)
+    if psf < 0.05 or not np.any(win[1]):
         return light
-    mq = _radiance_centroid(lin, q, signed)
+    if mq is None:
+        mq = _radiance_centroid(lin, q, signed, win)
     if mq is None:
         return light
+    if render is None:
+        render = _renderer(lin.shape, mid, A, band, q)
     m_obs = float(np.hypot(*mq))
     az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
     a_max = np.radians(175.0)
@@ -286,22 +363,42 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         return (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
 
     def miss(a):
-        img = cv2.GaussianBlur(_lit_sphere_image(lin.shape, mid, A, light_at(a), band_px=band, q=q), (0, 0), psf)
-        m = _radiance_centroid(img, q, signed)
+        img = cv2.GaussianBlur(render(light_at(a)), (0, 0), psf)
+        m = _radiance_centroid(img, q, signed, win)
         return float("nan") if m is None else float(np.hypot(*m)) - m_obs
 
-    a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
-    f = miss(a)
-    if not np.isfinite(f):
-        return light
-    # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+    a_sharp = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
+    f = float("nan")
+    if warm:
+        # the search of a nearby frame of the same ball: its phase, moved as the sharp table's
+        # moved, and its slope for the first step
+        a = float(np.clip(warm["a"] + (a_sharp - warm["a_sharp"]), 0.0, a_max))
+        f = miss(a)
+        if np.isfinite(f) and abs(f) < 1e-4:
+            warm.update(a=a, a_sharp=a_sharp)
+            return light_at(a)
+    if np.isfinite(f):
+        if warm["slope"] > 0:
+            step = float(np.clip(-f / warm["slope"], -np.radians(10.0), np.radians(10.0)))
+        else:
+            step = np.radians(5.0) * (1.0 if f < 0 else -1.0)
+    else:
+        a = a_sharp
+        f = miss(a)
+        if not np.isfinite(f):
+            return light
+        # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+        step = np.radians(5.0) * (1.0 if f < 0 else -1.0)
     a_prev, f_prev = a, f
-    a = float(np.clip(a + np.radians(5.0) * (1.0 if f < 0 else -1.0), 0.0, a_max))
+    a = float(np.clip(a + step, 0.0, a_max))
     best_a, best_f = a_prev, abs(f_prev)
+    slope = float("nan")
     for _ in range(rounds):
         f = miss(a)
         if not np.isfinite(f):
             break
+        if a != a_prev:
+            slope = (f - f_prev) / (a - a_prev)
         if abs(f) < best_f:
             best_a, best_f = a, abs(f)
         if abs(f) < 1e-4 or f == f_prev:
@@ -309,6 +406,8 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         a, a_prev, f_prev = float(np.clip(a - f * (a - a_prev) / (f - f_prev), 0.0, a_max)), a, f
         if a == a_prev:  # held at an end of the range
             break
+    if warm is not None:
+        warm.update(a=best_a, a_sharp=a_sharp, slope=slope if np.isfinite(slope) else float("nan"))
     return light_at(best_a)
 
 
@@ -338,10 +437,11 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
     level = float(median(lin[ring]))
     a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
     az = np.array(light[:2]) / max(float(np.hypot(light[0], light[1])), 1e-12)
+    normals = _sphere_normals(lin.shape, mid, A, band, q)
 
     def clipped_at(a):
         lt = (np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))
-        sharp = _lit_sphere_image(lin.shape, mid, A, lt, band_px=band, q=q)
+        sharp = _render_sphere(normals, lt)
         m = cv2.GaussianBlur(sharp, (0, 0), psf) if psf > 0.05 else sharp
         # the gain that clips as many pixels as the photo has clipped (the clipped area is what
         # pins it: a fit to the unclipped pixels leans on the dim limb and the background)
@@ -378,21 +478,28 @@ def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
     return float("nan") if mq is None else float(np.hypot(*mq))
 
 
-def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False):
+def _centroid_window(q: np.ndarray):
+    """:func:`_radiance_centroid`'s masks for the coordinates ``q``: (within 1.15 radii, the ring
+    beyond 1.3, and the squared radius ``r2`` itself), to compute once for several images over the
+    same crop."""
+    r2 = q[0] ** 2 + q[1] ** 2
+    return r2 < 1.15 ** 2, r2 > 1.3 ** 2, r2
+
+
+def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win=None):
     """Centroid (outline radii, shape (2,)) of ``img``'s radiance above the level of the ring
     beyond 1.3 radii, over the pixels within 1.15 radii; None when nothing is above it.
 
     ``signed``: the level is the ring's mean and the weights are not clipped at 0, so zero-mean
     noise (and noise clipped at black, whose mean the median misses) adds nothing on average
     (for a faint ball whose noisy dark disc, rectified, outweighs a thin lit rim)."""
-    r2 = q[0] ** 2 + q[1] ** 2
-    ring = (r2 > 1.3 ** 2)
+    inside, ring = (_centroid_window(q) if win is None else win)[:2]
     if signed:
         level = float(img[ring].mean()) if ring.any() else 0.0
-        wgt = np.where(r2 < 1.15 ** 2, img - level, 0.0)
+        wgt = np.where(inside, img - level, 0.0)
     else:
         level = median(img[ring]) if ring.any() else 0.0
-        wgt = np.where(r2 < 1.15 ** 2, np.maximum(img - level, 0.0), 0.0)
+        wgt = np.where(inside, np.maximum(img - level, 0.0), 0.0)
     tot = float(wgt.sum())
     if not tot > 0:
         return None
