@@ -168,7 +168,7 @@ def test_shading_bias_started_at_its_answer():
     blur read): started at the corrected centre it returns the same bias to the secant's
     tolerance, with fewer renders of the model (8 px balls at 110 deg under 1.5 px of blur)."""
     import stillcap.detect.ball._shading as shading
-    from stillcap.ball.stereo import _hough_template
+    from stillcap.detect.ball._refine import hough_template
     img, balls, outl = _row_of_balls(8.0, 1.5, 110.0)
     blur = float(np.hypot(0.7, 1.5))
     peaks = []
@@ -181,7 +181,7 @@ def test_shading_bias_started_at_its_answer():
     diffs = []
     for lin, c, o in _ball_crops(img, balls, outl):
         c = c + (0.4, 0.0)  # an uncorrected centre, toward the light
-        tpl = _hough_template(o)
+        tpl = hough_template(o)
         try:
             shading._model_peak = counted
             peaks.clear()

@@ -21,8 +21,8 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
                                   sphere_outline_px)
 from stillcap.detect.ball._foreground import _check_image
-from stillcap.detect.ball._hough import _template
-from stillcap.detect.ball._refine import _linear_max, _response_lut
+from stillcap.detect.ball._arcs import REFINE_SMOOTH_PX
+from stillcap.detect.ball._refine import _linear_max, _response_lut, hough_template
 from stillcap.detect.ball._shading import _shading_bias, limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
@@ -309,13 +309,14 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
 
     blur = median_blur([cc for _, cc, _ in crops])
     corrected = [None] * len(crops)
+    templates = [hough_template(o) for _, _, o in crops] if shading else []
     for _ in range(BLUR_ROUNDS if shading else 0):
         if not np.isfinite(blur):
             break
         # each round's corrected centre starts the next round's search (the blur moved a little)
-        corrected = [cc - _shading_bias(lin, cc, o, _hough_template(o), 0.0, float(np.hypot(_SMOOTH_PX, blur)), 0.1,
-                                        smooth=_SMOOTH_PX, start=prev)
-                     for (lin, cc, o), prev in zip(crops, corrected)]
+        corrected = [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
+                                        smooth=REFINE_SMOOTH_PX, start=prev)
+                     for (lin, cc, o), tpl, prev in zip(crops, templates, corrected)]
         new = median_blur(corrected)
         if not np.isfinite(new):
             break
@@ -328,19 +329,6 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
 
 #: rounds of :func:`photo_blur_px` at shading-corrected centres
 BLUR_ROUNDS = 2
-
-#: the refinement's smoothing before its gradient (``refine_ball_centers``' ``sigma`` default)
-_SMOOTH_PX = 0.7
-
-
-def _hough_template(off: np.ndarray) -> tuple:
-    """The known-radius Hough's template of an outline (M, 2), as ``refine_ball_centers`` builds
-    it: offsets, inward normals and arc-length weights (summing to 1), float32 rows."""
-    nrm, wt = _template(off)
-    wt = (wt / wt.sum()).astype(np.float32)
-    off32, nrm32 = off.T.astype(np.float32), nrm.T.astype(np.float32)
-    return (off32[0], off32[1], nrm32[0], nrm32[1], wt)
-
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:
     """Semi-major axis of the detections' ellipses (split balls: their circle radius; EDGE

@@ -576,10 +576,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     d_floor = None  # the leather's darkness noise as a function of its brightness (below)
     s_floor, s_noise, ref, floors = None, None, ch_sat.reshape(-1).astype(float), None
     if adapt_thresholds and prep and sat_lit:
-        s_noise = _robust_ceiling(np.concatenate(sat_lit))
-        d_noise = _robust_ceiling(np.concatenate(dk_lit))
-        d_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(dk_lit))
-        s_floor = _noise_by_brightness(np.concatenate(vc_lit), np.concatenate(sat_lit), monotone="isotonic")
+        sat_all, dk_all, vc_all = np.concatenate(sat_lit), np.concatenate(dk_lit), np.concatenate(vc_lit)
+        s_noise = _robust_ceiling(sat_all)
+        d_noise = _robust_ceiling(dk_all)
+        d_floor = _noise_by_brightness(vc_all, dk_all)
+        s_floor = _noise_by_brightness(vc_all, sat_all, monotone="isotonic")
         ref_d = max(1.0 - v_pal, 0.1)
         peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
         if chroma and ch_peak and s_floor is not None:

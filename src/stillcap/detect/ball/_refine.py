@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap.detect.ball._arcs import REFINE_SMOOTH_PX
 from stillcap.detect.ball._foreground import _check_image
 from stillcap.detect.ball._hough import (_gradient, _grid_peak, _percentile, _quad_peak, _resample_params,
                                          _score, _template)
@@ -49,8 +50,18 @@ def _response_lut(response) -> np.ndarray:
     return Response.from_json(response, "response").to_linear_lut()
 
 
+def hough_template(off: np.ndarray) -> tuple:
+    """The known-radius Hough's template of an outline ``off`` (M, 2), relative to the centre:
+    offsets x, y, inward normals x, y and arc-length weights summing to 1, as contiguous float32
+    rows (what :func:`refine_ball_centers` and the shading correction score with)."""
+    nrm, wt = _template(off)
+    wt = (wt / wt.sum()).astype(np.float32)
+    off32, nrm32 = off.T.astype(np.float32), nrm.T.astype(np.float32)
+    return (off32[0], off32[1], nrm32[0], nrm32[1], wt)
+
+
 def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None, background=None,
-                        response: Response | None = None, sigma: float = 0.7, power: float = 0.0, fine_step: float = 0.1,
+                        response: Response | None = None, sigma: float = REFINE_SMOOTH_PX, power: float = 0.0, fine_step: float = 0.1,
                         min_score: float = 0.2, min_edge: float = 0.004, start_refined: bool = False,
                         shading=False, psf_px: float = 0.5, shading_support: float = 0.7,
                         crescent=None) -> RefinedCenters:
@@ -191,8 +202,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
                 t_old, t_new = _resample_params(len(off), m)
                 closed = closed_all[i]
                 off = np.stack([np.interp(t_new, t_old, closed[:, 0]), np.interp(t_new, t_old, closed[:, 1])], 1)
-        nrm, wt = _template(off)
-        wt = (wt / wt.sum()).astype(np.float32)
+        tpl = hough_template(off)
         s = float(search[i])
         ext = float(np.abs(off).max()) + s + 3.0 * sigma + 3.0
         x0, y0 = int(np.floor(c0[i, 0] - ext)), int(np.floor(c0[i, 1] - ext))
@@ -212,8 +222,6 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
         if sigma > 0:
             crop = cv2.GaussianBlur(crop, (0, 0), sigma)
         g2 = _gradient(crop)
-        off32, nrm32 = off.T.astype(np.float32), nrm.T.astype(np.float32)  # contiguous rows
-        tpl = (off32[0], off32[1], nrm32[0], nrm32[1], wt)
         cx, cy = c0[i, 0] - xa, c0[i, 1] - ya
         # Coarse to fine: a 2 px grid over the search window on a more smoothed gradient with
         # every 2nd outline point (its peak is wide enough not to fall between grid points),
@@ -240,7 +248,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
         _, gn = _score(g2, np.array([best[0]], np.float32), np.array([best[1]], np.float32),
                        *tpl, power)
         gmax = _percentile(gn, 90.0)
-        support = float(wt @ (gn[0] > max(0.25 * gmax, min_edge)))
+        support = float(tpl[4] @ (gn[0] > max(0.25 * gmax, min_edge)))
         scores[i] = support
         outside = np.hypot(best[0] - cx, best[1] - cy) > s * np.sqrt(2) + 1.0
         if outside or support < min_score or fs.max() <= 0:

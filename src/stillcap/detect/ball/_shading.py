@@ -10,6 +10,7 @@ import numpy as np
 
 from stillcap._numeric import median
 from stillcap.detect import _small_linalg
+from stillcap.detect.ball._arcs import REFINE_SMOOTH_PX
 from stillcap.detect.ball._hough import _gradient, _grid_peak, _quad_peak
 
 
@@ -175,7 +176,7 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False, m
 
 
 def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
-                  blur: float, fine_step: float, smooth: float = 0.7, thin_rim: bool = False,
+                  blur: float, fine_step: float, smooth: float = REFINE_SMOOTH_PX, thin_rim: bool = False,
                   start=None) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
