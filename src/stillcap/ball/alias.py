@@ -196,6 +196,9 @@ class AliasCandidate:
         Consistency with each strobe measurement (0 for the source).
     chi2_curvature : float
         Consistency with the flight curvature (0 without it).
+    chi2_markers : float
+        The joint fit's marker misfit above the best solution's (:func:`resolve_joint_fits`; 0
+        for candidates ranked on the strobe measurements).
     chi2 : float
         Total.
     probability : float
@@ -212,6 +215,7 @@ class AliasCandidate:
     chi2_curvature: float = 0.0
     chi2: float = 0.0
     probability: float = float("nan")
+    chi2_markers: float = 0.0
 
 
 @dataclass
@@ -382,16 +386,13 @@ def resolve_aliases(measurements, curvature: CurvatureMeasurement | None = None,
     evidence = [m.name or f"{m.strobe_hz:g} Hz" for m in meas]
     if curvature is not None:
         evidence.append("curvature")
-        e_meas = curvature.transverse
-        tol2 = (curvature_rel_sigma * np.linalg.norm(e_meas)) ** 2 + curvature_floor ** 2
-        Sc = curvature.covariance + tol2 * np.eye(2)
     for c in cands:
         c.chi2_strobes = np.array([0.0 if j == c.source else
                                    _strobe_chi2(c.spin, m, rate_tol, axis_tol)
                                    for j, m in enumerate(meas)])
         if curvature is not None:
-            d = curvature.effective(c.spin) - e_meas
-            c.chi2_curvature = float(d @ np.linalg.solve(Sc, d))
+            c.chi2_curvature = curvature_chi2(curvature, c.spin, rel_sigma=curvature_rel_sigma,
+                                              floor=curvature_floor)
     use_all = np.ones(len(meas), bool)
     merged, ratio, dof, consistent = _rank(cands, use_all, curvature is not None, merge_rpm, merge_deg, consistency_p)
     left_out = []
@@ -445,6 +446,159 @@ def resolve_aliases(measurements, curvature: CurvatureMeasurement | None = None,
         msg += "; the best candidate's axis is not determined by its measurement"
     return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg, bool(consistent), int(dof),
                            left_out)
+
+
+def curvature_chi2(curvature: CurvatureMeasurement, spin, *, rel_sigma: float = 0.1, floor: float = 5.0) -> float:
+    """Chi-square of a spin vector (rad/s, world) against what the flight's curvature shows:
+    the difference of :meth:`CurvatureMeasurement.effective` from the fitted transverse spin,
+    weighed with the fit's covariance plus the lift law's tolerance ``rel_sigma * |measured|
+    (+) floor`` (rad/s) per component (2 degrees of freedom; :func:`resolve_aliases`)."""
+    e = curvature.transverse
+    tol2 = (rel_sigma * np.linalg.norm(e)) ** 2 + floor ** 2
+    d = curvature.effective(spin) - e
+    return float(d @ np.linalg.solve(curvature.covariance + tol2 * np.eye(2), d))
+
+
+def flight_informed_spin(curvature: CurvatureMeasurement, spin) -> np.ndarray:
+    """A start for the markers' fit: ``spin``'s part along the flight (which the curvature cannot
+    see) with the transverse part the flight's curvature shows (rad/s, world).
+
+    With a few markers per flash the constant-spin fit has several minima, and which one a
+    start falls into can turn on a single marker (issue 12: a pair's own fit found the right
+    rate about an axis 91 deg off; started from this spin, the fit of all pairs' markers fell
+    into the minimum that explains every marker). With the seed's lift law (``"total"``: the
+    curvature sees ``|w|`` along the transverse direction) the transverse part gets the
+    direction the curvature shows and the length that keeps ``|w|`` the curvature's; when the
+    part along the flight alone exceeds that rate, it is kept and the transverse part dropped."""
+    w = as_array(spin, (3,), "spin")
+    B = curvature.basis
+    along = np.cross(B[:, 0], B[:, 1])
+    along = along / np.linalg.norm(along)
+    g = float(w @ along)
+    e = curvature.transverse
+    if curvature.lift == "transverse":
+        return g * along + B @ e
+    ne = float(np.linalg.norm(e))
+    if not ne > 0:
+        return g * along
+    return g * along + np.sqrt(max(ne * ne - g * g, 0.0)) * (B @ (e / ne))
+
+
+def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None, measurements=(), *,
+                       cap_deg: float = 8.0, curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
+                       rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
+                       ambiguity_ratio: float = 0.05, same_p: float = 0.05,
+                       consistency_p: float = 1e-3) -> AliasResolution:
+    """Rank fits of one constant spin to the same marker observations (from different starts:
+    other aliases, the flight's transverse spin, no start) by the full evidence: the markers
+    themselves and the flight's curvature.
+
+    The strobe measurements that :func:`resolve_aliases` weighs are the pairs' own fits, each to
+    part of these markers; a pair whose markers fix the ball's orientation at few flashes can
+    settle on a wrong minimum with a small covariance. Here every solution is scored on all the
+    markers at once: its capped cost ``sum min(d_i, cap)^2`` over every observation (the
+    robust cost the fit itself chooses its starts by; ``d_i`` the angle to the assigned marker)
+    in units of the marker noise the best-fitting solution shows (``sigma^2`` the mean ``d^2``
+    of its inliers: the chi-square of a Gaussian marker noise, an observation beyond ``cap``
+    costing the same in every solution it misses), plus :func:`curvature_chi2`. The markers'
+    term is reported relative to the lowest (``chi2_markers``).
+
+    Solutions whose spins agree within their summed covariances (``1 - same_p`` quantile of a
+    chi-square with 3 degrees of freedom) are one solution (the better-scoring one is kept).
+    ``ambiguous`` when the runner-up's likelihood ``exp(-chi2 / 2)`` is at least
+    ``ambiguity_ratio`` of the best's, or when the best disagrees with the curvature beyond its
+    ``1 - consistency_p`` quantile (2 degrees of freedom). ``measurements`` (the pairs' own
+    spins, :class:`StrobeMeasurement`) are compared with each solution for the record
+    (``chi2_strobes``); those the best solution contradicts at the same quantile (3 degrees of
+    freedom) are named in ``left_out``. They add nothing to ``chi2``: their markers are in it.
+
+    Parameters
+    ----------
+    solutions : sequence of SpinResult
+        Successful fits to the same observations (``residuals_deg`` and ``inliers`` of equal
+        length); the first is the one the strobe measurements chose.
+
+    Returns
+    -------
+    AliasResolution
+        Candidates best first; ``source`` of each is its index in ``solutions``.
+    """
+    sols = list(solutions)
+    if not sols:
+        raise ValueError("need at least one spin solution, got 0")
+    m = len(sols[0].residuals_deg)
+    if any(len(s.residuals_deg) != m or len(s.inliers) != m for s in sols):
+        raise ValueError("the spin solutions must be fits to the same observations (residuals of equal length)")
+    meas = [mm if isinstance(mm, StrobeMeasurement) else StrobeMeasurement.from_result(mm) for mm in measurements]
+    rate_tol = rate_tolerance_rpm / RPM_PER_RAD_S
+    axis_tol = np.radians(axis_tolerance_deg)
+    capped = []
+    for s in sols:
+        d = np.nan_to_num(np.asarray(s.residuals_deg, float), nan=cap_deg)
+        capped.append(float(np.sum(np.minimum(d, cap_deg) ** 2)))
+    ref = sols[int(np.argmin(capped))]
+    d_ref = np.asarray(ref.residuals_deg, float)[np.asarray(ref.inliers, bool)]
+    sigma2 = max(float(np.mean(d_ref ** 2)) if len(d_ref) else 0.0, 1e-6)
+    cands = []
+    for i, (s, c) in enumerate(zip(sols, capped)):
+        w = np.asarray(s.spin, float)
+        n = float(np.linalg.norm(w))
+        k = AliasCandidate(w.copy(), n * RPM_PER_RAD_S, w / n if n > 0 else np.full(3, np.nan), 0, i)
+        k.chi2_markers = c / sigma2
+        k.chi2_strobes = np.array([_strobe_chi2(w, mm, rate_tol, axis_tol) for mm in meas])
+        if curvature is not None:
+            k.chi2_curvature = curvature_chi2(curvature, w, rel_sigma=curvature_rel_sigma, floor=curvature_floor)
+        k.chi2 = k.chi2_markers + k.chi2_curvature
+        cands.append(k)
+    lo = min(k.chi2_markers for k in cands)
+    for k in cands:
+        k.chi2_markers -= lo
+        k.chi2 -= lo
+    order = sorted(range(len(cands)), key=lambda i: cands[i].chi2)
+    same_lim = float(chdtri(3, same_p))
+    kept = []
+    for i in order:
+        ci = sols[i].spin_covariance
+        dup = False
+        for j in kept:
+            C = np.asarray(ci, float) + np.asarray(sols[j].spin_covariance, float)
+            dw = cands[i].spin - cands[j].spin
+            if np.all(np.isfinite(C)) and np.all(np.isfinite(dw)):
+                try:
+                    dup = float(dw @ np.linalg.solve(C + 1e-12 * np.eye(3), dw)) <= same_lim
+                except np.linalg.LinAlgError:
+                    dup = False
+            if dup:
+                break
+        if not dup:
+            kept.append(i)
+    merged = [cands[i] for i in kept]
+    chi = np.array([c.chi2 for c in merged])
+    like = np.exp(-0.5 * (chi - chi.min()))
+    for c, p in zip(merged, like / like.sum()):
+        c.probability = float(p)
+    ratio = float(like[1] / like[0]) if len(merged) > 1 else 0.0
+    best = merged[0]
+    dof = 2 if curvature is not None else 0
+    consistent = dof == 0 or best.chi2_curvature <= float(chdtri(dof, consistency_p))
+    strobe_lim = float(chdtri(3, consistency_p))
+    left_out = [mm.name or f"{mm.strobe_hz:g} Hz" for mm, c2 in zip(meas, best.chi2_strobes) if c2 > strobe_lim]
+    evidence = ["markers of all pairs"] + (["curvature"] if curvature is not None else [])
+    msg = f"all pairs' markers together{' and the flight curvature' if curvature is not None else ''}: best " \
+          f"{best.spin_rpm:.0f} rpm (p = {best.probability:.3f})"
+    if len(merged) > 1:
+        r = merged[1]
+        ang = float(np.degrees(np.arccos(np.clip(r.axis @ best.axis, -1, 1))))
+        msg += f", runner-up {r.spin_rpm:.0f} rpm, axis {ang:.0f} deg away (chi-square {r.chi2 - best.chi2:.1f} worse)"
+    if left_out:
+        msg += f"; the own spin of {', '.join(left_out)} contradicts it (a wrong minimum of its few markers)"
+    if not consistent:
+        msg += (f"; the flight's curvature disagrees (chi-square {best.chi2_curvature:.1f} with 2 degrees of "
+                "freedom): the markers or the flight model are wrong")
+    ambiguous = ratio >= ambiguity_ratio or not consistent
+    if ambiguous:
+        msg += ": ambiguous"
+    return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg, bool(consistent), int(dof), left_out)
 
 
 def _chi2_sf(x: float, dof: int) -> float:

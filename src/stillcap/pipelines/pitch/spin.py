@@ -78,18 +78,9 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
     (:func:`stillcap.ball.alias.resolve_aliases`).
 
     Returns ``(spin vector (3,) or None, AliasResolution or None)``."""
-    from stillcap.ball.alias import CurvatureMeasurement, StrobeMeasurement, resolve_aliases
+    from stillcap.ball.alias import resolve_aliases
 
-    meas, fixed = [], []
-    for p in pairs:
-        s = p.spin
-        if s is None or not s.success or not np.all(np.isfinite(s.spin)):
-            continue
-        cov = s.spin_covariance
-        if not np.all(np.isfinite(cov)):  # e.g. the seed method with one interval: no spread
-            cov = np.eye(3) * (20.0 / RPM_PER_RAD_S) ** 2
-        meas.append(StrobeMeasurement(s.spin, p.strobe_hz, cov, f"pair {p.name} ({p.strobe_hz:g} Hz)"))
-        fixed.append(_orientation_flashes(s, p.observations))
+    meas, fixed = _strobe_measurements(pairs)
     if not meas:
         return None, None
     # A pair whose markers fix the ball's orientation at fewer than 2 flashes measures no
@@ -107,12 +98,7 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
                                 f"orientation at {f} flash{'es' if f != 1 else ''}, fewer than "
                                 f"{MIN_ORIENTATION_FLASHES})")
         meas = [m for m, w in zip(meas, weak) if not w]
-    curv = None
-    if fit_curv is not None and np.all(np.isfinite(fit_curv.covariance[6:9, 6:9])):
-        try:
-            curv = CurvatureMeasurement.from_reference_fit(fit_curv, model)
-        except ValueError:
-            curv = None
+    curv = _curvature(fit_curv, model)
     res = resolve_aliases(meas, curv)
     if res.left_out:
         messages.append(f"spin alias chosen without {', '.join(res.left_out)}: it contradicts the rest of the evidence, "
@@ -122,6 +108,37 @@ def _resolve_alias(pairs: list, fit_curv: ReferenceFit, model: FlightModel, mess
     elif len(meas) == 1 and curv is None:
         messages.append("spin alias checked with one strobe rate only")
     return res.best.spin.copy(), res
+
+
+def _strobe_measurements(pairs: list):
+    """Each pair's own spin as a :class:`~stillcap.ball.alias.StrobeMeasurement`, and how many
+    flashes its inlier markers fix the ball's orientation at (:func:`_orientation_flashes`)."""
+    from stillcap.ball.alias import StrobeMeasurement
+
+    meas, fixed = [], []
+    for p in pairs:
+        s = p.spin
+        if s is None or not s.success or not np.all(np.isfinite(s.spin)):
+            continue
+        cov = s.spin_covariance
+        if not np.all(np.isfinite(cov)):  # e.g. the seed method with one interval: no spread
+            cov = np.eye(3) * (20.0 / RPM_PER_RAD_S) ** 2
+        meas.append(StrobeMeasurement(s.spin, p.strobe_hz, cov, f"pair {p.name} ({p.strobe_hz:g} Hz)"))
+        fixed.append(_orientation_flashes(s, p.observations))
+    return meas, fixed
+
+
+def _curvature(fit_curv: ReferenceFit | None, model: FlightModel):
+    """What the positions-only fit's curvature shows of the spin
+    (:class:`~stillcap.ball.alias.CurvatureMeasurement`), or None without a usable fit."""
+    from stillcap.ball.alias import CurvatureMeasurement
+
+    if fit_curv is None or not np.all(np.isfinite(fit_curv.covariance[6:9, 6:9])):
+        return None
+    try:
+        return CurvatureMeasurement.from_reference_fit(fit_curv, model)
+    except ValueError:
+        return None
 
 
 #: Flashes at which a pair's own spin fit must have 2 or more inlier markers (the ball's
@@ -174,8 +191,9 @@ def _center_shift_modes(parts: list, center_modes: list, radius_m: float | None)
 
 
 def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, radius_m: float | None = None):
-    """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``;
-    ``center_modes`` (one per pair, or None) as :func:`_center_shift_modes`'s.
+    """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``
+    (None: the fit's own starts, per-flash alignments and the grid); ``center_modes`` (one per
+    pair, or None) as :func:`_center_shift_modes`'s.
 
     Returns ``(SpinResult or None, reference-clock time of each observation)``."""
     parts, times, groups, modes = [], [], [], []
@@ -201,7 +219,7 @@ def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, 
                          ball2world_init=R_init, center_shift_cov=_center_shift_modes(parts, modes, radius_m)),
                 p.times[p.observations.flash])
     R_init = None
-    if src is not None:
+    if src is not None and spin_init is not None:
         R_init = Rotation.from_rotvec(-np.asarray(spin_init, float) * src.times[0]).as_matrix() @ src.spin.ball2world_t0
     t_all = np.concatenate(times)
     order = np.argsort(t_all, kind="stable")
@@ -256,6 +274,9 @@ def spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None,
         if spin is None or not spin.success:
             spin = _fit_pair_spin(best, "global", layout, spin_init=w_alias)
             obs_times = best.times[best.observations.flash]
+        else:
+            spin, obs_times, alias = _joint_decision(pairs, spin, obs_times, alias, _curvature(fit_pos, model), layout,
+                                                     messages, center_modes, radius_m)
     else:
         spin = best.spin
         obs_times = best.times[best.observations.flash]
@@ -268,6 +289,79 @@ def spin_stage(pairs, fit_pos, model, layout, method, messages, pair_spins=None,
     if spin is not None and not spin.success:
         messages.append(f"spin fit failed: {spin.message}")
     return spin, alias, obs_times
+
+
+#: Share of the marker observations the spin fit at the chosen alias must explain (inliers)
+#: for the alias choice to stand without the other aliases' and the fit's own starts
+#: (:func:`_joint_decision`); ``fit_spin``'s ``stop_fraction`` of the pairs' own fits.
+JOINT_INLIER_SHARE = 0.9
+#: Alias candidates of the strobe measurements refitted on all pairs' markers when the choice
+#: is in doubt (:func:`_joint_decision`; the candidates are ranked, the rest are unlikely).
+JOINT_MAX_CANDIDATES = 4
+
+
+def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, layout, messages: list,
+                    center_modes=None, radius_m: float | None = None):
+    """The alias and the minimum of the markers' fit decided on the full evidence: all pairs'
+    markers together and the flight's curvature (:func:`stillcap.ball.alias.resolve_joint_fits`).
+
+    The strobe measurements that chose the alias are the pairs' own fits; a pair whose few
+    markers fix the ball's orientation at one flash can settle on a wrong minimum (issue 12,
+    "light to the side" #0: the front pair's own fit found the right rate about an axis 91 deg
+    off; the fit of all pairs' markers started there kept 10 of 14 markers, started from the
+    flight's transverse spin it kept all 14, 1.0 deg RMS, and agreed with the curvature). So
+    the fit of all markers is started again from the flight's transverse spin
+    (:func:`~stillcap.ball.alias.flight_informed_spin`), and, when the choice is in doubt (the
+    strobe evidence ambiguous or contradicting itself, the first fit explaining fewer than
+    ``JOINT_INLIER_SHARE`` of the markers or disagreeing with the curvature), from the other
+    alias candidates, their flight-informed versions and the fit's own starts. The solutions
+    are ranked on the markers and the curvature. The first fit and the strobes' ranking stand
+    unless another solution scores better or comes within the ambiguity margin; otherwise the
+    joint ranking replaces them (its ``ambiguous`` widens the intervals through the
+    ``alias_margin`` check as before).
+
+    Returns ``(spin, reference-clock time of each observation, alias resolution)``."""
+    from scipy.special import chdtri
+
+    from stillcap.ball.alias import curvature_chi2, flight_informed_spin, resolve_joint_fits
+
+    if alias is None or first is None or not np.all(np.isfinite(first.spin)):
+        return first, first_times, alias
+    doubt = (bool(alias.ambiguous) or not bool(alias.consistent)
+             or first.n_inliers < JOINT_INLIER_SHARE * first.n_observations
+             or (curv is not None and curvature_chi2(curv, first.spin) > float(chdtri(2, 1e-3))))
+    starts = [] if curv is None else [flight_informed_spin(curv, first.spin)]
+    if doubt:
+        for c in alias.candidates[1:JOINT_MAX_CANDIDATES + 1]:
+            starts.append(np.asarray(c.spin, float))
+            if curv is not None:
+                starts.append(flight_informed_spin(curv, c.spin))
+        starts.append(None)
+    if not starts:
+        return first, first_times, alias
+    sols, sol_times = [first], [first_times]
+    scratch: list = []
+    for w in starts:
+        try:
+            s, t = _combined_spin(pairs, w, layout, scratch, center_modes, radius_m)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        if (s is not None and s.success and np.all(np.isfinite(s.spin)) and np.all(np.isfinite(s.spin_covariance))
+                and len(s.residuals_deg) == len(first.residuals_deg)):
+            sols.append(s)
+            sol_times.append(t)
+    meas, _ = _strobe_measurements(pairs)
+    joint = resolve_joint_fits(sols, curv, meas)
+    if joint.best.source == 0 and not doubt and not joint.ambiguous:
+        return first, first_times, alias  # the strobes' choice stands, unchanged
+    chosen = sols[joint.best.source]
+    if joint.best.source != 0:
+        ang = float(np.degrees(np.arccos(np.clip(chosen.axis @ first.axis, -1, 1))))
+        messages.append(f"spin decided on all pairs' markers and the flight: {chosen.spin_rpm:.0f} rpm (explains "
+                        f"{chosen.n_inliers} of {chosen.n_observations} markers) in place of the strobes' choice "
+                        f"{first.spin_rpm:.0f} rpm (axis {ang:.0f} deg away, explains {first.n_inliers}): "
+                        f"{joint.message}")
+    return chosen, sol_times[joint.best.source], joint
 
 
 def _with_spin(res: SpinResult, w) -> SpinResult:
