@@ -45,6 +45,13 @@ from the truth with a covariance of a few rpm; the front pair and the curvature 
 right alias (chi-square 0.01-0.1 for 2 dof) but the back pair's chi-square of 2600-130000
 outweighed them. With two items only (one pair and the curvature, or two pairs) nothing can tell
 which is wrong, and the result stays ambiguous.
+
+The strobe measurements are each pair's own fit to part of the markers.
+:func:`resolve_joint_fits` ranks fits of one spin to *all* the markers instead (from different
+starts: the chosen alias, the others, :func:`flight_informed_spin`), on the markers themselves
+and the curvature (:func:`curvature_chi2`); the pitch pipeline uses it when the strobe
+ranking's choice is in doubt or another start finds a better minimum
+(``stillcap.pipelines.pitch.spin``, ``docs/spin.md``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,9 @@ thread or in a worker process), the alias choice, and one spin over all pairs.
   and the flight's Magnus curvature (:mod:`stillcap.ball.alias`; a pair whose markers fix the
   ball's orientation at fewer than 2 flashes is no evidence while another pair's do), then (``"global"``) all pairs'
   markers refitted together on the reference clock at that alias, or (``"seed"``) the best
-  pair's per-flash fit moved to it.
+  pair's per-flash fit moved to it; with ``"global"`` the fit of all markers is started again
+  from the flight's transverse spin (and, when the choice is in doubt, from the other aliases),
+  and the solutions are ranked on all the markers and the curvature (:func:`_joint_decision`).
 - :func:`flight_spin_stage`: the transverse spin the flight alone shows (the positions-only fit,
   :mod:`stillcap.ball.spin_from_flight`), and with a marker spin the test of the two against
   each other and the spin efficiency they give.
