@@ -81,6 +81,10 @@ def test_an_ambiguous_alias_is_not_the_flights_spin_prior(tmp_path_factory, monk
     assert not np.allclose(plain.fit.params, plain.fit_positions_only.params)
     real = alias_mod.resolve_aliases
     monkeypatch.setattr(alias_mod, "resolve_aliases", lambda *a, **k: replace(real(*a, **k), ambiguous=True))
+    # an ambiguous strobe ranking is decided again on all the markers and the flight
+    # (pipelines.pitch.spin._joint_decision): ambiguous there too
+    real_joint = alias_mod.resolve_joint_fits
+    monkeypatch.setattr(alias_mod, "resolve_joint_fits", lambda *a, **k: replace(real_joint(*a, **k), ambiguous=True))
     res = analyse_pitch(Capture.load(root), PitchOptions())
     assert res.alias.ambiguous
     assert np.array_equal(res.fit.params, res.fit_positions_only.params)
