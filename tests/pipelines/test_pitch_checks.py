@@ -195,3 +195,5 @@ def test_faint_ball_images_sees_a_dim_crescent_not_noise_nor_a_neighbour():
     assert faint_ball_images(img, exp)[0]
     # the same light inside a silhouette found there (a neighbouring ball image) is not this one's
     assert not faint_ball_images(img, exp, [[55.0, 60.0]], [12.0])[0]
+    with pytest.raises(ValueError, match=r"image must have shape \(H, W\) or \(H, W, 3\), got \(4, 4, 2\)"):
+        faint_ball_images(np.zeros((4, 4, 2), np.uint8), exp)

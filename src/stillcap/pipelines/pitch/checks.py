@@ -55,8 +55,8 @@ from stillcap.ball.uncertainty import center_bias_modes
 from stillcap.detect.ball._arcs import faint_mask
 
 __all__ = ["CHECK_P", "pitch_self_checks", "flight_chi2", "pair_disagreement", "expected_ball_images",
-           "expected_flight", "faint_ball_images", "disagreement_factor", "ambiguous_alias_candidates", "widen_spin_for_aliases",
-           "identity_candidates"]
+           "expected_flight", "faint_ball_images", "disagreement_factor", "ambiguous_alias_candidates",
+           "widen_spin_for_aliases", "identity_candidates"]
 
 #: False-alarm probability of each check on a capture where the model holds.
 CHECK_P = 1e-3
@@ -230,6 +230,8 @@ def faint_ball_images(image, expected, found_centers=None, found_radii=None,
     ndarray of bool, shape (len(expected),)
     """
     img = np.asarray(image)
+    if img.ndim not in (2, 3) or (img.ndim == 3 and img.shape[2] not in (1, 3)):
+        raise ValueError(f"image must have shape (H, W) or (H, W, 3), got {img.shape}")
     H, W = img.shape[:2]
     fc = np.asarray(found_centers if found_centers is not None else np.zeros((0, 2)), float).reshape(-1, 2)
     fr = np.asarray(found_radii if found_radii is not None else np.zeros(0), float).reshape(-1)
@@ -359,25 +361,37 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
             continue
         expected = expected_flight(fit, model, p, span=span)  # the same for both cameras: once
         for which, cam in enumerate(p._check_cams):
-            absent = expected_ball_images(fit, model, p, cam, which, span=span, flight=expected, with_radius=True)
+            absent = expected_ball_images(fit, model, p, cam, which, span=span, flight=expected,
+                                          with_radius=True)
             faint = []
             img = photo(cam.name) if (absent and photo is not None) else None
             if img is not None:
                 det = p.stereo.detections_a if which == 0 else p.stereo.detections_b
-                seen = faint_ball_images(img, absent, getattr(det, "centers", None), getattr(det, "radii_px", None))
+                seen = faint_ball_images(img, absent, getattr(det, "centers", None),
+                                         getattr(det, "radii_px", None))
                 faint = [e for e, s_ in zip(absent, seen) if s_]
                 absent = [e for e, s_ in zip(absent, seen) if not s_]
-            msg = (f"{len(absent)} ball image(s) the fitted flight puts inside the photo were not found and the "
-                   "photo shows no light there: "
-                   + ", ".join(f"flash {k} at ({x:.0f}, {y:.0f}) px" for k, (x, y), _ in absent[:4])
-                   + " (a flash that did not fire, a hidden ball, or a wrong flight)") if absent \
-                else "every ball image the fitted flight puts inside the photo was found" + (" or seen" if faint else "")
-            if faint:
-                msg += (f"; {len(faint)} seen in the photo but too faint or small for the silhouette detector "
-                        "(thin back-lit crescents, small balls on a noisy photo; not measured): "
-                        + ", ".join(f"flash {k} at ({x:.0f}, {y:.0f}) px" for k, (x, y), _ in faint[:4]))
-            checks.append(SelfCheck("missed_ball_images", not absent, float(len(absent)), 0.0, msg, cam.name, ""))
+            checks.append(SelfCheck("missed_ball_images", not absent, float(len(absent)), 0.0,
+                                    _missed_message(absent, faint), cam.name, ""))
     return checks
+
+
+def _missed_message(absent: list, faint: list) -> str:
+    """The ``missed_ball_images`` message: the ball images with no light there (what fails the
+    check) and those the photo shows but the detector did not measure (named, not counted)."""
+    def where(items):
+        return ", ".join(f"flash {k} at ({x:.0f}, {y:.0f}) px" for k, (x, y), _ in items[:4])
+
+    if absent:
+        msg = (f"{len(absent)} ball image(s) the fitted flight puts inside the photo were not found and the "
+               f"photo shows no light there: {where(absent)} (a flash that did not fire, a hidden ball, or a "
+               "wrong flight)")
+    else:
+        msg = "every ball image the fitted flight puts inside the photo was found" + (" or seen" if faint else "")
+    if faint:
+        msg += (f"; {len(faint)} seen in the photo but too faint or small for the silhouette detector (thin "
+                f"back-lit crescents, small balls on a noisy photo; not measured): {where(faint)}")
+    return msg
 
 
 def disagreement_factor(checks) -> float:
