@@ -630,6 +630,18 @@ def metrics_and_uncertainty(cap: Capture, pairs: list, flight: PositionsFit, mea
     return MetricsWithSigma(metrics, sigma, release, table1, v_two_sigma)
 
 
+def _photo_of(cap: Capture, camera: str):
+    """The photo of ``camera`` decoded again for the missed-ball check (the pairs' photos are
+    released after their marker step), or None if the capture has none or it cannot be read."""
+    im = next((im for im in cap.images if im.camera == camera), None)
+    if im is None:
+        return None
+    try:
+        return cap.read_image(im)
+    except (ValueError, OSError):
+        return None
+
+
 def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured: MeasuredSpin,
                       fit: ReferenceFit, flight_spin, spin_cmp, model, options: PitchOptions,
                       log: StageLog) -> tuple[list, ReferenceFit]:
@@ -646,7 +658,8 @@ def check_and_inflate(cap: Capture, pairs: list, flight: PositionsFit, measured:
     for p in pairs:
         p._check_cams = [cap.rig[c] for c in p.cameras]
     try:
-        checks = pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model, options)
+        checks = pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model, options,
+                                   photo=lambda name: _photo_of(cap, name))
     finally:
         for p in pairs:
             del p._check_cams
