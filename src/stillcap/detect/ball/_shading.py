@@ -529,11 +529,14 @@ def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
 
 
 def _centroid_window(q: np.ndarray):
-    """:func:`_radiance_centroid`'s masks for the coordinates ``q``: (within 1.15 radii, the ring
-    beyond 1.3, and the squared radius ``r2`` itself), to compute once for several images over the
-    same crop."""
+    """:func:`_radiance_centroid`'s window for the coordinates ``q``: (the mask within 1.15 radii,
+    the ring's mask beyond 1.3, the squared radius ``r2`` itself, and the window's flat pixel
+    indices with their coordinates: ``(inside, ring, qx, qy)``), to compute once for several
+    images over the same crop."""
     r2 = q[0] ** 2 + q[1] ** 2
-    return r2 < 1.15 ** 2, r2 > 1.3 ** 2, r2
+    inside, ring = r2 < 1.15 ** 2, r2 > 1.3 ** 2
+    idx = np.flatnonzero(inside)
+    return inside, ring, r2, (idx, np.flatnonzero(ring), q[0].ravel()[idx], q[1].ravel()[idx])
 
 
 def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win=None):
@@ -542,18 +545,26 @@ def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win
 
     ``signed``: the level is the ring's mean and the weights are not clipped at 0, so zero-mean
     noise (and noise clipped at black, whose mean the median misses) adds nothing on average
-    (for a faint ball whose noisy dark disc, rectified, outweighs a thin lit rim)."""
-    inside, ring = (_centroid_window(q) if win is None else win)[:2]
+    (for a faint ball whose noisy dark disc, rectified, outweighs a thin lit rim).
+
+    The sums run over the window's pixels only (gathered by :func:`_centroid_window`'s indices;
+    the weights in float64): the phase search takes ~1000 centroids per capture of crops ~70 px
+    wide, where masking the whole crop cost twice as much. Against sums over the masked crop
+    (float32 weights) the centroid moves by float rounding only (~1e-8 radii)."""
+    idx, ring, qx, qy = (_centroid_window(q) if win is None else win)[3]
+    flat = img.reshape(-1)
     if signed:
-        level = float(img[ring].mean()) if ring.any() else 0.0
-        wgt = np.where(inside, img - level, 0.0)
+        level = float(flat[ring].mean()) if len(ring) else 0.0
+        wgt = flat[idx].astype(np.float64)
+        wgt -= level
     else:
-        level = median(img[ring]) if ring.any() else 0.0
-        wgt = np.where(inside, np.maximum(img - level, 0.0), 0.0)
+        level = median(flat[ring]) if len(ring) else 0.0
+        wgt = flat[idx] - np.float32(level) if img.dtype == np.float32 else flat[idx] - level
+        wgt = np.maximum(wgt, 0.0, dtype=np.float64)
     tot = float(wgt.sum())
     if not tot > 0:
         return None
-    return np.array([(wgt * q[0]).sum(), (wgt * q[1]).sum()]) / tot
+    return np.array([float(wgt @ qx), float(wgt @ qy)]) / tot
 
 
 def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:
