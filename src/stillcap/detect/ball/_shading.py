@@ -481,7 +481,8 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
     inside = r2 < 1.15 ** 2
     ring = r2 > 1.3 ** 2
     n_sat = int(np.count_nonzero((lin >= SATURATED) & inside))
-    m_obs = _window_centroid(lin, q)
+    win = _centroid_window(q)
+    m_obs = _window_centroid(lin, q, win)
     if not (np.isfinite(m_obs) and n_sat >= 1 and np.any(ring)):
         return None
     level = float(median(lin[ring]))
@@ -500,7 +501,7 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
             return None, float("nan")
         g = (SATURATED - level) / float(mv[n_sat - 1])
         img = np.minimum(g * m + level, 1.0).astype(np.float32)
-        return img, _window_centroid(img, q) - m_obs
+        return img, _window_centroid(img, q, win) - m_obs
 
     # the phase whose clipped model has the photo's centroid: secant steps from the sharp
     # table's phase (the clipped centroid moves little with the phase: fixed-point steps crawl)
@@ -521,10 +522,11 @@ def _clipped_model(lin, mid, A, q, light, blur: float, smooth: float, band: floa
     return cv2.GaussianBlur(clipped, (0, 0), smooth) if smooth > 0 else clipped
 
 
-def _window_centroid(img: np.ndarray, q: np.ndarray) -> float:
+def _window_centroid(img: np.ndarray, q: np.ndarray, win=None) -> float:
     """Distance (outline radii) of ``img``'s radiance centroid from the outline's middle, measured
-    as :func:`_lit_frame` measures it (level from the ring beyond 1.3 radii, radiance within 1.15)."""
-    mq = _radiance_centroid(img, q)
+    as :func:`_lit_frame` measures it (level from the ring beyond 1.3 radii, radiance within 1.15);
+    ``win``: :func:`_centroid_window` of ``q``, if the caller has it."""
+    mq = _radiance_centroid(img, q, win=win)
     return float("nan") if mq is None else float(np.hypot(*mq))
 
 
