@@ -226,3 +226,43 @@ def test_lit_frame_with_outline_geometry_given_is_the_same():
             a = _lit_frame(img, c + shift, off)
             b = _lit_frame(img, c + shift, off, geom=geom)
             assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_window_centroid_equals_masked_crop_sums(signed):
+    """The radiance centroid summed over the window's gathered pixels is the masked crop's
+    (``np.where`` over the whole crop, as it was) to float rounding: float64 images (the model's
+    sums in the same precision) to 1e-12, float32 photos (the old sums accumulated the weights in
+    float32) to 1e-6 of a radius; faint noisy balls, lit from any side."""
+    from stillcap.detect.ball._shading import _centroid_window, _radiance_centroid
+    from stillcap._numeric import median
+    rng = np.random.default_rng(11 if signed else 12)
+    checked = 0
+    for _ in range(10):
+        r = rng.uniform(6.0, 40.0)
+        n = int(2.6 * r + 12)
+        c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
+        A = _ellipse(rng, r)
+        light = rng.normal(size=3)
+        light /= np.linalg.norm(light)
+        img = cv2.GaussianBlur(_lit_sphere_image((n, n), c, A, tuple(light)), (0, 0), 1.0)
+        img = np.clip(0.3 * img + 0.05 + rng.normal(0.0, 0.02, img.shape), 0, 1)
+        yy, xx = np.mgrid[0:n, 0:n]
+        q = np.einsum("ij,jhw->ihw", np.linalg.inv(A), np.stack([xx - c[0], yy - c[1]]).astype(float))
+        inside, ring = q[0] ** 2 + q[1] ** 2 < 1.15 ** 2, q[0] ** 2 + q[1] ** 2 > 1.3 ** 2
+        for im, tol in ((img.astype(np.float64), 1e-12), (img.astype(np.float32), 1e-6)):
+            if signed:
+                level = float(im[ring].mean())
+                wgt = np.where(inside, im - level, 0.0)
+            else:
+                level = median(im[ring])
+                wgt = np.where(inside, np.maximum(im - level, 0.0), 0.0)
+            tot = float(wgt.sum())
+            got = _radiance_centroid(im, q, signed, _centroid_window(q))
+            if not tot > 0:
+                assert got is None
+                continue
+            want = np.array([(wgt * q[0]).sum(), (wgt * q[1]).sum()]) / tot
+            assert np.abs(got - want).max() < tol, (got, want)
+            checked += 1
+    assert checked >= 12
