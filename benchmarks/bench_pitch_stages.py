@@ -56,6 +56,8 @@ STAGES = (
     ("  of which refine_ball_centers", [("stillcap.ball.stereo", "refine_ball_centers")]),
     ("    of which _shading_bias (shading model)", [("stillcap.detect.ball._refine", "_shading_bias")]),
     ("  of which photo_blur_px", [("stillcap.ball.stereo", "photo_blur_px")]),
+    ("    of which limb_blur_px (blur fits)", [("stillcap.ball.stereo", "limb_blur_px")]),
+    ("    of which _shading_bias (at the blur read)", [("stillcap.ball.stereo", "_shading_bias")]),
     ("pair_marker_observations", [("stillcap.pipelines.pitch.spin", "pair_marker_observations"),
                                   ("stillcap.pipelines.pitch", "pair_marker_observations")]),
     ("  of which detect_ball_markers", [("stillcap.ball.markers", "detect_ball_markers")]),

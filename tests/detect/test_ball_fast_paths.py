@@ -186,3 +186,83 @@ def test_newton_jacobian_in_place_is_bit_identical(seed):
         x0 = np.array([500.0 + rng.normal(0, 2), 500.0 + rng.normal(0, 2), r * rng.uniform(0.8, 1.2)])
         got, want = _soft_l1_newton(pts, x0, 0.5), _reference_newton(pts, x0, 0.5)
         assert (got is None and want is None) or np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("n", [1, 7, 1600])
+def test_sample_mean_rows_equal_numpy_mean_of_nine(n):
+    """The lit-sphere band's per-pixel mean of its 3 x 3 samples, added row by row on the
+    sample-major array, is ``mean(axis=(1, 2))`` of the pixel-major one bit for bit (values with
+    zeros, tiny and large magnitudes: the order of the additions decides the rounding); other
+    sample counts take NumPy's own mean."""
+    from stillcap.detect.ball._shading import _sample_mean
+    rng = np.random.default_rng(n)
+    for ss in (3, 2, 4):
+        v = rng.random((n, ss, ss)) * np.where(rng.random((n, ss, ss)) < 0.3, 0.0, 1.0)
+        v[rng.random((n, ss, ss)) < 0.05] = 1e-300
+        v[rng.random((n, ss, ss)) < 0.05] *= 1e12
+        want = v.mean(axis=(1, 2))
+        got = _sample_mean(np.ascontiguousarray(v.reshape(n, ss * ss).T))
+        assert np.array_equal(got, want)
+
+
+def test_lit_frame_with_outline_geometry_given_is_the_same():
+    """``_lit_frame`` with the outline's geometry computed once (``_outline_geometry``, as
+    ``_shading_bias`` passes it to every frame) gives the numbers it computes itself."""
+    from stillcap.detect.ball._shading import _outline_geometry
+    rng = np.random.default_rng(7)
+    for _ in range(6):
+        r = rng.uniform(8.0, 30.0)
+        n = int(2 * r + 24)
+        c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
+        A = _ellipse(rng, r)
+        light = rng.normal(size=3)
+        light[2] = abs(light[2])
+        light /= np.linalg.norm(light)
+        img = cv2.GaussianBlur(_lit_sphere_image((n, n), c, A, tuple(light)), (0, 0), 0.8)
+        th = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+        off = np.stack([np.cos(th), np.sin(th)], axis=1) @ A.T
+        geom = _outline_geometry(off)
+        for shift in (0.0, 0.3):
+            a = _lit_frame(img, c + shift, off)
+            b = _lit_frame(img, c + shift, off, geom=geom)
+            assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+@pytest.mark.parametrize("signed", [False, True])
+def test_window_centroid_equals_masked_crop_sums(signed):
+    """The radiance centroid summed over the window's gathered pixels is the masked crop's
+    (``np.where`` over the whole crop, as it was) to float rounding: float64 images (the model's
+    sums in the same precision) to 1e-12, float32 photos (the old sums accumulated the weights in
+    float32) to 1e-6 of a radius; faint noisy balls, lit from any side."""
+    from stillcap.detect.ball._shading import _centroid_window, _radiance_centroid
+    from stillcap._numeric import median
+    rng = np.random.default_rng(11 if signed else 12)
+    checked = 0
+    for _ in range(10):
+        r = rng.uniform(6.0, 40.0)
+        n = int(2.6 * r + 12)
+        c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
+        A = _ellipse(rng, r)
+        light = rng.normal(size=3)
+        light /= np.linalg.norm(light)
+        img = cv2.GaussianBlur(_lit_sphere_image((n, n), c, A, tuple(light)), (0, 0), 1.0)
+        img = np.clip(0.3 * img + 0.05 + rng.normal(0.0, 0.02, img.shape), 0, 1)
+        yy, xx = np.mgrid[0:n, 0:n]
+        q = np.einsum("ij,jhw->ihw", np.linalg.inv(A), np.stack([xx - c[0], yy - c[1]]).astype(float))
+        inside, ring = q[0] ** 2 + q[1] ** 2 < 1.15 ** 2, q[0] ** 2 + q[1] ** 2 > 1.3 ** 2
+        for im, tol in ((img.astype(np.float64), 1e-12), (img.astype(np.float32), 1e-6)):
+            if signed:
+                level = float(im[ring].mean())
+                wgt = np.where(inside, im - level, 0.0)
+            else:
+                level = median(im[ring])
+                wgt = np.where(inside, np.maximum(im - level, 0.0), 0.0)
+            tot = float(wgt.sum())
+            got = _radiance_centroid(im, q, signed, _centroid_window(q))
+            if not tot > 0:
+                assert got is None
+                continue
+            want = np.array([(wgt * q[0]).sum(), (wgt * q[1]).sum()]) / tot
+            assert np.abs(got - want).max() < tol, (got, want)
+            checked += 1
+    assert checked >= 12
