@@ -331,7 +331,8 @@ def _alias_dict(alias) -> dict | None:
         return None
     cands = [{"spin": c.spin, "spin_rpm": c.spin_rpm, "axis": c.axis, "n": int(c.n), "source": int(c.source),
               "axis_determined": bool(c.axis_determined), "chi2_strobes": c.chi2_strobes,
-              "chi2_curvature": c.chi2_curvature, "chi2": c.chi2, "probability": c.probability}
+              "chi2_curvature": c.chi2_curvature, "chi2_markers": float(c.chi2_markers), "chi2": c.chi2,
+              "probability": c.probability}
              for c in alias.candidates[:6]]
     return {"best_rpm": alias.best.spin_rpm, "ambiguous": bool(alias.ambiguous),
             "likelihood_ratio": alias.likelihood_ratio, "evidence": list(alias.evidence),
