@@ -41,9 +41,9 @@ from stillcap.detect.ball import BallFlag
 from stillcap.geometry.triangulate import triangulate
 
 __all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes", "lit_geometry",
-           "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
-           "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "share_correlation",
-           "speed_sigma", "spin_decay_slope"]
+           "lit_phase_from_area", "metrics_sigma", "misfit_share", "phase_error_px", "pixel_sigma", "position_covariances",
+           "remaining_bias_modes", "shading_model_offset_px", "shading_offset_slope_lookup", "shading_residual_lookup",
+           "shading_residual_px", "share_correlation", "speed_sigma", "spin_decay_slope"]
 
 #: refinement smoothing of :func:`stillcap.detect.ball.refine_ball_centers` (its ``sigma``)
 _REFINE_SIGMA = 0.7
@@ -158,6 +158,92 @@ def _residual_table(corrected: bool) -> np.ndarray:
     """``shading_residual_px`` on the table's grid (what ``_RESIDUAL_*`` holds, rounded)."""
     return np.array([[shading_residual_px(np.radians(a), r, corrected) for a in _TABLE_PHASE_DEG]
                      for r in _TABLE_RADII])
+
+
+# ``shading_model_offset_px`` itself tabulated on the lens blurs ``_OFFSET_PSF`` px (blocks), the
+# radii ``_TABLE_RADII`` (rows) and the phase angles ``_TABLE_PHASE_DEG`` (columns), for its slope
+# with the phase at run time (``_offset_table`` regenerates it; checked in tests/ball/test_uncertainty.py)
+_OFFSET_PSF = np.array([0.0, 0.5, 1.0, 1.5, 2.0])
+_OFFSET = np.array([
+    [
+        [-0.0035, 0.0471, 0.1083, 0.1502, 0.1612, 0.1232, 0.0414, 0.0021, -0.0120, -0.0124, -0.0038, 0.0120, 0.0305, 0.0619, 0.1147, 0.1520, 0.1866, 0.2092, 0.2273, 0.2458, 0.2652, 0.2859, 0.3695, 0.4062, 0.4483, 0.4839, 0.5365, 0.6278, 0.7196, 0.7692, 0.8962],
+        [0.0006, 0.0432, 0.0686, 0.0634, 0.0215, -0.0387, -0.1130, -0.1209, -0.1113, -0.0763, -0.0464, -0.0253, -0.0040, 0.0162, 0.0352, 0.0559, 0.0803, 0.1082, 0.1348, 0.1624, 0.2142, 0.2437, 0.2693, 0.2927, 0.3406, 0.3719, 0.4201, 0.4958, 0.5614, 0.6603, 0.7677],
+        [-0.0007, 0.0403, 0.0528, 0.0113, -0.0806, -0.1374, -0.1540, -0.1445, -0.1272, -0.1068, -0.0855, -0.0645, -0.0387, -0.0071, 0.0186, 0.0443, 0.0667, 0.0845, 0.1045, 0.1258, 0.1480, 0.1746, 0.2050, 0.2478, 0.2798, 0.3136, 0.3586, 0.4098, 0.4735, 0.5682, 0.6582],
+        [0.0004, 0.0291, -0.0032, -0.0840, -0.1771, -0.1994, -0.1823, -0.1631, -0.1330, -0.1031, -0.0852, -0.0683, -0.0521, -0.0353, -0.0178, 0.0101, 0.0369, 0.0558, 0.0784, 0.0999, 0.1210, 0.1423, 0.1656, 0.1876, 0.2102, 0.2461, 0.2894, 0.3336, 0.3962, 0.4476, 0.5427],
+        [-0.0011, 0.0154, -0.0386, -0.1751, -0.2281, -0.2209, -0.1972, -0.1703, -0.1430, -0.1156, -0.0877, -0.0665, -0.0505, -0.0353, -0.0204, -0.0035, 0.0134, 0.0310, 0.0488, 0.0661, 0.0845, 0.1056, 0.1273, 0.1515, 0.1790, 0.2091, 0.2383, 0.2722, 0.3174, 0.3808, 0.4571],
+    ],
+    [
+        [-0.0039, 0.0551, 0.1308, 0.1761, 0.1964, 0.1847, 0.1456, 0.0455, 0.0144, 0.0079, 0.0154, 0.0306, 0.0614, 0.1158, 0.1548, 0.1893, 0.2126, 0.2315, 0.2512, 0.2717, 0.3020, 0.3828, 0.4218, 0.4605, 0.4957, 0.5591, 0.6650, 0.7297, 0.7783, 0.9148, 0.9867],
+        [0.0005, 0.0498, 0.0821, 0.0849, 0.0490, -0.0079, -0.0760, -0.1104, -0.1043, -0.0637, -0.0407, -0.0181, 0.0050, 0.0262, 0.0478, 0.0733, 0.1037, 0.1336, 0.1630, 0.2164, 0.2474, 0.2727, 0.2968, 0.3451, 0.3772, 0.4459, 0.4998, 0.5627, 0.6584, 0.7640, 0.8548],
+        [-0.0007, 0.0468, 0.0671, 0.0358, -0.0578, -0.1236, -0.1500, -0.1464, -0.1301, -0.1087, -0.0861, -0.0631, -0.0335, 0.0003, 0.0291, 0.0576, 0.0781, 0.0994, 0.1225, 0.1465, 0.1746, 0.2065, 0.2514, 0.2824, 0.3165, 0.3610, 0.4105, 0.4702, 0.5595, 0.6433, 0.7473],
+        [0.0005, 0.0350, 0.0174, -0.0708, -0.1709, -0.2080, -0.1955, -0.1726, -0.1500, -0.1094, -0.0897, -0.0710, -0.0529, -0.0341, -0.0143, 0.0207, 0.0451, 0.0691, 0.0934, 0.1168, 0.1395, 0.1641, 0.1871, 0.2103, 0.2463, 0.2889, 0.3321, 0.3921, 0.4384, 0.5033, 0.6299],
+        [-0.0010, 0.0205, -0.0285, -0.1618, -0.2344, -0.2349, -0.2131, -0.1852, -0.1558, -0.1285, -0.0962, -0.0708, -0.0529, -0.0358, -0.0190, 0.0002, 0.0195, 0.0394, 0.0594, 0.0784, 0.1012, 0.1244, 0.1494, 0.1776, 0.2081, 0.2369, 0.2695, 0.3104, 0.3712, 0.4402, 0.5168],
+    ],
+    [
+        [-0.0048, 0.0787, 0.1743, 0.2324, 0.2623, 0.2700, 0.2576, 0.2332, 0.2013, 0.1752, 0.1674, 0.1745, 0.1911, 0.2130, 0.2321, 0.2529, 0.2750, 0.3367, 0.3952, 0.4361, 0.4711, 0.5068, 0.5747, 0.6729, 0.7284, 0.7749, 0.8886, 0.9857, 1.0884, 1.2192, 1.2784],
+        [0.0005, 0.0675, 0.1206, 0.1551, 0.1394, 0.0823, 0.0198, -0.0241, -0.0400, -0.0331, -0.0139, 0.0106, 0.0349, 0.0642, 0.0991, 0.1367, 0.1717, 0.2296, 0.2629, 0.2889, 0.3347, 0.3705, 0.4169, 0.4836, 0.5374, 0.6046, 0.7002, 0.7869, 0.8852, 1.0235, 1.1484],
+        [-0.0006, 0.0643, 0.1017, 0.0957, 0.0337, -0.0675, -0.1219, -0.1372, -0.1278, -0.1066, -0.0806, -0.0522, -0.0091, 0.0278, 0.0628, 0.0883, 0.1171, 0.1466, 0.1811, 0.2195, 0.2665, 0.3001, 0.3400, 0.3888, 0.4354, 0.5055, 0.5813, 0.6568, 0.7530, 0.8839, 1.0330],
+        [0.0006, 0.0487, 0.0536, -0.0309, -0.1267, -0.2075, -0.2208, -0.1963, -0.1689, -0.1340, -0.0986, -0.0751, -0.0519, -0.0274, 0.0068, 0.0444, 0.0764, 0.1071, 0.1349, 0.1642, 0.1905, 0.2196, 0.2593, 0.3054, 0.3547, 0.4027, 0.4466, 0.5073, 0.6163, 0.7050, 0.8408],
+        [-0.0009, 0.0340, 0.0029, -0.1184, -0.2351, -0.2629, -0.2468, -0.2193, -0.1876, -0.1535, -0.1197, -0.0836, -0.0574, -0.0352, -0.0124, 0.0129, 0.0390, 0.0647, 0.0910, 0.1194, 0.1486, 0.1809, 0.2137, 0.2438, 0.2772, 0.3197, 0.3753, 0.4381, 0.5006, 0.5902, 0.7180],
+    ],
+    [
+        [-0.0053, 0.1215, 0.2290, 0.3082, 0.4283, 0.4694, 0.4906, 0.4868, 0.4603, 0.4294, 0.3697, 0.3391, 0.3515, 0.3989, 0.4251, 0.4562, 0.4861, 0.5240, 0.5979, 0.6836, 0.7325, 0.7755, 0.8838, 0.9725, 1.0461, 1.1980, 1.2672, 1.4161, 1.5014, 1.6610, 1.7427],
+        [0.0004, 0.0937, 0.1858, 0.2623, 0.2807, 0.2658, 0.1870, 0.1224, 0.0665, 0.0499, 0.0573, 0.0813, 0.1186, 0.1588, 0.2220, 0.2614, 0.2918, 0.3469, 0.3834, 0.4528, 0.5039, 0.5635, 0.6457, 0.7421, 0.7959, 0.8940, 1.0170, 1.1349, 1.2807, 1.4302, 1.5623],
+        [-0.0006, 0.0897, 0.1502, 0.1737, 0.1495, 0.0759, -0.0255, -0.0815, -0.0935, -0.0798, -0.0531, -0.0043, 0.0407, 0.0788, 0.1148, 0.1526, 0.1979, 0.2552, 0.2953, 0.3397, 0.3922, 0.4406, 0.5104, 0.5842, 0.6522, 0.7319, 0.8473, 0.9560, 1.1032, 1.2581, 1.4174],
+        [0.0007, 0.0703, 0.1025, 0.0615, -0.0564, -0.1647, -0.2175, -0.2148, -0.1829, -0.1541, -0.1032, -0.0731, -0.0421, -0.0071, 0.0468, 0.0902, 0.1284, 0.1663, 0.1989, 0.2402, 0.2895, 0.3366, 0.3945, 0.4361, 0.4884, 0.5824, 0.6642, 0.7496, 0.8873, 1.0092, 1.1987],
+        [-0.0008, 0.0541, 0.0513, -0.0472, -0.2046, -0.2759, -0.2810, -0.2554, -0.2216, -0.1837, -0.1416, -0.0956, -0.0587, -0.0289, 0.0042, 0.0397, 0.0741, 0.1115, 0.1490, 0.1892, 0.2266, 0.2623, 0.3014, 0.3562, 0.4131, 0.4693, 0.5381, 0.6213, 0.7337, 0.8555, 1.0252],
+    ],
+    [
+        [-0.0057, 0.1594, 0.2864, 0.4470, 0.5515, 0.6803, 0.7506, 0.7901, 0.8012, 0.7846, 0.7542, 0.7248, 0.7057, 0.7039, 0.7173, 0.7425, 0.7742, 0.8356, 0.9413, 0.9930, 1.0669, 1.1984, 1.2621, 1.4023, 1.4908, 1.6372, 1.7478, 1.8840, 2.0012, 2.1574, 2.2480],
+        [0.0004, 0.1268, 0.2645, 0.3513, 0.4157, 0.4520, 0.4100, 0.3682, 0.2957, 0.2596, 0.2424, 0.2509, 0.2734, 0.3003, 0.3572, 0.3950, 0.4694, 0.5260, 0.5930, 0.6799, 0.7614, 0.8168, 0.9421, 1.0271, 1.1443, 1.2759, 1.3963, 1.5549, 1.7457, 1.8720, 2.0378],
+        [-0.0005, 0.1183, 0.2112, 0.2839, 0.2977, 0.2396, 0.1565, 0.0759, 0.0237, 0.0135, 0.0370, 0.0739, 0.1122, 0.1561, 0.2094, 0.2738, 0.3214, 0.3805, 0.4353, 0.5076, 0.5864, 0.6529, 0.7298, 0.8355, 0.9298, 1.0619, 1.1807, 1.3368, 1.5081, 1.6802, 1.8783],
+        [0.0009, 0.0954, 0.1578, 0.1582, 0.0706, -0.0645, -0.1619, -0.1892, -0.1781, -0.1474, -0.0947, -0.0582, -0.0170, 0.0485, 0.1037, 0.1516, 0.1955, 0.2464, 0.3070, 0.3741, 0.4187, 0.4687, 0.5540, 0.6347, 0.7059, 0.8109, 0.9239, 1.0588, 1.2135, 1.4119, 1.6304],
+        [-0.0008, 0.0784, 0.1067, 0.0342, -0.1167, -0.2491, -0.2955, -0.2796, -0.2451, -0.2036, -0.1537, -0.0978, -0.0517, -0.0117, 0.0348, 0.0807, 0.1296, 0.1797, 0.2271, 0.2703, 0.3199, 0.3807, 0.4438, 0.5018, 0.5745, 0.6598, 0.7621, 0.8749, 1.0181, 1.2015, 1.4159],
+    ],
+])
+
+
+def _offset_table() -> np.ndarray:
+    """``shading_model_offset_px`` on ``_OFFSET``'s grid (what it holds, rounded)."""
+    return np.array([[[shading_model_offset_px(np.radians(a), r, p) for a in _TABLE_PHASE_DEG] for r in _TABLE_RADII]
+                     for p in _OFFSET_PSF])
+
+
+def shading_offset_slope_lookup(phase_rad, radius_px, psf_px: float) -> np.ndarray:
+    """Slope (px per rad) of the shading model's offset (:func:`shading_model_offset_px`) with the
+    phase angle, for many ball images of one photo: central differences of the tabulated offset
+    on its 5-deg grid, bilinear in the phase angle and the radius, linear in the lens blur
+    (``psf_px`` clipped to 0-2 px). Radii outside 10-40 px take the nearest row scaled by the
+    radius (the offset grows about as the ball).
+
+    Parameters
+    ----------
+    phase_rad, radius_px : array_like, shape (N,)
+    psf_px : float
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
+    a = np.clip(np.degrees(np.asarray(phase_rad, float)), 0.0, 150.0)
+    r_in = np.asarray(radius_px, float)
+    if a.shape != r_in.shape:
+        raise ValueError(f"phase_rad and radius_px must have one shape, got {a.shape} and {r_in.shape}")
+    if not np.isfinite(psf_px) or psf_px < 0:
+        raise ValueError(f"psf_px must be >= 0, got {psf_px}")
+    r = np.clip(r_in, _TABLE_RADII[0], _TABLE_RADII[-1])
+    slope = np.gradient(_OFFSET, np.radians(_TABLE_PHASE_DEG), axis=2)  # (P, R, A)
+    p = float(np.clip(psf_px, _OFFSET_PSF[0], _OFFSET_PSF[-1]))
+    i = int(np.clip(np.searchsorted(_OFFSET_PSF, p) - 1, 0, len(_OFFSET_PSF) - 2))
+    wp = (p - _OFFSET_PSF[i]) / (_OFFSET_PSF[i + 1] - _OFFSET_PSF[i])
+    T = (1 - wp) * slope[i] + wp * slope[i + 1]  # (R, A)
+    rows = np.array([np.interp(a, _TABLE_PHASE_DEG, T[j]) for j in range(len(_TABLE_RADII))])  # (R, N)
+    j = np.clip(np.searchsorted(_TABLE_RADII, r) - 1, 0, len(_TABLE_RADII) - 2)
+    w = (r - _TABLE_RADII[j]) / (_TABLE_RADII[j + 1] - _TABLE_RADII[j])
+    k = np.arange(a.size)
+    out = (1 - w.ravel()) * rows.reshape(len(_TABLE_RADII), -1)[j.ravel(), k] + w.ravel() * rows.reshape(
+        len(_TABLE_RADII), -1)[j.ravel() + 1, k]
+    return out.reshape(a.shape) * np.where(np.isfinite(r_in), r_in / r, np.nan)
 
 
 def shading_residual_lookup(phase_rad, radius_px, corrected) -> np.ndarray:
@@ -371,7 +457,12 @@ def lit_geometry(stereo, centers_px, flags, radius_px):
         Unit vector from the refined centre toward the silhouette's ellipse centre (the lit
         side: a lit silhouette's middle lies toward the light); 0 where they coincide.
     phase : ndarray, shape (2, K)
-        Phase angle (rad) from the silhouette's area (:func:`lit_phase_from_area`).
+        Phase angle (rad): the one the shading correction used (``stereo.shading_phase_rad``,
+        read from the ball image's radiance centroid through the blurred sphere model) where it
+        ran, else from the silhouette's area (:func:`lit_phase_from_area`; a thresholded
+        silhouette loses the dim terminator and under blur spreads past the disc: +6.5 to +15 deg
+        off on sharp studio photos, -14 deg under 1.5 px of blur, ``docs/pitch.md``, "A share
+        each capture measures?").
     corrected : ndarray of bool, shape (K,)
     """
     x = np.asarray(centers_px, float)
@@ -390,6 +481,10 @@ def lit_geometry(stereo, centers_px, flags, radius_px):
         n = np.linalg.norm(d, axis=1)
         u[c] = np.where(n[:, None] > 1e-9, d / np.maximum(n, 1e-9)[:, None], 0.0)
         phase[c] = lit_phase_from_area(det.areas[j], np.asarray(radius_px, float)[c])
+        used = getattr(stereo, "shading_phase_rad", None)
+        if used is not None:
+            used = np.asarray(used, float)[row, c]
+            phase[c] = np.where(np.isfinite(used), used, phase[c])
     corrected = (np.asarray(flags, int) & int(BallFlag.PARTIAL)) > 0
     return u, phase, corrected
 
@@ -445,17 +540,107 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     return out
 
 
+def _stereo_values(stereo, centers_px, name: str) -> np.ndarray | None:
+    """``stereo.<name>`` (K_stereo, 2, ...) at the rows of a pair's centres, shape (2, K, ...); None where
+    the stereo step did not record it."""
+    v = getattr(stereo, name, None)
+    x = np.asarray(centers_px, float)
+    if v is None or not len(stereo.centers_a) or not x.shape[1]:
+        return None
+    # the stereo rows of the pair's centres (as lit_geometry finds them)
+    row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
+    return np.moveaxis(np.asarray(v, float)[row], 0, 1)
+
+
+def phase_error_px(stereo, centers_px, phase_rad, radius_px) -> np.ndarray:
+    """1-sigma error (px, along the lit direction) of each corrected ball image's centre that the
+    uncertainty of the correction's phase angle gives, measured per camera from its own photos.
+
+    Each ball image's phase is read from its radiance centroid, and the correction reports a
+    split-half sigma of it (``stereo.shading_phase_sd_rad``,
+    :func:`stillcap.detect.ball._shading._phase_split_sd`: the two halves of a lambertian ball
+    either side of its lit axis have the same centroid; painted markers, seams, a leather that is
+    not lambertian, noise and compression move them apart). One image's split is a single
+    difference, so a camera's phase sigma is their RMS over its images; each image's centre error
+    is that times the slope of the model's offset with the phase at its own phase, radius and
+    the camera's blur (:func:`shading_offset_slope_lookup`). Zero where nothing was reported.
+
+    Returns
+    -------
+    ndarray, shape (2, K)
+    """
+    sd = _stereo_values(stereo, centers_px, "shading_phase_sd_rad")
+    K = np.asarray(centers_px, float).shape[1]
+    out = np.zeros((2, K))
+    if sd is None:
+        return out
+    psf = np.broadcast_to(np.asarray(getattr(stereo, "psf_px", 0.5), float), (2,))
+    for c in range(2):
+        ok = np.isfinite(sd[c])
+        if not ok.any():
+            continue
+        sig = float(np.sqrt(np.mean(sd[c][ok] ** 2)))
+        slope = shading_offset_slope_lookup(phase_rad[c], radius_px[c], psf[c])
+        out[c] = np.where(np.isfinite(slope), np.abs(slope) * sig, 0.0)
+    return out
+
+
+def misfit_share(stereo, centers_px, u, made=None, min_images: int = 4) -> np.ndarray:
+    """The share of the shading correction a pair's photos say is wrong, per camera: a constant
+    and a change along the pair's images, from the shift a least-squares fit of the correction's
+    own model to each ball image asks for (``stereo.shading_misfit_px``,
+    :func:`stillcap.detect.ball._shading._misfit_shift`).
+
+    The correction places the model so that its Hough centre falls where the photo's does; a fit
+    of the same model to all of the ball's pixels is a second estimate of the centre. Where the
+    photo is the model they agree to the noise; where it is not (a leather that is not
+    lambertian, a second light, paint, a wrong phase or blur) they part, along the lit
+    direction, by an amount of the order of the correction's own error. Per camera the shifts
+    along ``u`` are regressed on the correction made as the truth is in
+    ``benchmarks/bench_shading_share.py``: ``d_k = (alpha + beta t_k) m_k``, ``t`` from -1 at the
+    pair's first image to +1 at its last, and the share stated is
+    ``sqrt((alpha^2 + beta^2) / 2)``: the noise in the two estimates is left in (it only widens),
+    and the two estimates' own disagreement, not which of them is right, is what is measured.
+
+    Parameters
+    ----------
+    stereo : StereoBalls
+    centers_px : array_like, shape (2, K, 2)
+    u : array_like, shape (2, K, 2)
+        Lit direction per camera and image (:func:`lit_geometry`).
+    made : array_like, shape (2, K), optional
+        The correction made (:func:`correction_made`, read from ``stereo`` when not given).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Per camera; 0 where fewer than ``min_images`` images report a shift.
+    """
+    d = _stereo_values(stereo, centers_px, "shading_misfit_px")
+    m = correction_made(stereo, centers_px) if made is None else np.asarray(made, float)
+    out = np.zeros(2)
+    if d is None or m is None:
+        return out
+    K = d.shape[1]
+    t = np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)
+    for c in range(2):
+        a = np.einsum("kj,kj->k", d[c], np.asarray(u, float)[c])
+        ok = np.isfinite(a) & (m[c] > 0)
+        if ok.sum() < min_images:
+            continue
+        A = np.stack([m[c][ok], m[c][ok] * t[ok]], axis=1)
+        coef, *_ = np.linalg.lstsq(A, a[ok], rcond=None)
+        if np.linalg.matrix_rank(A) < 2:
+            coef = np.array([float(np.sum(A[:, 0] * a[ok]) / np.sum(A[:, 0] ** 2)), 0.0])
+        out[c] = float(np.sqrt(np.mean(coef ** 2)))
+    return out
+
+
 def correction_made(stereo, centers_px) -> np.ndarray | None:
     """The shading correction's length (px) per camera and ball image of a pair's centres,
     shape (2, K) (``stereo.shading_px`` at the rows the centres came from); None where the
     stereo step did not record it."""
-    shading_px = getattr(stereo, "shading_px", None)
-    x = np.asarray(centers_px, float)
-    if shading_px is None or not len(stereo.centers_a) or not x.shape[1]:
-        return None
-    # the stereo rows of the pair's centres (as lit_geometry finds them)
-    row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
-    return np.asarray(shading_px, float)[row].T  # (2, K)
+    return _stereo_values(stereo, centers_px, "shading_px")
 
 
 def _signed_epipolar_px(cams, x) -> np.ndarray:
@@ -534,7 +719,8 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
     return out
 
 
-def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0, correlation=0.0) -> np.ndarray:
+def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0, correlation=0.0,
+                         measured: bool = True) -> np.ndarray:
     """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
     (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras).
 
@@ -547,6 +733,10 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     constant and a trend mode per camera; one mode per camera for the share alone was tried,
     ``docs/pitch.md``, "The correction's wrong share").
     ``model_error``: one share for both cameras, or one per camera (shape (2,)).
+    ``measured``: the error the correction's own inputs and fit show in this capture added in
+    quadrature (:func:`phase_error_px`: the phase angle's split-half sigma carried through the
+    model; :func:`misfit_share`: the share the model's misfit to the photos states), so
+    ``model_error`` is then the floor for what the photos cannot show.
 
     ``correlation``: how much of the two cameras' remaining bias along their lit directions is
     shared by them (0: each camera's own, the former model; 1: the same share in both), a number
@@ -575,6 +765,10 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
     if made is not None and np.any(k > 0):
         s = np.hypot(s, k[:, None] * made)
+    if measured:
+        s = np.hypot(s, np.where(corr[None, :], phase_error_px(stereo, centers_px, phase, radius_px), 0.0))
+        if made is not None:
+            s = np.hypot(s, misfit_share(stereo, centers_px, u, made)[:, None] * made)
     x = np.asarray(centers_px, float)
     K = x.shape[1]
     if isinstance(correlation, str):
