@@ -34,9 +34,19 @@ estimate's uncertainty) and ``alpha_blur``: the share the blur's error alone exp
 the correction's model, ``sum_k (o_k(true) - o_k(used)) m_k / sum_k m_k^2`` with ``o_k`` the
 model's offset (``shading_model_offset_px`` at the image's phase and radius). The summary adds
 per condition the mean blur error, the median per-image spread and the RMS of ``alpha_blur``,
-and the error of the phase angle the uncertainty reads from each silhouette's area
-(``lit_geometry``) against the true light-ball-camera angle (mean per camera, its spread over
-the camera's images). ``alpha_blur`` uses that phase. And the share a model carried from the
+and the error of the phase angle the uncertainty reads (``lit_geometry``: since issue 12's ninth
+shift the one the correction used, ``phase_error_deg``; the silhouette's area's beside it,
+``phase_area_error_deg``) against the true light-ball-camera angle (mean per camera, its spread
+over the camera's images). ``alpha_blur`` uses that phase.
+
+**What each capture states of its own share** (issue 12, ninth shift): per camera
+``share_misfit`` (``ball.uncertainty.misfit_share``, from the shift a least-squares fit of the
+correction's model to each ball's pixels asks for) and ``share_phase`` (``phase_error_px``, the
+phase's split-half sigma through the model, regressed on the correction made like ``alpha``);
+the summary prints their RMS beside the true share, the per-camera ratio and correlation of
+the true ``sqrt((alpha^2 + beta^2) / 2)`` to ``share_misfit``, and the fitted patterns' speed
+shift over the speed sigma the stated shares give (the floor ``shading_model_error`` and
+``share_misfit`` in quadrature). And the share a model carried from the
 blur estimate's own uncertainty would state: the model's offset at the blur used +- sigma (half
 the change), regressed on the correction made like ``alpha`` (``share_blur_se``: sigma the
 median's standard error ``1.2533 sd / sqrt(n)``; ``share_blur_sd``: one image's spread ``sd``).
