@@ -34,9 +34,19 @@ estimate's uncertainty) and ``alpha_blur``: the share the blur's error alone exp
 the correction's model, ``sum_k (o_k(true) - o_k(used)) m_k / sum_k m_k^2`` with ``o_k`` the
 model's offset (``shading_model_offset_px`` at the image's phase and radius). The summary adds
 per condition the mean blur error, the median per-image spread and the RMS of ``alpha_blur``,
-and the error of the phase angle the uncertainty reads from each silhouette's area
-(``lit_geometry``) against the true light-ball-camera angle (mean per camera, its spread over
-the camera's images). ``alpha_blur`` uses that phase. And the share a model carried from the
+and the error of the phase angle the uncertainty reads (``lit_geometry``: since issue 12's ninth
+shift the one the correction used, ``phase_error_deg``; the silhouette's area's beside it,
+``phase_area_error_deg``) against the true light-ball-camera angle (mean per camera, its spread
+over the camera's images). ``alpha_blur`` uses that phase.
+
+**What each capture states of its own share** (issue 12, ninth shift): per camera
+``share_misfit`` (``ball.uncertainty.misfit_share``, from the shift a least-squares fit of the
+correction's model to each ball's pixels asks for) and ``share_phase`` (``phase_error_px``, the
+phase's split-half sigma through the model, regressed on the correction made like ``alpha``);
+the summary prints their RMS beside the true share, the per-camera ratio and correlation of
+the true ``sqrt((alpha^2 + beta^2) / 2)`` to ``share_misfit``, and the fitted patterns' speed
+shift over the speed sigma the stated shares give (the floor ``shading_model_error`` and
+``share_misfit`` in quadrature). And the share a model carried from the
 blur estimate's own uncertainty would state: the model's offset at the blur used +- sigma (half
 the change), regressed on the correction made like ``alpha`` (``share_blur_se``: sigma the
 median's standard error ``1.2533 sd / sqrt(n)``; ``share_blur_sd``: one image's spread ``sd``).
@@ -157,6 +167,9 @@ def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float, ri
     from stillcap.ball.uncertainty import (
         correction_made,
         lit_geometry,
+        lit_phase_from_area,
+        misfit_share,
+        phase_error_px,
         shading_model_offset_px,
     )
     from stillcap.files.jsonable import from_jsonable
@@ -166,8 +179,14 @@ def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float, ri
     for p in res.pairs:
         if len(p) == 0:
             continue
-        _, phase, _ = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
+        u, phase, _ = lit_geometry(p.stereo, p.centers_px, p.flags, p.radius_px)
         made = correction_made(p.stereo, p.centers_px)
+        perr = phase_error_px(p.stereo, p.centers_px, phase, p.radius_px)
+        mshare = misfit_share(p.stereo, p.centers_px, u, made)
+        # the silhouette's phase (what lit_geometry read before it took the correction's)
+        row_a = np.argmin(np.linalg.norm(np.asarray(p.stereo.centers_a)[None] - p.centers_px[0][:, None], axis=2), axis=1)
+        area = [lit_phase_from_area(det.areas[p.stereo.pairs[row_a, c]], p.radius_px[c])
+                for c, det in enumerate((p.stereo.detections_a, p.stereo.detections_b))]
         P = from_jsonable(tpairs[p.name]["positions"]).reshape(-1, 3)
         Pt = P[np.nanargmin(np.linalg.norm(P[None] - p.positions[:, None], axis=2), axis=1)]
         for c in range(2):
@@ -182,9 +201,15 @@ def _blur_rows(res, rows: list, recorder: _BlurRecorder, true_blur_px: float, ri
                 cos = np.sum(to_l * to_c, 1) / (np.linalg.norm(to_l, axis=1) * np.linalg.norm(to_c, axis=1))
                 d = np.degrees(phase[c] - np.arccos(np.clip(cos, -1.0, 1.0)))
                 row.update(phase_error_deg=float(np.mean(d)), phase_error_sd_deg=float(np.std(d)))
+                da = np.degrees(area[c] - np.arccos(np.clip(cos, -1.0, 1.0)))
+                row.update(phase_area_error_deg=float(np.mean(da)))
             if made is None or not np.any(made[c] > 0):
                 continue
             m = made[c]
+            # the share the correction's measured phase sigma states (phase_error_px, what
+            # remaining_bias_modes adds), regressed on the correction made like alpha
+            row["share_phase"] = float(np.sum(perr[c] * m) / np.sum(m * m))
+            row["share_misfit"] = float(mshare[c])
             o_used = np.array([shading_model_offset_px(a, r, psf) for a, r in zip(phase[c], p.radius_px[c])])
             o_true = np.array([shading_model_offset_px(a, r, true_blur_px) for a, r in zip(phase[c], p.radius_px[c])])
             row["alpha_blur"] = float(np.sum((o_true - o_used) * m) / np.sum(m * m))
@@ -261,18 +286,32 @@ def summary(name: str, rows: list) -> str:
     k = PitchOptions().shading_model_error
     for r in rows:
         cs = [c for c in r.get("cameras", []) if "dspeed_fitted_mph" in c] if r.get("ok") else []
-        sig = k * np.sqrt(sum(c["dspeed_unit_constant_mph"] ** 2 + c["dspeed_unit_trend_mph"] ** 2 for c in cs))
+        # the share each camera states: the floor and what its misfit measures, in quadrature
+        sig = np.sqrt(sum((k ** 2 + c.get("share_misfit", 0.0) ** 2)
+                          * (c["dspeed_unit_constant_mph"] ** 2 + c["dspeed_unit_trend_mph"] ** 2) for c in cs))
         if cs and sig > 0:
             z.append(sum(c["dspeed_fitted_mph"] for c in cs) / sig)
     if z:
-        text += (f"\n{'':22s} speed shift of the fitted shares over the stated share's speed sigma: rms "
+        text += (f"\n{'':22s} speed shift of the fitted shares over the stated shares' speed sigma: rms "
                  f"{np.sqrt(np.mean(np.square(z))):.2f} over {len(z)} captures")
     ph = [c for c in cams if c.get("phase_error_deg") is not None]
-    if ph:  # the phase angle the uncertainty reads from the silhouette's area, against the truth
+    if ph:  # the phase angle the uncertainty reads (the correction's), against the truth
         e = np.array([c["phase_error_deg"] for c in ph])
-        text += (f"\n{'':22s} silhouette phase error per camera {np.mean(e):+.1f} deg mean ({e.min():+.1f} to "
+        text += (f"\n{'':22s} correction's phase error per camera {np.mean(e):+.1f} deg mean ({e.min():+.1f} to "
                  f"{e.max():+.1f}), spread over a camera's images {np.median([c['phase_error_sd_deg'] for c in ph]):.1f} "
                  "deg median")
+        ea = np.array([c["phase_area_error_deg"] for c in ph if c.get("phase_area_error_deg") is not None])
+        if len(ea):
+            text += f"; the silhouette's area {np.mean(ea):+.1f} deg mean ({ea.min():+.1f} to {ea.max():+.1f})"
+    sp = np.array([c["share_phase"] for c in cams if c.get("share_phase") is not None])
+    if len(sp):  # what the measured phase sigma states, against the true share above
+        text += f"\n{'':22s} share the measured phase sigma states, rms {np.sqrt(np.mean(sp ** 2)):.3f}"
+    sm = [c for c in cams if c.get("share_misfit") is not None]
+    if sm:  # what the model's misfit states, against the true share: rms, and per camera
+        k, tr = np.array([c["share_misfit"] for c in sm]), np.hypot([c["alpha"] for c in sm], [c["beta"] for c in sm])
+        text += (f"\n{'':22s} share the model's misfit states, rms {np.sqrt(np.mean(k ** 2)):.3f}; true "
+                 f"sqrt((alpha^2 + beta^2) / 2) over it per camera: median {np.median(tr / np.sqrt(2) / np.maximum(k, 1e-9)):.2f}, "
+                 f"correlation {np.corrcoef(k, tr)[0, 1]:+.2f}")
     return text
 
 

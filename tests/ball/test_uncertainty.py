@@ -472,3 +472,103 @@ def test_remaining_bias_takes_a_share_per_camera():
     np.testing.assert_array_equal(m[:6], both[:6])
     with pytest.raises(ValueError, match="model_error must be >= 0"):
         remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, [0.5, -1.0])
+
+
+def test_offset_slope_is_the_models_slope_and_the_table_holds_it():
+    """The run-time table of the shading model's offset is the function on its grid (a few
+    entries recomputed), and its slope with the phase angle is the function's own slope."""
+    from stillcap.ball import uncertainty as U
+
+    for p, i, j in ((0, 0, 0), (1, 2, 18), (2, 3, 20), (4, 4, 24)):
+        got = U.shading_model_offset_px(np.radians(U._TABLE_PHASE_DEG[j]), U._TABLE_RADII[i], U._OFFSET_PSF[p])
+        assert abs(U._OFFSET[p, i, j] - got) < 1e-3
+    for deg, r, psf in ((100.0, 20.0, 0.5), (120.0, 15.0, 1.0)):
+        h = np.radians(5.0)
+        want = (U.shading_model_offset_px(np.radians(deg) + h, r, psf)
+                - U.shading_model_offset_px(np.radians(deg) - h, r, psf)) / (2 * h)
+        got = U.shading_offset_slope_lookup(np.radians([deg]), np.array([r]), psf)[0]
+        assert abs(got - want) < 0.15 * abs(want) + 0.02, (deg, got, want)
+    # radii beyond the table scale with the ball
+    s10, s5 = U.shading_offset_slope_lookup(np.radians([100.0, 100.0]), np.array([10.0, 5.0]), 0.5)
+    assert s5 == pytest.approx(0.5 * s10)
+    with pytest.raises(ValueError, match="one shape"):
+        U.shading_offset_slope_lookup([0.1, 0.2], [20.0], 0.5)
+    with pytest.raises(ValueError, match="psf_px"):
+        U.shading_offset_slope_lookup([0.1], [20.0], -1.0)
+
+
+def _reported_stereo(K: int, made, misfit_px, phase_sd_rad=np.nan, psf=(0.5, 0.5)):
+    """A stand-in for ``StereoBalls`` with what the shading correction reports."""
+    from types import SimpleNamespace
+
+    centers = np.stack([np.arange(K) * 30.0 + 100.0, np.full(K, 200.0)], axis=1)
+    return SimpleNamespace(centers_a=centers, centers_b=centers + 5.0, shading_px=np.asarray(made, float),
+                           shading_misfit_px=np.asarray(misfit_px, float), psf_px=np.asarray(psf, float),
+                           shading_phase_sd_rad=np.full((K, 2), phase_sd_rad)), np.stack([centers, centers + 5.0])
+
+
+def test_misfit_share_reads_a_cameras_share_from_its_misfit_shifts():
+    """Shifts along the lit direction that are ``alpha + beta t`` times the correction made give
+    the share ``sqrt((alpha^2 + beta^2) / 2)`` per camera; a camera with fewer than four reported
+    images, or shifts across the lit direction only, states none."""
+    from stillcap.ball.uncertainty import misfit_share
+
+    K = 8
+    t = np.linspace(-1, 1, K)
+    made = np.stack([np.linspace(0.2, 0.4, K), np.linspace(0.1, 0.3, K)], axis=1)  # (K, 2)
+    u = np.zeros((2, K, 2))
+    u[..., 0] = 1.0
+    d = np.zeros((K, 2, 2))
+    d[:, 0, 0] = (0.3 + 0.1 * t) * made[:, 0]
+    d[:, 1, 1] = 0.5 * made[:, 1]  # across the lit direction
+    st, x = _reported_stereo(K, made, d)
+    got = misfit_share(st, x, u)
+    assert got[0] == pytest.approx(np.sqrt((0.3 ** 2 + 0.1 ** 2) / 2))
+    assert got[1] == pytest.approx(0.0, abs=1e-12)
+    d[3:, 0, 0] = np.nan  # three reported images left in camera 0
+    st, x = _reported_stereo(K, made, d)
+    assert misfit_share(st, x, u)[0] == 0.0
+
+
+def test_phase_error_is_the_split_half_sigma_through_the_models_slope():
+    """Each corrected image's centre error from its camera's phase sigma (the RMS of the
+    reported split-half sigmas) times the model's slope at its phase, radius and blur; none
+    without a report."""
+    from stillcap.ball.uncertainty import phase_error_px, shading_offset_slope_lookup
+
+    K = 5
+    made = np.full((K, 2), 0.2)
+    st, x = _reported_stereo(K, made, np.full((K, 2, 2), np.nan), phase_sd_rad=np.radians(2.0), psf=(0.5, 1.0))
+    phase = np.radians(np.stack([np.linspace(80, 120, K), np.linspace(60, 100, K)]))
+    radius = np.full((2, K), 15.0)
+    got = phase_error_px(st, x, phase, radius)
+    for c, psf in ((0, 0.5), (1, 1.0)):
+        np.testing.assert_allclose(got[c], np.abs(shading_offset_slope_lookup(phase[c], radius[c], psf)) * np.radians(2.0))
+    st.shading_phase_sd_rad = None
+    assert np.all(phase_error_px(st, x, phase, radius) == 0)
+
+
+def test_lit_geometry_takes_the_corrections_phase_and_the_modes_grow_with_the_measured_share():
+    """The phase the uncertainty reads is the one the correction used where it reported one
+    (the silhouette's area elsewhere), and ``remaining_bias_modes(measured=True)`` adds the
+    share the misfit states: the modes grow with it, and ``measured=False`` is the stated share
+    alone."""
+    from stillcap.ball.uncertainty import lit_geometry, remaining_bias_modes
+
+    a, b, st = _side_lit_pair()
+    x = np.stack([st.centers_a, st.centers_b])
+    flags = np.zeros(len(st), int)
+    _, phase, _ = lit_geometry(st, x, flags, st.radius_px.T)
+    np.testing.assert_allclose(phase, st.shading_phase_rad.T)
+    st.shading_phase_rad = np.full_like(st.shading_phase_rad, np.nan)
+    _, area, _ = lit_geometry(st, x, flags, st.radius_px.T)
+    assert np.all(np.isfinite(area)) and not np.allclose(area, phase)
+    plain = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.1, measured=False)
+    meas = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.1)
+    assert np.sum(meas ** 2) >= np.sum(plain ** 2)
+    u = np.zeros((2, len(st), 2))
+    u[..., 0] = 1.0
+    st.shading_misfit_px = np.zeros((len(st), 2, 2))
+    st.shading_misfit_px[:, :, 0] = 0.5 * st.shading_px  # a large share: half the correction
+    big = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.1)
+    assert np.sum(big ** 2) > 1.5 * np.sum(plain ** 2)

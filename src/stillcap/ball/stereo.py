@@ -65,6 +65,13 @@ class StereoBalls:
     shading_px : ndarray, shape (K, 2)
         Length of the shading correction applied to each match's centre in camera a and b (px;
         0 where none ran).
+    shading_phase_rad, shading_phase_sd_rad : ndarray, shape (K, 2)
+        The phase angle the shading correction used in camera a and b, and its split-half
+        1-sigma (rad; NaN where none ran; ``RefinedCenters``' fields).
+    shading_misfit_px : ndarray, shape (K, 2, 2)
+        Per match, camera a and b: the centre shift (x, y px) a least-squares fit of the
+        correction's model to the photo asks for (``RefinedCenters.shading_misfit_px``; NaN
+        where none ran).
     """
 
     points_3d: np.ndarray
@@ -82,12 +89,20 @@ class StereoBalls:
     detections_b: BallDetections
     psf_px: np.ndarray = None
     shading_px: np.ndarray = None
+    shading_phase_rad: np.ndarray = None
+    shading_phase_sd_rad: np.ndarray = None
+    shading_misfit_px: np.ndarray = None
 
     def __post_init__(self):
         if self.psf_px is None:
             self.psf_px = np.full(2, DEFAULT_PSF_PX)
         if self.shading_px is None:
             self.shading_px = np.zeros((len(self.points_3d), 2))
+        for name in ("shading_phase_rad", "shading_phase_sd_rad"):
+            if getattr(self, name) is None:
+                setattr(self, name, np.full((len(self.points_3d), 2), np.nan))
+        if self.shading_misfit_px is None:
+            self.shading_misfit_px = np.full((len(self.points_3d), 2, 2), np.nan)
 
     def __len__(self) -> int:
         return len(self.points_3d)
@@ -233,11 +248,25 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         epipolar_px=m.distance_px.copy(), reproj_error_px=tri.reproj_error_px, flags=flags.astype(int),
         detections_a=det_a, detections_b=det_b,
         psf_px=np.array([_psf_of(psf, 0), _psf_of(psf, 1)]),
-        shading_px=np.stack([np.linalg.norm(_corr(ref_a), axis=1), np.linalg.norm(_corr(ref_b), axis=1)], axis=1))
+        shading_px=np.stack([np.linalg.norm(_corr(ref_a), axis=1), np.linalg.norm(_corr(ref_b), axis=1)], axis=1),
+        shading_phase_rad=np.stack([_phase(ref_a, "shading_phase_rad"), _phase(ref_b, "shading_phase_rad")], axis=1),
+        shading_phase_sd_rad=np.stack([_phase(ref_a, "shading_phase_sd_rad"), _phase(ref_b, "shading_phase_sd_rad")],
+                                      axis=1),
+        shading_misfit_px=np.stack([_misfit(ref_a), _misfit(ref_b)], axis=1))
 
 
 def _corr(ref: RefinedCenters) -> np.ndarray:
     return ref.shading_px if ref.shading_px is not None else np.zeros((len(ref), 2))
+
+
+def _misfit(ref: RefinedCenters) -> np.ndarray:
+    v = getattr(ref, "shading_misfit_px", None)
+    return np.asarray(v, float) if v is not None else np.full((len(ref), 2), np.nan)
+
+
+def _phase(ref: RefinedCenters, name: str) -> np.ndarray:
+    v = getattr(ref, name, None)
+    return np.asarray(v, float) if v is not None else np.full(len(ref), np.nan)
 
 
 def _psf_option(psf_px):
@@ -398,8 +427,12 @@ def _edge_outline_fit(ref: RefinedCenters, det: BallDetections, idx: np.ndarray,
         return ref
     flags = np.where(fitted, ref.flags & ~int(BallFlag.REFINE_FAILED), ref.flags)
     shading = None if ref.shading_px is None else np.where(fitted[:, None], 0.0, ref.shading_px)
+    phase = {k: np.where(fitted, np.nan, getattr(ref, k)) for k in ("shading_phase_rad", "shading_phase_sd_rad")
+             if getattr(ref, k, None) is not None}
+    if getattr(ref, "shading_misfit_px", None) is not None:
+        phase["shading_misfit_px"] = np.where(fitted[:, None], np.nan, ref.shading_misfit_px)
     return replace(ref, centers=centers, shifts=centers - (ref.centers - ref.shifts), flags=flags,
-                   shading_px=shading)
+                   shading_px=shading, **phase)
 
 
 def _faint(det: BallDetections) -> np.ndarray:

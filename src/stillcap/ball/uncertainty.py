@@ -30,6 +30,8 @@ import functools
 import cv2
 import numpy as np
 
+from stillcap.ball._offset_table import OFFSET as _OFFSET
+from stillcap.ball._offset_table import OFFSET_PSF as _OFFSET_PSF
 from stillcap.ball.metric_uncertainty import (
     ANGLE_KEYS,
     metrics_sigma,
@@ -41,9 +43,9 @@ from stillcap.detect.ball import BallFlag
 from stillcap.geometry.triangulate import triangulate
 
 __all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes", "lit_geometry",
-           "lit_phase_from_area", "metrics_sigma", "pixel_sigma", "position_covariances", "remaining_bias_modes",
-           "shading_model_offset_px", "shading_residual_lookup", "shading_residual_px", "share_correlation",
-           "speed_sigma", "spin_decay_slope"]
+           "lit_phase_from_area", "metrics_sigma", "misfit_share", "phase_error_px", "pixel_sigma", "position_covariances",
+           "remaining_bias_modes", "shading_model_offset_px", "shading_offset_slope_lookup", "shading_residual_lookup",
+           "shading_residual_px", "share_correlation", "speed_sigma", "spin_decay_slope"]
 
 #: refinement smoothing of :func:`stillcap.detect.ball.refine_ball_centers` (its ``sigma``)
 _REFINE_SIGMA = 0.7
@@ -158,6 +160,54 @@ def _residual_table(corrected: bool) -> np.ndarray:
     """``shading_residual_px`` on the table's grid (what ``_RESIDUAL_*`` holds, rounded)."""
     return np.array([[shading_residual_px(np.radians(a), r, corrected) for a in _TABLE_PHASE_DEG]
                      for r in _TABLE_RADII])
+
+
+# ``shading_model_offset_px`` itself tabulated (``stillcap.ball._offset_table``: lens blurs
+# ``_OFFSET_PSF`` px, the radii ``_TABLE_RADII``, the phase angles ``_TABLE_PHASE_DEG``) for its slope
+# with the phase at run time (``_offset_table`` regenerates it; checked in tests/ball/test_uncertainty.py)
+
+
+def _offset_table() -> np.ndarray:
+    """``shading_model_offset_px`` on ``_OFFSET``'s grid (what it holds, rounded)."""
+    return np.array([[[shading_model_offset_px(np.radians(a), r, p) for a in _TABLE_PHASE_DEG] for r in _TABLE_RADII]
+                     for p in _OFFSET_PSF])
+
+
+def shading_offset_slope_lookup(phase_rad, radius_px, psf_px: float) -> np.ndarray:
+    """Slope (px per rad) of the shading model's offset (:func:`shading_model_offset_px`) with the
+    phase angle, for many ball images of one photo: central differences of the tabulated offset
+    on its 5-deg grid, bilinear in the phase angle and the radius, linear in the lens blur
+    (``psf_px`` clipped to 0-2 px). Radii outside 10-40 px take the nearest row scaled by the
+    radius (the offset grows about as the ball).
+
+    Parameters
+    ----------
+    phase_rad, radius_px : array_like, shape (N,)
+    psf_px : float
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
+    a = np.clip(np.degrees(np.asarray(phase_rad, float)), 0.0, 150.0)
+    r_in = np.asarray(radius_px, float)
+    if a.shape != r_in.shape:
+        raise ValueError(f"phase_rad and radius_px must have one shape, got {a.shape} and {r_in.shape}")
+    if not np.isfinite(psf_px) or psf_px < 0:
+        raise ValueError(f"psf_px must be >= 0, got {psf_px}")
+    r = np.clip(r_in, _TABLE_RADII[0], _TABLE_RADII[-1])
+    slope = np.gradient(_OFFSET, np.radians(_TABLE_PHASE_DEG), axis=2)  # (P, R, A)
+    p = float(np.clip(psf_px, _OFFSET_PSF[0], _OFFSET_PSF[-1]))
+    i = int(np.clip(np.searchsorted(_OFFSET_PSF, p) - 1, 0, len(_OFFSET_PSF) - 2))
+    wp = (p - _OFFSET_PSF[i]) / (_OFFSET_PSF[i + 1] - _OFFSET_PSF[i])
+    T = (1 - wp) * slope[i] + wp * slope[i + 1]  # (R, A)
+    rows = np.array([np.interp(a, _TABLE_PHASE_DEG, T[j]) for j in range(len(_TABLE_RADII))])  # (R, N)
+    j = np.clip(np.searchsorted(_TABLE_RADII, r) - 1, 0, len(_TABLE_RADII) - 2)
+    w = (r - _TABLE_RADII[j]) / (_TABLE_RADII[j + 1] - _TABLE_RADII[j])
+    k = np.arange(a.size)
+    out = (1 - w.ravel()) * rows.reshape(len(_TABLE_RADII), -1)[j.ravel(), k] + w.ravel() * rows.reshape(
+        len(_TABLE_RADII), -1)[j.ravel() + 1, k]
+    return out.reshape(a.shape) * np.where(np.isfinite(r_in), r_in / r, np.nan)
 
 
 def shading_residual_lookup(phase_rad, radius_px, corrected) -> np.ndarray:
@@ -371,7 +421,12 @@ def lit_geometry(stereo, centers_px, flags, radius_px):
         Unit vector from the refined centre toward the silhouette's ellipse centre (the lit
         side: a lit silhouette's middle lies toward the light); 0 where they coincide.
     phase : ndarray, shape (2, K)
-        Phase angle (rad) from the silhouette's area (:func:`lit_phase_from_area`).
+        Phase angle (rad): the one the shading correction used (``stereo.shading_phase_rad``,
+        read from the ball image's radiance centroid through the blurred sphere model) where it
+        ran, else from the silhouette's area (:func:`lit_phase_from_area`; a thresholded
+        silhouette loses the dim terminator and under blur spreads past the disc: +6.5 to +15 deg
+        off on sharp studio photos, -14 deg under 1.5 px of blur, ``docs/pitch.md``, "A share
+        each capture measures?").
     corrected : ndarray of bool, shape (K,)
     """
     x = np.asarray(centers_px, float)
@@ -390,6 +445,10 @@ def lit_geometry(stereo, centers_px, flags, radius_px):
         n = np.linalg.norm(d, axis=1)
         u[c] = np.where(n[:, None] > 1e-9, d / np.maximum(n, 1e-9)[:, None], 0.0)
         phase[c] = lit_phase_from_area(det.areas[j], np.asarray(radius_px, float)[c])
+        used = getattr(stereo, "shading_phase_rad", None)
+        if used is not None:
+            used = np.asarray(used, float)[row, c]
+            phase[c] = np.where(np.isfinite(used), used, phase[c])
     corrected = (np.asarray(flags, int) & int(BallFlag.PARTIAL)) > 0
     return u, phase, corrected
 
@@ -445,17 +504,107 @@ def lit_bias_modes(cams, centers_px, u, sigma_px, corrected):
     return out
 
 
+def _stereo_values(stereo, centers_px, name: str) -> np.ndarray | None:
+    """``stereo.<name>`` (K_stereo, 2, ...) at the rows of a pair's centres, shape (2, K, ...); None where
+    the stereo step did not record it."""
+    v = getattr(stereo, name, None)
+    x = np.asarray(centers_px, float)
+    if v is None or not len(stereo.centers_a) or not x.shape[1]:
+        return None
+    # the stereo rows of the pair's centres (as lit_geometry finds them)
+    row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
+    return np.moveaxis(np.asarray(v, float)[row], 0, 1)
+
+
+def phase_error_px(stereo, centers_px, phase_rad, radius_px) -> np.ndarray:
+    """1-sigma error (px, along the lit direction) of each corrected ball image's centre that the
+    uncertainty of the correction's phase angle gives, measured per camera from its own photos.
+
+    Each ball image's phase is read from its radiance centroid, and the correction reports a
+    split-half sigma of it (``stereo.shading_phase_sd_rad``,
+    :func:`stillcap.detect.ball._shading._phase_split_sd`: the two halves of a lambertian ball
+    either side of its lit axis have the same centroid; painted markers, seams, a leather that is
+    not lambertian, noise and compression move them apart). One image's split is a single
+    difference, so a camera's phase sigma is their RMS over its images; each image's centre error
+    is that times the slope of the model's offset with the phase at its own phase, radius and
+    the camera's blur (:func:`shading_offset_slope_lookup`). Zero where nothing was reported.
+
+    Returns
+    -------
+    ndarray, shape (2, K)
+    """
+    sd = _stereo_values(stereo, centers_px, "shading_phase_sd_rad")
+    K = np.asarray(centers_px, float).shape[1]
+    out = np.zeros((2, K))
+    if sd is None:
+        return out
+    psf = np.broadcast_to(np.asarray(getattr(stereo, "psf_px", 0.5), float), (2,))
+    for c in range(2):
+        ok = np.isfinite(sd[c])
+        if not ok.any():
+            continue
+        sig = float(np.sqrt(np.mean(sd[c][ok] ** 2)))
+        slope = shading_offset_slope_lookup(phase_rad[c], radius_px[c], psf[c])
+        out[c] = np.where(np.isfinite(slope), np.abs(slope) * sig, 0.0)
+    return out
+
+
+def misfit_share(stereo, centers_px, u, made=None, min_images: int = 4) -> np.ndarray:
+    """The share of the shading correction a pair's photos say is wrong, per camera: a constant
+    and a change along the pair's images, from the shift a least-squares fit of the correction's
+    own model to each ball image asks for (``stereo.shading_misfit_px``,
+    :func:`stillcap.detect.ball._shading._misfit_shift`).
+
+    The correction places the model so that its Hough centre falls where the photo's does; a fit
+    of the same model to all of the ball's pixels is a second estimate of the centre. Where the
+    photo is the model they agree to the noise; where it is not (a leather that is not
+    lambertian, a second light, paint, a wrong phase or blur) they part, along the lit
+    direction, by an amount of the order of the correction's own error. Per camera the shifts
+    along ``u`` are regressed on the correction made as the truth is in
+    ``benchmarks/bench_shading_share.py``: ``d_k = (alpha + beta t_k) m_k``, ``t`` from -1 at the
+    pair's first image to +1 at its last, and the share stated is
+    ``sqrt((alpha^2 + beta^2) / 2)``: the noise in the two estimates is left in (it only widens),
+    and the two estimates' own disagreement, not which of them is right, is what is measured.
+
+    Parameters
+    ----------
+    stereo : StereoBalls
+    centers_px : array_like, shape (2, K, 2)
+    u : array_like, shape (2, K, 2)
+        Lit direction per camera and image (:func:`lit_geometry`).
+    made : array_like, shape (2, K), optional
+        The correction made (:func:`correction_made`, read from ``stereo`` when not given).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        Per camera; 0 where fewer than ``min_images`` images report a shift.
+    """
+    d = _stereo_values(stereo, centers_px, "shading_misfit_px")
+    m = correction_made(stereo, centers_px) if made is None else np.asarray(made, float)
+    out = np.zeros(2)
+    if d is None or m is None:
+        return out
+    K = d.shape[1]
+    t = np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)
+    for c in range(2):
+        a = np.einsum("kj,kj->k", d[c], np.asarray(u, float)[c])
+        ok = np.isfinite(a) & (m[c] > 0)
+        if ok.sum() < min_images:
+            continue
+        A = np.stack([m[c][ok], m[c][ok] * t[ok]], axis=1)
+        coef, *_ = np.linalg.lstsq(A, a[ok], rcond=None)
+        if np.linalg.matrix_rank(A) < 2:
+            coef = np.array([float(np.sum(A[:, 0] * a[ok]) / np.sum(A[:, 0] ** 2)), 0.0])
+        out[c] = float(np.sqrt(np.mean(coef ** 2)))
+    return out
+
+
 def correction_made(stereo, centers_px) -> np.ndarray | None:
     """The shading correction's length (px) per camera and ball image of a pair's centres,
     shape (2, K) (``stereo.shading_px`` at the rows the centres came from); None where the
     stereo step did not record it."""
-    shading_px = getattr(stereo, "shading_px", None)
-    x = np.asarray(centers_px, float)
-    if shading_px is None or not len(stereo.centers_a) or not x.shape[1]:
-        return None
-    # the stereo rows of the pair's centres (as lit_geometry finds them)
-    row = np.argmin(np.linalg.norm(np.asarray(stereo.centers_a)[None] - x[0][:, None], axis=2), axis=1)
-    return np.asarray(shading_px, float)[row].T  # (2, K)
+    return _stereo_values(stereo, centers_px, "shading_px")
 
 
 def _signed_epipolar_px(cams, x) -> np.ndarray:
@@ -534,7 +683,8 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
     return out
 
 
-def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0, correlation=0.0) -> np.ndarray:
+def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0, correlation=0.0,
+                         measured: bool = True) -> np.ndarray:
     """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
     (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras).
 
@@ -547,6 +697,10 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     constant and a trend mode per camera; one mode per camera for the share alone was tried,
     ``docs/pitch.md``, "The correction's wrong share").
     ``model_error``: one share for both cameras, or one per camera (shape (2,)).
+    ``measured``: the error the correction's own inputs and fit show in this capture added in
+    quadrature (:func:`phase_error_px`: the phase angle's split-half sigma carried through the
+    model; :func:`misfit_share`: the share the model's misfit to the photos states), so
+    ``model_error`` is then the floor for what the photos cannot show.
 
     ``correlation``: how much of the two cameras' remaining bias along their lit directions is
     shared by them (0: each camera's own, the former model; 1: the same share in both), a number
@@ -575,6 +729,10 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     s = np.stack([shading_residual_lookup(phase[c], radius_px[c], corr) for c in range(2)])
     if made is not None and np.any(k > 0):
         s = np.hypot(s, k[:, None] * made)
+    if measured:
+        s = np.hypot(s, np.where(corr[None, :], phase_error_px(stereo, centers_px, phase, radius_px), 0.0))
+        if made is not None:
+            s = np.hypot(s, misfit_share(stereo, centers_px, u, made)[:, None] * made)
     x = np.asarray(centers_px, float)
     K = x.shape[1]
     if isinstance(correlation, str):

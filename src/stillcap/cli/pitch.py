@@ -65,9 +65,11 @@ def pitch(
     center_sigma_px: float = typer.Option(0.2, "--center-sigma-px", help="Assumed 1-sigma noise of a refined "
                                           "ball centre in the photo (px); the self-checks grow it when the "
                                           "residuals show more."),
-    shading_model_error: float = typer.Option(0.5, "--shading-model-error", help="Assumed relative error of "
-                                              "the lit-phase (shading) correction of each ball centre: its "
-                                              "remaining bias is taken as this fraction of the correction."),
+    shading_model_error: float = typer.Option(0.1, "--shading-model-error", help="Floor of the relative error of "
+                                              "the lit-phase (shading) correction of each ball centre: each "
+                                              "capture measures its own share from the model's misfit to its "
+                                              "ball images, and the remaining bias is at least this fraction of "
+                                              "the correction."),
 ):
     """Ball positions, release velocity, spin, reference trajectory and pitch metrics of a capture.
 

@@ -179,6 +179,8 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
     scores = np.zeros(n)
     flags = np.zeros(n, int)
     corr = np.zeros((n, 2))
+    phase = np.full((n, 2), np.nan)  # the shading correction's phase angle and its sigma (rad)
+    misfit = np.full((n, 2), np.nan)  # and the shift its model's misfit to the photo asks for (px)
     H, W = img.shape[:2]
     for i in range(n):
         r = radii[i]
@@ -255,8 +257,12 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
             flags[i] = BallFlag.REFINE_FAILED
             continue
         if shade[i] if shade is not None else (shading and support < shading_support):
+            rep = {}
             corr[i] = _shading_bias(lin, best, off, tpl, power, np.hypot(sigma, psf_px), fine_step, smooth=sigma,
-                                    thin_rim=bool(thin[i]))
+                                    thin_rim=bool(thin[i]), report=rep)
+            phase[i] = rep.get("phase_rad", np.nan), rep.get("phase_sd_rad", np.nan)
+            misfit[i] = rep.get("misfit_shift_px", np.nan)
             best = best - corr[i]
         out_c[i] = best + (xa, ya)
-    return RefinedCenters(out_c, radii.copy(), scores, out_c - c0, flags, corr)
+    return RefinedCenters(out_c, radii.copy(), scores, out_c - c0, flags, corr, phase[:, 0].copy(), phase[:, 1].copy(),
+                          misfit)

@@ -225,7 +225,7 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False, m
 
 def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
                   blur: float, fine_step: float, smooth: float = REFINE_SMOOTH_PX, thin_rim: bool = False,
-                  start=None) -> np.ndarray:
+                  start=None, report: dict | None = None) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
     The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
@@ -264,6 +264,12 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     a slightly different ``blur`` (:func:`stillcap.ball.stereo.photo_blur_px`' next round): the
     corrected centre's first secant step goes there (its projection on the bias's direction)
     instead of to ``center - bias``; the steps after it and the tolerance are the same.
+
+    ``report``: a dict given the phase angle the correction used (``"phase_rad"``, in the frame of
+    the returned bias), that phase's split-half uncertainty (``"phase_sd_rad"``,
+    :func:`_phase_split_sd`) and the shift the model's misfit to the photo asks for
+    (``"misfit_shift_px"``, :func:`_misfit_shift`; not for clipped balls), for the uncertainty of the correction
+    (:func:`stillcap.ball.uncertainty.remaining_bias_modes`); left empty when no light was read.
     """
     more0 = {}
     geom = _outline_geometry(off)
@@ -289,6 +295,8 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
             if model is None:
                 break
             bias = np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
+            if report is not None:
+                report.update(_phase_report(lin, q_c, None, light_c, False))
             c_new = np.asarray(center, float) - bias
             if np.hypot(*(c_new - c)) < 0.005:
                 break
@@ -315,12 +323,15 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
         render = _renderer(lin.shape, mid_c, A_c, band, q_c, win[2], geom)
         light_c = _blurred_phase_light(lin, mid_c, A_c, q_c, light_c, psf, band, thin_rim, render=render,
                                        warm=warm, win=win, mq=more.get("mq"))
+        more.update(q=q_c, win=win, light=light_c, slope=warm.get("slope", float("nan")), render=render)
         model = cv2.GaussianBlur(render(light_c), (0, 0), blur)
         return np.array(_model_peak(model, c, tpl, power, fine_step, kf)) - c
 
     bias = bias_at(center, (mid, A, q, light), more0)
     size = float(np.hypot(*bias))
+    best_more = more0
     if size < 1e-6:
+        _report_into(report, lin, best_more, thin_rim, psf)
         return bias
     u = bias / size
     # h(t) = t - bias(center - t u) . u, zero at the corrected centre; h(0) = -size < 0. Secant
@@ -334,12 +345,13 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
             t = min(t_start, 4.0 * size + 0.2)
     best_h, best_bias = size, bias
     for _ in range(FRAME_ROUNDS):
-        b = bias_at(center - t * u)
+        more_t = {}
+        b = bias_at(center - t * u, more=more_t)
         if b is None:
             break
         h = t - float(b @ u)
         if abs(h) < best_h:
-            best_h, best_bias = abs(h), b
+            best_h, best_bias, best_more = abs(h), b, more_t
         if abs(h) < 0.005:
             break
         if h < 0:
@@ -350,7 +362,90 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
         if hi is not None and not (min(lo[0], hi[0]) < t_new < max(lo[0], hi[0])):
             t_new = 0.5 * (lo[0] + hi[0])
         t_prev, h_prev, t = t, h, float(np.clip(t_new, -size, 4.0 * size + 0.2))
+    _report_into(report, lin, best_more, thin_rim, psf)
     return best_bias
+
+
+def _report_into(report: dict | None, lin: np.ndarray, more: dict, signed: bool, psf: float = 0.0) -> None:
+    """:func:`_shading_bias`' ``report`` from the frame (``more``, :func:`_shading_bias`' ``bias_at``'s)
+    whose bias it returns."""
+    if report is not None and "light" in more:
+        report.update(_phase_report(lin, more["q"], more["win"], more["light"], signed, more.get("slope")))
+        model = more["render"](more["light"])
+        if psf >= 0.05:
+            model = cv2.GaussianBlur(model, (0, 0), psf)
+        report["misfit_shift_px"] = _misfit_shift(lin, model, more["win"][2])
+
+
+def _misfit_shift(lin: np.ndarray, model: np.ndarray, r2: np.ndarray, reach: float = 1.3) -> np.ndarray:
+    """The shift (px, (2,)) of the ball that a least-squares fit of the lens-blurred model
+    (``model``, rendered at the corrected centre) to the photo asks for: ``lin ~ a model(x - d)
+    + b`` linearised, ``model(x - d) ~ model - d . grad(model)``, over the pixels within ``reach``
+    outline radii (``r2``: their squared radius). A second estimate of the centre from the same
+    model, by another weighing of the pixels than the Hough's limb: with the model right both
+    find the centre and ``d`` is noise; where the photo is not the model (a leather that is not
+    lambertian, a second light, paint, a wrong blur or phase), the misfit moves them differently
+    and ``d`` shows it. Written by hand: a 4-parameter linear least squares on the crop, which
+    no image-registration routine does over an outline's window. NaN without enough pixels."""
+    sel = r2 < reach * reach
+    if np.count_nonzero(sel) < 12:
+        return np.full(2, np.nan)
+    gy, gx = np.gradient(model.astype(np.float64))
+    J = np.stack([gx[sel], gy[sel], model[sel].astype(np.float64), np.ones(np.count_nonzero(sel))], axis=1)
+    try:  # the normal equations (4 x 4): well conditioned here, ~5x cheaper than an SVD per ball
+        coef = np.linalg.solve(J.T @ J, J.T @ lin[sel].astype(np.float64))
+    except np.linalg.LinAlgError:
+        return np.full(2, np.nan)
+    if not coef[2] > 1e-9:
+        return np.full(2, np.nan)
+    # lin ~ a model - a d . grad(model) + b: the gradient columns' coefficients are -a d
+    return -coef[:2] / coef[2]
+
+
+def _phase_report(lin: np.ndarray, q, win, light, signed: bool, slope=None) -> dict:
+    """The phase angle of ``light`` and its split-half sigma (:func:`_phase_split_sd`)."""
+    a = float(np.arctan2(np.hypot(light[0], light[1]), light[2]))
+    return {"phase_rad": a, "phase_sd_rad": _phase_split_sd(lin, q, win, light, signed, slope)}
+
+
+def _phase_split_sd(lin: np.ndarray, q, win, light, signed: bool = False, slope=None) -> float:
+    """1-sigma (rad) of the phase angle read from this ball image's radiance centroid, from the
+    image itself: split-half.
+
+    A lambertian sphere's shading is mirror-symmetric about its lit axis (the light's azimuth
+    through the outline's middle), so the centroids along that axis of the two halves of the
+    window either side of it are the same. What the photo adds to the model, whatever it is
+    (painted markers and seams, a leather that is not lambertian, noise, JPEG, a second light),
+    moves them apart: the centroid of the whole, their weighted mean, is off by about half their
+    difference (two independent halves). Through the slope of the centroid with the phase (the
+    blurred model's, from the phase search, else the sharp table's) that is the phase's sigma.
+    Texture symmetric about the axis is not seen. NaN where a half has no radiance."""
+    inside, ring = (_centroid_window(q) if win is None else win)[:2]
+    n = float(np.hypot(light[0], light[1]))
+    if n < 1e-9:
+        return float("nan")
+    ax, ay = light[0] / n, light[1] / n
+    if signed:
+        level = float(lin[ring].mean()) if ring.any() else 0.0
+        w = np.where(inside, lin - level, 0.0)
+    else:
+        level = median(lin[ring]) if ring.any() else 0.0
+        w = np.where(inside, np.maximum(lin - level, 0.0), 0.0)
+    s = q[0] * ax + q[1] * ay
+    side = q[1] * ax - q[0] * ay > 0
+    m = []
+    for h in (side, ~side):
+        tot = float(w[h].sum())
+        if not tot > 0:
+            return float("nan")
+        m.append(float((w[h] * s[h]).sum()) / tot)
+    a = float(np.arctan2(n, light[2]))
+    if slope is None or not (np.isfinite(slope) and slope > 0):
+        alpha, table = _centroid_table()
+        slope = float(np.interp(a, alpha, np.gradient(table, alpha)))
+    if not slope > 1e-3:
+        return float("nan")
+    return float(min(0.5 * abs(m[0] - m[1]) / slope, np.pi / 2))
 
 
 def _renderer(shape, mid, A: np.ndarray, band: float, q, r2=None, geom=None):

@@ -156,6 +156,12 @@ class RefinedCenters:
         ``BallFlag.REFINE_FAILED`` where the peak was weak or on the search border.
     shading_px : ndarray, shape (N, 2) or None
         The shading correction subtracted from each centre (px; 0 where none ran).
+    shading_phase_rad, shading_phase_sd_rad : ndarray, shape (N,) or None
+        The phase angle the shading correction used and its split-half 1-sigma (rad;
+        :func:`stillcap.detect.ball._shading._phase_split_sd`), NaN where none ran.
+    shading_misfit_px : ndarray, shape (N, 2) or None
+        The centre shift a least-squares fit of the correction's model to the photo asks for
+        (px; :func:`stillcap.detect.ball._shading._misfit_shift`), NaN where none ran.
     """
 
     centers: np.ndarray
@@ -164,6 +170,9 @@ class RefinedCenters:
     shifts: np.ndarray
     flags: np.ndarray
     shading_px: np.ndarray | None = None
+    shading_phase_rad: np.ndarray | None = None
+    shading_phase_sd_rad: np.ndarray | None = None
+    shading_misfit_px: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.centers)

@@ -81,19 +81,24 @@ class PitchOptions:
         constant and a trend along the flight; 0 leaves it out. ``docs/pitch.md``,
         "Uncertainties".
     shading_model_error : float
-        Share of each ball image's shading correction (``StereoBalls.shading_px``) the model may
-        have wrong, taken as a bias shared by a camera's ball images, a constant and a linear
-        trend along the pair's images each of this size (with the default ``center_bias_px``,
-        ``stillcap.ball.uncertainty.remaining_bias_modes``; so the share's 1-sigma is this at the
-        middle of a pair's images and up to sqrt(2) times it at the first and last: 0.5-0.71
-        with the default, ``docs/pitch.md``, "The share at every image"): the light's
-        direction, the lens blur and the clipping are read from the photo and the leather is
-        taken for lambertian, all of which a real ball and lens break. How much of it a pair's
-        two cameras share is read from the pair's epipolar residuals
+        The floor of the share of each ball image's shading correction (``StereoBalls.shading_px``)
+        the model may have wrong: the share the photos cannot show. Each capture measures its own
+        share on top of it, in quadrature (``remaining_bias_modes(measured=True)``): the share
+        its ball images' misfit to the correction's model states (a least-squares fit of the
+        same model to each ball's pixels against the correction's Hough centre,
+        :func:`stillcap.ball.uncertainty.misfit_share`) and the phase angle's split-half
+        uncertainty carried through the model (:func:`stillcap.ball.uncertainty.phase_error_px`);
+        ``docs/pitch.md``, "A share each capture measures". The share is taken as a bias shared
+        by a camera's ball images, a constant and a linear trend along the pair's images each of
+        this size (with the default ``center_bias_px``): the light's direction, the lens blur
+        and the clipping are read from the photo and the leather is taken for lambertian; what a
+        misfit cannot show (a wrong blur or response moves both estimates alike) is this floor.
+        How much of it a pair's two cameras share is read from the pair's epipolar residuals
         (``remaining_bias_modes(correlation="epipolar")``); the same modes size the spin's
         shared ball-centre error (``docs/pitch.md``, "The spin's centre error and the pair's
         shared bias").
-        Default 0.5 (``docs/pitch.md``, "Uncertainties"); 0 trusts the correction fully.
+        Default 0.1, a stated assumption (it was a fixed 0.5 before the share was measured per
+        capture); 0 trusts what the capture measures alone.
     center_sigma_px : float
         Expected random error of a refined ball centre per image axis, px: the noise the
         self-checks (:mod:`stillcap.pipelines.pitch.checks`) test the epipolar residuals and the
@@ -133,7 +138,7 @@ class PitchOptions:
     sigma_method: str = "linear"
     calibration_focal_sigma: float = 2.5e-4
     center_bias_px: float | None = None
-    shading_model_error: float = 0.5
+    shading_model_error: float = 0.1
     center_sigma_px: float = 0.2
     workers: int = 2
     processes: int = 0

@@ -412,7 +412,10 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
         m = calibration_modes(p._cams, p.centers_px, board, options.calibration_focal_sigma)
         sb = options.center_bias_px
         if sb is None and p.stereo is not None:
-            # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass)
+            # the bias the shading correction leaves (docs/pitch.md, "Coverage audit", 4th pass):
+            # the share this capture's ball images measure (their misfit to the correction's
+            # model, its phase's split-half sigma), at least the stated floor
+            # (docs/pitch.md, "A share each capture measures")
             kappa = options.shading_model_error
             # how much of it the two cameras share: from the pair's epipolar residuals, which the
             # flight cannot absorb (docs/pitch.md, "Shared by the pair's cameras")
