@@ -335,11 +335,14 @@ def _bead_levels(images, centers, radii_px) -> tuple[np.ndarray, np.ndarray]:
     R = np.ceil(r + 4).astype(int)[:, None, None]
     hw = np.array([im.shape[:2] for im in images])[vi]
     h, w = hw[:, 0, None, None], hw[:, 1, None, None]
-    valid = ((xs >= 0) & (xs < w) & (ys >= 0) & (ys < h) & (np.abs(xs - ci[:, 0, None, None]) <= R)
-             & (np.abs(ys - ci[:, 1, None, None]) <= R))
+    # the window's columns and rows inside the photo and the bead's box, each on its own axis
+    valid = (((ys >= 0) & (ys < h) & (np.abs(ys - ci[:, 1, None, None]) <= R))
+             & ((xs >= 0) & (xs < w) & (np.abs(xs - ci[:, 0, None, None]) <= R)))
     patch = np.empty((len(c), S, S))
-    for v in np.unique(vi):  # gather each photo's windows
-        sel = vi == v
+    # vi is sorted (np.nonzero in row order): each photo's beads are one slice
+    starts = np.searchsorted(vi, np.arange(len(images) + 1))
+    for v in np.flatnonzero(np.diff(starts)):  # gather each photo's windows
+        sel = slice(starts[v], starts[v + 1])
         img = images[v]
         hh, ww = img.shape[:2]
 
