@@ -56,7 +56,7 @@ def frame_status(skeleton: Skeleton, markerset: MarkerSet, recovered=None) -> di
     n = skeleton.n_joints
     locked = np.all(lim[:, :, 0] == lim[:, :, 1], axis=1)
     on = frames >= 0
-    f, offs = frames[on], markerset.offsets[on]
+    f, offs = frames[on], markerset.offsets.reshape(-1, 3)[on]  # (0, 3) for a marker set without beads
     counts = np.bincount(f, minlength=n)
     # every frame's cloud (its markers' offsets and the joint, the origin) centred on its own
     # mean, as the rows of one zero-padded (n_joints, rows, 3) array: zero rows leave a matrix's
