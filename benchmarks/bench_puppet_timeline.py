@@ -11,6 +11,10 @@ prints per tree the first call's wall time, the main thread's CPU time and every
 (least and median over the rounds), and the second call's wall time. Alternating the trees
 round by round spreads the machine's other load over both alike; the trees' ``src`` folders
 go first on the path (export another version with ``git archive COMMIT | tar -x -C DIR``).
+Each round also decodes the capture's JPEGs one after the other (``cv2.imread``, in this
+process, as ``bench_speed.py``'s reference): the table's ``ratio`` is a tree's least first-call
+wall time over the least decode, issue 16's goal (<= 4) as ``bench_speed.py --puppet-only``
+gives it for one tree.
 
 ``--timeline``: also the first call's timeline of the last round of each tree: when each
 piece (loading, set-up, decoding, preparing, finding the candidates, refining, naming, the rest
@@ -36,7 +40,10 @@ import os
 import statistics
 import subprocess
 import sys
+import time
 from pathlib import Path
+
+import cv2
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -95,21 +102,29 @@ def main(argv=None) -> None:
     trees = [t.resolve() for t in (args.tree or [SRC])]
     runs = {t: [] for t in trees}
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    files = sorted(str(f) for f in (folder / "images").iterdir() if f.suffix.lower() in (".jpg", ".jpeg"))
+    decode = []  # seconds to decode the capture's JPEGs, once per round (bench_speed.py's reference)
     for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        for f in files:
+            cv2.imread(f)
+        decode.append(time.perf_counter() - t0)
         for t in trees:
             p = subprocess.run([sys.executable, "-c", CHILD, str(t), str(folder), "1" if args.timeline else "0"],
                                check=True, env=env, capture_output=True, text=True)
             runs[t].append(json.loads(p.stdout.strip().splitlines()[-1]))
     load = os.getloadavg()
-    print(f"{folder}: {args.repeat} rounds, load average {load[0]:.2f}; milliseconds")
-    print(f"{'tree':40s} | first call wall: least  median | main CPU: least  median | all threads CPU: least "
+    print(f"{folder}: {args.repeat} rounds, load average {load[0]:.2f}; milliseconds; decoding its {len(files)} "
+          f"JPEGs: least {1e3 * min(decode):.1f}, median {1e3 * statistics.median(decode):.1f}")
+    print(f"{'tree':40s} | first call wall: least  median  ratio | main CPU: least  median | all threads CPU: least "
           f"| second call wall: least  median")
     for t in trees:
         f = [r["first"] for r in runs[t]]
         s = [r["second"] for r in runs[t]]
         wall, cpu, proc = ([1e3 * x[i] for x in f] for i in range(3))
-        print(f"{str(t)[-40:]:40s} | {min(wall):22.1f} {statistics.median(wall):7.1f} | {min(cpu):14.1f} "
-              f"{statistics.median(cpu):7.1f} | {min(proc):21.1f} | {1e3 * min(s):24.1f} {1e3 * statistics.median(s):7.1f}")
+        print(f"{str(t)[-40:]:40s} | {min(wall):22.1f} {statistics.median(wall):7.1f} {min(wall) / (1e3 * min(decode)):6.2f} "
+              f"| {min(cpu):14.1f} {statistics.median(cpu):7.1f} | {min(proc):21.1f} "
+              f"| {1e3 * min(s):24.1f} {1e3 * statistics.median(s):7.1f}")
     if args.timeline:
         for t in trees:
             print(f"\n{t}: the first call of the last round (thread, piece, start -> end wall ms, CPU ms)")

@@ -30,7 +30,8 @@ one every ratio is distorted (the one-off costs of a fresh process suffer most).
     python benchmarks/bench_speed.py [--cache DIR] [--repeat 3] [--pitch-only] [--switch-interval MS]
 
 ``--pitch-only``: the pitch rows only (rows 1 and 2, without the puppet's); ``--puppet-only``: the
-puppet's rows only (row 3). ``--switch-interval MS``: row 1 again with Python's GIL hand-over
+puppet's rows only (row 3). Row 3 for two code versions, alternated round by round (their ratio
+to the same decode, and their CPU): ``bench_puppet_timeline.py --tree OLD/src --tree NEW/src``. ``--switch-interval MS``: row 1 again with Python's GIL hand-over
 interval set to MS milliseconds (default 5): a thread that released the GIL for an OpenCV call or
 a decode may wait up to that long to take it back from a thread running Python (the "convoy"
 effect), so on threads a shorter interval may overlap the capture's GIL-free work better (not

@@ -37,3 +37,46 @@ def test_recovered_of_the_wrong_shape_is_named():
     sk, ms, _, _ = _setup()
     with pytest.raises(ValueError, match="recovered must have shape"):
         frame_status(sk, ms, np.ones(len(ms) + 1, bool))
+
+
+def _frame_status_joint_by_joint(skeleton, markerset, recovered=None):
+    """frame_status's definition, one SVD per joint (its code before issue 16's batched SVD)."""
+    frames = markerset.bone_frames(skeleton)
+    if recovered is not None:
+        frames = np.where(recovered, frames, -1)
+    lim = skeleton.limits_deg
+    out = {}
+    for j, name in enumerate(skeleton.names):
+        if np.all(lim[j, :, 0] == lim[j, :, 1]):
+            out[name] = "locked"
+            continue
+        pts = markerset.offsets[frames == j]
+        if len(pts) == 0:
+            out[name] = "none"
+            continue
+        cloud = np.vstack([pts, np.zeros((1, 3))])
+        s = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
+        out[name] = "full" if s[1] > 1e-3 * max(s[0], 1e-12) and len(cloud) >= 3 else "partial"
+    return out
+
+
+@pytest.mark.parametrize("name", ["puppet-16", "puppet-20"])
+def test_frame_status_is_the_joint_by_joint_definition(name):
+    """One batched SVD of every frame's zero-padded cloud: the same status as a loop of one SVD
+    per joint, for the built-in marker sets, random subsets of their beads, and frames whose
+    beads lie in one line with their joint (partial) or beside it (full)."""
+    from dataclasses import replace
+
+    sk, ms = Skeleton.puppet(), MarkerSet.puppet(name)
+    rng = np.random.default_rng(5)
+    for recovered in [None, np.zeros(len(ms), bool)] + [rng.random(len(ms)) < p for p in (0.3, 0.6, 0.9)
+                                                          for _ in range(20)]:
+        assert frame_status(sk, ms, recovered) == _frame_status_joint_by_joint(sk, ms, recovered)
+    frames = ms.bone_frames(sk)
+    j = next(j for j in range(sk.n_joints) if (frames == j).sum() >= 2 and frame_status(sk, ms)[sk.names[j]] == "full")
+    k = np.flatnonzero(frames == j)
+    line = [replace(m, offset=(i + 1) * 0.01 * np.array([0.6, 0.0, 0.8])) if i in k else m
+            for i, m in enumerate(ms.markers)]
+    for markers, want in ((line, "partial"), (ms.markers, "full")):
+        m2 = replace(ms, markers=tuple(markers))
+        assert frame_status(sk, m2)[sk.names[j]] == want == _frame_status_joint_by_joint(sk, m2)[sk.names[j]]

@@ -122,3 +122,61 @@ def test_a_marker_without_3d_does_not_keep_a_colour_name_on_another_markers_bead
     # j projects 3 radii away: the candidate is on no projected bead; k keeps the colour's choice
     out = reidentify(res.rig, moved(3.0 * r), views)
     np.testing.assert_array_equal(out[v, k], cand[cj])
+
+
+def test_bead_levels_of_some_views_are_those_views_rows_of_all():
+    """reidentify measures the contrast of the views that need it only (issue 16): each bead's
+    fill and contrast depend on its own window alone, whichever other views and beads are
+    measured with it (window size and sorted cells are common to the call)."""
+    rng = np.random.default_rng(3)
+    scenes = [random_bead_scene(Palette.from_markerset(MarkerSet.puppet()).rgb, rng=s) for s in (2, 5, 9)]
+    images = [sc.image for sc in scenes]
+    n = max(len(sc.centers) for sc in scenes)
+    c = np.full((3, n + 3, 2), np.nan)
+    for v, sc in enumerate(scenes):
+        c[v, :len(sc.centers)] = sc.centers + rng.normal(0, 0.4, sc.centers.shape)
+        c[v, n:n + 2] = rng.uniform([0, 0], [640, 480], (2, 2))
+    c[1, n + 2] = [2.0, 3.0]  # a window crossing the photo's border
+    r = rng.uniform(3.0, 8.0, c.shape[:2])
+    r[2, :4] = 11.0  # a larger window in one view only
+    for f in (bead_contrast_views, bead_fill_views):
+        every = f(images, c, r)
+        for vs in ([0], [1, 2], [2]):
+            np.testing.assert_array_equal(f([images[v] for v in vs], c[vs], r[vs]), every[vs])
+
+
+def test_reidentify_falls_back_on_the_capture_median_contrast_for_a_view_without_agreeing_beads(scene):
+    """Every named candidate of one view beyond the identification's acceptance (none agrees):
+    its beads are judged against the median contrast of the other views' agreeing beads (which
+    reidentify then measures too); bright beads stay named, a painted-over one is refused."""
+    from dataclasses import replace
+
+    from stillcap.pipelines.puppet import analyse_puppet_views
+
+    res = analyse_puppet_views(scene.rig, scene.images)
+    obs = res.markers.observations
+    v = int(np.argmax(np.isfinite(obs[..., 0]).sum(axis=1)))
+    vr = res.views[v]
+    cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
+    ident = vr.identification
+    cost = np.array(ident.cost, float).reshape(len(cand), -1)
+    named = [(int(np.argmin(np.linalg.norm(cand - obs[v, k], axis=1))), k)
+             for k in np.flatnonzero(res.markers.ok & np.isfinite(obs[v, :, 0]))]
+    for j, k in named:
+        cost[j, k] = 1.5 * float(ident.max_distance)
+    views = list(res.views)
+    views[v] = replace(vr, identification=replace(ident, cost=cost))
+    images = [np.array(im) for im in scene.images]
+    ref = reidentify(res.rig, res.markers.points, views)
+    np.testing.assert_array_equal(reidentify(res.rig, res.markers.points, views, images=images), ref)
+    j, k = named[0]
+    x, y = cand[j]
+    img = images[v]
+    ys, xs = np.mgrid[0:img.shape[0], 0:img.shape[1]]
+    ring = (np.hypot(xs - x, ys - y) > 10) & (np.hypot(xs - x, ys - y) < 13)
+    img[np.hypot(xs - x, ys - y) <= 10] = np.median(img[ring], axis=0).astype(img.dtype)
+    out = reidentify(res.rig, res.markers.points, views, images=images)
+    assert np.isnan(out[v, k]).all()
+    others = np.ones(obs.shape[:2], bool)
+    others[v, k] = False
+    np.testing.assert_array_equal(out[others], ref[others])

@@ -45,3 +45,35 @@ def test_a_view_off_centre_by_a_fraction_of_a_pixel_is_left_out_or_not_counted_w
     two[vs[1], k, 1] -= 12 * s
     got2 = solve_markers(res.rig, two, names, scene.images, DEFAULT, 0.003, noise_px=s)
     assert got2.ok[k] and got2.partly_hidden[k]
+
+
+@pytest.mark.parametrize("method", ["dlt", "midpoint"])
+def test_arc_refitted_centres_are_the_ones_triangulated(scene, monkeypatch, method):
+    """With ``arc_fit`` the partly hidden beads' views are refitted to their visible arc; the
+    triangulation must use those centres, not the detected ones its stacked views (and view
+    pairs' errors) were made from (issue 16: the DLT's stacked views kept the detected centres)."""
+    from dataclasses import replace
+
+    import stillcap.pipelines.puppet.stages as stages
+    from stillcap.geometry.triangulate import triangulate_markers
+
+    res = analyse_puppet_views(scene.rig, scene.images)
+    x = res.markers.observations.copy()
+    names = res.markerset.names
+    k = int(np.argmax(np.isfinite(x[..., 0]).sum(axis=0)))
+    v = int(np.flatnonzero(np.isfinite(x[:, k, 0]))[0])
+    moved = x.copy()
+    moved[v, k, 0] += 0.4  # px: within the consensus's 1 px, so the view stays and moves the point
+
+    def arc_refit(images, x_, x_used, good, hidden, r_exp):  # every view hidden (black photos): refit one
+        return np.where(np.isfinite(x_used), moved, x_used), np.zeros_like(hidden)
+
+    monkeypatch.setattr(stages, "_arc_refit", arc_refit)
+    black = [np.zeros_like(im) for im in scene.images]  # no view looks whole: all go to the arc fit
+    opts = replace(DEFAULT, arc_fit=True, triangulation=method)
+    got = solve_markers(res.rig, x, names, black, opts, 0.003)
+    want = triangulate_markers(res.rig, moved, method, method == "dlt", opts.outlier_px)
+    before = triangulate_markers(res.rig, x, method, method == "dlt", opts.outlier_px)
+    assert got.used[v, k]
+    np.testing.assert_allclose(got.points, want.points, rtol=0, atol=1e-12)
+    assert np.linalg.norm(want.points[k] - before.points[k]) > 1e-6  # metres: the refit moved the point

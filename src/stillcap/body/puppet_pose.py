@@ -53,19 +53,25 @@ def frame_status(skeleton: Skeleton, markerset: MarkerSet, recovered=None) -> di
             raise ValueError(f"recovered must have shape {frames.shape}, got {recovered.shape}")
         frames = np.where(recovered, frames, -1)
     lim = skeleton.limits_deg
-    out = {}
-    for j, name in enumerate(skeleton.names):
-        if np.all(lim[j, :, 0] == lim[j, :, 1]):
-            out[name] = "locked"
-            continue
-        pts = markerset.offsets[frames == j]
-        if len(pts) == 0:
-            out[name] = "none"
-            continue
-        cloud = np.vstack([pts, np.zeros((1, 3))])
-        s = np.linalg.svd(cloud - cloud.mean(axis=0), compute_uv=False)
-        out[name] = "full" if len(pts) >= 1 and s[1] > 1e-3 * max(s[0], 1e-12) and len(cloud) >= 3 else "partial"
-    return out
+    n = skeleton.n_joints
+    locked = np.all(lim[:, :, 0] == lim[:, :, 1], axis=1)
+    on = frames >= 0
+    f, offs = frames[on], markerset.offsets.reshape(-1, 3)[on]  # (0, 3) for a marker set without beads
+    counts = np.bincount(f, minlength=n)
+    # every frame's cloud (its markers' offsets and the joint, the origin) centred on its own
+    # mean, as the rows of one zero-padded (n_joints, rows, 3) array: zero rows leave a matrix's
+    # singular values as they are, so one batched SVD gives every frame's (a loop of one SVD
+    # per joint cost ~0.22 ms per call, three calls per capture; this ~0.06 ms)
+    mean = np.stack([np.bincount(f, offs[:, i], minlength=n) for i in range(3)], axis=1) / (counts + 1)[:, None]
+    order = np.argsort(f, kind="stable")
+    fo = f[order]
+    cloud = np.zeros((n, max(int(counts.max(initial=0)), 1) + 1, 3))  # two rows at least: s[:, 1] exists
+    cloud[fo, np.arange(len(fo)) - np.searchsorted(fo, fo)] = offs[order] - mean[fo]
+    cloud[np.arange(n), counts] = -mean
+    s = np.linalg.svd(cloud, compute_uv=False)
+    full = (counts >= 2) & (s[:, 1] > 1e-3 * np.maximum(s[:, 0], 1e-12))
+    return {name: "locked" if locked[j] else "none" if counts[j] == 0 else "full" if full[j] else "partial"
+            for j, name in enumerate(skeleton.names)}
 
 
 @dataclass(eq=False)

@@ -101,22 +101,25 @@ class _Normal3:
         self.b += J * r
 
     def solve(self, damping: float = 0.0) -> np.ndarray:
-        a00, a01, a02, a11, a12, a22 = self.a
+        # Cramer's rule on the stacked entries: the six cofactors in one set of products (the
+        # same arithmetic, entry by entry, as writing each out: c00 = a11 a22 - a12 a12, ...), in
+        # fewer NumPy calls (the puppet's solves are of 4-16 points, where the calls' fixed cost
+        # is the time)
+        a = self.a
         if damping:
-            a00, a11, a22 = a00 + damping, a11 + damping, a22 + damping
-        b0, b1, b2 = self.b
-        c00 = a11 * a22 - a12 * a12
-        c01 = a02 * a12 - a01 * a22
-        c02 = a01 * a12 - a02 * a11
-        c11 = a00 * a22 - a02 * a02
-        c12 = a01 * a02 - a00 * a12
-        c22 = a00 * a11 - a01 * a01
-        det = a00 * c00 + a01 * c01 + a02 * c02
+            a = a + np.array([damping, 0.0, 0.0, damping, 0.0, damping])[:, None]
+        c = a[_COF_I] * a[_COF_J] - a[_COF_K] * a[_COF_L]  # c00, c01, c02, c11, c12, c22
+        det = (a[:3] * c[:3]).sum(axis=0)  # a00 c00 + a01 c01 + a02 c02
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = 1.0 / np.where(np.abs(det) > 1e-300, det, np.nan)
-            return np.stack([(c00 * b0 + c01 * b1 + c02 * b2) * inv,
-                             (c01 * b0 + c11 * b1 + c12 * b2) * inv,
-                             (c02 * b0 + c12 * b1 + c22 * b2) * inv], axis=1)
+            return ((c[_SYM] * self.b[None]).sum(axis=1) * inv).T  # row i: c_i0 b0 + c_i1 b1 + c_i2 b2
+
+
+# _Normal3.solve: the cofactor c_k = a[I_k] a[J_k] - a[K_k] a[L_k] of the six unique entries
+# (a00, a01, a02, a11, a12, a22), and the full symmetric matrix's entries as indices into them
+_COF_I, _COF_J = np.array([3, 2, 1, 0, 1, 0]), np.array([5, 4, 4, 5, 2, 3])
+_COF_K, _COF_L = np.array([4, 1, 2, 2, 0, 1]), np.array([4, 5, 3, 2, 4, 1])
+_SYM = np.array([[0, 1, 2], [1, 3, 4], [2, 4, 5]])
 
 
 def _dlt(world2cams: np.ndarray, xn: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -399,6 +402,10 @@ class StackedViews:
     def _normal(J: np.ndarray, r: np.ndarray, axis) -> _Normal3:
         """Normal equations summed over ``axis`` of rows J (..., n, 3), r (..., n)."""
         eq = _Normal3(J.shape[-2])
+        if axis == (0, 1) and J.ndim == 4:  # the solves' case: two einsums, the same sums in the same order
+            eq.a = np.einsum("kvni,kvnj->ijn", J, J).reshape(9, -1)[_UPPER]
+            eq.b = np.einsum("kvni,kvn->in", J, r)
+            return eq
         j0, j1, j2 = J[..., 0], J[..., 1], J[..., 2]
         eq.a = np.stack([(j0 * j0).sum(axis), (j0 * j1).sum(axis), (j0 * j2).sum(axis), (j1 * j1).sum(axis),
                          (j1 * j2).sum(axis), (j2 * j2).sum(axis)])
@@ -410,23 +417,30 @@ class StackedViews:
         return self._normal(J, r, (0, 1)).solve()
 
     def refine(self, mask: np.ndarray, X: np.ndarray, iterations: int = 4) -> np.ndarray:
-        """Gauss-Newton on the reprojection error in undistorted pixels (``triangulate``'s ``_refine``)."""
+        """Gauss-Newton on the reprojection error in undistorted pixels (``triangulate``'s ``_refine``).
+
+        The same arithmetic, entry by entry, as ``_refine``'s, in about half the NumPy calls
+        (the image's two axes as one array; the arrays are a few hundred numbers, so the calls'
+        fixed cost is the time: ~0.43 -> ~0.25 ms per solve of 16 markers in 12 views). Views
+        left out (``w`` false) give zero rows, as there."""
         X = X.copy()
         good = np.all(np.isfinite(X), axis=1)
         P, K = self.P, self.K
         R, t = P[:, :, :3], P[:, :, 3]
+        R01, R2 = R[:, None, :2, :], R[:, None, 2:3, :]  # (nv, 1, 2, 3), (nv, 1, 1, 3)
         fx, s, fy = K[:, 0, 0, None, None], K[:, 0, 1, None, None], K[:, 1, 1, None, None]
+        fx1, s1, fy1 = fx[..., 0], s[..., 0], fy[..., 0]
+        seen = mask & good[None]
+        xn = np.where(seen[..., None], self.xn, 0.0)
         for _ in range(iterations):
             pc = np.einsum("vij,nj->vni", R, np.where(good[:, None], X, 0.0)) + t[:, None]
-            w = mask & good[None] & (pc[..., 2] > 0)
+            w = seen & (pc[..., 2] > 0)
             iz = np.where(w, 1.0 / np.where(w, pc[..., 2], 1.0), 0.0)
-            u, v = pc[..., 0] * iz, pc[..., 1] * iz
-            du = (u - np.where(w, self.xn[..., 0], 0.0)) * w
-            dv = (v - np.where(w, self.xn[..., 1], 0.0)) * w
-            du_dX = (R[:, None, 0] - R[:, None, 2] * u[..., None]) * iz[..., None]  # (nv, n, 3)
-            dv_dX = (R[:, None, 1] - R[:, None, 2] * v[..., None]) * iz[..., None]
-            J = np.stack([fx * du_dX + s * dv_dX, fy * dv_dX])
-            r = np.stack([-(fx[..., 0] * du + s[..., 0] * dv), -fy[..., 0] * dv])
+            uv = pc[..., :2] * iz[..., None]  # (nv, n, 2): u, v
+            d = (uv - xn) * w[..., None]  # du, dv
+            D = (R01 - R2 * uv[..., None]) * iz[..., None, None]  # (nv, n, 2, 3): du/dX, dv/dX
+            J = np.stack([fx * D[:, :, 0] + s * D[:, :, 1], fy * D[:, :, 1]])
+            r = np.stack([-(fx1 * d[..., 0] + s1 * d[..., 1]), -fy1 * d[..., 1]])
             step = self._normal(J, r, (0, 1)).solve(damping=1e-12)
             ok = good & np.all(np.isfinite(step), axis=1)
             X[ok] += step[ok]
@@ -465,6 +479,10 @@ class StackedViews:
         return err
 
 
+
+
+#: The six unique entries (00, 01, 02, 11, 12, 22) among a 3 x 3 matrix's nine, as :class:`_Normal3` keeps them.
+_UPPER = np.array([0, 1, 2, 4, 5, 8])
 
 
 @functools.lru_cache(maxsize=16)

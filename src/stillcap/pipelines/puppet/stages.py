@@ -176,6 +176,12 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         if options.arc_fit and hidden.any():
             x_used, dropped = _arc_refit(images, x, x_used, good, hidden, r_exp)
             partial |= dropped
+            if np.any(np.isfinite(x_used) & (x_used != x)):
+                # refitted centres: the stacked views and the view pairs' errors were made from
+                # the detected ones, which the triangulations below would otherwise use
+                views = StackedViews(rig, x_used) if method == "dlt" else None
+                pair_err = ((views.pair_errors() if views is not None else view_pair_errors(rig, x_used, method))
+                            if len(rig) >= 3 and x.shape[1] else None)
     tri = triangulate_markers(rig, x_used, method, refine, options.outlier_px, pair_errors=pair_err, views=views)
     if first is not None:
         # views that look whole but sit off the other views' consensus by more than the
