@@ -173,8 +173,8 @@ class HandMotion:
         tangent = -s * self.arm_dir + c * self.throw_dir
         return self.shoulder + ARM_RADIUS * radial, radial, tangent
 
-    def root2world(self, t: float) -> np.ndarray:
-        """The hand's root (back of the hand) frame at time ``t`` (4, 4)."""
+    def root2world(self, t: float, ball_in_hand=None) -> np.ndarray:
+        """The hand's root (back of the hand) frame at ``t`` (4, 4); ``ball_in_hand`` overrides the seat."""
         ball, radial, tangent = self._arc(float(t))
         x, z = radial, -tangent  # fingers along the arm, back of the hand away from the throw
         R = np.column_stack([x, np.cross(z, x), z])
@@ -182,7 +182,7 @@ class HandMotion:
         flex = float(PchipInterpolator(_KEY_T, _WRIST_FLEX, extrapolate=True)(tau))
         pron = float(PchipInterpolator(_KEY_T, _WRIST_PRONATION, extrapolate=True)(tau))
         R = R @ Rotation.from_euler("YX", [flex, pron], degrees=True).as_matrix()
-        return pose_matrix(R, ball - R @ self.ball_in_hand)
+        return pose_matrix(R, ball - R @ (self.ball_in_hand if ball_in_hand is None else np.asarray(ball_in_hand, float)))
 
     def angles_deg(self, t: float) -> np.ndarray:
         """Joint angles (twist, flexion, abduction) in degrees at time ``t``, shape (n_joints, 3)."""
