@@ -16,12 +16,12 @@ def _flashes(seed, noise_m=0.001):
     t = t[t <= 0.25 + WINDOW_S[1]]
     B = mo.ball2world(t)[:, :3, 3] + rng.normal(0, noise_m, (len(t), 3))
     T = np.stack([mo.root2world(s) for s in t])
-    return rel, t - t[0], B, T, rel.t0 - t[0], mo.ball_in_hand
+    return rel, t - t[0], B, T, rel.t0 - t[0]
 
 
 @pytest.mark.parametrize("seed", range(8))
 def test_release_recovers_truth(seed):
-    rel, t, B, T, t0, hold = _flashes(seed)
+    rel, t, B, T, t0 = _flashes(seed)
     r = estimate_release(t, B, t, T, strobe_hz=75, position_sigma_m=0.001)
     assert r.success and r.held_seen and r.released_seen
     assert abs(r.t_release - t0) < 1e-3
@@ -30,27 +30,27 @@ def test_release_recovers_truth(seed):
     h, v = release_angles_deg(rel.v0)
     assert abs(r.horizontal_deg - h) < 1.0 and abs(r.vertical_deg - v) < 1.0
     # the hold point is learnt from the held flashes
-    assert np.linalg.norm(r.hold_point - hold) < 0.002
+    assert np.linalg.norm(r.hold_point - hand_motion(rel).ball_in_hand) < 0.002  # the studio's seat
     assert np.array_equal(r.held[: r.n_held], np.ones(r.n_held, bool))
 
 
 def test_never_released_and_never_held():
-    rel, t, B, T, t0, hold = _flashes(3, 0.0)
+    rel, t, B, T, t0 = _flashes(3, 0.0)
     held = t < t0
     r = estimate_release(t[held], B[held], t, T, strobe_hz=75)
     assert not r.success and r.held_seen and not r.released_seen and np.isnan(r.t_release)
     assert "never released" in r.message
-    rel, t, B, T, t0, hold = _flashes(7, 0.0)  # two free flashes (one alone could be a held ball)
+    rel, t, B, T, t0 = _flashes(7, 0.0)  # two free flashes (one alone could be a held ball)
     held = t < t0
     r = estimate_release(t[~held], B[~held], t, T, strobe_hz=75)
     assert not r.success and not r.held_seen and "never held" in r.message
 
 
 def test_ball_in_hand_and_bad_shapes():
-    rel, t, B, T, t0, hold = _flashes(1, 0.0)
+    rel, t, B, T, t0 = _flashes(1, 0.0)
     q = ball_in_hand(B, T)
     held = t < t0
-    assert np.allclose(q[held], hold, atol=1e-9)
+    assert np.allclose(q[held], hand_motion(rel).ball_in_hand, atol=1e-9)
     with pytest.raises(ValueError, match=r"ball_positions must have shape"):
         estimate_release(t, B[:, :2], t, T, strobe_hz=75)
     with pytest.raises(ValueError, match=r"root2world must have shape"):
@@ -62,7 +62,7 @@ def test_number_flashes_across_a_gap(seed):
     """Issue 5 bug: numbering by spacing broke on a missed flash; the hand numbers it right."""
     from stillcap.ball.flashes import number_flashes_from_hand
 
-    rel, t, B, T, t0, hold = _flashes(seed)
+    rel, t, B, T, t0 = _flashes(seed)
     flash = np.rint(t * 75).astype(int)
     for drop in range(1, len(t) - 1):
         keep = np.arange(len(t)) != drop
@@ -77,7 +77,7 @@ def test_number_flashes_when_the_first_flash_has_no_hand_pose(seed):
     hand') although the ball was held there; it now leads the held run unchecked."""
     from stillcap.ball.flashes import number_flashes_from_hand
 
-    rel, t, B, T, t0, hold = _flashes(seed)
+    rel, t, B, T, t0 = _flashes(seed)
     held = t < t0
     if held.sum() < 3:
         pytest.skip(f"seed {seed}'s synthetic delivery has {int(held.sum())} held flashes; this case needs three")
@@ -89,7 +89,7 @@ def test_number_flashes_when_the_first_flash_has_no_hand_pose(seed):
 @pytest.mark.parametrize("seed", range(4))
 def test_release_when_the_first_flash_has_no_hand_pose(seed):
     """Issue 5 bug: with no pose at the first flash the release reported 'never held'."""
-    rel, t, B, T, t0, hold = _flashes(seed)
+    rel, t, B, T, t0 = _flashes(seed)
     if (t < t0).sum() < 3:
         pytest.skip(f"seed {seed}'s synthetic delivery has {int((t < t0).sum())} held flashes; this case needs three")
     r = estimate_release(t, B, t[1:], T[1:], strobe_hz=75, position_sigma_m=0.001)

@@ -44,7 +44,7 @@ def test_no_marker_or_glove_inside_the_held_ball(person):
 
 
 def test_the_seat_is_one_place_per_hand_and_the_release_is_the_pitch():
-    mo, sk, ms = _motion(6)
+    mo = _motion(6)[0]
     rel = mo.release
     q = [np.linalg.solve(mo.root2world(t), np.append(mo.ball2world([t])[0, :3, 3], 1.0))[:3]
          for t in rel.t0 + np.array([-0.04, -0.02, -0.001])]
