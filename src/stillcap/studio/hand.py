@@ -51,6 +51,7 @@ from stillcap.studio.pitch import (AMBIENT, DEFAULT_VARIATION, PRESETS, ROOM, Re
                                    ball_sphere, field_look_at, release_state)
 from stillcap.studio.pitch._rig import _check_size, _in_view
 from stillcap.studio.pitch._truth import _ball_poses
+from stillcap.studio.hand_grip import BALL_IN_HAND, _hand_parts, held_ball_center  # noqa: F401 (BALL_IN_HAND: studio.hand's name)
 from stillcap.studio.puppet import marker_visibility
 from stillcap.studio.renderer import _hit, render
 from stillcap.studio.scene import Capsule, Exposure, Flash, PointLight, Scene, Sphere
@@ -69,9 +70,6 @@ ARM_SLOT_DEG = 45.0
 WINDOW_S = (-0.040, 0.020)
 #: Angular acceleration of the arm relative to its speed at release, before / after (1/s).
 ARM_ACCEL = (8.0, -12.0)
-#: Nominal ball centre in the hand frame while held (m), seed's hand: in front of the palm, under the
-#: fingers; each hand seats its ball from there (:attr:`HandMotion.ball_in_hand`, studio.hand_grip).
-BALL_IN_HAND = (0.118, 0.004, -0.052)
 #: Camera names in rig order; pairs ``left`` (x > 0, the pitcher's glove side) and ``right``.
 CAMERA_NAMES = ("left_outer", "left_inner", "right_inner", "right_outer")
 #: Camera layout: azimuth from straight behind (deg, + toward the glove side), horizontal
@@ -152,7 +150,6 @@ class HandMotion:
     def ball_in_hand(self) -> np.ndarray:
         """The held ball's centre in the hand frame (m), seated clear of the glove for this hand
         and motion (:func:`stillcap.studio.hand_grip.held_ball_center`); fixed for the throw."""
-        from stillcap.studio.hand_grip import held_ball_center
         return held_ball_center(self)
 
     @property
@@ -244,41 +241,12 @@ def hand_motion(release: ReleaseState, model="seed", skeleton: Skeleton | None =
 # --------------------------------------------------------------------------------------------
 # Bodies
 # --------------------------------------------------------------------------------------------
-#: Capsule radius of the bone ending at each joint (m); the palm and wrist are extra capsules.
-_BONE_RADIUS = {"thumb-cmc": 0.014, "thumb-mcp": 0.011, "thumb-ip": 0.009, "thumb-tip": 0.0085,
-                "mcp": 0.011, "pip": {"little": 0.0075, "ring": 0.008}, "dip": {"little": 0.0065, "ring": 0.007},
-                "tip": {"little": 0.006, "ring": 0.0062}}
-_FINGER_DEFAULT = {"pip": 0.0085, "dip": 0.0075, "tip": 0.0065}
-
-
-def _bone_radius(name: str) -> float:
-    if name in _BONE_RADIUS:
-        return _BONE_RADIUS[name]
-    digit, part = name.split("-")
-    r = _BONE_RADIUS[part]
-    return r if isinstance(r, float) else r.get(digit, _FINGER_DEFAULT[part])
-
-
 def _align_z(v: np.ndarray) -> np.ndarray:
     """A rotation whose z axis is along ``v``."""
     z = v / np.linalg.norm(v)
     x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
     x /= np.linalg.norm(x)
     return np.column_stack([x, np.cross(z, x), z])
-
-
-def _hand_parts(skeleton: Skeleton) -> list[tuple]:
-    """``(name, frame joint index, start (3,), end (3,), radius)`` of every hand capsule."""
-    parts = []
-    root = skeleton.root
-    for i, j in enumerate(skeleton.joints):
-        if j.parent is None:
-            continue
-        parts.append((j.name, int(skeleton.parents[i]), np.zeros(3), j.offset.copy(), _bone_radius(j.name)))
-    off = {n: skeleton.offsets[skeleton.index(n)] for n in ("index-mcp", "little-mcp")}
-    parts.append(("palm", root, off["index-mcp"] * [0.92, 1, 1], off["little-mcp"] * [0.92, 1, 1], 0.012))
-    parts.append(("wrist", root, np.array([-0.01, 0.018, 0.0]), np.array([-0.01, -0.022, 0.0]), 0.012))
-    return parts
 
 
 def hand_bodies(skeleton: Skeleton, markerset: MarkerSet) -> tuple[list, Callable]:

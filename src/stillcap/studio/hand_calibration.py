@@ -113,7 +113,7 @@ class CalibrationMotion:
         self.shoulder = base.shoulder
         self.release = base.release
         self.angle_offsets_deg = None
-        from stillcap.studio.hand import BALL_IN_HAND
+        from stillcap.studio.hand_grip import BALL_IN_HAND
 
         # placed as before the throw's ball was seated (studio.hand_grip): these captures hold no ball
         self._r2w0 = base.root2world(self.t0, BALL_IN_HAND)

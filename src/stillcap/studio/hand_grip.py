@@ -27,8 +27,11 @@ from stillcap.body.hand import hand_pose, hand_skeleton
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 
-__all__ = ["GRIP_MARGIN_M", "GRIP_T", "grip_clearance", "held_ball_center", "nominal_ball_in_hand", "seat_ball"]
+__all__ = ["BALL_IN_HAND", "GRIP_MARGIN_M", "GRIP_T", "grip_clearance", "held_ball_center", "nominal_ball_in_hand", "seat_ball"]
 
+#: Nominal ball centre in the hand frame while held (m), seed's hand: in front of the palm, under the
+#: fingers; each hand seats its ball from there (:func:`held_ball_center`).
+BALL_IN_HAND = (0.118, 0.004, -0.052)
 #: Extra clearance the seating keeps (m), so that poses between the sampled instants stay clear.
 GRIP_MARGIN_M = 0.0005
 #: Times relative to release (s) at which the seated ball must clear the glove: the held part of
@@ -36,6 +39,35 @@ GRIP_MARGIN_M = 0.0005
 GRIP_T = np.linspace(-0.060, 0.0, 61)
 #: Caps on the smallest gap (mm) of :func:`seat_ball`'s searches for a clear place, one search each.
 SEAT_CAPS_MM = (0.0, 1.0, 5.0)
+
+
+#: Capsule radius of the bone ending at each joint (m); the palm and wrist are extra capsules.
+_BONE_RADIUS = {"thumb-cmc": 0.014, "thumb-mcp": 0.011, "thumb-ip": 0.009, "thumb-tip": 0.0085,
+                "mcp": 0.011, "pip": {"little": 0.0075, "ring": 0.008}, "dip": {"little": 0.0065, "ring": 0.007},
+                "tip": {"little": 0.006, "ring": 0.0062}}
+_FINGER_DEFAULT = {"pip": 0.0085, "dip": 0.0075, "tip": 0.0065}
+
+
+def _bone_radius(name: str) -> float:
+    if name in _BONE_RADIUS:
+        return _BONE_RADIUS[name]
+    digit, part = name.split("-")
+    r = _BONE_RADIUS[part]
+    return r if isinstance(r, float) else r.get(digit, _FINGER_DEFAULT[part])
+
+
+def _hand_parts(skeleton: Skeleton) -> list[tuple]:
+    """``(name, frame joint index, start (3,), end (3,), radius)`` of every hand capsule."""
+    parts = []
+    root = skeleton.root
+    for i, j in enumerate(skeleton.joints):
+        if j.parent is None:
+            continue
+        parts.append((j.name, int(skeleton.parents[i]), np.zeros(3), j.offset.copy(), _bone_radius(j.name)))
+    off = {n: skeleton.offsets[skeleton.index(n)] for n in ("index-mcp", "little-mcp")}
+    parts.append(("palm", root, off["index-mcp"] * [0.92, 1, 1], off["little-mcp"] * [0.92, 1, 1], 0.012))
+    parts.append(("wrist", root, np.array([-0.01, 0.018, 0.0]), np.array([-0.01, -0.022, 0.0]), 0.012))
+    return parts
 
 
 def nominal_ball_in_hand(skeleton: Skeleton, nominal) -> np.ndarray:
@@ -47,8 +79,6 @@ def nominal_ball_in_hand(skeleton: Skeleton, nominal) -> np.ndarray:
 
 def _glove(skeleton: Skeleton, markerset: MarkerSet, angles_deg) -> tuple:
     """Marker centres and radii, capsule ends and radii of one pose, in the hand frame."""
-    from stillcap.studio.hand import _hand_parts
-
     pose = hand_pose(skeleton, np.eye(4), angles_deg)
     centers = markerset.positions(pose)
     radii = np.array([m.diameter / 2 for m in markerset.markers])
@@ -124,8 +154,6 @@ def held_ball_center(motion) -> np.ndarray:
     until its angle offsets, markers or ball radius change."""
     from stillcap.ball.layout import BallLayout
     from stillcap.body.hand import hand_markerset
-    from stillcap.studio.hand import BALL_IN_HAND
-
     ms = motion.markerset if motion.markerset is not None else hand_markerset()
     radius = float(BallLayout.seed().radius if motion.ball_radius is None else motion.ball_radius)
     offsets = None if motion.angle_offsets_deg is None else np.asarray(motion.angle_offsets_deg, float).tobytes()
