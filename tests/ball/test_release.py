@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from stillcap.ball.release import ball_in_hand, estimate_release, release_angles_deg
-from stillcap.studio.hand import BALL_IN_HAND, WINDOW_S, hand_motion
+from stillcap.studio.hand import WINDOW_S, hand_motion
 from stillcap.studio.pitch import DEFAULT_VARIATION, release_state
 
 
@@ -30,7 +30,7 @@ def test_release_recovers_truth(seed):
     h, v = release_angles_deg(rel.v0)
     assert abs(r.horizontal_deg - h) < 1.0 and abs(r.vertical_deg - v) < 1.0
     # the hold point is learnt from the held flashes
-    assert np.linalg.norm(r.hold_point - np.array(BALL_IN_HAND)) < 0.002
+    assert np.linalg.norm(r.hold_point - hand_motion(rel).ball_in_hand) < 0.002  # the studio's seat
     assert np.array_equal(r.held[: r.n_held], np.ones(r.n_held, bool))
 
 
@@ -50,7 +50,7 @@ def test_ball_in_hand_and_bad_shapes():
     rel, t, B, T, t0 = _flashes(1, 0.0)
     q = ball_in_hand(B, T)
     held = t < t0
-    assert np.allclose(q[held], BALL_IN_HAND, atol=1e-9)
+    assert np.allclose(q[held], hand_motion(rel).ball_in_hand, atol=1e-9)
     with pytest.raises(ValueError, match=r"ball_positions must have shape"):
         estimate_release(t, B[:, :2], t, T, strobe_hz=75)
     with pytest.raises(ValueError, match=r"root2world must have shape"):

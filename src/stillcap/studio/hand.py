@@ -13,8 +13,8 @@ opened. See ``docs/hand.md`` for the numbers.
   after. The hand frame follows the arm (fingers along the radius, palm toward the throw) plus
   a wrist snap; finger joint angles follow keyframed smooth curves (index and middle on top of
   the ball extend as it rolls off the fingertips, then flex in the follow-through; ring and
-  little stay tucked; the thumb lets go). After release the ball follows the pitch's flight
-  and spin (:mod:`stillcap.ball.physics`).
+  little stay tucked; the thumb lets go). The held ball sits where it clears the glove
+  (:mod:`stillcap.studio.hand_grip`). After release it follows the pitch's flight and spin.
 - **Bodies**: the hand (:func:`stillcap.body.hand.hand_skeleton`) as black capsules
   (glove albedo :data:`GLOVE`) along its bones plus the palm, its 18 markers
   (:func:`~stillcap.body.hand.hand_markerset`) as spheres of their colours, the arm in black
@@ -51,6 +51,7 @@ from stillcap.studio.pitch import (AMBIENT, DEFAULT_VARIATION, PRESETS, ROOM, Re
                                    ball_sphere, field_look_at, release_state)
 from stillcap.studio.pitch._rig import _check_size, _in_view
 from stillcap.studio.pitch._truth import _ball_poses
+from stillcap.studio.hand_grip import BALL_IN_HAND, _hand_parts, held_ball_center  # noqa: F401 (BALL_IN_HAND: studio.hand's name)
 from stillcap.studio.puppet import marker_visibility
 from stillcap.studio.renderer import _hit, render
 from stillcap.studio.scene import Capsule, Exposure, Flash, PointLight, Scene, Sphere
@@ -69,8 +70,6 @@ ARM_SLOT_DEG = 45.0
 WINDOW_S = (-0.040, 0.020)
 #: Angular acceleration of the arm relative to its speed at release, before / after (1/s).
 ARM_ACCEL = (8.0, -12.0)
-#: Ball centre in the hand frame while held (m): in front of the palm, under the fingers.
-BALL_IN_HAND = (0.118, 0.004, -0.052)
 #: Camera names in rig order; pairs ``left`` (x > 0, the pitcher's glove side) and ``right``.
 CAMERA_NAMES = ("left_outer", "left_inner", "right_inner", "right_outer")
 #: Camera layout: azimuth from straight behind (deg, + toward the glove side), horizontal
@@ -80,8 +79,7 @@ _LAYOUT = {"left_outer": (75.0, 2.3, 1.0, 3300.0), "left_inner": (35.0, 2.3, 1.3
 _DIST = (-0.08, 0.10, 0.0003, -0.0002, -0.02)
 #: Strobe: behind the pitcher (distance behind the aim point, height above it, m) and intensity.
 STROBE_BEHIND, STROBE_UP, STROBE_INTENSITY = 3.0, 0.9, 9.0
-STROBE_HZ, SHUTTER_S = 75.0, 1.0
-MARKER_RADIUS = 0.005
+STROBE_HZ, SHUTTER_S, MARKER_RADIUS = 75.0, 1.0, 0.005
 #: Forearm and upper arm capsules: (length, radius), m.
 FOREARM, UPPER_ARM = (0.26, 0.032), (0.28, 0.045)
 #: Distance from the wrist joint to the start of the forearm capsule (m).
@@ -131,6 +129,10 @@ class HandMotion:
         the release velocity's direction.
     skeleton : Skeleton
     flight_model : FlightModel
+    angle_offsets_deg : ndarray, shape (n_joints, 3), optional
+        Another person's own motion (:mod:`stillcap.studio.hand_variation`).
+    markerset, ball_radius : MarkerSet, float, optional
+        The glove's markers and the ball's radius (m) that seat the ball (default the seed's).
     """
 
     release: ReleaseState
@@ -139,7 +141,16 @@ class HandMotion:
     throw_dir: np.ndarray
     skeleton: Skeleton
     flight_model: object
-    angle_offsets_deg: np.ndarray | None = None  # another person's own motion (studio.hand_variation)
+    angle_offsets_deg: np.ndarray | None = None
+    markerset: MarkerSet | None = None
+    ball_radius: float | None = None
+    _seat: tuple | None = field(default=None, init=False, repr=False, compare=False)
+
+    @property
+    def ball_in_hand(self) -> np.ndarray:
+        """The held ball's centre in the hand frame (m), seated clear of the glove for this hand
+        and motion (:func:`stillcap.studio.hand_grip.held_ball_center`); fixed for the throw."""
+        return held_ball_center(self)
 
     @property
     def omega(self) -> float:
@@ -159,8 +170,8 @@ class HandMotion:
         tangent = -s * self.arm_dir + c * self.throw_dir
         return self.shoulder + ARM_RADIUS * radial, radial, tangent
 
-    def root2world(self, t: float) -> np.ndarray:
-        """The hand's root (back of the hand) frame at time ``t`` (4, 4)."""
+    def root2world(self, t: float, ball_in_hand=None) -> np.ndarray:
+        """The hand's root (back of the hand) frame at ``t`` (4, 4); ``ball_in_hand`` overrides the seat."""
         ball, radial, tangent = self._arc(float(t))
         x, z = radial, -tangent  # fingers along the arm, back of the hand away from the throw
         R = np.column_stack([x, np.cross(z, x), z])
@@ -168,7 +179,7 @@ class HandMotion:
         flex = float(PchipInterpolator(_KEY_T, _WRIST_FLEX, extrapolate=True)(tau))
         pron = float(PchipInterpolator(_KEY_T, _WRIST_PRONATION, extrapolate=True)(tau))
         R = R @ Rotation.from_euler("YX", [flex, pron], degrees=True).as_matrix()
-        return pose_matrix(R, ball - R @ np.asarray(BALL_IN_HAND))
+        return pose_matrix(R, ball - R @ (self.ball_in_hand if ball_in_hand is None else np.asarray(ball_in_hand, float)))
 
     def angles_deg(self, t: float) -> np.ndarray:
         """Joint angles (twist, flexion, abduction) in degrees at time ``t``, shape (n_joints, 3)."""
@@ -209,7 +220,8 @@ class HandMotion:
 
 
 def hand_motion(release: ReleaseState, model="seed", skeleton: Skeleton | None = None,
-                arm_slot_deg: float = ARM_SLOT_DEG) -> HandMotion:
+                arm_slot_deg: float = ARM_SLOT_DEG, *, markerset: MarkerSet | None = None,
+                angle_offsets_deg=None, ball_radius: float | None = None) -> HandMotion:
     """The delivery whose ball leaves the hand in the ``release`` state (see :class:`HandMotion`).
 
     The arm's plane holds the release velocity and the arm slot (``arm_slot_deg`` from vertical
@@ -223,47 +235,18 @@ def hand_motion(release: ReleaseState, model="seed", skeleton: Skeleton | None =
     a = a - (a @ vhat) * vhat
     a /= np.linalg.norm(a)
     return HandMotion(release, release.p0 - ARM_RADIUS * a, a, vhat, skeleton or hand_skeleton(),
-                      flight_model(model))
+                      flight_model(model), angle_offsets_deg, markerset, ball_radius)
 
 
 # --------------------------------------------------------------------------------------------
 # Bodies
 # --------------------------------------------------------------------------------------------
-#: Capsule radius of the bone ending at each joint (m); the palm and wrist are extra capsules.
-_BONE_RADIUS = {"thumb-cmc": 0.014, "thumb-mcp": 0.011, "thumb-ip": 0.009, "thumb-tip": 0.0085,
-                "mcp": 0.011, "pip": {"little": 0.0075, "ring": 0.008}, "dip": {"little": 0.0065, "ring": 0.007},
-                "tip": {"little": 0.006, "ring": 0.0062}}
-_FINGER_DEFAULT = {"pip": 0.0085, "dip": 0.0075, "tip": 0.0065}
-
-
-def _bone_radius(name: str) -> float:
-    if name in _BONE_RADIUS:
-        return _BONE_RADIUS[name]
-    digit, part = name.split("-")
-    r = _BONE_RADIUS[part]
-    return r if isinstance(r, float) else r.get(digit, _FINGER_DEFAULT[part])
-
-
 def _align_z(v: np.ndarray) -> np.ndarray:
     """A rotation whose z axis is along ``v``."""
     z = v / np.linalg.norm(v)
     x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
     x /= np.linalg.norm(x)
     return np.column_stack([x, np.cross(z, x), z])
-
-
-def _hand_parts(skeleton: Skeleton) -> list[tuple]:
-    """``(name, frame joint index, start (3,), end (3,), radius)`` of every hand capsule."""
-    parts = []
-    root = skeleton.root
-    for i, j in enumerate(skeleton.joints):
-        if j.parent is None:
-            continue
-        parts.append((j.name, int(skeleton.parents[i]), np.zeros(3), j.offset.copy(), _bone_radius(j.name)))
-    off = {n: skeleton.offsets[skeleton.index(n)] for n in ("index-mcp", "little-mcp")}
-    parts.append(("palm", root, off["index-mcp"] * [0.92, 1, 1], off["little-mcp"] * [0.92, 1, 1], 0.012))
-    parts.append(("wrist", root, np.array([-0.01, 0.018, 0.0]), np.array([-0.01, -0.022, 0.0]), 0.012))
-    return parts
 
 
 def hand_bodies(skeleton: Skeleton, markerset: MarkerSet) -> tuple[list, Callable]:
@@ -727,14 +710,13 @@ def hand_capture(rng=None, *, preset: str = "seed-4seam", image_size=(2560, 1920
     flight = flight_model(model)
     release = release_state(preset, r_pitch, variation=variation, model=flight, t0=t0)
     skeleton, markerset = (hand_skeleton(), hand_markerset()) if person is None else (person.skeleton, person.markerset)
-    motion = hand_motion(release, flight, skeleton)
-    if person is not None:
-        motion.angle_offsets_deg = person.angle_offsets_deg
+    ball, layout = ball_sphere(palette)
+    motion = hand_motion(release, flight, skeleton, markerset=markerset, ball_radius=layout.radius,
+                         angle_offsets_deg=None if person is None else person.angle_offsets_deg)
     if calibration_pose is not None:
         from stillcap.studio.hand_calibration import calibration_motion as _calibration_motion
 
         motion = _calibration_motion(motion, calibration_pose, t0, calibration_motion, hrig.strobe_hz)
-    ball, layout = ball_sphere(palette)
 
     hz = hrig.strobe_hz
     n_flashes = int(np.floor((hrig.shutter_s - phase) * hz - 1e-9)) + 1

@@ -113,7 +113,10 @@ class CalibrationMotion:
         self.shoulder = base.shoulder
         self.release = base.release
         self.angle_offsets_deg = None
-        self._r2w0 = base.root2world(self.t0)
+        from stillcap.studio.hand_grip import BALL_IN_HAND
+
+        # placed as before the throw's ball was seated (studio.hand_grip): these captures hold no ball
+        self._r2w0 = base.root2world(self.t0, BALL_IN_HAND)
         self._rest = calibration_angles(pose, self.skeleton)
         sk = self.skeleton
         lim = sk.limits_deg
