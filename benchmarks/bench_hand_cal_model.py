@@ -40,8 +40,8 @@ def model_errors(cal, own_sk, own_ms) -> dict:
     sk, ms = cal.skeleton, cal.markerset
     o, t = sk.offsets, own_sk.offsets
     idx = {n: i for i, n in enumerate(sk.names)}
-    length = lambda n: (np.linalg.norm(o[idx[n]]) - np.linalg.norm(t[idx[n]])) * 1e3  # noqa: E731
-    rms = lambda v: float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")  # noqa: E731
+    length = lambda n: (np.linalg.norm(o[idx[n]]) - np.linalg.norm(t[idx[n]])) * 1e3
+    rms = lambda v: float(np.sqrt(np.mean(np.square(v)))) if len(v) else float("nan")
     out = {"proximal": rms([length(f"{f}-pip") for f in FINGERS]),
            "middle": rms([length(f"{f}-dip") for f in FINGERS]),
            "thumb": rms([length("thumb-mcp"), length("thumb-ip")]),

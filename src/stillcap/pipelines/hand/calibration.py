@@ -10,8 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from stillcap.body.hand_calibrate import (NOISE_M, CalibrationPoints, HandCalibration, calibrate_hand_from_point_sets,
-                                          calibrate_hand_from_points)
+from stillcap.body.hand_calibrate import NOISE_M, CalibrationPoints, HandCalibration, calibrate_hand_from_point_sets
 from stillcap.io.capture import Capture
 from stillcap.pipelines.hand.options import HandOptions
 from stillcap.pipelines.hand.stages import (_unconfirmed, find_glove_markers, hand_setup, marker_sigma,
