@@ -3,7 +3,8 @@ less, as the throw's pose fit weighs them) against the calibration at one common
 person (issue 12, the hand goal: joint angles <= 2 deg on another person's hand).
 
     python benchmarks/bench_hand_cal_weighting.py --cache DIR --work DIR [--persons 5 6 7 8 10 11 12 13 14]
-        [--motion curl|protocol] [--labels own|cal-curl] [--jsonl FILE] [--joints]
+        [--motion curl|protocol|curl+protocol] [--labels own|cal-curl] [--jsonl FILE] [--joints]
+        [--arms two|all|own]
 
 ``--cache DIR`` holds per person ``p`` the rendered captures ``p{p}/cal-{motion}`` (the
 calibration capture, ``hand_capture(200 + p, person=another_hand(p), calibration_pose="flat",
@@ -14,6 +15,9 @@ the throw is analysed with ``analyse_hand`` and the model named by ``--labels`` 
 person's true model, ``p{p}/own.json``) and pickled in ``--work``. Every step's product is
 pickled in ``--work`` (the calibration capture's 3D markers, each arm's calibration), so a
 second run only scores.
+
+``--motion curl+protocol``: both calibration captures of the person fitted together (as
+``stillcap hand-calibrate CURL_CAPTURE PROTOCOL_CAPTURE``).
 
 Arms (both as ``stillcap hand-calibrate`` does, :func:`calibrate_hand_capture`'s stages):
 
@@ -94,6 +98,23 @@ def calibrate(points, strobe_hz: float, arm: str):
                                       reprojection_px=points.reprojection_px, **kw)
 
 
+def calibrate_sets(point_sets, arm: str):
+    """Several calibration captures of one hand fitted together (``--motion curl+protocol``), as
+    ``stillcap hand-calibrate CAPTURE CAPTURE ...`` does; ``point_sets``: ``(MarkerPoints,
+    strobe_hz)`` per capture."""
+    from stillcap.body.hand_calibrate import CalibrationPoints, calibrate_hand_from_point_sets
+    from stillcap.pipelines.hand.calibration import calibration_weights
+
+    if arm not in ARMS:
+        raise ValueError(f"--arms {arm!r} is not measured for several captures")
+    sets = []
+    for pts, hz in point_sets:
+        w = calibration_weights(pts) if arm != "common" else {}
+        sets.append(CalibrationPoints(pts.points, pts.colors, hz, pts.reprojection_px, w.get("point_sigma_m"),
+                                      w.get("unconfirmed")))
+    return calibrate_hand_from_point_sets(sets)
+
+
 def throw_result(cache: Path, work: Path, p: int, labels: str):
     have = cache / f"p{p}" / f"res-{labels}.pkl"
     if have.exists():
@@ -159,7 +180,8 @@ def run_person(cache: Path, work: Path, p: int, motion: str, labels: str, joints
 
     row = {"person": p, "motion": motion, "labels": labels}
     t = time.process_time()
-    pts, hz = calibration_points(cache, work, p, motion)
+    motions = motion.split("+")  # several calibration captures fitted together: curl+protocol
+    point_sets = [calibration_points(cache, work, p, m) for m in motions]
     row["cpu_points_s"] = round(time.process_time() - t, 1)
     res = throw_result(cache, work, p, labels)
     own = Skeleton.load(cache / f"p{p}" / "own.json")
@@ -168,7 +190,9 @@ def run_person(cache: Path, work: Path, p: int, motion: str, labels: str, joints
     for arm in arms:
         t = time.process_time()
         try:
-            cal = _pickled(work / f"p{p}" / f"cal-{motion}.{arm.replace(' ', '-')}.pkl", lambda arm=arm: calibrate(pts, hz, arm))
+            make = ((lambda arm=arm: calibrate(*point_sets[0], arm)) if len(point_sets) == 1 else
+                    (lambda arm=arm: calibrate_sets(point_sets, arm)))
+            cal = _pickled(work / f"p{p}" / f"cal-{motion}.{arm.replace(' ', '-')}.pkl", make)
         except ValueError as e:
             row[arm] = {"refused": str(e)}
             continue
@@ -233,14 +257,15 @@ def main() -> None:
     ap.add_argument("--jsonl", type=Path)
     ap.add_argument("--joints", action="store_true")
     ap.add_argument("--report-only", action="store_true")
-    ap.add_argument("--arms", choices=("two", "all"), default="two",
-                    help="two: common and own noise; all: also the weights and the unconfirmed flags apart")
+    ap.add_argument("--arms", choices=("two", "all", "own"), default="two",
+                    help="two: common and own noise; all: also the weights and the unconfirmed flags apart; "
+                         "own: own noise alone (the default weighting of hand-calibrate)")
     a = ap.parse_args()
     rows = []
     if a.jsonl is not None and a.jsonl.exists():
         rows = [json.loads(s) for s in a.jsonl.read_text().splitlines() if s.strip()]
         rows = [r for r in rows if r["motion"] == a.motion and r["labels"] == a.labels]
-    arms = ALL_ARMS if a.arms == "all" else ARMS
+    arms = {"all": ALL_ARMS, "two": ARMS, "own": ("own noise",)}[a.arms]
     done = {r["person"] for r in rows if all(arm in r for arm in arms)}
     rows = [r for r in rows if r["person"] in done]
     for p in a.persons:

@@ -53,14 +53,15 @@ def test_hand_calibrate_passes_the_weights_only_when_asked(monkeypatch, tmp_path
     cap.save(tmp_path / "cal", images)
     got = {}
 
-    def fake(points, colors, **kw):
-        got.update(kw, n=len(points))
+    def fake(sets, **kw):
+        (s,) = sets
+        got.update(point_sigma_m=s.point_sigma_m, unconfirmed=s.unconfirmed, n=len(s.points))
         raise ValueError("stop here")
 
-    monkeypatch.setattr(mod, "calibrate_hand_from_points", fake)
+    monkeypatch.setattr(mod, "calibrate_hand_from_point_sets", fake)
     with pytest.raises(ValueError, match="stop here"):
         mod.calibrate_hand_capture(tmp_path / "cal", marker_noise="common")
-    assert "point_sigma_m" not in got and "unconfirmed" not in got
+    assert got["point_sigma_m"] is None and got["unconfirmed"] is None
     got.clear()
     with pytest.raises(ValueError, match="stop here"):
         mod.calibrate_hand_capture(tmp_path / "cal", marker_noise="own")

@@ -41,7 +41,7 @@ from stillcap.body.skeleton import Skeleton
 __all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO",
            "CalibratedParameter",
            "HandCalibration", "calibration_angles", "calibrate_hand",
-           "calibrate_hand_from_points", "phalanx_lengths"]
+           "calibrate_hand_from_points", "calibrate_hand_from_point_sets", "CalibrationPoints", "phalanx_lengths"]
 
 #: The calibration poses: name -> description (their angles: :func:`calibration_angles`).
 CALIBRATION_POSES = {"flat": "hand flat, fingers extended and together, thumb alongside (every joint angle 0)"}
@@ -354,6 +354,23 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks)
 
 
+@dataclass(frozen=True)
+class CalibrationPoints:
+    """The unlabelled 3D markers of one calibration capture (:func:`calibrate_hand_from_point_sets`).
+
+    ``points`` (n, 3) m and ``colors`` (n,) as the hand pipeline triangulates them, the
+    capture's ``strobe_hz``; optionally ``reprojection_px`` (n,), ``point_sigma_m`` (n,: each
+    point's noise, m) and ``unconfirmed`` (n,: partly hidden points no third view checked).
+    """
+
+    points: np.ndarray
+    colors: np.ndarray
+    strobe_hz: float
+    reprojection_px: np.ndarray | None = None
+    point_sigma_m: np.ndarray | None = None
+    unconfirmed: np.ndarray | None = None
+
+
 def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = "flat",
                                skeleton: Skeleton | None = None, markerset: MarkerSet | None = None,
                                reprojection_px=None, max_free: int = 12, point_sigma_m=None, unconfirmed=None,
@@ -366,46 +383,95 @@ def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = 
     capture again (a model nearer the hand labels more), and the final calibration uses it with
     up to ``max_free`` other flashes. ``point_sigma_m`` (one per point, m): each point's noise in
     the calibration (default :data:`NOISE_M` for all); ``unconfirmed`` (a bool per point) goes to
-    the labelling. Keyword arguments go to :func:`calibrate_hand`.
+    the labelling. Keyword arguments go to :func:`calibrate_hand`. One capture of
+    :func:`calibrate_hand_from_point_sets`.
+    """
+    one = CalibrationPoints(points, colors, strobe_hz, reprojection_px, point_sigma_m, unconfirmed)
+    return calibrate_hand_from_point_sets([one], pose=pose, skeleton=skeleton, markerset=markerset,
+                                          max_free=max_free, **kw)
+
+
+def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skeleton | None = None,
+                                   markerset: MarkerSet | None = None, max_free: int = 12,
+                                   **kw) -> HandCalibration:
+    """Calibrate the hand from one or more calibration captures of the same hand and glove
+    (a list of :class:`CalibrationPoints`), as :func:`calibrate_hand_from_points` does for one.
+
+    Each capture is labelled apart (its own strobe, its own flashes); the flash nearest the
+    calibration pose over all of them is the posed one, and up to ``max_free`` other flashes of
+    *each* capture are fitted with it in one problem: the shape is shared, every flash has its
+    own pose. More captures give the fit more poses (for instance the curl of one photo and the
+    protocol's separate bends of another, docs/hand-calibration.md); they need not be in the
+    same place or share the cameras' calibration beyond each capture's own rig.
     """
     from stillcap.body.hand_label import label_hand_markers
 
+    sets = list(sets)
+    if not sets:
+        raise ValueError("no calibration capture given")
     sk0 = skeleton or hand_skeleton()
     ms0 = markerset or hand_markerset()
     target = calibration_angles(pose, sk0)
-    lab = label_hand_markers(points, colors, strobe_hz=strobe_hz, skeleton=sk0, markerset=ms0,
-                             reprojection_px=reprojection_px, fill=False,
-                             unconfirmed=unconfirmed)  # flashes with their back triplet
-    rec = np.flatnonzero(lab.reconstructed)
-    if len(rec) == 0:
-        why = "; ".join(sorted({s for s in lab.skipped if s})) or "no back-of-hand markers found"
-        raise ValueError(f"no flash of the calibration capture has a hand pose ({why})")
-    dist = [float(np.sqrt(np.mean((lab.fits[k].angles_deg - target) ** 2))) for k in rec]
-    k0 = int(rec[int(np.argmin(dist))])
-    def sigma(lab, ks):
-        if point_sigma_m is None:
+    multi = len(sets) > 1
+
+    def label(s, sk, ms, **more):
+        return label_hand_markers(s.points, s.colors, strobe_hz=s.strobe_hz, skeleton=sk, markerset=ms,
+                                  reprojection_px=s.reprojection_px, fill=False, unconfirmed=s.unconfirmed, **more)
+
+    def nearest(labs):
+        """(capture, flash) of the reconstructed flash nearest the pose, or None."""
+        best = None
+        for c, lab in enumerate(labs):
+            for k in np.flatnonzero(lab.reconstructed):
+                d = float(np.sqrt(np.mean((lab.fits[k].angles_deg - target) ** 2)))
+                if best is None or d < best[0]:
+                    best = (d, c, int(k))
+        return None if best is None else best[1:]
+
+    def sigma(c, lab, ks):
+        ps = sets[c].point_sigma_m
+        if ps is None:
             return None
-        ps = np.asarray(point_sigma_m, float)
+        ps = np.asarray(ps, float)
         pi = lab.point_index[ks]
         return np.where(pi >= 0, ps[np.maximum(pi, 0)], np.nan)
 
-    first = calibrate_hand(lab.positions[k0], pose=pose, skeleton=sk0, markerset=ms0,
-                           posed_sigma_m=sigma(lab, [k0]), **kw)
-    lab2 = label_hand_markers(points, colors, strobe_hz=strobe_hz, skeleton=first.skeleton,
-                              markerset=first.markerset, reprojection_px=reprojection_px, hand_scale=1.0,
-                              fill=False, unconfirmed=unconfirmed)
-    rec2 = np.flatnonzero(lab2.reconstructed)
-    if len(rec2) == 0:
+    labs = [label(s, sk0, ms0) for s in sets]  # flashes with their back triplet
+    at = nearest(labs)
+    if at is None:
+        why = "; ".join(sorted({s for lab in labs for s in lab.skipped if s})) or "no back-of-hand markers found"
+        raise ValueError(f"no flash of the calibration capture{'s' if multi else ''} has a hand pose ({why})")
+    c0, k0 = at
+    first = calibrate_hand(labs[c0].positions[k0], pose=pose, skeleton=sk0, markerset=ms0,
+                           posed_sigma_m=sigma(c0, labs[c0], [k0]), **kw)
+    labs2 = [label(s, first.skeleton, first.markerset, hand_scale=1.0) for s in sets]
+    at = nearest(labs2)
+    if at is None:
         return first
-    d2 = [float(np.sqrt(np.mean((lab2.fits[k].angles_deg - target) ** 2))) for k in rec2]
-    k1 = int(rec2[int(np.argmin(d2))])
-    others = [int(k) for k in rec2 if k != k1 and np.isfinite(lab2.positions[k]).all(axis=1).sum() >= 9]
-    others = sorted(others, key=lambda k: -np.isfinite(lab2.positions[k]).all(axis=1).sum())[:max_free]
-    cal = calibrate_hand(lab2.positions[k1], lab2.positions[others] if others else None, pose=pose,
-                         skeleton=sk0, markerset=ms0, posed_sigma_m=sigma(lab2, [k1]),
-                         free_sigma_m=sigma(lab2, others) if others else None, **kw)
-    cal.messages.append(f"calibration pose in flash {int(lab2.order[k1])}, {len(others)} other flash(es) "
-                        f"used, {int(lab2.reconstructed.sum())} with a pose of {lab2.n_flashes}")
+    c1, k1 = at
+    free, free_sig, used = [], [], []
+    for c, lab in enumerate(labs2):
+        rec = np.flatnonzero(lab.reconstructed)
+        others = [int(k) for k in rec if (c, int(k)) != (c1, k1)
+                  and np.isfinite(lab.positions[k]).all(axis=1).sum() >= 9]
+        others = sorted(others, key=lambda k: -np.isfinite(lab.positions[k]).all(axis=1).sum())[:max_free]
+        used.append(len(others))
+        if others:
+            free.append(lab.positions[others])
+            free_sig.append(sigma(c, lab, others))
+    weighted = any(s.point_sigma_m is not None for s in sets)
+    if weighted:  # a capture without its own noises: the common one
+        free_sig = [np.full(f.shape[:2], kw.get("noise_m", NOISE_M)) if g is None else g for f, g in zip(free, free_sig)]
+    cal = calibrate_hand(labs2[c1].positions[k1], np.concatenate(free) if free else None, pose=pose,
+                         skeleton=sk0, markerset=ms0, posed_sigma_m=sigma(c1, labs2[c1], [k1]),
+                         free_sigma_m=np.concatenate(free_sig) if free and weighted else None, **kw)
+    if not multi:
+        cal.messages.append(f"calibration pose in flash {int(labs2[c1].order[k1])}, {used[0]} other flash(es) "
+                            f"used, {int(labs2[0].reconstructed.sum())} with a pose of {labs2[0].n_flashes}")
+    else:
+        cal.messages.append(f"calibration pose in flash {int(labs2[c1].order[k1])} of capture {c1 + 1}; other "
+                            f"flashes used per capture: {', '.join(map(str, used))} (with a pose: "
+                            f"{', '.join(str(int(lab.reconstructed.sum())) for lab in labs2)})")
     return cal
 
 

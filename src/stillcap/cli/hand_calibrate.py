@@ -8,8 +8,10 @@ import typer
 
 
 def hand_calibrate(
-    capture: Path = typer.Argument(..., help="Calibration capture folder (a hand capture of the gloved hand held "
-                                   "in the pose, then through the protocol's steps; docs/hand-calibration.md)."),
+    capture: list[Path] = typer.Argument(..., help="Calibration capture folder(s) (a hand capture of the gloved hand "
+                                         "held in the pose, then through the protocol's steps; "
+                                         "docs/hand-calibration.md). Several captures of the same hand and glove are "
+                                         "fitted together (more bends: fewer parameters left at the template's)."),
     out: Path = typer.Option(..., "--out", help="The hand model to write (stillcap-skeleton JSON), for "
                              "stillcap hand --hand-model."),
     markers_out: Path = typer.Option(None, "--markers-out", help="The glove marker set to write (default: "
@@ -49,7 +51,7 @@ def hand_calibrate(
                                  param_hint="--marker-noise")
     sk, ms = load_hand(template, markers, model_what="--template")
     markers_out = markers_out or out.with_name(out.name.removesuffix(".json") + ".markers.json")
-    cal = calibrate_hand_capture(capture, pose, skeleton=sk, markerset=ms,
+    cal = calibrate_hand_capture(capture if len(capture) > 1 else capture[0], pose, skeleton=sk, markerset=ms,
                                  max_length_sigma_m=None if max_length_sigma is None else max_length_sigma * 1e-3,
                                  marker_noise=marker_noise)
     cal.skeleton.save(out)
@@ -65,7 +67,7 @@ def hand_calibrate(
     for m in cal.messages:
         con.print(f"[yellow]{m}[/]", highlight=False)
     con.print(f"hand size {cal.size:.3f} x the template; fit residual {cal.rms * 1e3:.2f} mm RMS "
-              f"({cal.pose_rms * 1e3:.2f} mm in the {pose} pose; {cal.n_posed} flash(es) in it, {cal.n_free} curling)")
+              f"({cal.pose_rms * 1e3:.2f} mm in the {pose} pose; {cal.n_posed} flash(es) in it, {cal.n_free} in other poses)")
     con.print("estimated (1-sigma; template scaled to the hand, and the prior's 1-sigma about it; "
               "'not fixed': the capture narrowed the prior little):")
     for p in cal.parameters:

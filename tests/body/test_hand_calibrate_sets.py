@@ -1,0 +1,74 @@
+"""``stillcap hand-calibrate`` with several calibration captures of one hand: their flashes are fitted
+together (one shape, a pose per flash), so a second photo's bends fix what the first one's did not."""
+
+import numpy as np
+import pytest
+
+from stillcap.body.hand_calibrate import UNFIXED_SIGMA_RATIO, CalibrationPoints, calibrate_hand_from_point_sets
+from stillcap.body.hand_label import hand_points_from_truth
+from stillcap.studio.hand import hand_capture
+from stillcap.studio.hand_variation import another_hand
+
+
+@pytest.fixture(scope="module")
+def protocol_points():
+    """Exact markers (0.3 mm noise) of the studio's protocol capture of another_hand(5), split by
+    flash into the flat flashes and the bending ones, as two captures of the same hand."""
+    truth = hand_capture(205, image_size=(320, 240), supersample=1, person=another_hand(5), calibration_pose="flat",
+                         calibration_motion="protocol").truth
+    d = hand_points_from_truth(truth, noise_m=0.0003, drop=0.0, n_spurious=0, rng=5)
+    # the protocol's steps in time order: flat, flat, spread, table top, hook, fist, opposition,
+    # half curl, flat, flat (the studio's window holds 9-10 of them)
+    flat = np.isin(d["flash"], [0, 1])
+    bends = np.isin(d["flash"], np.arange(2, 8))
+    assert flat.any() and bends.any()
+    sets = [CalibrationPoints(d["points"][s], d["colours"][s], truth.strobe_hz) for s in (flat, bends)]
+    return sets
+
+
+def _middle_phalanges(cal):
+    return [p for p in cal.parameters if p.kind == "length" and "-pip to " in p.name and not p.name.startswith("thumb")]
+
+
+def test_a_second_capture_of_bends_fixes_what_the_flat_one_did_not(protocol_points):
+    flat, bends = protocol_points
+    alone = calibrate_hand_from_point_sets([flat])
+    print("flat alone", [(p.name, round(p.fixed, 2)) for p in _middle_phalanges(alone)], alone.messages[-1])
+    # flat flashes alone bend no joint: the middle phalanges' lengths stay at their prior
+    assert all(p.fixed > UNFIXED_SIGMA_RATIO for p in _middle_phalanges(alone))
+    both = calibrate_hand_from_point_sets([flat, bends])
+    print("both", [(p.name, round(p.fixed, 2)) for p in _middle_phalanges(both)], both.messages[-1])
+    assert both.n_free >= 4  # the second capture's flashes were used (6 bends)
+    assert "capture 1" in both.messages[-1]  # the flat flash is the first capture's
+    mid = _middle_phalanges(both)
+    assert len(mid) == 4 and all(p.fixed < UNFIXED_SIGMA_RATIO for p in mid)
+
+
+def test_no_capture_and_no_hand_are_refused(protocol_points):
+    flat, _ = protocol_points
+    with pytest.raises(ValueError, match="no calibration capture given"):
+        calibrate_hand_from_point_sets([])
+    far = CalibrationPoints(flat.points[:2], flat.colors[:2], flat.strobe_hz)
+    with pytest.raises(ValueError, match="no flash of the calibration captures has a hand pose"):
+        calibrate_hand_from_point_sets([far, far])
+
+
+def test_the_cli_passes_every_capture_given(monkeypatch, tmp_path, capsys):
+    """``stillcap hand-calibrate A B --out ...`` calibrates from both captures; one capture stays one."""
+    from support import run_cli
+
+    from stillcap.pipelines.hand import calibration as mod
+
+    got = []
+
+    def fake(capture, pose, **kw):
+        got.append(capture)
+        raise ValueError("stop here")
+
+    monkeypatch.setattr(mod, "calibrate_hand_capture", fake)
+    code, _out, err = run_cli(["hand-calibrate", tmp_path / "a", tmp_path / "b", "--out", tmp_path / "h.json"], capsys)
+    assert code == 2 and "stop here" in err
+    code, _out, err = run_cli(["hand-calibrate", tmp_path / "a", "--out", tmp_path / "h.json"], capsys)
+    assert code == 2
+    assert got == [[tmp_path / "a", tmp_path / "b"], tmp_path / "a"]
+    assert not (tmp_path / "h.json").exists()
