@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._blas import one_blas_thread
 from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.puppet_pose import fit_pose, frame_status
 from stillcap.body.skeleton import Pose, Skeleton
@@ -77,6 +78,10 @@ class SkeletonCalibration:
         the joint fit).
     rest_turn_stated : bool
         The calibration kept the stated turn (the estimate within :data:`REST_TURN_Z` sigmas of it).
+    joint_converged : bool or None
+        The joint fit whose answer is kept met SciPy's convergence tests (``ftol``/``xtol``/
+        ``gtol``) before ``max_nfev`` (None: not run). False means the answer depends on where
+        the fit stopped.
     """
 
     skeleton: Skeleton
@@ -94,6 +99,7 @@ class SkeletonCalibration:
     rest_turn_estimated_deg: float = float("nan")
     rest_turn_sd_deg: float = float("nan")
     rest_turn_stated: bool = False
+    joint_converged: bool | None = None
 
 
 def _rest_turn(template: Skeleton, markerset: MarkerSet, rest: np.ndarray) -> np.ndarray:
@@ -133,6 +139,7 @@ def _paths(skeleton: Skeleton) -> list[list[int]]:
     return out
 
 
+@one_blas_thread
 def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, pose_points=(),
                        marker_sigma_m: float = 0.2e-3, scale_sd: float = 0.3, offset_sd_m: float = 0.01,
                        iterations: int = 30, tol_m: float = 1e-6, name: str | None = None,
@@ -186,6 +193,10 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     Returns
     -------
     SkeletonCalibration
+
+    BLAS runs on one thread during the call (:func:`~stillcap._blas.one_blas_thread`): the joint
+    fit's matrices are a few hundred wide, and on a busy machine OpenBLAS's threads made each SVD
+    ~50x slower in CPU.
     """
     markerset.check_skeleton(template)
     nm, nj = len(markerset), template.n_joints
@@ -330,7 +341,9 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         x = x.copy()
         x[n_s + 3 * nm:n_s + 3 * nm + 3] = center0 + turn0 @ (x[n_s + 3 * nm:n_s + 3 * nm + 3] - center0)
         sk, ms, s = build(x)
-    # how well the calibrated model explains every capture
+    # how well the calibrated model explains every capture (in the joint fit's own poses when it
+    # ran: a pose fitted again from the start can settle elsewhere, e.g. beads turned +-60 deg
+    # round their bones, 3.6 mm RMS refitted against 0.03 mm in the joint fit)
     per = []
     sq = []
     for p_i, pts in enumerate(all_points):
@@ -338,6 +351,10 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             r2w = sk.rest_root2world()
             r2w[:3, :3] = turn0 @ r2w[:3, :3]
             model = ms.positions(Pose.rest(sk, r2w))
+        elif joint_fit is not None:
+            r2w = np.eye(4)
+            r2w[:3, 3] = ts_j[p_i]
+            model = ms.positions(Pose(sk, r2w, locals_j[p_i]))
         else:
             model = ms.positions(fit_pose(sk, ms, pts, marker_sigma_m=sigmas[p_i], root="free").pose)
         ok = np.all(np.isfinite(pts), axis=1)
@@ -349,7 +366,8 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
                                len(all_points), unfixed,
                                None if joint_fit is None else int(joint_fit.nfev), direction_sd, uncertain,
                                misfit, float(np.degrees(np.arctan2(turn0[0, 2], turn0[0, 0]))),
-                               turn_est, turn_sd, turn_stated)
+                               turn_est, turn_sd, turn_stated,
+                               None if joint_fit is None else bool(joint_fit.status > 0))
 
 
 #: :func:`calibrate_skeleton`: beads whose expected error is below the last level (metres) are
@@ -683,8 +701,14 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         for q in range(n_a):
             S[r + q, e + q] = 1
         r += n_a
-    res = least_squares(residuals, x0, jac_sparsity=S.tocsr(), bounds=(lower, upper), loss="soft_l1",
-                        f_scale=loss_scale, x_scale="jac", method="trf", max_nfev=max_nfev)
+    # the exact trust-region solver on a dense Jacobian (a few hundred unknowns): with
+    # ``jac_sparsity`` SciPy solves each step by LSMR, inexactly, and on this ill-conditioned
+    # problem (bead noise 0.01-0.1 mm against priors of 10 mm and 180 deg) every fit stopped at
+    # max_nfev unconverged, its answer depending on the path (seed 12 of condition 1: 0.42 deg on
+    # the bones from the coarse levels, 0.16 without); exact steps converge in 5-70 iterations
+    res = least_squares(residuals, x0, jac=_grouped_jacobian(residuals, S.tocsc(), lower, upper),
+                        bounds=(lower, upper), loss="soft_l1", f_scale=loss_scale, x_scale="jac", method="trf",
+                        tr_solver="exact", max_nfev=max_nfev)
     x = res.x
     s = np.ones(nj)
     s[bones] = x[:n_s]
@@ -695,6 +719,45 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         res, n_data, lambda xx, p: _fk(offsets_of(xx), locals_of(xx, p), np.eye(4)), cap_slice, n_caps, bones,
         template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0, n_data + n_s + 3 * nm, n_a,
         [{k for k in bones if set(np.flatnonzero(frames == parents[k])) <= set(s_.tolist())} for s_ in seen])
+
+
+def _grouped_jacobian(fun, sparsity, lower: np.ndarray, upper: np.ndarray):
+    """A dense forward-difference Jacobian of ``fun`` that perturbs, in one evaluation, every
+    unknown of a group whose residual rows (``sparsity``, csc, rows x unknowns) do not overlap
+    (greedy column grouping). SciPy does this grouping only with ``jac_sparsity``, which forces
+    the inexact LSMR trust-region solver; its ``approx_derivative`` is private, hence by hand.
+    Steps as SciPy's ``'2-point'`` (``sqrt(eps) * max(1, |x|)``), turned back inside ``upper``."""
+    n_rows, n = sparsity.shape
+    rows = [sparsity.indices[sparsity.indptr[j]:sparsity.indptr[j + 1]] for j in range(n)]
+    groups, used = [], []
+    for j in range(n):
+        for g, u in zip(groups, used):
+            if not u[rows[j]].any():
+                g.append(j)
+                u[rows[j]] = True
+                break
+        else:
+            u = np.zeros(n_rows, bool)
+            u[rows[j]] = True
+            groups.append([j])
+            used.append(u)
+    groups = [np.array(g) for g in groups]
+    row_of = [[rows[j] for j in g] for g in groups]
+
+    def jac(x, f0=None):
+        f0 = fun(x) if f0 is None else f0
+        J = np.zeros((len(f0), n))
+        for g, rs in zip(groups, row_of):
+            h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x[g]))
+            h = np.where(x[g] + h > upper[g], -h, h)
+            xx = x.copy()
+            xx[g] += h
+            df = fun(xx) - f0
+            for j, hj, r in zip(g, h, rs):
+                J[r, j] = df[r] / hj
+        return J
+
+    return jac
 
 
 def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int], template: Skeleton,

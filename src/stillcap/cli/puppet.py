@@ -678,6 +678,9 @@ def calibrate_skeleton_cmd(
         f"{n.pixel_sd:.2f} px = {n.rms_m * 1e3:.3f} mm" for n in noises)
         + (f"; the calibration's misfit {cal.misfit:.2f} (above 1 widens the predicted errors)"
            if np.isfinite(cal.misfit) else ""))
+    if cal.joint_converged is False:
+        console.print(f"[yellow]the joint fit stopped after {cal.joint_evaluations} evaluations without converging: "
+                      "the bone lengths depend on where it stopped[/]")
     if not poses:
         console.print("[yellow]a rest pose alone places the beads but not where the joints lie between them; "
                       "add --pose captures with bent joints to fix them[/]")
