@@ -104,13 +104,13 @@ def test_the_grouped_jacobian_equals_plain_forward_differences():
     from scipy.optimize import approx_fprime
     from scipy.sparse import csc_matrix
 
-    from stillcap.body.puppet_calibrate import _grouped_jacobian
+    from stillcap.body._grouped_jacobian import grouped_jacobian
 
     A = np.array([[1.0, 0, 2, 0, 0], [0, 3, 0, 0, 1], [0, 0, 0, 4, 0], [5, 0, 0, 0, 0]])
     fun = lambda x: np.sin(A @ x) + (A != 0) @ x ** 2  # noqa: E731 - each row reads A's columns
     x = np.array([0.3, -0.2, 0.5, 1.5, 0.9])
     upper = np.full(5, np.inf)
     upper[3] = 1.5 + 1e-12  # at its bound: stepped backwards
-    J = _grouped_jacobian(fun, csc_matrix(A != 0), np.full(5, -np.inf), upper)(x)
+    J = grouped_jacobian(fun, csc_matrix(A != 0), np.full(5, -np.inf), upper)(x)
     assert np.allclose(J, approx_fprime(x, fun, 1.49e-8), atol=1e-6)
     assert np.all(J[A == 0] == 0)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from stillcap._blas import one_blas_thread
+from stillcap.body._grouped_jacobian import grouped_jacobian
 from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.puppet_pose import fit_pose, frame_status
 from stillcap.body.skeleton import Pose, Skeleton
@@ -706,7 +707,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     # problem (bead noise 0.01-0.1 mm against priors of 10 mm and 180 deg) every fit stopped at
     # max_nfev unconverged, its answer depending on the path (seed 12 of condition 1: 0.42 deg on
     # the bones from the coarse levels, 0.16 without); exact steps converge in 5-70 iterations
-    res = least_squares(residuals, x0, jac=_grouped_jacobian(residuals, S.tocsc(), lower, upper),
+    res = least_squares(residuals, x0, jac=grouped_jacobian(residuals, S.tocsc(), lower, upper),
                         bounds=(lower, upper), loss="soft_l1", f_scale=loss_scale, x_scale="jac", method="trf",
                         tr_solver="exact", max_nfev=max_nfev)
     x = res.x
@@ -719,45 +720,6 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         res, n_data, lambda xx, p: _fk(offsets_of(xx), locals_of(xx, p), np.eye(4)), cap_slice, n_caps, bones,
         template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0, n_data + n_s + 3 * nm, n_a,
         [{k for k in bones if set(np.flatnonzero(frames == parents[k])) <= set(s_.tolist())} for s_ in seen])
-
-
-def _grouped_jacobian(fun, sparsity, lower: np.ndarray, upper: np.ndarray):
-    """A dense forward-difference Jacobian of ``fun`` that perturbs, in one evaluation, every
-    unknown of a group whose residual rows (``sparsity``, csc, rows x unknowns) do not overlap
-    (greedy column grouping). SciPy does this grouping only with ``jac_sparsity``, which forces
-    the inexact LSMR trust-region solver; its ``approx_derivative`` is private, hence by hand.
-    Steps as SciPy's ``'2-point'`` (``sqrt(eps) * max(1, |x|)``), turned back inside ``upper``."""
-    n_rows, n = sparsity.shape
-    rows = [sparsity.indices[sparsity.indptr[j]:sparsity.indptr[j + 1]] for j in range(n)]
-    groups, used = [], []
-    for j in range(n):
-        for g, u in zip(groups, used):
-            if not u[rows[j]].any():
-                g.append(j)
-                u[rows[j]] = True
-                break
-        else:
-            u = np.zeros(n_rows, bool)
-            u[rows[j]] = True
-            groups.append([j])
-            used.append(u)
-    groups = [np.array(g) for g in groups]
-    row_of = [[rows[j] for j in g] for g in groups]
-
-    def jac(x, f0=None):
-        f0 = fun(x) if f0 is None else f0
-        J = np.zeros((len(f0), n))
-        for g, rs in zip(groups, row_of):
-            h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x[g]))
-            h = np.where(x[g] + h > upper[g], -h, h)
-            xx = x.copy()
-            xx[g] += h
-            df = fun(xx) - f0
-            for j, hj, r in zip(g, h, rs):
-                J[r, j] = df[r] / hj
-        return J
-
-    return jac
 
 
 def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int], template: Skeleton,
