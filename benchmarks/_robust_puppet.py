@@ -27,7 +27,9 @@ bones named are false alarms (each check's rate: ``puppet_checks.FALSE_ALARM_P``
 built-in skeleton on other puppets they are detections. ``--no-calibration`` leaves out the
 calibrated skeleton (one capture per puppet instead of four). ``calibrations_over_1deg``: puppets
 whose calibrated skeleton gave over 1 deg RMS; ``calibration_wrong_ids``: wrong names in the three
-calibration captures (built-in body).
+calibration captures (built-in body); ``calibrations_converged``: calibrations whose joint fit
+converged (:attr:`SkeletonCalibration.joint_converged`). The per-bone checks name a bone at the
+default bone tolerance (``puppet_checks.BONE_TOLERANCE_DEG``).
 ``benchmarks/bench_robustness.py`` imports :func:`rows`;
 
     python benchmarks/_robust_puppet.py [--quick] [--seeds 11-22] [--conditions 0,1,...] [--no-calibration]
@@ -119,7 +121,7 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path, cal
                                  noise_m=cal_noise)
         bodies.append(("calibrated", (cal.markerset, cal.skeleton)))
     bodies.append(("user", (ms, sk)))
-    out = {"seed": seed, "cal_wrong": cal_wrong}
+    out = {"seed": seed, "cal_wrong": cal_wrong, "cal_converged": bool(calibrate and cal.joint_converged)}
     for label, (m_, s_) in bodies:
         res, cmp = _analyse(test, m_, s_)
         out[f"{label}_rms"], out[f"{label}_max"] = cmp.bone_stats("full")
@@ -204,6 +206,7 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                                                       if calibrate else float("nan")),
                         "calibrations_over_1deg": int(sum(r["calibrated_rms"] > 1.0 for r in recs)) if calibrate else 0,
                         "calibration_wrong_ids": int(sum(r["cal_wrong"] for r in recs)),
+                        "calibrations_converged": int(sum(r["cal_converged"] for r in recs)),
                         "bone_deg_predicted": _rms([r["predicted_rms"] for r in recs]),
                         "z_rms": _rms([z for r in recs for z in r["z"]]),
                         "uncertain_right": int(sum(r["uncertain_right"] for r in recs)),

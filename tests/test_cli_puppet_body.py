@@ -80,6 +80,14 @@ def test_calibrate_skeleton_names_a_rest_turn_that_is_not_an_angle(tmp_path, cap
     assert not (tmp_path / "cal.json").exists()
 
 
+def test_run_and_reconstruct_name_a_bone_tolerance_that_is_not_an_angle(tmp_path, capsys):
+    # checked before any capture is read (the folder does not exist)
+    for cmd in ("run", "reconstruct"):
+        for bad in ("nan", "-0.5", "90"):
+            code, _, err = run(["puppet", cmd, tmp_path / "nothing", "--bone-tolerance-deg", bad], capsys)
+            assert code == 2 and "--bone-tolerance-deg must be an angle in [0, 90) degrees" in err, (cmd, bad, err)
+
+
 def test_new_keeps_the_puppets_files_in_the_project_and_reconstruct_names_a_missing_one(tmp_path, capsys):
     from stillcap.io.project import Project
 

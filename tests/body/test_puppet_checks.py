@@ -340,12 +340,14 @@ def test_skeleton_checks_false_alarms_stay_at_their_stated_rate_and_a_wrong_skel
     failed, one_error, checked = 0, 0, 0
     for t in range(40):
         pts = ms.positions(random_pose(sk, 100 + t, ms)) + rng.normal(0, 1, (len(ms), 3)) * sd[:, None]
-        checks = skeleton_checks(ms, fit_pose(sk, ms, pts, root="free", marker_sigma_m=sd), pts, sd, p=0.05)
+        # the noise test alone (tolerance 0): its false-alarm rate is what is tested here
+        checks = skeleton_checks(ms, fit_pose(sk, ms, pts, root="free", marker_sigma_m=sd), pts, sd, p=0.05,
+                                 tolerance_deg=0.0)
         failed += sum(not c.passed for c in checks)
         checked += len(checks)
         # the pose fitted with one error for all beads: the imprecise beads pull it off the
         # precise ones, whose misfit then exceeds their own noise
-        loose = skeleton_checks(ms, fit_pose(sk, ms, pts, root="free"), pts, sd, p=0.05)
+        loose = skeleton_checks(ms, fit_pose(sk, ms, pts, root="free"), pts, sd, p=0.05, tolerance_deg=0.0)
         one_error += sum(not c.passed for c in loose)
     assert checked > 500 and failed / checked <= 0.05 and one_error > 2 * max(failed, 1)
     pts = ms.positions(random_pose(sk, 7, ms)) + rng.normal(0, 1, (len(ms), 3)) * sd[:, None]
@@ -356,9 +358,10 @@ def test_skeleton_checks_false_alarms_stay_at_their_stated_rate_and_a_wrong_skel
     assert len(named) >= 0.5 * len(bones) and FALSE_ALARM_P == 1e-3
     # value and limit agree with passed, and a noise estimated with few dof allows more
     assert all(c.passed == (c.value <= c.limit) for c in wrong)
-    few = skeleton_checks(MarkerSet.puppet(), fit_pose(Skeleton.puppet(), MarkerSet.puppet(), pts, root="free",
-                                                       marker_sigma_m=sd), pts, sd, noise_dof=np.full(len(ms), 6.0))
-    assert all(f.limit > w.limit for f, w in zip(few, wrong))
+    wrong_fit = fit_pose(Skeleton.puppet(), MarkerSet.puppet(), pts, root="free", marker_sigma_m=sd)
+    few = skeleton_checks(MarkerSet.puppet(), wrong_fit, pts, sd, noise_dof=np.full(len(ms), 6.0), tolerance_deg=0.0)
+    exact = skeleton_checks(MarkerSet.puppet(), wrong_fit, pts, sd, tolerance_deg=0.0)
+    assert all(f.limit > w.limit for f, w in zip(few, exact))
     with pytest.raises(ValueError, match="p must be in"):
         skeleton_checks(ms, fit_pose(sk, ms, pts, root="free"), pts, sd, p=0.0)
 
@@ -376,3 +379,44 @@ def test_the_check_limits_do_not_import_scipy_stats():
             "assert abs(v[0] - 3 * stats.f.isf(1e-3, 3, 7.5)) < 1e-9 * v[0]; "
             "assert abs(v[1] - stats.chi2.isf(1e-3, 2)) < 1e-9 * v[1]")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_a_bone_is_named_only_when_its_misfit_is_significant_and_over_the_stated_angle():
+    # issue 12: a skeleton a few hundredths of a degree off the puppet (what a calibration from a
+    # rest pose leaves) is significant on sharp beads, but well inside any goal: named only with
+    # tolerance 0; a skeleton +-15 % unlike the puppet is still named at the default 0.5 deg
+    from stillcap.body.puppet_checks import BONE_TOLERANCE_DEG
+
+    sk, ms = another_puppet(3)
+    rng = np.random.default_rng(2)
+    pose = random_pose(sk, 33, ms)
+    sd = np.full(len(ms), 0.005e-3)  # sharp beads: 5 um
+    pts = ms.positions(pose) + rng.normal(0, 1, (len(ms), 3)) * sd[:, None]
+    # every bead 0.1 mm off along its bone frame's y axis: bones tens of mm long, ~0.1-0.3 deg
+    near = MarkerSet(tuple(type(m)(m.name, m.bone, np.asarray(m.offset) + [0, 1e-4, 0], m.hsb, m.diameter)
+                           for m in ms.markers), ms.rules, ms.name, ms.skeleton_name, "<test>")
+    fit = fit_pose(sk, near, pts, root="free", marker_sigma_m=sd)
+    strict = skeleton_checks(near, fit, pts, sd, tolerance_deg=0.0)
+    stated = skeleton_checks(near, fit, pts, sd)
+    assert BONE_TOLERANCE_DEG == 0.5
+    assert sum(not c.passed for c in strict) >= 3  # significant: 0.1 mm against 5 um of noise
+    assert all(c.passed for c in stated), [c.message for c in stated if not c.passed]
+    for s_, t_ in zip(strict, stated):  # the same value; the limit is the larger of noise and tolerance
+        assert s_.value == t_.value and t_.limit >= s_.limit and t_.passed == (t_.value <= t_.limit)
+        assert "bone tolerance" in t_.message
+    # the tolerance's limit in mm: the beads' RMS distance from their joint times the angle
+    res = [c for c in stated if c.name == "bone_residual" and c.limit > strict[stated.index(c)].limit]
+    assert res
+    c = res[0]
+    idx = [k for k, m in enumerate(near.markers) if m.bone == c.subject]
+    lever = np.sqrt(np.mean(np.sum(near.offsets[idx] ** 2, axis=1)))
+    assert c.limit == pytest.approx(lever * np.radians(0.5) * 1e3)
+    # a skeleton unlike the puppet is still named, bone by bone, at the default tolerance
+    wrong = skeleton_checks(MarkerSet.puppet(), fit_pose(Skeleton.puppet(), MarkerSet.puppet(), pts, root="free",
+                                                         marker_sigma_m=sd), pts, sd)
+    assert len({c.subject for c in wrong if not c.passed}) >= 5
+    # bead pairs turned more than the tolerance from the model are named too
+    assert any(c.name == "bead_pair_direction" and not c.passed and c.value > 0.5 for c in wrong)
+    for bad in (-0.1, float("nan"), float("inf"), 90.0):
+        with pytest.raises(ValueError, match="tolerance_deg must be an angle"):
+            skeleton_checks(near, fit, pts, sd, tolerance_deg=bad)

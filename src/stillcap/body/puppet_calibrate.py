@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from stillcap._blas import one_blas_thread
+from stillcap.body._grouped_jacobian import grouped_jacobian
 from stillcap.body.markerset import Marker, MarkerSet
 from stillcap.body.puppet_pose import fit_pose, frame_status
 from stillcap.body.skeleton import Pose, Skeleton
@@ -77,6 +79,10 @@ class SkeletonCalibration:
         the joint fit).
     rest_turn_stated : bool
         The calibration kept the stated turn (the estimate within :data:`REST_TURN_Z` sigmas of it).
+    joint_converged : bool or None
+        The joint fit whose answer is kept met SciPy's convergence tests (``ftol``/``xtol``/
+        ``gtol``) before ``max_nfev`` (None: not run). False means the answer depends on where
+        the fit stopped.
     """
 
     skeleton: Skeleton
@@ -94,6 +100,7 @@ class SkeletonCalibration:
     rest_turn_estimated_deg: float = float("nan")
     rest_turn_sd_deg: float = float("nan")
     rest_turn_stated: bool = False
+    joint_converged: bool | None = None
 
 
 def _rest_turn(template: Skeleton, markerset: MarkerSet, rest: np.ndarray) -> np.ndarray:
@@ -133,6 +140,7 @@ def _paths(skeleton: Skeleton) -> list[list[int]]:
     return out
 
 
+@one_blas_thread
 def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, pose_points=(),
                        marker_sigma_m: float = 0.2e-3, scale_sd: float = 0.3, offset_sd_m: float = 0.01,
                        iterations: int = 30, tol_m: float = 1e-6, name: str | None = None,
@@ -186,6 +194,10 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
     Returns
     -------
     SkeletonCalibration
+
+    BLAS runs on one thread during the call (:func:`~stillcap._blas.one_blas_thread`): the joint
+    fit's matrices are a few hundred wide, and on a busy machine OpenBLAS's threads made each SVD
+    ~50x slower in CPU.
     """
     markerset.check_skeleton(template)
     nm, nj = len(markerset), template.n_joints
@@ -330,7 +342,9 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         x = x.copy()
         x[n_s + 3 * nm:n_s + 3 * nm + 3] = center0 + turn0 @ (x[n_s + 3 * nm:n_s + 3 * nm + 3] - center0)
         sk, ms, s = build(x)
-    # how well the calibrated model explains every capture
+    # how well the calibrated model explains every capture (in the joint fit's own poses when it
+    # ran: a pose fitted again from the start can settle elsewhere, e.g. beads turned +-60 deg
+    # round their bones, 3.6 mm RMS refitted against 0.03 mm in the joint fit)
     per = []
     sq = []
     for p_i, pts in enumerate(all_points):
@@ -338,6 +352,10 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
             r2w = sk.rest_root2world()
             r2w[:3, :3] = turn0 @ r2w[:3, :3]
             model = ms.positions(Pose.rest(sk, r2w))
+        elif joint_fit is not None:
+            r2w = np.eye(4)
+            r2w[:3, 3] = ts_j[p_i]
+            model = ms.positions(Pose(sk, r2w, locals_j[p_i]))
         else:
             model = ms.positions(fit_pose(sk, ms, pts, marker_sigma_m=sigmas[p_i], root="free").pose)
         ok = np.all(np.isfinite(pts), axis=1)
@@ -349,7 +367,8 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
                                len(all_points), unfixed,
                                None if joint_fit is None else int(joint_fit.nfev), direction_sd, uncertain,
                                misfit, float(np.degrees(np.arctan2(turn0[0, 2], turn0[0, 0]))),
-                               turn_est, turn_sd, turn_stated)
+                               turn_est, turn_sd, turn_stated,
+                               None if joint_fit is None else bool(joint_fit.status > 0))
 
 
 #: :func:`calibrate_skeleton`: beads whose expected error is below the last level (metres) are
@@ -683,8 +702,14 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
         for q in range(n_a):
             S[r + q, e + q] = 1
         r += n_a
-    res = least_squares(residuals, x0, jac_sparsity=S.tocsr(), bounds=(lower, upper), loss="soft_l1",
-                        f_scale=loss_scale, x_scale="jac", method="trf", max_nfev=max_nfev)
+    # the exact trust-region solver on a dense Jacobian (a few hundred unknowns): with
+    # ``jac_sparsity`` SciPy solves each step by LSMR, inexactly, and on this ill-conditioned
+    # problem (bead noise 0.01-0.1 mm against priors of 10 mm and 180 deg) every fit stopped at
+    # max_nfev unconverged, its answer depending on the path (seed 12 of condition 1: 0.42 deg on
+    # the bones from the coarse levels, 0.16 without); exact steps converge in 5-70 iterations
+    res = least_squares(residuals, x0, jac=grouped_jacobian(residuals, S.tocsc(), lower, upper),
+                        bounds=(lower, upper), loss="soft_l1", f_scale=loss_scale, x_scale="jac", method="trf",
+                        tr_solver="exact", max_nfev=max_nfev)
     x = res.x
     s = np.ones(nj)
     s[bones] = x[:n_s]

@@ -45,6 +45,17 @@ def _settings(detector: str, identify: str):
     return with_options(DEFAULT, detector=detector, identify=identify)
 
 
+def _tolerance_settings(settings, bone_tolerance_deg: float):
+    """``settings`` with the stated ``--bone-tolerance-deg`` (ValueError naming the option)."""
+    import math
+
+    from stillcap.pipelines.puppet import with_options
+
+    if not (math.isfinite(bone_tolerance_deg) and 0 <= bone_tolerance_deg < 90):
+        raise ValueError(f"--bone-tolerance-deg must be an angle in [0, 90) degrees, got {bone_tolerance_deg:g}")
+    return with_options(settings, bone_tolerance_deg=bone_tolerance_deg)
+
+
 def load_palette(path: Path | None, markerset=None):
     """A palette file (``stillcap palette --json`` or ``puppet calibrate-palette``) by marker name."""
     if path is None:
@@ -215,6 +226,9 @@ def run(
                                  "instead of the capture's or project's."),
     force: Force = False,
     response: str = typer.Option(None, "--response", help=RESPONSE_HELP + " (auto: not for the puppet yet)"),
+    bone_tolerance: float = typer.Option(0.5, "--bone-tolerance-deg", help="Bone-direction error you accept, "
+                                         "degrees: the per-bone self-checks name a bone only when its misfit is "
+                                         "significant and larger than this (0: every significant misfit)."),
 ):
     """Find, name and triangulate the beads in every photo and pose the skeleton.
 
@@ -224,7 +238,7 @@ def run(
     from stillcap.io.project import dumps_json
     from stillcap.pipelines.puppet import analyse_puppet
 
-    settings = _settings(detector, identify)
+    settings = _tolerance_settings(_settings(detector, identify), bone_tolerance)
     if response is not None:
         from stillcap.pipelines.puppet import with_options
 
@@ -429,15 +443,19 @@ def reconstruct(
                                   "instead of the project's."),
     markers: Path = typer.Option(None, "--markers", help="The puppet's beads (a stillcap-markerset JSON file with "
                                  "the project's marker names) instead of the project's."),
+    bone_tolerance: float = typer.Option(0.5, "--bone-tolerance-deg", help="Bone-direction error you accept, "
+                                         "degrees: the per-bone self-checks name a bone only when its misfit is "
+                                         "significant and larger than this (0: every significant misfit)."),
 ):
     """3D markers and the pose from the project's stored markers (detections with edits)."""
     from stillcap.io.project import dumps_json
-    from stillcap.pipelines.puppet import analyse_puppet
+    from stillcap.pipelines.puppet import DEFAULT, analyse_puppet
 
+    settings = _tolerance_settings(DEFAULT, bone_tolerance)
     check(out, "folder", "--out", force, OUT_FILES)
     body = _body_files(skeleton, markers)
     with progress("triangulating and posing"):
-        res, images = analyse_puppet(project, detect=False, **body)
+        res, images = analyse_puppet(project, settings, detect=False, **body)
     outputs = _write_outputs(res, images, out, say=Console(stderr=True) if as_json else console)
     if as_json:
         print(dumps_json(res.to_dict()))
@@ -660,6 +678,9 @@ def calibrate_skeleton_cmd(
         f"{n.pixel_sd:.2f} px = {n.rms_m * 1e3:.3f} mm" for n in noises)
         + (f"; the calibration's misfit {cal.misfit:.2f} (above 1 widens the predicted errors)"
            if np.isfinite(cal.misfit) else ""))
+    if cal.joint_converged is False:
+        console.print(f"[yellow]the joint fit stopped after {cal.joint_evaluations} evaluations without converging: "
+                      "the bone lengths depend on where it stopped[/]")
     if not poses:
         console.print("[yellow]a rest pose alone places the beads but not where the joints lie between them; "
                       "add --pose captures with bent joints to fix them[/]")

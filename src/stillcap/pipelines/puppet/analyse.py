@@ -153,7 +153,7 @@ def analyse_puppet_views(rig: Rig, images=None, *, markerset: MarkerSet | None =
     stray = stray_bead_checks(markerset, fit, solve.points)
     off = np.isin(np.asarray(markerset.names), [c.subject for c in stray])
     checks = (skeleton_checks(markerset, fit, solve.points, noise, exclude=solve.partly_hidden | off,
-                              noise_dof=noise_dof)
+                              noise_dof=noise_dof, tolerance_deg=options.bone_tolerance_deg)
               + partly_hidden_checks(markerset.names, solve.ok, solve.whole_views) + stray
               + unmeasured_bone_checks(skeleton, markerset, solve.ok))
     return PuppetResult(rig, list(view_names) if view_names is not None else list(rig.names),

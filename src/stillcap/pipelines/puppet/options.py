@@ -2,9 +2,11 @@
 measured best) and :data:`THESIS_CHAIN` (the thesis's chain), and :func:`with_options`."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 from stillcap.body.markerset import MarkerSet
+from stillcap.body.puppet_checks import BONE_TOLERANCE_DEG
 from stillcap.detect.beads import DETECTORS, IDENTIFIERS
 from stillcap.response import check_response_option
 
@@ -73,6 +75,11 @@ class PuppetOptions:
         the rig; a Response (or ``"srgb"``, ``"linear"``, ``"gamma:2.2"``) for every view. The
         photos are re-encoded to sRGB through it before the beads' colours (sRGB references) are
         compared. ``"auto"`` is not available for the puppet yet (its beads are too small).
+    bone_tolerance_deg : float
+        The bone-direction error accepted, degrees: the per-bone self-checks name a bone only when
+        its misfit is significant and larger than a bone turned by this angle would leave
+        (:func:`~stillcap.body.puppet_checks.skeleton_checks`; default
+        :data:`~stillcap.body.puppet_checks.BONE_TOLERANCE_DEG`; 0: every significant misfit).
     """
 
     detector: str = "template"
@@ -94,6 +101,7 @@ class PuppetOptions:
     coarse: bool = True
     root: str = "auto"
     response: object = None
+    bone_tolerance_deg: float = BONE_TOLERANCE_DEG
 
     def __post_init__(self):
         object.__setattr__(self, "response", check_response_option(self.response))
@@ -113,6 +121,8 @@ class PuppetOptions:
         lo, hi = (float(v) for v in self.radius_range)
         if not 0 < lo <= hi:
             raise ValueError(f"radius_range must be 0 < min <= max pixels, got {self.radius_range}")
+        if not (math.isfinite(self.bone_tolerance_deg) and 0 <= self.bone_tolerance_deg < 90):
+            raise ValueError(f"bone_tolerance_deg must be an angle in [0, 90) degrees, got {self.bone_tolerance_deg}")
         if self.outlier_px is not None and not self.outlier_px > 0:
             raise ValueError(f"outlier_px must be > 0 pixels or None, got {self.outlier_px}")
 
@@ -123,7 +133,7 @@ class PuppetOptions:
                 "arc_fit": self.arc_fit,
                 "pose": self.pose, "marker_sigma_m": self.marker_sigma_m, "roi": self.roi,
                 "reidentify": self.reidentify, "reid_gate": self.reid_gate, "reid_colour": self.reid_color,
-                "coarse": self.coarse, "root": self.root}
+                "coarse": self.coarse, "root": self.root, "bone_tolerance_deg": self.bone_tolerance_deg}
 
 
 #: The measured best chain (``benchmarks/bench_puppet.py``).
