@@ -80,6 +80,8 @@ MIN_MARKERS = 6
 #: such a group needs.
 CLUSTER_LINK_M = 0.10
 MIN_SKIPPED_POINTS = 4
+#: Most false back-of-hand triplets rejected in one capture (each costs one more labelling run).
+MAX_REJECTED_TRIPLETS = 4
 
 _OVERRIDES_FORMAT = "stillcap-label-overrides"
 _Tolerance = Field(None, strict=True, gt=0, le=1000, allow_inf_nan=False)
@@ -265,7 +267,8 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
                        min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
-                       size_range=SIZE_RANGE, fill: bool = True, unconfirmed=None) -> HandLabels:
+                       size_range=SIZE_RANGE, fill: bool = True, unconfirmed=None,
+                       _rejected: frozenset = frozenset()) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -351,6 +354,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
 
     # 1-2. candidate hands from back-of-hand triplets, accepted greedily by grid score
     cands, _ = back_triplets(pts, cols, usable, model, triangle_tol_m)
+    cands = [c for c in cands if frozenset(int(x) for x in c) not in _rejected]
     roots = [root_pose(model, pts, c) for c in cands]
     accepted = _accept(model, pts, cols, usable, cands, np.ones(len(cands)), grid_gate_m, min_markers, roots)
 
@@ -416,6 +420,20 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     for k, (_, labels, _, _, _) in enumerate(flashes):
         for mk, p in (labels or {}).items():
             point_index[k, mk] = p
+    # 8. a triplet's hand that another posed flash's hand explains (its points lie on that hand's
+    # markers) and that does not explain that flash back is a false triplet of the same flash:
+    # label again without it (hand 11 of issue 12: three finger markers of a flash whose back was
+    # hidden passed as its back-of-hand triplet, a second hand at the place of the real one)
+    false = _false_triplets(model, pts, cols, flashes, source, gate_m) if fill else []
+    if false and len(_rejected) < MAX_REJECTED_TRIPLETS:
+        # the model and gates are already scaled to the hand: the rerun keeps them as they are
+        again = label_hand_markers(
+            points, colors, strobe_hz=strobe_hz, skeleton=skeleton, markerset=markerset, throw_direction=throw,
+            reprojection_px=reprojection_px, max_reprojection_px=max_reprojection_px, overrides=overrides,
+            triangle_tol_m=triangle_tol_m, gate_m=gate_m, grid_gate_m=grid_gate_m, grid_step_deg=grid_step_deg,
+            min_markers=min_markers, hand_scale=1.0, size_range=size_range, fill=fill, unconfirmed=unconfirmed,
+            _rejected=_rejected | frozenset(false))
+        return replace(again, hand_scale=hand_scale)
     if unconfirmed is not None:
         _drop_lone_unconfirmed(model, point_index, unconfirmed)
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
@@ -424,6 +442,41 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         if isinstance(overrides, (str, os.PathLike)):
             overrides = read_label_overrides(overrides)
         out = apply_label_overrides(out, overrides)
+    return out
+
+
+def _false_triplets(model, pts, cols, flashes, source, gate) -> list:
+    """Back-of-hand triplets (frozensets of point indices) of flashes posed from a triplet whose
+    labelled points another posed flash's fitted hand explains better than the other way round.
+
+    Hand ``b`` explains a point when one of its fitted markers of the point's colour lies within
+    ``gate`` of it. Two flashes of one strobe sequence are at different places (the hand moves
+    between flashes), so a posed hand explains no point of another flash; a false triplet (three
+    markers of a flash whose back is unseen, at the back's distances and colours) is a second
+    hand at the place of its flash's real one: that one, posed from the rest of the flash's
+    points, explains the false hand's points (at least the triplet's three), while the false
+    hand, posed wrong, explains fewer of the real one's. Nothing here assumes a speed."""
+    posed = [k for k, f in enumerate(flashes) if f[2] is not None and f[1]]
+    pred = {k: model.markerset.positions(flashes[k][2].pose) for k in posed}
+
+    def explains(b, a):
+        own = np.array(sorted(flashes[a][1].values()), int)
+        d = np.linalg.norm(pts[own][:, None, :] - pred[b][None, :, :], axis=2)
+        d[cols[own][:, None] != model.colors[None, :]] = np.inf
+        return int(np.sum(d.min(axis=1) <= gate))
+
+    back = [model.markerset.index(b) for b in BACK_MARKERS]
+    out = []
+    for a in posed:
+        if source[a] != "triplet" or not all(j in flashes[a][1] for j in back):
+            continue
+        for b in posed:
+            if b == a:
+                continue
+            ab, ba = explains(b, a), explains(a, b)
+            if ab >= len(back) and ab > ba:
+                out.append(frozenset(int(flashes[a][1][j]) for j in back))
+                break
     return out
 
 
