@@ -60,8 +60,8 @@ from stillcap.files.jsonable import to_jsonable
 from stillcap.files.jsonfile import read_json
 from stillcap.files.schema import ClosedModel, Model, Name, PositiveCount, Vec3, validate
 
-__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "contradicted_labels", "hand_points_from_truth",
-           "label_hand_markers", "read_label_overrides", "unlabel_points"]
+__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "contradicted_labels", "explained_points",
+           "flashes_at_one_place", "hand_points_from_truth", "label_hand_markers", "read_label_overrides", "unlabel_points"]
 
 #: Tolerance on each side of the back-of-hand triangle (m): noise of both ends plus margin.
 TRIANGLE_TOL_M = 0.006
@@ -268,7 +268,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
                        min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
                        size_range=SIZE_RANGE, fill: bool = True, unconfirmed=None,
-                       _rejected: frozenset = frozenset()) -> HandLabels:
+                       reject_false_triplets: bool = True, _rejected: frozenset = frozenset()) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -310,6 +310,13 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         only beside another labelled marker of its digit: alone on a digit, the digit's joints
         bend to it and its residual is zero whatever it is, so nothing tests it (on studio
         hands 3 and 5, a sliver pair 17-21 mm from every marker took ``ring.dip``).
+    reject_false_triplets : bool
+        After filling in (step 8): a flash posed from a back-of-hand triplet whose points another
+        posed flash's fitted hand explains (at least three of them on its markers), while it
+        explains fewer of that flash's, is a false triplet (three finger markers of a flash whose
+        back is unseen); the capture is labelled again without it (at most
+        :data:`MAX_REJECTED_TRIPLETS`). False keeps such hands (the self-check
+        ``flashes_at_one_place`` of :mod:`stillcap.body.hand_checks` still names them).
 
     Returns
     -------
@@ -424,7 +431,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     # markers) and that does not explain that flash back is a false triplet of the same flash:
     # label again without it (hand 11 of issue 12: three finger markers of a flash whose back was
     # hidden passed as its back-of-hand triplet, a second hand at the place of the real one)
-    false = _false_triplets(model, pts, cols, flashes, source, gate_m) if fill else []
+    false = _false_triplets(model, pts, cols, flashes, source, gate_m) if fill and reject_false_triplets else []
     if false and len(_rejected) < MAX_REJECTED_TRIPLETS:
         # the model and gates are already scaled to the hand: the rerun keeps them as they are
         again = label_hand_markers(
@@ -445,6 +452,36 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     return out
 
 
+def explained_points(markers, marker_colors, points, colors, indices, gate: float) -> int:
+    """How many of the points ``indices`` lie within ``gate`` of a marker of their colour among
+    ``markers`` (a fitted hand's marker positions, shape (m, 3))."""
+    own = np.asarray(indices, int)
+    if not len(own):
+        return 0
+    d = np.linalg.norm(np.asarray(points)[own][:, None, :] - np.asarray(markers)[None, :, :], axis=2)
+    d[np.asarray(colors)[own][:, None] != np.asarray(marker_colors)[None, :]] = np.inf
+    return int(np.sum(d.min(axis=1) <= gate))
+
+
+def flashes_at_one_place(labels: HandLabels, gate_m: float = GATE_M) -> list:
+    """Pairs of posed flashes ``(a, b, n)`` where flash ``b``'s fitted hand explains ``n >= 3``
+    of flash ``a``'s labelled points (a marker of their colour within ``gate_m`` times the hand's
+    size). Flashes of one strobe sequence are at different places, so any pair means two hands
+    were made of one flash's points: at least one of them is labelled wrong."""
+    gate = float(gate_m) * labels.hand_scale
+    posed = [k for k in range(labels.n_flashes) if labels.fits[k] is not None and (labels.point_index[k] >= 0).any()]
+    pred = {k: labels.markerset.positions(labels.fits[k].pose) for k in posed}
+    out = []
+    for a in posed:
+        own = labels.point_index[a][labels.point_index[a] >= 0]
+        for b in posed:
+            if b != a:
+                n = explained_points(pred[b], labels.marker_colors, labels.points, labels.colors, own, gate)
+                if n >= len(BACK_MARKERS):
+                    out.append((a, b, n))
+    return out
+
+
 def _false_triplets(model, pts, cols, flashes, source, gate) -> list:
     """Back-of-hand triplets (frozensets of point indices) of flashes posed from a triplet whose
     labelled points another posed flash's fitted hand explains better than the other way round.
@@ -460,10 +497,7 @@ def _false_triplets(model, pts, cols, flashes, source, gate) -> list:
     pred = {k: model.markerset.positions(flashes[k][2].pose) for k in posed}
 
     def explains(b, a):
-        own = np.array(sorted(flashes[a][1].values()), int)
-        d = np.linalg.norm(pts[own][:, None, :] - pred[b][None, :, :], axis=2)
-        d[cols[own][:, None] != model.colors[None, :]] = np.inf
-        return int(np.sum(d.min(axis=1) <= gate))
+        return explained_points(pred[b], model.colors, pts, cols, list(flashes[a][1].values()), gate)
 
     back = [model.markerset.index(b) for b in BACK_MARKERS]
     out = []
