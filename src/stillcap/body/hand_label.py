@@ -427,24 +427,30 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     for k, (_, labels, _, _, _) in enumerate(flashes):
         for mk, p in (labels or {}).items():
             point_index[k, mk] = p
-    # 8. a triplet's hand that another posed flash's hand explains (its points lie on that hand's
-    # markers) and that does not explain that flash back is a false triplet of the same flash:
-    # label again without it (hand 11 of issue 12: three finger markers of a flash whose back was
-    # hidden passed as its back-of-hand triplet, a second hand at the place of the real one)
-    false = _false_triplets(model, pts, cols, flashes, source, gate_m) if fill and reject_false_triplets else []
-    if false and len(_rejected) < MAX_REJECTED_TRIPLETS:
-        # the model and gates are already scaled to the hand: the rerun keeps them as they are
-        again = label_hand_markers(
-            points, colors, strobe_hz=strobe_hz, skeleton=skeleton, markerset=markerset, throw_direction=throw,
-            reprojection_px=reprojection_px, max_reprojection_px=max_reprojection_px, overrides=overrides,
-            triangle_tol_m=triangle_tol_m, gate_m=gate_m, grid_gate_m=grid_gate_m, grid_step_deg=grid_step_deg,
-            min_markers=min_markers, hand_scale=1.0, size_range=size_range, fill=fill, unconfirmed=unconfirmed,
-            _rejected=_rejected | frozenset(false))
-        return replace(again, hand_scale=hand_scale)
     if unconfirmed is not None:
         _drop_lone_unconfirmed(model, point_index, unconfirmed)
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
                  [f[3] for f in flashes], np.array([], int), hand_scale, source)
+
+    # 8. false back-of-hand triplets (three finger markers of a flash whose back is unseen, at the
+    # back's colours and distances: hand 11 of issue 12). A triplet's hand that another posed
+    # flash's hand explains (its points lie on that hand's markers) while it does not explain that
+    # flash back is a second hand at the place of its flash's real one: label again without it. A
+    # triplet's hand beside a flash left without a pose that has more points than it labelled may
+    # be one too: label again without it and keep whichever labelling labels more points.
+    if fill and reject_false_triplets and len(_rejected) < MAX_REJECTED_TRIPLETS:
+        false, suspect = _false_triplets(model, pts, cols, flashes, source, gate_m, CLUSTER_LINK_M * hand_scale)
+        for bad, sure in ([(false, True)] if false else []) + [([t], False) for t in suspect]:
+            # the model and gates are already scaled to the hand: the rerun keeps them as they are
+            again = label_hand_markers(
+                points, colors, strobe_hz=strobe_hz, skeleton=skeleton, markerset=markerset, throw_direction=throw,
+                reprojection_px=reprojection_px, max_reprojection_px=max_reprojection_px,
+                triangle_tol_m=triangle_tol_m, gate_m=gate_m, grid_gate_m=grid_gate_m, grid_step_deg=grid_step_deg,
+                min_markers=min_markers, hand_scale=1.0, size_range=size_range, fill=fill, unconfirmed=unconfirmed,
+                _rejected=_rejected | frozenset(bad))
+            if sure or (again.point_index >= 0).sum() > (out.point_index >= 0).sum():
+                out = replace(again, hand_scale=hand_scale)
+                break
     if overrides is not None:
         if isinstance(overrides, (str, os.PathLike)):
             overrides = read_label_overrides(overrides)
@@ -482,7 +488,7 @@ def flashes_at_one_place(labels: HandLabels, gate_m: float = GATE_M) -> list:
     return out
 
 
-def _false_triplets(model, pts, cols, flashes, source, gate) -> list:
+def _false_triplets(model, pts, cols, flashes, source, gate, link) -> tuple[list, list]:
     """Back-of-hand triplets (frozensets of point indices) of flashes posed from a triplet whose
     labelled points another posed flash's fitted hand explains better than the other way round.
 
@@ -492,7 +498,11 @@ def _false_triplets(model, pts, cols, flashes, source, gate) -> list:
     markers of a flash whose back is unseen, at the back's distances and colours) is a second
     hand at the place of its flash's real one: that one, posed from the rest of the flash's
     points, explains the false hand's points (at least the triplet's three), while the false
-    hand, posed wrong, explains fewer of the real one's. Nothing here assumes a speed."""
+    hand, posed wrong, explains fewer of the real one's. Nothing here assumes a speed.
+
+    Returns ``(false, suspect)``: ``suspect`` are the other triplets whose flash has a flash
+    without a pose within ``link`` (single linkage) holding more points than the triplet's hand
+    labelled (the real hand could not be posed: only labelling again without it can tell)."""
     posed = [k for k, f in enumerate(flashes) if f[2] is not None and f[1]]
     pred = {k: model.markerset.positions(flashes[k][2].pose) for k in posed}
 
@@ -500,18 +510,20 @@ def _false_triplets(model, pts, cols, flashes, source, gate) -> list:
         return explained_points(pred[b], model.colors, pts, cols, list(flashes[a][1].values()), gate)
 
     back = [model.markerset.index(b) for b in BACK_MARKERS]
-    out = []
+    unposed = [f[3] for f in flashes if f[2] is None and len(f[3])]
+    out, suspect = [], []
     for a in posed:
         if source[a] != "triplet" or not all(j in flashes[a][1] for j in back):
             continue
-        for b in posed:
-            if b == a:
-                continue
-            ab, ba = explains(b, a), explains(a, b)
-            if ab >= len(back) and ab > ba:
-                out.append(frozenset(int(flashes[a][1][j]) for j in back))
-                break
-    return out
+        trip = frozenset(int(flashes[a][1][j]) for j in back)
+        if any(b != a and explains(b, a) >= len(back) and explains(b, a) > explains(a, b) for b in posed):
+            out.append(trip)
+            continue
+        own = pts[sorted(flashes[a][1].values())]
+        if any(len(mem) > len(own) and np.linalg.norm(own[:, None] - pts[mem][None], axis=2).min() <= link
+               for mem in unposed):
+            suspect.append(trip)
+    return out, suspect
 
 
 def _drop_lone_unconfirmed(model, point_index: np.ndarray, unconfirmed: np.ndarray) -> None:
