@@ -34,6 +34,10 @@ The method (:func:`label_hand_markers`):
    competing hypothesis agrees on; then points the gate did not reach are labelled after the
    fits when exactly one marker of their colour lies within a wider gate (two candidates leave
    both unlabelled).
+7. **False back-of-hand triplets** (issue 12): a triplet's hand that another posed flash's hand
+   explains (its points on that hand's markers) and that does not explain it back, or one beside
+   a larger flash left without a pose, is labelled again without (:func:`flashes_at_one_place`:
+   flashes of one strobe sequence are at different places).
 
 Manual corrections (:func:`read_label_overrides`, :func:`apply_label_overrides`) name a point
 by its flash and 3D position (within a tolerance, so they survive re-runs) and relabel or
@@ -432,7 +436,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
                  [f[3] for f in flashes], np.array([], int), hand_scale, source)
 
-    # 8. false back-of-hand triplets (three finger markers of a flash whose back is unseen, at the
+    # 8 (docs: step 11). false back-of-hand triplets (three finger markers of a flash whose back is unseen, at the
     # back's colours and distances: hand 11 of issue 12). A triplet's hand that another posed
     # flash's hand explains (its points lie on that hand's markers) while it does not explain that
     # flash back is a second hand at the place of its flash's real one: label again without it. A
