@@ -25,6 +25,12 @@ what the hand model and the triangulation noise allow (:class:`~stillcap._selfch
   back-of-hand triplet, and posing them from their other markers failed), against the same
   labelling goal; the message names the flashes and why, and how many flashes were posed from
   a neighbouring flash's pose.
+- ``flashes_at_one_place``: two posed flashes where one's fitted hand explains three or more of
+  the other's labelled points (markers of their colours within the labelling gate): flashes of
+  one strobe sequence are at different places, so two hands were made of one flash's points and
+  at least one is labelled wrong, with every later flash numbered one strobe period late (issue
+  12, hand 11: a false back-of-hand triplet). The labeller relabels without such a triplet when
+  the real hand explains it and not the other way round; this check catches what is left.
 - ``unlabelled_markers``: the fraction of triangulated markers near a posed hand that got no
   label (points of flashes without a pose are counted in the flash's own no-pose note, not
   here).
@@ -41,6 +47,7 @@ import numpy as np
 
 from stillcap._selfcheck import SelfCheck
 from stillcap.body.hand import DIGITS
+from stillcap.body.hand_label import flashes_at_one_place
 
 __all__ = ["RESIDUAL_FACTOR", "SCALE_LIMIT", "UNLABELLED_LIMIT", "NEAR_HAND_M", "hand_self_checks"]
 
@@ -193,6 +200,20 @@ def hand_self_checks(labels, sequence, *, partly_hidden=None, noise_m: float,
                     + "; ".join(f"flash {int(labels.order[k])}: {labels.skipped[k]}" for k in unposed[:3])
                     + (" ..." if len(unposed) > 3 else ""))
         checks.append(SelfCheck("flashes_without_pose", frac <= UNLABELLED_LIMIT, frac, UNLABELLED_LIMIT, msg, "", ""))
+
+    # two posed hands made of one flash's points (a false back-of-hand triplet)
+    pairs = flashes_at_one_place(labels)
+    if labels.n_flashes:
+        msg = (f"{len(pairs)} pair(s) of posed flashes at one place" if pairs else
+               "no posed flash's hand explains another flash's points (each flash at its own place)")
+        if pairs:
+            msg += (": " + "; ".join(f"flash {int(labels.order[b])}'s hand explains {n} of flash "
+                                     f"{int(labels.order[a])}'s points" for a, b, n in pairs[:3])
+                    + ("..." if len(pairs) > 3 else "")
+                    + "; two hands were made of one flash's points (a false back-of-hand triplet?): labels of "
+                    "those flashes are doubtful and the later flashes' times may be one strobe period late; check "
+                    "them in the report and fix them by hand (--overrides, docs/hand-labelling.md)")
+        checks.append(SelfCheck("flashes_at_one_place", not pairs, float(len(pairs)), 0.0, msg, "", ""))
 
     # markers near a posed hand that got no label
     posed = np.flatnonzero(labels.reconstructed)

@@ -34,6 +34,10 @@ The method (:func:`label_hand_markers`):
    competing hypothesis agrees on; then points the gate did not reach are labelled after the
    fits when exactly one marker of their colour lies within a wider gate (two candidates leave
    both unlabelled).
+7. **False back-of-hand triplets** (issue 12): a triplet's hand that another posed flash's hand
+   explains (its points on that hand's markers) and that does not explain it back, or one beside
+   a larger flash left without a pose, is labelled again without (:func:`flashes_at_one_place`:
+   flashes of one strobe sequence are at different places).
 
 Manual corrections (:func:`read_label_overrides`, :func:`apply_label_overrides`) name a point
 by its flash and 3D position (within a tolerance, so they survive re-runs) and relabel or
@@ -60,8 +64,8 @@ from stillcap.files.jsonable import to_jsonable
 from stillcap.files.jsonfile import read_json
 from stillcap.files.schema import ClosedModel, Model, Name, PositiveCount, Vec3, validate
 
-__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "contradicted_labels", "hand_points_from_truth",
-           "label_hand_markers", "read_label_overrides", "unlabel_points"]
+__all__ = ["HandLabels", "LabelOverride", "apply_label_overrides", "contradicted_labels", "explained_points",
+           "flashes_at_one_place", "hand_points_from_truth", "label_hand_markers", "read_label_overrides", "unlabel_points"]
 
 #: Tolerance on each side of the back-of-hand triangle (m): noise of both ends plus margin.
 TRIANGLE_TOL_M = 0.006
@@ -80,6 +84,8 @@ MIN_MARKERS = 6
 #: such a group needs.
 CLUSTER_LINK_M = 0.10
 MIN_SKIPPED_POINTS = 4
+#: Most false back-of-hand triplets rejected in one capture (each costs one more labelling run).
+MAX_REJECTED_TRIPLETS = 4
 
 _OVERRIDES_FORMAT = "stillcap-label-overrides"
 _Tolerance = Field(None, strict=True, gt=0, le=1000, allow_inf_nan=False)
@@ -265,7 +271,8 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
                        max_reprojection_px: float | None = None, overrides=None, triangle_tol_m: float = TRIANGLE_TOL_M,
                        gate_m: float = GATE_M, grid_gate_m: float = GRID_GATE_M, grid_step_deg: float = GRID_STEP_DEG,
                        min_markers: int = MIN_MARKERS, hand_scale: float | None = None,
-                       size_range=SIZE_RANGE, fill: bool = True, unconfirmed=None) -> HandLabels:
+                       size_range=SIZE_RANGE, fill: bool = True, unconfirmed=None,
+                       reject_false_triplets: bool = True, _rejected: frozenset = frozenset()) -> HandLabels:
     """Group unlabelled hand markers into flashes, order them in time and label them.
 
     Parameters
@@ -307,6 +314,13 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         only beside another labelled marker of its digit: alone on a digit, the digit's joints
         bend to it and its residual is zero whatever it is, so nothing tests it (on studio
         hands 3 and 5, a sliver pair 17-21 mm from every marker took ``ring.dip``).
+    reject_false_triplets : bool
+        After filling in (step 8): a flash posed from a back-of-hand triplet whose points another
+        posed flash's fitted hand explains (at least three of them on its markers), while it
+        explains fewer of that flash's, is a false triplet (three finger markers of a flash whose
+        back is unseen); the capture is labelled again without it (at most
+        :data:`MAX_REJECTED_TRIPLETS`). False keeps such hands (the self-check
+        ``flashes_at_one_place`` of :mod:`stillcap.body.hand_checks` still names them).
 
     Returns
     -------
@@ -351,6 +365,7 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
 
     # 1-2. candidate hands from back-of-hand triplets, accepted greedily by grid score
     cands, _ = back_triplets(pts, cols, usable, model, triangle_tol_m)
+    cands = [c for c in cands if frozenset(int(x) for x in c) not in _rejected]
     roots = [root_pose(model, pts, c) for c in cands]
     accepted = _accept(model, pts, cols, usable, cands, np.ones(len(cands)), grid_gate_m, min_markers, roots)
 
@@ -420,11 +435,99 @@ def label_hand_markers(points, colors, *, strobe_hz: float, skeleton: Skeleton |
         _drop_lone_unconfirmed(model, point_index, unconfirmed)
     out = _build(model, pts, cols, strobe_hz, point_index, [f[2] for f in flashes], [f[4] for f in flashes],
                  [f[3] for f in flashes], np.array([], int), hand_scale, source)
+
+    # 8 (docs: step 11). false back-of-hand triplets (three finger markers of a flash whose back is unseen, at the
+    # back's colours and distances: hand 11 of issue 12). A triplet's hand that another posed
+    # flash's hand explains (its points lie on that hand's markers) while it does not explain that
+    # flash back is a second hand at the place of its flash's real one: label again without it. A
+    # triplet's hand beside a flash left without a pose that has more points than it labelled may
+    # be one too: label again without it and keep whichever labelling labels more points.
+    if fill and reject_false_triplets and len(_rejected) < MAX_REJECTED_TRIPLETS:
+        false, suspect = _false_triplets(model, pts, cols, flashes, source, gate_m, CLUSTER_LINK_M * hand_scale)
+        for bad, sure in ([(false, True)] if false else []) + [([t], False) for t in suspect]:
+            # the model and gates are already scaled to the hand: the rerun keeps them as they are
+            again = label_hand_markers(
+                points, colors, strobe_hz=strobe_hz, skeleton=skeleton, markerset=markerset, throw_direction=throw,
+                reprojection_px=reprojection_px, max_reprojection_px=max_reprojection_px,
+                triangle_tol_m=triangle_tol_m, gate_m=gate_m, grid_gate_m=grid_gate_m, grid_step_deg=grid_step_deg,
+                min_markers=min_markers, hand_scale=1.0, size_range=size_range, fill=fill, unconfirmed=unconfirmed,
+                _rejected=_rejected | frozenset(bad))
+            if sure or (again.point_index >= 0).sum() > (out.point_index >= 0).sum():
+                out = replace(again, hand_scale=hand_scale)
+                break
     if overrides is not None:
         if isinstance(overrides, (str, os.PathLike)):
             overrides = read_label_overrides(overrides)
         out = apply_label_overrides(out, overrides)
     return out
+
+
+def explained_points(markers, marker_colors, points, colors, indices, gate: float) -> int:
+    """How many of the points ``indices`` lie within ``gate`` of a marker of their colour among
+    ``markers`` (a fitted hand's marker positions, shape (m, 3))."""
+    own = np.asarray(indices, int)
+    if not len(own):
+        return 0
+    d = np.linalg.norm(np.asarray(points)[own][:, None, :] - np.asarray(markers)[None, :, :], axis=2)
+    d[np.asarray(colors)[own][:, None] != np.asarray(marker_colors)[None, :]] = np.inf
+    return int(np.sum(d.min(axis=1) <= gate))
+
+
+def flashes_at_one_place(labels: HandLabels, gate_m: float = GATE_M) -> list:
+    """Pairs of posed flashes ``(a, b, n)`` where flash ``b``'s fitted hand explains ``n >= 3``
+    of flash ``a``'s labelled points (a marker of their colour within ``gate_m`` times the hand's
+    size). Flashes of one strobe sequence are at different places, so any pair means two hands
+    were made of one flash's points: at least one of them is labelled wrong."""
+    gate = float(gate_m) * labels.hand_scale
+    posed = [k for k in range(labels.n_flashes) if labels.fits[k] is not None and (labels.point_index[k] >= 0).any()]
+    pred = {k: labels.markerset.positions(labels.fits[k].pose) for k in posed}
+    out = []
+    for a in posed:
+        own = labels.point_index[a][labels.point_index[a] >= 0]
+        for b in posed:
+            if b != a:
+                n = explained_points(pred[b], labels.marker_colors, labels.points, labels.colors, own, gate)
+                if n >= len(BACK_MARKERS):
+                    out.append((a, b, n))
+    return out
+
+
+def _false_triplets(model, pts, cols, flashes, source, gate, link) -> tuple[list, list]:
+    """Back-of-hand triplets (frozensets of point indices) of flashes posed from a triplet whose
+    labelled points another posed flash's fitted hand explains better than the other way round.
+
+    Hand ``b`` explains a point when one of its fitted markers of the point's colour lies within
+    ``gate`` of it. Two flashes of one strobe sequence are at different places (the hand moves
+    between flashes), so a posed hand explains no point of another flash; a false triplet (three
+    markers of a flash whose back is unseen, at the back's distances and colours) is a second
+    hand at the place of its flash's real one: that one, posed from the rest of the flash's
+    points, explains the false hand's points (at least the triplet's three), while the false
+    hand, posed wrong, explains fewer of the real one's. Nothing here assumes a speed.
+
+    Returns ``(false, suspect)``: ``suspect`` are the other triplets whose flash has a flash
+    without a pose within ``link`` (single linkage) holding more points than the triplet's hand
+    labelled (the real hand could not be posed: only labelling again without it can tell)."""
+    posed = [k for k, f in enumerate(flashes) if f[2] is not None and f[1]]
+    pred = {k: model.markerset.positions(flashes[k][2].pose) for k in posed}
+
+    def explains(b, a):
+        return explained_points(pred[b], model.colors, pts, cols, list(flashes[a][1].values()), gate)
+
+    back = [model.markerset.index(b) for b in BACK_MARKERS]
+    unposed = [f[3] for f in flashes if f[2] is None and len(f[3])]
+    out, suspect = [], []
+    for a in posed:
+        if source[a] != "triplet" or not all(j in flashes[a][1] for j in back):
+            continue
+        trip = frozenset(int(flashes[a][1][j]) for j in back)
+        if any(b != a and explains(b, a) >= len(back) and explains(b, a) > explains(a, b) for b in posed):
+            out.append(trip)
+            continue
+        own = pts[sorted(flashes[a][1].values())]
+        if any(len(mem) > len(own) and np.linalg.norm(own[:, None] - pts[mem][None], axis=2).min() <= link
+               for mem in unposed):
+            suspect.append(trip)
+    return out, suspect
 
 
 def _drop_lone_unconfirmed(model, point_index: np.ndarray, unconfirmed: np.ndarray) -> None:
