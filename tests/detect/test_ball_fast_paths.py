@@ -47,6 +47,19 @@ def _ellipse(rng, r):
     return (V * np.abs(ev)) @ V.T * r
 
 
+def _random_ball(rng, r, n, z=None):
+    """A sharp lit ball of radius ``r`` in an ``n`` x ``n`` crop: centre near the middle, a random
+    ellipse, light from a random direction (its z through ``z`` when given). Returns
+    ``(c, A, light, image)``; the draws are in the order the tests made them."""
+    c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
+    A = _ellipse(rng, r)
+    light = rng.normal(size=3)
+    if z is not None:
+        light[2] = z(light[2])
+    light /= np.linalg.norm(light)
+    return c, A, light, _lit_sphere_image((n, n), c, A, tuple(light))
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_lit_sphere_band_in_place_is_bit_identical(seed):
     rng = np.random.default_rng(seed)
@@ -97,12 +110,7 @@ def test_limb_blur_centred_at_once_is_bit_identical(seed):
     for _ in range(12):
         r = rng.uniform(8.0, 30.0)
         n = int(2 * r + 24)
-        c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
-        A = _ellipse(rng, r)
-        light = rng.normal(size=3)
-        light[2] = -abs(light[2]) if rng.random() < 0.3 else abs(light[2])
-        light /= np.linalg.norm(light)
-        img = _lit_sphere_image((n, n), c, A, tuple(light))
+        c, A, light, img = _random_ball(rng, r, n, lambda z: -abs(z) if rng.random() < 0.3 else abs(z))
         img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.3, 2.5)))
         img = np.clip(0.8 * img + 0.02 + rng.normal(0.0, 0.01, img.shape), 0, 1).astype(np.float32)
         th = np.linspace(0, 2 * np.pi, 96, endpoint=False)
@@ -213,12 +221,8 @@ def test_lit_frame_with_outline_geometry_given_is_the_same():
     for _ in range(6):
         r = rng.uniform(8.0, 30.0)
         n = int(2 * r + 24)
-        c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
-        A = _ellipse(rng, r)
-        light = rng.normal(size=3)
-        light[2] = abs(light[2])
-        light /= np.linalg.norm(light)
-        img = cv2.GaussianBlur(_lit_sphere_image((n, n), c, A, tuple(light)), (0, 0), 0.8)
+        c, A, light, img = _random_ball(rng, r, n, abs)
+        img = cv2.GaussianBlur(img, (0, 0), 0.8)
         th = np.linspace(0, 2 * np.pi, 96, endpoint=False)
         off = np.stack([np.cos(th), np.sin(th)], axis=1) @ A.T
         geom = _outline_geometry(off)
@@ -241,11 +245,8 @@ def test_window_centroid_equals_masked_crop_sums(signed):
     for _ in range(10):
         r = rng.uniform(6.0, 40.0)
         n = int(2.6 * r + 12)
-        c = np.array([n / 2, n / 2]) + rng.normal(0.0, 1.0, 2)
-        A = _ellipse(rng, r)
-        light = rng.normal(size=3)
-        light /= np.linalg.norm(light)
-        img = cv2.GaussianBlur(_lit_sphere_image((n, n), c, A, tuple(light)), (0, 0), 1.0)
+        c, A, light, img = _random_ball(rng, r, n)
+        img = cv2.GaussianBlur(img, (0, 0), 1.0)
         img = np.clip(0.3 * img + 0.05 + rng.normal(0.0, 0.02, img.shape), 0, 1)
         yy, xx = np.mgrid[0:n, 0:n]
         q = np.einsum("ij,jhw->ihw", np.linalg.inv(A), np.stack([xx - c[0], yy - c[1]]).astype(float))
