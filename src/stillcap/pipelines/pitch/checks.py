@@ -367,8 +367,7 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
             img = photo(cam.name) if (absent and photo is not None) else None
             if img is not None:
                 det = p.stereo.detections_a if which == 0 else p.stereo.detections_b
-                seen = faint_ball_images(img, absent, getattr(det, "centers", None),
-                                         getattr(det, "radii_px", None))
+                seen = faint_ball_images(img, absent, det.centers, det.radii_px)
                 faint = [e for e, s_ in zip(absent, seen) if s_]
                 absent = [e for e, s_ in zip(absent, seen) if not s_]
             checks.append(SelfCheck("missed_ball_images", not absent, float(len(absent)), 0.0,
