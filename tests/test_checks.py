@@ -26,3 +26,26 @@ def test_shape_errors_name_the_shape_that_came():
         as_points(np.zeros(4), 3, "p0")
     one, single = as_points([1.0, 2.0, 3.0], 3, "p0")
     assert one.shape == (1, 3) and single
+
+
+def test_is_rotation_answers_as_allclose_and_det():
+    from scipy.spatial.transform import Rotation
+
+    from stillcap._checks import is_rotation
+
+    rng = np.random.default_rng(3)
+    for k in range(3000):
+        R = Rotation.random(random_state=k).as_matrix()
+        kind = k % 6
+        if kind == 1:  # off by 1e-8 .. 1e-4: both sides of the tolerance
+            R = R + rng.normal(0.0, 10 ** rng.uniform(-8, -4), (3, 3))
+        elif kind == 2:
+            R = -R  # a reflection
+        elif kind == 3:
+            R[rng.integers(3), rng.integers(3)] = np.nan
+        elif kind == 4:  # scaled near the diagonal's tolerance (1.1e-5)
+            R = R * (1 + rng.normal(0.0, 6e-6))
+        elif kind == 5:
+            R = np.diag([1.0, 1.0, -1.0]) @ R + rng.normal(0.0, 1e-6, (3, 3))
+        want = bool(np.allclose(R @ R.T, np.eye(3), atol=1e-6) and not np.linalg.det(R) < 0)
+        assert is_rotation(R, 1e-6) == want, (k, R)

@@ -6,6 +6,7 @@ and no symlink that leads out (checked after resolving). ``\\`` is read as ``/``
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path, PurePosixPath
 
@@ -47,14 +48,25 @@ def safe_relpath(path, what: str, folder: str = "project folder") -> str:
     return str(p)
 
 
-def resolve_inside(root, path, what: str, folder: str = "project folder", *, real_root: Path | None = None) -> Path:
+def resolve_inside(root, path, what: str, folder: str = "project folder", *, real_root: Path | None = None,
+                   real_dirs: dict | None = None) -> Path:
     """``root / path`` after checking that ``path`` is safe and, symlinks resolved, stays in ``root``.
 
     ``real_root`` is ``Path(root).resolve()`` when the caller already has it (one resolve per folder
-    rather than per file).
+    rather than per file). ``real_dirs``: a dict the caller keeps over many files, folder ->
+    its resolved path, so that files of one folder resolve it once (a file that is not itself a
+    symlink resolves to its resolved folder / its name, as ``Path.resolve`` walks it; ~0.1 ms per
+    file of a capture's photos).
     """
     rel = safe_relpath(path, what, folder)
     full = Path(root) / rel
-    if not full.resolve().is_relative_to(Path(root).resolve() if real_root is None else real_root):
+    if real_dirs is None or os.path.islink(full):
+        real = full.resolve()
+    else:
+        parent = real_dirs.get(full.parent)
+        if parent is None:
+            parent = real_dirs[full.parent] = full.parent.resolve()
+        real = parent / full.name
+    if not real.is_relative_to(Path(root).resolve() if real_root is None else real_root):
         raise ValueError(f"{_prefix(what)}path {path!r} leads outside the {folder} (symlink)")
     return full

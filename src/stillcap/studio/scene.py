@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stillcap._checks import as_array
+from stillcap._checks import as_array, is_rotation
 from stillcap.ball.layout import RING_INNER
 
 SHAPES = ("disc", "ring", "square", "triangle")
@@ -42,7 +42,7 @@ def _rgb(value, name: str) -> np.ndarray:
 def _pose(T, name: str) -> np.ndarray:
     T = as_array(T, (4, 4), name)
     R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+    if not is_rotation(R, 1e-6):
         raise ValueError(f"{name}: the 3x3 block is not a proper rotation")
     return T
 

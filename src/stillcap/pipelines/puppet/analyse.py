@@ -212,8 +212,8 @@ def capture_skeleton(folder, cap=None) -> Skeleton:
 
 def _load_capture(folder: Path):
     """A puppet capture folder's :class:`~stillcap.io.capture.Capture` (ValueError for another
-    kind or one without images)."""
-    cap = Capture.load(folder)
+    kind or one without images); its ``truth.json`` is not read (the pipeline never sees a truth)."""
+    cap = Capture.load(folder, truth=False)
     if cap.kind != "puppet":
         raise ValueError(f"capture {folder} is of kind {cap.kind!r}, not 'puppet' (make one with stillcap studio puppet)")
     if not cap.images:
