@@ -17,7 +17,7 @@ import threading
 import threadpoolctl
 from threadpoolctl import ThreadpoolController
 
-__all__ = ["find_blas_libraries", "one_blas_thread", "single_blas_thread"]
+__all__ = ["one_blas_thread", "single_blas_thread"]
 
 
 class _BlasDepth(threading.local):
@@ -66,13 +66,6 @@ class _NamedLibrariesController(ThreadpoolController):
             path = path.decode("utf-8")
             if os.path.basename(path).lower().startswith(prefixes):
                 self._make_controller_from_path(path)
-
-
-def find_blas_libraries() -> None:
-    """Find the loaded BLAS libraries now (:func:`single_blas_thread`'s controller, once per
-    process): e.g. on another thread while this one does other work, since most of its ~2.5 ms
-    is the kernel writing ``/proc/self/maps``, which holds no GIL."""
-    _blas_controller()
 
 
 @contextlib.contextmanager

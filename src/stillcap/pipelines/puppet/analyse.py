@@ -15,7 +15,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from stillcap._blas import find_blas_libraries, one_blas_thread, single_blas_thread
+from stillcap._blas import one_blas_thread, single_blas_thread
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.bodyfiles import body_entry
 from stillcap.body.puppet_checks import (bead_noise, marker_noise_m, partly_hidden_checks, skeleton_checks,
@@ -255,11 +255,9 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     at the end. The result is the
     same as with ``workers=1`` (decode all, then :func:`~stillcap.pipelines.puppet.stages.detect_view` each). Detecting whole photos
     on two threads was measured slower on the benchmark's two shared cores (the candidate
-    search is mostly small NumPy calls that hold the GIL). The second thread first finds the
-    BLAS libraries (:func:`~stillcap._blas.find_blas_libraries`, once per process) while this
-    one loads the capture; the decoding starts as soon as the capture is loaded; the rest of
-    the set-up (cameras, marker set, skeleton: one-off costs of a process's first call) runs
-    on this thread meanwhile.
+    search is mostly small NumPy calls that hold the GIL). The decoding starts as soon as the
+    capture is loaded; the rest of the set-up (cameras, marker set, skeleton, BLAS's thread
+    limit: one-off costs of a process's first call) runs on this thread meanwhile.
     Timings: ``read`` is the capture's loading plus the time spent waiting for decoded photos.
     BLAS runs on one thread during the call (see :func:`analyse_puppet_views`).
 
@@ -271,19 +269,8 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     """
     folder = Path(folder)
     t0 = time.perf_counter()
-    pool = ThreadPoolExecutor(max_workers=1) if workers > 1 else None
-    # the second thread finds the BLAS libraries (a process's first limit: /proc/self/maps,
-    # ~1.5 ms of kernel time that holds no GIL) while this one loads the capture
-    blas = pool.submit(find_blas_libraries) if pool is not None else None
-    try:
-        cap = _load_capture(folder)
-    except BaseException:
-        if pool is not None:
-            pool.shutdown()
-        raise
+    cap = _load_capture(folder)
     if workers <= 1 or len(cap.images) <= 1:
-        if pool is not None:
-            pool.shutdown()
         with single_blas_thread():
             rig, names, angles, files, cap_markerset, cap_skeleton = _capture_inputs(folder, cap)
             markerset = markerset or cap_markerset
@@ -307,10 +294,9 @@ def _analyse_capture(folder, options: PuppetOptions = DEFAULT, palette: Palette 
     candidates, t_det, idents = [], [], []
     # the decoding starts as soon as the photos are known: the rest of the set-up (cameras,
     # marker set, skeleton, BLAS's thread limit) runs here meanwhile
-    with pool:
+    with ThreadPoolExecutor(max_workers=1) as pool:
         pending = [pool.submit(read, im) for im in cap.images]
         try:
-            blas.result()  # (single_blas_thread's controller: found once per process)
             with single_blas_thread():
                 rig, names, angles, files, cap_markerset, cap_skeleton = _capture_inputs(folder, cap)
                 markerset = markerset or cap_markerset
