@@ -6,6 +6,7 @@ and no symlink that leads out (checked after resolving). ``\\`` is read as ``/``
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from pathlib import Path, PurePosixPath
@@ -37,15 +38,31 @@ def safe_relpath(path, what: str, folder: str = "project folder") -> str:
     pre = _prefix(what)
     if not isinstance(path, str) or not path.strip() or "\x00" in path:
         raise ValueError(f"{pre}file name must be a non-empty string, got {path!r}")
+    norm, problem = _normalised(path)
+    if problem == "absolute":
+        raise ValueError(f"{pre}path {path!r} is absolute; paths must be relative to the {folder}")
+    if problem == "parent":
+        raise ValueError(f"{pre}path {path!r} leaves the {folder} ('..' is not allowed)")
+    if problem == "empty":
+        raise ValueError(f"{pre}path {path!r} names no file")
+    return norm
+
+
+@functools.lru_cache(maxsize=4096)
+def _normalised(path: str) -> tuple[str, str | None]:
+    """:func:`safe_relpath`'s answer for a string ``path``: ``(normalised path, None)`` or
+    ``("", problem)`` (``"absolute"``, ``"parent"``, ``"empty"``). Cached: a capture's photo
+    paths are checked three times as it loads (its entry, :class:`CaptureImage`,
+    :func:`resolve_inside`), and ``PurePosixPath`` costs ~20 us a time."""
     s = path.replace("\\", "/")
     p = PurePosixPath(s)
     if p.is_absolute() or s.startswith("/") or re.match(r"^[A-Za-z]:", s):
-        raise ValueError(f"{pre}path {path!r} is absolute; paths must be relative to the {folder}")
+        return "", "absolute"
     if ".." in p.parts:
-        raise ValueError(f"{pre}path {path!r} leaves the {folder} ('..' is not allowed)")
+        return "", "parent"
     if str(p) in ("", "."):
-        raise ValueError(f"{pre}path {path!r} names no file")
-    return str(p)
+        return "", "empty"
+    return str(p), None
 
 
 def resolve_inside(root, path, what: str, folder: str = "project folder", *, real_root: Path | None = None,
