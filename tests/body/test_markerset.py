@@ -120,3 +120,24 @@ def test_trajectories_validate_shapes():
         MarkerTrajectories(("a",), np.zeros((4, 1, 3)), 0)
     with pytest.raises(ValueError, match="unique"):
         MarkerTrajectories(("a", "a"), np.zeros((4, 2, 3)), 50)
+
+
+def test_bone_frames_follow_the_skeleton_asked_about():
+    # bone_frames keeps its answer for the last skeleton: asked about two skeletons in turn, each
+    # gets its own frames (a fresh marker set's), and a skeleton without a bone is still refused
+    ms = MarkerSet.puppet()
+    sk1 = Skeleton.puppet()
+    d = sk1.to_dict()
+    head = next(j for j in d["joints"] if j["name"] == "head")
+    assert head["parent"] != "root"
+    head["parent"] = "root"
+    sk2 = Skeleton.from_dict(d)
+    want1, want2 = MarkerSet.puppet().bone_frames(sk1), MarkerSet.puppet().bone_frames(sk2)
+    assert not np.array_equal(want1, want2)
+    for sk, want in ((sk1, want1), (sk2, want2), (sk1, want1), (sk1, want1), (sk2, want2)):
+        got = ms.bone_frames(sk)
+        assert np.array_equal(got, want)
+        got[:] = -5  # a copy: changing it changes nothing kept
+    d["joints"] = [j for j in d["joints"] if j["name"] != "head" and j.get("parent") != "head"]
+    with pytest.raises(ValueError, match="which skeleton .* lacks"):
+        ms.bone_frames(Skeleton.from_dict(d))

@@ -237,21 +237,30 @@ class MarkerSet:
 
     def check_skeleton(self, skeleton: Skeleton) -> None:
         """ValueError if a marker or rule names a bone the skeleton lacks (or its root)."""
-        bones = ", ".join(n for n in skeleton.names if n != skeleton.names[skeleton.root])
+        def bones() -> str:
+            return ", ".join(n for n in skeleton.names if n != skeleton.names[skeleton.root])
+
         for k, m in enumerate(self.markers):
             if m.bone not in skeleton or skeleton.index(m.bone) == skeleton.root:
                 raise ValueError(f"{self.source}: markers.{k}.bone: marker {m.name!r} is on bone {m.bone!r}, which "
-                                 f"skeleton {skeleton.name!r} lacks (bones: {bones})")
+                                 f"skeleton {skeleton.name!r} lacks (bones: {bones()})")
         for k, r in enumerate(self.rules):
             for key, b in (("bone", r.bone), ("copy", r.copy), ("cross", r.cross)):
                 if b is not None and (b not in skeleton or skeleton.index(b) == skeleton.root):
                     raise ValueError(f"{self.source}: bone_rules.{k}.{key}: bone rule names bone {b!r}, which "
-                                     f"skeleton {skeleton.name!r} lacks (bones: {bones})")
+                                     f"skeleton {skeleton.name!r} lacks (bones: {bones()})")
 
     def bone_frames(self, skeleton: Skeleton) -> np.ndarray:
-        """Index of the joint whose frame carries each marker (its bone's start joint), shape (n_markers,)."""
-        self.check_skeleton(skeleton)
-        return np.array([skeleton.parents[skeleton.index(m.bone)] for m in self.markers], dtype=int)
+        """Index of the joint whose frame carries each marker (its bone's start joint), shape (n_markers,).
+
+        Kept for the last skeleton asked about (both are immutable; the puppet's pose fit and
+        its checks ask ~10 times per capture, ~0.1 ms each): a new array each call."""
+        last = self.__dict__.get("_bone_frames")
+        if last is None or last[0] is not skeleton:
+            self.check_skeleton(skeleton)
+            last = (skeleton, np.array([skeleton.parents[skeleton.index(m.bone)] for m in self.markers], dtype=int))
+            self.__dict__["_bone_frames"] = last
+        return last[1].copy()
 
     def positions(self, pose: Pose | Animation) -> np.ndarray:
         """World positions of the markers in a pose or animation.
