@@ -500,15 +500,17 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
     r_exp = expected_radius_px(rig, np.where(have[:, None], X, 0.0), bead_radius_m)
     out = np.full((len(rig), k, 2), np.nan)
     beyond = np.zeros((len(rig), k), bool)  # named only thanks to the wider colour gate
+    X_have = np.where(have[:, None], X, np.nan)
     for v, (cam, vr) in enumerate(zip(rig, views)):
         ident = vr.identification
         cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
         if ident.points.shape[0] != k:
             raise ValueError(f"view {v}: identification has {ident.points.shape[0]} markers, points_3d {k}")
         taken = np.zeros(len(cand), bool)
-        if len(cand) and have.any():
-            proj = cam.project(np.where(have[:, None], X, np.nan))
-            d = np.linalg.norm(cand[:, None, :] - proj[None], axis=2)  # (n_cand, k)
+        # every candidate's pixel distance to every marker's projection, (n_cand, k) (used twice below)
+        d = (np.linalg.norm(cand[:, None, :] - cam.project(X_have)[None], axis=2)
+             if len(cand) and have.any() else None)
+        if d is not None:
             gate = np.maximum(2.0, gate_radius * r_exp[v])[None]
             cgate = color_factor * float(ident.max_distance)
             col = np.asarray(ident.cost, float).reshape(len(cand), k)
@@ -525,10 +527,9 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
         # or the candidate lies on another marker's projected bead (within its radius: that bead,
         # partly hidden, its centre pulled outside the pixel gate)
         on_bead = np.zeros(len(cand), bool)
-        if len(cand) and have.any():
-            proj = cam.project(np.where(have[:, None], X, np.nan))
+        if d is not None:
             with np.errstate(invalid="ignore"):
-                on_bead = np.any(np.linalg.norm(cand[:, None, :] - proj[None], axis=2) <= r_exp[v][None], axis=1)
+                on_bead = np.any(d <= r_exp[v][None], axis=1)
         for m in np.flatnonzero(~have & (ident.candidate >= 0)):
             c = int(ident.candidate[m])
             if c < len(cand) and not taken[c] and not on_bead[c]:
