@@ -17,8 +17,8 @@ becomes this process's. Ctrl-C (and SIGTERM, SIGHUP, SIGQUIT) here is passed on 
 
 When no server runs (no socket, or a killed one's), a forwardable run runs here and then starts
 one in the background (``stillcap serve --detach``, idle timeout :data:`AUTO_IDLE_S`), so that
-the next run is warm: the pattern of Gradle's daemon. A run that finds a server starting (its
-lock taken, its imports under way) waits for it, up to :data:`START_WAIT_S`.
+the next runs are warm: the pattern of Gradle's daemon. A run that finds a server starting (its
+lock taken, its imports under way) runs here and starts no other.
 
 ``STILLCAP_SERVER`` holds words: ``off`` never uses a server; ``manual`` uses a running one but
 never starts one; ``verbose`` says on stderr which way each run went (and why not through the
@@ -38,9 +38,6 @@ __all__ = ["forward", "forwardable", "run"]
 #: server, SIGSTOP): no run is ever done twice, the server forks only after the client's "go".
 ACCEPT_TIMEOUT_S = 5.0
 FORWARDED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
-#: How long a run waits for a server that another ``stillcap`` has just started (its imports:
-#: ~1-2 s on an idle 2-core machine, several on a loaded one) before running the command itself.
-START_WAIT_S = 20.0
 #: The idle timeout of a server the ``stillcap`` command starts itself (``stillcap serve``: 1800 s).
 AUTO_IDLE_S = 600
 #: What :func:`forward` returns when no server runs and none is starting: run here, then start one.
@@ -62,9 +59,8 @@ def _say(verbose: bool, text: str) -> None:
 
 def forward(argv: list[str], verbose: bool = False, auto_start: bool = False):
     """Run ``stillcap ARGV`` through the server: the exit status, ``-SIGNAL`` for a run a signal
-    ended, or None when no server took it (nothing was run: run it here). With ``auto_start``, a
-    server that is starting is waited for (up to :data:`START_WAIT_S`), and :data:`ABSENT` is
-    returned when none runs or starts (run it here, then :func:`start_server`)."""
+    ended, or None when no server took it (nothing was run: run it here). With ``auto_start``,
+    :data:`ABSENT` when none runs or starts (run it here, then :func:`start_server`)."""
     from stillcap import _server_link as link
 
     path = link.socket_path()
@@ -87,7 +83,7 @@ def forward(argv: list[str], verbose: bool = False, auto_start: bool = False):
         return None
     sock = None
     try:
-        sock = _connect(link, path, verbose, auto_start)
+        sock = _connect(link, path, auto_start)
         if sock is ABSENT:
             _say(verbose, f"in-process (no server at {path}; starting one after this run)")
             return ABSENT
@@ -117,25 +113,19 @@ def forward(argv: list[str], verbose: bool = False, auto_start: bool = False):
     return _wait(sock, messages, link)
 
 
-def _connect(link, path: str, verbose: bool, auto_start: bool):
-    """A socket connected to the server at ``path``. With ``auto_start``: while no server listens
-    there but one holds its lock (it is importing), wait for it, up to :data:`START_WAIT_S`;
-    :data:`ABSENT` when nothing holds the lock (no socket, or a killed server's)."""
-    deadline = None
-    while True:
-        try:
-            return link.connect(path, ACCEPT_TIMEOUT_S)
-        except (FileNotFoundError, ConnectionRefusedError):
-            if not auto_start:
-                raise
-            if not _lock_held(path):
-                return ABSENT
-            if deadline is None:
-                deadline = time.monotonic() + START_WAIT_S
-                _say(verbose, f"waiting for the server starting at {path}")
-            elif time.monotonic() > deadline:
-                raise TimeoutError(f"the server starting there did not listen within {START_WAIT_S:g} s") from None
-            time.sleep(0.02)
+def _connect(link, path: str, auto_start: bool):
+    """A socket connected to the server at ``path``; with ``auto_start``, :data:`ABSENT` when none
+    listens there and nothing holds its lock (no socket, or a killed server's). A server that
+    holds the lock but does not listen yet is importing: the run is not made to wait for it (it
+    runs in its own process, measured faster: docs/serve.md) and starts no other."""
+    try:
+        return link.connect(path, ACCEPT_TIMEOUT_S)
+    except (FileNotFoundError, ConnectionRefusedError):
+        if not auto_start:
+            raise
+        if not _lock_held(path):
+            return ABSENT
+        raise OSError("a server is starting there") from None
 
 
 def _lock_held(path: str) -> bool:
@@ -173,7 +163,7 @@ def start_server(env: dict, verbose: bool = False) -> None:
     on ``/dev/null`` (it logs beside its socket), the environment ``env`` (this process's as it
     started, before imports changed it: the server's fingerprint is then this process's), idle
     timeout :data:`AUTO_IDLE_S`. This process takes the socket's lock and hands it to the server
-    (``--lock-fd``), so that a run meanwhile waits for it rather than starting another; when the
+    (``--lock-fd``), so that a run meanwhile sees a server starting and starts no other; when the
     lock is taken already, a server is starting. A failure to start changes nothing."""
     import fcntl
 
