@@ -7,7 +7,9 @@
    interpreter and imports included), and through a warm ``stillcap serve`` (started by the
    benchmark on a socket of its own before the timing, docs/serve.md: the command's process is
    the interpreter and the client, the run a fork of the server, which has the imports done).
-   The server's own start (its imports, once) is printed below the table.
+   The server's own start (its imports, once) is printed below the table. Beside them: with no
+   server running, the first run (in its own process; it then starts a server in the background,
+   docs/serve.md) and the run right after it (in its own process too while that server imports).
 3. The puppet end to end, loading included (a fresh process: ``analyse_puppet`` on the capture
    folder, its first call, so every set-up it does once is counted; imports are not) vs decoding
    its 12 JPEGs. Goal <= 4x. Beside it: its CPU time (all threads of that process: the first call
@@ -76,6 +78,27 @@ def _env(**extra):
     env.pop("STILLCAP_SOCKET", None)
     env.update(extra)
     return env
+
+
+def auto_started(cli, repeat: int) -> tuple[float, float]:
+    """Best wall seconds of the first run with no server running (``STILLCAP_SERVER`` unset: it
+    runs in its own process, then starts a server) and of the run right after it (in its own
+    process too while that server imports), each pair on a socket of its own."""
+    firsts, seconds = [], []
+    for _ in range(repeat):
+        folder = tempfile.mkdtemp(prefix="stillcap-bench-")  # mode 0700
+        env = _env(STILLCAP_SOCKET=os.path.join(folder, "s.sock"))
+        env.pop("STILLCAP_SERVER", None)
+        try:
+            t = time.perf_counter()
+            cli(env)
+            firsts.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            cli(env)
+            seconds.append(time.perf_counter() - t)
+        finally:
+            subprocess.run([sys.executable, "-m", "stillcap", "serve", "--stop"], env=env, capture_output=True)
+    return min(firsts), min(seconds)
 
 
 @contextmanager
@@ -166,6 +189,7 @@ def main(argv=None) -> None:
         return subprocess.run([sys.executable, "-m", "stillcap", "pitch", str(pitch), "--json"], check=True,
                               env=env, capture_output=True, text=True)
     wall = best_time(lambda: cli(_env(STILLCAP_SERVER="off")), args.repeat)
+    first, second = auto_started(cli, args.repeat)
     with warm_server() as (env, preload_s, log):
         said = cli(dict(env, STILLCAP_SERVER="verbose")).stderr  # untimed: check that the runs go through it
         if not said.startswith("stillcap: via the server"):
@@ -191,7 +215,9 @@ def main(argv=None) -> None:
                 (f"  (the same on threads with sys.setswitchinterval({args.switch_interval:g} ms), for comparison)",
                  api_switch, dec_pitch, None)]),
             ("`stillcap pitch CAPTURE --json` wall time vs analyse_pitch (its own process)", wall, api, 1.3),
-            ("`stillcap pitch CAPTURE --json` through a warm `stillcap serve` vs analyse_pitch", wall_warm, api, 1.3)]
+            ("`stillcap pitch CAPTURE --json` through a warm `stillcap serve` vs analyse_pitch", wall_warm, api, 1.3),
+            ("  (no server running: the first run, in its own process, then starting one)", first, api, None),
+            ("  (the run right after it, in its own process while that server imports)", second, api, None)]
     rows += [] if args.pitch_only else [
             (f"puppet end to end, loading included (first call) vs decoding its {n_puppet} JPEGs", cold, dec_puppet, 4.0),
             ("  (the same, CPU time of all its threads vs the decode's CPU time, for comparison)", cold_cpu,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import shutil
 import signal
 import socket
@@ -196,7 +197,7 @@ def test_stale_socket_stop_status_and_changed_source(tmp_path):
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=60)
     assert sock.exists()  # the stale socket is left behind
-    r = stillcap(["pitch", missing], sock, "verbose", src=src)
+    r = stillcap(["pitch", missing], sock, "manual,verbose", src=src)  # (auto would start a server: below)
     assert r.returncode == 2
     assert r.stderr.startswith("stillcap: in-process (server at"), r.stderr
     assert r.stderr.splitlines()[1] == f"error: capture folder {missing} does not exist"
@@ -294,3 +295,140 @@ def test_a_linked_socket_folder_is_refused(tmp_path):
         check_private_dir(str(tmp_path / "link"), create=False)
     with pytest.raises(ValueError, match="does not exist"):
         check_private_dir(str(tmp_path / "none"), create=False)
+
+
+def _gone(pid: int) -> None:
+    end = time.monotonic() + READY_WAIT_S
+    while _alive(pid):
+        assert time.monotonic() < end, f"process {pid} did not end"
+        time.sleep(0.1)
+
+
+def test_a_run_without_a_server_starts_one_for_the_next_run(tmp_path):
+    """No server: the run runs in its own process (the same status and error line as with
+    STILLCAP_SERVER=off), then starts one, whose lock it took for it; a run while that server
+    imports runs in its own process and starts no other; once it listens, runs go through it.
+    The server runs in a session of its own from the root folder, with the idle timeout of a
+    started server, until stopped."""
+    from stillcap._entry import AUTO_IDLE_S
+
+    sock = tmp_path / "run" / "s.sock"
+    missing = tmp_path / "no-capture"
+    off = stillcap(["pitch", missing], sock, "off")
+    assert off.returncode == 2 and not sock.parent.exists()
+    first = stillcap(["pitch", missing], sock, "verbose")
+    lines = first.stderr.splitlines()
+    assert lines[0] == f"stillcap: in-process (no server at {sock}; starting one after this run)", first.stderr
+    assert lines[1:] == [off.stderr.strip(), f"stillcap: starting a server at {sock} for the next runs "
+                                             "(STILLCAP_SERVER=manual: never)"], first.stderr
+    assert first.returncode == 2 and first.stdout == off.stdout == ""
+    second = stillcap(["pitch", missing], sock, "verbose")
+    assert second.stderr.splitlines() in ([f"stillcap: in-process (server at {sock}: a server is starting there)",
+                                           off.stderr.strip()], [VIA + str(sock), off.stderr.strip()]), second.stderr
+    assert second.returncode == 2
+    end = time.monotonic() + READY_WAIT_S
+    while status(sock) is None:
+        assert time.monotonic() < end, "the server started did not listen"
+        time.sleep(0.5)
+    served = status(sock)["served"]
+    third = stillcap(["pitch", missing], sock, "verbose")
+    assert third.stderr.splitlines() == [VIA + str(sock), off.stderr.strip()], third.stderr
+    assert third.returncode == 2
+    st = status(sock)
+    assert st["served"] == served + 1
+    assert st["same_code"]
+    pid = st["pid"]
+    assert os.readlink(f"/proc/{pid}/cwd") == "/"
+    assert os.getsid(pid) != os.getsid(0)
+    assert f"idle timeout {AUTO_IDLE_S} s" in (sock.parent / "s.sock.log").read_text()
+    assert stillcap(["serve", "--stop"], sock).returncode == 0
+    _gone(pid)
+
+
+@pytest.mark.parametrize("mode", ["manual,verbose", "off"])
+def test_manual_or_off_starts_no_server(tmp_path, mode):
+    sock = tmp_path / "run" / "s.sock"
+    r = stillcap(["pitch", tmp_path / "no-capture"], sock, mode)
+    assert r.returncode == 2
+    assert "starting" not in r.stderr
+    assert not sock.parent.exists()
+
+
+def test_a_run_with_interpreter_options_starts_no_server(tmp_path):
+    """A server started as ``python -m stillcap serve`` would not have ``-X faulthandler``: its
+    fingerprint could not match, so none is started."""
+    sock = tmp_path / "run" / "s.sock"
+    sock.parent.mkdir(mode=0o700)
+    r = subprocess.run([sys.executable, "-X", "faulthandler", "-m", "stillcap", "pitch", str(tmp_path / "none")],
+                       capture_output=True, text=True, env=_env(sock, STILLCAP_SERVER="verbose"), timeout=600)
+    assert r.returncode == 2
+    assert r.stderr.startswith(f"stillcap: in-process (no server at {sock})\n"), r.stderr
+    assert sorted(sock.parent.iterdir()) == []
+
+
+def test_the_lock_tells_a_starting_server_and_is_not_taken_twice(tmp_path, monkeypatch):
+    """``_lock_held`` sees a lock another open file holds; ``start_server`` starts nothing while
+    it is held."""
+    import fcntl
+
+    from stillcap import _entry
+
+    sock = tmp_path / "run" / "s.sock"
+    sock.parent.mkdir(mode=0o700)
+    monkeypatch.setenv("STILLCAP_SOCKET", str(sock))
+    assert not _entry._lock_held(str(sock))  # no lock file
+    fd = os.open(str(sock) + ".lock", os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        assert not _entry._lock_held(str(sock))
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert _entry._lock_held(str(sock))
+        spawned = []
+        monkeypatch.setattr(os, "posix_spawn", lambda *a, **k: spawned.append(a))
+        _entry.start_server(dict(os.environ))
+        assert spawned == []
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        assert not _entry._lock_held(str(sock))
+        _entry.start_server(dict(os.environ))
+        assert len(spawned) == 1 and spawned[0][1][-2:] != ["--lock-fd", str(fd)]
+        assert not _entry._lock_held(str(sock))  # (the spawn was not real: the lock went with its file)
+    finally:
+        os.close(fd)
+
+
+def test_a_package_installed_changes_the_fingerprint(tmp_path, monkeypatch):
+    """Installing, upgrading or removing a package changes its site-packages folder: a server
+    whose dependencies changed is out of date, as one whose stillcap changed."""
+    from stillcap._server_link import fingerprint
+
+    folder = tmp_path / "site-packages"
+    folder.mkdir()
+    monkeypatch.setattr(sys, "path", [*sys.path, str(folder)])
+    before = fingerprint()
+    assert fingerprint() == before
+    (folder / "numpy-9.9.dist-info").mkdir()
+    assert fingerprint() != before
+
+
+def test_the_server_started_keeps_no_descriptor_of_its_starter(tmp_path):
+    """A descriptor the run inherited (here a pipe its caller reads to its end) is not handed to
+    the server it starts: the caller sees the pipe close when the run ends."""
+    sock = tmp_path / "run" / "s.sock"
+    r, w = os.pipe()
+    code = ("import os, sys\n"
+            f"sys.argv = ['stillcap', 'pitch', {str(tmp_path / 'none')!r}]\n"
+            f"sys.orig_argv = [sys.executable, '-m', 'stillcap']  # (as python -m stillcap)\n"
+            "from stillcap._entry import run\n"
+            "run()\n")
+    p = subprocess.Popen([sys.executable, "-c", code], env=_env(sock), pass_fds=(w,), stderr=subprocess.PIPE)
+    os.close(w)
+    assert p.wait(timeout=600) == 2, p.stderr.read()
+    end = time.monotonic() + READY_WAIT_S
+    while status(sock) is None:
+        assert time.monotonic() < end, "no server was started"
+        time.sleep(0.5)
+    try:
+        with os.fdopen(r, "rb") as f:  # the run has ended and the server it started lives: EOF
+            assert select.select([f], [], [], 0)[0] == [f], "the server holds the caller's pipe"
+            assert f.read() == b""
+    finally:
+        assert stillcap(["serve", "--stop"], sock).returncode == 0

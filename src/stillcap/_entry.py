@@ -15,8 +15,14 @@ The server forks a process for the run, which takes this process's stdin, stdout
 ``stillcap.cli.main`` as this process would have; its exit status (or the signal that ended it)
 becomes this process's. Ctrl-C (and SIGTERM, SIGHUP, SIGQUIT) here is passed on to it.
 
-``STILLCAP_SERVER=off`` never uses a server; ``STILLCAP_SERVER=verbose`` says on stderr which
-way each run went (and why not through the server). ``STILLCAP_SOCKET`` names the socket.
+When no server runs (no socket, or a killed one's), a forwardable run runs here and then starts
+one in the background (``stillcap serve --detach``, idle timeout :data:`AUTO_IDLE_S`), so that
+the next runs are warm: the pattern of Gradle's daemon. A run that finds a server starting (its
+lock taken, its imports under way) runs here and starts no other.
+
+``STILLCAP_SERVER`` holds words: ``off`` never uses a server; ``manual`` uses a running one but
+never starts one; ``verbose`` says on stderr which way each run went (and why not through the
+server), e.g. ``STILLCAP_SERVER=manual,verbose``. ``STILLCAP_SOCKET`` names the socket.
 """
 
 from __future__ import annotations
@@ -32,6 +38,10 @@ __all__ = ["forward", "forwardable", "run"]
 #: server, SIGSTOP): no run is ever done twice, the server forks only after the client's "go".
 ACCEPT_TIMEOUT_S = 5.0
 FORWARDED_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
+#: The idle timeout of a server the ``stillcap`` command starts itself (``stillcap serve``: 1800 s).
+AUTO_IDLE_S = 600
+#: What :func:`forward` returns when no server runs and none is starting: run here, then start one.
+ABSENT = "absent"
 
 
 def forwardable(argv: list[str]) -> bool:
@@ -47,19 +57,24 @@ def _say(verbose: bool, text: str) -> None:
         sys.stderr.flush()
 
 
-def forward(argv: list[str], verbose: bool = False):
+def forward(argv: list[str], verbose: bool = False, auto_start: bool = False):
     """Run ``stillcap ARGV`` through the server: the exit status, ``-SIGNAL`` for a run a signal
-    ended, or None when no server took it (nothing was run: run it here)."""
+    ended, or None when no server took it (nothing was run: run it here). With ``auto_start``,
+    :data:`ABSENT` when none runs or starts (run it here, then :func:`start_server`)."""
     from stillcap import _server_link as link
 
     path = link.socket_path()
+    folder = os.path.dirname(path)
     try:
-        link.check_private_dir(os.path.dirname(path), create=False)
-        st = os.lstat(path)
-        if st.st_uid != os.getuid():
-            raise ValueError(f"{path} belongs to uid {st.st_uid}")
         for fd in (0, 1, 2):
             os.fstat(fd)  # a closed stdin, stdout or stderr cannot be handed over
+        if auto_start and not os.path.lexists(folder):  # (a server makes it, private)
+            _say(verbose, f"in-process (no server at {path}; starting one after this run)")
+            return ABSENT
+        link.check_private_dir(folder, create=False)
+        st = os.lstat(path) if os.path.lexists(path) or not auto_start else None
+        if st is not None and st.st_uid != os.getuid():
+            raise ValueError(f"{path} belongs to uid {st.st_uid}")
     except FileNotFoundError:
         _say(verbose, f"in-process (no server at {path})")
         return None
@@ -68,7 +83,10 @@ def forward(argv: list[str], verbose: bool = False):
         return None
     sock = None
     try:
-        sock = link.connect(path, ACCEPT_TIMEOUT_S)
+        sock = _connect(link, path, auto_start)
+        if sock is ABSENT:
+            _say(verbose, f"in-process (no server at {path}; starting one after this run)")
+            return ABSENT
         _pid, uid = link.peer_uid(sock)
         if uid != os.getuid():
             sock.close()
@@ -93,6 +111,100 @@ def forward(argv: list[str], verbose: bool = False):
         return None
     _say(verbose, f"via the server at {path}")
     return _wait(sock, messages, link)
+
+
+def _connect(link, path: str, auto_start: bool):
+    """A socket connected to the server at ``path``; with ``auto_start``, :data:`ABSENT` when none
+    listens there and nothing holds its lock (no socket, or a killed server's). A server that
+    holds the lock but does not listen yet is importing: the run is not made to wait for it (it
+    runs in its own process, measured faster: docs/serve.md) and starts no other."""
+    try:
+        return link.connect(path, ACCEPT_TIMEOUT_S)
+    except (FileNotFoundError, ConnectionRefusedError):
+        if not auto_start:
+            raise
+        if not _lock_held(path):
+            return ABSENT
+        raise OSError("a server is starting there") from None
+
+
+def _lock_held(path: str) -> bool:
+    """Whether a server holds the socket's lock file (``stillcap serve`` takes it before its
+    imports and keeps it while it listens). The test takes a shared lock for a moment: a server
+    trying to start in that moment is refused, harmlessly (the next run starts one)."""
+    import fcntl  # (only here: a run that finds a server does not load it)
+
+    try:
+        fd = os.open(path + ".lock", os.O_RDONLY | os.O_CLOEXEC)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)  # (releases the shared lock)
+    return False
+
+
+def plain_interpreter() -> bool:
+    """Whether this process was started without interpreter options (``python -m stillcap`` or
+    the console script): a server started as ``python -m stillcap serve`` then has this process's
+    flags, so its fingerprint can match (``python -X importtime -m stillcap`` would not)."""
+    orig = getattr(sys, "orig_argv", [])
+    return len(orig) > 1 and (orig[1] == "-m" or orig[1] == sys.argv[0])
+
+
+def start_server(env: dict, verbose: bool = False) -> None:
+    """Start ``stillcap serve --detach`` on this run's socket in the background, not waited for:
+    its own session (the terminal's Ctrl-C and hang-up do not reach it), stdin, stdout and stderr
+    on ``/dev/null`` (it logs beside its socket), the environment ``env`` (this process's as it
+    started, before imports changed it: the server's fingerprint is then this process's), idle
+    timeout :data:`AUTO_IDLE_S`. This process takes the socket's lock and hands it to the server
+    (``--lock-fd``), so that a run meanwhile sees a server starting and starts no other; when the
+    lock is taken already, a server is starting. A failure to start changes nothing."""
+    import fcntl
+
+    from stillcap import _server_link as link
+
+    path = link.socket_path()
+    fd = None
+    try:
+        link.check_private_dir(os.path.dirname(path), create=True)
+        fd = os.open(path + ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        os.set_inheritable(fd, True)
+        argv = [sys.executable, "-m", "stillcap", "serve", "--detach", "--socket", path,
+                "--idle-timeout", str(AUTO_IDLE_S), "--lock-fd", str(fd)]
+        # stdio on /dev/null, and no other descriptor this process inherited (a pipe its caller
+        # waits to see closed): only the lock goes to the server
+        actions = [(os.POSIX_SPAWN_OPEN, i, os.devnull, os.O_RDWR, 0) for i in (0, 1, 2)]
+        actions += [(os.POSIX_SPAWN_CLOSE, i) for i in _open_fds() if i > 2 and i != fd]
+        os.posix_spawn(sys.executable, argv, env, file_actions=actions, setsid=True)
+    except BlockingIOError:
+        _say(verbose, f"a server is starting at {path} already")
+        return
+    except (OSError, ValueError) as e:
+        _say(verbose, f"could not start a server ({e})")
+        return
+    finally:
+        if fd is not None:
+            os.close(fd)  # (the server holds the lock now, or nobody)
+    _say(verbose, f"starting a server at {path} for the next runs (STILLCAP_SERVER=manual: never)")
+
+
+def _open_fds() -> list[int]:
+    """This process's open file descriptors that a process it starts would inherit (Linux)."""
+    fds = []
+    for name in os.listdir("/proc/self/fd"):
+        try:
+            if os.get_inheritable(int(name)):
+                fds.append(int(name))
+        except OSError:  # (the listing's own, closed by now)
+            pass
+    return fds
 
 
 def _ignored() -> list[int]:
@@ -162,10 +274,14 @@ def _alive(pid: int) -> bool:
 def run() -> None:
     """The entry point: through the server when possible, else :func:`stillcap.cli.run`."""
     argv = sys.argv[1:]
-    mode = os.environ.get("STILLCAP_SERVER", "auto").strip().lower()
-    if forwardable(argv) and mode not in ("off", "0", "no", "false"):
-        code = forward(argv, verbose=mode == "verbose")
-        if code is not None:
+    env = dict(os.environ)  # (before the imports change it: OpenCV sets LD_LIBRARY_PATH)
+    words = set(os.environ.get("STILLCAP_SERVER", "auto").lower().replace(",", " ").split())
+    verbose = "verbose" in words
+    start = False
+    if forwardable(argv) and not words & {"off", "0", "no", "false"}:
+        code = forward(argv, verbose, auto_start="manual" not in words and plain_interpreter())
+        start = code is ABSENT
+        if code is not None and not start:
             if code < 0:  # ended by a signal: end this process by it too (the shell sees 128 + N)
                 signal.signal(-code, signal.SIG_DFL)
                 os.kill(os.getpid(), -code)
@@ -174,4 +290,12 @@ def run() -> None:
             sys.exit(code)
     from stillcap.cli import run as run_here
 
-    run_here()
+    if not start:
+        run_here()
+        return
+    try:  # after the run, so that the server's imports do not slow it down; not after Ctrl-C or a crash
+        run_here()
+    except SystemExit:
+        start_server(env, verbose)
+        raise
+    start_server(env, verbose)

@@ -129,14 +129,15 @@ def fingerprint(env=None) -> str:
     """A cheap fingerprint of the code a command would run: stillcap's version and source folder
     with the size and time of every ``.py`` file in it, the interpreter (its path, version, flags,
     warning and ``-X`` options, module path after the script's own folder) and the environment
-    variables read at import (:func:`import_env`). Equal fingerprints: the server's forked process
-    runs the code a fresh process would. Not covered: a dependency (NumPy, ...) upgraded in place."""
+    variables read at import (:func:`import_env`), and the time each folder of the module path was
+    last changed (installing, upgrading or removing a package in ``site-packages`` changes it).
+    Equal fingerprints: the server's forked process runs the code a fresh process would."""
     package = sys.modules[__package__]  # stillcap (imported before any of its modules; not imported
     root = os.path.dirname(os.path.realpath(__file__))  # here: it is above every layer of the stack)
     h = _sha256()
     h.update(repr((package.__version__, root, os.path.realpath(sys.executable), sys.version, tuple(sys.flags),
                    sys.warnoptions, sorted(sys._xoptions.items()), sys.path[1:],
-                   sorted(import_env(env).items()))).encode())
+                   sorted(import_env(env).items()), [_changed_ns(p) for p in sys.path[1:]])).encode())
     for folder, dirs, files in os.walk(root):
         dirs[:] = sorted(d for d in dirs if d not in ("__pycache__", "static"))
         for name in sorted(files):
@@ -144,6 +145,14 @@ def fingerprint(env=None) -> str:
                 st = os.stat(os.path.join(folder, name))
                 h.update(f"{folder[len(root):]}/{name} {st.st_size} {st.st_mtime_ns}\n".encode())
     return h.hexdigest()[:32]
+
+
+def _changed_ns(folder: str):
+    """The last change of ``folder`` (ns), or None where there is none (a zip file's path missing)."""
+    try:
+        return os.stat(folder).st_mtime_ns
+    except OSError:
+        return None
 
 
 def _frame(message: dict) -> bytes:

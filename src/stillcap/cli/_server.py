@@ -225,8 +225,9 @@ def _reopen_stdio() -> None:
 class Server:
     """One server on one socket: :meth:`start` (lock, imports, bind), then :meth:`loop`."""
 
-    def __init__(self, path: str, idle_timeout_s: float):
+    def __init__(self, path: str, idle_timeout_s: float, held_lock_fd: int | None = None):
         self.path, self.idle_timeout_s = path, float(idle_timeout_s)
+        self.held_lock_fd = held_lock_fd  # the lock file as the ``stillcap`` command that started it took it
         self.pid = os.getpid()
         self.lock_fd = self.listener = self.sel = None
         self.runs: dict[int, dict] = {}  # pid -> {"conn", "pidfd"}
@@ -242,11 +243,20 @@ class Server:
 
     # -- start and stop ------------------------------------------------------------------------
     def lock(self) -> None:
-        """Take the socket's lock file (one server per socket), or ValueError naming the socket."""
+        """Take the socket's lock file (one server per socket), or ValueError naming the socket.
+        A server the ``stillcap`` command started (``_entry.start_server``) adopts the lock that
+        command took for it, so that no other run starts one meanwhile."""
         if len(os.fsencode(self.path)) > 107:
             raise ValueError(f"{self.path}: a socket path may have at most 107 bytes; give a shorter --socket")
         link.check_private_dir(os.path.dirname(self.path), create=True)
-        self.lock_fd = os.open(self.path + ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        if self.held_lock_fd is not None:
+            held, own = os.fstat(self.held_lock_fd), os.stat(self.path + ".lock")
+            if (held.st_dev, held.st_ino) != (own.st_dev, own.st_ino):
+                raise ValueError(f"--lock-fd {self.held_lock_fd} is not {self.path}.lock")
+            os.set_inheritable(self.held_lock_fd, False)
+            self.lock_fd = self.held_lock_fd
+        else:
+            self.lock_fd = os.open(self.path + ".lock", os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
         try:
             fcntl.flock(self.lock_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -27,6 +27,8 @@ def serve(
     status: bool = typer.Option(False, "--status", help="Say whether a server runs, and whether this stillcap's "
                                 "runs go through it (exit status 1 when none answers)."),
     as_json: bool = typer.Option(False, "--json", help="--status as JSON."),
+    lock_fd: int = typer.Option(None, "--lock-fd", hidden=True, help="The socket's lock file, open and locked "
+                                "by the stillcap command that starts this server (docs/serve.md)."),
 ):
     """Keep the pipelines imported in a background process and run `stillcap pitch`, `hand`,
     `puppet run` and `markers` in forks of it: the same output, files and exit status as a run
@@ -57,7 +59,7 @@ def serve(
         _wait_gone(int(reply["pid"]))
         print(f"stopped the stillcap server (pid {reply['pid']}) on {path}")
         return
-    server = _server.Server(path, idle_timeout)
+    server = _server.Server(path, idle_timeout, lock_fd)
     if detach:
         _detach(server)
         return
@@ -116,4 +118,5 @@ def _detach(server) -> None:
         os._exit(2)
     os.write(w, f"ready {os.getpid()}\n".encode())
     os.close(w)
+    os.chdir("/")  # a daemon holds no folder busy (each run moves to its client's)
     server.loop()
