@@ -197,3 +197,27 @@ def test_faint_ball_images_sees_a_dim_crescent_not_noise_nor_a_neighbour():
     assert not faint_ball_images(img, exp, [[55.0, 60.0]], [12.0])[0]
     with pytest.raises(ValueError, match=r"image must have shape \(H, W\) or \(H, W, 3\), got \(4, 4, 2\)"):
         faint_ball_images(np.zeros((4, 4, 2), np.uint8), exp)
+
+
+def test_faint_ball_images_sees_a_dim_ball_where_the_room_level_changes_across_the_crop():
+    # a room lit by the flashes: its level climbs 40 grey levels across the crop around the
+    # expected ball image, so the crop's flat median and robust sigma hide a dim half moon 3
+    # noise sigmas above the room; a plane fitted to the ring around the disc takes it out
+    from stillcap.pipelines.pitch.checks import faint_ball_images
+
+    rng = np.random.default_rng(5)
+    exp = [(0, (60.0, 60.0), 8.0)]
+    yy, xx = np.mgrid[0:120, 0:120]
+    room = 10.0 + 40.0 * xx / 119.0
+    # the ramp with noise alone: nothing seen in 200 photos
+    hits = sum(bool(faint_ball_images(np.clip(room[..., None] + rng.normal(0, 2.0, (120, 120, 3)), 0, 255)
+                                      .astype(np.uint8), exp)[0]) for _ in range(200))
+    assert hits == 0
+    img = room[..., None] + rng.normal(0, 2.0, (120, 120, 3))
+    half = (np.hypot(xx - 60, yy - 60) <= 8) & (xx >= 60)
+    img[half] += 6.0
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    assert faint_ball_images(img, exp)[0]
+    # painted out with the room's own level (the ramp): no light there
+    out = np.clip(room[..., None] + rng.normal(0, 2.0, (120, 120, 3)), 0, 255).astype(np.uint8)
+    assert not faint_ball_images(out, exp)[0]

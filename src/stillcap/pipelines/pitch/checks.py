@@ -244,7 +244,12 @@ def faint_ball_images(image, expected, found_centers=None, found_radii=None,
         x1, y1 = min(int(x) + h + 1, W), min(int(y) + h + 1, H)
         if x1 - x0 < 8 or y1 - y0 < 8:
             continue
-        m = faint_mask(img[y0:y1, x0:x1]) > 0
+        crop = img[y0:y1, x0:x1]
+        fy, fx = np.mgrid[y0:y1, x0:x1] + 0.5
+        ring = np.hypot(fx - x, fy - y) > r + tolerance_px + 1.0  # the room around the expected disc
+        for c, rc in zip(fc, fr):
+            ring &= np.hypot(fx - c[0], fy - c[1]) > rc + 1.0
+        m = faint_mask(_less_room_plane(crop, fx, fy, ring)) > 0
         yy, xx = np.mgrid[0:m.shape[0], 0:m.shape[1]]
         # each half-resolution pixel's centre in the photo
         px, py = x0 + 2.0 * xx + 0.5, y0 + 2.0 * yy + 0.5
@@ -256,6 +261,36 @@ def faint_ball_images(image, expected, found_centers=None, found_radii=None,
         n, _, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
         seen[i] = n > 1 and int(stats[1:, cv2.CC_STAT_AREA].max()) >= min_pixels
     return seen
+
+
+def _less_room_plane(crop, fx, fy, ring, iterations: int = 3) -> np.ndarray:
+    """``crop`` (h, w[, 3]) as float less a plane in the photo's coordinates (``fx``, ``fy``, each
+    pixel's centre) fitted to its channel mean over the ``ring`` pixels (the room around the
+    expected ball image): where the flashes light the room its level changes across the crop,
+    and a flat level (the crop's median, as :func:`faint_mask` takes it) leaves one side of the
+    disc above the threshold or lifts the threshold's robust sigma over a faint ball's light.
+    Least squares, refitted without the ring pixels more than 3 robust sigmas from the plane
+    (a neighbouring unfound ball image, a seam of light); the crop unchanged with fewer than 12
+    ring pixels."""
+    a = np.asarray(crop, np.float32)
+    g = a.mean(axis=2) if a.ndim == 3 else a
+    keep = np.asarray(ring, bool).copy()
+    if keep.sum() < 12:
+        return a
+    A = np.stack([np.ones(g.size, np.float32), (fx - fx.mean()).ravel(), (fy - fy.mean()).ravel()], axis=1)
+    gv, kv = g.ravel(), keep.ravel()
+    coef = np.zeros(3)
+    for _ in range(iterations):
+        coef, *_ = np.linalg.lstsq(A[kv], gv[kv], rcond=None)
+        res = gv - A @ coef
+        sig = 1.4826 * float(np.median(np.abs(res[kv] - np.median(res[kv]))))
+        new = ring.ravel() & (np.abs(res) <= 3.0 * max(sig, 1e-3))
+        if new.sum() < 12 or np.array_equal(new, kv):
+            break
+        kv = new
+    # the plane's tilt only: the mean level stays, so faint_mask's floor of 0.2 grey levels keeps its meaning
+    tilt = (A[:, 1:] @ coef[1:]).reshape(g.shape).astype(np.float32)
+    return a - (tilt[..., None] if a.ndim == 3 else tilt)
 
 
 def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model, options,
