@@ -23,7 +23,8 @@ thousand; a failed check says which and why:
   the ball was (one pair's calibration or response) fail it.
 - ``spin_fit``: the marker spin fit's share of inliers (at least 70 %).
 - ``alias_margin``: the second-best spin alias's chi-square minus the best's (at least 9, a
-  likelihood ratio of 1 %), and the best consistent with the evidence.
+  likelihood ratio of 1 %), and the best consistent with the evidence (value None when there is no
+  rival alias: then only the consistency counts).
 - ``spin_vs_flight``: the marker spin's transverse part against the flight's curvature
   (:func:`stillcap.ball.spin_from_flight.compare_spins`): a reversed axis or a wrong alias.
 - ``missed_ball_images`` (per camera): flashes where the fitted flight puts the whole ball disc
@@ -368,8 +369,10 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
             + ("" if frac >= MIN_SPIN_INLIERS else ": markers misidentified or the ball layout is wrong"), "", ""))
     alias = measured.alias
     if alias is not None and len(alias.candidates) >= 1:
-        gap = (float(alias.candidates[1].chi2 - alias.best.chi2) if len(alias.candidates) >= 2 else float("inf"))
-        ok = gap >= MIN_ALIAS_GAP and bool(alias.consistent)
+        # no rival alias (one candidate): the margin cannot be measured, so its value is None (as JSON
+        # keeps it; an infinity would come back as None), and the check rests on the evidence's consistency
+        gap = float(alias.candidates[1].chi2 - alias.best.chi2) if len(alias.candidates) >= 2 else None
+        ok = (gap is None or gap >= MIN_ALIAS_GAP) and bool(alias.consistent)
         checks.append(SelfCheck(
             "alias_margin", ok, gap, MIN_ALIAS_GAP,
             f"the chosen spin alias ({alias.best.spin_rpm:.0f} rpm) beats the next "
