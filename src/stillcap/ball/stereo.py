@@ -445,7 +445,8 @@ def _faint(det: BallDetections) -> np.ndarray:
 def view_center_sigma_px(stereo: StereoBalls) -> np.ndarray:
     """Each match's own centre uncertainty in each view (1 sigma, px), shape (K, 2): the arc
     fit's ``center_sigma_px`` for views whose centre rests on an arc (``EDGE``; faint crescents,
-    whose thin rim's offset the refinement keeps), NaN for the others (a whole limb, or a
+    whose thin rim's offset the refinement keeps; ``SPLIT`` balls of a merged silhouette, at the
+    refined centre with the photo's blur ``psf_px``), NaN for the others (a whole limb, or a
     crescent silhouette refined on its lit limb: its error is the pair's, from its residuals).
 
     Crescent silhouettes are left to the pair's sigma: refined and shading-corrected, their

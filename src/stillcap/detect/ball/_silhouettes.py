@@ -257,7 +257,8 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     BallDetections
         ``ellipse_centers`` are the ellipse centres (the split circle centres for merged
         silhouettes); ``centers`` the same, but the arc fits' for ``CRESCENT`` and ``EDGE`` balls
-        (their circle's radius in ``arc_radii_px``, their uncertainty in ``center_sigma_px``); run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
+        (their circle's radius in ``arc_radii_px``, their uncertainty in ``center_sigma_px``;
+        ``SPLIT`` balls' too, and with ``EDGE`` ones their arc in ``arc_points``); run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
         refinement.
     """
     img = _check_image(image)
