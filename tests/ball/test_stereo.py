@@ -8,6 +8,7 @@ import pytest
 
 from detect.test_ball import FLIGHT, R_BALL, draw_balls_camera, front_pair
 from stillcap.ball.stereo import ball_centers_stereo
+from stillcap.camera import Camera, look_at
 from stillcap.detect.ball import BallFlag, detect_balls
 
 
@@ -180,3 +181,33 @@ def test_view_sigma_is_the_arcs_for_edge_views_and_faint_crescents_only():
                      np.zeros(4), np.zeros(4), a.flags, a, b)
     sig = view_center_sigma_px(st)
     assert np.isnan(sig[:2, 0]).all() and list(sig[2:, 0]) == [0.6, 0.7] and np.isnan(sig[:, 1]).all()
+
+
+
+def test_merged_ball_images_carry_their_split_arcs_sigma():
+    """Issue 12: three small ball images (6.3 px radius, 14 px apart) blurred 1.5 px merge into
+    one silhouette in both views of a 640x480 pair and are split. The known-radius refinement on
+    a split ball's own (one-sided) arc moves its centre with the blurred limb's offset: the two
+    end balls' centres come out 0.6-0.75 px outward. Each split view carries its arc's sigma (the
+    photo's blur as the limb offset), which covers its error; the end balls' (one-sided arcs) is
+    larger than the middle one's (two opposite arcs); unsplit views keep the pair's (NaN)."""
+    from stillcap.ball.stereo import view_center_sigma_px
+
+    a = Camera.from_intrinsics("a", 600, 600, 319.5, 239.5, (640, 480), world2cam=look_at((0, -3.5, 1.1), (0, 0, 1.5)))
+    b = Camera.from_intrinsics("b", 600, 600, 322, 236, (640, 480), dist=(-0.05, 0.01, 0, 0, 0),
+                               world2cam=look_at((0, -3.5, 1.9), (0, 0, 1.5)))
+    xs = np.array([-0.9, -0.6, -0.3, -0.215, -0.13, 0.25, 0.55, 0.85])
+    flight = np.stack([xs, np.zeros(8), 1.6 - 0.02 * xs], axis=1)
+    res = ball_centers_stereo(a, draw_balls_camera(a, flight, R_BALL, blur=1.5, rng=10), b,
+                              draw_balls_camera(b, flight, R_BALL, blur=1.5, rng=20), R_BALL)
+    assert len(res) == 8 and np.all(res.ok)
+    order = np.argsort(res.points_3d[:, 0])
+    sig = view_center_sigma_px(res)[order]
+    split = np.stack([res.detections_a.has(BallFlag.SPLIT)[res.pairs[order, 0]],
+                      res.detections_b.has(BallFlag.SPLIT)[res.pairs[order, 1]]], axis=1)
+    assert np.array_equal(np.flatnonzero(split.all(axis=1)), [2, 3, 4]) and not split[[0, 1, 5, 6, 7]].any()
+    err = np.stack([np.linalg.norm(res.centers_a[order] - a.project(flight), axis=1),
+                    np.linalg.norm(res.centers_b[order] - b.project(flight), axis=1)], axis=1)
+    assert np.all(np.isfinite(sig[split])) and np.all(np.isnan(sig[~split]))
+    assert np.all(err[split] < 2.45 * sig[split])
+    assert np.all(sig[[2, 4]] > sig[3])

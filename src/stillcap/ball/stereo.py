@@ -21,7 +21,8 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
                                   sphere_outline_px)
 from stillcap.detect.ball._foreground import _check_image
-from stillcap.detect.ball._arcs import REFINE_SMOOTH_PX
+from stillcap.detect.ball._arcs import REFINE_SMOOTH_PX, arc_center_sigma
+from stillcap.detect.circle_fit import fit_circle
 from stillcap.detect.ball._refine import _linear_max, _response_lut, hough_template
 from stillcap.detect.ball._shading import _shading_bias, limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
@@ -444,7 +445,8 @@ def _faint(det: BallDetections) -> np.ndarray:
 def view_center_sigma_px(stereo: StereoBalls) -> np.ndarray:
     """Each match's own centre uncertainty in each view (1 sigma, px), shape (K, 2): the arc
     fit's ``center_sigma_px`` for views whose centre rests on an arc (``EDGE``; faint crescents,
-    whose thin rim's offset the refinement keeps), NaN for the others (a whole limb, or a
+    whose thin rim's offset the refinement keeps; ``SPLIT`` balls of a merged silhouette, at the
+    refined centre with the photo's blur ``psf_px``), NaN for the others (a whole limb, or a
     crescent silhouette refined on its lit limb: its error is the pair's, from its residuals).
 
     Crescent silhouettes are left to the pair's sigma: refined and shading-corrected, their
@@ -456,6 +458,14 @@ def view_center_sigma_px(stereo: StereoBalls) -> np.ndarray:
         idx = stereo.pairs[:, v] if len(stereo) else np.zeros(0, int)
         arc = (det.has(BallFlag.EDGE) | _faint(det))[idx]
         out[:, v] = np.where(arc, det.center_sigma_px[idx], np.nan)
+        # split balls (issue 12): refined with the known radius on their own arc of a merged
+        # silhouette, their centre moves with the blurred limb's offset (the photo's blur) by
+        # the arc's ``(sum u u^T)^-1 sum u``: arc_center_sigma at the refined centre, the blur
+        # read from the photo (the detector only had its default)
+        for k in np.flatnonzero(det.has(BallFlag.SPLIT)[idx] & ~arc):
+            pts = det.arc_points[idx[k]]
+            if pts is not None and len(pts) >= 3:
+                out[k, v] = arc_center_sigma(pts, det.centers[idx[k]], fit_circle(pts)[2], float(stereo.psf_px[v]))
     return out
 
 

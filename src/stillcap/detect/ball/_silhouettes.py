@@ -24,9 +24,10 @@ def _split_merged(contour: np.ndarray, min_sep: float, min_dip: float = 0.06):
     Each maximum's circle is then fitted to the contour points that lie on it (points near the
     notches, on two circles, are left out).
 
-    Returns a list of (centre (2,), radius, rms residual) per ball image, empty when the
-    silhouette holds one ball; centres are circle fits, or the distance maximum (rms ``inf``)
-    where no circle fits (a partly lit ball).
+    Returns a list of (centre (2,), radius, rms residual, arc points (M, 2) or None) per ball
+    image, empty when the silhouette holds one ball; centres are circle fits to the arc points
+    (the ball's own part of the contour), or the distance maximum (rms ``inf``, no points) where
+    no circle fits (a partly lit ball).
     """
     pts = contour.reshape(-1, 2)
     x0, y0 = pts.min(axis=0) - 2
@@ -90,9 +91,9 @@ def _split_merged(contour: np.ndarray, min_sep: float, min_dip: float = 0.06):
             c, r = kasa_circle(sel)
             rms = float(np.sqrt(np.mean((np.linalg.norm(sel - c, axis=1) - r) ** 2)))
             if rms <= max(1.0, 0.05 * r) and np.hypot(*(c - cen[j])) < 0.5 * rr[j]:
-                out.append((c, r, rms))
+                out.append((c, r, rms, sel))
                 continue
-        out.append((cen[j], rr[j], np.inf))
+        out.append((cen[j], rr[j], np.inf, None))
     return out
 
 
@@ -256,7 +257,8 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
     BallDetections
         ``ellipse_centers`` are the ellipse centres (the split circle centres for merged
         silhouettes); ``centers`` the same, but the arc fits' for ``CRESCENT`` and ``EDGE`` balls
-        (their circle's radius in ``arc_radii_px``, their uncertainty in ``center_sigma_px``); run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
+        (their circle's radius in ``arc_radii_px``, their uncertainty in ``center_sigma_px``;
+        ``SPLIT`` balls' too, and with ``EDGE`` ones their arc in ``arc_points``); run :func:`refine_ball_centers` (or :func:`ball_centers_stereo`) for the known-radius Hough
         refinement.
     """
     img = _check_image(image)
@@ -295,9 +297,14 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
             if pieces and not all(np.isfinite(p_[2]) for p_ in pieces) and area < 1.35 * typical:
                 pieces = []
         if pieces:
-            for pc, pr, rms in pieces:
+            for pc, pr, rms, arc_pts in pieces:
                 f = flag | BallFlag.MERGED | (BallFlag.SPLIT if np.isfinite(rms) else BallFlag.PARTIAL)
-                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci, None))
+                # issue 12: a split ball's centre rests on its own part of the outline only (the
+                # rest is inside the silhouette): its arc goes along (refitted with the scale free
+                # in ball_centers_stereo, as an EDGE ball's in-frame limb) with the arc's sigma
+                arc = None if arc_pts is None else (
+                    {"center": np.asarray(pc, float), "radius": pr, "rms": rms, "points": arc_pts}, True, False)
+                rows.append((np.asarray(pc, float), pr, ell, area / len(pieces), hull_area, f, ci, arc))
             continue
         # a half moon's hull fits an ellipse badly: too narrow, or filling too little of it
         fill = hull_area / max(np.pi / 4 * ew * eh, 1e-9)
@@ -359,7 +366,7 @@ def detect_balls(image, background=None, min_area: float = 50.0, max_area: float
             arc_radii[i] = fit["radius"]
             sigma[i] = arc_center_sigma(fit["points"], fit["center"], fit["rms"], blur_px, radius_known=radius_known,
                                         thin=thin)
-            if r[5] & BallFlag.EDGE:
+            if r[5] & (BallFlag.EDGE | BallFlag.SPLIT):
                 arc_points[i] = np.asarray(fit["points"], float)
     ellipses = np.array([[r[2][0][0], r[2][0][1], r[2][1][0], r[2][1][1], r[2][2]] for r in rows], float)
     return BallDetections(

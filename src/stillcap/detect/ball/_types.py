@@ -78,15 +78,16 @@ class BallDetections:
         Index of the silhouette each ball came from (balls split from one silhouette share it;
         -1 for a crescent found in the unopened mask).
     arc_radii_px : ndarray, shape (N,), optional
-        Radius of the arc fit of ``CRESCENT`` and ``EDGE`` balls (the circle through the outer
-        or in-frame limb), px; NaN for the others.
+        Radius of the arc fit of ``CRESCENT``, ``EDGE`` and ``SPLIT`` balls (the circle through
+        the outer, in-frame or own limb), px; NaN for the others.
     center_sigma_px : ndarray, shape (N,), optional
         Centre uncertainty (1 sigma, px) of balls whose centre is an arc fit (``CRESCENT``,
-        ``EDGE``: from the arc's length, residual and blur; larger the shorter the arc); NaN for
+        ``EDGE``, ``SPLIT``: from the arc's length, residual and blur; larger the shorter the arc); NaN for
         whole silhouettes (their error is the pair's, from its residuals).
     arc_points : list, optional
-        Per ball, the limb points its arc fit used (ndarray (M, 2), raw px) for ``EDGE`` balls,
-        else None: the stereo step refits them with the ball's projected outline shape.
+        Per ball, the limb points its arc fit used (ndarray (M, 2), raw px) for ``EDGE`` balls
+        (the stereo step refits them with the ball's projected outline shape) and ``SPLIT`` ones
+        (their own arc of a merged silhouette: the stereo step's sigma), else None.
     """
 
     centers: np.ndarray
