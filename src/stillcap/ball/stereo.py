@@ -346,7 +346,7 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
             break
         # each round's corrected centre starts the next round's search (the blur moved a little)
         corrected = [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
-                                        smooth=REFINE_SMOOTH_PX, start=prev, tol_px=BLUR_READ_TOL_PX)
+                                        smooth=REFINE_SMOOTH_PX, start=prev)
                      for (lin, cc, o), tpl, prev in zip(crops, templates, corrected)]
         new = median_blur(corrected, blur)
         if not np.isfinite(new):
@@ -360,9 +360,6 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
 
 #: rounds of :func:`photo_blur_px` at shading-corrected centres
 BLUR_ROUNDS = 2
-#: tolerance (px) of the corrected centres :func:`photo_blur_px` reads the blur at
-#: (:func:`_shading_bias`' ``tol_px``; the refinement's own correction keeps 0.005 px)
-BLUR_READ_TOL_PX = 0.02
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:
     """Semi-major axis of the detections' ellipses (split balls: their circle radius; EDGE

@@ -228,7 +228,7 @@ def _lit_frame(lin: np.ndarray, center, off: np.ndarray, signed: bool = False, m
 
 def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, power: float,
                   blur: float, fine_step: float, smooth: float = REFINE_SMOOTH_PX, thin_rim: bool = False,
-                  start=None, report: dict | None = None, tol_px: float = 0.005) -> np.ndarray:
+                  start=None, report: dict | None = None) -> np.ndarray:
     """Offset (2,) of the Hough peak from the true centre for the shading of this ball image.
 
     The limb of a lambertian sphere is not a plain step: just inside it the radiance changes
@@ -267,10 +267,6 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     a slightly different ``blur`` (:func:`stillcap.ball.stereo.photo_blur_px`' next round): the
     corrected centre's first secant step goes there (its projection on the bias's direction)
     instead of to ``center - bias``; the steps after it and the tolerance are the same.
-
-    ``tol_px``: the secant's tolerance on ``|c - (center - bias(c))|`` (px). The refinement keeps
-    0.005 px; :func:`stillcap.ball.stereo.photo_blur_px`, whose corrected centres only place the
-    limb model of its blur read, 0.02 px (``BLUR_READ_TOL_PX``: 23 % fewer frames there).
 
     ``report``: a dict given the phase angle the correction used (``"phase_rad"``, in the frame of
     the returned bias), that phase's split-half uncertainty (``"phase_sd_rad"``,
@@ -359,7 +355,7 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
         h = t - float(b @ u)
         if abs(h) < best_h:
             best_h, best_bias, best_more = abs(h), b, more_t
-        if abs(h) < tol_px:
+        if abs(h) < 0.005:
             break
         if h < 0:
             lo = (t, h)
