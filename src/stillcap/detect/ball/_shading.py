@@ -710,9 +710,10 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray, start_px: float | Non
     (default 1 px; e.g. the photo's blur read so far): each step blurs the model once more,
     where the whole grid took 17 blurs, the widest the dearest (~40 % of this function's CPU,
     py-spy; the studio pitch's 62 ball images: 1054 blurs, 372 walking). Where
-    the misfit has one minimum over the grid (every ball image of the tests and benchmarks) that
-    is the grid's smallest misfit, and the result is the same number as the whole grid's; a
-    second, lower minimum beyond a rise on the far side of the start would be missed.
+    the misfit has one minimum over the grid (all 640 limb reads of studio and robustness
+    captures checked, ``docs/ball-detection.md``) that is the grid's smallest misfit, and the
+    result is the same number as the whole grid's; a second, lower minimum beyond a rise on the
+    far side of the start would be missed.
 
     Written by hand: no library fits a blurred, shaded sphere's edge; the model and the fit are
     the shading correction's own.
