@@ -332,8 +332,10 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
             continue  # a ball cut by the photo's edge: its limb is not all there
         crops.append((_linear_max(img[y0:y1, x0:x1], lut), c[i] - (x0, y0), off[i]))
 
-    def median_blur(centers_in_crops):
-        est = np.asarray([limb_blur_px(lin, cc, o) for (lin, _, o), cc in zip(crops, centers_in_crops)], float)
+    def median_blur(centers_in_crops, start=None):
+        # (``start``: the blur read so far, where each image's walk down its misfit starts)
+        est = np.asarray([limb_blur_px(lin, cc, o, start) for (lin, _, o), cc in zip(crops, centers_in_crops)],
+                         float)
         est = est[np.isfinite(est)]
         return float(np.median(est)) if len(est) else float("nan")
 
@@ -347,7 +349,7 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         corrected = [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
                                         smooth=REFINE_SMOOTH_PX, start=prev)
                      for (lin, cc, o), tpl, prev in zip(crops, templates, corrected)]
-        new = median_blur(corrected)
+        new = median_blur(corrected, blur)
         if not np.isfinite(new):
             break
         done = abs(new - blur) < 0.02

@@ -84,10 +84,13 @@ def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: in
     if r2 is None:
         r2 = q[0] ** 2 + q[1] ** 2
     # a pixel within band_px of the limb lies beyond 1 - band / (largest semi-axis) in these
-    # coordinates; a pixel whose samples (<= 0.5 px from its centre) are all outside the outline,
-    # beyond 1 + 0.5 / (smallest semi-axis); one more pixel of margin each way
+    # coordinates (and one more pixel of margin); a pixel whose samples (at most
+    # sqrt(2) (0.5 - 0.5 / ss) px from its centre, 0.47 px for ss = 3) are all outside the outline
+    # lies beyond 1 + that / (smallest semi-axis): A^-1 stretches no offset more than that. Such
+    # pixels are 0 (the margin of 1 px this had put ~13 % of the band's pixels, all 0, in the
+    # band: rendered, 9 samples each, at every light)
     r_in = max(1.0 - (band_px + 1.0) / sv[0], 0.0)
-    r_out = 1.0 + 1.5 / sv[-1]
+    r_out = 1.0 + (np.sqrt(2.0) * (0.5 - 0.5 / ss) + 0.01) / sv[-1]
     band = (r2 > r_in * r_in) & (r2 < r_out * r_out)
     # the pixels inside the outline and off the band: one sample at their centre (the rest of
     # the crop is 0); flat indices and their coordinates, rendered as a 1-D array
@@ -655,7 +658,9 @@ def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win
         wgt = flat[idx].astype(np.float64)
         wgt -= level
     else:
-        level = median(flat[ring]) if len(ring) else 0.0
+        level = flat[ring]
+        # (a model ball's ring is all zeros (~2/3 of the calls): its median without the partition)
+        level = median(level) if level.any() else 0.0
         wgt = flat[idx] - np.float32(level) if img.dtype == np.float32 else flat[idx] - level
         wgt = np.maximum(wgt, 0.0, dtype=np.float64)
     tot = float(wgt.sum())
@@ -668,13 +673,16 @@ def _radiance_centroid(img: np.ndarray, q: np.ndarray, signed: bool = False, win
 
 def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int) -> tuple[float, float]:
     """Sub-pixel Hough centre (x, y) of a rendered model ball near ``start``: the ``step`` grid
-    (``(2k+1)^2``) followed up to 6 moves, again up to 3, then a parabola (the model's offset in
-    :func:`_shading_bias` and :mod:`stillcap.ball.uncertainty`)."""
+    (``(2k+1)^2``) followed up to 10 moves, then a parabola through the best's neighbours (the
+    model's offset in :func:`_shading_bias` and :mod:`stillcap.ball.uncertainty`).
+
+    This was two searches, up to 6 moves and again up to 3 from the best, which scored a grid
+    centred on a best already inside the first grid once more (2 of 3 models; the best never moved
+    on the studio pitch's 314 models): the parabola through the first grid's neighbours differs
+    by float rounding of the candidates (<= 5e-5 px, 4e-6 px RMS), and a best on the border after
+    the first 7 grids is followed as far as before."""
     g = _gradient(model)
-    bx, by, fs, (fi, fj) = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=6)
-    if (fi, fj) != (k, k):
-        # (a peak at the grid's centre: the second search would score the same grid again)
-        bx, by, fs, (fi, fj) = _grid_peak(g, bx, by, tpl, power, step, k, moves=3)
+    bx, by, fs, (fi, fj) = _grid_peak(g, float(start[0]), float(start[1]), tpl, power, step, k, moves=10)
     ddy, ddx = _quad_peak(fs, fi, fj)
     return bx + ddx * step, by + ddy * step
 
@@ -684,12 +692,12 @@ def _model_peak(model: np.ndarray, start, tpl, power: float, step: float, k: int
 _BLUR_GRID = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.4, 1.6, 1.85, 2.1, 2.4, 2.7, 3.0])
 
 
-def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
+def limb_blur_px(lin: np.ndarray, center, off: np.ndarray, start_px: float | None = None) -> float:
     """Lens blur (Gaussian sigma, px) of a photo, read from one ball image's limb.
 
     The ball is modelled as in :func:`_shading_bias` (a lambertian sphere lit from the direction
     its radiance centroid gives, seen through the known outline ``off`` about ``center``, each
-    pixel integrated over its area), blurred by each sigma of ``_BLUR_GRID`` and fitted to the
+    pixel integrated over its area), blurred by sigmas of ``_BLUR_GRID`` and fitted to the
     linear crop ``lin`` as ``gain x model + level`` (linear least squares) over the band
     ``0.6 < rho < 1.4`` of outline radii around the limb, where the limb's edge width decides
     the fit; the sigma of the smallest squared misfit is refined by a parabola through its
@@ -697,6 +705,15 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
     rim lit from behind) is in the model, so what is left to fit is the lens's blur. Painted
     markers in the band and a centre off by a tenth of a pixel perturb one image's estimate:
     take the median over a photo's ball images (:func:`stillcap.ball.stereo.photo_blur_px`).
+
+    The misfit's minimum is found by walking down the grid from the sigma nearest ``start_px``
+    (default 1 px; e.g. the photo's blur read so far): each step blurs the model once more,
+    where the whole grid took 17 blurs, the widest the dearest (~40 % of this function's CPU,
+    py-spy; the studio pitch's 62 ball images: 1054 blurs, 372 walking). Where
+    the misfit has one minimum over the grid (all 640 limb reads of studio and robustness
+    captures checked, ``docs/ball-detection.md``) that is the grid's smallest misfit, and the
+    result is the same number as the whole grid's; a second, lower minimum beyond a rise on the
+    far side of the start would be missed.
 
     Written by hand: no library fits a blurred, shaded sphere's edge; the model and the fit are
     the shading correction's own.
@@ -715,18 +732,28 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray) -> float:
     y = lin[band].astype(float)
     y = y - y.mean()
     yy = float(y @ y)
-    # the model blurred by every sigma, its band pixels as rows (float64), centred at once
-    M = np.empty((len(_BLUR_GRID), len(y)))
-    for k, s in enumerate(_BLUR_GRID):
-        M[k] = cv2.GaussianBlur(model0, (0, 0), float(s))[band]
-    M -= M.mean(axis=1, keepdims=True)
-    sse = np.empty(len(_BLUR_GRID))
-    for k, m in enumerate(M):
-        mm = float(m @ m)
-        # the misfit of y ~ gain m + level after the least-squares gain and level
-        sse[k] = yy - (float(m @ y) ** 2 / mm if mm > 0 else 0.0)
-    k = int(np.argmin(sse))
-    if k == 0 or k == len(_BLUR_GRID) - 1:
+    sse = np.full(len(_BLUR_GRID), np.nan)
+
+    def misfit(k: int) -> float:
+        # the misfit of y ~ gain m + level after the least-squares gain and level, m the model
+        # blurred by sigma k, its band pixels (float64) centred
+        if np.isnan(sse[k]):
+            m = cv2.GaussianBlur(model0, (0, 0), float(_BLUR_GRID[k]))[band].astype(float)
+            m -= m.mean()
+            mm = float(m @ m)
+            sse[k] = yy - (float(m @ y) ** 2 / mm if mm > 0 else 0.0)
+        return float(sse[k])
+
+    last = len(_BLUR_GRID) - 1
+    k = int(np.argmin(np.abs(_BLUR_GRID - (1.0 if start_px is None or not np.isfinite(start_px) else start_px))))
+    while True:  # downhill; toward the smaller sigma on a tie (``argmin``'s first minimum)
+        if k > 0 and misfit(k - 1) <= misfit(k):
+            k -= 1
+        elif k < last and misfit(k + 1) < misfit(k):
+            k += 1
+        else:
+            break
+    if k == 0 or k == last:
         return float("nan")
     x0, x1, x2 = _BLUR_GRID[k - 1:k + 2]
     lhs, scale = _parabola_design(k)
