@@ -491,6 +491,23 @@ def flight_informed_spin(curvature: CurvatureMeasurement, spin) -> np.ndarray:
     return g * along + np.sqrt(max(ne * ne - g * g, 0.0)) * (B @ (e / ne))
 
 
+def same_solution(a, b, same_p: float = 0.05) -> bool:
+    """Whether two spin fits agree within their summed covariances (the ``1 - same_p`` quantile of a
+    3-dof chi-square), the test :func:`resolve_joint_fits` merges solutions by."""
+    return _same_solution(a, b, float(chdtri(3, same_p)))
+
+
+def _same_solution(a, b, limit: float) -> bool:
+    C = np.asarray(a.spin_covariance, float) + np.asarray(b.spin_covariance, float)
+    dw = np.asarray(a.spin, float) - np.asarray(b.spin, float)
+    if not (np.all(np.isfinite(C)) and np.all(np.isfinite(dw))):
+        return False
+    try:
+        return float(dw @ np.linalg.solve(C + 1e-12 * np.eye(3), dw)) <= limit
+    except np.linalg.LinAlgError:
+        return False
+
+
 def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None, measurements=(), *,
                        cap_deg: float = 8.0, curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
                        rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
@@ -565,19 +582,7 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     same_lim = float(chdtri(3, same_p))
     kept = []
     for i in order:
-        ci = sols[i].spin_covariance
-        dup = False
-        for j in kept:
-            C = np.asarray(ci, float) + np.asarray(sols[j].spin_covariance, float)
-            dw = cands[i].spin - cands[j].spin
-            if np.all(np.isfinite(C)) and np.all(np.isfinite(dw)):
-                try:
-                    dup = float(dw @ np.linalg.solve(C + 1e-12 * np.eye(3), dw)) <= same_lim
-                except np.linalg.LinAlgError:
-                    dup = False
-            if dup:
-                break
-        if not dup:
+        if not any(_same_solution(sols[i], sols[j], same_lim) for j in kept):
             kept.append(i)
     merged = [cands[i] for i in kept]
     chi = np.array([c.chi2 for c in merged])

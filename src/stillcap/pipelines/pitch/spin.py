@@ -325,7 +325,7 @@ def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, la
     Returns ``(spin, reference-clock time of each observation, alias resolution)``."""
     from scipy.special import chdtri
 
-    from stillcap.ball.alias import curvature_chi2, flight_informed_spin, resolve_joint_fits
+    from stillcap.ball.alias import curvature_chi2, flight_informed_spin, resolve_joint_fits, same_solution
 
     if alias is None or first is None or not np.all(np.isfinite(first.spin)):
         return first, first_times, alias
@@ -354,8 +354,11 @@ def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, la
             sol_times.append(t)
     meas, _ = _strobe_measurements(pairs)
     joint = resolve_joint_fits(sols, curv, meas)
-    if joint.best.source == 0 and not doubt and not joint.ambiguous:
-        return first, first_times, alias  # the strobes' choice stands, unchanged
+    if not doubt and not joint.ambiguous and (
+            joint.best.source == 0 or same_solution(first, sols[joint.best.source])):
+        # the strobes' choice stands, unchanged (also when a refit lands on the same solution, within
+        # the two fits' covariances, and scores a hair better: the same spin, not a new decision)
+        return first, first_times, alias
     chosen = sols[joint.best.source]
     if joint.best.source != 0:
         ang = float(np.degrees(np.arccos(np.clip(chosen.axis @ first.axis, -1, 1))))
