@@ -19,7 +19,10 @@ guess, named by the ``bone_measured`` self-check), the calibration's own predict
 its capture's photos show, :func:`stillcap.body.puppet_checks.bead_noise`), ``z`` (measured over
 predicted error per bone, RMS: about 1 when the prediction is honest), the bones it names as
 uncertain (right: measured error over the 1 deg limit; wrong: not over it; missed: over it but not
-named), the model-free bead-pair direction RMS, and per skeleton the bones the result's self-checks
+named), ``z_within_1.96`` (the share of bones whose measured error is within 1.96 predicted
+sigmas: 0.95 when honest), ``weakly_posed`` (bones the calibration names as fixed by its
+captures' poses much better than in a new pose: :attr:`SkeletonCalibration.weakly_posed`), the
+model-free bead-pair direction RMS, and per skeleton the bones the result's self-checks
 name as not matching the puppet (``*_checks_failed``; ``*_over1_named_missed``: of the bones over
 1 deg, named / not named; ``*_bones_checked``: bones with a per-bone check; ``*_captures_named``:
 captures with a bone named). On the default puppet (condition 0) every skeleton matches, so the
@@ -146,6 +149,8 @@ def one_puppet(seed: int, kw: dict, msname: str, sensor_kw: dict, tmp: Path, cal
             out["predicted_rms"] = _rms(pred)
             out["z"] = list(err / pred)  # measured over predicted, per bone: RMS about 1 when honest
             out["uncertain"] = sorted(b for b in cal.uncertain if b in full)
+            # bones whose error the captures' poses hide (SkeletonCalibration.weakly_posed)
+            out["weak"] = sorted(b for b in cal.weakly_posed if b in full)
             # the calibration's uncertain bones against the measured error over its limit (1 deg)
             over = {b for b, e in zip(full, err) if e > 1.0}
             out["uncertain_right"] = len(over & set(out["uncertain"]))
@@ -184,7 +189,7 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                 if not calibrate:
                     r.update({"calibrated_rms": np.nan, "calibrated_max": np.nan, "calibrated_measured_rms": np.nan,
                               "calibrated_measured_max": np.nan, "predicted_rms": np.nan, "z": [], "uncertain": [],
-                              "uncertain_right": 0, "uncertain_wrong": 0, "uncertain_missed": 0,
+                              "weak": [], "uncertain_right": 0, "uncertain_wrong": 0, "uncertain_missed": 0,
                               "calibrated_checks_failed": 0, "calibrated_bones_checked": 0,
                               "calibrated_over1_named": 0, "calibrated_over1_missed": 0})
                 r["condition"] = cname
@@ -209,6 +214,9 @@ def rows(quick: bool = False, seeds=None, conditions=None, per_seed: list | None
                         "calibrations_converged": int(sum(r["cal_converged"] for r in recs)),
                         "bone_deg_predicted": _rms([r["predicted_rms"] for r in recs]),
                         "z_rms": _rms([z for r in recs for z in r["z"]]),
+                        "z_within_1.96": (float(np.mean(np.abs([z for r in recs for z in r["z"]]) < 1.96))
+                                          if calibrate else float("nan")),
+                        "weakly_posed": int(sum(len(r["weak"]) for r in recs)),
                         "uncertain_right": int(sum(r["uncertain_right"] for r in recs)),
                         "uncertain_wrong": int(sum(r["uncertain_wrong"] for r in recs)),
                         "uncertain_missed": int(sum(r["uncertain_missed"] for r in recs)),

@@ -32,10 +32,11 @@ import numpy as np
 from stillcap._blas import one_blas_thread
 from stillcap.body._grouped_jacobian import grouped_jacobian
 from stillcap.body.markerset import Marker, MarkerSet
+from stillcap.body.puppet_calibrate_sd import direction_sd_in_captures, new_pose_direction_sd, weakly_posed_bones
 from stillcap.body.puppet_pose import fit_pose, frame_status
 from stillcap.body.skeleton import Pose, Skeleton
 
-__all__ = ["SkeletonCalibration", "calibrate_skeleton", "uncertain_bones"]
+__all__ = ["SkeletonCalibration", "calibrate_skeleton", "uncertain_bones", "weakly_posed_bones"]
 
 
 @dataclass(eq=False)
@@ -61,9 +62,23 @@ class SkeletonCalibration:
     joint_evaluations : int or None
         Residual evaluations of the joint fit (None: not run, e.g. a rest capture alone).
     direction_sd_deg : dict
-        Bone (joint name) -> predicted RMS error of its direction in a pose fitted with the
-        calibrated skeleton, degrees (:func:`_direction_sd`), for every bone whose parent frame
-        carries beads; empty without further captures (the rest capture alone fixes no joint).
+        Bone (joint name) -> predicted RMS error of its direction in a new pose fitted with the
+        calibrated skeleton, degrees: the joint fit's covariance of the body (bone scales and
+        bead offsets together) carried through the fit of :data:`~stillcap.body.puppet_calibrate_sd.PROBE_POSES`
+        probe poses with every joint anywhere within the template's limits, RMS over them
+        (:func:`~stillcap.body.puppet_calibrate_sd.new_pose_direction_var`), for every bone whose
+        parent frame carries beads; empty without further captures (the rest capture alone fixes
+        no joint).
+    direction_sd_captures_deg : dict
+        The same carried through the calibration's own further captures' poses instead
+        (:func:`~stillcap.body.puppet_calibrate_sd.direction_sd_in_captures`): the poses that
+        fixed the body, so it misses what they leave open.
+    weakly_posed : dict
+        Bone -> what to add, for every bone whose new-pose error is over
+        :data:`~stillcap.body.puppet_calibrate_sd.WEAK_POSE_RATIO` times its error in the
+        captures' poses and could exceed the per-bone checks' tolerance: the captures do not bend
+        the joints it hangs on enough to place them
+        (:func:`~stillcap.body.puppet_calibrate_sd.weakly_posed_bones`).
     uncertain : dict
         Bone -> what to add, for every bone whose predicted direction error exceeds
         ``direction_limit_deg``.
@@ -101,6 +116,8 @@ class SkeletonCalibration:
     rest_turn_sd_deg: float = float("nan")
     rest_turn_stated: bool = False
     joint_converged: bool | None = None
+    direction_sd_captures_deg: dict = field(default_factory=dict)
+    weakly_posed: dict = field(default_factory=dict)
 
 
 def _rest_turn(template: Skeleton, markerset: MarkerSet, rest: np.ndarray) -> np.ndarray:
@@ -285,6 +302,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         if moved < tol_m:
             break
     joint_fit, unfixed, direction_sd, uncertain, misfit = None, {}, {}, {}, float("nan")
+    captures_sd, weak = {}, {}
     turn_est = turn_sd = float("nan")
     turn_stated = False
     if joint:
@@ -335,9 +353,13 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
         x[n_s + 3 * nm:n_s + 3 * nm + 3] = ts_j[0]
         sk, ms, s = build(x)
         unfixed = _unfixed_bones(template, frames, fitted_bones, joint_fit.jac, c, scale_sd)
-        direction_sd = {template.names[k]: float(np.degrees(sd)) for k, sd in dir_sd.items()
-                        if frame_status(template, markerset)[template.names[template.parents[k]]] not in ("locked", "none")}
+        status = frame_status(template, markerset)
+        shown = [k for k in dir_sd if status[template.names[template.parents[k]]] not in ("locked", "none")]
+        captures_sd = {template.names[k]: float(np.degrees(dir_sd[k])) for k in shown}
+        new_sd = new_pose_direction_sd(sk, c, frames, beads_j, bones, joint_fit.jac, misfit, sigmas)
+        direction_sd = {template.names[k]: new_sd[k] for k in shown}
         uncertain = uncertain_bones(template, markerset, direction_sd, direction_limit_deg)
+        weak = weakly_posed_bones(template, captures_sd, direction_sd)
     else:  # the root where the rest capture has it (the alternation worked on it turned back)
         x = x.copy()
         x[n_s + 3 * nm:n_s + 3 * nm + 3] = center0 + turn0 @ (x[n_s + 3 * nm:n_s + 3 * nm + 3] - center0)
@@ -368,7 +390,7 @@ def calibrate_skeleton(rest_points, template: Skeleton, markerset: MarkerSet, po
                                None if joint_fit is None else int(joint_fit.nfev), direction_sd, uncertain,
                                misfit, float(np.degrees(np.arctan2(turn0[0, 2], turn0[0, 0]))),
                                turn_est, turn_sd, turn_stated,
-                               None if joint_fit is None else bool(joint_fit.status > 0))
+                               None if joint_fit is None else bool(joint_fit.status > 0), captures_sd, weak)
 
 
 #: :func:`calibrate_skeleton`: beads whose expected error is below the last level (metres) are
@@ -392,7 +414,8 @@ def _wrap_deg(a: float) -> float:
 def _turn_estimate(out, root: int, col: int) -> tuple[float, float]:
     """The joint fit's rest turn about the vertical and its 1-sigma uncertainty, degrees: the
     ``col``-th unknown's variance from ``inv(J^T J)`` (residuals in sigmas), widened by the fit's
-    misfit when above 1, as :func:`_direction_sd` widens the directions."""
+    misfit when above 1, as :func:`~stillcap.body.puppet_calibrate_sd.direction_sd_in_captures`
+    widens the directions."""
     turn = out[3][0][root]
     res, misfit = out[4], out[7][1]
     J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
@@ -716,71 +739,7 @@ def _joint_fit(template: Skeleton, markerset: MarkerSet, all_points: list, s0: n
     beads = x[o_b:o_t0].reshape(nm, 3)
     ts = [x[o_t0:o_t0 + 3]] + [x[cap_slice(p)[0]:cap_slice(p)[1]] for p in range(1, n_caps)]
     local_rotations = [locals_of(x, p) for p in range(n_caps)]
-    return s, beads, ts, local_rotations, res, bones, n_data, _direction_sd(
+    return s, beads, ts, local_rotations, res, bones, n_data, direction_sd_in_captures(
         res, n_data, lambda xx, p: _fk(offsets_of(xx), locals_of(xx, p), np.eye(4)), cap_slice, n_caps, bones,
         template, c, n_v, np.cumsum([0] + [3 * len(s_) for s_ in seen]), o_t0, n_data + n_s + 3 * nm, n_a,
         [{k for k in bones if set(np.flatnonzero(frames == parents[k])) <= set(s_.tolist())} for s_ in seen])
-
-
-def _direction_sd(res, n_data: int, fk, cap_slice, n_caps: int, bones: list[int], template: Skeleton,
-                  c: np.ndarray, n_v: int, data_rows, n_body: int, prior_row0: int, n_a: int,
-                  whole: list) -> tuple[dict[int, float], float]:
-    """Predicted direction error of each bone in a new pose fitted with the calibrated skeleton,
-    radians, and the fit's misfit (chi-square of the beads per degree of freedom).
-
-    Each further capture stands in for a new pose. A new pose's rotations ``r`` are fitted to its
-    beads with the calibrated body ``b`` (bone scales and bead offsets, the joint fit's first
-    ``n_body`` unknowns) held, so their error is the body's error carried through that fit plus the
-    pose's own fit noise, independent of each other::
-
-        cov(r) = A cov(b) A^T + inv(J_r^T J_r),   A = -inv(J_r^T J_r) J_r^T J_b
-
-    (``J_r``, ``J_b``: the Jacobian of the capture's bead residuals and its rotations' weak prior in
-    its rotations and the body;
-    ``cov(b)``: the joint fit's ``inv(J^T J)``), carried to each bone's world direction (finite
-    differences over the capture's rotations), RMS over the captures that saw every bead of the
-    bone's parent frame (``whole[p]``: the bones so seen in capture ``p``; a bead missing there is
-    not what a new pose with all beads seen would show; all captures when none did). The residuals are in sigmas
-    of each bead's expected error, so the prediction is as honest as those errors; a misfit above
-    1 (the beads scatter more than expected) widens it."""
-    if n_caps < 2:
-        return {}, float("nan")
-    J = res.jac.toarray() if hasattr(res.jac, "toarray") else np.asarray(res.jac)
-    cov = np.linalg.pinv(J.T @ J)
-    Jd = J[:n_data]
-    hat = float(np.sum((Jd @ cov) * Jd))  # parameters the data (not the priors) fix
-    r = res.fun[:n_data]
-    misfit = float(r @ r) / max(n_data - hat, 1.0)
-    inflate = max(misfit, 1.0)
-    cov_b = cov[:n_body, :n_body]
-    parents = template.parents
-    var = {k: [] for k in bones}
-    for p in range(1, n_caps):
-        b, e, end = cap_slice(p)
-
-        def directions(xx, p=p):
-            j2w = fk(xx, p)
-            return np.stack([j2w[parents[k], :3, :3] @ (c[k] / np.linalg.norm(c[k])) for k in bones])
-
-        d0 = directions(res.x)
-        G = np.zeros((len(bones), 3, end - b))
-        for q in range(e - b, end - b):
-            step = 1e-6 if q - (e - b) < n_v else 1e-4  # radians (rotation vectors), degrees (Euler angles)
-            xx = res.x.copy()
-            xx[b + q] += step
-            G[:, :, q] = (directions(xx) - d0) / step
-        # the capture's bead rows and its rotations' weak prior (a turn no bead fixes, such as a
-        # one-bead frame's twist, keeps the prior's 180 deg instead of none)
-        rows = np.r_[data_rows[p]:data_rows[p + 1], prior_row0 + (p - 1) * n_a:prior_row0 + p * n_a]
-        Jr, Jb = J[rows, b:end], J[rows, :n_body]
-        own = np.linalg.pinv(Jr.T @ Jr)
-        A = -own @ (Jr.T @ Jb)
-        C = (A @ cov_b @ A.T + own) * inflate
-        for i, k in enumerate(bones):
-            var[k].append((k in whole[p], float(np.trace(G[i] @ C @ G[i].T))))
-
-    def rms(v):
-        seen_all = [x for w, x in v if w]
-        return float(np.sqrt(np.mean(seen_all or [x for _, x in v])))
-
-    return {k: rms(v) for k, v in var.items()}, misfit

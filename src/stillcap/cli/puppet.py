@@ -688,4 +688,6 @@ def calibrate_skeleton_cmd(
         console.print(f"[yellow]{bone}: {need}[/]")
     for bone, need in cal.uncertain.items():
         console.print(f"[yellow]{bone}: {need}[/]")
+    for bone, need in cal.weakly_posed.items():
+        console.print(f"[yellow]{bone}: {need}[/]")
     console.print(f"wrote [bold]{out}[/] and [bold]{markers_out}[/]")
