@@ -200,3 +200,32 @@ def test_a_parameter_the_capture_does_not_show_keeps_its_prior_sigma_never_more(
     rated = [p for p in cal.parameters if np.isfinite(p.fixed)]
     assert len(rated) == len(cal.parameters)
     assert max(p.fixed for p in rated) <= 1.0 + 1e-6
+
+
+def test_a_wrong_label_fails_the_misfit_check_and_is_left_out():
+    """A wrong label in a bent flash (the ring's DIP marker labelled the middle's: a point of
+    another finger) bends the shared model toward it; the self-check ``calibration_labels_fit``
+    names it (its misfit against its stated noise), and fitting again without it brings the
+    model back (what ``calibrate_hand_from_point_sets`` does)."""
+    from stillcap.body.hand_calibrate import _without_misfits
+
+    person = another_hand(3)
+    steps = ["flat", "table top", "hook", "fist"]
+    pts = _protocol_markers(person, steps, rng=23)
+    clean = calibrate_hand(pts[:1], pts[1:])
+    check = next(c for c in clean.self_checks if c.name == "calibration_labels_fit")
+    assert check.passed, check.message
+    ms = person.markerset
+    wrong = pts.copy()
+    wrong[2, ms.index("middle.dip")] = pts[2, ms.index("ring.dip")]  # the hook
+    fit = dict(posed=wrong[:1], free=wrong[1:], pose="flat", skeleton=None, markerset=None)
+    bent = calibrate_hand(**fit)
+    check = next(c for c in bent.self_checks if c.name == "calibration_labels_fit")
+    assert not check.passed and "middle.dip of fitted flash 2" in check.message
+    again = _without_misfits(bent, fit)
+    assert np.isnan(again.markers[2, ms.index("middle.dip")]).all()
+    assert any("left out" in m for m in again.messages)
+    assert next(c for c in again.self_checks if c.name == "calibration_labels_fit").passed
+    err = {n: _errors(c.skeleton, person) for n, c in (("clean", clean), ("bent", bent), ("again", again))}
+    print({n: np.round(e * 1e3, 2) for n, e in err.items()})
+    assert err["again"].max() < err["bent"].max()

@@ -72,3 +72,45 @@ def test_the_cli_passes_every_capture_given(monkeypatch, tmp_path, capsys):
     assert code == 2
     assert got == [[tmp_path / "a", tmp_path / "b"], tmp_path / "a"]
     assert not (tmp_path / "h.json").exists()
+
+
+def test_a_refused_posed_flash_gives_way_to_the_next_nearest(protocol_points, monkeypatch):
+    """When the flash nearest the pose is refused (its markers do not fit it: a wrong label, a
+    hand not yet flat), the next nearest flash, of any capture, is tried before the capture is
+    refused; the messages name the flash refused."""
+    from stillcap.body import hand_calibrate as mod
+
+    real, calls = mod.calibrate_hand, []
+
+    def refuse_first(posed, free=None, **kw):
+        calls.append((np.asarray(posed).copy(), free is None))
+        if len(calls) == 1:  # the nearest flash of the first pass: refused as not flat
+            raise ValueError("the calibration flash is not in the 'flat' pose: simulated")
+        return real(posed, free, **kw)
+
+    monkeypatch.setattr(mod, "calibrate_hand", refuse_first)
+    cal = calibrate_hand_from_point_sets(protocol_points)
+    assert len(calls) == 3  # refused, the next nearest (first pass), the final fit
+    assert not np.array_equal(calls[0][0], calls[1][0], equal_nan=True)
+    assert any("was not taken as the flat flash: the calibration flash is not in the 'flat' pose: simulated" in m
+               for m in cal.messages)
+    assert cal.n_free >= 4
+
+
+def test_every_posed_flash_refused_refuses_the_capture_naming_them(protocol_points, monkeypatch):
+    from stillcap.body import hand_calibrate as mod
+
+    calls = []
+
+    def refuse(posed, free=None, **kw):
+        calls.append(posed)
+        raise ValueError(f"refusal {len(calls)}")
+
+    monkeypatch.setattr(mod, "calibrate_hand", refuse)
+    with pytest.raises(ValueError, match=r"^refusal 1; flash \d+ of capture \d was refused too: refusal 2; "):
+        calibrate_hand_from_point_sets(protocol_points, max_posed_tries=3)
+    assert len(calls) == 3
+    calls.clear()
+    with pytest.raises(ValueError, match=r"^refusal 1$"):
+        calibrate_hand_from_point_sets(protocol_points, max_posed_tries=1)
+    assert len(calls) == 1

@@ -38,7 +38,7 @@ from stillcap.body.hand import BACK_MARKERS, DIGITS, fit_hand, hand_markerset, h
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 
-__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO",
+__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO", "MAX_POSED_TRIES",
            "CalibratedParameter",
            "HandCalibration", "calibration_angles", "calibrate_hand",
            "calibrate_hand_from_points", "calibrate_hand_from_point_sets", "CalibrationPoints", "phalanx_lengths"]
@@ -60,6 +60,9 @@ MAX_LENGTH_SIGMA_M = 0.0015
 #: not fixed by the capture (its variance shrank by less than half): the self-check
 #: ``calibration_fixes_the_model`` names it (a warning; the value stays near the template's).
 UNFIXED_SIGMA_RATIO = 0.7
+#: Flashes tried as the posed one, nearest the pose first, before the capture is refused (each
+#: refusal costs one fit; a flash is refused when its markers do not fit the pose stated).
+MAX_POSED_TRIES = 3
 
 
 def calibration_angles(pose: str, skeleton: Skeleton) -> np.ndarray:
@@ -126,6 +129,12 @@ class HandCalibration:
     n_posed, n_free : int
         Flashes in the stated pose and in other (unknown) poses used.
     residuals : ndarray, shape (n_flashes, n_markers)
+        Fitted-to-measured marker distance (m), the posed flashes first; NaN unseen.
+    misfit : ndarray, shape (n_flashes, n_markers)
+        Each residual over its marker's stated noise, squared (``(r / sigma)^2``: chi-square with
+        3 dof when the model and the label are right; NaN unseen).
+    markers : ndarray, shape (n_flashes, n_markers, 3)
+        The labelled markers fitted (m), in the order of ``residuals``; NaN unlabelled.
     messages : list of str
     parameters : list of CalibratedParameter
         Every estimated length, knuckle place, marker height and thumb axis with its 1-sigma.
@@ -147,6 +156,8 @@ class HandCalibration:
     messages: list = field(default_factory=list)
     parameters: list = field(default_factory=list)
     self_checks: list = field(default_factory=list)
+    misfit: np.ndarray | None = None
+    markers: np.ndarray | None = None
 
     def lengths(self) -> dict:
         return phalanx_lengths(self.skeleton)
@@ -245,6 +256,44 @@ def _observability_check(params, pose: str):
                      f"the calibration capture did not fix {len(unfixed)} joint parameter(s), which stay near the "
                      f"template scaled to the hand: {names}{more}; bend those joints, and turn the hand, so that the "
                      f"cameras see the markers beyond them move (docs/hand-calibration.md)", worst.name, "")
+
+
+def misfit_limit(n_labels: int, p: float | None = None) -> float:
+    """The largest ``(r / sigma)^2`` of one label among ``n_labels`` that a right model and right
+    labels give with probability ``1 - p`` over the whole capture (chi-square with 3 dof at
+    ``p / n_labels``; default ``p``: the puppet's per-check false-alarm chance,
+    :data:`stillcap.body.puppet_checks.FALSE_ALARM_P`). The fit absorbs part of a misfit, so the
+    test is on the safe side."""
+    from stillcap.body.puppet_checks import FALSE_ALARM_P, _limit
+
+    return _limit((FALSE_ALARM_P if p is None else p) / max(1, n_labels), 3, float("inf"))
+
+
+def _misfit_check(misfit, names, n_posed: int, pose: str):
+    """The self-check ``calibration_labels_fit``: no label of the other flashes misses the
+    calibrated model by more than its stated noise allows (:func:`misfit_limit`). A label that
+    does is a wrong label (a point of another finger or flash) or a model the capture pulled
+    off; the fit bent the shared model toward it (the posed flash has its own check)."""
+    from stillcap._selfcheck import SelfCheck
+
+    z2 = np.asarray(misfit, float)[n_posed:]
+    seen = np.isfinite(z2)
+    if not seen.any():
+        return SelfCheck("calibration_labels_fit", True, None, float("nan"), "no other flash: not checked", pose, "")
+    lim = misfit_limit(int(seen.sum()))
+    bad = np.argwhere(seen & (np.where(seen, z2, 0.0) > lim))
+    worst = float(np.sqrt(np.nanmax(z2)))
+    if len(bad) == 0:
+        return SelfCheck("calibration_labels_fit", True, worst, float(np.sqrt(lim)),
+                         f"every label of the other flashes fits the calibrated model within its noise "
+                         f"(worst {worst:.1f} sigma)", pose, "sigma")
+    bad = sorted(bad.tolist(), key=lambda fm: -z2[fm[0], fm[1]])
+    names_ = ", ".join(f"{names[m]} of fitted flash {f + n_posed} ({np.sqrt(z2[f, m]):.1f} sigma)" for f, m in bad[:6])
+    more = f" and {len(bad) - 6} more" if len(bad) > 6 else ""
+    return SelfCheck("calibration_labels_fit", False, worst, float(np.sqrt(lim)),
+                     f"{len(bad)} label(s) miss the calibrated model by more than their noise allows: {names_}{more}; "
+                     f"wrong labels (markers of another finger or flash) bend the model: move the hand farther "
+                     f"between flashes, keep the markers in view (docs/hand-calibration.md)", pose, "sigma")
 
 
 def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton | None = None,
@@ -351,7 +400,11 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     if len(free) == 0:
         msgs.append("only the calibration pose was seen: the joint centres along the fingers stay at the "
                     "template's (scaled); flashes of the fingers curling fix them")
-    return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks)
+    s3 = np.full(res.shape, noise_m) if sig is None else np.where(np.isfinite(sig), sig, noise_m)
+    misfit = (res / s3) ** 2
+    checks.append(_misfit_check(misfit, ms0.names, len(posed), pose))
+    return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks,
+                           misfit, pts)
 
 
 @dataclass(frozen=True)
@@ -393,6 +446,7 @@ def calibrate_hand_from_points(points, colors, *, strobe_hz: float, pose: str = 
 
 def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skeleton | None = None,
                                    markerset: MarkerSet | None = None, max_free: int = 12,
+                                   max_posed_tries: int = MAX_POSED_TRIES, drop_misfits: bool = True,
                                    **kw) -> HandCalibration:
     """Calibrate the hand from one or more calibration captures of the same hand and glove
     (a list of :class:`CalibrationPoints`), as :func:`calibrate_hand_from_points` does for one.
@@ -403,6 +457,17 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     own pose. More captures give the fit more poses (for instance the curl of one photo and the
     protocol's separate bends of another, docs/hand-calibration.md); they need not be in the
     same place or share the cameras' calibration beyond each capture's own rig.
+
+    When the flash nearest the pose is refused (:func:`calibrate_hand`'s checks: its markers do not
+    fit the pose, e.g. a wrong label, or the hand not yet flat), the next nearest flash, of any
+    capture, is tried, up to ``max_posed_tries`` flashes in each of the two passes; the messages
+    name the flashes refused. ValueError when every one tried is refused (the nearest's reason
+    first).
+
+    ``drop_misfits``: the labels of the other flashes that the self-check
+    ``calibration_labels_fit`` finds missing the calibrated model by more than their noise allows
+    (wrong labels, :func:`misfit_limit`) are left out and the model is fitted once more without
+    them; the messages say how many.
     """
     from stillcap.body.hand_label import label_hand_markers
 
@@ -418,15 +483,16 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
         return label_hand_markers(s.points, s.colors, strobe_hz=s.strobe_hz, skeleton=sk, markerset=ms,
                                   reprojection_px=s.reprojection_px, fill=False, unconfirmed=s.unconfirmed, **more)
 
-    def nearest(labs):
-        """(capture, flash) of the reconstructed flash nearest the pose, or None."""
-        best = None
+    def ranked(labs, skip=()):
+        """(capture, flash) of the reconstructed flashes, nearest the pose first (``skip``: the
+        ``(capture, time)`` of flashes already refused as posed)."""
+        cand = []
         for c, lab in enumerate(labs):
             for k in np.flatnonzero(lab.reconstructed):
-                d = float(np.sqrt(np.mean((lab.fits[k].angles_deg - target) ** 2)))
-                if best is None or d < best[0]:
-                    best = (d, c, int(k))
-        return None if best is None else best[1:]
+                if (c, float(lab.times[k])) in skip:
+                    continue
+                cand.append((float(np.sqrt(np.mean((lab.fits[k].angles_deg - target) ** 2))), c, int(k)))
+        return [(c, k) for _, c, k in sorted(cand)]
 
     def sigma(c, lab, ks):
         ps = sets[c].point_sigma_m
@@ -437,34 +503,54 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
         return np.where(pi >= 0, ps[np.maximum(pi, 0)], np.nan)
 
     labs = [label(s, sk0, ms0) for s in sets]  # flashes with their back triplet
-    at = nearest(labs)
-    if at is None:
+    order = ranked(labs)
+    if not order:
         why = "; ".join(sorted({s for lab in labs for s in lab.skipped if s})) or "no back-of-hand markers found"
         raise ValueError(f"no flash of the calibration capture{'s' if multi else ''} has a hand pose ({why})")
-    c0, k0 = at
-    first = calibrate_hand(labs[c0].positions[k0], pose=pose, skeleton=sk0, markerset=ms0,
-                           posed_sigma_m=sigma(c0, labs[c0], [k0]), **kw)
+    # the flash nearest the pose may not be in it (a wrong label, a hand not yet flat): the next
+    # nearest ones are tried, up to max_posed_tries, before the capture is refused
+    refused, first = [], None
+    for c0, k0 in order[:max_posed_tries]:
+        try:
+            first = calibrate_hand(labs[c0].positions[k0], pose=pose, skeleton=sk0, markerset=ms0,
+                                   posed_sigma_m=sigma(c0, labs[c0], [k0]), **kw)
+            break
+        except ValueError as e:
+            refused.append(((c0, float(labs[c0].times[k0])), _flash_name(labs[c0], c0, k0, multi), e))
+    if first is None:
+        raise _refusal(refused)
     labs2 = [label(s, first.skeleton, first.markerset, hand_scale=1.0) for s in sets]
-    at = nearest(labs2)
-    if at is None:
+    order2 = ranked(labs2, skip={r[0] for r in refused})
+    if not order2:
         return first
-    c1, k1 = at
-    free, free_sig, used = [], [], []
-    for c, lab in enumerate(labs2):
-        rec = np.flatnonzero(lab.reconstructed)
-        others = [int(k) for k in rec if (c, int(k)) != (c1, k1)
-                  and np.isfinite(lab.positions[k]).all(axis=1).sum() >= 9]
-        others = sorted(others, key=lambda k: -np.isfinite(lab.positions[k]).all(axis=1).sum())[:max_free]
-        used.append(len(others))
-        if others:
-            free.append(lab.positions[others])
-            free_sig.append(sigma(c, lab, others))
-    weighted = any(s.point_sigma_m is not None for s in sets)
-    if weighted:  # a capture without its own noises: the common one
-        free_sig = [np.full(f.shape[:2], kw.get("noise_m", NOISE_M)) if g is None else g for f, g in zip(free, free_sig)]
-    cal = calibrate_hand(labs2[c1].positions[k1], np.concatenate(free) if free else None, pose=pose,
-                         skeleton=sk0, markerset=ms0, posed_sigma_m=sigma(c1, labs2[c1], [k1]),
-                         free_sigma_m=np.concatenate(free_sig) if free and weighted else None, **kw)
+    cal = None
+    for c1, k1 in order2[:max_posed_tries]:
+        free, free_sig, used = [], [], []
+        for c, lab in enumerate(labs2):
+            rec = np.flatnonzero(lab.reconstructed)
+            others = [int(k) for k in rec if (c, int(k)) != (c1, k1)
+                      and np.isfinite(lab.positions[k]).all(axis=1).sum() >= 9]
+            others = sorted(others, key=lambda k: -np.isfinite(lab.positions[k]).all(axis=1).sum())[:max_free]
+            used.append(len(others))
+            if others:
+                free.append(lab.positions[others])
+                free_sig.append(sigma(c, lab, others))
+        weighted = any(s.point_sigma_m is not None for s in sets)
+        if weighted:  # a capture without its own noises: the common one
+            free_sig = [np.full(f.shape[:2], kw.get("noise_m", NOISE_M)) if g is None else g
+                        for f, g in zip(free, free_sig)]
+        fit = dict(posed=labs2[c1].positions[k1], free=np.concatenate(free) if free else None, pose=pose,
+                   skeleton=sk0, markerset=ms0, posed_sigma_m=sigma(c1, labs2[c1], [k1]),
+                   free_sigma_m=np.concatenate(free_sig) if free and weighted else None, **kw)
+        try:
+            cal = calibrate_hand(**fit)
+            break
+        except ValueError as e:
+            refused.append(((c1, float(labs2[c1].times[k1])), _flash_name(labs2[c1], c1, k1, multi), e))
+    if cal is None:
+        raise _refusal(refused)
+    cal = _without_misfits(cal, fit) if drop_misfits else cal
+    cal.messages += [f"{name} was not taken as the {pose} flash: {e}" for _, name, e in refused]
     if not multi:
         cal.messages.append(f"calibration pose in flash {int(labs2[c1].order[k1])}, {used[0]} other flash(es) "
                             f"used, {int(labs2[0].reconstructed.sum())} with a pose of {labs2[0].n_flashes}")
@@ -473,6 +559,40 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
                             f"flashes used per capture: {', '.join(map(str, used))} (with a pose: "
                             f"{', '.join(str(int(lab.reconstructed.sum())) for lab in labs2)})")
     return cal
+
+
+def _without_misfits(cal: HandCalibration, fit: dict) -> HandCalibration:
+    """``cal`` fitted again without the labels of the other flashes its self-check
+    ``calibration_labels_fit`` named (``fit``: :func:`calibrate_hand`'s arguments of ``cal``)."""
+    check = next(c for c in cal.self_checks if c.name == "calibration_labels_fit")
+    if check.passed or fit["free"] is None:
+        return cal
+    z2 = cal.misfit[cal.n_posed:]
+    bad = np.isfinite(z2) & (np.nan_to_num(z2) > check.limit ** 2)
+    free = np.where(bad[..., None], np.nan, fit["free"])
+    keep = np.isfinite(free).all(axis=2).sum(axis=1) >= 9  # as the flashes chosen: 9 labelled markers
+    fs = fit.get("free_sigma_m")
+    try:
+        again = calibrate_hand(**{**fit, "free": free[keep] if keep.any() else None,
+                                  "free_sigma_m": None if fs is None or not keep.any() else fs[keep]})
+    except ValueError as e:  # kept as it was, the check failed
+        cal.messages.append(f"fitting again without the {int(bad.sum())} label(s) that miss the model was refused: {e}")
+        return cal
+    again.messages += [f"{int(bad.sum())} label(s) of the other flashes left out and the model fitted again: "
+                       f"{check.message}"]
+    return again
+
+
+def _flash_name(lab, c: int, k: int, multi: bool) -> str:
+    return f"flash {int(lab.order[k])}" + (f" of capture {c + 1}" if multi else "")
+
+
+def _refusal(refused) -> ValueError:
+    """The ValueError when every flash tried as the posed one was refused: the nearest's reason
+    first, then the others'."""
+    (_, name, e), rest = refused[0], refused[1:]
+    more = "".join(f"; {n} was refused too: {x}" for _, n, x in rest)
+    return ValueError(f"{e}{more}" if rest else str(e))
 
 
 def digit_lengths_table(cal: HandCalibration, template: Skeleton | None = None) -> list:
