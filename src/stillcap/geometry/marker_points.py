@@ -391,6 +391,39 @@ def _partly_hidden_tracks(cams, obs, flux, col, tracks, chosen, light, radius, m
     return out
 
 
+def _consensus_views(cams, X, corr, bidx, flux, colors, multi, max_rep, radius, light, min_flux_ratio) -> np.ndarray:
+    """The views (bool, shape (n_cams, multi.sum())) of the points ``multi`` (3+ views) that agree:
+    a consensus over view pairs (RANSAC in :func:`triangulate`) on the corrected observations
+    ``corr``, views farther than ``max_rep`` pixels dropped.
+
+    With the light: a blob that is no whole marker's image does not vote while two whole views
+    remain; it is kept when it agrees with their point. Whole means a flux ratio
+    (:func:`_flux_ratios`) within ``min_flux_ratio`` to ``1 / min_flux_ratio``; outside it the blob
+    is a sliver of a hidden marker or holds another marker's light, and its centroid is not this
+    marker's. Two views of a pair often agree by chance along their epipolar line, so with a
+    wrong blob in one of them the consensus was a tie that the wrong pair could win: studio hand
+    1, ``middle.dip`` seen whole by two cameras, was put 6.7 mm off (and not flagged) on the
+    right pair's blob of ``index.pip`` (flux ratio 1.65; ``middle.dip``'s lit side hidden there),
+    the whole blob of the left inner camera dropped."""
+    cons = corr[:, multi].copy()
+    odd = np.zeros(cons.shape[:2], bool)
+    if light is not None and min_flux_ratio is not None:
+        ratio = _flux_ratios(cams, X, bidx, flux, colors, radius, light)[:, multi]
+        seen = bidx[:, multi] >= 0
+        whole = seen & (ratio >= min_flux_ratio) & (ratio <= 1.0 / min_flux_ratio)
+        odd = seen & ~whole & (whole.sum(axis=0) >= 2)[None]
+        cons[odd] = np.nan
+    tri = triangulate(cams, cons, outlier_px=max_rep)
+    used = tri.used.copy()
+    if odd.any():  # an odd view rejoins when it agrees with the whole views' point
+        P = tri.points
+        for k in np.flatnonzero(odd.any(axis=1)):
+            j = np.flatnonzero(odd[k] & np.all(np.isfinite(P), axis=1))
+            if len(j):
+                used[k, j] = np.linalg.norm(cams[k].project(P[j]) - corr[k][multi][j], axis=1) <= max_rep
+    return used
+
+
 def _pack_tracks(tracks: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """The tracks (indices) that together weigh most with every blob in at most one of them: a set
     packing, solved exactly as a mixed-integer programme (``scipy.optimize.milp``, HiGHS).
@@ -604,9 +637,9 @@ def triangulate_color_markers(rig: Rig, pairs: Mapping[str, Sequence[str]], blob
     # corrected observations of points with 3+ views
     multi = (bidx >= 0).sum(axis=0) >= 3
     if multi.any():
-        tri = triangulate(cams, corr[:, multi], outlier_px=max_rep)
-        out = (bidx[:, multi] >= 0) & ~tri.used
-        out &= tri.used.sum(axis=0)[None] >= 2
+        used = _consensus_views(cams, X, corr, bidx, flux, colors, multi, max_rep, radius_m, light, min_flux_ratio)
+        out = (bidx[:, multi] >= 0) & ~used
+        out &= used.sum(axis=0)[None] >= 2
         if out.any():
             sub_x, sub_b = x[:, multi], bidx[:, multi]
             sub_x[out], sub_b[out] = np.nan, -1
