@@ -216,6 +216,29 @@ def _cluster_robust(cov, bread, J, r, flash):
     return cov + (V * np.clip(d, 0.0, None)) @ V.T
 
 
+def _pose_clusters(rotations, tol_rad: float, groups=None) -> np.ndarray:
+    """A cluster label per flash: flashes of one clock group (``groups``, default all one) whose
+    ball orientations (``ball2world``, (K, 3, 3)) lie within ``tol_rad`` of the cluster's first
+    flash (in time order) share it.
+
+    When the rotation per strobe interval is close to ``360 deg / n`` (1,600 rpm at 80 Hz: a
+    third of a turn) every n-th flash shows the ball in nearly the same pose to the same
+    cameras and light, and the markers' centroid errors that come with the pose (a marker cut
+    by the shading's terminator or the limb, seen only on its lit side) repeat: those flashes'
+    errors are one error, not n independent ones (issue 12, "everything varied" #18: a red
+    marker at the terminator 2.1-2.9 px off in all five of its views, at flashes 1, 4 and 7 of
+    the front pair)."""
+    R = np.asarray(rotations, float)
+    K = len(R)
+    g = np.zeros(K, int) if groups is None else np.asarray(groups, int)
+    ang = _rot_angles(R)
+    lab = np.full(K, -1)
+    for a in range(K):
+        if lab[a] < 0:
+            lab[(lab < 0) & (g == g[a]) & (ang[a] < tol_rad)] = a
+    return lab
+
+
 def _time_offset_cov(prob, x, R0, j, sel, bread, J, time_groups, time_group_sigma):
     """Covariance of (delta, w) from uncertain clock offsets of flash groups: linearised,
     ``dx = -(J^T J)^-1 J^T dr/d(offset)`` with ``dr/d(offset)`` by central differences."""
@@ -734,6 +757,12 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
     bread = np.linalg.pinv(J.T @ J)
     cov = s2 * bread
     cov = _cluster_robust(cov, bread, J, r, prob.flash[inl])
+    # flashes that show the ball in the same pose (orientations within a marker's angular size:
+    # every marker where it was) share their markers' pose-bound errors: the sandwich again with
+    # each such set of flashes as one cluster (it only widens; no change without repeated poses)
+    poses = _pose_clusters(prob.rotations(R0, w), float(np.max(prob.layout.sizes)), time_groups)
+    if len(np.unique(poses)) < len(poses):
+        cov = _cluster_robust(cov, bread, J, r, poses[prob.flash[inl]])
     if time_groups is not None and time_group_sigma is not None:
         cov = cov + _time_offset_cov(prob, x, R0, j, inl, bread, J, time_groups, time_group_sigma)
     if center_shift_cov:
