@@ -65,7 +65,7 @@ PIECES = (
     ("pose stage", "stillcap.pipelines.puppet.analyse", "pose_skeleton"),
     ("  fit_pose", "stillcap.pipelines.puppet.stages", "fit_pose"),
     ("    its start (_start_angles)", "stillcap.body.puppet_pose", "_start_angles"),
-    ("    its thesis pose (pose_from_markers)", "stillcap.body.puppet_pose", "pose_from_markers"),
+    ("    its thesis pose (pose_from_markers)", "stillcap.body.puppet_pose", "_pose_and_directions"),
     ("    its least squares", "stillcap.body.puppet_pose", "least_squares"),
     ("self-checks", "stillcap.pipelines.puppet.analyse", "skeleton_checks"),
 )

@@ -151,3 +151,19 @@ def test_weights_allow_only_one_exact_bone_per_joint(puppet):
         pose_from_bone_directions(skel, dirs, weights={"l-shoulder": math.inf, "r-shoulder": math.inf})
     with pytest.raises(ValueError, match="unknown joint 'nose'"):
         pose_from_bone_directions(skel, {"nose": [0, 1, 0]})
+
+
+def test_normalised_one_vector_equals_the_batched_form():
+    # normalised's fast path for one (3,) vector gives the numbers of its array path, bit for bit
+    # (the length summed in np.linalg.norm's order), NaN for zero, tiny or NaN vectors
+    from stillcap.body.kinematics import normalised
+
+    rng = np.random.default_rng(5)
+    vs = rng.normal(size=(20000, 3)) * 10.0 ** rng.uniform(-14, 3, (20000, 1))
+    batched = normalised(vs)
+    one = np.array([normalised(v) for v in vs])
+    assert np.array_equal(one, batched, equal_nan=True)
+    assert np.isnan(batched).any() and np.isfinite(batched).any()  # both branches met
+    for v in ([0.0, 0.0, 0.0], [np.nan, 1.0, 2.0], [1e-13, 0.0, 0.0]):
+        assert np.all(np.isnan(normalised(v)))
+    assert np.array_equal(normalised([3.0, 0.0, 4.0]), [0.6, 0.0, 0.8])

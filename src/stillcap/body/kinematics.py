@@ -34,6 +34,13 @@ __all__ = [
 def normalised(v) -> np.ndarray:
     """Unit vectors along the last axis, shape as given; NaN for zero or NaN input."""
     v = np.asarray(v, float)
+    if v.shape == (3,):
+        # one vector (the pose's bone directions: ~90 calls per capture): its length in Python
+        # floats, summed in np.linalg.norm's order, so the same numbers in ~1/5 of the time
+        x, y, z = v.tolist()
+        n1 = math.sqrt((x * x + y * y) + z * z)
+        with np.errstate(invalid="ignore"):
+            return v / n1 if n1 > 1e-12 else np.full(3, np.nan)
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 1e-12, v / n, np.nan)
@@ -308,6 +315,13 @@ def pose_from_markers(
     -------
     Pose
     """
+    return _pose_and_directions(skeleton, markerset, marker_positions, root2world, initial)[0]
+
+
+def _pose_and_directions(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
+                         initial: Pose | None = None) -> tuple[Pose, dict[str, np.ndarray]]:
+    """:func:`pose_from_markers` and the :func:`bone_directions` it posed from (the puppet's pose
+    fit keeps both: one computation of the directions)."""
     r2w = skeleton.rest_root2world() if root2world is None else as_array(root2world, (4, 4), "root2world")
     pts = _marker_array(markerset, marker_positions)
     dirs = bone_directions(markerset, pts, r2w)
@@ -322,4 +336,4 @@ def pose_from_markers(
             except ValueError:
                 continue  # collinear markers: the direction rules pose this joint
             rigid[skeleton.names[j]] = fit.rotation.as_matrix()
-    return pose_from_bone_directions(skeleton, dirs, r2w, weights, initial, world_rotations=rigid)
+    return pose_from_bone_directions(skeleton, dirs, r2w, weights, initial, world_rotations=rigid), dirs
