@@ -6,7 +6,7 @@ residuals to the flight. Where the images' errors do not share one level (a ligh
 some images' centres worse than the shape says, a crescent at the end of the flight), the
 errors are a scale mixture: right on average, too many of them outside the 95 % region
 (on the studio's photos the images whose own residual was 6-10 times the pair's level fell
-outside it 41 % of the time, those under it 3 %; ``docs/pitch.md``, "Each image's own level").
+outside it 42 % of the time, those under it 2 %; ``docs/pitch.md``, "Each image's own level").
 
 Here the spread of the levels is measured from the residuals themselves and each image's
 covariance takes its own level (empirical Bayes):
