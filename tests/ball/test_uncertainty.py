@@ -398,20 +398,28 @@ def _side_lit_pair():
     return a, b, st
 
 
+def _side_lit_centres(sigma_px, seed):
+    """:func:`_side_lit_pair`, the images' lit directions, a stated sigma ``sigma_px`` per image
+    and camera, and the true centres with 0.01 px of random centre noise."""
+    from stillcap.ball.uncertainty import lit_geometry
+
+    a, b, st = _side_lit_pair()
+    x = np.stack([st.centers_a, st.centers_b])
+    u, _, _ = lit_geometry(st, x, np.zeros(len(st), int), st.radius_px.T)
+    rng = np.random.default_rng(seed)
+    xt = np.stack([a.project(st.points_3d), b.project(st.points_3d)]) + rng.normal(0.0, 0.01, x.shape)
+    return a, b, st, u, np.full((2, len(st)), sigma_px), xt
+
+
 def test_share_correlation_reads_the_cameras_own_shares_from_the_epipolar_residuals():
     """A bias both cameras share (each centre moved by the same share of its own size along its
     lit direction) keeps the pair on its epipolar lines: the correlation comes out near 1. The
     same bias in one camera only moves the centres off them: near 0, the former independent
     model. With too few images the capture cannot tell: 0."""
-    from stillcap.ball.uncertainty import lit_geometry, share_correlation
+    from stillcap.ball.uncertainty import share_correlation
 
-    a, b, st = _side_lit_pair()
-    x = np.stack([st.centers_a, st.centers_b])
-    u, _, _ = lit_geometry(st, x, np.zeros(len(st), int), st.radius_px.T)
-    s = np.full((2, len(st)), 0.2)
-    rng = np.random.default_rng(5)
     # the true centres with a little random centre noise, then a bias of 1.5 sigma
-    xt = np.stack([a.project(st.points_3d), b.project(st.points_3d)]) + rng.normal(0.0, 0.01, x.shape)
+    a, b, st, u, s, xt = _side_lit_centres(0.2, 5)
     shared = xt + 1.5 * s[:, :, None] * u
     own = xt.copy()
     own[0] += 1.5 * s[0][:, None] * u[0]
@@ -429,14 +437,10 @@ def test_epipolar_bias_scale_widens_only_where_the_cameras_own_bias_is_larger_th
     variance factor comes out near 4^2 / 2 = 8. A bias within the stated one (0.5 sigma), or one
     both cameras share (it keeps the epipolar lines), leaves the factor at 1, and so do too few
     images."""
-    from stillcap.ball.uncertainty import epipolar_bias_scale, lit_geometry, remaining_bias_modes
+    from stillcap.ball.uncertainty import epipolar_bias_scale, remaining_bias_modes
 
-    a, b, st = _side_lit_pair()
+    a, b, st, u, s, xt = _side_lit_centres(0.05, 7)
     x = np.stack([st.centers_a, st.centers_b])
-    u, _, _ = lit_geometry(st, x, np.zeros(len(st), int), st.radius_px.T)
-    s = np.full((2, len(st)), 0.05)
-    rng = np.random.default_rng(7)
-    xt = np.stack([a.project(st.points_3d), b.project(st.points_3d)]) + rng.normal(0.0, 0.01, x.shape)
 
     def biased(k0, k1):
         xb = xt.copy()
