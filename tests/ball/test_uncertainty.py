@@ -448,20 +448,28 @@ def _side_lit_pair():
     return a, b, st
 
 
+def _side_lit_centres(sigma_px, seed):
+    """:func:`_side_lit_pair`, the images' lit directions, a stated sigma ``sigma_px`` per image
+    and camera, and the true centres with 0.01 px of random centre noise."""
+    from stillcap.ball.uncertainty import lit_geometry
+
+    a, b, st = _side_lit_pair()
+    x = np.stack([st.centers_a, st.centers_b])
+    u, _, _ = lit_geometry(st, x, np.zeros(len(st), int), st.radius_px.T)
+    rng = np.random.default_rng(seed)
+    xt = np.stack([a.project(st.points_3d), b.project(st.points_3d)]) + rng.normal(0.0, 0.01, x.shape)
+    return a, b, st, u, np.full((2, len(st)), sigma_px), xt
+
+
 def test_share_correlation_reads_the_cameras_own_shares_from_the_epipolar_residuals():
     """A bias both cameras share (each centre moved by the same share of its own size along its
     lit direction) keeps the pair on its epipolar lines: the correlation comes out near 1. The
     same bias in one camera only moves the centres off them: near 0, the former independent
     model. With too few images the capture cannot tell: 0."""
-    from stillcap.ball.uncertainty import lit_geometry, share_correlation
+    from stillcap.ball.uncertainty import share_correlation
 
-    a, b, st = _side_lit_pair()
-    x = np.stack([st.centers_a, st.centers_b])
-    u, _, _ = lit_geometry(st, x, np.zeros(len(st), int), st.radius_px.T)
-    s = np.full((2, len(st)), 0.2)
-    rng = np.random.default_rng(5)
     # the true centres with a little random centre noise, then a bias of 1.5 sigma
-    xt = np.stack([a.project(st.points_3d), b.project(st.points_3d)]) + rng.normal(0.0, 0.01, x.shape)
+    a, b, st, u, s, xt = _side_lit_centres(0.2, 5)
     shared = xt + 1.5 * s[:, :, None] * u
     own = xt.copy()
     own[0] += 1.5 * s[0][:, None] * u[0]
@@ -471,6 +479,38 @@ def test_share_correlation_reads_the_cameras_own_shares_from_the_epipolar_residu
     assert rho_shared[0] > 0.8
     assert rho_own[0] < 0.2
     np.testing.assert_array_equal(share_correlation([a, b], shared[:, :3], u[:, :3], s[:, :3]), [0.0, 0.0])
+
+
+def test_epipolar_bias_scale_widens_only_where_the_cameras_own_bias_is_larger_than_stated():
+    """One camera's centres biased by 4 stated sigmas along their lit direction move the pair
+    off its epipolar lines by more than two independent unit shares explain: the constant mode's
+    variance factor comes out near 4^2 / 2 = 8. A bias within the stated one (0.5 sigma), or one
+    both cameras share (it keeps the epipolar lines), leaves the factor at 1, and so do too few
+    images."""
+    from stillcap.ball.uncertainty import epipolar_bias_scale, remaining_bias_modes
+
+    a, b, st, u, s, xt = _side_lit_centres(0.05, 7)
+    x = np.stack([st.centers_a, st.centers_b])
+
+    def biased(k0, k1):
+        xb = xt.copy()
+        xb[0] += k0 * s[0][:, None] * u[0]
+        xb[1] += k1 * s[1][:, None] * u[1]
+        return xb
+
+    lam_own = epipolar_bias_scale([a, b], biased(4.0, 0.0), u, s)
+    assert lam_own.shape == (2,)
+    assert 4.0 < lam_own[0] < 12.0
+    np.testing.assert_array_equal(epipolar_bias_scale([a, b], biased(0.5, 0.0), u, s)[0], 1.0)
+    assert epipolar_bias_scale([a, b], biased(4.0, 4.0), u, s)[0] < 1.5
+    np.testing.assert_array_equal(epipolar_bias_scale([a, b], biased(4.0, 0.0)[:, :3], u[:, :3], s[:, :3]),
+                                  [1.0, 1.0])
+    # in the modes: each camera's own along-u modes grow by sqrt(lambda); nothing else moves
+    flags = np.zeros(len(st), int)
+    m0 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.1)
+    m1 = remaining_bias_modes([a, b], st, x, flags, st.radius_px.T, 0.1, epipolar_scale=True)
+    np.testing.assert_allclose(m1[[2, 3, 4, 5, 8, 9, 10, 11, 12, 13]], m0[[2, 3, 4, 5, 8, 9, 10, 11, 12, 13]])
+    assert np.all(np.linalg.norm(m1[[0, 1, 6, 7]], axis=(1, 2)) >= np.linalg.norm(m0[[0, 1, 6, 7]], axis=(1, 2)) - 1e-15)
 
 
 def test_remaining_bias_keeps_each_cameras_variance_and_shares_part_of_it():

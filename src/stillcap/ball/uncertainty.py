@@ -32,6 +32,7 @@ import numpy as np
 
 from stillcap.ball._offset_table import OFFSET as _OFFSET
 from stillcap.ball._offset_table import OFFSET_PSF as _OFFSET_PSF
+from stillcap.ball.image_levels import level_factors, whitened_levels
 from stillcap.ball.metric_uncertainty import (
     ANGLE_KEYS,
     metrics_sigma,
@@ -42,9 +43,10 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import BallFlag
 from stillcap.geometry.triangulate import triangulate
 
-__all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "lit_bias_modes", "lit_geometry",
-           "lit_phase_from_area", "metrics_sigma", "misfit_share", "phase_error_px", "pixel_sigma", "position_covariances",
-           "remaining_bias_modes", "shading_model_offset_px", "shading_offset_slope_lookup", "shading_residual_lookup",
+__all__ = ["ANGLE_KEYS", "calibration_modes", "center_bias_modes", "correction_made", "epipolar_bias_scale",
+           "lit_bias_modes", "lit_geometry", "lit_phase_from_area", "metrics_sigma", "misfit_share",
+           "phase_error_px", "pixel_sigma", "position_covariances", "remaining_bias_modes",
+           "shading_model_offset_px", "shading_offset_slope_lookup", "shading_residual_lookup",
            "shading_residual_px", "share_correlation", "speed_sigma", "spin_decay_slope"]
 
 #: refinement smoothing of :func:`stillcap.detect.ball.refine_ball_centers` (its ``sigma``)
@@ -242,7 +244,8 @@ def shading_residual_lookup(phase_rad, radius_px, corrected) -> np.ndarray:
     return out
 
 
-def position_covariances(residuals, shape_covariance, shared_modes=None, dof_ratio: float = 1.0):
+def position_covariances(residuals, shape_covariance, shared_modes=None, dof_ratio: float = 1.0,
+                         level_dispersion: float = 0.0):
     """Per-image 3-D error covariance of one stereo pair's ball positions.
 
     A pair's triangulated position errors are a thin ellipsoid along its lines of sight (depth
@@ -257,7 +260,10 @@ def position_covariances(residuals, shape_covariance, shared_modes=None, dof_rat
     errors the pair's images share (calibration, remaining centre bias: ``shared_modes``, which
     the residuals cannot show) are added:
 
-    ``C_k = s^2 S_k + sum_m d_mk d_mk^T``,  ``s^2 = dof_ratio * mean_k(r_k^T S_k^-1 r_k) / 3``.
+    ``C_k = f_k s^2 S_k + sum_m d_mk d_mk^T``,  ``s^2 = dof_ratio * mean_k(r_k^T S_k^-1 r_k) / 3``,
+
+    ``f_k`` each image's own level where the images' levels differ (``level_dispersion`` > 0:
+    :func:`stillcap.ball.image_levels.level_factors`, from the image's own residual), else 1.
 
     Parameters
     ----------
@@ -271,6 +277,10 @@ def position_covariances(residuals, shape_covariance, shared_modes=None, dof_rat
         ``m / (m - n)`` of the fit the residuals come from (``m`` observed coordinates, ``n``
         fitted parameters): residuals are smaller than the errors by the fitted degrees of
         freedom, as in the fit's own ``residual_scale``.
+    level_dispersion : float
+        Variance of the images' error levels about the pair's
+        (:func:`stillcap.ball.image_levels.level_dispersion`, pooled over the capture's pairs);
+        0: one level for all images.
 
     Returns
     -------
@@ -281,19 +291,13 @@ def position_covariances(residuals, shape_covariance, shared_modes=None, dof_rat
     """
     r = np.asarray(residuals, float)
     S = np.asarray(shape_covariance, float)
-    if r.ndim != 2 or r.shape[1] != 3 or S.shape != (len(r), 3, 3):
-        raise ValueError(f"residuals must have shape (K, 3) and shape_covariance (K, 3, 3), got {r.shape}, {S.shape}")
+    m2 = whitened_levels(r, S)  # checks the shapes
     if not dof_ratio >= 1.0:
         raise ValueError(f"dof_ratio must be >= 1, got {dof_ratio}")
-    ok = np.all(np.isfinite(r), axis=1) & np.all(np.isfinite(S), axis=(1, 2))
-    if ok.sum() >= 2:
-        ev = np.linalg.eigvalsh(S[ok])
-        ok[np.flatnonzero(ok)[ev[:, 0] <= 1e-12 * np.maximum(ev[:, -1], 1e-300)]] = False
-    if ok.sum() < 2:
+    if np.isfinite(m2).sum() < 2:
         return None, float("nan")
-    m2 = np.einsum("ki,ki->k", r[ok], np.linalg.solve(S[ok], r[ok][:, :, None])[:, :, 0])
-    s2 = float(dof_ratio * np.mean(m2) / 3.0)
-    cov = s2 * S
+    s2 = float(dof_ratio * np.nanmean(m2) / 3.0)
+    cov = s2 * level_factors(m2, level_dispersion)[:, None, None] * S
     if shared_modes is not None:
         D = np.asarray(shared_modes, float)
         if D.ndim != 3 or D.shape[1:] != (len(r), 3):
@@ -649,11 +653,56 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
     ndarray, shape (2,)
         Correlation of the constant and of the trend mode, in [0, 1].
     """
+    fit = _epipolar_delta(cams, centers_px, u, s_px, min_images)
+    if fit is None:
+        return np.zeros(2)
+    d, V = fit
+    out = np.zeros(2)
+    for i in range(2):
+        P, v = 2.0, max(float(V[i, i]), 1e-300)  # the prior of delta: two independent unit shares
+        post_var = 1.0 / (1.0 / P + 1.0 / v)
+        m2 = (post_var * d[i] / v) ** 2 + post_var
+        out[i] = float(np.clip(1.0 - m2 / P, 0.0, 1.0))
+    return out
+
+
+def epipolar_bias_scale(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndarray:
+    """How much larger than stated the two cameras' own remaining bias is, as the pair's
+    epipolar residuals measure it: the variance factor ``lambda >= 1`` of the stated one, for the
+    constant and the trend mode.
+
+    The difference ``delta`` of the two cameras' shares (in units of the stated sigma,
+    :func:`share_correlation`'s regression) has, with each camera's own share of variance
+    ``lambda``, the variance ``2 lambda``; its estimate ``d`` with sampling variance ``V``
+    then has ``E[d^2] = 2 lambda + V``: ``(d^2 - V) / 2`` estimates ``lambda``. One difference
+    is a noisy estimate of a variance where ``V`` is large (a light along the epipolar lines), so
+    its excess over the stated 1 is weighed as ``share_correlation`` weighs ``d`` against the
+    prior, by ``2 / (2 + V)``: ``lambda = 1 + 2 / (2 + V) max(0, (d^2 - V) / 2 - 1)``; never
+    narrower than stated. A bias both cameras share is not seen (it keeps the centres on each
+    other's epipolar lines).
+
+    Returns
+    -------
+    ndarray, shape (2,)
+        1 where the capture cannot tell (as :func:`share_correlation`).
+    """
+    fit = _epipolar_delta(cams, centers_px, u, s_px, min_images)
+    if fit is None:
+        return np.ones(2)
+    d, V = fit
+    v = np.diag(V)
+    return 1.0 + 2.0 / (2.0 + v) * np.maximum(0.0, (d ** 2 - v) / 2.0 - 1.0)
+
+
+def _epipolar_delta(cams, centers_px, u, s_px, min_images: int):
+    """The difference of the two cameras' shares (constant, trend; in units of ``s_px``)
+    regressed from the pair's signed epipolar residuals, and its covariance; None where the
+    capture cannot tell (:func:`share_correlation`)."""
     x = np.asarray(centers_px, float)
     u, s = np.asarray(u, float), np.asarray(s_px, float)
     K = x.shape[1]
     if K < min_images or not np.all(np.isfinite(x)) or not np.any(s > 0):
-        return np.zeros(2)
+        return None
     e0 = _signed_epipolar_px(cams, x)
     h = 0.01
     g = np.zeros(K)
@@ -666,25 +715,19 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
     ok = np.all(np.isfinite(A), axis=1) & np.isfinite(e0)
     A, e0 = A[ok], e0[ok]
     if len(e0) < min_images:
-        return np.zeros(2)
+        return None
     AtA = A.T @ A
     try:
         d = np.linalg.solve(AtA + 1e-12 * np.eye(2), A.T @ e0)
         s2 = float(np.sum((e0 - A @ d) ** 2) / max(len(e0) - 2, 1))
         V = s2 * np.linalg.inv(AtA + 1e-12 * np.eye(2))
     except np.linalg.LinAlgError:
-        return np.zeros(2)
-    out = np.zeros(2)
-    for i in range(2):
-        P, v = 2.0, max(float(V[i, i]), 1e-300)  # the prior of delta: two independent unit shares
-        post_var = 1.0 / (1.0 / P + 1.0 / v)
-        m2 = (post_var * d[i] / v) ** 2 + post_var
-        out[i] = float(np.clip(1.0 - m2 / P, 0.0, 1.0))
-    return out
+        return None
+    return d, V
 
 
 def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error=0.0, correlation=0.0,
-                         measured: bool = True) -> np.ndarray:
+                         measured: bool = True, epipolar_scale: bool = False) -> np.ndarray:
     """:func:`lit_bias_modes` of a pair, sized by the shading model's remaining error
     (arguments as :func:`lit_geometry`'s, with the pair's 2 cameras).
 
@@ -707,6 +750,10 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     or ``"epipolar"`` (:func:`share_correlation`, from the pair's epipolar residuals; one value
     for the constant and one for the trend mode). Each camera's own variance stays the same: the
     along-``u`` modes keep ``1 - rho`` of it and two modes more move both cameras at once.
+
+    ``epipolar_scale``: each camera's own part (the along-``u`` modes) times the factor the
+    pair's epipolar residuals measure where they show more than the stated bias
+    (:func:`epipolar_bias_scale`: ``sqrt(lambda)``, ``lambda >= 1``, constant and trend mode).
 
     Returns
     -------
@@ -749,8 +796,11 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     # the cameras' own parts: the along-u modes (0, 1 and 6, 7) with 1 - rho of the variance
     own = lit_bias_modes(cams, centers_px, u, s, corr)
     out[:12] = own
+    lam = np.ones(2)
+    if epipolar_scale:
+        lam = epipolar_bias_scale(cams, x, np.where(corr[None, :, None], u, 0.0), np.where(corr[None], s, 0.0))
     for i, m in ((0, 0), (1, 1)):
-        out[[m, m + 6]] *= np.sqrt(1.0 - rho[i])
+        out[[m, m + 6]] *= np.sqrt((1.0 - rho[i]) * lam[i])
     if np.any(rho > 0) and np.any(corr):
         profiles = [np.ones(K), np.linspace(-1.0, 1.0, K) if K > 1 else np.zeros(K)]
         shifted = []

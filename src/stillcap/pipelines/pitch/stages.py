@@ -61,6 +61,7 @@ import numpy as np
 
 from stillcap.ball.fit import FitPriors, ReferenceFit, fit_reference_trajectory
 from stillcap.ball.flashes import flight_axis, number_flashes_from_spacing, off_flight_path
+from stillcap.ball.image_levels import level_dispersion, whitened_levels
 from stillcap.ball.metrics import (FT, MPH, RPM_PER_RAD_S, PitchMetrics, clock_tilt, pitch_metrics_from_flight,
                                    spin_axis_deg, spin_efficiency)
 from stillcap.ball.orientation import SpinResult
@@ -419,8 +420,10 @@ def fit_flight(cap: Capture, pairs: list, model, options: PitchOptions, log: Sta
             kappa = options.shading_model_error
             # how much of it the two cameras share: from the pair's epipolar residuals, which the
             # flight cannot absorb (docs/pitch.md, "Shared by the pair's cameras")
+            # and how much larger than stated each camera's own part is, from the same residuals
+            # (docs/pitch.md, "Each image's own level")
             mb = remaining_bias_modes(p._cams, p.stereo, p.centers_px, p.flags, p.radius_px, kappa,
-                                      correlation="epipolar")
+                                      correlation="epipolar", epipolar_scale=True)
         else:
             if sb is None:
                 sb = pixel_sigma(p.reproj_error_px, default_px=0.0)
@@ -555,6 +558,11 @@ def refit_with_spin(pairs: list, flight: PositionsFit, spin: MeasuredSpin, optio
     n_obs_coord = int(np.sum(np.isfinite(fit.residuals)))
     n_par = int(np.asarray(fit.covariance).shape[0])
     dof_ratio = n_obs_coord / (n_obs_coord - n_par) if n_obs_coord > n_par else 1.0
+    # how much the images' error levels differ about their pair's, from their own residuals,
+    # pooled over the pairs: each image's covariance then takes its own level (empirical Bayes;
+    # docs/pitch.md, "Each image's own level")
+    v_levels = level_dispersion([whitened_levels(fit.residuals[pidx_a == i], pos_cov[pidx_a == i])
+                                 for i in range(len(pairs))])
     for i, p in enumerate(pairs):
         if p.group > 0:
             p.time_offset_s = float(fit.time_offsets[p.group - 1])
@@ -569,7 +577,7 @@ def refit_with_spin(pairs: list, flight: PositionsFit, spin: MeasuredSpin, optio
         # per image: the triangulation's error shape at the residuals' level, plus the shared
         # modes (an isotropic sigma mis-tests the thin depth ellipsoid; docs/pitch.md, sixth pass)
         cov_k, _ = position_covariances(fit.residuals[sel], pos_cov[sel], shared_modes.get(i),
-                                        dof_ratio)
+                                        dof_ratio, v_levels)
         if cov_k is None and len(p) and np.isfinite(p.position_sigma_m):  # too few residuals for a shape
             cov_k = np.broadcast_to(np.eye(3) * p.position_sigma_m ** 2, (len(p), 3, 3)).copy()
         p.position_covariance_m2 = cov_k
