@@ -32,7 +32,8 @@ __all__ = ["painted_ball", "hand_painted_directions"]
 
 #: Radius range, m (issue 12: "ball radius" among what the studio varies).
 RADIUS_RANGE_M = (0.034, 0.042)
-#: Mass of the seed's baseball (kg) at its radius (m): the density a random ball is scaled from.
+#: A baseball's mass (kg) at a radius (m): the density a random ball's mass is scaled from
+#: (then +-15 %).
 _BASEBALL_MASS_KG, _BASEBALL_RADIUS_M = 0.145, 0.0366
 
 
@@ -124,7 +125,8 @@ def painted_ball(rng=None, n_range=(6, 16), types_range=(2, 5), size_mm_range=(4
           "type_sizes": tuple(sizes), "radius": radius, "name": "painted"}
     if designed:
         template = BallLayout(np.eye(3)[:2], np.array([0, 0]), **kw)
-        layout, _ = design_layout(n, k, template=template, rng=rng, restarts=2, sweeps=1, n_views=150)
+        layout, _ = design_layout(n, k, template=template, rng=rng, restarts=2, sweeps=1, n_views=150,
+                                  name="painted")
         how = f"designed ({n} markers, {k} types)"
     else:
         # a hand painter keeps the markers apart by about their own size or more
