@@ -6,8 +6,9 @@ varied" everything at once (each capture draws its own conditions). Two vary the
 :func:`stillcap.studio.ball_variation.painted_ball`: 6-16 markers placed by the layout designer
 or by hand, 2-5 types of any shape, colour and size the ball format allows, radius 34-42 mm) and
 "built-in and repainted balls" (``FIXED_BALLS`` in turn); the ball is declared as a user
-declares theirs, by its ball file in capture.json (``ball``), which also gives the radius. Every capture is a studio pitch
-(``seed-4seam``, ``seed-curveball`` and ``mlb-high-spin`` in turn, release scatter on) rendered
+declares theirs, by its ball file in capture.json (``ball``), which also gives the radius.
+
+Every capture is a studio pitch (``seed-4seam``, ``seed-curveball`` and ``mlb-high-spin`` in turn, release scatter on) rendered
 through the true cameras (no calibration error: what is measured is the photos' effect), written
 as a capture folder (PNG, or JPEG at the condition's quality) and analysed by
 ``analyse_pitch`` with its defaults, **with the truth declared where a user can declare it**:

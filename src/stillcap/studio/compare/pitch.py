@@ -57,7 +57,8 @@ def truth_flight_model(truth: dict):
     if file is not None:
         from stillcap.ball.ballfile import Ball
         kind = truth.get("model")
-        return Ball.from_dict(file, "truth.json: ball.file").flight_model(kind if kind in ("seed", "nathan") else "seed")
+        ball = Ball.from_dict(file, "truth.json: ball.file")
+        return ball.flight_model(kind if kind in ("seed", "nathan") else "seed")
     return flight_model(truth.get("model", "seed"))
 
 
