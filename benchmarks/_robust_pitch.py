@@ -1,8 +1,14 @@
 """The pitch part of ``bench_robustness.py``: accuracy and 95 % interval coverage per condition.
 
-Each condition varies one thing the photos of a real lab vary (``CONDITIONS``), the last one
-everything at once (each capture draws its own conditions). Every capture is a studio pitch
-(``seed-4seam``, ``seed-curveball`` and ``mlb-high-spin`` in turn, release scatter on) rendered
+Each condition varies one thing the photos of a real lab vary (``CONDITIONS``), "everything
+varied" everything at once (each capture draws its own conditions). Two vary the ball painted:
+"ball painted at random" (each capture draws its own ball from what users plausibly paint,
+:func:`stillcap.studio.ball_variation.painted_ball`: 6-16 markers placed by the layout designer
+or by hand, 2-5 types of any shape, colour and size the ball format allows, radius 34-42 mm) and
+"built-in and repainted balls" (``FIXED_BALLS`` in turn); the ball is declared as a user
+declares theirs, by its ball file in capture.json (``ball``), which also gives the radius.
+
+Every capture is a studio pitch (``seed-4seam``, ``seed-curveball`` and ``mlb-high-spin`` in turn, release scatter on) rendered
 through the true cameras (no calibration error: what is measured is the photos' effect), written
 as a capture folder (PNG, or JPEG at the condition's quality) and analysed by
 ``analyse_pitch`` with its defaults, **with the truth declared where a user can declare it**:
@@ -53,7 +59,11 @@ CONDITIONS = {
     "ball radius 34 mm": ({"ball_radius_m": 0.034}, {}, None),
     "ball radius 42 mm": ({"ball_radius_m": 0.042}, {}, None),
     "everything varied": (None, None, None),
+    "ball painted at random": ({"ball": "painted"}, {}, None),
+    "built-in and repainted balls": ({"ball": "builtin"}, {}, None),
 }
+#: the balls of "built-in and repainted balls", in turn (as ``bench_ball_layouts.py``'s)
+FIXED_BALLS = ("baseball", "tests/data/repainted-baseball.json", "softball", "cricket", "tennis")
 
 
 def _mixed(rng: np.random.Generator) -> tuple[dict, dict, int | None]:
@@ -76,6 +86,18 @@ SIGMA_KEYS = ("speed_sigma_mph", "dir_sigma_hv_deg", "rate_sigma_rpm", "axis_sig
 VARIANT_KEYS = ("coverage", "speed_mph", "dir_deg", "dir_err_hv_deg", "rate_rpm", "axis_deg")
 
 
+def _draw_ball(kind: str, index: int, rng: np.random.Generator):
+    """The ball of capture ``index``: painted at random (:func:`stillcap.studio.ball_variation.painted_ball`)
+    or the fixed balls in turn (``FIXED_BALLS``)."""
+    from stillcap.ball.ballfile import load_ball
+    from stillcap.studio.ball_variation import painted_ball
+
+    if kind == "painted":
+        return painted_ball(rng)
+    spec = FIXED_BALLS[index % len(FIXED_BALLS)]
+    return load_ball(Path(__file__).resolve().parent.parent / spec if spec.endswith(".json") else spec)
+
+
 def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: str):
     """Render capture ``index`` of ``condition`` into a new folder under ``workdir``, each camera's
     true response declared in its rig file (what a user can declare); returns the studio capture,
@@ -89,6 +111,8 @@ def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: 
     if cap_kw is None:
         cap_kw, sensor_kw, quality = _mixed(rng)
     preset = PRESETS[index % len(PRESETS)]
+    if cap_kw.get("ball") is not None:  # the ball, declared in capture.json as a user gives their ball file
+        cap_kw = {**cap_kw, "ball": _draw_ball(cap_kw["ball"], index, np.random.default_rng([seed, index, 7]))}
     pc = pitch_capture(preset, rng=rng, calibrate=False, image_size=size, sensor=Sensor(**sensor_kw), **cap_kw)
     cap, files = pc.to_capture(".jpg" if quality else ".png")
     folder = Path(tempfile.mkdtemp(dir=workdir))
@@ -116,11 +140,18 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
 
     t = time.perf_counter()
     pc, folder, (preset, cap_kw, sensor_kw, quality) = render_capture(condition, index, seed, size, workdir)
+    ball = cap_kw.get("ball")
+    if ball is not None:
+        cap_kw = {**cap_kw, "ball": {"name": ball.name, "description": ball.description,
+                                     "radius_mm": 1e3 * ball.radius, "markers": len(ball.layout),
+                                     "types": len(ball.layout.type_names)}}
     row = {"condition": condition, "index": index, "preset": preset, "capture_kw": cap_kw,
            "sensor_kw": {k: v for k, v in sensor_kw.items()}, "jpeg_quality": quality}
     try:
         loaded = Capture.load(folder)
-        res = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1)
+        # the radius declared: the ball file's (capture.json "ball") when the capture has one
+        radius = None if ball is not None else pc.truth.studio["ball_radius_m"]
+        res = analyse_pitch(loaded, ball_radius_m=radius, workers=1)
         add_truth_comparison(res, loaded.truth)
         row.update(evaluate(res, loaded.truth))
         if res.spin is not None:  # the marker-centroid noise the spin fit's residuals show (px)
@@ -134,7 +165,7 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
         row["ok"] = True
         row["variants"] = {}
         for name, kw in (variants or {}).items():
-            rv = analyse_pitch(loaded, ball_radius_m=pc.truth.studio["ball_radius_m"], workers=1, **kw)
+            rv = analyse_pitch(loaded, ball_radius_m=radius, workers=1, **kw)
             add_truth_comparison(rv, loaded.truth)
             ev = evaluate(rv, loaded.truth)
             row["variants"][name] = {k: ev.get(k) for k in SIGMA_KEYS + VARIANT_KEYS}

@@ -64,9 +64,8 @@ from stillcap.ball.physics import simulate
 from stillcap.camera import Rig
 from stillcap.io.capture import Capture
 from stillcap.files.jsonable import from_jsonable
-from stillcap.ball.physics import flight_model
 from stillcap.pipelines.pitch import analyse_pitch
-from stillcap.studio.compare.pitch import add_truth_comparison
+from stillcap.studio.compare.pitch import add_truth_comparison, truth_flight_model
 from stillcap.studio.pitch import PRESETS, calibrate_pitch_rig, pitch_capture, pitch_rig
 
 #: The issue's goals (absolute errors) and the seed's Table 1 ranges (real photos).
@@ -112,7 +111,7 @@ def evaluate(res, truth: dict) -> dict:
     if T0 is not None:
         rel = truth["release"]
         st = simulate(np.asarray(rel["p0"], float), np.asarray(rel["v0"], float), np.asarray(rel["spin"], float),
-                      [T0], flight_model(truth.get("model", "seed")), t0=float(rel["t0_s"]))
+                      [T0], truth_flight_model(truth), t0=float(rel["t0_s"]))
         vt = st.velocities[0]
         v = np.asarray(res.fit.v0, float)
         C = np.asarray(res.fit.covariance, float)[3:6, 3:6]

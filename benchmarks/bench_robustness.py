@@ -5,7 +5,10 @@
 
 Each condition varies one thing the photos of a real lab vary (light placement, lens blur,
 sensor noise, white balance, JPEG quality, camera response, ball radius, a room lit by the
-flashes), the last one all of them at once. The pitch part is ``_robust_pitch.py``; the puppet
+flashes), "everything varied" all of them at once; two more vary the ball: "ball painted at
+random" (each capture its own ball, ``stillcap.studio.ball_variation.painted_ball``) and
+"built-in and repainted balls" (the five balls of ``bench_ball_layouts.py`` in turn), each
+declared by its ball file in capture.json. The pitch part is ``_robust_pitch.py``; the puppet
 and hand parts are ``_robust_puppet.py`` and ``_robust_hand.py`` when present (same
 ``rows(quick)`` signature), otherwise "not available" is printed.
 

@@ -286,3 +286,29 @@ def test_jpeg_small_colored_markers_are_not_black():
     assert wrong_off >= 4  # the condition reproduces the fault
     assert wrong_on <= wrong_off // 3
     assert right_on >= right_off
+
+
+def test_small_markers_of_one_colour_told_apart_by_size():
+    """Two black types of different sizes (a 12 deg disc, a 7 deg square) on 15 px balls (the
+    robustness benchmark's 1280x960 photos): the marker images are too small for their shape, so
+    the type's size (``MarkerType.spread_rad2``: a disc of angular radius a spreads a^2 / 2,
+    a square of half-side a 2 a^2 / 3) decides."""
+    pal = {"big": ((0.02, 0.02, 0.02), "disc"), "small": ((0.02, 0.02, 0.02), "square")}
+    big, small = np.radians(12.0), np.radians(7.0)
+    balls = np.array([[40.0 + 45.0 * i, 40.0, 15.0] for i in range(6)])
+    mk = [[(face(-30, 10 * (i % 3 - 1)), "big", big, 0.0), (face(30, -10 * (i % 3 - 1)), "small", small, 0.3 * i),
+           (face(0, 35), "small" if i % 2 else "big", small if i % 2 else big, 0.0)] for i in range(6)]
+    img, truth = draw_balls((80, 320), balls, markers=mk, rng=3, palette=pal)
+    types = [MarkerType("big", (43, 43, 43), "disc", big ** 2 / 2),
+             MarkerType("small", (43, 43, 43), "square", 2 * small ** 2 / 3)]
+    m = detect_ball_markers(img, balls[:, :2], balls[:, 2], types=types)
+    right = n = 0
+    for tr in truth:
+        cand = np.flatnonzero(m.ball_index == tr["ball"])
+        d = np.linalg.norm(m.centers[cand] - tr["xy"], axis=1)
+        if len(cand) and d.min() < 2.0:
+            n += 1
+            right += m.types[cand[np.argmin(d)]] == tr["type"]
+    assert n >= 15 and right == n
+    with pytest.raises(ValueError, match="spread_rad2"):
+        MarkerType("x", (43, 43, 43), "disc", 2.0)

@@ -26,14 +26,14 @@ __all__ = ["marker_types", "pair_marker_observations"]
 def marker_types(layout: BallLayout | None = None, response: Response | None = None) -> tuple:
     """The detector's palette for a ball layout: each type's linear-RGB colour encoded through
     the camera's ``response`` (default sRGB; as a fully lit marker looks in that camera's
-    photos), BGR 0-255, with the type's shape."""
+    photos), BGR 0-255, with the type's shape and the spread of its paint (its size)."""
     layout = BallLayout.seed() if layout is None else layout
     response = Response.srgb() if response is None else Response.from_json(response, "response")
     out = []
-    for name, shape in zip(layout.type_names, layout.type_shapes):
+    for name, shape, spread in zip(layout.type_names, layout.type_shapes, layout.centroid_depth):
         rgb = np.clip(np.asarray(layout.palette[name], float), 0.0, 1.0)
         bgr = response.encode(rgb[::-1])
-        out.append(MarkerType(name, tuple(np.round(bgr, 1)), shape))
+        out.append(MarkerType(name, tuple(np.round(bgr, 1)), shape, float(spread)))
     return tuple(out)
 
 

@@ -67,11 +67,16 @@ class MarkerType:
     color_bgr : tuple of 3 floats
         Colour of the paint as it looks fully lit in the photo, BGR 0-255.
     shape : {"disc", "ring", "square", "triangle"}
+    spread_rad2 : float, optional
+        Mean squared angle of the paint from the marker's centre on the ball, rad^2 (from its
+        shape and size: ``BallLayout.centroid_depth``): it tells types of one colour apart where
+        a marker image is too small for its shape. None: unknown.
     """
 
     name: str
     color_bgr: tuple
     shape: str
+    spread_rad2: float | None = None
 
     def __post_init__(self):
         c = np.asarray(self.color_bgr, float)
@@ -80,6 +85,8 @@ class MarkerType:
         if self.shape not in SHAPES:
             raise ValueError(f"marker type {self.name!r}: shape must be one of {SHAPES}, got {self.shape!r}")
         object.__setattr__(self, "color_bgr", tuple(float(v) for v in c))
+        if self.spread_rad2 is not None and not (np.isfinite(self.spread_rad2) and 0 < self.spread_rad2 < 1):
+            raise ValueError(f"marker type {self.name!r}: spread_rad2 must be in (0, 1) rad^2, got {self.spread_rad2}")
 
 
 #: The seed's four types. Colours are the studio's baseball paint albedos (linear RGB red
@@ -716,7 +723,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     if match:
         t, shape_conf = match[0], 1.0
     else:
-        t = tlist[0]
+        t = _by_size(tlist, float(ev[1]), r)
         if shape == "unknown":
             shape_conf = 0.7
         else:
@@ -724,6 +731,18 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
             flags |= MarkerFlag.SHAPE_MISMATCH
     conf = col * shape_conf * min(1.0, aspect / 0.6)
     return cen, t.name, shape, area, conf, aspect, bi, flags
+
+
+def _by_size(tlist: list, major_var_px2: float, r_px: float) -> MarkerType:
+    """Of one colour class's types, the one whose size best explains a region's variance along
+    its major axis (which foreshortening leaves), where the shape did not decide: a marker whose
+    paint lies ``spread_rad2`` (mean squared angle) from its centre, on a ball of ``r_px`` px,
+    spreads about ``spread_rad2 r_px^2 / 2`` there, plus about 1/6 px^2 (pixels, the region's
+    growth); the nearest in log wins. Spreads unknown: the first type."""
+    if len(tlist) < 2 or any(t.spread_rad2 is None for t in tlist) or not major_var_px2 > 0:
+        return tlist[0]
+    expected = np.array([0.5 * t.spread_rad2 * r_px ** 2 + 1 / 6 for t in tlist])
+    return tlist[int(np.argmin(np.abs(np.log(major_var_px2 / expected))))]
 
 
 def _fit_shading(luma, X, Y, cx, cy, r, sel, response):

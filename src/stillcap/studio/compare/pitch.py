@@ -19,7 +19,7 @@ from stillcap.ball.uncertainty import ANGLE_KEYS
 if TYPE_CHECKING:
     from stillcap.pipelines.pitch import PitchResult
 
-__all__ = ["add_truth_comparison", "compare_with_truth"]
+__all__ = ["add_truth_comparison", "compare_with_truth", "truth_flight_model"]
 
 
 def add_truth_comparison(result: PitchResult, truth) -> PitchResult:
@@ -46,6 +46,22 @@ def _angle(a, b) -> float:
     return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
 
 
+def truth_flight_model(truth: dict):
+    """The flight model the studio threw the ball with: the true ball's (``truth["ball"]["file"]``,
+    written by ``studio pitch --ball``: its own flight preset, or a baseball's flight with the
+    ball's mass and diameter), else ``truth["model"]``'s baseball model.
+
+    (A ball flying as a baseball keeps ``model`` ``"seed"`` or ``"nathan"``, so the model's name
+    alone would give the baseball's 145 g and 73.7 mm instead of the ball's.)"""
+    file = (truth.get("ball") or {}).get("file")
+    if file is not None:
+        from stillcap.ball.ballfile import Ball
+        kind = truth.get("model")
+        ball = Ball.from_dict(file, "truth.json: ball.file")
+        return ball.flight_model(kind if kind in ("seed", "nathan") else "seed")
+    return flight_model(truth.get("model", "seed"))
+
+
 def compare_with_truth(result: PitchResult, truth: dict) -> dict:
     """Errors of a result against a studio ``truth.json`` (dict), in the seed's Table 1 units.
 
@@ -55,11 +71,7 @@ def compare_with_truth(result: PitchResult, truth: dict) -> dict:
     """
     from stillcap.files.jsonable import from_jsonable
 
-    if truth.get("model") == "ball":  # a ball of its own flight preset (studio pitch --ball)
-        from stillcap.ball.ballfile import Ball
-        tmodel = Ball.from_dict(truth["ball"]["file"], "truth.json: ball.file").flight_model()
-    else:
-        tmodel = flight_model(truth.get("model", "seed"))
+    tmodel = truth_flight_model(truth)
     rel = truth["release"]
     tp0, tv0, tw = (np.asarray(rel[k], float) for k in ("p0", "v0", "spin"))
     t_rel = float(rel["t0_s"])
