@@ -336,3 +336,92 @@ def test_the_spins_centre_modes_are_the_pairs_position_modes_at_each_observation
     a_plain = Part(observations=MarkerObservations(np.array([0, 1]), np.zeros(2, int), np.tile([0.0, 0.0, 1.0], (2, 1))),
                    k=3)
     assert _center_shift_modes([a_plain], [D], 0.037) == []
+
+
+def test_blur_error_bounds_the_first_order_corrections_error_on_a_side_lit_ball():
+    """A point marker's blurred weight ``P(z) S(x0) / S(x0 + z)`` integrated on a fine grid gives
+    the true pull; the first-order correction misses it by at most twice
+    ``shading_blur_error`` from a face-on marker to the terminator (``s |grad log S|`` 0.07-1),
+    and the error is a small part of the correction face-on."""
+    from stillcap.detect._blur_shift import shading_blur_error
+
+    model = (1.0, 0.0, 0.35, 0.0, 100.0, 100.0, 15.0)  # lit from +x, terminator at x ~ 95
+    a, b, c, d, cx, cy, r = model
+    s = 1.5
+    z = np.arange(-6 * s, 6 * s, 0.02)
+    for x0, face_on in ((110.0, True), (104.0, True), (100.0, False), (98.0, False), (97.0, False)):
+        c0 = np.array([x0, 103.0])
+        X, Y = np.meshgrid(c0[0] + z, c0[1] + z)
+        nx, ny = (X - cx) / r, (Y - cy) / r
+        S = a * nx + b * ny + c * np.sqrt(np.clip(1 - nx * nx - ny * ny, 0, 1)) + d
+        w = np.where(S > 1e-3, np.exp(-((X - c0[0]) ** 2 + (Y - c0[1]) ** 2) / (2 * s * s)) / np.maximum(S, 1e-3), 0)
+        pull = np.array([(w * X).sum(), (w * Y).sum()]) / w.sum() - c0
+        applied = shading_blur_shift(model, c0, s)
+        err = shading_blur_error(model, c0, s)
+        assert np.linalg.norm(applied + pull) <= 2.0 * np.linalg.norm(err)
+        assert float(err @ applied) > 0
+        if face_on:
+            assert np.linalg.norm(err) < 0.2 * np.linalg.norm(applied)
+    # beyond the capped length the correction is as uncertain as itself
+    edge = np.array([96.6, 103.0])
+    np.testing.assert_allclose(shading_blur_error(model, edge, s), shading_blur_shift(model, edge, s))
+
+
+def test_detected_markers_carry_their_blur_error():
+    types = (MarkerType("black", (43, 43, 43), "disc"),)
+    from stillcap.detect._blur_shift import shading_blur_error
+
+    img, c, r, truth = _shaded_ball_photo(1.5, marker_at=(0.8, 0.0))
+    fixed = detect_ball_markers(img, c[None], r, types, blur_px=1.5)
+    plain = detect_ball_markers(img, c[None], r, types)
+    assert len(fixed) == len(plain) == 1 and np.all(plain.blur_error_px == 0)
+    applied = fixed.centers[0] - plain.centers[0]
+    assert np.linalg.norm(fixed.blur_error_px[0]) > 0 and float(fixed.blur_error_px[0] @ applied) > 0
+    assert fixed.select([0]).blur_error_px.shape == (1, 2)
+
+
+def test_blur_mode_moves_each_direction_by_its_centroids_blur_error(monkeypatch):
+    """``pair_marker_observations`` turns each centroid's blur error into how far its direction
+    moves (a pair's matched marker through both rays combined, a single ray through its own),
+    and the pitch pipeline adds it to the spin fit as one error mode."""
+    import stillcap.ball.markers as markers
+    from stillcap.ball.markers import pair_marker_observations
+    from stillcap.detect.ball_markers import BallMarkers
+    from stillcap.pipelines.pitch.spin import _center_shift_modes
+
+    c, radius = np.array([0.0, 10.0, 1.5]), 0.0366
+    cam_a = _camera(c)
+    eye_b = c + 4.0 * np.array([0.95, -0.2, 0.25]) / np.linalg.norm([0.95, -0.2, 0.25])
+    cam_b = Camera.from_intrinsics("b", 1400.0, 1400.0, 640.0, 480.0, (1280, 960), world2cam=look_at(eye_b, c))
+    depth = LAYOUT.centroid_depth[LAYOUT.type_index(["red"])][0]
+    on = c + radius * (1 - depth) * np.array([[0.9, 0.1, 0.3], [0.8, -0.5, 0.2]]) / np.linalg.norm(
+        [[0.9, 0.1, 0.3], [0.8, -0.5, 0.2]], axis=1)[:, None]
+    err = {"a": np.array([[0.6, -0.2], [0.3, 0.4]]), "b": np.array([[0.5, -0.1]])}
+    det = {"a": cam_a.project(on), "b": cam_b.project(on[:1])}
+
+    def fake_detect(img, centers, radii, types, blur_px=None, **kw):
+        xy = det[img] + (err[img] if blur_px else 0.0)  # the corrected centroids
+        n = len(xy)
+        return BallMarkers(xy, np.array(["red"] * n, object), np.array(["disc"] * n, object), np.full(n, 30.0),
+                           np.ones(n), np.ones(n), np.zeros(n, int), np.zeros(n, int),
+                           err[img] if blur_px else None)
+
+    monkeypatch.setattr(markers, "detect_ball_markers", fake_detect)
+    obs0, *_ = pair_marker_observations(cam_a, "a", cam_b, "b", None, None, None, None, c[None], max_px=5.0)
+    obs, *_ = pair_marker_observations(cam_a, "a", cam_b, "b", None, None, None, None, c[None], max_px=5.0,
+                                       blur_px=1.5)
+    assert len(obs) == len(obs0) == 2 and not np.any(obs0.blur_mode)
+    # the corrected centroids sit the error away from the sharp ones: blur_mode is the move of
+    # their directions (to first order: within 20 % at these 0.3-0.6 px on a 13 px ball)
+    moved = obs.directions - obs0.directions
+    assert np.all(np.linalg.norm(moved - obs.blur_mode, axis=1) < 0.2 * np.linalg.norm(obs.blur_mode, axis=1))
+    np.testing.assert_allclose(np.einsum("ij,ij->i", obs.blur_mode, obs.directions), 0.0, atol=1e-12)
+    assert np.all(np.degrees(np.linalg.norm(obs.blur_mode, axis=1)) > 0.5)
+
+    class Part:
+        observations = obs
+
+    modes = _center_shift_modes([Part()], [None], radius)
+    assert len(modes) == 1
+    np.testing.assert_allclose(modes[0], -obs.blur_mode)
+    assert _center_shift_modes([type("P", (), {"observations": obs0})()], [None], radius) == []

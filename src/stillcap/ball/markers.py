@@ -72,6 +72,11 @@ def _combine_directions(va, Ia, vb, Ib):
     return u, B @ (Ma + Mb) @ Bt
 
 
+def _tangent_part(d, u):
+    """The part of each row of ``d`` (n, 3) across the unit vector ``u`` (n, 3)."""
+    return d - np.einsum("ij,ij->i", d, u)[:, None] * u
+
+
 def _tangent_basis(u):
     """Two unit vectors spanning the tangent plane of each unit vector ``u`` (n, 3)."""
     a = np.where(np.abs(u[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
@@ -157,6 +162,10 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             vb, Ib, _, wb = _ray_directions(cam_b, B.centers[ib], P[ball], rad_b[ball], radius_m, depth, radial_b[ib])
             u, info = _combine_directions(va, Ia, vb, Ib)
             views = wa + wb
+            # the blur corrections' own errors moved through the same rays and combination
+            ea = _ray_directions(cam_a, A.centers[ia] + A.blur_error_px[ia], P[ball], rad_a[ball], radius_m, depth)[0]
+            eb = _ray_directions(cam_b, B.centers[ib] + B.blur_error_px[ib], P[ball], rad_b[ball], radius_m, depth)[0]
+            blur_mode = _tangent_part(_combine_directions(ea, Ia, eb, Ib)[0] - u, u)
     else:
         ok = np.zeros(0, bool)
     # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
@@ -173,9 +182,13 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             # closer to the line of sight (a fixed-sign spin error otherwise, "Coverage audit")
             v, I, hit, view = _ray_directions(cam, M.centers[idx], P[k_ray], rad[k_ray], radius_m,
                                               layout.centroid_depth[ti], rdl[idx])
+            ve, _, hit_e, _ = _ray_directions(cam, M.centers[idx] + M.blur_error_px[idx], P[k_ray], rad[k_ray],
+                                              radius_m, layout.centroid_depth[ti])
+            be = np.where(hit_e[:, None], _tangent_part(ve - v, v), 0.0)
         else:
             v, I, hit, view = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, bool), np.zeros((0, 3))
-        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx], 0, 1), view))
+            be = np.zeros((0, 3))
+        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx], 0, 1), view, be))
     with_info = directions == "rays"
     parts, n3, nray, epi = [], 0, 0, []
     for k in range(K):
@@ -186,15 +199,17 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
                 o.information = info[sel]
                 o.views = views[sel] / np.linalg.norm(views[sel], axis=1, keepdims=True)
             o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]], 0, 1)
+            o.blur_mode = blur_mode[sel] if with_info else None
             parts.append(o)
             n3 += int(sel.sum())
             epi += list(m.distance_px[sel])
-        for ti, k_ray, v, I, hit, cls, view in rays:
+        for ti, k_ray, v, I, hit, cls, view, be in rays:
             sel = hit & (k_ray == k)
             if sel.any():
                 parts.append(MarkerObservations(np.full(int(sel.sum()), k), ti[sel], v[sel],
                                                 np.ones(int(sel.sum()), bool), I[sel] if with_info else None,
-                                                cls[sel], view[sel] if with_info else None))
+                                                cls[sel], view[sel] if with_info else None,
+                                                be[sel] if with_info else None))
                 nray += int(sel.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))

@@ -38,6 +38,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
+from stillcap.detect._blur_shift import shading_blur_error, shading_blur_shift
 from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
@@ -137,6 +138,10 @@ class BallMarkers:
         Index of the ball (in the ``centers`` given) each marker belongs to.
     flags : ndarray of int, shape (N,)
         :class:`MarkerFlag` bits.
+    blur_error_px : ndarray, shape (N, 2), optional
+        Each centroid's blur correction's own 1-sigma error (:func:`shading_blur_error`: the
+        correction times ``min(1, s |grad log S|)``), px, common to every photo of a pose (zeros
+        without a correction).
     """
 
     centers: np.ndarray
@@ -147,6 +152,11 @@ class BallMarkers:
     aspects: np.ndarray
     ball_index: np.ndarray
     flags: np.ndarray
+    blur_error_px: np.ndarray = None
+
+    def __post_init__(self):
+        if self.blur_error_px is None:
+            self.blur_error_px = np.zeros((len(self.centers), 2))
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -160,7 +170,7 @@ class BallMarkers:
         """The markers where ``keep`` (bool (N,) or indices) holds."""
         k = np.asarray(keep)
         return BallMarkers(self.centers[k], self.types[k], self.shapes[k], self.areas[k], self.confidences[k],
-                           self.aspects[k], self.ball_index[k], self.flags[k])
+                           self.aspects[k], self.ball_index[k], self.flags[k], self.blur_error_px[k])
 
     def of_ball(self, i: int) -> BallMarkers:
         """The markers of ball ``i``."""
@@ -658,21 +668,24 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                                       k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
                 rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
+    err = [np.zeros(2)] * len(rows)
     if shading:
-        for rw in rows:
+        for i, rw in enumerate(rows):
             model = shading.get(rw[6])
             if model is not None:
+                err[i] = shading_blur_error(model, rw[0], float(blur_px))
                 np.add(rw[0], shading_blur_shift(model, rw[0], float(blur_px)), out=rw[0])
-    if reject_foreshortened:
-        rows = [rw for rw in rows if not rw[7] & MarkerFlag.FORESHORTENED]
-    if not rows:
+    keep = [i for i, rw in enumerate(rows) if not (reject_foreshortened and rw[7] & MarkerFlag.FORESHORTENED)]
+    if not keep:
         return BallMarkers.empty()
-    rows.sort(key=lambda rw: (rw[6], rw[0][0], rw[0][1]))
+    keep.sort(key=lambda i: (rows[i][6], rows[i][0][0], rows[i][0][1]))
+    err, rows = np.array([err[i] for i in keep], float), [rows[i] for i in keep]
     return BallMarkers(
         centers=np.array([rw[0] for rw in rows], float), types=np.array([rw[1] for rw in rows], object),
         shapes=np.array([rw[2] for rw in rows], object), areas=np.array([rw[3] for rw in rows], float),
         confidences=np.array([rw[4] for rw in rows], float), aspects=np.array([rw[5] for rw in rows], float),
-        ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int))
+        ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int),
+        blur_error_px=err)
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):
@@ -775,32 +788,3 @@ def _shading_at(model, X, Y):
     nx, ny = (X - cx) / r, (Y - cy) / r
     nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
     return np.maximum(a * nx + b * ny + c * nz + d, 1e-4)
-
-
-def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None = None) -> np.ndarray:
-    """The correction of a marker centroid for lens blur over the ball's shading, px (add it).
-
-    The detector weighs each pixel by its darkness *relative* to the local leather
-    brightness ``S``. Blur (Gaussian, variance ``s^2 = blur_px^2``) spreads the marker's
-    darkness before that division; dividing by the smaller ``S`` on the marker's darker side
-    then counts the spread darkness more there: to first order the centroid moves by
-    ``-s^2 grad(log S)``, down the shading, whatever the marker's shape and size (a sketch: the
-    weight at ``x`` is ``int P(x - y) D(y) S(y) dy / S(x)``, ``S(y) / S(x) ~ exp(g (y - x))``, and
-    the kernel ``P(z) exp(-g z)`` has its mean at ``-s^2 g``). On the studio's 15 px balls with
-    1.5 px of blur that is 0.15-0.2 px outward for markers face-on, about 1 deg of direction.
-    This returns ``+s^2 grad(log S)`` at ``center`` from the shading model
-    (:func:`_fit_shading`), at most ``max_shift_px`` (default ``blur_px``) long, and zero where the
-    model's shading is under 10 % of its brightest (near the terminator, where it is unreliable).
-    """
-    a, b, c, d, cx, cy, r = model
-    nx, ny = (center[0] - cx) / r, (center[1] - cy) / r
-    nz = np.sqrt(max(1.0 - nx * nx - ny * ny, 1e-4))
-    S = a * nx + b * ny + c * nz + d
-    peak = np.sqrt(a * a + b * b + c * c) + d
-    if not (np.isfinite(S) and peak > 0 and S > 0.1 * peak):
-        return np.zeros(2)
-    grad = np.array([a - c * nx / nz, b - c * ny / nz]) / r
-    shift = blur_px * blur_px * grad / S
-    cap = blur_px if max_shift_px is None else float(max_shift_px)
-    n = float(np.hypot(*shift))
-    return shift * (cap / n) if n > cap else shift

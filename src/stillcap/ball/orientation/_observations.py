@@ -141,6 +141,11 @@ class MarkerObservations:
         (the mean of the two for a pair's combined direction): a ball-centre error along it does
         not move such a direction (the ray meets the moved sphere at the moved point). None: the
         directions are taken as marker points seen in 3D (a centre error moves them all).
+    blur_mode : ndarray, shape (M, 3), optional
+        How far each direction moves (radians, tangent, world frame) with its centroid's blur
+        correction error (:func:`stillcap.detect._blur_shift.shading_blur_error`): one error
+        mode shared by all observations, which the spin's covariance takes with variance 1.
+        None: no such error.
     """
 
     flash: np.ndarray
@@ -150,6 +155,7 @@ class MarkerObservations:
     information: np.ndarray = None
     noise_class: np.ndarray = None
     views: np.ndarray = None
+    blur_mode: np.ndarray = None
 
     def __post_init__(self):
         self.flash = np.asarray(self.flash)
@@ -179,6 +185,8 @@ class MarkerObservations:
         if self.views is not None:
             v = as_array(self.views, (m, 3), "views")
             self.views = _unit_rows(v, "views") if m else v.reshape(0, 3)
+        if self.blur_mode is not None:
+            self.blur_mode = as_array(self.blur_mode, (m, 3), "blur_mode")
 
     def __len__(self) -> int:
         return len(self.flash)
@@ -258,7 +266,10 @@ class MarkerObservations:
         parts = list(parts)
         if not parts:
             return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
-        info = views = None
+        info = views = blur = None
+        if any(p.blur_mode is not None for p in parts):  # a part without it: no error there
+            blur = np.concatenate([np.zeros((len(p), 3)) if p.blur_mode is None else p.blur_mode
+                                   for p in parts]).reshape(-1, 3)
         if all(p.information is not None for p in parts):
             info = np.concatenate([p.information for p in parts]).reshape(-1, 3, 3)
         if all(p.views is not None for p in parts):
@@ -266,12 +277,12 @@ class MarkerObservations:
         return cls(np.concatenate([p.flash for p in parts]), np.concatenate([p.types for p in parts]),
                    np.concatenate([p.directions for p in parts]),
                    np.concatenate([p.from_ray for p in parts]), info,
-                   np.concatenate([p.noise_class for p in parts]), views)
+                   np.concatenate([p.noise_class for p in parts]), views, blur)
 
     def with_flash(self, flash):
         """The same observations with other flash indices (e.g. on a joint clock)."""
         return MarkerObservations(np.asarray(flash), self.types, self.directions, self.from_ray, self.information,
-                                  self.noise_class, self.views)
+                                  self.noise_class, self.views, self.blur_mode)
 
     def of_flash(self, k: int):
         """``(directions (n, 3), types (n,))`` of flash ``k``."""

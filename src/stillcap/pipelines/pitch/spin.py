@@ -173,11 +173,19 @@ def _center_shift_modes(parts: list, center_modes: list, radius_m: float | None)
     overstated it: a shift along one camera's epipolar line moves the point along the other
     camera's ray, which turns none of that camera's marker directions). The marker directions
     all turn with a shared centre error, which the spin fit's own residuals cannot show. Parts
-    without modes or without ray views add nothing."""
+    without modes or without ray views add nothing.
+
+    One more mode: the marker centroids' blur corrections' own error (``observations.blur_mode``,
+    :func:`stillcap.detect._blur_shift.shading_blur_error`), the same overcorrection in every
+    photo, so again invisible in the residuals; a direction moved by a tangent ``d`` is the
+    direction from a centre moved by ``-d``."""
+    blur = [np.zeros((len(p.observations), 3)) if p.observations.blur_mode is None else p.observations.blur_mode
+            for p in parts]
+    out = [-np.concatenate(blur)] if any(np.any(b) for b in blur) else []
     if not radius_m or not radius_m > 0:
-        return []
+        return out
     n_all = sum(len(p.observations) for p in parts)
-    out, start = [], 0
+    start = 0
     for p, D in zip(parts, center_modes):
         o = p.observations
         n = len(o)
