@@ -236,7 +236,8 @@ def test_a_fit_refused_for_a_wrong_label_of_a_bent_flash_is_fitted_again_without
     it moves marker 'middle.pip' 37 mm"), although two of its flashes are flat and the flash taken
     as flat was labelled right: a label 55 mm off in a bent flash (a point of another flash)
     dragged the linear fit's shared model, and the plausibility check blamed the flat flash. A fit
-    with a robust loss names the wrong label (and only it); without it the model is accepted."""
+    with a robust loss names the wrong label (and only it); without its digit's labels of that flash
+    the model is accepted."""
     from stillcap.body.hand_calibrate import _without_misfits
 
     person = another_hand(3)
@@ -251,7 +252,9 @@ def test_a_fit_refused_for_a_wrong_label_of_a_bent_flash_is_fitted_again_without
         calibrate_hand(**fit)
     cal = _without_misfits(None, fit, refused=refused.value)
     left_out = np.argwhere(np.isnan(cal.markers).any(axis=2)).tolist()
-    assert left_out == [[3, m]]
+    # the hook's middle finger goes whole (its angles are free: which of its labels is wrong is
+    # not known), nothing else
+    assert left_out == [[3, ms.index(f"middle.{k}")] for k in ("pip", "dip", "nail")]
     assert any("left out" in s and "middle.nail of fitted flash 3" in s for s in cal.messages)
     assert all(c.passed for c in cal.self_checks if c.name != "calibration_fixes_the_model")
     sig = {p.name: p.sigma for p in cal.parameters if p.kind == "length"}

@@ -581,8 +581,10 @@ def _robust_fit(fit: dict) -> tuple[HandCalibration, np.ndarray]:
     (:func:`misfit_limit` over every label). A linear fit bends the shared model toward a wrong
     label (and can stop in another minimum: hand 12, docs/hand-calibration.md) and spreads its
     misfit over the right labels near it; the robust one bounds its pull, so the wrong label keeps
-    its misfit. The same checks refuse it (ValueError)."""
-    rob = calibrate_hand(**{**fit, "loss": "soft_l1"})
+    its misfit. Nothing is refused here (soft-L1 softens the priors too: a wrong label 56 mm off
+    still moves its marker's place 38 mm, though it keeps its misfit)."""
+    rob = calibrate_hand(**{**fit, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
+                            "max_length_sigma_m": None})
     seen = np.isfinite(rob.misfit)
     bad = seen & (np.where(seen, rob.misfit, 0.0) > misfit_limit(int(seen.sum())))
     bad[:, [rob.markerset.index(n) for n in BACK_MARKERS]] = False  # every flash's pose needs them
@@ -593,31 +595,34 @@ def _without_misfits(cal: HandCalibration | None, fit: dict, refused: Exception 
     """``cal`` fitted again without the labels a robust fit finds missing the model
     (:func:`_robust_fit`), when its self-check ``calibration_labels_fit`` failed; ``cal`` None: the
     linear fit of ``fit`` (:func:`calibrate_hand`'s arguments) was ``refused``, and when the robust
-    fit passes the checks and names no label it is the calibration. Labels of the posed flash too;
-    free flashes left with fewer than 9 labels are dropped. Returns ``cal`` when the robust fit
-    names nothing or a fit is refused (a message says so); ValueError when ``cal`` is None and the
-    robust fit or the new fit is refused."""
+    fit names no label it is the calibration if it passes the checks (fitted again with them).
+    Labels of the posed flash are left out one by one, a free flash's by digit; free flashes left
+    with fewer than 9 labels are dropped. Returns ``cal`` when the robust fit names nothing or the
+    new fit is refused (a message says so); ValueError when ``cal`` is None and the robust fit
+    (with its checks) or the new fit is refused."""
     if cal is not None:
         check = next(c for c in cal.self_checks if c.name == "calibration_labels_fit")
         if check.passed or fit["free"] is None:
             return cal
-    try:
-        rob, bad = _robust_fit(fit)
-    except ValueError as e:
-        if cal is None:
-            raise
-        cal.messages.append(f"a fit robust to wrong labels was refused: {e}")
-        return cal
+    rob, bad = _robust_fit(fit)
     why = (f"the fit with every label at its noise was refused ({refused})" if cal is None else
            next(c for c in cal.self_checks if c.name == "calibration_labels_fit").message)
     if not bad.any():
         if cal is None:  # no wrong label: the linear fit stopped in another minimum
+            rob = calibrate_hand(**{**fit, "loss": "soft_l1"})  # with the checks (ValueError)
             rob.messages.append(f"the model is the fit robust to wrong labels (soft-L1), which names none: {why}")
             return rob
         return cal
     free0 = np.asarray(fit["free"], float)
     posed0 = np.asarray(fit["posed"], float).reshape(-1, free0.shape[1], 3)
     n_posed = len(posed0)
+    names = (fit.get("markerset") or hand_markerset()).names
+    # in a free flash the digit's angles are free too, so they can follow a wrong label and leave
+    # the misfit on a right one of the same digit (hand 7: a hook's ring nail 77 mm off kept, its
+    # PIP marker named): the digit's labels of that flash go together
+    digit = np.array([n.split(".")[0] for n in names])
+    for f, m in np.argwhere(bad[n_posed:]):
+        bad[n_posed + f] |= (digit == digit[m]) & np.isfinite(free0[f]).all(axis=1)
     posed = np.where(bad[:n_posed, :, None], np.nan, posed0)
     free = np.where(bad[n_posed:, :, None], np.nan, free0)
     keep = np.isfinite(free).all(axis=2).sum(axis=1) >= 9  # as the flashes chosen: 9 labelled markers
@@ -630,7 +635,6 @@ def _without_misfits(cal: HandCalibration | None, fit: dict, refused: Exception 
             raise
         cal.messages.append(f"fitting again without the {int(bad.sum())} label(s) that miss the model was refused: {e}")
         return cal
-    names = (fit.get("markerset") or hand_markerset()).names
     which = ", ".join(f"{names[m]} of fitted flash {f}" for f, m in np.argwhere(bad)[:6])
     again.messages.append(f"{int(bad.sum())} label(s) that miss the model ({which}{' ...' if bad.sum() > 6 else ''}) "
                           f"left out and the model fitted again: {why}")
