@@ -154,16 +154,22 @@ def per_joint(res, seq, truth_angles, match) -> dict:
 def score(res, skeleton, markerset, joints: bool) -> dict:
     from stillcap.body.hand_track import fit_hand_sequence
     from stillcap.pipelines.hand.stages import marker_sigma
-    from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
 
     lab = res.labels
     seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=marker_sigma(res.points))
-    r = replace(res, sequence=seq)
-    c = compare_with_capture(r)
+    return score_result(replace(res, sequence=seq), joints)
+
+
+def score_result(res, joints: bool) -> dict:
+    """The joint-angle score of ``res``'s own pose sequence (``built-in``: the throw as
+    ``stillcap hand`` gives it without a calibration)."""
+    from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
+
+    c = compare_with_capture(res)
     out = {k: c.get(k) for k in ("joint_angle_rms_deg", "joint_angle_max_deg", "joint_angle_rms_partly_hidden_deg",
                                  "joint_angles_compared", "labels_right_pct", "markers_recovered_pct", "marker_rms_mm")}
     if joints:
-        out["per_joint"] = per_joint(res, seq, truth_arrays(res.capture.truth)["angles_deg"],
+        out["per_joint"] = per_joint(res, res.sequence, truth_arrays(res.capture.truth)["angles_deg"],
                                      np.asarray(c["flash_match"]))
     return out
 
@@ -187,6 +193,8 @@ def run_person(cache: Path, work: Path, p: int, motion: str, labels: str, joints
     own = Skeleton.load(cache / f"p{p}" / "own.json")
     # the reference: the same labels fitted with the person's true model (no calibration error)
     row["own"] = score(res, own, MarkerSet.load(cache / f"p{p}" / "own.markers.json"), joints)
+    if labels == "cal-curl" and not (cache / f"p{p}" / "res-cal-curl.pkl").exists():
+        row["built-in"] = score_result(res, joints)  # the throw analysed with the built-in model
     for arm in arms:
         t = time.process_time()
         try:
@@ -214,9 +222,9 @@ def report(rows, joints: bool, arms=ARMS) -> None:
     print(f"{'person':>6} {'arm':>10} {'joints RMS':>10} {'max':>6} {'partly hidden':>13} {'n':>5} {'cal fit mm':>10}"
           "  not fixed")
     for r in rows:
-        for arm in arms + ("own",):
+        for arm in arms + ("own", "built-in"):
             v = r.get(arm)
-            if arm == "own" and v is not None:
+            if arm in ("own", "built-in") and v is not None:
                 print(f"{r['person']:>6} {arm:>10} {_f(v['joint_angle_rms_deg']):>10} {_f(v['joint_angle_max_deg'], 1):>6} "
                       f"{_f(v['joint_angle_rms_partly_hidden_deg']):>13} {v['joint_angles_compared']:>5}")
                 continue
@@ -228,7 +236,7 @@ def report(rows, joints: bool, arms=ARMS) -> None:
             print(f"{r['person']:>6} {arm:>10} {_f(v['joint_angle_rms_deg']):>10} {_f(v['joint_angle_max_deg'], 1):>6} "
                   f"{_f(v['joint_angle_rms_partly_hidden_deg']):>13} {v['joint_angles_compared']:>5} "
                   f"{_f(v['cal_rms_mm']):>10}  {', '.join(v['unfixed']) or '-'}")
-    for arm in arms + ("own",):
+    for arm in arms + ("own", "built-in"):
         v = [r[arm]["joint_angle_rms_deg"] for r in rows if "joint_angle_rms_deg" in r.get(arm, {})]
         h = [r[arm]["joint_angle_rms_partly_hidden_deg"] for r in rows
              if (r.get(arm, {}).get("joint_angle_rms_partly_hidden_deg")) is not None]
@@ -238,7 +246,7 @@ def report(rows, joints: bool, arms=ARMS) -> None:
                   f"{np.sqrt(np.mean(np.square(h))):.2f} deg" if h else "")
     if joints:
         for r in rows:
-            for arm in arms + ("own",):
+            for arm in arms + ("own", "built-in"):
                 pj = r.get(arm, {}).get("per_joint")
                 if pj:
                     worst = sorted(pj.items(), key=lambda kv: -kv[1])[:6]

@@ -33,6 +33,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from stillcap._blas import one_blas_thread
 from stillcap._checks import as_array
 from stillcap.body.hand import BACK_MARKERS, DIGITS, hand_dofs
 from stillcap.body.kinematics import rigid_alignment
@@ -121,6 +122,7 @@ def _digit_rms(markerset: MarkerSet, skeleton: Skeleton, residuals) -> dict:
     return out
 
 
+@one_blas_thread
 def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, initial=None,
                      joint_sigma: float = 0.12, marker_sigma_m: float = 0.004, noise_m: float = NOISE_M,
                      regularise: float = 1e-4, max_nfev: int = 60, known_deg=None, loss: str = "soft_l1",
@@ -156,6 +158,11 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     Returns
     -------
     HandAdaptation
+
+    BLAS runs on one thread during the call (:func:`~stillcap._blas.one_blas_thread`): the
+    solver's SVDs are a few hundred columns wide, where OpenBLAS's threads only spin; on the busy
+    2-core machine a 900 x 400 SVD took 3.3 CPU-s with its default threads against 0.08 on one
+    (a hand calibration: 30-60 minutes of wall time, docs/hand-calibration.md).
     """
     pts = as_array(marker_positions, (None, len(markerset), 3), "marker_positions")
     F = len(pts)

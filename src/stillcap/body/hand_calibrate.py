@@ -299,7 +299,8 @@ def _misfit_check(misfit, names, n_posed: int, pose: str):
 def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton | None = None,
                    markerset: MarkerSet | None = None, noise_m: float = NOISE_M, max_nfev: int = 200,
                    refuse_rms_m: float = REFUSE_RMS_M, refuse_prior_z: float = REFUSE_PRIOR_Z,
-                   max_length_sigma_m: float | None = None, posed_sigma_m=None, free_sigma_m=None) -> HandCalibration:
+                   max_length_sigma_m: float | None = None, posed_sigma_m=None, free_sigma_m=None,
+                   loss: str = "linear") -> HandCalibration:
     """The person's hand model from labelled markers in a calibration pose (module docstring).
 
     Parameters
@@ -330,6 +331,10 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     posed_sigma_m, free_sigma_m : array_like, shape (n_posed, n_markers) and (n_free, n_markers), optional
         Each labelled marker's noise (m) in place of ``noise_m`` (a partly hidden marker's
         centroid shifts by millimetres: :func:`calibrate_hand_from_points` gives it less weight).
+    loss : str
+        SciPy's loss (:func:`~stillcap.body.hand_adapt.adapt_hand_model`): ``"linear"`` (every
+        label at its noise; the model reported); ``"soft_l1"`` bounds a wrong label's pull, which
+        :func:`calibrate_hand_from_point_sets` uses only to find the labels to leave out.
     """
     from stillcap._selfcheck import SelfCheck
     from stillcap.body.hand_adapt import adapt_hand_model
@@ -353,7 +358,7 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
                               np.asarray(posed_sigma_m, float).reshape(posed.shape[:2]),
                               np.full(free.shape[:2], noise_m) if free_sigma_m is None else
                               np.asarray(free_sigma_m, float).reshape(free.shape[:2])])
-    ad = adapt_hand_model(sk, ms, pts, known_deg=kd, initial=init, noise_m=noise_m, loss="linear", max_nfev=max_nfev,
+    ad = adapt_hand_model(sk, ms, pts, known_deg=kd, initial=init, noise_m=noise_m, loss=loss, max_nfev=max_nfev,
                           point_sigma_m=sig)
     res = ad.residuals
     pose_rms = float(np.sqrt(np.nanmean(res[:len(posed)] ** 2)))
@@ -544,12 +549,21 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
                    free_sigma_m=np.concatenate(free_sig) if free and weighted else None, **kw)
         try:
             cal = calibrate_hand(**fit)
+            cal = _without_misfits(cal, fit) if drop_misfits else cal
             break
         except ValueError as e:
+            # the posed flash calibrated alone in the first pass: a refusal of the fit with the
+            # other flashes may be their wrong labels (a linear fit follows a label centimetres
+            # off), so it is fitted again without the labels a robust fit names first
+            try:
+                cal = _without_misfits(None, fit, refused=e) if drop_misfits and fit["free"] is not None else None
+            except ValueError:
+                cal = None
+            if cal is not None:
+                break
             refused.append(((c1, float(labs2[c1].times[k1])), _flash_name(labs2[c1], c1, k1, multi), e))
     if cal is None:
         raise _refusal(refused)
-    cal = _without_misfits(cal, fit) if drop_misfits else cal
     cal.messages += [f"{name} was not taken as the {pose} flash: {e}" for _, name, e in refused]
     if not multi:
         cal.messages.append(f"calibration pose in flash {int(labs2[c1].order[k1])}, {used[0]} other flash(es) "
@@ -561,25 +575,69 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     return cal
 
 
-def _without_misfits(cal: HandCalibration, fit: dict) -> HandCalibration:
-    """``cal`` fitted again without the labels of the other flashes its self-check
-    ``calibration_labels_fit`` named (``fit``: :func:`calibrate_hand`'s arguments of ``cal``)."""
-    check = next(c for c in cal.self_checks if c.name == "calibration_labels_fit")
-    if check.passed or fit["free"] is None:
+def _robust_fit(fit: dict) -> tuple[HandCalibration, np.ndarray]:
+    """:func:`calibrate_hand` of ``fit`` (its arguments) with a robust loss (soft-L1, 3 sigmas), and
+    the labels (bool, ``(n_posed + n_free, n_markers)``) that miss it by more than their noise allows
+    (:func:`misfit_limit` over every label). A linear fit bends the shared model toward a wrong
+    label (and can stop in another minimum: hand 12, docs/hand-calibration.md) and spreads its
+    misfit over the right labels near it; the robust one bounds its pull, so the wrong label keeps
+    its misfit. Nothing is refused here (soft-L1 softens the priors too: a wrong label 56 mm off
+    still moves its marker's place 38 mm, though it keeps its misfit)."""
+    rob = calibrate_hand(**{**fit, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
+                            "max_length_sigma_m": None})
+    seen = np.isfinite(rob.misfit)
+    bad = seen & (np.where(seen, rob.misfit, 0.0) > misfit_limit(int(seen.sum())))
+    bad[:, [rob.markerset.index(n) for n in BACK_MARKERS]] = False  # every flash's pose needs them
+    return rob, bad
+
+
+def _without_misfits(cal: HandCalibration | None, fit: dict, refused: Exception | None = None) -> HandCalibration:
+    """``cal`` fitted again without the labels a robust fit finds missing the model
+    (:func:`_robust_fit`), when its self-check ``calibration_labels_fit`` failed; ``cal`` None: the
+    linear fit of ``fit`` (:func:`calibrate_hand`'s arguments) was ``refused``, and when the robust
+    fit names no label it is the calibration if it passes the checks (fitted again with them).
+    Labels of the posed flash are left out one by one, a free flash's by digit; free flashes left
+    with fewer than 9 labels are dropped. Returns ``cal`` when the robust fit names nothing or the
+    new fit is refused (a message says so); ValueError when ``cal`` is None and the robust fit
+    (with its checks) or the new fit is refused."""
+    if cal is not None:
+        check = next(c for c in cal.self_checks if c.name == "calibration_labels_fit")
+        if check.passed or fit["free"] is None:
+            return cal
+    rob, bad = _robust_fit(fit)
+    why = (f"the fit with every label at its noise was refused ({refused})" if cal is None else
+           next(c for c in cal.self_checks if c.name == "calibration_labels_fit").message)
+    if not bad.any():
+        if cal is None:  # no wrong label: the linear fit stopped in another minimum
+            rob = calibrate_hand(**{**fit, "loss": "soft_l1"})  # with the checks (ValueError)
+            rob.messages.append(f"the model is the fit robust to wrong labels (soft-L1), which names none: {why}")
+            return rob
         return cal
-    z2 = cal.misfit[cal.n_posed:]
-    bad = np.isfinite(z2) & (np.nan_to_num(z2) > check.limit ** 2)
-    free = np.where(bad[..., None], np.nan, fit["free"])
+    free0 = np.asarray(fit["free"], float)
+    posed0 = np.asarray(fit["posed"], float).reshape(-1, free0.shape[1], 3)
+    n_posed = len(posed0)
+    names = (fit.get("markerset") or hand_markerset()).names
+    # in a free flash the digit's angles are free too, so they can follow a wrong label and leave
+    # the misfit on a right one of the same digit (hand 7: a hook's ring nail 77 mm off kept, its
+    # PIP marker named): the digit's labels of that flash go together
+    digit = np.array([n.split(".")[0] for n in names])
+    for f, m in np.argwhere(bad[n_posed:]):
+        bad[n_posed + f] |= (digit == digit[m]) & np.isfinite(free0[f]).all(axis=1)
+    posed = np.where(bad[:n_posed, :, None], np.nan, posed0)
+    free = np.where(bad[n_posed:, :, None], np.nan, free0)
     keep = np.isfinite(free).all(axis=2).sum(axis=1) >= 9  # as the flashes chosen: 9 labelled markers
     fs = fit.get("free_sigma_m")
     try:
-        again = calibrate_hand(**{**fit, "free": free[keep] if keep.any() else None,
+        again = calibrate_hand(**{**fit, "posed": posed, "free": free[keep] if keep.any() else None,
                                   "free_sigma_m": None if fs is None or not keep.any() else fs[keep]})
     except ValueError as e:  # kept as it was, the check failed
+        if cal is None:
+            raise
         cal.messages.append(f"fitting again without the {int(bad.sum())} label(s) that miss the model was refused: {e}")
         return cal
-    again.messages += [f"{int(bad.sum())} label(s) of the other flashes left out and the model fitted again: "
-                       f"{check.message}"]
+    which = ", ".join(f"{names[m]} of fitted flash {f}" for f, m in np.argwhere(bad)[:6])
+    again.messages.append(f"{int(bad.sum())} label(s) that miss the model ({which}{' ...' if bad.sum() > 6 else ''}) "
+                          f"left out and the model fitted again: {why}")
     return again
 
 
