@@ -34,7 +34,8 @@ from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import BACK_MARKERS, HAND_COLORS, fit_hand
 from stillcap.body.hand_checks import hand_self_checks
-from stillcap.body.hand_label import GATE_M, TRIANGLE_TOL_M, HandLabels, contradicted_labels, label_hand_markers, unlabel_points
+from stillcap.body.hand_label import (GATE_M, TRIANGLE_TOL_M, HandLabels, contradicted_labels, label_hand_markers,
+                                     unlabel_points)
 from stillcap.body.hand_label_fill import (LEFTOVER_GATE_FACTOR, bone_offsets, digit_search, label_recovered,
                                           median_of_others, on_back_triangle, predicted_missing)
 from stillcap.body.hand_track import HandSequence, dofs_on_partly_hidden, fit_hand_sequence, interpolate_animation
