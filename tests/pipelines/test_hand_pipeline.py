@@ -314,3 +314,63 @@ def test_marker_misfit_alike_in_every_flash_does_not_contradict_a_label():
     fixed = misfit_residuals(labels, seq, unconfirmed)
     assert abs(fixed[2, m] - 0.001) < 1e-9 and fixed[3, m] > 0.014
     assert contradicted_labels(labels, fixed, seq.flashes, unconfirmed).tolist() == [pi[3, m]]
+
+
+def _floating_root_case(wrong_mm: float):
+    """Two flashes of the rest hand with every marker at its true place: flash 1 with its whole
+    back-of-hand triplet, fitted right; flash 0 with only a partly hidden back.1 (back.2/back.3
+    unseen), whose weighted fit left the root turned 10 deg about back.1. Flash 0's partly hidden
+    index.pip is right; its partly hidden middle.dip is ``wrong_mm`` off."""
+    from scipy.spatial.transform import Rotation
+
+    from stillcap.body.hand import hand_markerset, hand_skeleton
+    from stillcap.body.hand_label import HandLabels
+    from stillcap.body.hand_track import HandSequence
+    from stillcap.body.skeleton import Pose
+
+    sk, ms = hand_skeleton(), hand_markerset()
+    pose = sk.rest_pose()
+    X = ms.positions(pose)
+    names = list(ms.names)
+    b1, b2, b3, ip, md = (names.index(n) for n in ("back.1", "back.2", "back.3", "index.pip", "middle.dip"))
+    turn = np.eye(4)
+    turn[:3, :3] = Rotation.from_rotvec(np.radians(10.0) * np.array([0.0, 0.6, 0.8])).as_matrix()
+    turn[:3, 3] = X[b1] - turn[:3, :3] @ X[b1]
+    floated = Pose(sk, turn @ pose.root2world, pose.local_rotations)
+    n_m = len(names)
+    pts = np.concatenate([X, X])
+    pts[md] += np.array([0.0, 0.0, wrong_mm * 1e-3])
+    pi = np.stack([np.arange(n_m), np.arange(n_m) + n_m])
+    pi[0, [b2, b3]] = -1
+    unconfirmed = np.zeros(len(pts), bool)
+    unconfirmed[[b1, ip, md]] = True
+    positions = np.where((pi >= 0)[..., None], pts[np.maximum(pi, 0)], np.nan)
+    labels = HandLabels(names, list(ms.colors) if hasattr(ms, "colors") else [""] * n_m, np.arange(2), np.arange(2.0),
+                        10.0, pi, positions, np.ones(2, bool), ["", ""], [pi[0][pi[0] >= 0], pi[1]], np.array([], int),
+                        np.array([], int), np.zeros(2), [None, None], pts, np.array([""] * len(pts)), sk, ms, 1.0)
+    poses = [floated, pose]
+    res = np.stack([np.linalg.norm(positions[k] - ms.positions(p), axis=1) for k, p in enumerate(poses)])
+    seq = HandSequence(sk, ms, np.arange(2), np.arange(2.0), poses, np.zeros((2, len(sk.names), 3)), res,
+                       np.zeros(2), np.full(2, n_m), np.ones(2, bool), {}, None)
+    return labels, seq, unconfirmed, ip, md
+
+
+def test_unconfirmed_labels_in_a_flash_without_a_whole_triplet_are_tested_by_the_unweighted_fit():
+    """Issue 12 (studio hand 12, built-in model): in a flash posed without its back-of-hand
+    triplet, the fit that weighs partly hidden points by their noise left the root 10 mm off,
+    and a right partly hidden index.pip 12.6 mm from the fitted hand lost its label. Such a
+    flash's unconfirmed labels are now tested by the flash fitted without each of them, every
+    other point weighted alike (testing_residuals); a point 15 mm off is still contradicted, and
+    a flash whose whole triplet fixes the root keeps the weighted fit's residuals."""
+    from stillcap.body.hand_label import contradicted_labels
+    from stillcap.pipelines.hand.stages import misfit_residuals, root_fixed, testing_residuals
+
+    labels, seq, unconfirmed, ip, md = _floating_root_case(15.0)
+    assert root_fixed(labels, seq.flashes, unconfirmed).tolist() == [False, True]
+    plain = misfit_residuals(labels, seq, unconfirmed)
+    assert labels.point_index[0, ip] in contradicted_labels(labels, plain, seq.flashes, unconfirmed)
+    res = testing_residuals(labels, seq, unconfirmed)
+    assert np.array_equal(res[1], plain[1], equal_nan=True)
+    assert res[0, ip] < 0.002 and res[0, md] > 0.012
+    far = contradicted_labels(labels, res, seq.flashes, unconfirmed)
+    assert far.tolist() == [labels.point_index[0, md]]

@@ -363,22 +363,55 @@ def label_leftovers(model: LabelModel, pts, cols, avail, flashes: list, *, gate:
 # --------------------------------------------------------------------------------------------
 # Markers looked for where the posed hand puts them (issue 12)
 # --------------------------------------------------------------------------------------------
-def _bone_offsets(labels, flash: int) -> tuple[np.ndarray, np.ndarray]:
-    """The fitted model's markers of ``flash`` (n_markers, 3) and each marker's bone rotation
-    (n_markers, 3, 3), world frame."""
-    pose = labels.fits[flash].pose
-    frames = labels.markerset.bone_frames(labels.skeleton)
-    return labels.markerset.positions(pose), pose.joint2world[frames, :3, :3]
+def bone_offsets(skeleton, markerset, poses, positions) -> np.ndarray:
+    """Each measured marker's offset from the fitted model's, in the frame of the marker's bone.
+
+    Parameters
+    ----------
+    skeleton, markerset
+        The hand the poses are of.
+    poses : sequence of Pose, length n
+    positions : array_like, shape (n, n_markers, 3)
+        The measured markers of each pose's flash (world, m), NaN where unlabelled.
+
+    Returns
+    -------
+    ndarray, shape (n, n_markers, 3)
+        Bone frame, m; NaN where unlabelled.
+    """
+    frames = markerset.bone_frames(skeleton)
+    positions = np.asarray(positions, float)
+    out = np.full(positions.shape, np.nan)
+    for i, pose in enumerate(poses):
+        rot = pose.joint2world[frames, :3, :3]
+        out[i] = np.einsum("mji,mj->mi", rot, positions[i] - markerset.positions(pose))
+    return out
+
+
+def median_of_others(offsets, usable) -> np.ndarray:
+    """Per flash and marker, the median of ``offsets`` (shape (n, n_markers, 3)) over the *other*
+    flashes where ``usable`` (bool, shape (n, n_markers)) holds; NaN where there is none. A model
+    of other proportions misses a marker the same way in every flash, in the frame of its bone
+    (a longer phalanx puts it farther along its bone whatever the joint angles), so the offset
+    the capture shows elsewhere is the model's error in this flash (:func:`predicted_missing`,
+    :func:`stillcap.pipelines.hand.stages.misfit_residuals`)."""
+    offsets = np.asarray(offsets, float)
+    usable = np.asarray(usable, bool) & np.isfinite(offsets[..., 0])
+    out = np.full(offsets.shape, np.nan)
+    for i in range(len(offsets)):
+        other = usable.copy()
+        other[i] = False
+        for m in np.flatnonzero(other.any(axis=0)):
+            out[i, m] = np.median(offsets[other[:, m], m], axis=0)
+    return out
 
 
 def predicted_missing(labels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the posed flashes' fitted hands put their unlabelled markers.
 
     Each prediction is the fitted model's marker moved by that marker's median offset from the
-    fitted model in the other posed flashes that label it, in the frame of the marker's bone: a
-    model of other proportions misses a marker the same way in every flash (a longer phalanx
-    puts it farther along its bone whatever the joint angles), so the offset the capture shows
-    elsewhere is the model's error here. Without such a flash the model's marker is used.
+    fitted model in the other posed flashes that label it, in the frame of the marker's bone
+    (:func:`median_of_others`). Without such a flash the model's marker is used.
 
     Returns
     -------
@@ -387,17 +420,54 @@ def predicted_missing(labels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         World, m.
     """
     posed = [k for k in range(labels.n_flashes) if labels.fits[k] is not None]
-    model, rot = {}, {}
-    for k in posed:
-        model[k], rot[k] = _bone_offsets(labels, k)
-    pi, pts = labels.point_index, labels.points
+    poses = [labels.fits[k].pose for k in posed]
+    frames = labels.markerset.bone_frames(labels.skeleton)
+    offs = bone_offsets(labels.skeleton, labels.markerset, poses, labels.positions[posed])
+    med = median_of_others(offs, labels.point_index[posed] >= 0)
     flash, marker, out = [], [], []
-    for k in posed:
-        for m in np.flatnonzero(pi[k] < 0):
-            offs = [rot[q][m].T @ (pts[pi[q, m]] - model[q][m]) for q in posed if q != k and pi[q, m] >= 0]
-            shift = rot[k][m] @ np.median(offs, axis=0) if offs else np.zeros(3)
-            flash.append(k), marker.append(int(m)), out.append(model[k][m] + shift)
+    for i, (k, pose) in enumerate(zip(posed, poses)):
+        model, rot = labels.markerset.positions(pose), pose.joint2world[frames, :3, :3]
+        for m in np.flatnonzero(labels.point_index[k] < 0):
+            shift = rot[m] @ med[i, m] if np.isfinite(med[i, m, 0]) else np.zeros(3)
+            flash.append(k), marker.append(int(m)), out.append(model[m] + shift)
     return np.array(flash, int), np.array(marker, int), np.array(out, float).reshape(-1, 3)
+
+
+def on_back_triangle(labels, points, proposals, *, unconfirmed=None, tol_m: float) -> np.ndarray:
+    """Which proposals of back-of-hand markers lie where the hand's own back-of-hand triangle
+    puts them: per proposal ``(point, flash, marker)``, True when its marker is a back-of-hand
+    one and its point lies within ``tol_m`` of the triangle's side from every other back-of-hand
+    marker of its flash that a point carries (its label, or another such proposal), with at
+    least one such partner. The sides are measured on this capture: the median distances
+    between the back-of-hand points of the flashes that label all three with points that are
+    not ``unconfirmed`` (bool per point); without such a flash nothing is True.
+
+    The back of the hand is rigid, so the sides hold in every flash whatever the pose; in a
+    flash posed without its triplet (:func:`pose_from_neighbours`) the fitted root, and so the
+    prediction, can be 10 mm off (studio hand 12, its flash 0), while a partly hidden
+    ``back.3`` lies 0.2 mm from its side to ``back.1``."""
+    from stillcap.body.hand import BACK_MARKERS
+
+    pts = np.asarray(points, float)
+    unconfirmed = np.zeros(len(pts), bool) if unconfirmed is None else np.asarray(unconfirmed, bool)
+    back = [labels.marker_names.index(n) for n in BACK_MARKERS]
+    pb = labels.point_index[:, back]
+    whole = np.all(pb >= 0, axis=1) & ~np.any(unconfirmed[np.maximum(pb, 0)], axis=1)
+    out = np.zeros(len(proposals), bool)
+    if not whole.any():
+        return out
+    tri = pts[pb[whole]]  # (n, 3, 3)
+    sides = np.median(np.linalg.norm(tri[:, :, None] - tri[:, None], axis=3), axis=0)
+    for i, (p, k, m) in enumerate(proposals):
+        if m not in back:
+            continue
+        partners = [(b, int(labels.point_index[k, m2])) for b, m2 in enumerate(back)
+                    if m2 != m and labels.point_index[k, m2] >= 0]
+        partners += [(back.index(m2), int(p2)) for p2, k2, m2 in proposals if k2 == k and m2 in back and m2 != m]
+        a = back.index(m)
+        out[i] = bool(partners) and all(abs(np.linalg.norm(pts[p] - pts[q]) - sides[a, b]) <= tol_m
+                                        for b, q in partners)
+    return out
 
 
 def _digit_markers(labels) -> list[np.ndarray]:

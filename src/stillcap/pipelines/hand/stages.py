@@ -32,10 +32,12 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
-from stillcap.body.hand import HAND_COLORS
+from stillcap.body.hand import BACK_MARKERS, HAND_COLORS, fit_hand
 from stillcap.body.hand_checks import hand_self_checks
-from stillcap.body.hand_label import GATE_M, HandLabels, contradicted_labels, label_hand_markers, unlabel_points
-from stillcap.body.hand_label_fill import LEFTOVER_GATE_FACTOR, digit_search, label_recovered, predicted_missing
+from stillcap.body.hand_label import (GATE_M, TRIANGLE_TOL_M, HandLabels, contradicted_labels, label_hand_markers,
+                                     unlabel_points)
+from stillcap.body.hand_label_fill import (LEFTOVER_GATE_FACTOR, bone_offsets, digit_search, label_recovered,
+                                          median_of_others, on_back_triangle, predicted_missing)
 from stillcap.body.hand_track import HandSequence, dofs_on_partly_hidden, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
 from stillcap.io.capture import stereo_pairs
@@ -46,7 +48,7 @@ from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "recover_markers", "recover_near", "recover_digits", "fit_poses",
            "release_and_spin", "check_hand", "partly_hidden_angle_note", "label_markers_adapted",
-           "marker_sigma", "misfit_residuals"]
+           "marker_sigma", "misfit_residuals", "root_fixed", "testing_residuals"]
 
 @dataclass
 class HandSetup:
@@ -294,9 +296,14 @@ def recover_near(rig, blobs: list, points: MarkerPoints, labels: HandLabels, lig
     for _ in range(3):  # the points that got no label are left as they were, and the rest labelled again
         combined, at = _put_points(points, new.select(np.array(keep, int)), rows)
         proposals = [(p, int(flash[idx[i]]), int(marker[idx[i]])) for p, i in zip(at, keep)]
+        # a back-of-hand point at the capture's own back-triangle sides from its flash's other
+        # back-of-hand points is confirmed as a third view would confirm it (on_back_triangle)
+        confirmed = combined.n_views >= 3
+        on_back = on_back_triangle(labels, combined.points, proposals, unconfirmed=_unconfirmed(combined),
+                                   tol_m=TRIANGLE_TOL_M * labels.hand_scale)
+        confirmed[[p for (p, _, _), ok in zip(proposals, on_back) if ok]] = True
         out = label_recovered(labels, combined.points, combined.colors, proposals, gate_m=gate,
-                              predicted=pred[idx[keep]], confirmed=combined.n_views >= 3,
-                              unconfirmed=_unconfirmed(combined))
+                              predicted=pred[idx[keep]], confirmed=confirmed, unconfirmed=_unconfirmed(combined))
         got = [bool(np.any(out.point_index == p)) for p in at]
         if all(got) or not any(got):
             break
@@ -476,32 +483,85 @@ def _put_points(points: MarkerPoints, new: MarkerPoints, rows) -> tuple[MarkerPo
     return MarkerPoints(**out), at
 
 
+def _labelled(labels: HandLabels, flashes) -> np.ndarray:
+    """The labelled points of ``flashes`` (shape (n, n_markers, 3), NaN where unlabelled)."""
+    pi = labels.point_index[np.asarray(flashes, int)]
+    return np.where((pi >= 0)[..., None], labels.points[np.maximum(pi, 0)], np.nan)
+
+
 def misfit_residuals(labels: HandLabels, sequence: HandSequence, unconfirmed) -> np.ndarray:
     """The fit's residuals (shape (n, n_markers), m; NaN where unlabelled) with each marker's own
     misfit removed: a model of other proportions misses a marker the same way in every flash, in
-    the frame of its bone (as :func:`~stillcap.body.hand_label_fill.predicted_missing` says), so
-    a marker's residual is measured from the fitted marker moved by its median offset over the
-    other flashes where a point that is not ``unconfirmed`` (bool per point) carries its label.
-    Without such a flash the residual is the plain distance. Studio hand 11 with the built-in
-    model: whole ``index.pip`` points sit 6.9-7.7 mm from the fitted model in three flashes, so a
-    partly hidden ``index.pip`` 1 mm from its truth sat 8.4 mm off and lost its right label."""
-    frames = sequence.markerset.bone_frames(sequence.skeleton)
+    the frame of its bone, so a marker's residual is measured from the fitted marker moved by its
+    median offset over the other flashes where a point that is not ``unconfirmed`` (bool per
+    point) carries its label (:func:`~stillcap.body.hand_label_fill.median_of_others`, as
+    :func:`~stillcap.body.hand_label_fill.predicted_missing` says). Without such a flash the
+    residual is the plain distance. Studio hand 11 with the built-in model: whole ``index.pip``
+    points sit 6.9-7.7 mm from the fitted model in three flashes, so a partly hidden
+    ``index.pip`` 1 mm from its truth sat 8.4 mm off and lost its right label."""
+    offs, med = _offsets_and_median(labels, sequence, unconfirmed)
+    out = np.array(sequence.residuals, float)
+    moved = np.isfinite(offs[..., 0]) & np.isfinite(med[..., 0])
+    out[moved] = np.linalg.norm(offs[moved] - med[moved], axis=1)
+    return out
+
+
+def _offsets_and_median(labels: HandLabels, sequence: HandSequence, unconfirmed):
+    """The labelled markers' bone-frame offsets from ``sequence``'s fit and, per flash, their
+    median over the other flashes' whole labels (both shape (n, n_markers, 3))."""
     pi = labels.point_index
     unconfirmed = np.asarray(unconfirmed, bool)
-    offs = np.full(sequence.residuals.shape + (3,), np.nan)  # bone frame
-    for i, (k, pose) in enumerate(zip(sequence.flashes, sequence.poses)):
-        has = pi[k] >= 0
-        rot = pose.joint2world[frames, :3, :3]
-        d = labels.points[np.maximum(pi[k], 0)] - sequence.markerset.positions(pose)
-        offs[i, has] = np.einsum("mji,mj->mi", rot[has], d[has])
+    offs = bone_offsets(sequence.skeleton, sequence.markerset, sequence.poses, _labelled(labels, sequence.flashes))
     whole = np.array([(pi[k] >= 0) & ~unconfirmed[np.maximum(pi[k], 0)] for k in sequence.flashes], bool)
-    out = np.array(sequence.residuals, float)
-    for i in range(len(out)):
-        for m in np.flatnonzero(np.isfinite(offs[i, :, 0])):
-            other = whole[:, m].copy()
-            other[i] = False
-            if other.any():
-                out[i, m] = np.linalg.norm(offs[i, m] - np.median(offs[other, m], axis=0))
+    return offs, median_of_others(offs, whole)
+
+
+def root_fixed(labels: HandLabels, flashes, unconfirmed) -> np.ndarray:
+    """Per flash of ``flashes``: whether its three back-of-hand markers are labelled with points
+    that are not ``unconfirmed`` (bool per point). Only then do whole markers fix the hand's
+    root: a whole finger marker sits on a digit with free angles and says little about it."""
+    back = [labels.marker_names.index(n) for n in BACK_MARKERS]
+    pi = labels.point_index[np.asarray(flashes, int)][:, back]
+    return np.all(pi >= 0, axis=1) & ~np.any(np.asarray(unconfirmed, bool)[np.maximum(pi, 0)], axis=1)
+
+
+def testing_residuals(labels: HandLabels, sequence: HandSequence, unconfirmed) -> np.ndarray:
+    """The residuals that test the unconfirmed labels (:func:`fit_poses`), as
+    :func:`misfit_residuals` gives them for ``sequence`` (each point at its own noise, so
+    partly hidden points count little), except in flashes whose root no whole back-of-hand
+    triplet fixes (:func:`root_fixed`). There the whole markers leave the root free and the
+    weighted fit's root floats (studio hand 12 with the built-in model, its flash 0 posed from
+    its neighbours: the fitted back.2/back.3 9-10 mm off the truth, a right ``index.pip`` 1 mm
+    from its truth left 12.6 mm off). In such a flash an unconfirmed label of marker ``m`` is
+    tested by the flash fitted without it, every other point weighted alike (as the labeller
+    fitted it; the point left out, so the fit cannot bend to it), from the weighted fit's pose;
+    its residual is measured from the marker so predicted moved by the median bone-frame offset
+    of ``m``'s whole points from their own predictions made the same way (each of those flashes
+    fitted without its ``m``): how far the model predicts a marker it is not given, on this hand."""
+    unconfirmed = np.asarray(unconfirmed, bool)
+    out = misfit_residuals(labels, sequence, unconfirmed)
+    free = np.flatnonzero(~root_fixed(labels, sequence.flashes, unconfirmed))
+    if not len(free):
+        return out
+    sk, ms = sequence.skeleton, sequence.markerset
+    pos = _labelled(labels, sequence.flashes)
+    pi = labels.point_index[np.asarray(sequence.flashes, int)]
+    whole = (pi >= 0) & ~unconfirmed[np.maximum(pi, 0)]
+    left_out = {}
+
+    def offset_without(i, m):  # marker m's bone-frame offset from the fit of flash i without it
+        if (i, m) not in left_out:
+            left = pos[i].copy()
+            left[m] = np.nan
+            pose = fit_hand(sk, ms, left, initial=sequence.poses[i]).pose
+            left_out[i, m] = bone_offsets(sk, ms, [pose], pos[i][None])[0, m]
+        return left_out[i, m]
+
+    for i in free:
+        for m in np.flatnonzero((pi[i] >= 0) & ~whole[i]):
+            others = [offset_without(j, m) for j in np.flatnonzero(whole[:, m]) if j != i]
+            med = np.median(others, axis=0) if others else 0.0
+            out[i, m] = np.linalg.norm(offset_without(i, m) - med)
     return out
 
 
@@ -520,7 +580,7 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
         # a partly hidden point of two views that this fit (each point at its own noise) leaves
         # beyond the labelling gate is not the marker its label names: unlabelled, fitted again
         unconfirmed = _unconfirmed(points)
-        far = contradicted_labels(labels, misfit_residuals(labels, sequence, unconfirmed), sequence.flashes,
+        far = contradicted_labels(labels, testing_residuals(labels, sequence, unconfirmed), sequence.flashes,
                                   unconfirmed)
         if len(far):
             messages.append(f"{len(far)} partly hidden 3D marker(s) unlabelled: farther from the fitted hand "
