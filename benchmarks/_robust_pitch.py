@@ -67,7 +67,8 @@ FIXED_BALLS = ("baseball", "tests/data/repainted-baseball.json", "softball", "cr
 
 
 def _mixed(rng: np.random.Generator) -> tuple[dict, dict, int | None]:
-    """One capture's conditions drawn from every range at once."""
+    """One capture's conditions drawn from every range at once (``render_capture`` paints half of
+    the balls at random, :func:`stillcap.studio.ball_variation.painted_ball`)."""
     cap = {"lights": str(rng.choice(["default", "near", "side", "behind"])),
            "room_flash": float(rng.choice([0.0, 0.0004])),
            "ball_radius_m": float(rng.uniform(0.034, 0.042))}
@@ -110,6 +111,9 @@ def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: 
     cap_kw, sensor_kw, quality = CONDITIONS[condition]
     if cap_kw is None:
         cap_kw, sensor_kw, quality = _mixed(rng)
+        # half of the captures a ball painted at random (its own stream: the other draws as before)
+        if np.random.default_rng([seed, index, 8]).random() < 0.5:
+            cap_kw = {k: v for k, v in cap_kw.items() if k != "ball_radius_m"} | {"ball": "painted"}
     preset = PRESETS[index % len(PRESETS)]
     if cap_kw.get("ball") is not None:  # the ball, declared in capture.json as a user gives their ball file
         cap_kw = {**cap_kw, "ball": _draw_ball(cap_kw["ball"], index, np.random.default_rng([seed, index, 7]))}

@@ -5,7 +5,8 @@
 
 Each condition varies one thing the photos of a real lab vary (light placement, lens blur,
 sensor noise, white balance, JPEG quality, camera response, ball radius, a room lit by the
-flashes), "everything varied" all of them at once; two more vary the ball: "ball painted at
+flashes), "everything varied" all of them at once (half of its captures with a ball painted at
+random, from a stream of its own); two more vary the ball: "ball painted at
 random" (each capture its own ball, ``stillcap.studio.ball_variation.painted_ball``) and
 "built-in and repainted balls" (the five balls of ``bench_ball_layouts.py`` in turn), each
 declared by its ball file in capture.json. The pitch part is ``_robust_pitch.py``; the puppet
