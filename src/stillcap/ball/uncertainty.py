@@ -653,7 +653,11 @@ def share_correlation(cams, centers_px, u, s_px, min_images: int = 4) -> np.ndar
     ndarray, shape (2,)
         Correlation of the constant and of the trend mode, in [0, 1].
     """
-    fit = _epipolar_delta(cams, centers_px, u, s_px, min_images)
+    return _correlation_of(_epipolar_delta(cams, centers_px, u, s_px, min_images))
+
+
+def _correlation_of(fit) -> np.ndarray:
+    """:func:`share_correlation` from :func:`_epipolar_delta`'s ``(d, V)`` (None: zeros)."""
     if fit is None:
         return np.zeros(2)
     d, V = fit
@@ -686,7 +690,11 @@ def epipolar_bias_scale(cams, centers_px, u, s_px, min_images: int = 4) -> np.nd
     ndarray, shape (2,)
         1 where the capture cannot tell (as :func:`share_correlation`).
     """
-    fit = _epipolar_delta(cams, centers_px, u, s_px, min_images)
+    return _scale_of(_epipolar_delta(cams, centers_px, u, s_px, min_images))
+
+
+def _scale_of(fit) -> np.ndarray:
+    """:func:`epipolar_bias_scale` from :func:`_epipolar_delta`'s ``(d, V)`` (None: ones)."""
     if fit is None:
         return np.ones(2)
     d, V = fit
@@ -782,10 +790,13 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
             s = np.hypot(s, misfit_share(stereo, centers_px, u, made)[:, None] * made)
     x = np.asarray(centers_px, float)
     K = x.shape[1]
+    if isinstance(correlation, str) and correlation != "epipolar":
+        raise ValueError(f"correlation must be a number in [0, 1] or 'epipolar', got {correlation!r}")
+    # the pair's epipolar regression, once for the correlation and the scale that both read it
+    delta = (_epipolar_delta(cams, x, np.where(corr[None, :, None], u, 0.0), np.where(corr[None], s, 0.0),
+                             min_images=4) if isinstance(correlation, str) or epipolar_scale else None)
     if isinstance(correlation, str):
-        if correlation != "epipolar":
-            raise ValueError(f"correlation must be a number in [0, 1] or 'epipolar', got {correlation!r}")
-        rho = share_correlation(cams, x, np.where(corr[None, :, None], u, 0.0), np.where(corr[None], s, 0.0))
+        rho = _correlation_of(delta)
     else:
         rho = np.broadcast_to(np.asarray(correlation, float), (2,))
         if not np.all((rho >= 0) & (rho <= 1)):
@@ -796,9 +807,7 @@ def remaining_bias_modes(cams, stereo, centers_px, flags, radius_px, model_error
     # the cameras' own parts: the along-u modes (0, 1 and 6, 7) with 1 - rho of the variance
     own = lit_bias_modes(cams, centers_px, u, s, corr)
     out[:12] = own
-    lam = np.ones(2)
-    if epipolar_scale:
-        lam = epipolar_bias_scale(cams, x, np.where(corr[None, :, None], u, 0.0), np.where(corr[None], s, 0.0))
+    lam = _scale_of(delta) if epipolar_scale else np.ones(2)
     for i, m in ((0, 0), (1, 1)):
         out[[m, m + 6]] *= np.sqrt((1.0 - rho[i]) * lam[i])
     if np.any(rho > 0) and np.any(corr):
