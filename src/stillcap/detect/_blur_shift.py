@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["shading_blur_shift", "shading_blur_error"]
+__all__ = ["shading_blur_correction", "shading_blur_error", "shading_blur_shift"]
 
 
 def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None = None) -> np.ndarray:
@@ -24,13 +24,18 @@ def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None
     (``ball_markers._fit_shading``), at most ``max_shift_px`` (default ``blur_px``) long, and zero where the
     model's shading is under 10 % of its brightest (near the terminator, where it is unreliable).
     """
+    return _shift(model, center, blur_px, max_shift_px)[0]
+
+
+def _shift(model, center, blur_px: float, max_shift_px: float | None = None):
+    """:func:`shading_blur_shift` and the ``grad log S`` it came from (None where no correction)."""
     g, ok = _grad_log_shading(model, center)
     if not ok:
-        return np.zeros(2)
+        return np.zeros(2), None
     shift = blur_px * blur_px * g
     cap = blur_px if max_shift_px is None else float(max_shift_px)
     n = float(np.hypot(*shift))
-    return shift * (cap / n) if n > cap else shift
+    return (shift * (cap / n) if n > cap else shift), g
 
 
 def _grad_log_shading(model, center):
@@ -44,9 +49,9 @@ def _grad_log_shading(model, center):
     return np.array([a - c * nx / nz, b - c * ny / nz]) / (r * S), bool(np.isfinite(S) and peak > 0 and S > 0.1 * peak)
 
 
-def shading_blur_error(model, center, blur_px: float) -> np.ndarray:
-    """The 1-sigma error of :func:`shading_blur_shift`'s correction at ``center``, px: the
-    applied correction times ``min(1, s |grad log S|)``.
+def shading_blur_correction(model, center, blur_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`shading_blur_shift`'s correction at ``center`` (px, add it) and that correction's
+    own 1-sigma error (px): the correction times ``min(1, s |grad log S|)``.
 
     The correction is the first term of a series in ``s |grad log S|`` (the shading's relative
     change across the blur kernel): the detector's weight ``P(z) S(x0) / S(x0 + z)`` is
@@ -57,6 +62,11 @@ def shading_blur_error(model, center, blur_px: float) -> np.ndarray:
     too large. The error is a bias common to every photo of a pose, so the spin's covariance
     takes the observations' errors as one mode (:func:`stillcap.ball.markers.pair_marker_observations`);
     zero where no correction is applied."""
-    g, ok = _grad_log_shading(model, center)
-    applied = shading_blur_shift(model, center, blur_px)
-    return applied * min(1.0, float(blur_px * np.hypot(*g))) if ok else applied
+    shift, g = _shift(model, center, blur_px)
+    return shift, (shift if g is None else shift * min(1.0, float(blur_px * np.hypot(*g))))
+
+
+def shading_blur_error(model, center, blur_px: float) -> np.ndarray:
+    """The 1-sigma error of :func:`shading_blur_shift`'s correction at ``center``, px
+    (:func:`shading_blur_correction`'s second part)."""
+    return shading_blur_correction(model, center, blur_px)[1]

@@ -38,7 +38,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
-from stillcap.detect._blur_shift import shading_blur_error, shading_blur_shift
+from stillcap.detect._blur_shift import shading_blur_correction, shading_blur_shift
 from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
@@ -139,7 +139,7 @@ class BallMarkers:
     flags : ndarray of int, shape (N,)
         :class:`MarkerFlag` bits.
     blur_error_px : ndarray, shape (N, 2), optional
-        Each centroid's blur correction's own 1-sigma error (:func:`shading_blur_error`: the
+        Each centroid's blur correction's own 1-sigma error (:func:`~stillcap.detect._blur_shift.shading_blur_correction`: the
         correction times ``min(1, s |grad log S|)``), px, common to every photo of a pose (zeros
         without a correction).
     """
@@ -673,8 +673,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         for i, rw in enumerate(rows):
             model = shading.get(rw[6])
             if model is not None:
-                err[i] = shading_blur_error(model, rw[0], float(blur_px))
-                np.add(rw[0], shading_blur_shift(model, rw[0], float(blur_px)), out=rw[0])
+                shift, err[i] = shading_blur_correction(model, rw[0], float(blur_px))
+                np.add(rw[0], shift, out=rw[0])
     keep = [i for i, rw in enumerate(rows) if not (reject_foreshortened and rw[7] & MarkerFlag.FORESHORTENED)]
     if not keep:
         return BallMarkers.empty()

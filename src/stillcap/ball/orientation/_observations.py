@@ -143,7 +143,7 @@ class MarkerObservations:
         directions are taken as marker points seen in 3D (a centre error moves them all).
     blur_mode : ndarray, shape (M, 3), optional
         How far each direction moves (radians, tangent, world frame) with its centroid's blur
-        correction error (:func:`stillcap.detect._blur_shift.shading_blur_error`): one error
+        correction error (:func:`stillcap.detect._blur_shift.shading_blur_correction`): one error
         mode shared by all observations, which the spin's covariance takes with variance 1.
         None: no such error.
     """

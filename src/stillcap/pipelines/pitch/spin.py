@@ -176,7 +176,7 @@ def _center_shift_modes(parts: list, center_modes: list, radius_m: float | None)
     without modes or without ray views add nothing.
 
     One more mode: the marker centroids' blur corrections' own error (``observations.blur_mode``,
-    :func:`stillcap.detect._blur_shift.shading_blur_error`), the same overcorrection in every
+    :func:`stillcap.detect._blur_shift.shading_blur_correction`), the same overcorrection in every
     photo, so again invisible in the residuals; a direction moved by a tangent ``d`` is the
     direction from a centre moved by ``-d``."""
     blur = [np.zeros((len(p.observations), 3)) if p.observations.blur_mode is None else p.observations.blur_mode
