@@ -426,3 +426,8 @@ def test_orient_flash_takes_type_names_or_indices_alike():
     assert np.array_equal(by_index.ball2world, by_name.ball2world) and by_index.cost == by_name.cost
     with pytest.raises(ValueError):
         orient_flash(u, np.full(len(u), LAYOUT.n_types))
+
+
+def test_blur_mode_of_another_length_is_refused_with_its_shape():
+    with pytest.raises(ValueError, match=r"blur_mode.*\(2, 3\)"):
+        MarkerObservations(np.zeros(2, int), np.zeros(2, int), np.eye(3)[:2], blur_mode=np.zeros((3, 3)))

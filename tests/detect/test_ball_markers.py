@@ -312,3 +312,9 @@ def test_small_markers_of_one_colour_told_apart_by_size():
     assert n >= 15 and right == n
     with pytest.raises(ValueError, match="spread_rad2"):
         MarkerType("x", (43, 43, 43), "disc", 2.0)
+
+
+@pytest.mark.parametrize("spread", [0.0, 1.5, float("nan")])
+def test_marker_type_refuses_a_spread_outside_its_range_and_names_the_type(spread):
+    with pytest.raises(ValueError, match="marker type 'red': spread_rad2 must be in"):
+        MarkerType("red", (52, 59, 231), "disc", spread)
