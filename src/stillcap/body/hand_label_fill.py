@@ -433,6 +433,23 @@ def predicted_missing(labels) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.array(flash, int), np.array(marker, int), np.array(out, float).reshape(-1, 3)
 
 
+def whole_labels(labels, flashes, unconfirmed) -> np.ndarray:
+    """Per flash of ``flashes`` and marker: labelled with a point that is not ``unconfirmed``
+    (bool per point), shape (n, n_markers)."""
+    pi = labels.point_index[np.asarray(flashes, int)]
+    return (pi >= 0) & ~np.asarray(unconfirmed, bool)[np.maximum(pi, 0)]
+
+
+def root_fixed(labels, flashes, unconfirmed) -> np.ndarray:
+    """Per flash of ``flashes``: whether its three back-of-hand markers are labelled with points
+    that are not ``unconfirmed`` (bool per point). Only then do whole markers fix the hand's
+    root: a whole finger marker sits on a digit with free angles and says little about it."""
+    from stillcap.body.hand import BACK_MARKERS
+
+    back = [labels.marker_names.index(n) for n in BACK_MARKERS]
+    return whole_labels(labels, flashes, unconfirmed)[:, back].all(axis=1)
+
+
 def on_back_triangle(labels, points, proposals, *, unconfirmed=None, tol_m: float) -> np.ndarray:
     """Which proposals of back-of-hand markers lie where the hand's own back-of-hand triangle
     puts them: per proposal ``(point, flash, marker)``, True when its marker is a back-of-hand
@@ -451,12 +468,11 @@ def on_back_triangle(labels, points, proposals, *, unconfirmed=None, tol_m: floa
     pts = np.asarray(points, float)
     unconfirmed = np.zeros(len(pts), bool) if unconfirmed is None else np.asarray(unconfirmed, bool)
     back = [labels.marker_names.index(n) for n in BACK_MARKERS]
-    pb = labels.point_index[:, back]
-    whole = np.all(pb >= 0, axis=1) & ~np.any(unconfirmed[np.maximum(pb, 0)], axis=1)
+    whole = root_fixed(labels, range(len(labels.point_index)), unconfirmed)
     out = np.zeros(len(proposals), bool)
     if not whole.any():
         return out
-    tri = pts[pb[whole]]  # (n, 3, 3)
+    tri = pts[labels.point_index[whole][:, back]]  # (n, 3, 3)
     sides = np.median(np.linalg.norm(tri[:, :, None] - tri[:, None], axis=3), axis=0)
     for i, (p, k, m) in enumerate(proposals):
         if m not in back:

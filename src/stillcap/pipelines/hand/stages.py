@@ -32,12 +32,13 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
-from stillcap.body.hand import BACK_MARKERS, HAND_COLORS, fit_hand
+from stillcap.body.hand import HAND_COLORS, fit_hand
 from stillcap.body.hand_checks import hand_self_checks
 from stillcap.body.hand_label import (GATE_M, TRIANGLE_TOL_M, HandLabels, contradicted_labels, label_hand_markers,
                                      unlabel_points)
 from stillcap.body.hand_label_fill import (LEFTOVER_GATE_FACTOR, bone_offsets, digit_search, label_recovered,
-                                          median_of_others, on_back_triangle, predicted_missing)
+                                          median_of_others, on_back_triangle, predicted_missing, root_fixed,
+                                          whole_labels)
 from stillcap.body.hand_track import HandSequence, dofs_on_partly_hidden, fit_hand_sequence, interpolate_animation
 from stillcap.detect.color_markers import ColorBlobs, find_color_markers
 from stillcap.io.capture import stereo_pairs
@@ -509,20 +510,8 @@ def misfit_residuals(labels: HandLabels, sequence: HandSequence, unconfirmed) ->
 def _offsets_and_median(labels: HandLabels, sequence: HandSequence, unconfirmed):
     """The labelled markers' bone-frame offsets from ``sequence``'s fit and, per flash, their
     median over the other flashes' whole labels (both shape (n, n_markers, 3))."""
-    pi = labels.point_index
-    unconfirmed = np.asarray(unconfirmed, bool)
     offs = bone_offsets(sequence.skeleton, sequence.markerset, sequence.poses, _labelled(labels, sequence.flashes))
-    whole = np.array([(pi[k] >= 0) & ~unconfirmed[np.maximum(pi[k], 0)] for k in sequence.flashes], bool)
-    return offs, median_of_others(offs, whole)
-
-
-def root_fixed(labels: HandLabels, flashes, unconfirmed) -> np.ndarray:
-    """Per flash of ``flashes``: whether its three back-of-hand markers are labelled with points
-    that are not ``unconfirmed`` (bool per point). Only then do whole markers fix the hand's
-    root: a whole finger marker sits on a digit with free angles and says little about it."""
-    back = [labels.marker_names.index(n) for n in BACK_MARKERS]
-    pi = labels.point_index[np.asarray(flashes, int)][:, back]
-    return np.all(pi >= 0, axis=1) & ~np.any(np.asarray(unconfirmed, bool)[np.maximum(pi, 0)], axis=1)
+    return offs, median_of_others(offs, whole_labels(labels, sequence.flashes, unconfirmed))
 
 
 def testing_residuals(labels: HandLabels, sequence: HandSequence, unconfirmed) -> np.ndarray:
@@ -546,7 +535,7 @@ def testing_residuals(labels: HandLabels, sequence: HandSequence, unconfirmed) -
     sk, ms = sequence.skeleton, sequence.markerset
     pos = _labelled(labels, sequence.flashes)
     pi = labels.point_index[np.asarray(sequence.flashes, int)]
-    whole = (pi >= 0) & ~unconfirmed[np.maximum(pi, 0)]
+    whole = whole_labels(labels, sequence.flashes, unconfirmed)
     left_out = {}
 
     def offset_without(i, m):  # marker m's bone-frame offset from the fit of flash i without it
