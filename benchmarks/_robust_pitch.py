@@ -99,15 +99,20 @@ def _draw_ball(kind: str, index: int, rng: np.random.Generator):
     return load_ball(Path(__file__).resolve().parent.parent / spec if spec.endswith(".json") else spec)
 
 
-def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: str):
+def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, scenes: str | None = None):
     """Render capture ``index`` of ``condition`` into a new folder under ``workdir``, each camera's
     true response declared in its rig file (what a user can declare); returns the studio capture,
-    the folder and ``(preset, capture keywords, sensor keywords, JPEG quality or None)``."""
+    the folder and ``(preset, capture keywords, sensor keywords, JPEG quality or None)``.
+
+    ``scenes``: draw the capture from the random stream of that condition's capture ``index``
+    instead of its own (the streams are seeded by the condition's name): conditions that change
+    only the photos (JPEG quality, response, sensor) then photograph the same pitch as it, so that
+    the condition's effect is measured on the same scenes (``bench_robustness.py --scenes``)."""
     from stillcap.files.atomic import write_text
     from stillcap.studio.pitch import pitch_capture
     from stillcap.studio.sensor import Sensor
 
-    rng = np.random.default_rng([seed, index, sum(map(ord, condition))])
+    rng = np.random.default_rng([seed, index, sum(map(ord, scenes or condition))])
     cap_kw, sensor_kw, quality = CONDITIONS[condition]
     if cap_kw is None:
         cap_kw, sensor_kw, quality = _mixed(rng)
@@ -130,8 +135,10 @@ def render_capture(condition: str, index: int, seed: int, size: tuple, workdir: 
     return pc, folder, (preset, cap_kw, sensor_kw, quality)
 
 
-def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, variants: dict | None = None) -> dict:
-    """Render, analyse and evaluate one capture of ``condition`` (a process-pool task).
+def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str, variants: dict | None = None,
+                scenes: str | None = None) -> dict:
+    """Render, analyse and evaluate one capture of ``condition`` (a process-pool task; ``scenes``:
+    :func:`render_capture`'s, recorded in the row when given).
 
     ``variants``: name -> ``analyse_pitch`` keywords; the same photos are analysed again with
     each, and ``row["variants"][name]`` keeps their sigmas (``SIGMA_KEYS``), e.g. to split the
@@ -143,7 +150,7 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
     from stillcap.studio.compare.pitch import add_truth_comparison
 
     t = time.perf_counter()
-    pc, folder, (preset, cap_kw, sensor_kw, quality) = render_capture(condition, index, seed, size, workdir)
+    pc, folder, (preset, cap_kw, sensor_kw, quality) = render_capture(condition, index, seed, size, workdir, scenes)
     ball = cap_kw.get("ball")
     if ball is not None:
         cap_kw = {**cap_kw, "ball": {"name": ball.name, "description": ball.description,
@@ -151,6 +158,8 @@ def run_capture(condition: str, index: int, seed: int, size: tuple, workdir: str
                                      "types": len(ball.layout.type_names)}}
     row = {"condition": condition, "index": index, "preset": preset, "capture_kw": cap_kw,
            "sensor_kw": {k: v for k, v in sensor_kw.items()}, "jpeg_quality": quality}
+    if scenes is not None:
+        row["scenes"] = scenes
     try:
         loaded = Capture.load(folder)
         # the radius declared: the ball file's (capture.json "ball") when the capture has one
@@ -274,9 +283,9 @@ def alias_right(row: dict, max_rpm: float = 50.0) -> bool:
 
 
 def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants: dict | None = None,
-        done: list | None = None, on_row=None) -> list[dict]:
-    """Every capture of every condition on ``jobs`` processes; rows per capture (``variants``:
-    :func:`run_capture`'s).
+        done: list | None = None, on_row=None, scenes: str | None = None) -> list[dict]:
+    """Every capture of every condition on ``jobs`` processes; rows per capture (``variants``,
+    ``scenes``: :func:`run_capture`'s).
 
     ``done``: rows of an earlier run (e.g. read back from ``bench_robustness.py --jsonl``); the
     captures they hold (same condition, index, seed and photo size) are not run again and their
@@ -285,7 +294,7 @@ def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants:
     size = tuple(size)
     old = {(r["condition"], r["index"]): r for r in (done or [])
            if r.get("seed") == seed and tuple(r.get("size") or ()) == size and r["condition"] in conditions
-           and r["index"] < n}
+           and r["index"] < n and r.get("scenes") == scenes}
     tasks = [(c, i) for c in conditions for i in range(n) if (c, i) not in old]
     rows = list(old.values())
     total = len(rows) + len(tasks)
@@ -300,10 +309,10 @@ def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants:
     with tempfile.TemporaryDirectory() as work:
         if jobs <= 1:
             for c, i in tasks:
-                add(run_capture(c, i, seed, size, work, variants))
+                add(run_capture(c, i, seed, size, work, variants, scenes))
         else:
             with ProcessPoolExecutor(jobs) as ex:
-                futs = [ex.submit(run_capture, c, i, seed, size, work, variants) for c, i in tasks]
+                futs = [ex.submit(run_capture, c, i, seed, size, work, variants, scenes) for c, i in tasks]
                 for f in futs:
                     add(f.result())
     order = {(c, i): k for k, (c, i) in enumerate((c, i) for c in conditions for i in range(n))}
@@ -312,13 +321,15 @@ def run(conditions, n: int, seed: int, size, jobs: int, progress=None, variants:
 
 def rows(quick: bool = False, n: int | None = None, seed: int = 0, jobs: int | None = None,
          progress=None, captures: list | None = None, conditions=None, done: list | None = None,
-         on_row=None) -> list[dict]:
+         on_row=None, scenes: str | None = None) -> list[dict]:
     """One dict per condition (``pipeline``, ``condition``, ``n``, the metric keys).
 
     quick: 1280x960 photos and 6 captures per condition (about 3 min on 2 cores); else
     2560x1920 and 40 per condition (about 30 min on 2 quiet cores). ``captures``, a list, gets
     the per-capture rows as well; ``conditions`` (names of ``CONDITIONS``) runs only those;
-    ``done`` and ``on_row`` as :func:`run`'s (resuming a stopped run).
+    ``done`` and ``on_row`` as :func:`run`'s (resuming a stopped run); ``scenes`` (a name of
+    ``CONDITIONS``): every condition's captures drawn from that condition's scenes
+    (:func:`render_capture`).
     Each row also has the z-scores' mean and spread (``z_speed_mean``, ``z_speed_sd``,
     ``z_dir_h_*``, ``z_dir_v_*``).
     """
@@ -327,9 +338,11 @@ def rows(quick: bool = False, n: int | None = None, seed: int = 0, jobs: int | N
     jobs = jobs or min(2, os.cpu_count() or 1)
     conds = list(CONDITIONS) if conditions is None else list(conditions)
     unknown = [c for c in conds if c not in CONDITIONS]
+    if scenes is not None and scenes not in CONDITIONS:
+        unknown.append(scenes)
     if unknown:
         raise ValueError(f"unknown pitch conditions {unknown}; known: {list(CONDITIONS)}")
-    per = run(conds, n, seed, size, jobs, progress, done=done, on_row=on_row)
+    per = run(conds, n, seed, size, jobs, progress, done=done, on_row=on_row, scenes=scenes)
     if captures is not None:
         captures.extend(per)
     return [summarise(c, [r for r in per if r["condition"] == c]) for c in conds]

@@ -1,7 +1,7 @@
 """Robustness: accuracy and 95 % interval coverage per photographic condition, per pipeline.
 
     python benchmarks/bench_robustness.py [--quick] [--n N] [--seed S] [--jobs J] [--markdown]
-                                          [--jsonl FILE] [--conditions "clean,blur 1.5 px"]
+                                          [--jsonl FILE] [--conditions "clean,blur 1.5 px"] [--scenes NAME]
 
 Each condition varies one thing the photos of a real lab vary (light placement, lens blur,
 sensor noise, white balance, JPEG quality, camera response, ball radius, a room lit by the
@@ -21,7 +21,11 @@ a self-check flagged it.
 ``--jsonl FILE`` appends each pitch capture's row to FILE as it finishes, and a run started
 again with the same file (and the same ``--seed``, ``--quick`` or not) runs only the captures it
 does not hold yet: a long run can be stopped and resumed. ``--conditions`` runs only the named
-pitch conditions.
+pitch conditions. ``--scenes NAME`` draws every condition's captures from condition NAME's
+scenes (pitch, release, ball; the photos keep each condition's own settings): ``--conditions
+"clean,JPEG 70,JPEG 98" --scenes clean`` compares PNG and JPEG on the same pitches, where the
+conditions' own draws differ by scene as well (``docs/pitch.md``, "JPEG photos' position
+intervals"). Rows of such a run record ``scenes`` and resume only with the same ``--scenes``.
 
 Coverage is a binomial proportion: with ``n`` captures and a true coverage of 95 % its 1-sigma is
 ``sqrt(0.95 x 0.05 / n)`` (3.4 % at n = 40, 8.9 % at n = 6); the table prints it beside each
@@ -128,6 +132,8 @@ def main(argv=None):
                     help="append every pitch capture's row to this file; a run with the same file resumes")
     ap.add_argument("--conditions", default=None, help="pitch conditions to run (comma-separated names)")
     ap.add_argument("--only", default="pitch,puppet,hand", help="pipelines to run (comma-separated)")
+    ap.add_argument("--scenes", default=None,
+                    help="pitch: draw every condition's captures from this condition's scenes (e.g. clean)")
     args = ap.parse_args(argv)
     wanted = [w.strip() for w in args.only.split(",") if w.strip()]
     tables = []
@@ -155,7 +161,7 @@ def main(argv=None):
             conds = None if args.conditions is None else [c.strip() for c in args.conditions.split(",") if c.strip()]
             try:
                 rs = mod.rows(args.quick, n=args.n, seed=args.seed, jobs=args.jobs, progress=prog, captures=captures,
-                              conditions=conds, done=done, on_row=on_row)
+                              conditions=conds, done=done, on_row=on_row, scenes=args.scenes)
             except ValueError as e:
                 ap.error(str(e))
             print(file=sys.stderr)

@@ -1,5 +1,7 @@
 """benchmarks/_robust_pitch's ball conditions: each capture's ball is drawn from its own seed and
-declared in capture.json as a user declares theirs (its ball file), with the true radius."""
+declared in capture.json as a user declares theirs (its ball file), with the true radius. And its
+``scenes``: a condition that changes only the photos (JPEG) drawn from another condition's scenes
+photographs the same pitch as it, saved its own way."""
 
 import json
 import sys
@@ -34,3 +36,23 @@ def test_painted_ball_is_declared_in_the_capture(rp, tmp_path):
     declared = json.loads((folder / "capture.json").read_text())["ball"]
     assert declared["radius_m"] == pytest.approx(ball.radius) == pytest.approx(pc.truth.studio["ball_radius_m"])
     assert len(declared["markers"]) == len(ball.layout) and quality is None
+
+
+def _truth_positions(folder: Path) -> np.ndarray:
+    pairs = json.loads((folder / "truth.json").read_text())["pairs"]
+    return np.concatenate([np.asarray(p["positions"], float).reshape(-1, 3) for p in pairs])
+
+
+def test_jpeg_condition_on_the_clean_scenes_photographs_the_same_pitch(rp, tmp_path):
+    _, clean, _ = rp.render_capture("clean", 1, 0, (160, 120), str(tmp_path))
+    _, same, (_, _, _, quality) = rp.render_capture("JPEG 70", 1, 0, (160, 120), str(tmp_path), scenes="clean")
+    _, own, _ = rp.render_capture("JPEG 70", 1, 0, (160, 120), str(tmp_path))
+    assert quality == 70 and any(same.rglob("*.jpg")) and not any(clean.rglob("*.jpg"))
+    assert np.array_equal(_truth_positions(same), _truth_positions(clean))
+    a, b = _truth_positions(own), _truth_positions(clean)
+    assert a.shape != b.shape or not np.allclose(a, b)  # its own scenes are other pitches
+
+
+def test_unknown_scenes_are_named(rp):
+    with pytest.raises(ValueError, match="no such"):
+        rp.rows(True, n=1, conditions=["clean"], scenes="no such")

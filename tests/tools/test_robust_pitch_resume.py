@@ -16,9 +16,10 @@ def rp(monkeypatch):
 
     calls = []
 
-    def fake(condition, index, seed, size, workdir, variants=None):  # no rendering: records the call
+    def fake(condition, index, seed, size, workdir, variants=None, scenes=None):  # no rendering: records the call
         calls.append((condition, index))
-        return {"condition": condition, "index": index, "ok": False, "error": "fake"}
+        row = {"condition": condition, "index": index, "ok": False, "error": "fake"}
+        return row if scenes is None else {**row, "scenes": scenes}
 
     monkeypatch.setattr(_robust_pitch, "run_capture", fake)
     _robust_pitch.calls = calls
@@ -53,3 +54,15 @@ def test_rows_of_another_seed_or_photo_size_are_run_again(rp):
     rows = rp.run(["clean"], 3, 0, (64, 48), 1, done=done)
     assert rp.calls == [("clean", 0), ("clean", 1), ("clean", 2)]
     assert all(r.get("error") == "fake" for r in rows)
+
+
+def test_rows_of_other_scenes_are_run_again(rp):
+    """A run drawn from another condition's scenes (``scenes``) is other pitches: its rows and a
+    plain run's are not taken for each other."""
+    plain = rp.run(["JPEG 70"], 2, 0, (64, 48), 1)
+    rp.calls.clear()
+    same = rp.run(["JPEG 70"], 2, 0, (64, 48), 1, done=plain, scenes="clean")
+    assert rp.calls == [("JPEG 70", 0), ("JPEG 70", 1)] and all(r["scenes"] == "clean" for r in same)
+    rp.calls.clear()
+    assert rp.run(["JPEG 70"], 2, 0, (64, 48), 1, done=plain + same, scenes="clean") == same
+    assert rp.calls == []
