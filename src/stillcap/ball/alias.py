@@ -259,7 +259,8 @@ class AliasResolution:
     undecided : list of AliasCandidate
         Other solutions of the markers' fit that the markers themselves cannot reject at the 95 %
         level (:func:`marker_misfit_test`) and that are not aliases of the best (another rotation
-        per strobe interval): the markers do not decide the spin (:func:`resolve_joint_fits`).
+        per interval at every strobe rate): the markers do not decide the spin
+        (:func:`resolve_joint_fits`).
     marker_dof : int
         Degrees of freedom of the markers' noise estimate in that test (-1: not tested).
     """
@@ -534,8 +535,7 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
     components (one for a marker cut by the limb, :attr:`SpinResult.residual_ranks`) and the fit
     has six parameters (orientation and spin), so five observations can leave 2 degrees of
     freedom or none, and every local minimum then fits them almost exactly. The noise level is
-    estimated from the reference solution's own residuals (the one that explains the most
-    residual components, then the smallest misfit): ``s^2 = S_ref / dof`` with ``dof`` the
+    estimated from the reference solution's own residuals: ``s^2 = S_ref / dof`` with ``dof`` its
     inliers' components minus 6. For another solution ``i`` the misfit
     ``S_i`` (every observation, each capped at ``MARKER_OUTLIER_SIGMAS`` noise sigmas: an outlier
     costs the same everywhere) above ``S_ref`` tests whether its spin is inside the markers'
@@ -543,7 +543,10 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
     the truth (the likelihood region of nonlinear least squares with the noise estimated from the
     same residuals, the orientation profiled out; not a chi-square with a known sigma, which a
     noise level taken from a few near-exact residuals would make absurdly confident). Without
-    redundancy (``dof < 1``) nothing is rejected.
+    redundancy (``dof < 1`` for every solution) nothing is rejected. The reference is the solution
+    with the smallest capped misfit at its own noise level (started from the smallest noise per
+    degree of freedom), so a wrong minimum that keeps more observations as inliers, with a larger
+    noise, is not the yardstick.
 
     Parameters
     ----------
@@ -573,15 +576,27 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
         inl.append(np.asarray(s.inliers, bool))
     if len({len(e) for e in res}) > 1:
         raise ValueError("the spin solutions must be fits to the same observations (residuals of equal length)")
-    own = [(int(np.sum(k[m])), -float(np.nansum(e[m] ** 2))) for e, k, m in zip(res, ranks, inl)]
-    ref = max(range(len(sols)), key=lambda i: own[i])
-    dof = own[ref][0] - 6
+    dofs = np.array([int(np.sum(k[m])) - 6 for k, m in zip(ranks, inl)])
+    s2s = np.array([float(np.nansum(e[m] ** 2)) / d if d >= 1 else np.inf for e, m, d in zip(res, inl, dofs)])
     p = np.ones(len(sols))
-    if dof < 1:
-        return ref, int(dof), p
-    s2 = max(-own[ref][1] / dof, 1e-300)
-    cap2 = MARKER_OUTLIER_SIGMAS ** 2 * s2
-    cost = np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2, nan=cap2), cap2))) for e in res])
+    if not np.any(np.isfinite(s2s)):
+        return int(np.argmax(dofs)), int(dofs.max()), p
+
+    def capped(s2):
+        c2 = MARKER_OUTLIER_SIGMAS ** 2 * s2
+        return np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2, nan=c2), c2))) for e in res])
+
+    # the reference: the smallest capped misfit at its own noise level (started from the smallest
+    # noise per degree of freedom; a few rounds settle it)
+    ref = int(np.argmin(s2s))
+    for _ in range(5):
+        cost = capped(max(s2s[ref], 1e-300))
+        nxt = int(np.argmin(np.where(np.isfinite(s2s), cost, np.inf)))
+        if cost[nxt] >= cost[ref]:
+            break
+        ref = nxt
+    dof, s2 = int(dofs[ref]), max(float(s2s[ref]), 1e-300)
+    cost = capped(s2)
     for i in range(len(sols)):
         f = max(cost[i] - cost[ref], 0.0) / (3.0 * s2)
         p[i] = 1.0 if i == ref else float(fdtrc(3, dof, f))
@@ -589,14 +604,16 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
 
 
 def _is_alias(a, b, strobes_hz, rate_tol: float, axis_tol: float, p: float = 0.05) -> bool:
-    """Whether spin fit ``a`` turns the ball as ``b`` does between flashes at every strobe rate
-    (``b``'s covariance, the strobe comparison's tolerances; the ``1 - p`` quantile of 3 dof):
-    the markers cannot tell two such spins apart, the flight's curvature can."""
+    """Whether spin fit ``a`` turns the ball as ``b`` does between flashes at one of the strobe
+    rates (``b``'s covariance, the strobe comparison's tolerances; the ``1 - p`` quantile of 3
+    dof): the markers of that rate cannot tell two such spins apart, and they belong to the
+    alias family :func:`alias_candidates` enumerates, which the flight's curvature and the other
+    rate decide (the other rate's markers may be too few to)."""
     lim = float(chdtri(3, p))
     cov = np.asarray(b.spin_covariance, float)
     if not np.all(np.isfinite(cov)):
         return False
-    return bool(strobes_hz) and all(
+    return any(
         _strobe_chi2(np.asarray(a.spin, float), StrobeMeasurement(np.asarray(b.spin, float), f, cov), rate_tol,
                      axis_tol) <= lim for f in strobes_hz)
 
@@ -634,7 +651,8 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     solutions it does not reject either (``p_markers >= undecided_p``) and that are not aliases of
     the best at the strobe rates ``strobes_hz`` (the rates of the pairs whose markers are fitted:
     the same rotation per interval, which only the curvature and a second strobe rate tell apart)
-    are listed in ``undecided``: the markers do not decide between different rotations per
+    are listed in ``undecided`` (an alias at one of the rates belongs to the alias family the
+    curvature decides, as before): the markers do not decide between different rotations per
     interval, so the minima found are only a sample of the spins they allow, and the flight's
     curvature, which sees two of the spin's three components, cannot decide the third.
 
