@@ -109,3 +109,24 @@ def bead_levels_one_by_one(image, centers, radii_px):
         if ring.size and core.size and disc.size:
             out[-1] = (float(np.median(ring)), float(np.percentile(core, 90)), disc)
     return out
+
+
+class SimulatedPair:
+    """What the pitch spin stage reads of a stereo pair: its flashes on the reference clock and its
+    markers, simulated from ``ball2world`` at t = 0 and a constant ``spin`` (rad/s) seen from
+    ``views`` (``simulate_observations``, ``noise_deg`` per component), and its own spin fit."""
+
+    def __init__(self, name, hz, per_flash, t_start, group, views, seed, ball2world, spin, noise_deg=0.7):
+        from stillcap.ball.orientation import simulate_observations
+        from stillcap.pipelines.pitch.spin import _fit_pair_spin
+
+        self.name, self.strobe_hz, self.group = name, hz, group
+        self.times = t_start + np.arange(len(per_flash)) / hz
+        self.local_times = self.times - self.times[0]
+        self.time_offset_sigma_s = 0.0
+        self.observations = simulate_observations(self.times, ball2world, spin, views, t0=0.0, noise_deg=noise_deg,
+                                                  max_per_flash=per_flash, rng=seed)
+        self.spin = _fit_pair_spin(self, "global", None)
+
+    def __len__(self):
+        return len(self.times)

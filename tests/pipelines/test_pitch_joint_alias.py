@@ -10,34 +10,18 @@ from scipy.spatial.transform import Rotation
 
 from stillcap.ball.alias import CurvatureMeasurement, StrobeMeasurement, resolve_aliases
 from stillcap.ball.metrics import RPM_PER_RAD_S
-from stillcap.ball.orientation import simulate_observations
-from stillcap.pipelines.pitch.spin import _combined_spin, _fit_pair_spin, _joint_decision, _resolve_alias
+from stillcap.pipelines.pitch.spin import _combined_spin, _joint_decision, _resolve_alias
+from support import SimulatedPair
 
 W = np.array([-133.9, -68.8, -82.1])  # 1637 rpm: above the 50 Hz pair's Nyquist limit
 R0 = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()
 
 
-class _Pair:
-    """What the spin stage reads of a stereo pair: its flashes on the reference clock and its
-    markers (simulated, 0.7 deg noise per component)."""
-
-    def __init__(self, name, hz, per_flash, t_start, group, views, seed):
-        self.name, self.strobe_hz, self.group = name, hz, group
-        self.times = t_start + np.arange(len(per_flash)) / hz
-        self.local_times = self.times - self.times[0]
-        self.time_offset_sigma_s = 0.0
-        self.observations = simulate_observations(self.times, R0, W, views, t0=0.0, noise_deg=0.7,
-                                                  max_per_flash=per_flash, rng=seed)
-        self.spin = _fit_pair_spin(self, "global", None)
-
-    def __len__(self):
-        return len(self.times)
-
-
 def _pairs(seed=0):
     # about one marker per flash, as the side-lit capture's pairs saw (front: three at one flash)
-    front = _Pair("front", 80.0, [1, 1, 3, 1, 0, 1, 1, 0, 1], 0.0, 0, [[0.3, -1, 0.2], [-0.3, -1, 0.2]], seed)
-    back = _Pair("back", 50.0, [1, 1, 1, 1, 1, 0, 0], 0.004, 1, [[0.3, -1, 0.1]], seed + 1000)
+    front = SimulatedPair("front", 80.0, [1, 1, 3, 1, 0, 1, 1, 0, 1], 0.0, 0, [[0.3, -1, 0.2], [-0.3, -1, 0.2]], seed,
+                          R0, W)
+    back = SimulatedPair("back", 50.0, [1, 1, 1, 1, 1, 0, 0], 0.004, 1, [[0.3, -1, 0.1]], seed + 1000, R0, W)
     return [front, back]
 
 

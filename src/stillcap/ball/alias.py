@@ -206,6 +206,10 @@ class AliasCandidate:
     chi2_markers : float
         The joint fit's marker misfit above the best solution's (:func:`resolve_joint_fits`; 0
         for candidates ranked on the strobe measurements).
+    p_markers : float
+        The markers' own test of this solution (:func:`marker_misfit_test`): the probability of a
+        misfit this much above the markers' best solution if this one were the truth (1 for
+        candidates ranked on the strobe measurements, and when the markers have no redundancy).
     chi2 : float
         Total.
     probability : float
@@ -223,6 +227,7 @@ class AliasCandidate:
     chi2: float = 0.0
     probability: float = float("nan")
     chi2_markers: float = 0.0
+    p_markers: float = 1.0
 
 
 @dataclass
@@ -251,6 +256,13 @@ class AliasResolution:
         Evidence left out because it contradicts the rest, which agrees without it (see
         :func:`resolve_aliases`); the candidates' ``chi2`` leave it out too (their
         ``chi2_strobes`` still show it).
+    undecided : list of AliasCandidate
+        Other solutions of the markers' fit that the markers themselves cannot reject at the 95 %
+        level (:func:`marker_misfit_test`) and that are not aliases of the best (another rotation
+        per interval at every strobe rate): the markers do not decide the spin
+        (:func:`resolve_joint_fits`).
+    marker_dof : int
+        Degrees of freedom of the markers' noise estimate in that test (-1: not tested).
     """
 
     candidates: list
@@ -262,6 +274,8 @@ class AliasResolution:
     consistent: bool = True
     dof: int = 0
     left_out: list = field(default_factory=list)
+    undecided: list = field(default_factory=list)
+    marker_dof: int = -1
 
 
 def alias_candidates(spin, strobe_hz: float, *, min_rpm: float = 0.0,
@@ -508,11 +522,107 @@ def _same_solution(a, b, limit: float) -> bool:
         return False
 
 
+#: An observation further than this many noise sigmas (the reference solution's) from its
+#: marker counts as an outlier in :func:`marker_misfit_test`: it costs the same in every solution
+#: that misses it (``fit_spin``'s own outlier rule, 4 robust sigmas).
+MARKER_OUTLIER_SIGMAS = 4.0
+
+
+def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
+    """Which fits of one constant spin to the same markers do the markers themselves reject?
+
+    A few marker directions have little redundancy: each observation gives two residual
+    components (one for a marker cut by the limb, :attr:`SpinResult.residual_ranks`) and the fit
+    has six parameters (orientation and spin), so five observations can leave 2 degrees of
+    freedom or none, and every local minimum then fits them almost exactly. The noise level is
+    estimated from the reference solution's own residuals: ``s^2 = S_ref / dof`` with ``dof`` its
+    inliers' components minus 6. For another solution ``i`` the misfit
+    ``S_i`` (every observation, each capped at ``MARKER_OUTLIER_SIGMAS`` noise sigmas: an outlier
+    costs the same everywhere) above ``S_ref`` tests whether its spin is inside the markers'
+    confidence region: ``F = (S_i - S_ref) / (3 s^2)`` has an F(3, dof) distribution if ``i`` were
+    the truth (the likelihood region of nonlinear least squares with the noise estimated from the
+    same residuals, the orientation profiled out; not a chi-square with a known sigma, which a
+    noise level taken from a few near-exact residuals would make absurdly confident). Without
+    redundancy (``dof < 1`` for every solution) nothing is rejected. The reference is the solution
+    with the smallest capped misfit at its own noise level (started from the smallest noise per
+    degree of freedom), so a wrong minimum that keeps more observations as inliers, with a larger
+    noise, is not the yardstick.
+
+    Parameters
+    ----------
+    solutions : sequence of SpinResult
+        Fits to the same observations with ``residuals_noise`` and ``residual_ranks`` (the
+        global fit's); without them the angles ``residuals_deg`` and 2 components each.
+
+    Returns
+    -------
+    (reference index, dof, p-values (n,))
+        ``p[i]``: the upper tail of F(3, dof) at solution ``i``'s statistic (1 for the reference,
+        a solution fitting at least as well, or ``dof < 1``).
+    """
+    from scipy.special import fdtrc
+
+    sols = list(solutions)
+    if not sols:
+        raise ValueError("need at least one spin solution, got 0")
+    res, ranks, inl = [], [], []
+    for s in sols:
+        e = getattr(s, "residuals_noise", None)
+        k = getattr(s, "residual_ranks", None)
+        if e is None or k is None:
+            e, k = np.radians(np.asarray(s.residuals_deg, float)), np.full(len(s.residuals_deg), 2)
+        res.append(np.asarray(e, float))
+        ranks.append(np.asarray(k, int))
+        inl.append(np.asarray(s.inliers, bool))
+    if len({len(e) for e in res}) > 1:
+        raise ValueError("the spin solutions must be fits to the same observations (residuals of equal length)")
+    dofs = np.array([int(np.sum(k[m])) - 6 for k, m in zip(ranks, inl)])
+    s2s = np.array([float(np.nansum(e[m] ** 2)) / d if d >= 1 else np.inf for e, m, d in zip(res, inl, dofs)])
+    p = np.ones(len(sols))
+    if not np.any(np.isfinite(s2s)):
+        return int(np.argmax(dofs)), int(dofs.max()), p
+
+    def capped(s2):
+        c2 = MARKER_OUTLIER_SIGMAS ** 2 * s2
+        return np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2, nan=c2), c2))) for e in res])
+
+    # the reference: the smallest capped misfit at its own noise level (started from the smallest
+    # noise per degree of freedom; a few rounds settle it)
+    ref = int(np.argmin(s2s))
+    for _ in range(5):
+        cost = capped(max(s2s[ref], 1e-300))
+        nxt = int(np.argmin(np.where(np.isfinite(s2s), cost, np.inf)))
+        if cost[nxt] >= cost[ref]:
+            break
+        ref = nxt
+    dof, s2 = int(dofs[ref]), max(float(s2s[ref]), 1e-300)
+    cost = capped(s2)
+    for i in range(len(sols)):
+        f = max(cost[i] - cost[ref], 0.0) / (3.0 * s2)
+        p[i] = 1.0 if i == ref else float(fdtrc(3, dof, f))
+    return ref, int(dof), p
+
+
+def _is_alias(a, b, strobes_hz, rate_tol: float, axis_tol: float, p: float = 0.05) -> bool:
+    """Whether spin fit ``a`` turns the ball as ``b`` does between flashes at one of the strobe
+    rates (``b``'s covariance, the strobe comparison's tolerances; the ``1 - p`` quantile of 3
+    dof): the markers of that rate cannot tell two such spins apart, and they belong to the
+    alias family :func:`alias_candidates` enumerates, which the flight's curvature and the other
+    rate decide (the other rate's markers may be too few to)."""
+    lim = float(chdtri(3, p))
+    cov = np.asarray(b.spin_covariance, float)
+    if not np.all(np.isfinite(cov)):
+        return False
+    return any(
+        _strobe_chi2(np.asarray(a.spin, float), StrobeMeasurement(np.asarray(b.spin, float), f, cov), rate_tol,
+                     axis_tol) <= lim for f in strobes_hz)
+
+
 def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None, measurements=(), *,
                        cap_deg: float = 8.0, curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
                        rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
                        ambiguity_ratio: float = 0.05, same_p: float = 0.05,
-                       consistency_p: float = 1e-3) -> AliasResolution:
+                       consistency_p: float = 1e-3, strobes_hz=(), undecided_p: float = 0.05) -> AliasResolution:
     """Rank fits of one constant spin to the same marker observations (from different starts:
     other aliases, the flight's transverse spin, no start) by the full evidence: the markers
     themselves and the flight's curvature.
@@ -535,6 +645,16 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     spins, :class:`StrobeMeasurement`) are compared with each solution for the record
     (``chi2_strobes``); those the best solution contradicts at the same quantile (3 degrees of
     freedom) are named in ``left_out``. They add nothing to ``chi2``: their markers are in it.
+
+    The markers' own test (:func:`marker_misfit_test`, F with the redundancy the observations
+    have) sets each candidate's ``p_markers``. When the best is not rejected by it, the other
+    solutions it does not reject either (``p_markers >= undecided_p``) and that are not aliases of
+    the best at the strobe rates ``strobes_hz`` (the rates of the pairs whose markers are fitted:
+    the same rotation per interval, which only the curvature and a second strobe rate tell apart)
+    are listed in ``undecided`` (an alias at one of the rates belongs to the alias family the
+    curvature decides, as before): the markers do not decide between different rotations per
+    interval, so the minima found are only a sample of the spins they allow, and the flight's
+    curvature, which sees two of the spin's three components, cannot decide the third.
 
     Parameters
     ----------
@@ -607,10 +727,23 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     if not consistent:
         msg += (f"; the flight's curvature disagrees (chi-square {best.chi2_curvature:.1f} with 2 degrees of "
                 "freedom): the markers or the flight model are wrong")
+    ref, m_dof, p_mk = marker_misfit_test(sols)
+    for k in cands:
+        k.p_markers = float(p_mk[k.source])
+    undecided = []
+    if best.p_markers >= undecided_p:
+        undecided = [c for c in merged[1:] if c.p_markers >= undecided_p
+                     and not _is_alias(sols[c.source], sols[best.source], strobes_hz, rate_tol, axis_tol)]
+    if undecided:
+        u = undecided[0]
+        ang = float(np.degrees(np.arccos(np.clip(u.axis @ best.axis, -1, 1))))
+        msg += (f"; spin alias undecided: the markers cannot reject {u.spin_rpm:.0f} rpm (axis {ang:.0f} deg away, "
+                f"p = {u.p_markers:.2f} with {m_dof} degrees of freedom of their residuals)")
     ambiguous = ratio >= ambiguity_ratio or not consistent
     if ambiguous:
         msg += ": ambiguous"
-    return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg, bool(consistent), int(dof), left_out)
+    return AliasResolution(merged, best, bool(ambiguous), ratio, evidence, msg, bool(consistent), int(dof), left_out,
+                           undecided, int(m_dof))
 
 
 def _chi2_sf(x: float, dof: int) -> float:

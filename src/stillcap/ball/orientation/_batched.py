@@ -70,3 +70,14 @@ def _shifted_residuals(prob, x, R0, j, sel, D, f):
         r1, r2 = Ws[:, 0, 0] * r1 + Ws[:, 0, 1] * r2, Ws[:, 1, 1] * r2
     return np.concatenate([r1.reshape(C, m), r2.reshape(C, m)], axis=1)
 
+
+def _residuals_in_noise(prob, x, R0, j, d):
+    """Every observation's residual length in the units of the fit's noise (the weighted
+    residual in centroid pixels, or the angle in rad without weights) and how many of its two
+    components carry information (:attr:`SpinResult.residual_ranks`): ``((M,), (M,) int)``."""
+    m = len(prob.u)
+    if prob.W is None:
+        return np.asarray(d, float).copy(), np.full(m, 2)
+    e = prob.observation_norms(x, R0, j, np.ones(m, bool)) * np.sqrt(prob.info_scale)
+    sv = np.linalg.svd(prob.W, compute_uv=False)  # (M, 2); a limb-cut marker: one ~0 (the 1e-9 floor)
+    return e, np.sum(sv > 1e-3 * sv[:, :1], axis=1)

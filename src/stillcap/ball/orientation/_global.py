@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array
 from stillcap.ball.layout import BallLayout
-from stillcap.ball.orientation._batched import _observation_weights, _shifted_residuals
+from stillcap.ball.orientation._batched import _observation_weights, _residuals_in_noise, _shifted_residuals
 from stillcap.ball.orientation._flash import orient_flash
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
@@ -777,6 +777,7 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         # centroid fixes poorly toward the line of sight, counts as the precision it has there
         prob.W = prob.W_base
         rms_deg = float(np.degrees(np.sqrt(np.mean(prob.observation_norms(x, R0, j, inl) ** 2))))
+    noise_res, ranks = _residuals_in_noise(prob, x, R0, j, d)
     success = bool(res is None or res.status > 0) and int(inl.sum()) >= 4 and np.all(np.isfinite(w))
     if len(r) - 6 < 2:
         message = "as many parameters as residuals: no uncertainty"
@@ -789,4 +790,4 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         n_inliers=int(inl.sum()), success=success, message=message, method="global",
         fit_time_s=_time.perf_counter() - t_start,
         noise_px=float(np.sqrt(s2 * prob.info_scale)) if prob.W is not None else float("nan"),
-        dof=int(len(r) - 6))
+        dof=int(len(r) - 6), residuals_noise=noise_res, residual_ranks=ranks)

@@ -69,6 +69,16 @@ class SpinResult:
         covariance is scaled by it.
     dof : int
         Residuals minus parameters of the final fit (0 when unknown).
+    residuals_noise : ndarray, shape (M,) or None
+        Each observation's residual length in the units of the fit's noise (global fit): with
+        weighted observations the weighted residual in centroid pixels (what ``noise_px``
+        measures), otherwise the angle in rad; the nearest marker of its type at the solution,
+        every observation (outliers too). None when not computed (the seed method).
+    residual_ranks : ndarray of int, shape (M,) or None
+        How many of each observation's two residual components carry information: 1 for a
+        marker cut by the limb, whose centroid fixes only its direction around the line of
+        sight (:func:`direction_information`), else 2. The redundancy of the fit is
+        ``sum(ranks[inliers]) - 6`` (:func:`stillcap.ball.alias.marker_misfit_test`).
     """
 
     spin: np.ndarray
@@ -94,6 +104,8 @@ class SpinResult:
     fit_time_s: float = 0.0
     noise_px: float = float("nan")
     dof: int = 0
+    residuals_noise: np.ndarray | None = None
+    residual_ranks: np.ndarray | None = None
 
     @property
     def rotation_per_interval_deg(self) -> float:

@@ -25,6 +25,9 @@ thousand; a failed check says which and why:
 - ``alias_margin``: the second-best spin alias's chi-square minus the best's (at least 9, a
   likelihood ratio of 1 %), and the best consistent with the evidence (value None when there is no
   rival alias: then only the consistency counts).
+- ``spin_alias``: fails when the markers themselves cannot reject another rotation per interval
+  than the best (``AliasResolution.undecided``, :func:`stillcap.ball.alias.marker_misfit_test`):
+  the marker spin is then withheld.
 - ``spin_vs_flight``: the marker spin's transverse part against the flight's curvature
   (:func:`stillcap.ball.spin_from_flight.compare_spins`): a reversed axis or a wrong alias.
 - ``missed_ball_images`` (per camera): flashes where the fitted flight puts the whole ball disc
@@ -382,6 +385,16 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
                f"{alias.dof} dof)")
             + ("" if ok else ": the spin rate and axis may be a wrong alias; use two strobe rates"),
             "", "chi2"))
+    undecided = list(getattr(alias, "undecided", None) or []) if alias is not None else []
+    if undecided:
+        b = alias.best
+        checks.append(SelfCheck(
+            "spin_alias", False, float(undecided[0].p_markers), 0.05,
+            f"spin alias undecided: the markers fit {b.spin_rpm:.0f} rpm and "
+            + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} "
+                           "deg away)" for c in undecided[:3])
+            + f" alike (F test of their misfits, {alias.marker_dof} degrees of freedom, p >= 0.05): the marker spin "
+            "is withheld; photograph more markers (a second pair, larger ball images) or two strobe rates", "", "p"))
     if spin_cmp is not None:
         checks.append(SelfCheck(
             "spin_vs_flight", bool(spin_cmp.agree), float(spin_cmp.chi2), _chi2_ppf(1 - spin_cmp.alpha, spin_cmp.dof),

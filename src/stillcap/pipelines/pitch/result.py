@@ -338,4 +338,5 @@ def _alias_dict(alias) -> dict | None:
             "likelihood_ratio": alias.likelihood_ratio, "evidence": list(alias.evidence),
             "consistent": bool(alias.consistent), "dof": int(alias.dof),
             "best_chi2": float(alias.best.chi2), "left_out": list(getattr(alias, "left_out", [])),
+            "undecided_rpm": [float(c.spin_rpm) for c in getattr(alias, "undecided", [])],
             "message": alias.message, "candidates": cands}

@@ -361,7 +361,22 @@ def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, la
             sols.append(s)
             sol_times.append(t)
     meas, _ = _strobe_measurements(pairs)
-    joint = resolve_joint_fits(sols, curv, meas)
+    strobes = sorted({float(p.strobe_hz) for p in pairs if p.observations is not None and len(p.observations)})
+    joint = resolve_joint_fits(sols, curv, meas, strobes_hz=strobes)
+    if joint.undecided:
+        # the markers fit another rotation per interval as well as the best: they do not decide
+        # the spin, and the minima found are only a sample of those they allow (issue 12,
+        # "everything varied" #0: 5 observations, two cut by the limb, 1 degree of freedom; three
+        # minima 1093-1467 rpm with axes up to 131 deg apart, the truth none of them). The spin is
+        # withheld rather than one minimum reported with its local covariance (docs/spin.md).
+        b, u = joint.best, joint.undecided
+        messages.append(
+            f"spin undetermined (spin alias undecided): the markers fit {b.spin_rpm:.0f} rpm and "
+            + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} deg "
+                           f"away, p = {c.p_markers:.2f})" for c in u[:3])
+            + f" alike ({first.n_observations} observations, {joint.marker_dof} degrees of freedom left for their "
+            "noise): the marker spin is withheld")
+        return None, None, joint
     if not doubt and not joint.ambiguous and (
             joint.best.source == 0 or same_solution(first, sols[joint.best.source])):
         # the strobes' choice stands, unchanged (also when a refit lands on the same solution, within
