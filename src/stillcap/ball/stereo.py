@@ -305,8 +305,7 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
     response : Response or its rig-file form, optional
         The camera's response (default sRGB).
     shading : bool
-        ``centers`` are known-radius Hough centres not corrected for shading (what
-        ``ball_centers_stereo`` has when it reads the blur): read the blur again at
+        ``centers`` are known-radius Hough centres not corrected for shading: read the blur again at
         shading-corrected centres, twice: each picked
         image's centre less its shading bias (:func:`_shading_bias` at the blur read so far, the
         refinement's 0.7 px smoothing) and the median again. A partly lit ball's refined but
@@ -314,7 +313,12 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         the limb model placed there and lit from the phase read there misfits the limb, and the
         blur read is too small (drawn 8 px half moons: 1.24 px for 1.5; the studio's back cameras
         1.16-1.28 px); at the true centres it is right (1.53 px). Not for centres already
-        corrected (or true ones): their correction would move them off.
+        corrected (or true ones): their correction would move them off. (``ball_centers_stereo``
+        no longer uses it: it reads the blur again at its refinement's own corrected centres,
+        :func:`_refine_at_photo_blur`.)
+    start_px : float, optional
+        The blur read so far (px), where each image's walk down its misfit starts
+        (:func:`limb_blur_px`' ``start_px``).
     """
     img = _check_image(image)
     c = np.asarray(centers, float).reshape(-1, 2)

@@ -141,6 +141,11 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
     crescent : array_like of bool, shape (N,), optional
         Which balls are crescents (the detector's ``CRESCENT``): their shading correction reads
         the light from a noise-robust centroid (:func:`_shading_bias`' ``thin_rim``).
+    shading_start : array_like, shape (N, 2), optional
+        Each ball's corrected centre (raw px) from an earlier correction at a slightly different
+        ``psf_px`` (:func:`stillcap.ball.stereo.ball_centers_stereo`'s blur read): the corrected
+        centre's search starts there (:func:`_shading_bias`' ``start``); the same centre to the
+        search's tolerance.
 
     Returns
     -------
