@@ -346,27 +346,41 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         return float(np.median(est)) if len(est) else float("nan")
 
     blur = median_blur([cc for _, cc, _ in crops], start_px)
-    corrected = [None] * len(crops)
-    templates = [hough_template(o) for _, _, o in crops] if shading else []
-    for _ in range(BLUR_ROUNDS if shading else 0):
+    if not shading:
+        return blur
+    templates = [hough_template(o) for _, _, o in crops]
+
+    def correct(blur, corrected):
+        # each round's corrected centre starts the next round's search (the blur moved a little)
+        return [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
+                                   smooth=REFINE_SMOOTH_PX, start=prev)
+                for (lin, cc, o), tpl, prev in zip(crops, templates, corrected or [None] * len(crops))]
+    return _blur_rounds(blur, correct, lambda corrected, blur: median_blur(corrected, blur))[0]
+
+
+#: rounds of :func:`photo_blur_px` at shading-corrected centres
+BLUR_ROUNDS = 2
+
+
+def _blur_rounds(blur: float, correct, read):
+    """Up to ``BLUR_ROUNDS`` rounds of a shading correction at the blur read so far
+    (``correct(blur, last) -> corrected``, ``last`` the round before's or None) and the blur
+    read again at its corrected centres (``read(corrected, blur)``), until the read moves by
+    less than 0.02 px. Returns the last blur read, the last correction (None if none was made)
+    and the blur that correction was made at."""
+    corrected, at = None, float("nan")
+    for _ in range(BLUR_ROUNDS):
         if not np.isfinite(blur):
             break
-        # each round's corrected centre starts the next round's search (the blur moved a little)
-        corrected = [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
-                                        smooth=REFINE_SMOOTH_PX, start=prev)
-                     for (lin, cc, o), tpl, prev in zip(crops, templates, corrected)]
-        new = median_blur(corrected, blur)
+        corrected, at = correct(blur, corrected), blur
+        new = read(corrected, blur)
         if not np.isfinite(new):
             break
         done = abs(new - blur) < 0.02
         blur = new
         if done:
             break
-    return blur
-
-
-#: rounds of :func:`photo_blur_px` at shading-corrected centres
-BLUR_ROUNDS = 2
+    return blur, corrected, at
 
 
 def _refine_at_photo_blur(v: int, img, centers, outlines, response, refine) -> tuple[float, RefinedCenters]:
@@ -376,25 +390,19 @@ def _refine_at_photo_blur(v: int, img, centers, outlines, response, refine) -> t
 
     The blur read at refined but uncorrected centres is too small for partly lit balls
     (:func:`photo_blur_px`' ``shading``); read again at the refinement's own corrected centres,
-    it is the one at corrected centres. The refinement is made at the blur read so far and made
-    again (from its corrected centres) while the read moves by 0.02 px or more, up to
-    ``BLUR_ROUNDS`` times: the blur read's corrected centres are the refinement's (once
-    computed, not twice: ``photo_blur_px(shading=True)``, the same loop, corrected 8 ball
-    images a photo again before the refinement corrected all of them)."""
-    blur = photo_blur_px(img, centers, outlines, response)
-    ref = refine(v, _psf_of([blur], 0))
-    for _ in range(BLUR_ROUNDS):
-        if not np.isfinite(blur):
-            break
-        new = photo_blur_px(img, ref.centers, outlines, response, start_px=blur)
-        if not np.isfinite(new):
-            break
-        done = abs(new - blur) < 0.02
-        blur = new
-        if done:
-            break
-        ref = refine(v, blur, ref.centers)
+    it is the one at corrected centres (:func:`_blur_rounds`; the refinement made again from its
+    corrected centres at the new blur while the read moves by 0.02 px or more). The blur read's
+    corrected centres are the refinement's: computed once, not twice
+    (``photo_blur_px(shading=True)``, the same rounds, corrected up to 8 ball images a photo
+    before the refinement corrected all of them again)."""
+    blur, ref, at = _blur_rounds(photo_blur_px(img, centers, outlines, response),
+                                 lambda blur, last: refine(v, blur, None if last is None else last.centers),
+                                 lambda ref, blur: photo_blur_px(img, ref.centers, outlines, response, start_px=blur))
+    if ref is None or abs(blur - at) >= 0.02:
+        # no blur read (the default's refinement), or the last round's read moved by 0.02 px or more
+        ref = refine(v, _psf_of([blur], 0), None if ref is None else ref.centers)
     return blur, ref
+
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:
     """Semi-major axis of the detections' ellipses (split balls: their circle radius; EDGE
