@@ -211,3 +211,30 @@ def test_merged_ball_images_carry_their_split_arcs_sigma():
     assert np.all(np.isfinite(sig[split])) and np.all(np.isnan(sig[~split]))
     assert np.all(err[split] < 2.45 * sig[split])
     assert np.all(sig[[2, 4]] > sig[3])
+
+
+def test_blur_read_at_the_refinements_own_corrected_centres():
+    """8 px half moons under 1.5 px of blur (``tests/detect/test_ball_shading.py``): read at the
+    refined but uncorrected centres the limb fits give ~1.24 px; :func:`_refine_at_photo_blur`
+    reads it again at the refinement's own shading-corrected centres (within 0.1 px of the
+    truth), and the centres it returns are corrected at a blur within 0.02 px of the one it
+    returns (under 0.05 px from the true centres along the light)."""
+    from detect.test_ball_shading import GAMMA22, _row_of_balls
+    from stillcap.ball.stereo import _refine_at_photo_blur, photo_blur_px
+    from stillcap.detect.ball import refine_ball_centers
+
+    img, balls, outl = _row_of_balls(8.0, 1.5, 90.0)
+    c0 = refine_ball_centers(img, balls[:, :2], balls[:, 2], outlines=outl, response=GAMMA22).centers
+    used = []
+
+    def refine(v, psf, start=None):
+        used.append((v, psf, start is not None))
+        return refine_ball_centers(img, c0, balls[:, 2], outlines=outl, response=GAMMA22, start_refined=True,
+                                   shading=np.ones(len(balls), bool), psf_px=psf, shading_start=start)
+
+    blur, ref = _refine_at_photo_blur(0, img, c0, outl, GAMMA22, refine)
+    assert photo_blur_px(img, c0, outl, GAMMA22) < 1.35  # the bias the second read removes
+    assert abs(blur - 1.5) < 0.1, blur
+    assert abs(used[-1][1] - blur) < 0.02 and len(used) >= 2 and used[-1][2]  # redone from corrected centres
+    assert np.all(ref.ok)
+    assert abs(float(np.mean(ref.centers[:, 0] - balls[:, 0]))) < 0.05

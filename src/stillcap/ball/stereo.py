@@ -205,26 +205,27 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
     for it in range(iterations):
         pa, oa, ra = sphere_outline_px(cam_a, X, ball_radius_m)
         pb, ob, rb = sphere_outline_px(cam_b, X, ball_radius_m)
-        if psf is None and it == iterations - 1 and it > 0 and shading:
-            # the photos' blur from the ball images at the latest refined centres (the first
-            # round's start, the ellipse centres, lies up to 0.4 r off)
-            # (uncorrected for shading: read again at corrected centres, ``shading=True``)
-            psf = np.array([photo_blur_px(img_a, ca, oa - pa[:, None], cam_a.response, shading=True),
-                            photo_blur_px(img_b, cb, ob - pb[:, None], cam_b.response, shading=True)])
         # the Hough template is the outline relative to the projected sphere centre, so the
         # refined point is the image of the sphere centre (not the centre of its ellipse)
         # the shading correction only in the last round: earlier rounds only place the outlines
         # (both views of a match, where either silhouette is a half moon: a correction in one view
         # only would move the triangulated depth)
         sh = (part if shading == "partial" else np.ones(K, bool)) if shading and it == iterations - 1 else False
-        ref_a = refine_ball_centers(img_a, ca, ra, search_a, oa - pa[:, None], background_a, start_refined=it > 0,
-                                    shading=sh, response=cam_a.response,
-                                    psf_px=_psf_of(psf, 0),
-                                    crescent=_faint(det_a)[ia])
-        ref_b = refine_ball_centers(img_b, cb, rb, search_b, ob - pb[:, None], background_b, start_refined=it > 0,
-                                    shading=sh, response=cam_b.response,
-                                    psf_px=_psf_of(psf, 1),
-                                    crescent=_faint(det_b)[ib])
+        views = ((img_a, ca, ra, search_a, oa - pa[:, None], background_a, cam_a.response, _faint(det_a)[ia]),
+                 (img_b, cb, rb, search_b, ob - pb[:, None], background_b, cam_b.response, _faint(det_b)[ib]))
+
+        def refine(v, psf_v, start=None, it=it, sh=sh):
+            img, c, r, search, outl, bg, response, faint = views[v]
+            return refine_ball_centers(img, c, r, search, outl, bg, start_refined=it > 0, shading=sh,
+                                       response=response, psf_px=psf_v, crescent=faint, shading_start=start)
+        if psf is None and it == iterations - 1 and it > 0 and shading:
+            # the photos' blur from the ball images, read at the refined centres and again at
+            # the shading-corrected ones (:func:`_refine_at_photo_blur`)
+            (blur_a, ref_a), (blur_b, ref_b) = (_refine_at_photo_blur(v, views[v][0], views[v][1], views[v][4],
+                                                                      views[v][6], refine) for v in (0, 1))
+            psf = np.array([blur_a, blur_b])
+        else:
+            ref_a, ref_b = refine(0, _psf_of(psf, 0)), refine(1, _psf_of(psf, 1))
         # EDGE views: their in-frame limb refitted with the projected outline's shape
         ref_a = _edge_outline_fit(ref_a, det_a, ia, oa - pa[:, None])
         ref_b = _edge_outline_fit(ref_b, det_b, ib, ob - pb[:, None])
@@ -288,7 +289,8 @@ def _psf_of(psf, i: int) -> float:
     return float(psf[i])
 
 
-def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, shading: bool = False) -> float:
+def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, shading: bool = False,
+                  start_px: float | None = None) -> float:
     """Lens blur (Gaussian sigma, px) of a photo: the median of :func:`limb_blur_px` over up to
     ``max_images`` of its ball images (spread evenly over them), NaN when none gives one.
 
@@ -303,8 +305,7 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
     response : Response or its rig-file form, optional
         The camera's response (default sRGB).
     shading : bool
-        ``centers`` are known-radius Hough centres not corrected for shading (what
-        ``ball_centers_stereo`` has when it reads the blur): read the blur again at
+        ``centers`` are known-radius Hough centres not corrected for shading: read the blur again at
         shading-corrected centres, twice: each picked
         image's centre less its shading bias (:func:`_shading_bias` at the blur read so far, the
         refinement's 0.7 px smoothing) and the median again. A partly lit ball's refined but
@@ -312,7 +313,12 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         the limb model placed there and lit from the phase read there misfits the limb, and the
         blur read is too small (drawn 8 px half moons: 1.24 px for 1.5; the studio's back cameras
         1.16-1.28 px); at the true centres it is right (1.53 px). Not for centres already
-        corrected (or true ones): their correction would move them off.
+        corrected (or true ones): their correction would move them off. (``ball_centers_stereo``
+        no longer uses it: it reads the blur again at its refinement's own corrected centres,
+        :func:`_refine_at_photo_blur`.)
+    start_px : float, optional
+        The blur read so far (px), where each image's walk down its misfit starts
+        (:func:`limb_blur_px`' ``start_px``).
     """
     img = _check_image(image)
     c = np.asarray(centers, float).reshape(-1, 2)
@@ -339,28 +345,64 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         est = est[np.isfinite(est)]
         return float(np.median(est)) if len(est) else float("nan")
 
-    blur = median_blur([cc for _, cc, _ in crops])
-    corrected = [None] * len(crops)
-    templates = [hough_template(o) for _, _, o in crops] if shading else []
-    for _ in range(BLUR_ROUNDS if shading else 0):
+    blur = median_blur([cc for _, cc, _ in crops], start_px)
+    if not shading:
+        return blur
+    templates = [hough_template(o) for _, _, o in crops]
+
+    def correct(blur, corrected):
+        # each round's corrected centre starts the next round's search (the blur moved a little)
+        return [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
+                                   smooth=REFINE_SMOOTH_PX, start=prev)
+                for (lin, cc, o), tpl, prev in zip(crops, templates, corrected or [None] * len(crops))]
+    return _blur_rounds(blur, correct, lambda corrected, blur: median_blur(corrected, blur))[0]
+
+
+#: rounds of :func:`photo_blur_px` at shading-corrected centres
+BLUR_ROUNDS = 2
+
+
+def _blur_rounds(blur: float, correct, read):
+    """Up to ``BLUR_ROUNDS`` rounds of a shading correction at the blur read so far
+    (``correct(blur, last) -> corrected``, ``last`` the round before's or None) and the blur
+    read again at its corrected centres (``read(corrected, blur)``), until the read moves by
+    less than 0.02 px. Returns the last blur read, the last correction (None if none was made)
+    and the blur that correction was made at."""
+    corrected, at = None, float("nan")
+    for _ in range(BLUR_ROUNDS):
         if not np.isfinite(blur):
             break
-        # each round's corrected centre starts the next round's search (the blur moved a little)
-        corrected = [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
-                                        smooth=REFINE_SMOOTH_PX, start=prev)
-                     for (lin, cc, o), tpl, prev in zip(crops, templates, corrected)]
-        new = median_blur(corrected, blur)
+        corrected, at = correct(blur, corrected), blur
+        new = read(corrected, blur)
         if not np.isfinite(new):
             break
         done = abs(new - blur) < 0.02
         blur = new
         if done:
             break
-    return blur
+    return blur, corrected, at
 
 
-#: rounds of :func:`photo_blur_px` at shading-corrected centres
-BLUR_ROUNDS = 2
+def _refine_at_photo_blur(v: int, img, centers, outlines, response, refine) -> tuple[float, RefinedCenters]:
+    """The photo's blur (:func:`photo_blur_px`) and the shading-corrected refinement at it, for
+    view ``v`` of :func:`ball_centers_stereo`'s last round (``refine(v, psf_px, start)``: its
+    :func:`refine_ball_centers` at a blur, ``start`` the corrected centres of a round before).
+
+    The blur read at refined but uncorrected centres is too small for partly lit balls
+    (:func:`photo_blur_px`' ``shading``); read again at the refinement's own corrected centres,
+    it is the one at corrected centres (:func:`_blur_rounds`; the refinement made again from its
+    corrected centres at the new blur while the read moves by 0.02 px or more). The blur read's
+    corrected centres are the refinement's: computed once, not twice
+    (``photo_blur_px(shading=True)``, the same rounds, corrected up to 8 ball images a photo
+    before the refinement corrected all of them again)."""
+    blur, ref, at = _blur_rounds(photo_blur_px(img, centers, outlines, response),
+                                 lambda blur, last: refine(v, blur, None if last is None else last.centers),
+                                 lambda ref, blur: photo_blur_px(img, ref.centers, outlines, response, start_px=blur))
+    if ref is None or abs(blur - at) >= 0.02:
+        # no blur read (the default's refinement), or the last round's read moved by 0.02 px or more
+        ref = refine(v, _psf_of([blur], 0), None if ref is None else ref.centers)
+    return blur, ref
+
 
 def _ellipse_radius(det: BallDetections, idx: np.ndarray) -> np.ndarray:
     """Semi-major axis of the detections' ellipses (split balls: their circle radius; EDGE

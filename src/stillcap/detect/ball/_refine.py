@@ -64,7 +64,7 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
                         response: Response | None = None, sigma: float = REFINE_SMOOTH_PX, power: float = 0.0, fine_step: float = 0.1,
                         min_score: float = 0.2, min_edge: float = 0.004, start_refined: bool = False,
                         shading=False, psf_px: float = 0.5, shading_support: float = 0.7,
-                        crescent=None) -> RefinedCenters:
+                        crescent=None, shading_start=None) -> RefinedCenters:
     """Refine ball centres by a circular Hough transform of known radius (step 4).
 
     The radius is known, so the Hough space is 2D: the centre. Every candidate centre within
@@ -141,6 +141,11 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
     crescent : array_like of bool, shape (N,), optional
         Which balls are crescents (the detector's ``CRESCENT``): their shading correction reads
         the light from a noise-robust centroid (:func:`_shading_bias`' ``thin_rim``).
+    shading_start : array_like, shape (N, 2), optional
+        Each ball's corrected centre (raw px) from an earlier correction at a slightly different
+        ``psf_px`` (:func:`stillcap.ball.stereo.ball_centers_stereo`'s blur read): the corrected
+        centre's search starts there (:func:`_shading_bias`' ``start``); the same centre to the
+        search's tolerance.
 
     Returns
     -------
@@ -258,8 +263,9 @@ def refine_ball_centers(image, centers, radius_px, search_px=None, outlines=None
             continue
         if shade[i] if shade is not None else (shading and support < shading_support):
             rep = {}
+            st = None if shading_start is None else np.asarray(shading_start[i], float) - (xa, ya)
             corr[i] = _shading_bias(lin, best, off, tpl, power, np.hypot(sigma, psf_px), fine_step, smooth=sigma,
-                                    thin_rim=bool(thin[i]), report=rep)
+                                    thin_rim=bool(thin[i]), start=st, report=rep)
             phase[i] = rep.get("phase_rad", np.nan), rep.get("phase_sd_rad", np.nan)
             misfit[i] = rep.get("misfit_shift_px", np.nan)
             best = best - corr[i]
