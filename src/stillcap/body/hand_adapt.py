@@ -7,8 +7,10 @@ the hand's poses.
 per flash the root pose and the 21 joint angles (as :func:`~stillcap.body.hand.fit_hand`), and
 shared by all flashes
 
-- the size of the back-of-hand triangle (one factor: the three markers define the hand frame,
-  so their shape is the model's and only its size is free);
+- the size of the back-of-hand triangle (one factor: without a known pose the three markers
+  define the hand frame, so their shape is the model's and only its size is free), and with
+  ``back_sigma_m`` (a calibration: a flash of known angles defines the frame by the bones) each
+  back marker's own place;
 - the offset (3D) of every joint from its parent: per phalanx lengths, the knuckles' places on
   the palm (splay) and the thumb's direction (its axis);
 - the offset (3D) of every digit marker on its bone: its height and place along the bone.
@@ -126,7 +128,7 @@ def _digit_rms(markerset: MarkerSet, skeleton: Skeleton, residuals) -> dict:
 def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions, *, initial=None,
                      joint_sigma: float = 0.12, marker_sigma_m: float = 0.004, noise_m: float = NOISE_M,
                      regularise: float = 1e-4, max_nfev: int = 60, known_deg=None, loss: str = "soft_l1",
-                     point_sigma_m=None) -> HandAdaptation:
+                     point_sigma_m=None, back_sigma_m: float | None = None, start=None) -> HandAdaptation:
     """Adapt the hand model to the person from labelled markers of one or more flashes.
 
     Parameters
@@ -154,6 +156,15 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     point_sigma_m : array_like, shape (n_flashes, n_markers), optional
         Each labelled marker's noise (m) in place of ``noise_m`` (a partly hidden marker's
         larger, as the pose fit weighs it).
+    back_sigma_m : float, optional
+        Also estimate every back-of-hand marker's own place (3D), with this prior spread (m)
+        about the template's triangle (scaled): the hand frame is then the bones' (a flash of
+        known angles fixes it: every phalanx along the frame's x), not the three markers'. None
+        (the default): the triangle keeps the template's shape and only its size is free, as a
+        capture without a known pose needs (there the frame's tilt would trade with every angle).
+    start : HandAdaptation, optional
+        A solution of the same problem with fewer shape parameters free (the triangle held) to
+        start from: its shape and poses (the priors stay on ``skeleton`` and ``markerset``).
 
     Returns
     -------
@@ -195,7 +206,11 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     lo = np.array([lim[i, a, 0] if np.isfinite(lim[i, a, 0]) else -np.pi for i, a in dofs])
     hi = np.array([lim[i, a, 1] if np.isfinite(lim[i, a, 1]) else np.pi for i, a in dofs])
     nj_free = int(cf.sum())
-    ns = 1 + nj_free + 3 * len(mk_free)
+    nb = 3 * len(back) if back_sigma_m is not None else 0  # the back markers' own places (optional)
+    if back_sigma_m is not None and not back_sigma_m > 0:
+        raise ValueError(f"back_sigma_m must be positive (m), got {back_sigma_m}")
+    nm = 1 + nj_free + 3 * len(mk_free)
+    ns = nm + nb
     npp = 6 + nd
     sig_j = joint_sigma * np.linalg.norm(o0[joints_free], axis=1) + 0.002
     # each marker's noise (every coordinate), 1 where unseen (those rows are left out)
@@ -212,6 +227,15 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     if len(known) != F:
         raise ValueError(f"known_deg must have {F} entries (one per flash), got {len(known)}")
     x0, a0s = [np.zeros(ns)], []
+    if start is not None:  # the shape of a solution (its joint and marker offsets) as the start
+        ob, m0b = start.markerset.offsets[back], m0[back]
+        sc = float(np.sum(ob * m0b) / np.sum(m0b * m0b))
+        x0[0][0] = np.log(sc)
+        x0[0][1:1 + nj_free] = (start.skeleton.offsets[joints_free] - o0[joints_free]).ravel()[cf]
+        x0[0][1 + nj_free:nm] = (start.markerset.offsets[mk_free] - m0[mk_free]).ravel()
+        if nb:
+            x0[0][nm:ns] = (ob - m0b * sc).ravel()
+        initial = start.poses
     for k in range(F):
         ang = np.zeros((J, 3))
         if known[k] is not None:
@@ -219,8 +243,13 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         elif initial is not None and initial[k] is not None:
             ang = np.radians(skeleton.limit_angles_deg(initial[k].local_rotations))
         a = np.clip([ang[i, ax] for i, ax in dofs], lo + 1e-9, hi - 1e-9)
-        fit0 = rigid_alignment(m0[back], pts[k, back])
-        x0.append(np.concatenate([fit0.rotation.as_rotvec(), fit0.translation, a]))
+        if start is not None:  # the start's root pose
+            r2w = start.poses[k].root2world
+            rt = np.concatenate([Rotation.from_matrix(r2w[:3, :3]).as_rotvec(), r2w[:3, 3]])
+        else:
+            fit0 = rigid_alignment(m0[back], pts[k, back])
+            rt = np.concatenate([fit0.rotation.as_rotvec(), fit0.translation])
+        x0.append(np.concatenate([rt, a]))
         a0s.append(a)
     x0 = np.concatenate(x0)
     a0s = np.array(a0s)
@@ -234,7 +263,9 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         joff[:, joints_free] = o0[joints_free][None] + dj.reshape(P, -1, 3)
         moff = np.broadcast_to(m0, (P, M, 3)).copy()
         moff[:, back] = m0[back][None] * np.exp(ls)[:, None, None]
-        moff[:, mk_free] = m0[mk_free][None] + X[:, 1 + nj_free:ns].reshape(P, -1, 3)
+        if nb:
+            moff[:, back] += X[:, nm:ns].reshape(P, -1, 3)
+        moff[:, mk_free] = m0[mk_free][None] + X[:, 1 + nj_free:nm].reshape(P, -1, 3)
         return joff, moff
 
     def markers_at(joff, moff, Y):
@@ -265,8 +296,9 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
         prior_j = ((joff[:, joints_free] - o0[joints_free][None]) / sig_j[None, :, None]).reshape(P, -1)
         prior_m = ((moff[:, mk_free] - m0[mk_free][None]) / marker_sigma_m).reshape(P, -1)
         prior_s = X[:, :1] / 0.2
+        prior_b = X[:, nm:ns] / back_sigma_m if nb else X[:, :0]
         reg = (regularise / noise_m) * (Y[..., 6:] - a0s[None]).reshape(P, -1)
-        return np.concatenate([data, prior_j, prior_m, prior_s, reg], axis=1)
+        return np.concatenate([data, prior_j, prior_m, prior_s, prior_b, reg], axis=1)
 
     lb = np.concatenate([np.full(ns, -np.inf)] + [np.concatenate([np.full(6, -np.inf), lo]) for _ in range(F)])
     ub = np.concatenate([np.full(ns, np.inf)] + [np.concatenate([np.full(6, np.inf), hi]) for _ in range(F)])
@@ -281,7 +313,7 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
 
     n_seen = seen.sum(axis=1) * 3
     data_at = np.concatenate([[0], np.cumsum(n_seen)])
-    reg_at = int(data_at[-1]) + len(joints_free) * 3 + len(mk_free) * 3 + 1
+    reg_at = int(data_at[-1]) + len(joints_free) * 3 + len(mk_free) * 3 + 1 + nb
 
     def jac(x):
         # forward differences, vectorised: the shape's columns in one call over all flashes, each
@@ -352,10 +384,15 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     for r, k in enumerate(mk_free):
         q = 1 + nj_free + 3 * r + np.arange(3)
         mcov[k] = cov[np.ix_(q, q)]
+    for r, k in enumerate(back if nb else ()):
+        q = nm + 3 * r + np.arange(3)
+        mcov[k] = cov[np.ix_(q, q)]
     jz = np.zeros(J)
     jz[joints_free] = np.abs((joff[0, joints_free] - o0[joints_free]) / sig_j[:, None]).max(axis=1)
     mz = np.zeros(M)
     mz[mk_free] = np.abs(moff[0, mk_free] - m0[mk_free]).max(axis=1) / marker_sigma_m
+    if nb:
+        mz[back] = np.abs(moff[0, back] - m0[back] * np.exp(sol.x[0])).max(axis=1) / back_sigma_m
     jsig = np.zeros(J)
     jsig[joints_free] = sig_j
     return HandAdaptation(sk, ms, poses, res, rms, F, bool(sol.success), str(sol.message), jcov, mcov, jz, mz,

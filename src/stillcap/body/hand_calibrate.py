@@ -38,7 +38,7 @@ from stillcap.body.hand import BACK_MARKERS, DIGITS, fit_hand, hand_markerset, h
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 
-__all__ = ["CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO", "MAX_POSED_TRIES",
+__all__ = ["BACK_SIGMA_M", "CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO", "MAX_POSED_TRIES",
            "CalibratedParameter",
            "HandCalibration", "calibration_angles", "calibrate_hand",
            "calibrate_hand_from_points", "calibrate_hand_from_point_sets", "CalibrationPoints", "phalanx_lengths"]
@@ -60,6 +60,13 @@ MAX_LENGTH_SIGMA_M = 0.0015
 #: not fixed by the capture (its variance shrank by less than half): the self-check
 #: ``calibration_fixes_the_model`` names it (a warning; the value stays near the template's).
 UNFIXED_SIGMA_RATIO = 0.7
+#: Prior spread (m) of each component of a back-of-hand marker's place, as every digit marker's
+#: (:func:`~stillcap.body.hand_adapt.adapt_hand_model`'s ``marker_sigma_m``). The hand frame is
+#: the bones' (in the flat pose every phalanx lies along its x, every hinge turns about its y), not
+#: the three markers': a glove's back markers sit a millimetre or two off the template's triangle,
+#: and a triangle held to the template's shape tilts the frame by that much over its 5 cm (1-3 deg
+#: on the studio's other hands), which the fingers' markers then absorb (docs/hand-calibration.md).
+BACK_SIGMA_M = 0.004
 #: Flashes tried as the posed one, nearest the pose first, before the capture is refused (each
 #: refusal costs one fit; a flash is refused when its markers do not fit the pose stated).
 MAX_POSED_TRIES = 3
@@ -300,7 +307,7 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
                    markerset: MarkerSet | None = None, noise_m: float = NOISE_M, max_nfev: int = 200,
                    refuse_rms_m: float = REFUSE_RMS_M, refuse_prior_z: float = REFUSE_PRIOR_Z,
                    max_length_sigma_m: float | None = None, posed_sigma_m=None, free_sigma_m=None,
-                   loss: str = "linear") -> HandCalibration:
+                   loss: str = "linear", back_sigma_m: float | None = BACK_SIGMA_M) -> HandCalibration:
     """The person's hand model from labelled markers in a calibration pose (module docstring).
 
     Parameters
@@ -335,6 +342,12 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
         SciPy's loss (:func:`~stillcap.body.hand_adapt.adapt_hand_model`): ``"linear"`` (every
         label at its noise; the model reported); ``"soft_l1"`` bounds a wrong label's pull, which
         :func:`calibrate_hand_from_point_sets` uses only to find the labels to leave out.
+    back_sigma_m : float or None
+        Prior spread (m) of each back-of-hand marker's place about the template's triangle scaled
+        (:data:`BACK_SIGMA_M`); None: the triangle keeps the template's shape, only its size is
+        free (as before 27 November 2026). The refusals (the posed flash's residual, the priors'
+        z) are decided on the fit with the triangle held; the model returned is the fit with it
+        free, started from the held fit's shape and poses (two fits).
     """
     from stillcap._selfcheck import SelfCheck
     from stillcap.body.hand_adapt import adapt_hand_model
@@ -358,6 +371,10 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
                               np.asarray(posed_sigma_m, float).reshape(posed.shape[:2]),
                               np.full(free.shape[:2], noise_m) if free_sigma_m is None else
                               np.asarray(free_sigma_m, float).reshape(free.shape[:2])])
+    # the pose checks below are made on the fit with the back triangle's shape held (the
+    # template's): with the triangle free, the frame could tilt toward a flash that is not flat
+    # (with it free in every fit, another_hand(7)'s rendered capture took another flash as flat
+    # and came out at 6.75 deg against 2.44, docs/hand-calibration.md)
     ad = adapt_hand_model(sk, ms, pts, known_deg=kd, initial=init, noise_m=noise_m, loss=loss, max_nfev=max_nfev,
                           point_sigma_m=sig)
     res = ad.residuals
@@ -386,6 +403,11 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     checks.append(SelfCheck("model_plausibility", True, float(max(zj.max(), zm.max())),
                             refuse_prior_z, "no joint or marker moved implausibly far from the template", pose,
                             "prior sigmas"))
+    if back_sigma_m is not None:  # the model: the triangle's own shape, the frame the bones' (BACK_SIGMA_M)
+        ad = adapt_hand_model(sk, ms, pts, known_deg=kd, start=ad, noise_m=noise_m, loss=loss,
+                              max_nfev=max_nfev, point_sigma_m=sig, back_sigma_m=back_sigma_m)
+        res = ad.residuals
+        pose_rms = float(np.sqrt(np.nanmean(res[:len(posed)] ** 2)))
     sk1 = Skeleton(ad.skeleton.joints, name=f"{sk0.name}-calibrated", source=f"hand-calibrate ({pose})")
     ms1 = MarkerSet(ad.markerset.markers, ad.markerset.rules, ms0.name, sk1.name, f"hand-calibrate ({pose})")
     ad.skeleton, ad.markerset = sk1, ms1
@@ -514,11 +536,13 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
         raise ValueError(f"no flash of the calibration capture{'s' if multi else ''} has a hand pose ({why})")
     # the flash nearest the pose may not be in it (a wrong label, a hand not yet flat): the next
     # nearest ones are tried, up to max_posed_tries, before the capture is refused
+    # the first pass's model only labels the second pass: from the posed flash alone, which bends
+    # no joint, the back triangle's shape cannot be told from the frame's tilt, so it is held
     refused, first = [], None
     for c0, k0 in order[:max_posed_tries]:
         try:
             first = calibrate_hand(labs[c0].positions[k0], pose=pose, skeleton=sk0, markerset=ms0,
-                                   posed_sigma_m=sigma(c0, labs[c0], [k0]), **kw)
+                                   posed_sigma_m=sigma(c0, labs[c0], [k0]), **{**kw, "back_sigma_m": None})
             break
         except ValueError as e:
             refused.append(((c0, float(labs[c0].times[k0])), _flash_name(labs[c0], c0, k0, multi), e))
@@ -584,7 +608,7 @@ def _robust_fit(fit: dict) -> tuple[HandCalibration, np.ndarray]:
     its misfit. Nothing is refused here (soft-L1 softens the priors too: a wrong label 56 mm off
     still moves its marker's place 38 mm, though it keeps its misfit)."""
     rob = calibrate_hand(**{**fit, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
-                            "max_length_sigma_m": None})
+                            "max_length_sigma_m": None, "back_sigma_m": None})
     seen = np.isfinite(rob.misfit)
     bad = seen & (np.where(seen, rob.misfit, 0.0) > misfit_limit(int(seen.sum())))
     bad[:, [rob.markerset.index(n) for n in BACK_MARKERS]] = False  # every flash's pose needs them
