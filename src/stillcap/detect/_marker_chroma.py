@@ -25,7 +25,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stillcap.detect._marker_noise import _robust_ceiling
+from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
 
 __all__ = ["MARGIN_DEG", "MAX_ANGLE_DEG", "MAX_SHARE", "MIN_WHITE", "NOISE_Z", "SHARE_COLOR", "SHARE_MIXED",
            "chroma_per_darkness", "luma_thresholds", "recolor_dark"]
@@ -90,10 +90,11 @@ def chroma_per_darkness(color_bgr) -> np.ndarray:
     return (c - y) / max(1.0 - y, 1e-3)
 
 
-def luma_thresholds(classes: list, dark_luma_lit: list, dark_ratio: float, weak_membership: float,
-                    scale: float = 1.0):
-    """Thresholds for finding coloured paint by its luma darkness alone: ``(d_min, core, weak)``
-    (luma darkness relative to the local white), or None without classes or lit leather.
+def luma_thresholds(classes: list, dark_luma_lit: list, white_lit: list, dark_ratio: float,
+                    weak_membership: float, scale: float = 1.0):
+    """Thresholds for finding coloured paint by its luma darkness alone: ``(d_min, core, weak,
+    floor)`` (luma darkness relative to the local white; ``floor``: the noise ceiling per local
+    white, ``(white, ceiling)`` for ``np.interp``, or None), or None without classes or lit leather.
 
     JPEG keeps the luma at full resolution and the chroma at half (4:2:0), quantised more
     coarsely: a marker a few pixels across keeps its luma darkness but its per-pixel saturation
@@ -103,14 +104,20 @@ def luma_thresholds(classes: list, dark_luma_lit: list, dark_ratio: float, weak_
     whose summed chroma (:func:`recolor_dark`) names its colour. The thresholds are the dark
     detector's shares of the paint's darkness (``1 - dark_ratio`` for the core,
     ``weak_membership`` for the region) at the photo's contrast ``scale``, never below the lit
-    leather's luma-darkness noise (median + 6 robust sigmas, ``dark_luma_lit``: arrays per ball).
+    leather's luma-darkness noise (median + 6 robust sigmas, ``dark_luma_lit``: arrays per ball),
+    nor below its ceiling at the pixel's own local white (``white_lit``, the same pixels'; as
+    the dark detector's: relative darkness is noisier on dim leather, where a back-lit crescent's
+    noise otherwise passed as paint).
     """
     if not classes or not dark_luma_lit:
         return None
     d_min = min(1.0 - float(_LUMA @ (np.asarray(t.color_bgr, float) / 255.0)) for tl in classes for t in tl)
     d_min = max(d_min, 0.05)
-    noise = _robust_ceiling(np.concatenate(dark_luma_lit))
-    return d_min, max((1.0 - dark_ratio) * scale * d_min, noise), max(weak_membership * scale * d_min, noise)
+    dl = np.concatenate(dark_luma_lit)
+    noise = _robust_ceiling(dl)
+    floor = _noise_by_brightness(np.concatenate(white_lit), dl)
+    return (d_min, max((1.0 - dark_ratio) * scale * d_min, noise), max(weak_membership * scale * d_min, noise),
+            floor)
 
 
 def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: float, classes,

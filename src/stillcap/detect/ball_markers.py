@@ -626,7 +626,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             d_core = max((1.0 - dark_ratio) * sc[-1], d_noise)
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     # coloured paint found by its luma darkness, named by its summed chroma (JPEG, _marker_chroma)
-    luma_th = _mc.luma_thresholds([tl for tl, _, _ in chroma], dl_lit, dark_ratio, weak_membership,
+    luma_th = _mc.luma_thresholds([tl for tl, _, _ in chroma], dl_lit, vc_lit, dark_ratio, weak_membership,
                                   sc[-1] if adapt_thresholds and prep and sat_lit else 1.0) if chroma_check else None
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
@@ -664,7 +664,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             cand.append((dark, soft >= dw, lit_free & (1.0 - ratio > dc), soft))
         if luma_th is not None and ck is not None and len(pal_u):
             soft = np.where(lit, np.clip(dark_luma / luma_th[0], 0, 1), 0.0).astype(np.float32, copy=False)
-            cand.append((None, lit & (dark_luma >= luma_th[2]), lit & (dark_luma >= luma_th[1]), soft))
+            local = 0.0 if luma_th[3] is None else np.interp(vclose, *luma_th[3]).astype(np.float32)
+            cand.append((None, lit & (dark_luma >= np.maximum(luma_th[2], local)),
+                         lit & (dark_luma >= np.maximum(luma_th[1], local)), soft))
         taken = np.zeros(disc.shape, np.uint8)  # the regions kept so far (the luma path takes the rest)
         for tl, weak, core, soft in cand:
             if tl is None:
@@ -682,7 +684,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                     named = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
                                              k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
                     # a luma region is kept only where its chroma names a colour (black is the dark path's)
-                    rw = None if tl is None and named is rw else named
+                    # and off the lit disc's edge (there luma darkness is the terminator's or the limb's)
+                    rw = None if tl is None and (named is rw or rw[7] & MarkerFlag.AT_EDGE) else named
                 if rw is not None:
                     bx, by, bw, bh = stats[j, :4]
                     taken[by:by + bh, bx:bx + bw] |= (lab[by:by + bh, bx:bx + bw] == j).view(np.uint8)
