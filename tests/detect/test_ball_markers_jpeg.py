@@ -37,13 +37,13 @@ def _coloured_found(jpeg: int):
 def test_jpeg70_keeps_small_coloured_markers():
     """JPEG 70 spreads a 2-4 px marker's chroma over its 8x8 block at a third of its saturation,
     under the leather's chroma noise; its luma darkness stays. On the same scenes JPEG 70 must
-    find, with their own colour, well over a fifth of the blue and green markers JPEG 98 finds
-    and of those facing the camera, with no more false detections (813fc83: 12 of JPEG 98's 57,
-    15 % of the 82 facing; with the luma path 33 of 65, 40 %)."""
+    find, with their own colour, half the blue and green markers JPEG 98 finds and 40 % of those
+    facing the camera, with no more false detections (813fc83: 12 of JPEG 98's 57, 15 % of the
+    82 facing; with the luma path 46 of 71, 56 %)."""
     n98, found98, false98 = _coloured_found(98)
     n70, found70, false70 = _coloured_found(70)
     assert n98 == n70 > 60
     assert found98 > 0.6 * n98  # the scenes' markers are findable at all
-    assert found70 >= 0.35 * found98, (found70, found98)
-    assert found70 >= 0.3 * n70, (found70, n70)
+    assert found70 >= 0.5 * found98, (found70, found98)
+    assert found70 >= 0.4 * n70, (found70, n70)
     assert false70 <= false98, (false70, false98)

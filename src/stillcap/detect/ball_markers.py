@@ -684,8 +684,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                     named = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
                                              k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
                     # a luma region is kept only where its chroma names a colour (black is the dark path's)
-                    # and off the lit disc's edge (there luma darkness is the terminator's or the limb's)
-                    rw = None if tl is None and (named is rw or rw[7] & MarkerFlag.AT_EDGE) else named
+                    # and not a sliver (a thin luma region along a half moon's terminator is its shading)
+                    rw = None if tl is None and (named is rw or rw[7] & MarkerFlag.FORESHORTENED) else named
                 if rw is not None:
                     bx, by, bw, bh = stats[j, :4]
                     taken[by:by + bh, bx:bx + bw] |= (lab[by:by + bh, bx:bx + bw] == j).view(np.uint8)
