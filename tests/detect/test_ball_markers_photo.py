@@ -21,7 +21,7 @@ def _cast(img, gains_rgb):
     return np.round(255.0 * np.clip(lin, 0, 1) ** (1 / 2.2)).astype(np.uint8)
 
 
-def _totals(seeds, r_range, blur, cast=None, wb="auto", adapt=True):
+def _totals(seeds, r_range, blur, cast=None, wb="auto", adapt=True, chroma_check=True):
     """(n, found, right type, right shape, false detections not flagged at the limb or edge)."""
     tot = np.zeros(5, int)
     for seed in seeds:
@@ -30,7 +30,8 @@ def _totals(seeds, r_range, blur, cast=None, wb="auto", adapt=True):
         img, truth = draw_balls(SIZE, balls, markers=mk, rng=seed, blur=blur)
         if cast is not None:
             img = _cast(img, cast)
-        m = detect_ball_markers(img, balls[:, :2], balls[:, 2], white_balance=wb, adapt_thresholds=adapt)
+        m = detect_ball_markers(img, balls[:, :2], balls[:, 2], white_balance=wb, adapt_thresholds=adapt,
+                                chroma_check=chroma_check)
         n, found, typ, shp, _, _ = score(m, truth, balls)
         false = 0
         for k in range(len(m)):
@@ -56,10 +57,13 @@ def test_white_balance_measured_on_the_leather():
 def test_cast_photo_types_like_a_neutral_one():
     n, found, typ, _, false = _totals((0, 1), (20, 32), 0.6, cast=CAST_RGB)
     assert found >= 0.9 * n and typ == found and false == 0
-    # without the measured balance the same photos lose or mistype markers (the leather turns
-    # orange: near the red's hue)
-    n2, found2, typ2, _, false2 = _totals((0, 1), (20, 32), 0.6, cast=CAST_RGB, wb=None)
+    # without the measured balance the colour path alone loses or mistypes markers (the leather
+    # turns orange: near the red's hue) ...
+    n2, found2, typ2, _, false2 = _totals((0, 1), (20, 32), 0.6, cast=CAST_RGB, wb=None, chroma_check=False)
     assert typ2 < typ or false2 > 0
+    # ... which the luma path finds again: its chroma is taken relative to the leather around it
+    n3, found3, typ3, _, false3 = _totals((0, 1), (20, 32), 0.6, cast=CAST_RGB, wb=None)
+    assert typ3 > typ2 and false3 == 0
 
 
 def test_blurred_small_markers_found_by_their_own_contrast():

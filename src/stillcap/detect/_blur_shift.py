@@ -1,6 +1,6 @@
 """The centroid correction for lens blur over a ball's shading, and that correction's own error
-(:func:`stillcap.detect.ball_markers.detect_ball_markers` applies them; the shading model is its
-``_fit_shading``'s ``(a, b, c, d, cx, cy, r)``: ``S = a nx + b ny + c nz + d`` on the sphere)."""
+(:func:`stillcap.detect.ball_markers.detect_ball_markers` applies them; the shading model is
+:func:`_fit_shading`'s ``(a, b, c, d, cx, cy, r)``: ``S = a nx + b ny + c nz + d`` on the sphere)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None
     the kernel ``P(z) exp(-g z)`` has its mean at ``-s^2 g``). On the studio's 15 px balls with
     1.5 px of blur that is 0.15-0.2 px outward for markers face-on, about 1 deg of direction.
     This returns ``+s^2 grad(log S)`` at ``center`` from the shading model
-    (``ball_markers._fit_shading``), at most ``max_shift_px`` (default ``blur_px``) long, and zero where the
+    (:func:`_fit_shading`), at most ``max_shift_px`` (default ``blur_px``) long, and zero where the
     model's shading is under 10 % of its brightest (near the terminator, where it is unreliable).
     """
     return _shift(model, center, blur_px, max_shift_px)[0]
@@ -70,3 +70,35 @@ def shading_blur_error(model, center, blur_px: float) -> np.ndarray:
     """The 1-sigma error of :func:`shading_blur_shift`'s correction at ``center``, px
     (:func:`shading_blur_correction`'s second part)."""
     return shading_blur_correction(model, center, blur_px)[1]
+
+
+def _fit_shading(luma, X, Y, cx, cy, r, sel, response):
+    """The ball's shading in linear light as a Lambertian sphere with ambient light:
+    ``S = a n_x + b n_y + c n_z + d`` (``n`` the sphere's normal at each pixel, (x, y) from the
+    image, ``n_z`` toward the camera), least squares over the leather pixels ``sel``. Exact for a
+    matte sphere lit by one distant light (and any ambient) wherever it is lit; near the
+    terminator the clipping at 0 departs from it. Returns ``(a, b, c, d, cx, cy, r)`` or None
+    when too few pixels are lit."""
+    if np.count_nonzero(sel) < 12:
+        return None
+    lin = response.linearize(np.clip(luma[sel] * 255.0, 0, 255)).astype(float)
+    rows, cols = sel.nonzero()  # X (1, w) and Y (h, 1) at the selected pixels, in boolean-index order
+    nx = (X[0, cols] - cx) / r
+    ny = (Y[rows, 0] - cy) / r
+    nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
+    A = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
+    coef, *_ = np.linalg.lstsq(A, lin, rcond=None)
+    peak = float(np.hypot(np.hypot(coef[0], coef[1]), coef[2]) + coef[3])
+    rms = float(np.sqrt(((A @ coef - lin) ** 2).mean()))
+    if not (np.isfinite(coef).all() and peak > 0 and rms <= 0.1 * peak):
+        return None  # not a matte shaded sphere (texture, clipping, several lights): no model
+    return (*coef, cx, cy, r)
+
+
+def _shading_at(model, X, Y):
+    """The shading model's linear brightness at pixels ``X`` (1, w), ``Y`` (h, 1), at least
+    1e-4 (beyond the terminator the model goes negative)."""
+    a, b, c, d, cx, cy, r = model
+    nx, ny = (X - cx) / r, (Y - cy) / r
+    nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
+    return np.maximum(a * nx + b * ny + c * nz + d, 1e-4)

@@ -38,7 +38,7 @@ import numpy as np
 from stillcap._checks import as_array
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
-from stillcap.detect._blur_shift import shading_blur_correction, shading_blur_shift
+from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
 from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
@@ -427,12 +427,16 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         The camera's response (default sRGB): the shading model is fitted in linear light.
     shading_model : bool
         Measure each marker's darkness against the ball's shading fitted as a matte sphere
-        (:func:`_fit_shading`) where that model explains the leather (residual RMS within
-        10 % of its brightest), else against a morphological closing of the brightness; False:
-        always the closing (as before issue 12).
+        (:func:`stillcap.detect._blur_shift._fit_shading`) where that model explains the leather
+        (residual RMS within 10 % of its brightest), else against a morphological closing of the
+        brightness; False: always the closing (as before issue 12).
     chroma_check : bool
         A dark region whose summed chroma a palette colour mostly explains is that colour's paint,
-        or left out if mixed (JPEG, :func:`stillcap.detect._marker_chroma.recolor_dark`); False: black.
+        or left out if mixed (JPEG, :func:`stillcap.detect._marker_chroma.recolor_dark`); and the
+        lit pixels no region took are searched for coloured paint by their luma darkness alone,
+        a region kept where its summed chroma names a colour (JPEG's 4:2:0 chroma leaves a small
+        marker under the colour thresholds: :func:`~stillcap.detect._marker_chroma.luma_thresholds`).
+        False: neither (dark regions are black).
 
     Returns
     -------
@@ -487,7 +491,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         near = np.hypot(*(c[None, :, :] - c[:, None, :]).transpose(2, 0, 1)) < radii[None, :] + radii[:, None]
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
-    prep, ch_peak, sat_lit, dk_lit, vc_lit, ch_noise = [], [], [], [], [], []
+    prep, ch_peak, sat_lit, dk_lit, vc_lit, ch_noise, dl_lit = [], [], [], [], [], [], []
     shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
@@ -563,8 +567,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             sat_lit.append(sat[lit])
             dk_lit.append(1.0 - ratio[lit])
             vc_lit.append(vclose[lit])
+            dl_lit.append(dark_luma[lit])
         # the chroma relative to the local white, for telling coloured paint from black (JPEG)
-        ckm = (crop - luma[..., None], np.asarray(white, np.float32)) if (dark and chroma_check) else None
+        ckm = (crop - luma[..., None], np.asarray(white, np.float32)) if (chroma and chroma_check) else None
         if ckm is not None and (lit & (dark_luma < 0.1)).any():
             ch_noise.append((ckm[0][lit & (dark_luma < 0.1)], ckm[1][lit & (dark_luma < 0.1)]))
         prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
@@ -620,6 +625,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if dark:
             d_core = max((1.0 - dark_ratio) * sc[-1], d_noise)
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
+    # coloured paint found by its luma darkness, named by its summed chroma (JPEG, _marker_chroma)
+    luma_th = _mc.luma_thresholds([tl for tl, _, _ in chroma], dl_lit, vc_lit, dark_ratio, weak_membership,
+                                  sc[-1] if adapt_thresholds and prep and sat_lit else 1.0) if chroma_check else None
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
     ref32 = ref.astype(np.float32).reshape(-1, 1, 1)
@@ -654,18 +662,33 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 local = np.interp(vclose, *d_floor).astype(np.float32)
                 dc, dw = np.maximum(d_core, local), np.maximum(d_weak, local / max(1.0 - v_pal, 0.1))
             cand.append((dark, soft >= dw, lit_free & (1.0 - ratio > dc), soft))
+        if luma_th is not None and ck is not None and len(pal_u):
+            soft = np.where(lit, np.clip(dark_luma / luma_th[0], 0, 1), 0.0).astype(np.float32, copy=False)
+            local = 0.0 if luma_th[3] is None else np.interp(vclose, *luma_th[3]).astype(np.float32)
+            cand.append((None, lit & (dark_luma >= np.maximum(luma_th[2], local)),
+                         lit & (dark_luma >= np.maximum(luma_th[1], local)), soft))
+        taken = np.zeros(disc.shape, np.uint8)  # the regions kept so far (the luma path takes the rest)
         for tl, weak, core, soft in cand:
+            if tl is None:
+                free = cv2.dilate(taken, _BOX3) == 0
+                weak, core = weak & free, core & free
             if not core.any():
                 continue
             n, lab, stats, _ = cv2.connectedComponentsWithStats(weak.view(np.uint8), connectivity=8)
             areas = stats[:, cv2.CC_STAT_AREA]
             has_core = np.bincount(lab[core], minlength=n) > 0
             for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
-                rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl, float(areas[j]), bi, cx, cy, r,
-                              disc, inner, limb_fraction, min_aspect)
-                if rw is not None and tl is dark and ck is not None and len(pal_u):
-                    rw = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
-                                      k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
+                rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl or chroma[0][0], float(areas[j]), bi,
+                              cx, cy, r, disc, inner, limb_fraction, min_aspect)
+                if rw is not None and (tl is dark or tl is None) and ck is not None and len(pal_u):
+                    named = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
+                                             k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
+                    # a luma region is kept only where its chroma names a colour (black is the dark path's)
+                    # and not a sliver (a thin luma region along a half moon's terminator is its shading)
+                    rw = None if tl is None and (named is rw or rw[7] & MarkerFlag.FORESHORTENED) else named
+                if rw is not None:
+                    bx, by, bw, bh = stats[j, :4]
+                    taken[by:by + bh, bx:bx + bw] |= (lab[by:by + bh, bx:bx + bw] == j).view(np.uint8)
                 rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
     err = [np.zeros(2)] * len(rows)
@@ -756,35 +779,3 @@ def _by_size(tlist: list, major_var_px2: float, r_px: float) -> MarkerType:
         return tlist[0]
     expected = np.array([0.5 * t.spread_rad2 * r_px ** 2 + 1 / 6 for t in tlist])
     return tlist[int(np.argmin(np.abs(np.log(major_var_px2 / expected))))]
-
-
-def _fit_shading(luma, X, Y, cx, cy, r, sel, response):
-    """The ball's shading in linear light as a Lambertian sphere with ambient light:
-    ``S = a n_x + b n_y + c n_z + d`` (``n`` the sphere's normal at each pixel, (x, y) from the
-    image, ``n_z`` toward the camera), least squares over the leather pixels ``sel``. Exact for a
-    matte sphere lit by one distant light (and any ambient) wherever it is lit; near the
-    terminator the clipping at 0 departs from it. Returns ``(a, b, c, d, cx, cy, r)`` or None
-    when too few pixels are lit."""
-    if np.count_nonzero(sel) < 12:
-        return None
-    lin = response.linearize(np.clip(luma[sel] * 255.0, 0, 255)).astype(float)
-    rows, cols = sel.nonzero()  # X (1, w) and Y (h, 1) at the selected pixels, in boolean-index order
-    nx = (X[0, cols] - cx) / r
-    ny = (Y[rows, 0] - cy) / r
-    nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
-    A = np.stack([nx, ny, nz, np.ones_like(nx)], axis=1)
-    coef, *_ = np.linalg.lstsq(A, lin, rcond=None)
-    peak = float(np.hypot(np.hypot(coef[0], coef[1]), coef[2]) + coef[3])
-    rms = float(np.sqrt(((A @ coef - lin) ** 2).mean()))
-    if not (np.isfinite(coef).all() and peak > 0 and rms <= 0.1 * peak):
-        return None  # not a matte shaded sphere (texture, clipping, several lights): no model
-    return (*coef, cx, cy, r)
-
-
-def _shading_at(model, X, Y):
-    """The shading model's linear brightness at pixels ``X`` (1, w), ``Y`` (h, 1), at least
-    1e-4 (beyond the terminator the model goes negative)."""
-    a, b, c, d, cx, cy, r = model
-    nx, ny = (X - cx) / r, (Y - cy) / r
-    nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
-    return np.maximum(a * nx + b * ny + c * nz + d, 1e-4)
