@@ -428,13 +428,17 @@ def _bead_levels(images, centers, radii_px) -> tuple[np.ndarray, np.ndarray]:
 
 def expected_radius_px(rig: Rig, points: np.ndarray, bead_radius_m: float) -> np.ndarray:
     """Projected bead radius per view and marker, ``f * R / depth`` pixels, shape (n_views, n_markers)."""
-    out = np.full((len(rig), len(points)), np.nan)
-    for v, cam in enumerate(rig):
-        z = (points @ cam.R.T + cam.t)[:, 2]
-        f = 0.5 * (cam.K[0, 0] + cam.K[1, 1])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[v] = np.where(z > 0, f * bead_radius_m / z, np.nan)
-    return out
+    if not len(rig):
+        return np.full((0, len(points)), np.nan)
+    # every view's depths in one stacked product (NumPy's matmul makes the same BLAS call per
+    # view as ``points @ cam.R.T`` does: the same numbers; a loop over the views cost ~0.2 ms
+    # per call, four calls per puppet capture)
+    w2c = np.stack([cam.world2cam for cam in rig])
+    z = (np.asarray(points, float) @ w2c[:, :3, :3].transpose(0, 2, 1) + w2c[:, None, :3, 3])[..., 2]
+    K = np.stack([cam.K for cam in rig])
+    f = 0.5 * (K[:, 0, 0] + K[:, 1, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(z > 0, f[:, None] * bead_radius_m / z, np.nan)
 
 
 #: :func:`reidentify`: a candidate whose colour is beyond the identification's own acceptance
@@ -506,15 +510,15 @@ def reidentify(rig: Rig, points_3d, views: Sequence[ViewResult], bead_radius_m: 
     out = np.full((len(rig), k, 2), np.nan)
     beyond = np.zeros((len(rig), k), bool)  # named only thanks to the wider colour gate
     X_have = np.where(have[:, None], X, np.nan)
-    for v, (cam, vr) in enumerate(zip(rig, views)):
+    proj = rig.project(X_have) if have.any() else None  # (n_views, k, 2)
+    for v, vr in enumerate(views):
         ident = vr.identification
         cand = np.asarray(vr.circles.centers, float).reshape(-1, 2)
         if ident.points.shape[0] != k:
             raise ValueError(f"view {v}: identification has {ident.points.shape[0]} markers, points_3d {k}")
         taken = np.zeros(len(cand), bool)
         # every candidate's pixel distance to every marker's projection, (n_cand, k) (used twice below)
-        d = (np.linalg.norm(cand[:, None, :] - cam.project(X_have)[None], axis=2)
-             if len(cand) and have.any() else None)
+        d = np.linalg.norm(cand[:, None, :] - proj[v][None], axis=2) if len(cand) and have.any() else None
         if d is not None:
             gate = np.maximum(2.0, gate_radius * r_exp[v])[None]
             cgate = color_factor * float(ident.max_distance)
