@@ -432,7 +432,7 @@ def expected_radius_px(rig: Rig, points: np.ndarray, bead_radius_m: float) -> np
         return np.full((0, len(points)), np.nan)
     # every view's depths in one stacked product (NumPy's matmul makes the same BLAS call per
     # view as ``points @ cam.R.T`` does: the same numbers; a loop over the views cost ~0.2 ms
-    # per call, four calls per puppet capture)
+    # per call, three or four calls per puppet capture)
     w2c = np.stack([cam.world2cam for cam in rig])
     z = (np.asarray(points, float) @ w2c[:, :3, :3].transpose(0, 2, 1) + w2c[:, None, :3, 3])[..., 2]
     K = np.stack([cam.K for cam in rig])
