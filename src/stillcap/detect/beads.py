@@ -371,12 +371,13 @@ def _bead_levels(images, centers, radii_px) -> tuple[np.ndarray, np.ndarray]:
             # indexing every pixel; made with np.ndarray, whose call costs less than
             # as_strided's); those crossing its border from clipped pixel indices.
             wy, wx, inner = wy_all[sel], wx_all[sel], inner_all[sel]
-            img_c = np.ascontiguousarray(img)
-            win = np.ndarray((hh - S + 1, ww - S + 1, S, S, img.shape[2]), img.dtype, img_c, 0,
-                             img_c.strides[:2] * 2 + img_c.strides[2:])
-            if inner.all():
-                np.divide(_channel_sum(win[wy, wx]), img.shape[2], out=patch[sel])
-                continue
+            if inner.any():  # (none in a photo smaller than the window)
+                img_c = np.ascontiguousarray(img)
+                win = np.ndarray((hh - S + 1, ww - S + 1, S, S, img.shape[2]), img.dtype, img_c, 0,
+                                 img_c.strides[:2] * 2 + img_c.strides[2:])
+                if inner.all():
+                    np.divide(_channel_sum(win[wy, wx]), img.shape[2], out=patch[sel])
+                    continue
             acc = np.empty((len(wy), S, S), np.int32)
             if inner.any():
                 acc[inner] = _channel_sum(win[wy[inner], wx[inner]])
