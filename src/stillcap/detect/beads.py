@@ -26,6 +26,7 @@ import numpy as np
 
 from stillcap.camera import Rig
 from stillcap.detect.circles import Circles, TemplateInputs, find_circles, prepare_template, refine_bead_centers_views
+from stillcap.detect.circles._thesis import _channel_sum
 from stillcap.detect.identify import (RECOMMENDED, THESIS, Identification, identify_markers,
                                       identify_markers_views)
 from stillcap.detect.palette import Palette
@@ -302,15 +303,6 @@ def bead_contrast_views(images, centers, radii_px) -> np.ndarray:
     grey levels brighter than the limb or backdrop around it; a dim patch of a limb that only
     happens to lie where a hidden bead would be is not. Arguments as :func:`bead_fill_views`."""
     return _bead_levels(images, centers, radii_px)[1]
-
-
-def _channel_sum(a: np.ndarray) -> np.ndarray:
-    """The sum over the last axis (colour channels) of a uint8 array, int32, channel by channel
-    (``a.sum(axis=-1, dtype=np.int32)`` over three channels is ~10x slower)."""
-    out = a[..., 0].astype(np.int32)
-    for ch in range(1, a.shape[-1]):
-        out += a[..., ch]
-    return out
 
 
 def _bead_levels(images, centers, radii_px) -> tuple[np.ndarray, np.ndarray]:
