@@ -228,3 +228,25 @@ def test_project_does_not_fold_far_points_back_into_the_image():
     assert Camera("p", K, np.zeros(5), np.eye(4), (640, 480)).max_distortion_r2 == np.inf
     cam.dist[0] = -0.15  # changed in place (as bundle adjustment does): the limit follows
     assert cam.max_distortion_r2 == pytest.approx(1 / 0.45)
+
+
+def test_rig_project_is_each_cameras_projection_exactly():
+    """Rig.project (the pinhole cameras in stacked array operations) gives every camera's own
+    Camera.project to the bit: skewed and distorted lenses, NaN points, points behind a camera."""
+    rng = np.random.default_rng(5)
+    cams = [Camera.from_intrinsics(f"c{i}", rng.uniform(400, 3000), rng.uniform(400, 3000), 320, 240, (640, 480),
+                                   world2cam=look_at(rng.normal(0, 1.5, 3), rng.normal(0, 0.1, 3)))
+            for i in range(7)]
+    K = cams[1].K.copy()
+    K[0, 1] = 0.7  # skew
+    cams[1] = Camera("skew", K, np.zeros(5), cams[1].world2cam, (640, 480))
+    cams[2] = distorted_camera()
+    rig = Rig(cams)
+    X = rng.normal(0, 1.0, (300, 3))
+    X[::17] = np.nan
+    got = rig.project(X)
+    want = np.stack([c.project(X) for c in cams])
+    assert got.shape == (7, 300, 2) and np.isnan(got).any() and np.isfinite(got).sum() > 1000
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(rig.project(X[3]), np.stack([c.project(X[3:4]) for c in cams]))
+    assert rig.project(np.zeros((0, 3))).shape == (7, 0, 2)

@@ -343,9 +343,26 @@ class Rig:
         return Rig([c.with_response(responses) for c in self.cameras], self.world)
 
     def project(self, points_world) -> np.ndarray:
-        """Pixels of world points in every camera, ``(n_cams, N, 2)``."""
+        """Pixels of world points in every camera, ``(n_cams, N, 2)``: :meth:`Camera.project`
+        of each camera, the same numbers, the pinhole cameras' in one set of stacked array
+        operations (each camera's ``p @ R.T`` is the same BLAS product in NumPy's stacked
+        matmul; a loop over the cameras cost ~25 us per camera on a handful of points)."""
         p, _ = as_points(points_world, 3, "points_world")
-        return np.stack([c.project(p) for c in self.cameras])
+        cams = self.cameras
+        if not cams:
+            return np.zeros((0, len(p), 2))
+        w2c = np.stack([c.world2cam for c in cams])
+        pc = p @ w2c[:, :3, :3].transpose(0, 2, 1) + w2c[:, None, :3, 3]  # (n_cams, N, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(pc[..., 2] > 1e-12, pc[..., 2], np.nan)
+            x, y = pc[..., 0] / z, pc[..., 1] / z
+        K = np.stack([c.K for c in cams])
+        out = np.stack([K[:, 0, 0, None] * x + K[:, 0, 1, None] * y + K[:, 0, 2, None],
+                        K[:, 1, 1, None] * y + K[:, 1, 2, None]], axis=-1)
+        for v, c in enumerate(cams):
+            if np.any(c.dist):  # a lens with distortion: its own projection
+                out[v] = c.project(p)
+        return out
 
     # --- files --------------------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -181,3 +181,35 @@ def test_depth_first_order_puts_parents_first():
     order = skel.depth_first
     assert [skel.names[i] for i in order] == ["a", "b", "c"]
     np.testing.assert_allclose(skel.rest_pose().positions, [[0, 2, 0], [0, 1, 0], [0, 0, 0]])
+
+
+def test_forward_kinematics_is_the_joint_by_joint_product_to_the_bit(puppet):
+    """The joints of one depth are multiplied in one stacked product: the same numbers as one
+    4 x 4 product per joint in depth-first order, for one pose and for a batch, on the puppet
+    and a deeper skeleton (the hand's); every joint after its parent's level."""
+    from pathlib import Path
+
+    import stillcap
+
+    hand = Skeleton.load(Path(stillcap.__file__).parent / "data" / "hand_skeleton.json")
+    rng = np.random.default_rng(3)
+    for sk in (puppet, hand):
+        levels = sk.depth_levels
+        assert sorted(np.concatenate(levels).tolist()) == list(range(sk.n_joints))
+        depth = {int(j): d for d, lv in enumerate(levels) for j in lv}
+        assert all(sk.parents[j] < 0 or depth[int(sk.parents[j])] == depth[j] - 1 for j in range(sk.n_joints))
+        for batch in ((), (3,)):
+            local = Rotation.random(int(np.prod(batch, dtype=int)) * sk.n_joints, random_state=rng).as_matrix()
+            local = local.reshape(batch + (sk.n_joints, 3, 3))
+            r2w = np.eye(4)
+            r2w[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+            r2w[:3, 3] = rng.normal(0, 1, 3)
+            want = np.empty(batch + (sk.n_joints, 4, 4))
+            for j in sk.depth_first:
+                lt = np.zeros(batch + (4, 4))
+                lt[..., :3, :3], lt[..., 3, 3] = local[..., j, :, :], 1.0
+                p = sk.parents[j]
+                if p >= 0:
+                    lt[..., :3, 3] = sk.offsets[j]
+                want[..., j, :, :] = (r2w if p < 0 else want[..., p, :, :]) @ lt
+            np.testing.assert_array_equal(forward_kinematics(sk, r2w, local), want)

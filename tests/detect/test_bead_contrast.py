@@ -180,3 +180,19 @@ def test_reidentify_falls_back_on_the_capture_median_contrast_for_a_view_without
     others = np.ones(obs.shape[:2], bool)
     others[v, k] = False
     np.testing.assert_array_equal(out[others], ref[others])
+
+
+def test_expected_radius_is_focal_times_radius_over_depth_in_every_view(scene):
+    """expected_radius_px (all views' depths in one stacked product) is f R / z per view, to the
+    bit, NaN behind a camera or for a NaN point."""
+    from stillcap.detect.beads import expected_radius_px
+
+    rng = np.random.default_rng(4)
+    X = rng.normal(0, 0.1, (20, 3))
+    X[3] = np.nan
+    X[5] = scene.rig[0].center + 3 * (scene.rig[0].center - X[0])  # behind view 0's camera
+    got = expected_radius_px(scene.rig, X, 0.003)
+    want = np.stack([np.where((z := (X @ c.R.T + c.t)[:, 2]) > 0, 0.5 * (c.K[0, 0] + c.K[1, 1]) * 0.003 / z, np.nan)
+                     for c in scene.rig])
+    assert np.isnan(got[0, 5]) and np.isnan(got[:, 3]).all() and np.isfinite(got).sum() > 200
+    np.testing.assert_array_equal(got, want)

@@ -119,3 +119,17 @@ def test_detect_beads_with_a_given_region_is_the_same():
     h, w = sc.image.shape[:2]
     c = detect_beads(sc.image, pal, region=(0, 0, w // 2, h))
     assert np.all(c.circles.centers[:, 0] < w // 2)
+
+
+def test_bead_fill_of_a_photo_smaller_than_the_window_is_the_definition():
+    """A colour photo smaller than the beads' common window (no window wholly inside it):
+    every bead gathered from clipped pixel indices, the fills as bead by bead."""
+    rng = np.random.default_rng(5)
+    for h, w in ((12, 14), (30, 9)):
+        img = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+        img[h // 3:2 * h // 3, w // 3:2 * w // 3] = 250
+        c = np.array([[w / 2, h / 2], [1.0, 2.0], [w - 1.5, h - 0.5]])
+        r = np.array([8.0, 3.0, 5.5])
+        got = bead_fill_views([img], c[None], r[None])[0]
+        assert np.isfinite(got).sum() >= 2
+        np.testing.assert_array_equal(got, _fill_one_by_one(img, c, r))

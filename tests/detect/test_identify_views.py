@@ -80,3 +80,47 @@ def test_rgb_to_lab_is_scikit_images_bit_for_bit():
             a[rng.random((n, 3)) < 0.05] = 1.0
             np.testing.assert_array_equal(rgb_to_lab(a), rgb2lab(np.clip(a, 0, 1)[None])[0])
     assert rgb_to_lab(np.zeros((0, 3))).shape == (0, 3)
+
+
+def _gains_one_by_one(costs, measured, reference):
+    """The white-balance gains photo by photo (the definition): the confident half of the
+    matches (cost at most their median), per channel the median of the finite ratios measured /
+    reference in linear light (references above 0.02), ones with fewer than three pairs."""
+    from stillcap._numeric import median
+    from stillcap.detect.identify import _srgb_to_linear
+
+    out = []
+    for c, m, r in zip(costs, measured, reference):
+        good = c <= median(c)
+        if good.sum() < 3:
+            out.append(np.ones(3))
+            continue
+        lm, lr = _srgb_to_linear(m[good]), _srgb_to_linear(r[good])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(lr > 0.02, lm / lr, np.nan)
+        g = np.array([median(col[np.isfinite(col)]) for col in ratio.T])
+        out.append(np.where(np.isfinite(g) & (g > 0), g, 1.0))
+    return np.array(out)
+
+
+def test_white_balance_gains_of_all_photos_at_once_are_each_photos_own():
+    """_gains_views (every photo's gains from one set of sorted arrays) gives each photo's own
+    gains bit for bit: odd and even counts, ties, no matches, fewer than three confident pairs,
+    dark references (no ratio) and a channel without any finite ratio."""
+    from stillcap.detect.identify import _gains_views
+
+    rng = np.random.default_rng(11)
+    for trial in range(200):
+        costs, meas, refs = [], [], []
+        for _ in range(int(rng.integers(1, 9))):
+            m = int(rng.choice([0, 1, 2, 3, 4, 5, 8, 13, 16]))
+            c = rng.uniform(0, 30, m)
+            if m > 3 and trial % 3 == 0:
+                c[: m // 2] = c[0]  # ties at the median
+            r = rng.uniform(0, 1, (m, 3))
+            if m and trial % 4 == 0:
+                r[:, 2] = 0.01  # a channel without a usable reference
+            costs.append(c)
+            refs.append(r)
+            meas.append(np.clip(r * rng.uniform(0.5, 1.5, 3) + rng.normal(0, 0.05, (m, 3)), 0, 1))
+        np.testing.assert_array_equal(_gains_views(costs, meas, refs), _gains_one_by_one(costs, meas, refs))

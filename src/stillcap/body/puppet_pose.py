@@ -307,15 +307,10 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
 
 
-def _levels(skeleton: Skeleton) -> list[np.ndarray]:
-    """Joint indices by depth from the root (the root's level first; each joint after its parent's
-    level), each level in :attr:`~stillcap.body.skeleton.Skeleton.depth_first` order."""
-    parents = skeleton.parents
-    depth = np.zeros(skeleton.n_joints, int)
-    for j in skeleton.depth_first:
-        depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
-    order = np.asarray(skeleton.depth_first, int)
-    return [order[depth[order] == d] for d in range(depth.max() + 1)]
+def _levels(skeleton: Skeleton) -> tuple[np.ndarray, ...]:
+    """The joints by depth that :func:`_start_angles` solves together
+    (:attr:`~stillcap.body.skeleton.Skeleton.depth_levels`)."""
+    return skeleton.depth_levels
 
 
 def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w: np.ndarray, lo, hi, center,

@@ -27,7 +27,6 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from stillcap._checks import as_array
-from stillcap._numeric import median
 from stillcap.detect.palette import (
     METRICS,
     Palette,
@@ -329,17 +328,49 @@ def _linear_to_srgb(c):
     return np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
-def _gains(measured, reference):
-    """Per-channel gains (linear light) that map the references onto the measurements:
-    the median ratio over the matched pairs, normalised to green (von Kries adaptation)."""
-    m = _srgb_to_linear(measured)
-    r = _srgb_to_linear(reference)
+def _gains_views(costs: list, measured: list, reference: list) -> np.ndarray:
+    """Per-channel gains (linear light) that map each photo's references onto its
+    measurements, shape (n_photos, 3): of a photo's matched pairs' colours (``measured``,
+    ``reference``: (M, 3) each) those whose cost (``costs``: (M,)) is at most the median cost
+    (the confident half), per channel the median of the finite ratios measured / reference
+    (references above 0.02); ones where fewer than three pairs are confident (von Kries
+    adaptation).
+
+    The same numbers as a loop over the photos taking :func:`~stillcap._numeric.median` of
+    each set: the medians are the middle values of each row sorted with the missing entries
+    last (element-wise arithmetic and sorting do not depend on what else is in the array), in
+    one set of array operations for all photos (~1 ms less per puppet capture: two rounds per
+    identification, ~50 us per photo each)."""
+    n = np.array([len(c) for c in costs])
+    rows = np.arange(len(costs))
+    pad = np.full((len(costs), max(int(n.max(initial=0)), 1)), np.inf)
+    view = np.repeat(rows, n)
+    slot = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+    pad[view, slot] = np.concatenate(costs) if len(view) else np.zeros(0)
+    srt = np.sort(pad, axis=1)
+    k = n // 2
+    mid = np.where(n % 2 == 1, srt[rows, k], (srt[rows, np.maximum(k - 1, 0)] + srt[rows, k]) / 2)
+    good = pad[view, slot] <= mid[view]  # the confident half (a photo without matches: none)
+    m = _srgb_to_linear(np.concatenate(measured)[good]) if len(view) else np.zeros((0, 3))
+    r = _srgb_to_linear(np.concatenate(reference)[good]) if len(view) else np.zeros((0, 3))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(r > 0.02, m / r, np.nan)
-    # per channel the median of the finite ratios: np.nanmedian's value (its masked-array
-    # path cost ~0.5 ms per call on these few rows)
-    g = np.array([median(col[np.isfinite(col)]) for col in ratio.T])
-    return np.where(np.isfinite(g) & (g > 0), g, 1.0)
+    # per photo and channel the median of the finite ratios (those not finite sorted last)
+    gv = view[good]
+    cnt = np.bincount(gv, minlength=len(costs))
+    gslot = np.arange(len(gv)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    R = np.full((len(costs), max(int(cnt.max(initial=0)), 1), 3), np.inf)
+    R[gv, gslot] = np.where(np.isfinite(ratio), ratio, np.inf)
+    fin = np.isfinite(R).sum(axis=1)  # (n_photos, 3)
+    R = np.sort(R, axis=1)
+    kk = fin // 2
+    c3 = np.arange(3)[None]
+    hi = R[rows[:, None], np.minimum(kk, R.shape[1] - 1), c3]
+    lo = R[rows[:, None], np.maximum(kk - 1, 0), c3]
+    with np.errstate(invalid="ignore"):
+        g = np.where(fin == 0, np.nan, np.where(fin % 2 == 1, hi, (lo + hi) / 2))
+    g = np.where(np.isfinite(g) & (g > 0), g, 1.0)
+    return np.where((cnt >= 3)[:, None], g, 1.0)
 
 
 _REF_LAB: dict = {}
@@ -487,13 +518,16 @@ def _identify_views(cols: list, palette: Palette, pts: list, rad: list, method: 
     gains = [np.ones(3) for _ in cols]
     active = [v for v in C if adapt and len(matches[v][0]) >= 3]
     for _ in range(2 if active else 0):
-        for v in active:
-            # Gains from the confident half of the matches; colours corrected in linear light.
-            rows, cols_ = matches[v]
-            good = C[v][rows, cols_] <= median(C[v][rows, cols_])
-            g = _gains(cols[v][rows[good]], ref[cols_[good]]) if good.sum() >= 3 else np.ones(3)
-            gains[v] = gains[v] * g
-            cols[v] = _linear_to_srgb(_srgb_to_linear(cols[v]) / g)
+        # Gains from the confident half of the matches; colours corrected in linear light
+        # (every active photo's at once: _gains_views)
+        g = _gains_views([C[v][matches[v]] for v in active], [cols[v][matches[v][0]] for v in active],
+                         [ref[matches[v][1]] for v in active])
+        corrected = _linear_to_srgb(_srgb_to_linear(np.concatenate([cols[v] for v in active]))
+                                    / np.repeat(g, [len(cols[v]) for v in active], axis=0))
+        start = 0
+        for v, gv in zip(active, g):
+            gains[v] = gains[v] * gv
+            cols[v], start = corrected[start:start + len(cols[v])], start + len(cols[v])
         C.update(costs(active))
         for v in active:
             matches[v] = match(C[v], max_d)

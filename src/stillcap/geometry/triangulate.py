@@ -365,7 +365,15 @@ class StackedViews:
         self.dist = np.stack([np.asarray(c.dist, float) for c in cams])
         self.r2max = np.array([c.max_distortion_r2 if np.any(c.dist[[0, 1, 4]]) else np.inf for c in cams])
         self.x = x
-        self.xn = np.stack([c.pixels_to_normalized(xi) for c, xi in zip(cams, x)])  # (nv, n, 2)
+        # normalised coordinates: the pinhole cameras' closed form (Camera.pixels_to_normalized's
+        # arithmetic) for all views at once, a lens with distortion on its own
+        K = self.K
+        y = (x[..., 1] - K[:, 1, 2, None]) / K[:, 1, 1, None]
+        self.xn = np.stack([(x[..., 0] - K[:, 0, 2, None] - K[:, 0, 1, None] * y) / K[:, 0, 0, None], y],
+                           axis=-1)  # (nv, n, 2)
+        for v, c in enumerate(cams):
+            if np.any(c.dist):
+                self.xn[v] = c.pixels_to_normalized(x[v])
         self.seen = np.isfinite(self.xn[..., 0]) & np.isfinite(self.xn[..., 1])
 
     def project(self, X: np.ndarray) -> np.ndarray:

@@ -46,11 +46,11 @@ def grey_image(image) -> np.ndarray:
 
 
 def _channel_sum(img: np.ndarray) -> np.ndarray:
-    """B + G + R of a uint8 image as uint16 (channel by channel: ~10x faster than
-    ``sum(axis=2)`` on a cropped view)."""
+    """B + G + R of a uint8 image (the sum over its last axis, the channels) as uint16, channel
+    by channel: ~10x faster than ``sum(axis=2)`` on a cropped view or on a stack of windows."""
     s = img[..., 0].astype(np.uint16)
-    s += img[..., 1]
-    s += img[..., 2]
+    for ch in range(1, img.shape[-1]):
+        s += img[..., ch]
     return s
 
 
