@@ -14,6 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from stillcap.ball.alias import CurvatureMeasurement, _is_alias, marker_misfit_test
 from stillcap.ball.metrics import RPM_PER_RAD_S
+from stillcap.pipelines.pitch.checks import pitch_self_checks
 from stillcap.pipelines.pitch.spin import _combined_spin, _joint_decision, _resolve_alias
 from support import SimulatedPair
 
@@ -45,7 +46,7 @@ def _covers(spin):
     return abs(rate) <= 1.96 * spin.sigma_rpm and ang <= 2.45 * spin.sigma_axis_deg
 
 
-def test_five_observations_leave_the_spin_undecided_and_it_is_withheld():
+def test_five_observations_leave_the_spin_undecided_and_it_is_withheld(monkeypatch):
     pair = SimulatedPair("front", 80.0, [0, 0, 1, 1, 1, 2, 0, 0, 0], 0.0, 0, VIEWS, 4, R0, W)
     first, spin, joint, messages = _decide(pair)
     assert first.success and not _covers(first)  # the strobes' choice: a wrong minimum, confident
@@ -57,6 +58,18 @@ def test_five_observations_leave_the_spin_undecided_and_it_is_withheld():
     for c in joint.undecided:
         assert c.p_markers >= 0.05 and c is not best
     assert any(m.startswith("spin undetermined (spin alias undecided)") for m in messages)
+    # the message names the best and every undecided rate (one text for it and the spin_alias check)
+    text = joint.undecided_text()
+    assert text.startswith(f"the markers fit {best.spin_rpm:.0f} rpm and ")
+    assert all(f"{c.spin_rpm:.0f} rpm (axis" in text for c in joint.undecided[:3])
+    assert any(text in m for m in messages)
+    # and the result's self-checks say so (no pairs: the flight's checks are stubbed)
+    monkeypatch.setattr("stillcap.pipelines.pitch.checks.flight_chi2", lambda *a: (0.0, 1, {}))
+    checks = pitch_self_checks([], SimpleNamespace(pair_index=np.zeros(0, int)), SimpleNamespace(spin=None, alias=joint),
+                               SimpleNamespace(v0=np.array([0.0, 1.0, 0.0]), p0=np.zeros(3)), None, None, None,
+                               SimpleNamespace(center_sigma_px=0.5, marker_epipolar_px=2.0))
+    failed = [c for c in checks if c.name == "spin_alias"]
+    assert len(failed) == 1 and not failed[0].passed and text in failed[0].message
 
 
 def test_many_observations_decide_the_same_spin():

@@ -277,6 +277,15 @@ class AliasResolution:
     undecided: list = field(default_factory=list)
     marker_dof: int = -1
 
+    def undecided_text(self) -> str:
+        """The solutions the markers fit alike, for the pipeline's message and the ``spin_alias``
+        self-check: "the markers fit B rpm and C rpm (axis D deg away, p = P) alike"."""
+        b = self.best
+        return (f"the markers fit {b.spin_rpm:.0f} rpm and "
+                + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} "
+                               f"deg away, p = {c.p_markers:.2f})" for c in self.undecided[:3])
+                + " alike")
+
 
 def alias_candidates(spin, strobe_hz: float, *, min_rpm: float = 0.0,
                      max_rpm: float = 4000.0) -> list[AliasCandidate]:

@@ -387,14 +387,11 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
             "", "chi2"))
     undecided = list(getattr(alias, "undecided", None) or []) if alias is not None else []
     if undecided:
-        b = alias.best
         checks.append(SelfCheck(
             "spin_alias", False, float(undecided[0].p_markers), 0.05,
-            f"spin alias undecided: the markers fit {b.spin_rpm:.0f} rpm and "
-            + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} "
-                           "deg away)" for c in undecided[:3])
-            + f" alike (F test of their misfits, {alias.marker_dof} degrees of freedom, p >= 0.05): the marker spin "
-            "is withheld; photograph more markers (a second pair, larger ball images) or two strobe rates", "", "p"))
+            f"spin alias undecided: {alias.undecided_text()} (F test of their misfits, {alias.marker_dof} degrees "
+            "of freedom, p >= 0.05): the marker spin is withheld; photograph more markers (a second pair, larger "
+            "ball images) or two strobe rates", "", "p"))
     if spin_cmp is not None:
         checks.append(SelfCheck(
             "spin_vs_flight", bool(spin_cmp.agree), float(spin_cmp.chi2), _chi2_ppf(1 - spin_cmp.alpha, spin_cmp.dof),

@@ -369,13 +369,9 @@ def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, la
         # "everything varied" #0: 5 observations, two cut by the limb, 1 degree of freedom; three
         # minima 1093-1467 rpm with axes up to 131 deg apart, the truth none of them). The spin is
         # withheld rather than one minimum reported with its local covariance (docs/spin.md).
-        b, u = joint.best, joint.undecided
         messages.append(
-            f"spin undetermined (spin alias undecided): the markers fit {b.spin_rpm:.0f} rpm and "
-            + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} deg "
-                           f"away, p = {c.p_markers:.2f})" for c in u[:3])
-            + f" alike ({first.n_observations} observations, {joint.marker_dof} degrees of freedom left for their "
-            "noise): the marker spin is withheld")
+            f"spin undetermined (spin alias undecided): {joint.undecided_text()} ({first.n_observations} "
+            f"observations, {joint.marker_dof} degrees of freedom left for their noise): the marker spin is withheld")
         return None, None, joint
     if not doubt and not joint.ambiguous and (
             joint.best.source == 0 or same_solution(first, sols[joint.best.source])):
