@@ -28,6 +28,7 @@ __all__ = [
     "rigid_alignment",
     "pose_from_bone_directions",
     "pose_from_markers",
+    "pose_and_directions",
 ]
 
 
@@ -315,13 +316,13 @@ def pose_from_markers(
     -------
     Pose
     """
-    return _pose_and_directions(skeleton, markerset, marker_positions, root2world, initial)[0]
+    return pose_and_directions(skeleton, markerset, marker_positions, root2world, initial)[0]
 
 
-def _pose_and_directions(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
+def pose_and_directions(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2world=None,
                          initial: Pose | None = None) -> tuple[Pose, dict[str, np.ndarray]]:
-    """:func:`pose_from_markers` and the :func:`bone_directions` it posed from (the puppet's pose
-    fit keeps both: one computation of the directions)."""
+    """:func:`pose_from_markers` and the :func:`bone_directions` it posed from, as a pair
+    ``(pose, directions)`` (the puppet's pose fit keeps both: one computation of the directions)."""
     r2w = skeleton.rest_root2world() if root2world is None else as_array(root2world, (4, 4), "root2world")
     pts = _marker_array(markerset, marker_positions)
     dirs = bone_directions(markerset, pts, r2w)

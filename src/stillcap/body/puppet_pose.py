@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from stillcap._blas import single_blas_thread
-from stillcap.body.kinematics import _pose_and_directions, align_matrix, normalised
+from stillcap.body.kinematics import align_matrix, normalised, pose_and_directions
 from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import EULER_LIMIT_SEQUENCE, Pose, Skeleton, euler_within_limits, forward_kinematics
 
@@ -479,7 +479,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
             raise ValueError(f"ray_sigma_px and ray_reject must be > 0, got {ray_sigma_px}, {ray_reject}")
     use = np.zeros(0, bool) if rays is None else ~seen[rays.marker]  # never a triangulated marker twice
     active = rays.subset(use) if rays is not None and use.any() else None
-    thesis, dirs = _pose_and_directions(skeleton, markerset, pts, r2w)
+    thesis, dirs = pose_and_directions(skeleton, markerset, pts, r2w)
     n = skeleton.n_joints
     lim = skeleton.limits_deg
     lo = np.where(np.isnan(lim[..., 0]), -np.inf, lim[..., 0])
