@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from stillcap._checks import as_array
 from stillcap.ball.layout import BallLayout
 from stillcap.ball.orientation._batched import _observation_weights, _residuals_in_noise, _shifted_residuals
-from stillcap.ball.orientation._flash import orient_flash
+from stillcap.ball.orientation._flash import _orient_flashes
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
 from stillcap.ball.orientation._so3 import (_consensus_rotations, _dphi_over_sin, _expmap, _left_jacobian,
@@ -680,11 +680,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
             return _finish_global(prob, obs, times, first, spin_init, period, t0, f, cap, outlier_deg,
                                   max_outer, x_scale, time_groups, time_group_sigma, t_start, center_shift_cov)
 
-    flash_fit = {}
-    for k in np.flatnonzero(counts >= 2):
-        fo = orient_flash(*obs.of_flash(k), layout, cap_deg=cap_deg)
-        if fo.determined:
-            flash_fit[int(k)] = fo
+    flash_fit = _orient_flashes(obs, np.flatnonzero(counts >= 2), layout, cap_deg)
     anchors_order = sorted(flash_fit, key=lambda k: (-flash_fit[k].n_inliers, flash_fit[k].cost))
 
     starts = []
