@@ -4,7 +4,6 @@ observation under a rotation."""
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -178,42 +177,28 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
                             float(runner), [rc[0] for rc in distinct[:n_candidates]], determined)
 
 
-_ALIGNED = {}
-_ALIGNED_LOCK = threading.Lock()
-# a few KB per entry; a pitch aligns 20-40 flashes (each pair's, the same again in the fits of all
-# pairs' markers): 256 entries keep the last few pitches'
-_ALIGNED_CACHE_SIZE = 256
-
-
-def _orient_flashes(obs, flashes, layout: BallLayout, cap_deg: float) -> dict:
+def _orient_flashes(obs, flashes, layout: BallLayout, cap_deg: float, kept: dict | None = None) -> dict:
     """:func:`orient_flash` of each flash in ``flashes`` of ``obs`` (MarkerObservations), the
-    determined ones by flash index. Kept by content (the flash's directions and types, the
-    layout, ``cap_deg``): the pitch pipeline fits the same markers again and again (the fits of
-    all pairs' markers from every alias candidate when the alias is in doubt: 8 fits, 16 flashes
-    each, ~1 ms a flash), and an alignment depends on nothing else. The cached results are
-    read-only (their arrays not writeable) and the same objects are returned every time."""
+    determined ones by flash index. ``kept``: a dict the caller keeps over several fits of the
+    same markers (the pitch pipeline's fits of all pairs' markers from every alias candidate when
+    the alias is in doubt: 8 fits of 16 flashes, ~1 ms a flash): each alignment is found there by
+    its content (the flash's directions and types, the layout, ``cap_deg``; it depends on nothing
+    else) or made and put there, read-only. None: every alignment made anew."""
     out = {}
     lay = (layout.directions.tobytes(), np.asarray(layout.types).tobytes(), float(cap_deg))
     for k in flashes:
         u, t = obs.of_flash(k)
-        u, t = np.ascontiguousarray(u, float), np.asarray(t)
-        key = (u.tobytes(), t.tobytes(), t.dtype.str) + lay
-        with _ALIGNED_LOCK:  # the pipeline may fit several pairs on threads
-            fo = _ALIGNED.pop(key, None)
-            if fo is not None:
-                _ALIGNED[key] = fo  # reinserted last: dicts keep insertion order
+        key = None if kept is None else (np.ascontiguousarray(u).tobytes(), t.tobytes(), t.dtype.str) + lay
+        fo = None if key is None else kept.get(key)
         if fo is None:
             fo = orient_flash(u, t, layout, cap_deg=cap_deg)
-            for a in [fo.ball2world, fo.assigned, *fo.candidates]:
-                a.flags.writeable = False
-            with _ALIGNED_LOCK:
-                while len(_ALIGNED) >= _ALIGNED_CACHE_SIZE:  # least recently used out
-                    del _ALIGNED[next(iter(_ALIGNED))]
-                _ALIGNED[key] = fo
+            if key is not None:
+                for a in [fo.ball2world, fo.assigned, *fo.candidates]:
+                    a.flags.writeable = False
+                kept[key] = fo
         if fo.determined:
             out[int(k)] = fo
     return out
-
 
 def _refine(R, u, t, layout, cap, iters: int = 5, nearest=None):
     """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best.
