@@ -200,6 +200,7 @@ def _orient_flashes(obs, flashes, layout: BallLayout, cap_deg: float, kept: dict
             out[int(k)] = fo
     return out
 
+
 def _refine(R, u, t, layout, cap, iters: int = 5, nearest=None):
     """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best.
 
