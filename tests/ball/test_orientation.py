@@ -407,6 +407,40 @@ def test_grid_scan_gives_the_same_starts_with_its_rotation_cache_cold_or_warm():
     O._COARSE_ROTATIONS.clear()
 
 
+def test_flash_alignments_kept_over_fits_of_the_same_markers_are_made_once(monkeypatch):
+    """Fits of the same markers from other starts (the pitch pipeline's alias candidates) with
+    one ``flash_alignments`` dict align each flash once: the kept alignment is the one made
+    afresh, read-only, found by the flash's content (moved markers, another cap: made anew), and
+    the fit is the same with the dict empty, filled, or without it."""
+    import stillcap.ball.orientation._flash as F
+
+    times, obs, R0, w = scenario(3, sparse=0, mistype_rate=0.0)
+    calls = []
+    fresh = F.orient_flash
+    monkeypatch.setattr(F, "orient_flash", lambda *a, **k: calls.append(1) or fresh(*a, **k))
+    n = int(np.count_nonzero(obs.counts(len(times)) >= 2))
+    plain = fit_spin(times, obs)
+    assert len(calls) == n
+    kept = {}
+    cold = fit_spin(times, obs, flash_alignments=kept)
+    assert len(calls) == 2 * n and len(kept) == n
+    warm = fit_spin(times, obs, flash_alignments=kept)
+    assert len(calls) == 2 * n  # nothing aligned again
+    for a in (cold, warm):
+        assert np.array_equal(a.spin, plain.spin) and np.array_equal(a.spin_covariance, plain.spin_covariance)
+    got = F._orient_flashes(obs, range(len(times)), LAYOUT, 8.0, kept)
+    assert len(calls) == 2 * n
+    for k, fo in got.items():
+        new = fresh(*obs.of_flash(k), LAYOUT, cap_deg=8.0)
+        assert np.array_equal(fo.ball2world, new.ball2world) and fo.cost == new.cost
+        assert np.array_equal(fo.assigned, new.assigned) and fo.runner_up_cost == new.runner_up_cost
+        assert all(np.array_equal(a, b) for a, b in zip(fo.candidates, new.candidates))
+        assert not fo.ball2world.flags.writeable and not fo.candidates[0].flags.writeable
+    moved = MarkerObservations(obs.flash, obs.types, obs.directions + 1e-9 * (obs.flash == 0)[:, None])
+    assert F._orient_flashes(moved, [0], LAYOUT, 8.0, kept)[0] is not got[0] and len(calls) == 2 * n + 1
+    assert F._orient_flashes(obs, [0], LAYOUT, 4.0, kept)[0] is not got[0]  # another cap
+    assert len(calls) == 2 * n + 2 and len(kept) == n + 2
+
 def test_model_triad_table_matches_the_pairs_it_replaces():
     from stillcap.ball.layout import _triad
     from stillcap.ball.orientation._flash import _model_triads_t

@@ -71,3 +71,28 @@ def test_saturation_ceiling_is_an_isotonic_fit():
     assert np.all(iso[2:] < 0.1) and iso[0] > 2 * iso[-1]  # averaged; the dim bin keeps its own
     with pytest.raises(ValueError, match="monotone"):
         _noise_by_brightness(bright, sat, monotone="max")
+
+
+def test_brightness_bins_made_once_give_each_darkness_measure_its_own_ceilings():
+    """The detector bins a photo's lit pixels by brightness once (``_brightness_bins``) for its
+    three darkness measures (darkness, saturation, luma darkness): each ceiling is the one made
+    from the pixels themselves, to the bit, and too few pixels still give None."""
+    from stillcap.detect._marker_chroma import luma_thresholds
+    from stillcap.detect._marker_noise import _brightness_bins
+    from stillcap.detect.ball_markers import BASEBALL_MARKER_TYPES
+
+    rng = np.random.default_rng(2)
+    bright = rng.uniform(0.1, 1.0, 20000)
+    binned = _brightness_bins(bright)
+    for mono in ("lift", "isotonic"):
+        dark = np.abs(rng.normal(0.0, 0.01 / bright))
+        own = _noise_by_brightness(bright, dark, monotone=mono)
+        shared = _noise_by_brightness(bright, dark, monotone=mono, binned=binned)
+        assert np.array_equal(own[0], shared[0]) and np.array_equal(own[1], shared[1])
+    assert _brightness_bins(bright[:100]) is None and _noise_by_brightness(bright[:100], dark[:100]) is None
+    classes = [[t] for t in BASEBALL_MARKER_TYPES if t.color_bgr[0] != t.color_bgr[2]]
+    parts = [bright[:7000], bright[7000:]]
+    dl = [np.abs(rng.normal(0.0, 0.02 / p)) for p in parts]
+    own = luma_thresholds(classes, dl, parts, 0.66, 0.5)
+    shared = luma_thresholds(classes, dl, parts, 0.66, 0.5, binned=binned)
+    assert own[:3] == shared[:3] and all(np.array_equal(a, b) for a, b in zip(own[3], shared[3]))

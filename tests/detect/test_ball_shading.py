@@ -111,12 +111,13 @@ def test_shading_correction_of_small_balls_under_heavy_blur(r, blur, phase):
 
 def test_photo_blur_from_uncorrected_centres_of_half_moons():
     """8 px half moons under 1.5 px of blur: read at the refined but uncorrected centres (as
-    ``ball_centers_stereo`` has them when it reads the blur), the limb fits gave 1.24 px; read
-    again at shading-corrected centres, within 0.1 px of the truth."""
+    ``ball_centers_stereo`` has them when it first reads the blur), the limb fits gave 1.24 px;
+    read at the true centres, within 0.1 px of the truth (the pipeline reads it again at its
+    refinement's corrected centres: ``tests/ball/test_stereo.py``)."""
     img, balls, outl = _row_of_balls(8.0, 1.5, 90.0)
     ref = refine_ball_centers(img, balls[:, :2], balls[:, 2], outlines=outl, response=GAMMA22)
-    assert abs(photo_blur_px(img, ref.centers, outl, GAMMA22, shading=True) - 1.5) < 0.1
-    assert photo_blur_px(img, ref.centers, outl, GAMMA22) < 1.35  # the bias it removes
+    assert abs(photo_blur_px(img, balls[:, :2], outl, GAMMA22) - 1.5) < 0.1
+    assert photo_blur_px(img, ref.centers, outl, GAMMA22) < 1.35  # the centres' bias
 
 
 def _ball_crops(img, balls, outl):

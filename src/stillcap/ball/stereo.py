@@ -21,10 +21,10 @@ from stillcap.camera import Camera
 from stillcap.detect.ball import (BallDetections, BallFlag, RefinedCenters, detect_balls, refine_ball_centers,
                                   sphere_outline_px)
 from stillcap.detect.ball._foreground import _check_image
-from stillcap.detect.ball._arcs import REFINE_SMOOTH_PX, arc_center_sigma
+from stillcap.detect.ball._arcs import arc_center_sigma
 from stillcap.detect.circle_fit import fit_circle
-from stillcap.detect.ball._refine import _linear_max, _response_lut, hough_template
-from stillcap.detect.ball._shading import _shading_bias, limb_blur_px
+from stillcap.detect.ball._refine import _linear_max, _response_lut
+from stillcap.detect.ball._shading import limb_blur_px
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
 
@@ -289,7 +289,7 @@ def _psf_of(psf, i: int) -> float:
     return float(psf[i])
 
 
-def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, shading: bool = False,
+def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8,
                   start_px: float | None = None) -> float:
     """Lens blur (Gaussian sigma, px) of a photo: the median of :func:`limb_blur_px` over up to
     ``max_images`` of its ball images (spread evenly over them), NaN when none gives one.
@@ -299,23 +299,17 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
     image : ndarray, shape (H, W, 3)
         The photo (8-bit scale), linearised through ``response``.
     centers : array_like, shape (N, 2)
-        Ball centres (raw px), refined ones: the limb's model is placed there.
+        Ball centres (raw px): the limb's model is placed there. At centres refined but not
+        corrected for shading the read is too small for partly
+        lit balls: the uncorrected centre sits toward the light (8 px half moons under 1.5 px of
+        blur: 0.8 px), and the limb model placed there misfits the limb (drawn 8 px half moons:
+        1.24 px for 1.5; the studio's back cameras 1.16-1.28 px); at the true centres it is right
+        (1.53 px). ``ball_centers_stereo`` reads it again at its refinement's own shading-corrected
+        centres (:func:`_refine_at_photo_blur`).
     outlines : array_like, shape (N, M, 2)
         Each ball's projected outline relative to its centre (:func:`sphere_outline_px`).
     response : Response or its rig-file form, optional
         The camera's response (default sRGB).
-    shading : bool
-        ``centers`` are known-radius Hough centres not corrected for shading: read the blur again at
-        shading-corrected centres, twice: each picked
-        image's centre less its shading bias (:func:`_shading_bias` at the blur read so far, the
-        refinement's 0.7 px smoothing) and the median again. A partly lit ball's refined but
-        uncorrected centre sits toward the light (8 px half moons under 1.5 px of blur: 0.8 px),
-        the limb model placed there and lit from the phase read there misfits the limb, and the
-        blur read is too small (drawn 8 px half moons: 1.24 px for 1.5; the studio's back cameras
-        1.16-1.28 px); at the true centres it is right (1.53 px). Not for centres already
-        corrected (or true ones): their correction would move them off. (``ball_centers_stereo``
-        no longer uses it: it reads the blur again at its refinement's own corrected centres,
-        :func:`_refine_at_photo_blur`.)
     start_px : float, optional
         The blur read so far (px), where each image's walk down its misfit starts
         (:func:`limb_blur_px`' ``start_px``).
@@ -337,28 +331,12 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8, 
         if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
             continue  # a ball cut by the photo's edge: its limb is not all there
         crops.append((_linear_max(img[y0:y1, x0:x1], lut), c[i] - (x0, y0), off[i]))
-
-    def median_blur(centers_in_crops, start=None):
-        # (``start``: the blur read so far, where each image's walk down its misfit starts)
-        est = np.asarray([limb_blur_px(lin, cc, o, start) for (lin, _, o), cc in zip(crops, centers_in_crops)],
-                         float)
-        est = est[np.isfinite(est)]
-        return float(np.median(est)) if len(est) else float("nan")
-
-    blur = median_blur([cc for _, cc, _ in crops], start_px)
-    if not shading:
-        return blur
-    templates = [hough_template(o) for _, _, o in crops]
-
-    def correct(blur, corrected):
-        # each round's corrected centre starts the next round's search (the blur moved a little)
-        return [cc - _shading_bias(lin, cc, o, tpl, 0.0, float(np.hypot(REFINE_SMOOTH_PX, blur)), 0.1,
-                                   smooth=REFINE_SMOOTH_PX, start=prev)
-                for (lin, cc, o), tpl, prev in zip(crops, templates, corrected or [None] * len(crops))]
-    return _blur_rounds(blur, correct, lambda corrected, blur: median_blur(corrected, blur))[0]
+    est = np.asarray([limb_blur_px(lin, cc, o, start_px) for lin, cc, o in crops], float)
+    est = est[np.isfinite(est)]
+    return float(np.median(est)) if len(est) else float("nan")
 
 
-#: rounds of :func:`photo_blur_px` at shading-corrected centres
+#: rounds of :func:`_refine_at_photo_blur`: the blur read again at shading-corrected centres
 BLUR_ROUNDS = 2
 
 
@@ -389,12 +367,12 @@ def _refine_at_photo_blur(v: int, img, centers, outlines, response, refine) -> t
     :func:`refine_ball_centers` at a blur, ``start`` the corrected centres of a round before).
 
     The blur read at refined but uncorrected centres is too small for partly lit balls
-    (:func:`photo_blur_px`' ``shading``); read again at the refinement's own corrected centres,
+    (:func:`photo_blur_px`); read again at the refinement's own corrected centres,
     it is the one at corrected centres (:func:`_blur_rounds`; the refinement made again from its
     corrected centres at the new blur while the read moves by 0.02 px or more). The blur read's
-    corrected centres are the refinement's: computed once, not twice
-    (``photo_blur_px(shading=True)``, the same rounds, corrected up to 8 ball images a photo
-    before the refinement corrected all of them again)."""
+    corrected centres are the refinement's: computed once, not twice (a separate correction
+    for the blur read, removed in issue 16, corrected up to 8 ball images a photo before the
+    refinement corrected all of them again)."""
     blur, ref, at = _blur_rounds(photo_blur_px(img, centers, outlines, response),
                                  lambda blur, last: refine(v, blur, None if last is None else last.centers),
                                  lambda ref, blur: photo_blur_px(img, ref.centers, outlines, response, start_px=blur))

@@ -91,7 +91,7 @@ def chroma_per_darkness(color_bgr) -> np.ndarray:
 
 
 def luma_thresholds(classes: list, dark_luma_lit: list, white_lit: list, dark_ratio: float,
-                    weak_membership: float, scale: float = 1.0):
+                    weak_membership: float, scale: float = 1.0, binned=None):
     """Thresholds for finding coloured paint by its luma darkness alone: ``(d_min, core, weak,
     floor)`` (luma darkness relative to the local white; ``floor``: the noise ceiling per local
     white, ``(white, ceiling)`` for ``np.interp``, or None), or None without classes or lit leather.
@@ -107,7 +107,8 @@ def luma_thresholds(classes: list, dark_luma_lit: list, white_lit: list, dark_ra
     leather's luma-darkness noise (median + 6 robust sigmas, ``dark_luma_lit``: arrays per ball),
     nor below its ceiling at the pixel's own local white (``white_lit``, the same pixels'; as
     the dark detector's: relative darkness is noisier on dim leather, where a back-lit crescent's
-    noise otherwise passed as paint).
+    noise otherwise passed as paint). ``binned``: the concatenated ``white_lit``'s
+    :func:`~stillcap.detect._marker_noise._brightness_bins` when the caller has them.
     """
     if not classes or not dark_luma_lit:
         return None
@@ -115,7 +116,8 @@ def luma_thresholds(classes: list, dark_luma_lit: list, white_lit: list, dark_ra
     d_min = max(d_min, 0.05)
     dl = np.concatenate(dark_luma_lit)
     noise = _robust_ceiling(dl)
-    floor = _noise_by_brightness(np.concatenate(white_lit), dl)
+    floor = _noise_by_brightness(None if binned is not None else np.concatenate(white_lit), dl,
+                                 binned=binned)
     return (d_min, max((1.0 - dark_ratio) * scale * d_min, noise), max(weak_membership * scale * d_min, noise),
             floor)
 

@@ -10,7 +10,8 @@ from stillcap._numeric import median
 
 
 def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int = 6,
-                         min_pixels: int = 200, monotone: str = "lift") -> tuple[np.ndarray, np.ndarray] | None:
+                         min_pixels: int = 200, monotone: str = "lift",
+                         binned=None) -> tuple[np.ndarray, np.ndarray] | None:
     """The leather's darkness ceiling (:func:`_robust_ceiling`) per brightness bin of the lit
     pixels, as ``(bin brightness, ceiling)`` for ``np.interp``, or None with too few pixels.
 
@@ -23,29 +24,41 @@ def _noise_by_brightness(brightness: np.ndarray, darkness: np.ndarray, bins: int
     least-squares non-increasing fit of the bins (``scipy.optimize.isotonic_regression``), so a
     bright bin the estimate puts too high (the leather's saturation near the markers' JPEG chroma,
     or where a channel clips and the white balance divides it down) is averaged with its
-    neighbours instead of lifting every dimmer bin; with no trend it is about the pooled ceiling."""
+    neighbours instead of lifting every dimmer bin; with no trend it is about the pooled ceiling.
+
+    ``binned``: :func:`_brightness_bins` of ``brightness`` (the detector bins one photo's lit
+    pixels once for its three darkness measures; ``brightness`` is then not read)."""
     if monotone not in ("lift", "isotonic"):
         raise ValueError(f"monotone must be 'lift' or 'isotonic', got {monotone!r}")
-    if brightness.size < bins * min_pixels:
+    binned = _brightness_bins(brightness, bins, min_pixels) if binned is None else binned
+    if binned is None:
         return None
-    edges = np.quantile(brightness, np.linspace(0.0, 1.0, bins + 1))
-    idx = np.clip(np.searchsorted(edges, brightness, side="right") - 1, 0, bins - 1)
-    mids, ceil = [], []
-    for b in range(bins):
-        sel = idx == b
-        if sel.sum() >= min_pixels:
-            mids.append(median(brightness[sel]))
-            ceil.append(_robust_ceiling(darkness[sel]))
-    if len(mids) < 2:
-        return None
-    ceil = np.asarray(ceil, float)
+    sels, mids = binned
+    ceil = np.asarray([_robust_ceiling(darkness[sel]) for sel in sels], float)
     if monotone == "lift":
         ceil = np.maximum.accumulate(ceil[::-1])[::-1]  # brighter never noisier than dimmer
     else:
         from scipy.optimize import isotonic_regression
 
         ceil = np.asarray(isotonic_regression(ceil, increasing=False).x, float)
-    return np.asarray(mids), ceil
+    return mids, ceil
+
+
+def _brightness_bins(brightness: np.ndarray, bins: int = 6, min_pixels: int = 200):
+    """The brightness bins of :func:`_noise_by_brightness`: ``bins`` quantile bins of
+    ``brightness``, those with at least ``min_pixels``, as ``(masks, median brightness of each)``;
+    None with too few pixels or fewer than 2 such bins."""
+    if brightness.size < bins * min_pixels:
+        return None
+    edges = np.quantile(brightness, np.linspace(0.0, 1.0, bins + 1))
+    idx = np.clip(np.searchsorted(edges, brightness, side="right") - 1, 0, bins - 1)
+    sels, mids = [], []
+    for b in range(bins):
+        sel = idx == b
+        if sel.sum() >= min_pixels:
+            sels.append(sel)
+            mids.append(median(brightness[sel]))
+    return (sels, np.asarray(mids)) if len(mids) >= 2 else None
 
 
 def _robust_ceiling(x: np.ndarray, k: float = 6.0) -> float:

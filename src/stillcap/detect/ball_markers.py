@@ -39,7 +39,7 @@ from stillcap._checks import as_array
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
 from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
-from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
+from stillcap.detect._marker_noise import _brightness_bins, _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -596,13 +596,15 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     s_core, s_weak = np.full(len(chroma), min_saturation), np.full(len(chroma), weak_membership)
     d_core, d_weak = 1.0 - dark_ratio, weak_membership
     d_floor = None  # the leather's darkness noise as a function of its brightness (below)
+    binned = None  # the lit pixels' brightness bins (_brightness_bins), for the three darkness measures
     s_floor, s_noise, ref, floors = None, None, ch_sat.reshape(-1).astype(float), None
     if adapt_thresholds and prep and sat_lit:
         sat_all, dk_all, vc_all = np.concatenate(sat_lit), np.concatenate(dk_lit), np.concatenate(vc_lit)
         s_noise = _robust_ceiling(sat_all)
         d_noise = _robust_ceiling(dk_all)
-        d_floor = _noise_by_brightness(vc_all, dk_all)
-        s_floor = _noise_by_brightness(vc_all, sat_all, monotone="isotonic")
+        binned = _brightness_bins(vc_all)
+        d_floor = _noise_by_brightness(vc_all, dk_all, binned=binned)
+        s_floor = _noise_by_brightness(vc_all, sat_all, monotone="isotonic", binned=binned)
         ref_d = max(1.0 - v_pal, 0.1)
         peaks = list(np.percentile(np.stack(ch_peak), 90, axis=0)) if chroma and ch_peak else []
         if chroma and ch_peak and s_floor is not None:
@@ -627,7 +629,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             d_weak = max(weak_membership * sc[-1], d_noise / ref_d)
     # coloured paint found by its luma darkness, named by its summed chroma (JPEG, _marker_chroma)
     luma_th = _mc.luma_thresholds([tl for tl, _, _ in chroma], dl_lit, vc_lit, dark_ratio, weak_membership,
-                                  sc[-1] if adapt_thresholds and prep and sat_lit else 1.0) if chroma_check else None
+                                  sc[-1] if adapt_thresholds and prep and sat_lit else 1.0,
+                                  binned) if chroma_check else None
     s_core32 = s_core.astype(np.float32).reshape(-1, 1, 1)
     s_weak32 = s_weak.astype(np.float32).reshape(-1, 1, 1)
     ref32 = ref.astype(np.float32).reshape(-1, 1, 1)

@@ -177,6 +177,30 @@ def orient_flash(directions, types, layout: BallLayout | None = None, *, cap_deg
                             float(runner), [rc[0] for rc in distinct[:n_candidates]], determined)
 
 
+def _orient_flashes(obs, flashes, layout: BallLayout, cap_deg: float, kept: dict | None = None) -> dict:
+    """:func:`orient_flash` of each flash in ``flashes`` of ``obs`` (MarkerObservations), the
+    determined ones by flash index. ``kept``: a dict the caller keeps over several fits of the
+    same markers (the pitch pipeline's fits of all pairs' markers from every alias candidate when
+    the alias is in doubt: 8 fits of 16 flashes, ~1 ms a flash): each alignment is found there by
+    its content (the flash's directions and types, the layout, ``cap_deg``; it depends on nothing
+    else) or made and put there, read-only. None: every alignment made anew."""
+    out = {}
+    lay = (layout.directions.tobytes(), np.asarray(layout.types).tobytes(), float(cap_deg))
+    for k in flashes:
+        u, t = obs.of_flash(k)
+        key = None if kept is None else (np.ascontiguousarray(u).tobytes(), t.tobytes(), t.dtype.str) + lay
+        fo = None if key is None else kept.get(key)
+        if fo is None:
+            fo = orient_flash(u, t, layout, cap_deg=cap_deg)
+            if key is not None:
+                for a in [fo.ball2world, fo.assigned, *fo.candidates]:
+                    a.flags.writeable = False
+                kept[key] = fo
+        if fo.determined:
+            out[int(k)] = fo
+    return out
+
+
 def _refine(R, u, t, layout, cap, iters: int = 5, nearest=None):
     """Re-assign nearest same-type markers and realign the inliers (Kabsch); keep the best.
 

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from stillcap._checks import as_array
 from stillcap.ball.layout import BallLayout
 from stillcap.ball.orientation._batched import _observation_weights, _residuals_in_noise, _shifted_residuals
-from stillcap.ball.orientation._flash import orient_flash
+from stillcap.ball.orientation._flash import _orient_flashes
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
 from stillcap.ball.orientation._so3 import (_consensus_rotations, _dphi_over_sin, _expmap, _left_jacobian,
@@ -543,7 +543,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
              init: str = "auto", loss: str = "soft_l1", f_scale_deg: float = 3.0,
              outlier_deg: float | None = None, cap_deg: float = 8.0, max_outer: int = 10,
              grid_step_deg: float = 15.0, time_groups=None, time_group_sigma=None,
-             stop_fraction: float | None = None, center_shift_cov=None) -> SpinResult:
+             stop_fraction: float | None = None, center_shift_cov=None, flash_alignments=None) -> SpinResult:
     """Fit one constant spin to all flashes' markers (robust least squares, SPEC "beyond").
 
     Model: ``R(t) = exp([w] (t - t0)) R0`` (``ball2world``); residuals: the angle (as a 2-D
@@ -618,6 +618,9 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
         observations within ``cap_deg`` of their markers (the pitch pipeline uses 0.9: on the
         27 benchmark pitches of issue 3 the first per-flash start was then always the best or
         reached the same minimum as the best). Default: try every start.
+    flash_alignments : dict, optional
+        Kept by the caller over fits of the same observations (e.g. from other starts): each
+        flash's type alignment (:func:`orient_flash`) is made once and found there again.
 
     Returns
     -------
@@ -680,11 +683,7 @@ def fit_spin(times, observations, layout: BallLayout | None = None, *, t0: float
             return _finish_global(prob, obs, times, first, spin_init, period, t0, f, cap, outlier_deg,
                                   max_outer, x_scale, time_groups, time_group_sigma, t_start, center_shift_cov)
 
-    flash_fit = {}
-    for k in np.flatnonzero(counts >= 2):
-        fo = orient_flash(*obs.of_flash(k), layout, cap_deg=cap_deg)
-        if fo.determined:
-            flash_fit[int(k)] = fo
+    flash_fit = _orient_flashes(obs, np.flatnonzero(counts >= 2), layout, cap_deg, flash_alignments)
     anchors_order = sorted(flash_fit, key=lambda k: (-flash_fit[k].n_inliers, flash_fit[k].cost))
 
     starts = []

@@ -200,10 +200,12 @@ def _center_shift_modes(parts: list, center_modes: list, radius_m: float | None)
     return out
 
 
-def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, radius_m: float | None = None):
+def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, radius_m: float | None = None,
+                   aligned: dict | None = None):
     """One constant spin over all pairs' markers on the reference clock, started at ``spin_init``
     (None: the fit's own starts, per-flash alignments and the grid); ``center_modes`` (one per
-    pair, or None) as :func:`_center_shift_modes`'s.
+    pair, or None) as :func:`_center_shift_modes`'s; ``aligned``: the flashes' type alignments kept
+    over fits of the same markers (``fit_spin``'s ``flash_alignments``).
 
     Returns ``(SpinResult or None, reference-clock time of each observation)``."""
     parts, times, groups, modes = [], [], [], []
@@ -226,7 +228,8 @@ def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, 
         p = parts[0]
         R_init = p.spin.ball2world_t0 if p is src else None
         return (fit_spin(p.local_times, p.observations, layout, strobe_hz=p.strobe_hz, spin_init=spin_init,
-                         ball2world_init=R_init, center_shift_cov=_center_shift_modes(parts, modes, radius_m)),
+                         ball2world_init=R_init, center_shift_cov=_center_shift_modes(parts, modes, radius_m),
+                         flash_alignments=aligned),
                 p.times[p.observations.flash])
     R_init = None
     if src is not None and spin_init is not None:
@@ -256,7 +259,7 @@ def _combined_spin(pairs: list, spin_init, layout, messages, center_modes=None, 
             g_sig[p.group - 1] = p.time_offset_sigma_s
     return (fit_spin(t_sorted, obs, layout, t0=0.0, strobe_hz=ref.strobe_hz, spin_init=spin_init,
                      ball2world_init=R_init, time_groups=g_sorted, time_group_sigma=g_sig,
-                     center_shift_cov=_center_shift_modes(parts, modes, radius_m)),
+                     center_shift_cov=_center_shift_modes(parts, modes, radius_m), flash_alignments=aligned),
             t_sorted[obs.flash])
 
 
@@ -351,9 +354,10 @@ def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, la
         return first, first_times, alias
     sols, sol_times = [first], [first_times]
     scratch: list = []
+    aligned: dict = {}  # the flashes' type alignments, made once for all these fits of the same markers
     for w in starts:
         try:
-            s, t = _combined_spin(pairs, w, layout, scratch, center_modes, radius_m)
+            s, t = _combined_spin(pairs, w, layout, scratch, center_modes, radius_m, aligned)
         except (ValueError, np.linalg.LinAlgError):
             continue
         if (s is not None and s.success and np.all(np.isfinite(s.spin)) and np.all(np.isfinite(s.spin_covariance))
