@@ -182,17 +182,12 @@ def _cluster_robust(cov, bread, J, r, flash):
     ``V D V^T`` the eigen-decomposition of ``sandwich - cov`` (a sandwich from few flashes is
     noisy, so it only ever widens the model-based covariance).
 
-    The sandwich is the cluster jackknife (CR3): each flash's residuals are divided by
-    ``I - H_gg`` (``H_gg`` its block of the hat matrix ``J (J^T J)^-1 J^T``) before the meat is
-    summed, so that ``bread J_g^T (I - H_gg)^-1 r_g`` is the change of the parameters when the
-    flash is left out (to first order). The least-squares residuals of a flash are smaller than
-    its errors by about its leverage (``p / G`` on average: 6 parameters over 15-25 flashes,
-    0.25-0.4), which the plain CR1 factor ``G / (G - 1) * (n - 1) / (n - p)`` (~1.1) did not make
-    up for: the spin axis errors were ~1.15x their sigma (issue 3; ``docs/pitch.md``, "Spin").
-    Bell and McCaffrey's CR2 (``(I - H_gg)^(-1/2)``, unbiased only for independent errors of
-    equal variance) was used until issue 12's JPEG 70 captures: there a far pair's flash whose
-    one marker alone turns the spin (leverage 0.91: its residual a tenth of its error) pulled the
-    rate 7.8 rpm at a stated 1.3 rpm; the jackknife sees that flash's pull in full.
+    The sandwich is Bell and McCaffrey's CR2: each flash's residuals are divided by
+    ``(I - H_gg)^(1/2)`` (``H_gg`` its block of the hat matrix ``J (J^T J)^-1 J^T``) before the
+    meat is summed. The least-squares residuals of a flash are smaller than its errors by about
+    its leverage (``p / G`` on average: 6 parameters over 15-25 flashes, 0.25-0.4), which the
+    plain CR1 factor ``G / (G - 1) * (n - 1) / (n - p)`` (~1.1) did not make up for: the spin
+    axis errors were ~1.15x their sigma (issue 3; ``docs/pitch.md``, "Spin").
     """
     fl = np.concatenate([flash, flash])
     groups, idx = np.unique(fl, return_inverse=True)
@@ -202,7 +197,7 @@ def _cluster_robust(cov, bread, J, r, flash):
     order = np.argsort(idx, kind="stable")
     size = np.bincount(idx, minlength=G)
     bounds = np.concatenate([[0], np.cumsum(size)])
-    S = np.empty((G, p))  # J_g^T (I - H_gg)^(-1) r_g of every flash g
+    S = np.empty((G, p))  # J_g^T (I - H_gg)^(-1/2) r_g of every flash g
     # one small (rows of a flash)^2 eigen-problem per flash, batched over the flashes with the
     # same number of rows (fewer calls; each matrix's numbers are the same as one at a time)
     for n_g in np.unique(size):
@@ -210,10 +205,10 @@ def _cluster_robust(cov, bread, J, r, flash):
         rows = order[bounds[gs][:, None] + np.arange(n_g)]  # (flashes, n_g)
         Jg = J[rows]
         w, U = np.linalg.eigh(np.eye(n_g) - Jg @ bread @ np.swapaxes(Jg, 1, 2))
-        # (I - H_gg)^(-1) r_g; a flash that alone determines a direction (leverage ~1) is
-        # capped at 100x (as the CR2 form was) instead of dividing by ~0
+        # (I - H_gg)^(-1/2) r_g; a flash that alone determines a direction (leverage ~1) is
+        # capped at 100x instead of dividing by ~0
         ut_r = np.swapaxes(U, 1, 2) @ r[rows][:, :, None]
-        rt = U @ (ut_r / np.clip(w, 1e-2, None)[:, :, None])
+        rt = U @ (ut_r / np.sqrt(np.clip(w, 1e-4, None))[:, :, None])
         S[gs] = (np.swapaxes(Jg, 1, 2) @ rt)[:, :, 0]
     meat = (S[:, :, None] * S[:, None, :]).sum(axis=0)  # sum of outer(s_g, s_g), in flash order
     sand = bread @ meat @ bread
