@@ -14,6 +14,7 @@ circle and their centre is that limb refitted with the projected outline's shape
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -211,18 +212,20 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
         # (both views of a match, where either silhouette is a half moon: a correction in one view
         # only would move the triangulated depth)
         sh = (part if shading == "partial" else np.ones(K, bool)) if shading and it == iterations - 1 else False
-        views = ((img_a, ca, ra, search_a, oa - pa[:, None], background_a, cam_a.response, _faint(det_a)[ia]),
-                 (img_b, cb, rb, search_b, ob - pb[:, None], background_b, cam_b.response, _faint(det_b)[ib]))
+        views = (_View(img_a, ca, ra, search_a, oa - pa[:, None], background_a, cam_a.response, _faint(det_a)[ia]),
+                 _View(img_b, cb, rb, search_b, ob - pb[:, None], background_b, cam_b.response, _faint(det_b)[ib]))
 
         def refine(v, psf_v, start=None, it=it, sh=sh):
-            img, c, r, search, outl, bg, response, faint = views[v]
-            return refine_ball_centers(img, c, r, search, outl, bg, start_refined=it > 0, shading=sh,
-                                       response=response, psf_px=psf_v, crescent=faint, shading_start=start)
+            w = views[v]
+            return refine_ball_centers(w.img, w.centers, w.radii_px, w.search_px, w.outlines, w.background,
+                                       start_refined=it > 0, shading=sh, response=w.response, psf_px=psf_v,
+                                       crescent=w.faint, shading_start=start)
         if psf is None and it == iterations - 1 and it > 0 and shading:
             # the photos' blur from the ball images, read at the refined centres and again at
             # the shading-corrected ones (:func:`_refine_at_photo_blur`)
-            (blur_a, ref_a), (blur_b, ref_b) = (_refine_at_photo_blur(v, views[v][0], views[v][1], views[v][4],
-                                                                      views[v][6], refine) for v in (0, 1))
+            (blur_a, ref_a), (blur_b, ref_b) = (_refine_at_photo_blur(v, views[v].img, views[v].centers,
+                                                                      views[v].outlines, views[v].response, refine)
+                                                for v in (0, 1))
             psf = np.array([blur_a, blur_b])
         else:
             ref_a, ref_b = refine(0, _psf_of(psf, 0)), refine(1, _psf_of(psf, 1))
@@ -334,6 +337,18 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8,
     est = np.asarray([limb_blur_px(lin, cc, o, start_px) for lin, cc, o in crops], float)
     est = est[np.isfinite(est)]
     return float(np.median(est)) if len(est) else float("nan")
+
+
+class _View(NamedTuple):
+    """One view of a :func:`ball_centers_stereo` round: what its :func:`refine_ball_centers` reads."""
+    img: np.ndarray
+    centers: np.ndarray  # (K, 2) px, the round's start
+    radii_px: np.ndarray  # (K,) projected sphere radii
+    search_px: np.ndarray | None
+    outlines: np.ndarray  # (K, M, 2) offsets from the projected sphere centre
+    background: np.ndarray | None
+    response: object
+    faint: np.ndarray  # (K,) bool, crescents
 
 
 #: rounds of :func:`_refine_at_photo_blur`: the blur read again at shading-corrected centres
