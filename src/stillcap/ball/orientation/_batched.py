@@ -73,13 +73,10 @@ def _shifted_residuals(prob, x, R0, j, sel, D, f):
 
 def _residuals_in_noise(prob, x, R0, j, d):
     """Every observation's residual length in the units of the fit's noise (the weighted
-    residual in centroid pixels, or the angle in rad without weights) and how many of its two
-    components carry information (:attr:`SpinResult.residual_ranks`): ``((M,), (M,) int)``."""
-    m = len(prob.u)
+    residual in centroid pixels, or the angle in rad without weights), (M,)."""
     if prob.W is None:
-        return np.asarray(d, float).copy(), _residual_ranks(prob)
-    e = prob.observation_norms(x, R0, j, np.ones(m, bool)) * np.sqrt(prob.info_scale)
-    return e, _residual_ranks(prob)
+        return np.asarray(d, float).copy()
+    return prob.observation_norms(x, R0, j, np.ones(len(prob.u), bool)) * np.sqrt(prob.info_scale)
 
 
 def _residual_ranks(prob):

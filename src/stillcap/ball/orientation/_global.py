@@ -756,7 +756,8 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
     # the redundancy counts only the informative components: a limb-cut marker's second
     # (weighted ~0) component is no degree of freedom (counted, the noise and the spin's
     # sigmas came out low where most markers are cut)
-    n_dof = int(np.sum(_residual_ranks(prob)[inl])) - 6
+    ranks = _residual_ranks(prob)
+    n_dof = int(np.sum(ranks[inl])) - 6
     dof = max(n_dof, 1)
     s2 = float(r @ r) / dof
     bread = np.linalg.pinv(J.T @ J)
@@ -782,7 +783,7 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         # centroid fixes poorly toward the line of sight, counts as the precision it has there
         prob.W = prob.W_base
         rms_deg = float(np.degrees(np.sqrt(np.mean(prob.observation_norms(x, R0, j, inl) ** 2))))
-    noise_res, ranks = _residuals_in_noise(prob, x, R0, j, d)
+    noise_res = _residuals_in_noise(prob, x, R0, j, d)
     success = bool(res is None or res.status > 0) and int(inl.sum()) >= 4 and np.all(np.isfinite(w))
     if n_dof < 2:
         message = "as many parameters as residuals: no uncertainty"
