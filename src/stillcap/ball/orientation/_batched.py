@@ -73,11 +73,20 @@ def _shifted_residuals(prob, x, R0, j, sel, D, f):
 
 def _residuals_in_noise(prob, x, R0, j, d):
     """Every observation's residual length in the units of the fit's noise (the weighted
-    residual in centroid pixels, or the angle in rad without weights) and how many of its two
-    components carry information (:attr:`SpinResult.residual_ranks`): ``((M,), (M,) int)``."""
-    m = len(prob.u)
+    residual in centroid pixels, or the angle in rad without weights), (M,)."""
     if prob.W is None:
-        return np.asarray(d, float).copy(), np.full(m, 2)
-    e = prob.observation_norms(x, R0, j, np.ones(m, bool)) * np.sqrt(prob.info_scale)
-    sv = np.linalg.svd(prob.W, compute_uv=False)  # (M, 2); a limb-cut marker: one ~0 (the 1e-9 floor)
-    return e, np.sum(sv > 1e-3 * sv[:, :1], axis=1)
+        return np.asarray(d, float).copy()
+    return prob.observation_norms(x, R0, j, np.ones(len(prob.u), bool)) * np.sqrt(prob.info_scale)
+
+
+def _residual_ranks(prob):
+    """How many of each observation's two (weighted) residual components carry information,
+    (M,) int: 1 for a marker cut by the limb (its weight's second singular value is the 1e-9
+    floor of :func:`_observation_weights`), else 2; 2 for every observation without weights.
+    The one definition of the fit's redundancy: ``sum(ranks[inliers]) - 6`` scales the spin's
+    covariance in ``fit_spin`` and is the degrees of freedom of
+    :func:`stillcap.ball.alias.marker_misfit_test`."""
+    if prob.W is None:
+        return np.full(len(prob.u), 2)
+    sv = np.linalg.svd(prob.W, compute_uv=False)  # (M, 2); the class scales multiply both alike
+    return np.sum(sv > 1e-3 * sv[:, :1], axis=1)

@@ -14,7 +14,8 @@ from scipy.spatial.transform import Rotation
 
 from stillcap._checks import as_array
 from stillcap.ball.layout import BallLayout
-from stillcap.ball.orientation._batched import _observation_weights, _residuals_in_noise, _shifted_residuals
+from stillcap.ball.orientation._batched import (_observation_weights, _residual_ranks, _residuals_in_noise,
+                                                _shifted_residuals)
 from stillcap.ball.orientation._flash import _orient_flashes
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
@@ -751,7 +752,12 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
     x = np.concatenate([np.zeros(3), w])
     r = prob.residuals(x, R0, j, inl)
     J = prob.jacobian(x, R0, j, inl)
-    dof = max(len(r) - 6, 1)
+    # the redundancy counts only the informative components: a limb-cut marker's second
+    # (weighted ~0) component is no degree of freedom (counted, the noise and the spin's
+    # sigmas came out low where most markers are cut)
+    ranks = _residual_ranks(prob)
+    n_dof = int(np.sum(ranks[inl])) - 6
+    dof = max(n_dof, 1)
     s2 = float(r @ r) / dof
     bread = np.linalg.pinv(J.T @ J)
     cov = s2 * bread
@@ -776,9 +782,9 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         # centroid fixes poorly toward the line of sight, counts as the precision it has there
         prob.W = prob.W_base
         rms_deg = float(np.degrees(np.sqrt(np.mean(prob.observation_norms(x, R0, j, inl) ** 2))))
-    noise_res, ranks = _residuals_in_noise(prob, x, R0, j, d)
+    noise_res = _residuals_in_noise(prob, x, R0, j, d)
     success = bool(res is None or res.status > 0) and int(inl.sum()) >= 4 and np.all(np.isfinite(w))
-    if len(r) - 6 < 2:
+    if n_dof < 2:
         message = "as many parameters as residuals: no uncertainty"
         sig_r = sig_a = np.nan
     return SpinResult(
@@ -789,4 +795,4 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         n_inliers=int(inl.sum()), success=success, message=message, method="global",
         fit_time_s=_time.perf_counter() - t_start,
         noise_px=float(np.sqrt(s2 * prob.info_scale)) if prob.W is not None else float("nan"),
-        dof=int(len(r) - 6), residuals_noise=noise_res, residual_ranks=ranks)
+        dof=n_dof, residuals_noise=noise_res, residual_ranks=ranks)

@@ -68,7 +68,9 @@ class SpinResult:
         coordinate), when the observations carry ``information``; NaN otherwise. The spin's
         covariance is scaled by it.
     dof : int
-        Residuals minus parameters of the final fit (0 when unknown).
+        The final fit's informative residual components minus its 6 parameters:
+        ``sum(residual_ranks[inliers]) - 6`` (one component for a marker cut by the limb; 0 when unknown).
+        ``noise_px`` and the spin's covariance are scaled by the residuals' sum of squares over it.
     residuals_noise : ndarray, shape (M,) or None
         Each observation's residual length in the units of the fit's noise (global fit): with
         weighted observations the weighted residual in centroid pixels (what ``noise_px``
