@@ -1,6 +1,8 @@
 """``stillcap hand-calibrate`` with several calibration captures of one hand: their flashes are fitted
 together (one shape, a pose per flash), so a second photo's bends fix what the first one's did not."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -114,3 +116,49 @@ def test_every_posed_flash_refused_refuses_the_capture_naming_them(protocol_poin
     with pytest.raises(ValueError, match=r"^refusal 1$"):
         calibrate_hand_from_point_sets(protocol_points, max_posed_tries=1)
     assert len(calls) == 1
+
+
+def test_the_posed_flash_is_the_one_the_fit_finds_in_the_pose_not_the_templates_nearest(monkeypatch):
+    """On another person's hand the template reads every flash bent by a few degrees, and a flash
+    a few degrees from flat can read flatter than the flat one (another_hand(5)'s rendered
+    protocol: its spread step, thumb out, taken as flat and the thumb's MCP calibrated 20 mm off).
+    The shortlist is ranked by the fit of every flash with each candidate held flat: the flat
+    flash is taken, in the first pass too (fails on main e560c72: the first pass got the decoy)."""
+    from stillcap.body import hand_calibrate as mod
+    from stillcap.body.hand import fit_hand, hand_markerset, hand_pose, hand_skeleton, marker_colors, scale_hand
+    from stillcap.studio.hand_calibration import PROTOCOL_STEPS, _step_angles
+
+    person = another_hand(5)
+    sk, ms = person.skeleton, person.markerset
+    steps = ["flat", "spread", "table top", "hook", "fist", "opposition", "half curl, knuckles back"]
+    angles = [_step_angles(sk, next(s for s in PROTOCOL_STEPS if s[0] == n)) for n in steps]
+    # the decoy: bent (2.5 deg RMS) against what the template scaled to the hand reads in the
+    # flat hand (3.6 deg RMS), so that the template reads it flatter (1.7 deg)
+    bias = fit_hand(*scale_hand(hand_skeleton(), hand_markerset(), person.size),
+                    ms.positions(hand_pose(sk, np.eye(4), angles[0]))).angles_deg
+    lim = sk.limits_deg
+    decoy = np.clip(-0.7 * bias, np.where(np.isfinite(lim[..., 0]), lim[..., 0], -180),
+                    np.where(np.isfinite(lim[..., 1]), lim[..., 1], 180))
+    angles.insert(1, decoy)
+    markers = []
+    for i, a in enumerate(angles):  # 12 cm sideways per flash, as the protocol asks
+        T = np.eye(4)
+        T[:3, 3] = (0.12 * i, 0.0, 0.0)
+        markers.append(ms.positions(hand_pose(sk, T, a)))
+    markers = np.array(markers)
+    truth = SimpleNamespace(markers=markers, markers_visible=np.ones((2,) + markers.shape[:2], bool),
+                            marker_colors=marker_colors(ms))
+    d = hand_points_from_truth(truth, noise_m=0.0003, drop=0.0, n_spurious=0, rng=5)
+    real, taken = mod.calibrate_hand, []
+
+    def spy(posed, free=None, **kw):
+        if kw.get("loss", "linear") == "linear" and kw.get("refuse_rms_m") is None:  # the two passes
+            first = np.asarray(posed, float).reshape(-1, len(ms), 3)[0]
+            taken.append(int(np.argmin(np.nanmean(np.linalg.norm(markers - first[None], axis=2), axis=1))))
+        return real(posed, free, **kw)
+
+    monkeypatch.setattr(mod, "calibrate_hand", spy)
+    cal = calibrate_hand_from_point_sets([CalibrationPoints(d["points"], d["colours"], 10.0)])
+    assert taken and set(taken) == {0}  # the flat flash in both passes, never the decoy (flash 1)
+    err = np.linalg.norm(cal.skeleton.offsets - sk.offsets, axis=1)
+    assert err.max() < 0.005
