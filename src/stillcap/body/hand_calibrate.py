@@ -565,11 +565,15 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     # thumb's MCP then calibrated 20 mm off). The capture itself tells them apart: the same labels
     # of every flash fitted with each candidate held in the pose; a flash not in it must be absorbed
     # by the shared model, which the other flashes' bends then miss (:func:`_pose_costs`)
-    if max_posed_tries > 1 and len(order) > 1:
+    def by_fit(labs, order):
+        if max_posed_tries < 2 or len(order) < 2:
+            return order
         short = order[:max_posed_tries]
         cost = _pose_costs([(labs[c].positions[k], sigma(c, labs[c], [k]), free_flashes(labs, c, k)[:2])
                             for c, k in short], pose=pose, skeleton=sk0, markerset=ms0, **kw)
-        order = [short[i] for i in np.argsort(cost, kind="stable")] + order[max_posed_tries:]
+        return [short[i] for i in np.argsort(cost, kind="stable")] + order[max_posed_tries:]
+
+    order = by_fit(labs, order)
     # the flash nearest the pose may not be in it (a wrong label, a hand not yet flat): the next
     # nearest ones are tried, up to max_posed_tries, before the capture is refused
     # the first pass's model only labels the second pass: from the posed flash alone, which bends
@@ -585,7 +589,14 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     if first is None:
         raise _refusal(refused)
     labs2 = [label(s, first.skeleton, first.markerset, hand_scale=1.0) for s in sets]
+    # the first model reads its own posed flash as flat whether it is or not, and its labels can be
+    # worse than the template's for the flash held (another_hand(7): a thumb nail 38 mm off): the
+    # flash the first pass took (ranked by the fit) stays first
     order2 = ranked(labs2, skip={r[0] for r in refused})
+    # (the same flash: the same back-of-hand points; a labelling's flash times are its own)
+    pb = labs[c0].point_index[k0][[ms0.index(n) for n in BACK_MARKERS]]
+    order2 = sorted(order2, key=lambda ck: not (ck[0] == c0 and np.array_equal(
+        labs2[c0].point_index[ck[1]][[ms0.index(n) for n in BACK_MARKERS]], pb)))
     if not order2:
         return first
     cal = None
