@@ -90,6 +90,7 @@ def test_a_refused_posed_flash_gives_way_to_the_next_nearest(protocol_points, mo
         return real(posed, free, **kw)
 
     monkeypatch.setattr(mod, "calibrate_hand", refuse_first)
+    monkeypatch.setattr(mod, "_pose_costs", lambda c, **kw: np.zeros(len(c)))  # the template's order
     cal = calibrate_hand_from_point_sets(protocol_points)
     assert len(calls) == 3  # refused, the next nearest (first pass), the final fit
     assert not np.array_equal(calls[0][0], calls[1][0], equal_nan=True)
@@ -108,6 +109,7 @@ def test_every_posed_flash_refused_refuses_the_capture_naming_them(protocol_poin
         raise ValueError(f"refusal {len(calls)}")
 
     monkeypatch.setattr(mod, "calibrate_hand", refuse)
+    monkeypatch.setattr(mod, "_pose_costs", lambda c, **kw: np.zeros(len(c)))  # the template's order
     with pytest.raises(ValueError, match=r"^refusal 1; flash \d+ of capture \d was refused too: refusal 2; "):
         calibrate_hand_from_point_sets(protocol_points, max_posed_tries=3)
     assert len(calls) == 3

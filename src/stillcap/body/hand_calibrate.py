@@ -481,8 +481,10 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     """Calibrate the hand from one or more calibration captures of the same hand and glove
     (a list of :class:`CalibrationPoints`), as :func:`calibrate_hand_from_points` does for one.
 
-    Each capture is labelled apart (its own strobe, its own flashes); the flash nearest the
-    calibration pose over all of them is the posed one, and up to ``max_free`` other flashes of
+    Each capture is labelled apart (its own strobe, its own flashes); of the ``max_posed_tries``
+    flashes the template reads nearest the calibration pose over all of them, the posed one is the
+    one whose fit of every flash, with it held in the pose, costs least (:func:`_pose_costs`), and
+    up to ``max_free`` other flashes of
     *each* capture are fitted with it in one problem: the shape is shared, every flash has its
     own pose. More captures give the fit more poses (for instance the curl of one photo and the
     protocol's separate bends of another, docs/hand-calibration.md); they need not be in the
