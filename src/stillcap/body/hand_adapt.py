@@ -84,6 +84,9 @@ class HandAdaptation:
     chi2_scale : float
         The data's reduced chi-square when above 1 (else 1): the data's weight in the
         covariance is divided by it (the priors keep theirs).
+    cost : float
+        The solution's objective: the sum of the loss over every residual row (data, priors,
+        angle pull; for the linear loss the sum of squares), SciPy's ``2 * cost``.
     """
 
     skeleton: Skeleton
@@ -101,6 +104,7 @@ class HandAdaptation:
     joint_prior_sigma: np.ndarray | None = None
     marker_prior_sigma: float | None = None
     chi2_scale: float = 1.0
+    cost: float = float("nan")
 
     def digit_rms(self) -> dict:
         """RMS residual (m) of each digit's markers and of the back of the hand (NaN if unseen)."""
@@ -396,7 +400,7 @@ def adapt_hand_model(skeleton: Skeleton, markerset: MarkerSet, marker_positions,
     jsig = np.zeros(J)
     jsig[joints_free] = sig_j
     return HandAdaptation(sk, ms, poses, res, rms, F, bool(sol.success), str(sol.message), jcov, mcov, jz, mz,
-                          jsig, float(marker_sigma_m), float(scale))
+                          jsig, float(marker_sigma_m), float(scale), 2.0 * float(sol.cost))
 
 
 def label_and_adapt(points, colors, *, strobe_hz: float, skeleton: Skeleton, markerset: MarkerSet,

@@ -142,6 +142,8 @@ class HandCalibration:
         3 dof when the model and the label are right; NaN unseen).
     markers : ndarray, shape (n_flashes, n_markers, 3)
         The labelled markers fitted (m), in the order of ``residuals``; NaN unlabelled.
+    cost : float
+        The fit's objective (:attr:`~stillcap.body.hand_adapt.HandAdaptation.cost`).
     messages : list of str
     parameters : list of CalibratedParameter
         Every estimated length, knuckle place, marker height and thumb axis with its 1-sigma.
@@ -165,6 +167,7 @@ class HandCalibration:
     self_checks: list = field(default_factory=list)
     misfit: np.ndarray | None = None
     markers: np.ndarray | None = None
+    cost: float = float("nan")
 
     def lengths(self) -> dict:
         return phalanx_lengths(self.skeleton)
@@ -431,7 +434,7 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     misfit = (res / s3) ** 2
     checks.append(_misfit_check(misfit, ms0.names, len(posed), pose))
     return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks,
-                           misfit, pts)
+                           misfit, pts, ad.cost)
 
 
 @dataclass(frozen=True)
@@ -478,8 +481,10 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     """Calibrate the hand from one or more calibration captures of the same hand and glove
     (a list of :class:`CalibrationPoints`), as :func:`calibrate_hand_from_points` does for one.
 
-    Each capture is labelled apart (its own strobe, its own flashes); the flash nearest the
-    calibration pose over all of them is the posed one, and up to ``max_free`` other flashes of
+    Each capture is labelled apart (its own strobe, its own flashes); of the ``max_posed_tries``
+    flashes the template reads nearest the calibration pose over all of them, the posed one is the
+    one whose fit of every flash, with it held in the pose, costs least (:func:`_pose_costs`), and
+    up to ``max_free`` other flashes of
     *each* capture are fitted with it in one problem: the shape is shared, every flash has its
     own pose. More captures give the fit more poses (for instance the curl of one photo and the
     protocol's separate bends of another, docs/hand-calibration.md); they need not be in the
@@ -529,11 +534,48 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
         pi = lab.point_index[ks]
         return np.where(pi >= 0, ps[np.maximum(pi, 0)], np.nan)
 
+    def free_flashes(labs, c1, k1):
+        """The other flashes fitted with the posed flash ``(c1, k1)``: per capture up to
+        ``max_free`` with 9 labelled markers or more, the most labelled first; their markers, their
+        noises (None when no capture has its own) and how many per capture."""
+        free, free_sig, used = [], [], []
+        for c, lab in enumerate(labs):
+            rec = np.flatnonzero(lab.reconstructed)
+            others = [int(k) for k in rec if (c, int(k)) != (c1, k1)
+                      and np.isfinite(lab.positions[k]).all(axis=1).sum() >= 9]
+            others = sorted(others, key=lambda k: -np.isfinite(lab.positions[k]).all(axis=1).sum())[:max_free]
+            used.append(len(others))
+            if others:
+                free.append(lab.positions[others])
+                free_sig.append(sigma(c, lab, others))
+        if not free:
+            return None, None, used
+        if not any(s.point_sigma_m is not None for s in sets):
+            return np.concatenate(free), None, used
+        # a capture without its own noises: the common one
+        free_sig = [np.full(f.shape[:2], kw.get("noise_m", NOISE_M)) if g is None else g for f, g in zip(free, free_sig)]
+        return np.concatenate(free), np.concatenate(free_sig), used
+
     labs = [label(s, sk0, ms0) for s in sets]  # flashes with their back triplet
     order = ranked(labs)
     if not order:
         why = "; ".join(sorted({s for lab in labs for s in lab.skipped if s})) or "no back-of-hand markers found"
         raise ValueError(f"no flash of the calibration capture{'s' if multi else ''} has a hand pose ({why})")
+    # the template's angles only shortlist the posed flash: on another person's hand they bend
+    # every flash by several degrees, and a flash a few degrees from the pose can come first
+    # (another_hand(5): the protocol's spread step, thumb out, 3 deg from flat, taken as flat; its
+    # thumb's MCP then calibrated 20 mm off). The capture itself tells them apart: the same labels
+    # of every flash fitted with each candidate held in the pose; a flash not in it must be absorbed
+    # by the shared model, which the other flashes' bends then miss (:func:`_pose_costs`)
+    def by_fit(labs, order):
+        if max_posed_tries < 2 or len(order) < 2:
+            return order
+        short = order[:max_posed_tries]
+        cost = _pose_costs([(labs[c].positions[k], sigma(c, labs[c], [k]), free_flashes(labs, c, k)[:2])
+                            for c, k in short], pose=pose, skeleton=sk0, markerset=ms0, **kw)
+        return [short[i] for i in np.argsort(cost, kind="stable")] + order[max_posed_tries:]
+
+    order = by_fit(labs, order)
     # the flash nearest the pose may not be in it (a wrong label, a hand not yet flat): the next
     # nearest ones are tried, up to max_posed_tries, before the capture is refused
     # the first pass's model only labels the second pass: from the posed flash alone, which bends
@@ -549,28 +591,21 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     if first is None:
         raise _refusal(refused)
     labs2 = [label(s, first.skeleton, first.markerset, hand_scale=1.0) for s in sets]
+    # the first model reads its own posed flash as flat whether it is or not, and its labels can be
+    # worse than the template's for the flash held (another_hand(7): a thumb nail 38 mm off): the
+    # flash the first pass took (ranked by the fit) stays first
     order2 = ranked(labs2, skip={r[0] for r in refused})
+    # (the same flash: the same back-of-hand points; a labelling's flash times are its own)
+    pb = labs[c0].point_index[k0][[ms0.index(n) for n in BACK_MARKERS]]
+    order2 = sorted(order2, key=lambda ck: not (ck[0] == c0 and np.array_equal(
+        labs2[c0].point_index[ck[1]][[ms0.index(n) for n in BACK_MARKERS]], pb)))
     if not order2:
         return first
     cal = None
     for c1, k1 in order2[:max_posed_tries]:
-        free, free_sig, used = [], [], []
-        for c, lab in enumerate(labs2):
-            rec = np.flatnonzero(lab.reconstructed)
-            others = [int(k) for k in rec if (c, int(k)) != (c1, k1)
-                      and np.isfinite(lab.positions[k]).all(axis=1).sum() >= 9]
-            others = sorted(others, key=lambda k: -np.isfinite(lab.positions[k]).all(axis=1).sum())[:max_free]
-            used.append(len(others))
-            if others:
-                free.append(lab.positions[others])
-                free_sig.append(sigma(c, lab, others))
-        weighted = any(s.point_sigma_m is not None for s in sets)
-        if weighted:  # a capture without its own noises: the common one
-            free_sig = [np.full(f.shape[:2], kw.get("noise_m", NOISE_M)) if g is None else g
-                        for f, g in zip(free, free_sig)]
-        fit = dict(posed=labs2[c1].positions[k1], free=np.concatenate(free) if free else None, pose=pose,
-                   skeleton=sk0, markerset=ms0, posed_sigma_m=sigma(c1, labs2[c1], [k1]),
-                   free_sigma_m=np.concatenate(free_sig) if free and weighted else None, **kw)
+        free, free_sig, used = free_flashes(labs2, c1, k1)
+        fit = dict(posed=labs2[c1].positions[k1], free=free, pose=pose, skeleton=sk0, markerset=ms0,
+                   posed_sigma_m=sigma(c1, labs2[c1], [k1]), free_sigma_m=free_sig, **kw)
         try:
             cal = calibrate_hand(**fit)
             cal = _without_misfits(cal, fit) if drop_misfits else cal
@@ -597,6 +632,27 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
                             f"flashes used per capture: {', '.join(map(str, used))} (with a pose: "
                             f"{', '.join(str(int(lab.reconstructed.sum())) for lab in labs2)})")
     return cal
+
+
+def _pose_costs(candidates, **kw) -> np.ndarray:
+    """Per candidate ``(posed markers, their noises, (free markers, their noises))`` (the same
+    flashes each time, one of them held in the pose), the objective of the fit robust to wrong
+    labels (soft-L1, 3 sigmas; no refusal, the back triangle held: :func:`calibrate_hand`'s
+    arguments ``kw``); inf when the fit fails. The data are the same for every candidate, only
+    which flash is held differs, so the costs compare: a flash held in a pose it is not in moves
+    the shared model off the hand and the other flashes' bends miss it (measured on the studio's
+    protocol captures of another_hand(5), 3 and 12: 1.2-2 times the cost of a flat flash;
+    docs/hand-calibration.md)."""
+    cost = []
+    for posed, posed_sig, (free, free_sig) in candidates:
+        try:
+            c = calibrate_hand(posed, free, posed_sigma_m=posed_sig, free_sigma_m=free_sig,
+                               **{**kw, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
+                                  "max_length_sigma_m": None, "back_sigma_m": None})
+            cost.append(c.cost)
+        except ValueError:
+            cost.append(np.inf)
+    return np.array(cost, float)
 
 
 def _robust_fit(fit: dict) -> tuple[HandCalibration, np.ndarray]:
