@@ -39,6 +39,7 @@ from stillcap.body.markerset import MarkerSet
 from stillcap.body.skeleton import Skeleton
 
 __all__ = ["BACK_SIGMA_M", "CALIBRATION_POSES", "REFUSE_RMS_M", "REFUSE_PRIOR_Z", "MAX_LENGTH_SIGMA_M", "UNFIXED_SIGMA_RATIO", "MAX_POSED_TRIES",
+           "ALSO_POSED_P",
            "CalibratedParameter",
            "HandCalibration", "calibration_angles", "calibrate_hand",
            "calibrate_hand_from_points", "calibrate_hand_from_point_sets", "CalibrationPoints", "phalanx_lengths"]
@@ -70,6 +71,10 @@ BACK_SIGMA_M = 0.004
 #: Flashes tried as the posed one, nearest the pose first, before the capture is refused (each
 #: refusal costs one fit; a flash is refused when its markers do not fit the pose stated).
 MAX_POSED_TRIES = 3
+#: False-alarm rate of the test that another shortlisted flash is in the pose too (held with the
+#: first, :func:`_also_posed`): holding its angles at the pose's raises the fit's cost by no more
+#: than a chi-square with one degree per angle allows.
+ALSO_POSED_P = 0.01
 
 
 def calibration_angles(pose: str, skeleton: Skeleton) -> np.ndarray:
@@ -168,6 +173,7 @@ class HandCalibration:
     misfit: np.ndarray | None = None
     markers: np.ndarray | None = None
     cost: float = float("nan")
+    chi2_scale: float = 1.0
 
     def lengths(self) -> dict:
         return phalanx_lengths(self.skeleton)
@@ -434,7 +440,7 @@ def calibrate_hand(posed, free=None, *, pose: str = "flat", skeleton: Skeleton |
     misfit = (res / s3) ** 2
     checks.append(_misfit_check(misfit, ms0.names, len(posed), pose))
     return HandCalibration(sk1, ms1, pose, size, ad.rms, pose_rms, len(posed), len(free), res, msgs, params, checks,
-                           misfit, pts, ad.cost)
+                           misfit, pts, ad.cost, ad.chi2_scale)
 
 
 @dataclass(frozen=True)
@@ -483,7 +489,9 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
 
     Each capture is labelled apart (its own strobe, its own flashes); of the ``max_posed_tries``
     flashes the template reads nearest the calibration pose over all of them, the posed one is the
-    one whose fit of every flash, with it held in the pose, costs least (:func:`_pose_costs`), and
+    one whose fit of every flash, with it held in the pose, costs least (:func:`_pose_costs`), held
+    with every other shortlisted flash the fit cannot tell from the pose (:func:`_also_posed`: a
+    protocol's two flat flashes, so that one label a few mm off in one is outvoted), and
     up to ``max_free`` other flashes of
     *each* capture are fitted with it in one problem: the shape is shared, every flash has its
     own pose. More captures give the fit more poses (for instance the curl of one photo and the
@@ -534,16 +542,18 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
         pi = lab.point_index[ks]
         return np.where(pi >= 0, ps[np.maximum(pi, 0)], np.nan)
 
-    def free_flashes(labs, c1, k1):
+    def free_flashes(labs, c1, k1, held=()):
         """The other flashes fitted with the posed flash ``(c1, k1)``: per capture up to
-        ``max_free`` with 9 labelled markers or more, the most labelled first; their markers, their
-        noises (None when no capture has its own) and how many per capture."""
+        ``max_free`` with 9 labelled markers or more, the most labelled first, less those also
+        ``held`` in the pose; their markers, their noises (None when no capture has its own) and
+        how many per capture."""
         free, free_sig, used = [], [], []
         for c, lab in enumerate(labs):
             rec = np.flatnonzero(lab.reconstructed)
             others = [int(k) for k in rec if (c, int(k)) != (c1, k1)
                       and np.isfinite(lab.positions[k]).all(axis=1).sum() >= 9]
             others = sorted(others, key=lambda k: -np.isfinite(lab.positions[k]).all(axis=1).sum())[:max_free]
+            others = [k for k in others if (c, k) not in held]
             used.append(len(others))
             if others:
                 free.append(lab.positions[others])
@@ -567,15 +577,35 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     # thumb's MCP then calibrated 20 mm off). The capture itself tells them apart: the same labels
     # of every flash fitted with each candidate held in the pose; a flash not in it must be absorbed
     # by the shared model, which the other flashes' bends then miss (:func:`_pose_costs`)
+    def posed_of(labs, cks):
+        """The markers of the flashes ``cks`` held in the pose and their noises (None: no own)."""
+        sig = [sigma(c, labs[c], [k]) for c, k in cks]
+        if not any(s is not None for s in sig):
+            sig = None
+        else:
+            sig = np.concatenate([np.full((1, len(ms0)), kw.get("noise_m", NOISE_M)) if s is None else s
+                                  for s in sig])
+        return np.stack([labs[c].positions[k] for c, k in cks]), sig
+
     def by_fit(labs, order):
         if max_posed_tries < 2 or len(order) < 2:
-            return order
+            return order, []
         short = order[:max_posed_tries]
-        cost = _pose_costs([(labs[c].positions[k], sigma(c, labs[c], [k]), free_flashes(labs, c, k)[:2])
-                            for c, k in short], pose=pose, skeleton=sk0, markerset=ms0, **kw)
-        return [short[i] for i in np.argsort(cost, kind="stable")] + order[max_posed_tries:]
+        cost = _pose_costs([(*posed_of(labs, [ck]), free_flashes(labs, *ck)[:2]) for ck in short],
+                           pose=pose, skeleton=sk0, markerset=ms0, **kw)
+        rank = np.argsort(cost, kind="stable")
+        best = short[rank[0]]
+        # a protocol has more than one flat flash (its first and its last): every one the data
+        # cannot tell from the pose is held with the best, so that one label a few mm off in one
+        # of them is outvoted (docs/hand-calibration.md, "Which flash is the flat one")
+        rest = [short[i] for i in rank[1:] if np.isfinite(cost[i])]
+        ok = _also_posed((*posed_of(labs, [best]), free_flashes(labs, *best)[:2]),
+                         [(*posed_of(labs, [best, ck]), free_flashes(labs, *best, held={ck})[:2]) for ck in rest],
+                         pose=pose, skeleton=sk0, markerset=ms0, **kw) if rest else []
+        also = [ck for ck, y in zip(rest, ok) if y]
+        return [short[i] for i in rank] + order[max_posed_tries:], also
 
-    order = by_fit(labs, order)
+    order, also = by_fit(labs, order)
     # the flash nearest the pose may not be in it (a wrong label, a hand not yet flat): the next
     # nearest ones are tried, up to max_posed_tries, before the capture is refused
     # the first pass's model only labels the second pass: from the posed flash alone, which bends
@@ -596,16 +626,24 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     # flash the first pass took (ranked by the fit) stays first
     order2 = ranked(labs2, skip={r[0] for r in refused})
     # (the same flash: the same back-of-hand points; a labelling's flash times are its own)
-    pb = labs[c0].point_index[k0][[ms0.index(n) for n in BACK_MARKERS]]
-    order2 = sorted(order2, key=lambda ck: not (ck[0] == c0 and np.array_equal(
-        labs2[c0].point_index[ck[1]][[ms0.index(n) for n in BACK_MARKERS]], pb)))
+    back = [ms0.index(n) for n in BACK_MARKERS]
+
+    def same(c, k):
+        return [(c, int(j)) for j in np.flatnonzero(labs2[c].reconstructed)
+                if np.array_equal(labs2[c].point_index[j][back], labs[c].point_index[k][back])]
+
+    order2 = sorted(order2, key=lambda ck: ck not in same(c0, k0))
     if not order2:
         return first
+    # the flashes the first pass found in the pose too, held with the first when it is
+    held2 = [ck for c, k in (also if (c0, k0) == order[0] else []) for ck in same(c, k)[:1] if ck in order2]
     cal = None
-    for c1, k1 in order2[:max_posed_tries]:
-        free, free_sig, used = free_flashes(labs2, c1, k1)
-        fit = dict(posed=labs2[c1].positions[k1], free=free, pose=pose, skeleton=sk0, markerset=ms0,
-                   posed_sigma_m=sigma(c1, labs2[c1], [k1]), free_sigma_m=free_sig, **kw)
+    for i, (c1, k1) in enumerate(order2[:max_posed_tries]):
+        held = held2 if i == 0 and (c1, k1) in same(c0, k0) else []
+        free, free_sig, used = free_flashes(labs2, c1, k1, held=set(held))
+        posed, posed_sig = posed_of(labs2, [(c1, k1)] + held)
+        fit = dict(posed=posed, free=free, pose=pose, skeleton=sk0, markerset=ms0,
+                   posed_sigma_m=posed_sig, free_sigma_m=free_sig, **kw)
         try:
             cal = calibrate_hand(**fit)
             cal = _without_misfits(cal, fit) if drop_misfits else cal
@@ -625,7 +663,7 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
         raise _refusal(refused)
     cal.messages += [f"{name} was not taken as the {pose} flash: {e}" for _, name, e in refused]
     if not multi:
-        cal.messages.append(f"calibration pose in flash {int(labs2[c1].order[k1])}, {used[0]} other flash(es) "
+        cal.messages.append(f"calibration pose in flash(es) {', '.join(str(int(labs2[c].order[k])) for c, k in [(c1, k1)] + held)}, {used[0]} other flash(es) "
                             f"used, {int(labs2[0].reconstructed.sum())} with a pose of {labs2[0].n_flashes}")
     else:
         cal.messages.append(f"calibration pose in flash {int(labs2[c1].order[k1])} of capture {c1 + 1}; other "
@@ -645,14 +683,41 @@ def _pose_costs(candidates, **kw) -> np.ndarray:
     docs/hand-calibration.md)."""
     cost = []
     for posed, posed_sig, (free, free_sig) in candidates:
-        try:
-            c = calibrate_hand(posed, free, posed_sigma_m=posed_sig, free_sigma_m=free_sig,
-                               **{**kw, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
-                                  "max_length_sigma_m": None, "back_sigma_m": None})
-            cost.append(c.cost)
-        except ValueError:
-            cost.append(np.inf)
+        c = _held_fit(posed, posed_sig, free, free_sig, **kw)
+        cost.append(np.inf if c is None else c.cost)
     return np.array(cost, float)
+
+
+def _held_fit(posed, posed_sig, free, free_sig, **kw) -> HandCalibration | None:
+    """:func:`_pose_costs`'s fit (None when it fails)."""
+    try:
+        return calibrate_hand(posed, free, posed_sigma_m=posed_sig, free_sigma_m=free_sig,
+                              **{**kw, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
+                                 "max_length_sigma_m": None, "back_sigma_m": None})
+    except ValueError:
+        return None
+
+
+def _also_posed(best, pairs, **kw) -> list:
+    """Per pair, whether its second flash is in the pose too. ``best`` is :func:`_pose_costs`'s
+    candidate ``(posed, noises, (free, noises))`` of the best flash, each of ``pairs`` one with the
+    best flash and a second held, the second taken out of the free ones (the same data).
+    Holding the second's angles is a nested constraint: in the pose, the objective rises by a
+    chi-square with one degree per angle (:func:`~stillcap.body.hand.hand_dofs`), scaled by the
+    reduced chi-square of the best's fit when the noise was larger than stated (not of the fit with both
+    held: a bent flash held inflates it, 98 against 1.4 on another_hand(5), and the test would
+    pass it); a rise the test finds unlikely at :data:`ALSO_POSED_P` says the flash is bent."""
+    from scipy.stats import chi2
+
+    from stillcap.body.hand import hand_dofs
+
+    alone = _held_fit(*best[:2], *best[2], **kw)
+    limit = chi2.ppf(1.0 - ALSO_POSED_P, len(hand_dofs(kw.get("skeleton") or hand_skeleton())))
+    out = []
+    for posed, posed_sig, (free, free_sig) in pairs:
+        both = None if alone is None else _held_fit(posed, posed_sig, free, free_sig, **kw)
+        out.append(both is not None and bool((both.cost - alone.cost) / alone.chi2_scale <= limit))
+    return out
 
 
 def _robust_fit(fit: dict) -> tuple[HandCalibration, np.ndarray]:
