@@ -672,6 +672,12 @@ def calibrate_hand_from_point_sets(sets, *, pose: str = "flat", skeleton: Skelet
     return cal
 
 
+#: :func:`calibrate_hand`'s arguments for the fits robust to wrong labels (:func:`_held_fit`,
+#: :func:`_robust_fit`): soft-L1, nothing refused, no length cap, the back triangle held
+_ROBUST = {"loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf, "max_length_sigma_m": None,
+           "back_sigma_m": None}
+
+
 def _pose_costs(candidates, **kw) -> np.ndarray:
     """Per candidate ``(posed markers, their noises, (free markers, their noises))`` (the same
     flashes each time, one of them held in the pose), the objective of the fit robust to wrong
@@ -691,9 +697,7 @@ def _pose_costs(candidates, **kw) -> np.ndarray:
 def _held_fit(posed, posed_sig, free, free_sig, **kw) -> HandCalibration | None:
     """:func:`_pose_costs`'s fit (None when it fails)."""
     try:
-        return calibrate_hand(posed, free, posed_sigma_m=posed_sig, free_sigma_m=free_sig,
-                              **{**kw, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
-                                 "max_length_sigma_m": None, "back_sigma_m": None})
+        return calibrate_hand(posed, free, posed_sigma_m=posed_sig, free_sigma_m=free_sig, **{**kw, **_ROBUST})
     except ValueError:
         return None
 
@@ -728,8 +732,7 @@ def _robust_fit(fit: dict) -> tuple[HandCalibration, np.ndarray]:
     misfit over the right labels near it; the robust one bounds its pull, so the wrong label keeps
     its misfit. Nothing is refused here (soft-L1 softens the priors too: a wrong label 56 mm off
     still moves its marker's place 38 mm, though it keeps its misfit)."""
-    rob = calibrate_hand(**{**fit, "loss": "soft_l1", "refuse_rms_m": np.inf, "refuse_prior_z": np.inf,
-                            "max_length_sigma_m": None, "back_sigma_m": None})
+    rob = calibrate_hand(**{**fit, **_ROBUST})
     seen = np.isfinite(rob.misfit)
     bad = seen & (np.where(seen, rob.misfit, 0.0) > misfit_limit(int(seen.sum())))
     bad[:, [rob.markerset.index(n) for n in BACK_MARKERS]] = False  # every flash's pose needs them
