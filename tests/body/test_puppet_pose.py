@@ -60,3 +60,74 @@ def test_fit_pose_runs_blas_on_one_thread_and_restores_the_callers_setting(monke
         fit = fit_pose(sk, ms, ms.positions(sk.rest_pose()))
         assert _blas_threads() == [2]
     assert fit.success and inside and all(t == ([1], "exact") for t in inside)
+
+
+def test_newton_start_reaches_the_soft_l1_optimum_and_never_raises_the_loss():
+    """_newton_start's reweighted Gauss-Newton steps (each residual row scaled by the square root
+    of the soft-L1 loss's slope) converge to the optimum least_squares finds for that loss, each
+    step lowering it; clipped into the bounds."""
+    from scipy.optimize import least_squares
+
+    from stillcap.body.puppet_pose import _newton_start, _robust_cost
+
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(60, 4))
+    y = A @ np.array([1.0, -2.0, 0.5, 3.0]) + rng.normal(0, 0.1, 60)
+    y[:6] += rng.normal(0, 20.0, 6)  # outliers, which the loss weighs down
+
+    def fun(x):
+        return (A @ x - y) / 0.1
+
+    def jac(x):
+        return A / 0.1
+
+    free = (np.full(4, -np.inf), np.full(4, np.inf))
+    x, f, _ = _newton_start(fun, jac, np.zeros(4), free, 5.0, steps=200, rtol=0.0)
+    want = least_squares(fun, np.zeros(4), jac=jac, loss="soft_l1", f_scale=5.0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    np.testing.assert_allclose(x, want.x, atol=1e-6)
+    np.testing.assert_allclose(f, fun(x))
+    assert want.cost == pytest.approx(_robust_cost(f, 5.0), rel=1e-9)  # the same loss as least_squares'
+    plain, _, done = _newton_start(fun, jac, np.zeros(4), free, None, steps=60)
+    np.testing.assert_allclose(plain, np.linalg.lstsq(A, y, rcond=None)[0], atol=1e-9)  # squares: one step
+    assert done
+    assert np.linalg.norm(plain - want.x) > 1e-2  # the outliers matter: the loss is not ignored
+    lo, hi = np.array([-np.inf, -1.0, -np.inf, -np.inf]), np.array([np.inf, np.inf, np.inf, 2.0])
+    xb, _, _ = _newton_start(fun, jac, np.zeros(4), (lo, hi), 5.0, steps=200, rtol=0.0)
+    want_b = least_squares(fun, np.zeros(4), jac=jac, bounds=(lo, hi), loss="soft_l1", f_scale=5.0, xtol=1e-14,
+                           ftol=1e-14, gtol=1e-14)
+    assert np.all((xb >= lo) & (xb <= hi)) and xb[1] == -1.0  # held on the bound it met
+    np.testing.assert_allclose(xb, want_b.x, atol=1e-6)  # the bounded optimum
+    step_costs = [_robust_cost(_newton_start(fun, jac, np.zeros(4), (lo, hi), 5.0, steps=k, rtol=0.0)[1], 5.0)
+                  for k in range(6)]
+    assert all(b <= a for a, b in zip(step_costs, step_costs[1:])) and step_costs[-1] < step_costs[0]
+
+
+def test_the_newton_start_ends_at_the_trust_regions_own_fit(monkeypatch):
+    """fit_pose from the Gauss-Newton start: the pose least_squares reaches from the joint-by-joint
+    start alone (to its tolerances), in fewer of its iterations."""
+    import stillcap.body.puppet_pose as pp
+    from stillcap.studio.puppet import random_pose
+
+    sk, ms = Skeleton.puppet(), MarkerSet.puppet()
+    nfev = []
+    real = pp.least_squares
+
+    def spy(*args, **kwargs):
+        r = real(*args, **kwargs)
+        nfev.append(r.nfev)
+        return r
+
+    monkeypatch.setattr(pp, "least_squares", spy)
+    for seed in (3, 5, 8):
+        truth = random_pose(sk, seed, ms)
+        pts = ms.positions(truth) + np.random.default_rng(seed).normal(0, 0.1e-3, (len(ms), 3))
+        nfev.clear()
+        fast = fit_pose(sk, ms, pts, truth.root2world)
+        n_fast = sum(nfev)
+        with monkeypatch.context() as m:
+            m.setattr(pp, "_newton_start", lambda fun, jac, x, *a, **k: (x, fun(x), False))
+            nfev.clear()
+            slow = fit_pose(sk, ms, pts, truth.root2world)
+        np.testing.assert_allclose(fast.pose.positions, slow.pose.positions, atol=2e-6)
+        assert np.nansum(fast.residuals_m ** 2) <= np.nansum(slow.residuals_m ** 2) * (1 + 1e-6)
+        assert n_fast < sum(nfev)
