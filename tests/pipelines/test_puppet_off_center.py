@@ -77,3 +77,31 @@ def test_arc_refitted_centres_are_the_ones_triangulated(scene, monkeypatch, meth
     assert got.used[v, k]
     np.testing.assert_allclose(got.points, want.points, rtol=0, atol=1e-12)
     assert np.linalg.norm(want.points[k] - before.points[k]) > 1e-6  # metres: the refit moved the point
+
+
+def test_a_marker_the_final_triangulation_loses_keeps_the_refined_first_point():
+    """The first triangulation (2 px consensus) gives the beads' depths from linear points; a
+    marker whose views the final one (1 px) no longer accepts falls back on the first point
+    refined, as a final point is: the Gauss-Newton one, not the linear one (~0.1 mm away)."""
+    from stillcap.calibrate.turntable import turntable_rig
+    from stillcap.geometry.triangulate import triangulate_markers
+
+    rig = turntable_rig()
+    rng = np.random.default_rng(0)
+    clean = np.stack([c.project(np.array([[0.0, 0.0, 0.15], [0.01, 0.02, 0.12]])) for c in rig])
+    blank = [np.zeros((480, 640, 3), np.uint8)] * len(rig)  # no fill: every view counts
+    for _ in range(200):  # three views ~1.5 px apart: within the first consensus, not the final one
+        x = clean.copy()
+        x[3:] = np.nan
+        x[:3, 0] += rng.normal(0, 1.5, (3, 2))
+        if not np.all(np.isfinite(triangulate_markers(rig, x, "dlt", True, DEFAULT.outlier_px).points[0])):
+            first = triangulate_markers(rig, x, "dlt", True, 2.0)
+            if np.all(np.isfinite(first.points[0])):
+                break
+    else:
+        pytest.fail("no marker the final triangulation loses")
+    solve = solve_markers(rig, x, ["a", "b"], blank, DEFAULT)
+    np.testing.assert_array_equal(solve.points[0], first.points[0])
+    np.testing.assert_array_equal(solve.used[:, 0], first.used[:, 0])
+    linear = triangulate_markers(rig, x, "dlt", False, 2.0).points[0]
+    assert np.max(np.abs(linear - first.points[0])) > 1e-5

@@ -106,8 +106,8 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
                   bead_radius_m: float = 0.003, radii_px=None, noise_px: float | None = None) -> MarkerSolve:
     """Triangulate identified markers, leaving out partly hidden beads and disagreeing views.
 
-    1. A first triangulation (``outlier_px`` = 2 px consensus) gives each marker's depth, so
-       its expected radius in every photo.
+    1. A first triangulation (``outlier_px`` = 2 px consensus, linear points) gives each
+       marker's depth, so its expected radius in every photo.
     2. With ``images`` and ``options.use_fill``: :func:`~stillcap.detect.beads.bead_fill` of every observation;
        where a marker has two or more whole views (see :class:`~stillcap.pipelines.puppet.PuppetOptions`), only those are
        used.
@@ -157,7 +157,11 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         views = StackedViews(rig, x) if method == "dlt" else None
         pair_err = ((views.pair_errors() if views is not None else view_pair_errors(rig, x, method))
                     if len(rig) >= 3 and x.shape[1] else None)
-        first = triangulate_markers(rig, x, method, refine, 2.0, pair_errors=pair_err, views=views)
+        # the first points give the beads' depths (their expected radii) only: linear points (the
+        # Gauss-Newton refinement moves them by ~0.05 mm at ~0.4 m, 1e-4 of the radius), refined
+        # below if a marker falls back on them
+        first_args = (pair_err, views)
+        first = triangulate_markers(rig, x, method, False, 2.0, pair_errors=pair_err, views=views)
         r_exp = expected_radius_px(rig, first.points, bead_radius_m)
         if radii_px is not None:
             r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
@@ -218,6 +222,8 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         good = good & ~off
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
+    if first is not None and lost.any() and refine:  # the first triangulation as a final one: refined
+        first = triangulate_markers(rig, x, method, refine, 2.0, pair_errors=first_args[0], views=first_args[1])
     if first is not None and lost.any():
         back = lost & np.all(np.isfinite(first.points), axis=1)
         points[back] = first.points[back]
