@@ -247,24 +247,30 @@ def test_triangulate_markers_is_the_shared_triangulation(random3):
         triangulate_markers(res.rig, x[:3])
 
 
-def test_second_solve_only_for_reidentified_markers_is_the_full_solve(random3):
-    """After reidentify only the renamed markers are solved again (each marker is solved on its
-    own): the same 3D markers, views and fill as solving all of them again; and the first
-    solve's view-pair hypotheses reused for the final consensus give its own result."""
+def test_the_final_names_are_solved_once_as_a_full_solve(random3, monkeypatch):
+    """triangulate_beads renames the candidates after the first pass's 3D markers (solve_markers'
+    2 px consensus of the colour names) and solves the final names once: the same 3D markers,
+    views and fill as solve_markers on them from scratch; and the first pass's view-pair
+    hypotheses reused for the final consensus give its own result."""
+    import stillcap.pipelines.puppet.stages as stages
+
+    seen, real = [], stages.one_name_per_bead
+    monkeypatch.setattr(stages, "one_name_per_bead", lambda rig, pts, *a, **k: seen.append(pts) or real(rig, pts, *a, **k))
     res = _run(random3)
+    first = triangulate_markers(res.rig, res.raw_observations, "dlt", False, 2.0)  # linear, 2 px consensus
+    np.testing.assert_array_equal(seen[0], first.points)  # named after the first pass, before any fill test
     final = res.markers.observations
     names = res.markerset.names
-    # the capture's pixel noise as the pipeline's first solve measured it (the off-centre test)
-    full = solve_markers(res.rig, final, names, random3.images, DEFAULT, bead_radius_m=0.003,
-                         noise_px=res.markers.noise_px)
+    full = solve_markers(res.rig, final, names, random3.images, DEFAULT, bead_radius_m=0.003)
     changed = ~np.all((np.isnan(final) & np.isnan(res.raw_observations)) | (final == res.raw_observations),
                       axis=(0, 2))
-    assert 0 < changed.sum() < len(names)  # some markers renamed, some not: both paths run
+    assert 0 < changed.sum() < len(names)  # some markers renamed, some not
     np.testing.assert_allclose(res.markers.points, full.points, atol=1e-9)
     for k in ("used", "partial", "outlier", "whole"):
         np.testing.assert_array_equal(getattr(res.markers, k), getattr(full, k))
     np.testing.assert_array_equal(res.markers.fill, full.fill)
     np.testing.assert_allclose(res.markers.reproj_error_px, full.reproj_error_px, atol=1e-9)
+    assert res.markers.noise_px == full.noise_px  # measured on the final names' whole views
     # the final consensus on the views left after the fill test, from scratch
     x_used = np.where(full.partial[..., None], np.nan, final)
     own = triangulate_markers(res.rig, x_used, outlier_px=DEFAULT.outlier_px)

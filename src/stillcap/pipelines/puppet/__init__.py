@@ -8,12 +8,13 @@ markers -> posed skeleton.
                                      template | thesis)
       -> identify_beads              candidates named by colour (identify_markers recommended | thesis)
       -> observations (n_views, n_markers, 2), NaN = not identified
-      -> triangulate_beads           3D markers (solve_markers: bead_fill, how whole each bead
-                                     looks, then geometry.triangulate.triangulate_markers with
-                                     outlier rejection); markers seen in fewer than 2 views: NaN,
-                                     listed in ``missing``; then reidentify: candidates named after
-                                     the projected 3D markers (detect.beads), and fill +
-                                     triangulation again for the markers it renamed
+      -> triangulate_beads           reidentify: candidates named after first 3D markers (a 2 px
+                                     view-pair consensus of the colour names, projected;
+                                     detect.beads), then 3D markers of the final names
+                                     (solve_markers: bead_fill, how whole each bead looks, then
+                                     geometry.triangulate.triangulate_markers with outlier
+                                     rejection); markers seen in fewer than 2 views: NaN, listed
+                                     in ``missing``
       -> pose_skeleton               joint rotations within the limits, twist where a joint frame
                                      has 3+ points (body.puppet_pose.fit_pose); the thesis's
                                      bone directions beside it

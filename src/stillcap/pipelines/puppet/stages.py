@@ -3,10 +3,10 @@
 1. :func:`find_beads`        bead candidates in every photo (``detect.beads``: template or thesis)
 2. :func:`identify_beads`    the candidates named by colour, all photos together
    (:func:`detect_view` does 1 and 2 for one photo)
-3. :func:`triangulate_beads` 3D markers (:func:`solve_markers`: fill test, view-pair consensus),
-                             then the candidates named after the 3D markers
-                             (:func:`~stillcap.detect.beads.reidentify`) and the renamed markers
-                             solved again
+3. :func:`triangulate_beads` the candidates named after first 3D markers (2 px view-pair
+                             consensus; :func:`~stillcap.detect.beads.reidentify`), then the
+                             3D markers of the final names (:func:`solve_markers`: fill test,
+                             view-pair consensus)
 4. :func:`pose_skeleton`     joint rotations within the limits, the markers seen once as rays
                              (:func:`~stillcap.body.puppet_pose.fit_pose`)
 
@@ -27,7 +27,7 @@ from stillcap.detect.beads import (PreparedView, ViewResult, bead_fill_views, de
                                    find_bead_candidates, identify_views, one_name_per_bead, prepare_view,
                                    reidentify)
 from stillcap.detect.palette import Palette
-from stillcap.geometry.triangulate import StackedViews, Triangulation, triangulate_markers, view_pair_errors
+from stillcap.geometry.triangulate import StackedViews, triangulate_markers, view_pair_errors
 from stillcap.pipelines.puppet.options import DEFAULT, PuppetOptions
 from stillcap.pipelines.puppet.result import MarkerSolve
 
@@ -102,8 +102,32 @@ def _arc_refit(images, x, x_used, good, hidden, r_exp):
 
 
 # --- stage 3: triangulation --------------------------------------------------------------------
+def _checked_points(rig: Rig, points_2d, names: Sequence[str]) -> np.ndarray:
+    """``points_2d`` as a float array of shape (n_views, n_markers, 2), else ValueError."""
+    x = np.asarray(points_2d, float)
+    if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2 or x.shape[1] != len(names):
+        raise ValueError(f"points_2d must have shape ({len(rig)}, {len(names)}, 2), got {x.shape}")
+    return x
+
+
+def _first_pass(rig: Rig, x: np.ndarray, options: PuppetOptions) -> tuple:
+    """:func:`solve_markers`' first triangulation of the observations ``x``: ``(views, pair_errors,
+    triangulation)``, the stacked views (``"dlt"``; else None), the view pairs' errors (None
+    with fewer than 3 views) and the points of the 2 px consensus. They serve as the beads'
+    depths (their expected radii) and as the 3D markers :func:`triangulate_beads` names the
+    candidates after, so linear points: the Gauss-Newton refinement moves them by ~0.05 mm at
+    ~0.4 m (1e-4 of a bead's radius, ~0.1 px), and a marker that falls back on its first point
+    gets it refined."""
+    method = options.triangulation
+    views = StackedViews(rig, x) if method == "dlt" else None
+    pair_err = ((views.pair_errors() if views is not None else view_pair_errors(rig, x, method))
+                if len(rig) >= 3 and x.shape[1] else None)
+    return views, pair_err, triangulate_markers(rig, x, method, False, 2.0, pair_errors=pair_err, views=views)
+
+
 def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, options: PuppetOptions = DEFAULT,
-                  bead_radius_m: float = 0.003, radii_px=None, noise_px: float | None = None) -> MarkerSolve:
+                  bead_radius_m: float = 0.003, radii_px=None, noise_px: float | None = None, *,
+                  first_pass: tuple | None = None) -> MarkerSolve:
     """Triangulate identified markers, leaving out partly hidden beads and disagreeing views.
 
     1. A first triangulation (``outlier_px`` = 2 px consensus, linear points) gives each
@@ -136,12 +160,11 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
     radii_px : array_like, shape (n_views, n_markers), optional
         Detected radii, used where a marker has no first 3D point.
     noise_px : float, optional
-        The capture's pixel noise for step 4 (a second solve of some markers passes the first
-        solve's, :attr:`MarkerSolve.noise_px`).
+        The capture's pixel noise for step 4 (default: measured on this solve's whole views).
+    first_pass : tuple, optional
+        :func:`_first_pass` of these observations and options, if already made (step 1).
     """
-    x = np.asarray(points_2d, float)
-    if x.ndim != 3 or x.shape[0] != len(rig) or x.shape[2] != 2 or x.shape[1] != len(names):
-        raise ValueError(f"points_2d must have shape ({len(rig)}, {len(names)}, 2), got {x.shape}")
+    x = _checked_points(rig, points_2d, names)
     method = options.triangulation
     refine = method == "dlt"
     seen = np.isfinite(x[..., 0]) & np.isfinite(x[..., 1])
@@ -154,14 +177,8 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         images = list(images)
         if len(images) != len(rig):
             raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
-        views = StackedViews(rig, x) if method == "dlt" else None
-        pair_err = ((views.pair_errors() if views is not None else view_pair_errors(rig, x, method))
-                    if len(rig) >= 3 and x.shape[1] else None)
-        # the first points give the beads' depths (their expected radii) only: linear points (the
-        # Gauss-Newton refinement moves them by ~0.05 mm at ~0.4 m, 1e-4 of the radius), refined
-        # below if a marker falls back on them
+        views, pair_err, first = first_pass if first_pass is not None else _first_pass(rig, x, options)
         first_args = (pair_err, views)
-        first = triangulate_markers(rig, x, method, False, 2.0, pair_errors=pair_err, views=views)
         r_exp = expected_radius_px(rig, first.points, bead_radius_m)
         if radii_px is not None:
             r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
@@ -259,34 +276,14 @@ def _pixel_noise(errors_px, whole_used) -> float:
     return float(np.median(e) / 1.1774) if len(e) >= 10 else float("nan")
 
 
-def _replace_markers(solve: MarkerSolve, cols: np.ndarray, sub: MarkerSolve, observations) -> MarkerSolve:
-    """``solve`` with the markers ``cols`` taken from ``sub`` (solved on their own) and the
-    observations replaced."""
-    def put(a, b, axis):
-        a = np.array(a, copy=True)
-        if axis == 0:
-            a[cols] = b
-        else:
-            a[:, cols] = b
-        return a
-
-    t, ts = solve.triangulation, sub.triangulation
-    tri = Triangulation(put(t.points, ts.points, 0), put(t.reproj_error_px, ts.reproj_error_px, 0),
-                        put(t.errors_px, ts.errors_px, 1), put(t.used, ts.used, 1))
-    whole = None if solve.whole is None or sub.whole is None else put(solve.whole, sub.whole, 1)
-    return MarkerSolve(solve.names, put(solve.points, sub.points, 0), np.asarray(observations, float),
-                       put(solve.used, sub.used, 1), put(solve.fill, sub.fill, 1), put(solve.partial, sub.partial, 1),
-                       put(solve.outlier, sub.outlier, 1), put(solve.reproj_error_px, sub.reproj_error_px, 0), tri, whole,
-                       solve.noise_px)
-
-
-
 def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, images=None,
                       options: PuppetOptions = DEFAULT, radii_px=None,
                       views: Sequence[ViewResult] | None = None) -> tuple[MarkerSolve, np.ndarray | None]:
     """Stage 3: the 3D markers (:func:`solve_markers`); with ``views`` (the detections) and
-    ``options.reidentify``, the candidates named after the 3D markers
-    (:func:`~stillcap.detect.beads.reidentify`) and the markers it renamed solved again.
+    ``options.reidentify``, first the candidates named after the 3D markers of
+    :func:`solve_markers`' first step (its 2 px view-pair consensus of the colour names; linear
+    points) by :func:`~stillcap.detect.beads.one_name_per_bead` and
+    :func:`~stillcap.detect.beads.reidentify`, then the markers solved on the final names.
 
     Returns
     -------
@@ -294,26 +291,28 @@ def triangulate_beads(rig: Rig, observations: np.ndarray, markerset: MarkerSet, 
     raw_observations : ndarray, shape (n_views, n_markers, 2), or None
         The colour-only identification when the re-identification ran.
     """
-    obs = observations
     bead_r = 0.5 * float(np.mean([m.diameter for m in markerset.markers]))
-    solve = solve_markers(rig, obs, markerset.names, images, options, bead_radius_m=bead_r, radii_px=radii_px)
-    raw_obs = None
-    if views is not None and options.reidentify:
-        raw_obs = obs
-        # one bead under two names (their 3D points closer than a bead's diameter): the name its
-        # colour fits worse loses its point first, so the bead's views go to the other name
-        points, _ = one_name_per_bead(rig, solve.points, views, bead_r, options.reid_gate)
-        final = reidentify(rig, points, views, bead_r, options.reid_gate, options.reid_color, images)
-        same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
-        if not same.all():
-            # solve_markers treats every marker on its own (its views' consensus, fill test and
-            # fallback look at that marker only), so only the re-identified markers are solved
-            # again (with no detected radii, as a full second solve would use)
-            cols = np.flatnonzero(~same)
-            sub = solve_markers(rig, final[:, cols], [markerset.names[c] for c in cols], images, options,
-                                bead_radius_m=bead_r, radii_px=None, noise_px=solve.noise_px)
-            solve = _replace_markers(solve, cols, sub, final)
-    return solve, raw_obs
+    if views is None or not options.reidentify:
+        return solve_markers(rig, observations, markerset.names, images, options, bead_radius_m=bead_r,
+                             radii_px=radii_px), None
+    obs = _checked_points(rig, observations, markerset.names)
+    # the candidates named after the first pass's 3D markers (solve_markers' own first step, so it
+    # costs nothing more where no name changes), then one solve of the final names: a second
+    # solve of the renamed markers after a full one (as before) cost ~5-10 ms of fixed costs
+    # for 1-5 markers. One bead under two names (their 3D points closer than a bead's
+    # diameter): the name its colour fits worse loses its point first, so the bead's views go
+    # to the other name
+    first = _first_pass(rig, obs, options)
+    points, _ = one_name_per_bead(rig, first[2].points, views, bead_r, options.reid_gate)
+    final = reidentify(rig, points, views, bead_r, options.reid_gate, options.reid_color, images)
+    same = np.all((np.isnan(final) & np.isnan(obs)) | (final == obs), axis=(0, 2))
+    if same.all():
+        fill = images is not None and options.use_fill
+        return solve_markers(rig, obs, markerset.names, images, options, bead_radius_m=bead_r, radii_px=radii_px,
+                             first_pass=first if fill else None), obs
+    # the renamed markers without detected radii (those were measured on the other beads)
+    radii = None if radii_px is None else np.where(same[None], np.asarray(radii_px, float), np.nan)
+    return solve_markers(rig, final, markerset.names, images, options, bead_radius_m=bead_r, radii_px=radii), obs
 
 
 # --- stage 4: the pose -------------------------------------------------------------------------
