@@ -59,6 +59,29 @@ def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px:
     return _render_sphere(_sphere_normals(shape, center, A, band_px, q, ss), light)
 
 
+#: error (of the unit radiance) up to which one sample at a pixel's centre stands for the pixel's
+#: mean radiance in the lit-sphere model (:func:`supersample_depth_px`): a quarter of one 8-bit
+#: code at the top of the linear scale, a tenth or less of a photo's noise there
+SUPERSAMPLE_ERROR = 1e-3
+
+
+def supersample_depth_px(radius_px: float) -> float:
+    """Depth inside the limb (px) beyond which the lit-sphere model's radiance needs no
+    supersampling: one sample at a pixel's centre differs from the pixel's mean by less than
+    ``SUPERSAMPLE_ERROR`` (of the unit radiance) for any light.
+
+    A pixel's mean of a smooth radiance ``f`` is ``f + (f_xx + f_yy) / 24`` at its centre (a
+    uniform square of 1 px: variance 1/12 a side). The lambertian sphere's normal ``n_z =
+    sqrt(1 - rho^2)`` bends fastest at the limb: at a depth ``d`` px inside a limb of radius ``r``
+    px, ``n_z ~ sqrt(2 d / r)``, whose second derivative across the limb is ``sqrt(2 / r) d^-1.5 / 4``
+    (``n_x``, ``n_y`` are linear in the pixel coordinates). So the centre sample is within the
+    error where ``sqrt(2 / r) d^-1.5 / 96 <= SUPERSAMPLE_ERROR``: 2.6 px deep on a 12 px ball, 1.9
+    px on a 30 px one (the terminator's kink inside a lit disc was never supersampled). Use the
+    outline's smallest semi-axis for ``radius_px``."""
+    r = max(float(radius_px), 1.0)
+    return float((np.sqrt(2.0 / r) / (96.0 * SUPERSAMPLE_ERROR)) ** (2.0 / 3.0))
+
+
 def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3, r2=None, geom=None):
     """The light-independent part of :func:`_lit_sphere_image`'s band path (``band_px`` given):
     the sphere's normals at the pixel centres and at the band pixels' ``ss x ss`` samples, with
@@ -280,8 +303,9 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     if light is None:
         return np.zeros(2)
     # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
-    # and the Hough's search around the centre from the limb, a pixel cannot change the result
-    band = 4.0 * blur + 4.0
+    # and the Hough's search around the centre from the limb, a pixel cannot change the result;
+    # and deeper than :func:`supersample_depth_px` one sample at its centre is its mean
+    band = min(4.0 * blur + 4.0, supersample_depth_px(float(geom.sv[-1])))
     r2 = q[0] ** 2 + q[1] ** 2
     n_sat = int(np.count_nonzero((lin >= SATURATED) & (r2 < 1.15 ** 2)))
     if n_sat >= MIN_SATURATED_PX:
@@ -721,14 +745,17 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray, start_px: float | Non
     Returns NaN when the image has no lit radiance or the best sigma is at the grid's end.
     """
     lin = np.asarray(lin, np.float32)
-    mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off)
+    geom = _outline_geometry(off)
+    mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off, geom=geom)
     if light is None:
         return float("nan")
     r2 = q[0] ** 2 + q[1] ** 2
     band = (r2 > 0.6 ** 2) & (r2 < 1.4 ** 2)
     if band.sum() < 20:
         return float("nan")
-    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=float(_BLUR_GRID[-1]) * 4.0 + 4.0, q=q)
+    # supersampled where one sample at a pixel's centre is not its mean (:func:`supersample_depth_px`;
+    # was the widest blur's reach, 16 px: the whole of most ball images, 9 samples a pixel)
+    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=supersample_depth_px(float(geom.sv[-1])), q=q)
     y = lin[band].astype(float)
     y = y - y.mean()
     yy = float(y @ y)
