@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.detect.ball._shading import _BLUR_GRID, _lit_frame, _lit_sphere_image, limb_blur_px
+from stillcap.detect.ball._shading import (_BLUR_GRID, _lit_frame, _lit_sphere_image, limb_blur_px,
+                                          supersample_depth_px)
 from stillcap.detect.ball_markers import _robust_ceiling, ball_white_balance
 from stillcap.detect.circle_fit import _soft_l1_newton
 
@@ -83,7 +84,8 @@ def _reference_blur_sse(lin, center, off):
     mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off)
     r2 = q[0] ** 2 + q[1] ** 2
     band = (r2 > 0.6 ** 2) & (r2 < 1.4 ** 2)
-    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=float(_BLUR_GRID[-1]) * 4.0 + 4.0, q=q)
+    band_px = supersample_depth_px(float(np.linalg.svd(A, compute_uv=False)[-1]))
+    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=band_px, q=q)
     y = lin[band].astype(float)
     y = y - y.mean()
     yy = float(y @ y)

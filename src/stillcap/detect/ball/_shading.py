@@ -303,9 +303,8 @@ def _shading_bias(lin: np.ndarray, center: np.ndarray, off: np.ndarray, tpl, pow
     if light is None:
         return np.zeros(2)
     # supersampled near the limb only: beyond the blur kernel (cv2's reaches 4 sigma), the Sobel
-    # and the Hough's search around the centre from the limb, a pixel cannot change the result;
-    # and deeper than :func:`supersample_depth_px` one sample at its centre is its mean
-    band = min(4.0 * blur + 4.0, supersample_depth_px(float(geom.sv[-1])))
+    # and the Hough's search around the centre from the limb, a pixel cannot change the result
+    band = 4.0 * blur + 4.0
     r2 = q[0] ** 2 + q[1] ** 2
     n_sat = int(np.count_nonzero((lin >= SATURATED) & (r2 < 1.15 ** 2)))
     if n_sat >= MIN_SATURATED_PX:
@@ -414,13 +413,23 @@ def _misfit_shift(lin: np.ndarray, model: np.ndarray, r2: np.ndarray, reach: flo
     lambertian, a second light, paint, a wrong blur or phase), the misfit moves them differently
     and ``d`` shows it. Written by hand: a 4-parameter linear least squares on the crop, which
     no image-registration routine does over an outline's window. NaN without enough pixels."""
-    sel = r2 < reach * reach
-    if np.count_nonzero(sel) < 12:
+    sel = np.flatnonzero(r2 < reach * reach)
+    if len(sel) < 12:
         return np.full(2, np.nan)
-    gy, gx = np.gradient(model.astype(np.float64))
-    J = np.stack([gx[sel], gy[sel], model[sel].astype(np.float64), np.ones(np.count_nonzero(sel))], axis=1)
+    h, w = model.shape
+    row, col = np.divmod(sel, w)
+    flat = model.reshape(-1)
+    if row[0] >= 1 and row[-1] <= h - 2 and col.min() >= 1 and col.max() <= w - 2:
+        # np.gradient's central differences at the window's pixels only (none on the crop's
+        # border): the same numbers without differencing the whole crop
+        f64 = np.float64
+        gx = (flat[sel + 1].astype(f64) - flat[sel - 1].astype(f64)) / 2.0
+        gy = (flat[sel + w].astype(f64) - flat[sel - w].astype(f64)) / 2.0
+    else:
+        gy, gx = (g.reshape(-1)[sel] for g in np.gradient(model.astype(np.float64)))
+    J = np.stack([gx, gy, flat[sel].astype(np.float64), np.ones(len(sel))], axis=1)
     try:  # the normal equations (4 x 4): well conditioned here, ~5x cheaper than an SVD per ball
-        coef = np.linalg.solve(J.T @ J, J.T @ lin[sel].astype(np.float64))
+        coef = np.linalg.solve(J.T @ J, J.T @ lin.reshape(-1)[sel].astype(np.float64))
     except np.linalg.LinAlgError:
         return np.full(2, np.nan)
     if not coef[2] > 1e-9:
@@ -447,19 +456,25 @@ def _phase_split_sd(lin: np.ndarray, q, win, light, signed: bool = False, slope=
     difference (two independent halves). Through the slope of the centroid with the phase (the
     blurred model's, from the phase search, else the sharp table's) that is the phase's sigma.
     Texture symmetric about the axis is not seen. NaN where a half has no radiance."""
-    inside, ring = (_centroid_window(q) if win is None else win)[:2]
+    if win is None:
+        win = _centroid_window(q)
     n = float(np.hypot(light[0], light[1]))
     if n < 1e-9:
         return float("nan")
     ax, ay = light[0] / n, light[1] / n
+    # over the window's pixels only (its flat indices and coordinates): the pixels outside it
+    # weigh 0 (the same sums but for the order of float rounding; ~2x cheaper on a crop)
+    idx, ring_idx, qx, qy = win[3]
+    flat = lin.reshape(-1)
+    v = flat[idx]
     if signed:
-        level = float(lin[ring].mean()) if ring.any() else 0.0
-        w = np.where(inside, lin - level, 0.0)
+        level = float(flat[ring_idx].mean()) if len(ring_idx) else 0.0
+        w = v - level
     else:
-        level = median(lin[ring]) if ring.any() else 0.0
-        w = np.where(inside, np.maximum(lin - level, 0.0), 0.0)
-    s = q[0] * ax + q[1] * ay
-    side = q[1] * ax - q[0] * ay > 0
+        level = median(flat[ring_idx]) if len(ring_idx) else 0.0
+        w = np.maximum(v - level, 0.0)
+    s = qx * ax + qy * ay
+    side = qy * ax - qx * ay > 0
     m = []
     for h in (side, ~side):
         tot = float(w[h].sum())
