@@ -580,8 +580,14 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         f = miss(a)
         if not np.isfinite(f):
             return light
-        # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+        # the blurred centroid grows with the phase: the first step to the phase whose sharp
+        # centroid, shrunk as the blur shrank it at this phase (m_obs + f of m_obs), is the
+        # photo's (the table read again at m_obs^2 / (m_obs + f)); then secants
         step = np.radians(5.0) * (1.0 if f < 0 else -1.0)
+        if m_obs + f > 1e-6:
+            a_scaled = _phase_from_centroid(m_obs * m_obs / (m_obs + f))
+            if a_scaled != a and abs(a_scaled - a) <= np.radians(20.0):
+                step = a_scaled - a
     a_prev, f_prev = a, f
     a = float(np.clip(a + step, 0.0, a_max))
     best_a, best_f = a_prev, abs(f_prev)
