@@ -71,21 +71,36 @@ def supersample_depth_px(radius_px: float) -> float:
     ``SUPERSAMPLE_ERROR`` (of the unit radiance) for any light.
 
     A pixel's mean of a smooth radiance ``f`` is ``f + (f_xx + f_yy) / 24`` at its centre (a
-    uniform square of 1 px: variance 1/12 a side). The lambertian sphere's normal ``n_z =
-    sqrt(1 - rho^2)`` bends fastest at the limb: at a depth ``d`` px inside a limb of radius ``r``
-    px, ``n_z ~ sqrt(2 d / r)``, whose second derivative across the limb is ``sqrt(2 / r) d^-1.5 / 4``
-    (``n_x``, ``n_y`` are linear in the pixel coordinates). So the centre sample is within the
-    error where ``sqrt(2 / r) d^-1.5 / 96 <= SUPERSAMPLE_ERROR``: 2.6 px deep on a 12 px ball, 1.9
-    px on a 30 px one. Use the outline's smallest semi-axis for ``radius_px``.
+    uniform square of 1 px: variance 1/12 a side). ``n_x``, ``n_y`` of the lambertian sphere's
+    normal are linear in the pixel coordinates; ``n_z = sqrt(1 - (R / r)^2)`` (``R`` px from the
+    centre of a limb of ``r`` px) bends fastest at the limb, its Laplacian ``n_z'' + n_z' / R``
+    growing as ``d^-1.5`` at a depth ``d = r - R`` (``n_z ~ sqrt(2 d / r)``). The depth returned is
+    the least (on a 0.05 px grid) where ``|Laplacian| / 24 <= SUPERSAMPLE_ERROR``: the whole ball
+    up to ~9 px (its middle already bends more), 4.4 px on a 12 px ball, 2.2 on a 30 px one. Use
+    the outline's smallest semi-axis for ``radius_px``.
 
     Not covered: the terminator's kink inside a disc lit from the side or behind, which a pixel
     straddles with an error up to ~1/(8 r) of the radiance. :func:`limb_blur_px` fits the limb's
-    whole profile, which the kink moves by at most 1.4e-3 px (drawn balls of 6-20 px, 0.5-1.5 px
-    of blur, 45-130 deg); :func:`_shading_bias` keeps its band of the blur's reach (``4 blur + 4``
-    px), which covers the kink of small balls: with this depth there, two searches of the same
-    8 px crescents under 1.5 px of blur from different starts landed 0.11 px apart (0.03 before)."""
-    r = max(float(radius_px), 1.0)
-    return float((np.sqrt(2.0 / r) / (96.0 * SUPERSAMPLE_ERROR)) ** (2.0 / 3.0))
+    whole profile, which that moves by at most 1e-4 px (drawn balls of 6-20 px, 0.5-1.5 px of blur,
+    45-130 deg) and 7.5e-4 px (132 limb reads of the ``bench_speed.py`` pitch and a studio pitch);
+    :func:`_shading_bias` keeps its band of the blur's reach (``4 blur + 4`` px), which covers the
+    kink of small balls: with a depth of ~2-3 px there (an earlier, looser form of this one), two
+    searches of the same 8 px crescents under 1.5 px of blur from different starts landed 0.11 px
+    apart (0.03 px with the blur's reach)."""
+    return _supersample_depth(int(round(10.0 * max(float(radius_px), 1.0))))
+
+
+@functools.lru_cache(maxsize=1024)
+def _supersample_depth(r_tenths: int) -> float:
+    """:func:`supersample_depth_px` of a radius in tenths of a pixel (cached)."""
+    r = r_tenths / 10.0
+    d = np.arange(0.05, r, 0.05)
+    R = r - d
+    u = 1.0 - (R / r) ** 2
+    n1 = -(R / (r * r)) / np.sqrt(u)  # d n_z / dR
+    n2 = -1.0 / (r * r * np.sqrt(u)) - (R / (r * r)) ** 2 / u ** 1.5  # d2 n_z / dR2
+    ok = np.abs(n2 + n1 / R) / 24.0 <= SUPERSAMPLE_ERROR
+    return float(d[np.argmax(ok)]) if ok.any() else float("inf")  # the whole ball
 
 
 def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3, r2=None, geom=None):
