@@ -87,7 +87,10 @@ def supersample_depth_px(radius_px: float) -> float:
     kink of small balls: with a depth of ~2-3 px there (an earlier, looser form of this one), two
     searches of the same 8 px crescents under 1.5 px of blur from different starts landed 0.11 px
     apart (0.03 px with the blur's reach)."""
-    return _supersample_depth(int(round(10.0 * max(float(radius_px), 1.0))))
+    r = float(radius_px)
+    if not np.isfinite(r):
+        return float("inf")  # no size to go by: the whole ball
+    return _supersample_depth(int(round(10.0 * max(r, 1.0))))
 
 
 @functools.lru_cache(maxsize=1024)
