@@ -178,7 +178,7 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
         if len(images) != len(rig):
             raise ValueError(f"need one image per view ({len(rig)}), got {len(images)}")
         views, pair_err, first = first_pass if first_pass is not None else _first_pass(rig, x, options)
-        first_args = (pair_err, views)
+        first_pair_err, first_views = pair_err, views  # kept: the arc refit below may replace both
         r_exp = expected_radius_px(rig, first.points, bead_radius_m)
         if radii_px is not None:
             r_exp = np.where(np.isfinite(r_exp), r_exp, np.asarray(radii_px, float) + 0.7)
@@ -240,7 +240,7 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
     points, used = tri.points.copy(), tri.used.copy()
     lost = ~np.all(np.isfinite(points), axis=1)
     if first is not None and lost.any() and refine:  # the first triangulation as a final one: refined
-        first = triangulate_markers(rig, x, method, refine, 2.0, pair_errors=first_args[0], views=first_args[1])
+        first = triangulate_markers(rig, x, method, refine, 2.0, pair_errors=first_pair_err, views=first_views)
     if first is not None and lost.any():
         back = lost & np.all(np.isfinite(first.points), axis=1)
         points[back] = first.points[back]
