@@ -153,10 +153,12 @@ def per_joint(res, seq, truth_angles, match) -> dict:
 
 def score(res, skeleton, markerset, joints: bool) -> dict:
     from stillcap.body.hand_track import fit_hand_sequence
-    from stillcap.pipelines.hand.stages import marker_sigma
+    from stillcap.pipelines.hand.stages import marker_sigma, weigh_partly_hidden
 
     lab = res.labels
-    seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=marker_sigma(res.points))
+    sig = marker_sigma(res.points)
+    seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=sig)
+    seq, _ = weigh_partly_hidden(lab, res.points, seq, sig, [], skeleton, markerset)
     return score_result(replace(res, sequence=seq), joints)
 
 
