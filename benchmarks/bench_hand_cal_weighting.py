@@ -30,11 +30,9 @@ Arms (both as ``stillcap hand-calibrate`` does, :func:`calibrate_hand_capture`'s
 
 Score: the throw's labelled markers (the same labels for both arms, so the difference is the
 model's shape) fitted with ``fit_hand_sequence`` as the pipeline's stage 5 does (each point at
-its own noise, then the partly hidden ones' noise scaled to the fit's residuals,
-``stages.weigh_partly_hidden``), compared with the truth (``compare_with_capture``): joint angles RMS and max on
+its own noise), compared with the truth (``compare_with_capture``): joint angles RMS and max on
 the degrees of freedom the fully seen markers fix, RMS on those fixed only by partly hidden ones,
-and (``--joints``) the RMS per joint degree of freedom; per hand, how often the labelled partly
-hidden markers' 3D errors lie in the 95 % sphere of their stated and of their scaled noise. Labels and marker RMS do not depend on
+and (``--joints``) the RMS per joint degree of freedom. Labels and marker RMS do not depend on
 the model here (fixed labels): end to end is ``bench_hand_calibration.py``.
 
 Times (process CPU, a loaded machine, no quiet time measured): 12-42 s per arm's calibration on
@@ -155,43 +153,11 @@ def per_joint(res, seq, truth_angles, match) -> dict:
 
 def score(res, skeleton, markerset, joints: bool) -> dict:
     from stillcap.body.hand_track import fit_hand_sequence
-    from stillcap.pipelines.hand.stages import marker_sigma, weigh_partly_hidden
+    from stillcap.pipelines.hand.stages import marker_sigma
 
     lab = res.labels
-    sig = marker_sigma(res.points)
-    seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=sig)
-    seq, scaled = weigh_partly_hidden(lab, res.points, seq, sig, [], skeleton, markerset)
-    out = score_result(replace(res, sequence=seq), joints)
-    out.update(hidden_coverage(res, seq, sig, scaled))
-    return out
-
-
-def hidden_coverage(res, seq, stated, scaled) -> dict:
-    """How often a labelled, partly hidden marker's 3D error lies within the 95 % sphere of its
-    noise (``sqrt(chi2.ppf(0.95, 3))`` sigmas), with the stated noise (``marker_sigma``) and with
-    the noise scaled to the fit's residuals (``weigh_partly_hidden``); labels farther than 8 mm
-    (wrong labels) are left out."""
-    from scipy.stats import chi2
-
-    from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
-
-    match = np.asarray(compare_with_capture(res)["flash_match"])
-    truth = truth_arrays(res.capture.truth)["markers"]
-    k95 = np.sqrt(chi2.ppf(0.95, 3))
-    e, s0, s1 = [], [], []
-    for k in seq.flashes:
-        for m, i in enumerate(res.labels.point_index[k]):
-            if i >= 0 and match[k] >= 0 and res.points.partly_hidden[i]:
-                d = float(np.linalg.norm(res.labels.positions[k, m] - truth[match[k], m]))
-                if d <= 0.008:
-                    e.append(d), s0.append(stated[i]), s1.append(scaled[i])
-    if not e:
-        return {}
-    e, s0, s1 = map(np.asarray, (e, s0, s1))
-    return {"hidden_n": len(e), "hidden_cover_stated_pct": 100.0 * float(np.mean(e <= k95 * s0)),
-            "hidden_cover_scaled_pct": 100.0 * float(np.mean(e <= k95 * s1)),
-            "hidden_err_mm": float(np.median(e) * 1e3), "hidden_sigma_stated_mm": float(np.median(s0) * 1e3),
-            "hidden_sigma_scaled_mm": float(np.median(s1) * 1e3)}
+    seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=marker_sigma(res.points))
+    return score_result(replace(res, sequence=seq), joints)
 
 
 def score_result(res, joints: bool) -> dict:
@@ -278,13 +244,6 @@ def report(rows, joints: bool, arms=ARMS) -> None:
             print(f"{arm}: joints RMS over persons (RMS of RMS) {np.sqrt(np.mean(np.square(v))):.2f} deg, worst "
                   f"{max(v):.2f}, <= 2 deg on {sum(x <= 2 for x in v)} of {len(v)}; partly hidden "
                   f"{np.sqrt(np.mean(np.square(h))):.2f} deg" if h else "")
-    for r in rows:
-        for arm in arms + ("own",):
-            v = r.get(arm, {})
-            if "hidden_n" in v:
-                print(f"{r['person']:>3} {arm:>10} partly hidden labels {v['hidden_n']}: 3D error {v['hidden_err_mm']:.2f} mm "
-                      f"(median), sigma stated {v['hidden_sigma_stated_mm']:.2f} -> scaled {v['hidden_sigma_scaled_mm']:.2f} mm; "
-                      f"95 % sphere covers {v['hidden_cover_stated_pct']:.0f} % -> {v['hidden_cover_scaled_pct']:.0f} %")
     if joints:
         for r in rows:
             for arm in arms + ("own", "built-in"):

@@ -35,7 +35,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from stillcap.body.hand import BACK_MARKERS, DIGITS, fit_hand, hand_markerset, hand_skeleton, scale_hand
-from stillcap.body.hand_checks import noise_from_misfit
 from stillcap.body.hand_calibration_report import (UNFIXED_SIGMA_RATIO, CalibratedParameter, HandCalibration,
                                                    calibration_parameters, misfit_check, misfit_limit,
                                                    observability_check, phalanx_lengths)
@@ -75,6 +74,9 @@ MAX_POSED_TRIES = 3
 #: first, :func:`_also_posed`): holding its angles at the pose's raises the fit's cost by no more
 #: than a chi-square with one degree per angle allows.
 ALSO_POSED_P = 0.01
+#: The chance that :func:`_hidden_noise` scales the partly hidden labels' noise below what their
+#: residuals show (the scale is the chi-square's upper bound at this level).
+HIDDEN_NOISE_P = 0.05
 
 
 def calibration_angles(pose: str, skeleton: Skeleton) -> np.ndarray:
@@ -513,15 +515,16 @@ def _also_posed(best, pairs, alone: HandCalibration | None = None, **kw) -> list
 def _hidden_noise(cal: HandCalibration, fit: dict) -> tuple[HandCalibration, dict, str]:
     """``(cal, fit, message)``: ``cal`` and its arguments ``fit`` fitted again with the stated
     noises of the labels noisier than a fully seen marker (the partly hidden ones,
-    :func:`calibrate_hand`'s ``posed_sigma_m`` / ``free_sigma_m`` above ``noise_m``) scaled to
-    what the fit's residuals show, when those show them smaller
-    (:func:`~stillcap.body.hand_checks.noise_from_misfit`: the chi-square's upper bound at
-    :data:`~stillcap.body.hand_checks.HIDDEN_NOISE_P`, 3 degrees per label). A stated
+    :func:`calibrate_hand`'s ``posed_sigma_m`` / ``free_sigma_m`` above ``noise_m``) scaled to what the fit's residuals show, when those show them smaller: their
+    ``(r / sigma)^2`` sum to a chi-square with 3 degrees per label, and the scale is its upper
+    bound at :data:`HIDDEN_NOISE_P` (never above 1, nor a label below ``noise_m``). A stated
     noise from the share of a marker's light (millimetres) can be ten times its error, and a
     marker partly hidden in every flat flash then has its place from the priors (the studio's hand
     11: its little finger's DIP marker 2.8 mm off, the throw's DIP 10 deg; docs/hand-calibration.md).
     Unchanged (message empty) when no label is noisier or the scale is not below 1; a refused
     refit keeps ``cal`` and says so."""
+    from scipy.stats import chi2
+
     noise = fit.get("noise_m", NOISE_M)
     ps, fs = fit.get("posed_sigma_m"), fit.get("free_sigma_m")
     if ps is None and fs is None:
@@ -531,9 +534,13 @@ def _hidden_noise(cal: HandCalibration, fit: dict) -> tuple[HandCalibration, dic
                           np.asarray(ps, float).reshape(n_posed, -1),
                           np.full((cal.n_free, cal.misfit.shape[1]), noise) if fs is None else
                           np.asarray(fs, float).reshape(cal.n_free, -1)])
-    sig, scale = noise_from_misfit(sig, cal.misfit, noise)
-    if scale is None:
+    hid = np.isfinite(cal.misfit) & np.isfinite(sig) & (sig > noise)
+    if not hid.any():
         return cal, fit, ""
+    scale = np.sqrt(cal.misfit[hid].sum() / chi2.ppf(HIDDEN_NOISE_P, 3 * int(hid.sum())))
+    if not scale < 1.0:
+        return cal, fit, ""
+    sig = np.where(hid, np.maximum(sig * scale, noise), sig)
     scaled = {**fit, "posed_sigma_m": sig[:n_posed], "free_sigma_m": sig[n_posed:] if cal.n_free else None}
     try:
         again = calibrate_hand(**scaled)

@@ -49,8 +49,7 @@ from stillcap._selfcheck import SelfCheck
 from stillcap.body.hand import DIGITS
 from stillcap.body.hand_label import flashes_at_one_place
 
-__all__ = ["RESIDUAL_FACTOR", "SCALE_LIMIT", "UNLABELLED_LIMIT", "NEAR_HAND_M", "HIDDEN_NOISE_P", "hand_self_checks",
-           "noise_from_misfit"]
+__all__ = ["RESIDUAL_FACTOR", "SCALE_LIMIT", "UNLABELLED_LIMIT", "NEAR_HAND_M", "hand_self_checks"]
 
 #: A residual RMS passes up to this many times the expected RMS distance of a noisy point
 #: (sqrt(3) x the noise per axis).
@@ -65,42 +64,9 @@ UNLABELLED_LIMIT = 0.05
 NEAR_HAND_M = 0.035
 #: A digit is checked when its markers have at least this many fully seen residuals.
 MIN_RESIDUALS = 3
-#: The chance that :func:`noise_from_misfit` scales the partly hidden markers' noise below what
-#: their residuals show (the scale is the chi-square's upper bound at this level).
-HIDDEN_NOISE_P = 0.05
 
 _FIX = ("give your hand's own model (--hand-model FILE, docs/hand.md) or personalise it "
         "(--personalise joint)")
-
-
-def noise_from_misfit(sigma_m, misfit, floor_m: float, *, absorbed: int = 0,
-                      p: float = HIDDEN_NOISE_P) -> tuple[np.ndarray, float | None]:
-    """``(sigma_m, scale)``: the stated noises ``sigma_m`` (m, any shape, NaN where there is no
-    label) of the labels stated noisier than ``floor_m`` (a fully seen marker's noise: the partly
-    hidden ones) scaled to what a fit's residuals show, when those show them smaller; ``scale`` is
-    None (and ``sigma_m`` unchanged) when no label is noisier or the scale is not below 1.
-
-    ``misfit`` (same shape) holds each label's ``(r / sigma)^2`` in the fit made with ``sigma_m``;
-    over the noisier labels, pooled, they sum to a chi-square with 3 degrees per label less the
-    ``absorbed`` ones (fit parameters that only these labels fix: their residuals show nothing),
-    and ``scale`` is its upper bound at ``p``: ``sqrt(sum / chi2.ppf(p, dof))``. Never above 1
-    (a stated noise is not raised here), nor a label below ``floor_m``. A stated noise from the
-    share of a marker's light (millimetres) can be ten times its error (docs/hand-calibration.md,
-    docs/hand.md); pooling every label the fit saw keeps one flash from talking itself into a
-    small noise."""
-    from scipy.stats import chi2
-
-    sigma_m, misfit = np.asarray(sigma_m, float), np.asarray(misfit, float)
-    if sigma_m.shape != misfit.shape:
-        raise ValueError(f"sigma_m and misfit must have one shape, got {sigma_m.shape} and {misfit.shape}")
-    hid = np.isfinite(misfit) & np.isfinite(sigma_m) & (sigma_m > floor_m)
-    dof = 3 * int(hid.sum()) - int(absorbed)
-    if dof < 1:
-        return sigma_m, None
-    scale = float(np.sqrt(misfit[hid].sum() / chi2.ppf(p, dof)))
-    if not scale < 1.0:
-        return sigma_m, None
-    return np.where(hid, np.maximum(sigma_m * scale, floor_m), sigma_m), scale
 
 
 def _group(name: str) -> str:

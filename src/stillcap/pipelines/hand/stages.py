@@ -33,7 +33,7 @@ from stillcap._checks import as_array
 from stillcap.ball.flashes import number_flashes_from_hand
 from stillcap.ball.release import estimate_release
 from stillcap.body.hand import HAND_COLORS, fit_hand
-from stillcap.body.hand_checks import hand_self_checks, noise_from_misfit
+from stillcap.body.hand_checks import hand_self_checks
 from stillcap.body.hand_label import (GATE_M, TRIANGLE_TOL_M, HandLabels, contradicted_labels, label_hand_markers,
                                      unlabel_points)
 from stillcap.body.hand_label_fill import (LEFTOVER_GATE_FACTOR, bone_offsets, digit_search, label_recovered,
@@ -49,7 +49,7 @@ from stillcap.pipelines.hand.options import HandOptions
 
 __all__ = ["HandSetup", "hand_setup", "read_hand_photos", "find_ball", "find_glove_markers", "triangulate_glove_markers", "label_markers", "recover_markers", "recover_near", "recover_digits", "fit_poses",
            "release_and_spin", "check_hand", "partly_hidden_angle_note", "label_markers_adapted",
-           "marker_sigma", "misfit_residuals", "root_fixed", "testing_residuals", "weigh_partly_hidden"]
+           "marker_sigma", "misfit_residuals", "root_fixed", "testing_residuals"]
 
 @dataclass
 class HandSetup:
@@ -577,7 +577,6 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
             labels = unlabel_points(labels, far)
             sequence = fit_hand_sequence(labels, personalise=options.personalise, times=labels.times,
                                          point_sigma_m=sigma)
-        sequence, _ = weigh_partly_hidden(labels, points, sequence, sigma, messages, personalise=options.personalise)
         if sequence.n >= 2:
             animation = interpolate_animation(sequence, options.frame_rate, method=options.interpolation)
         else:
@@ -585,39 +584,6 @@ def fit_poses(labels: HandLabels, points: MarkerPoints, options: HandOptions, me
     else:
         messages.append("no flash shows the three back-of-hand markers: no hand pose")
     return labels, sequence, animation
-
-
-def weigh_partly_hidden(labels: HandLabels, points: MarkerPoints, sequence: HandSequence, sigma, messages: list,
-                        skeleton=None, markerset=None, personalise: str | None = None,
-                        seen_m: float = SEEN_SIGMA_M) -> tuple[HandSequence, np.ndarray]:
-    """Stage 5's last fit: ``(sequence, sigma)``, ``sequence`` (fitted with the points' noises
-    ``sigma``, :func:`marker_sigma`) fitted again (with ``skeleton``, ``markerset`` and
-    ``personalise`` as it was) with the partly hidden markers' noise scaled to what its residuals
-    show, pooled over all its flashes so that one flash cannot talk itself into a small noise
-    (:func:`~stillcap.body.hand_checks.noise_from_misfit`: the chi-square's 95 % upper bound,
-    never above the stated noise nor below a fully seen marker's ``seen_m``; the joint angles
-    that only partly hidden markers fix, :func:`~stillcap.body.hand_track.dofs_on_partly_hidden`,
-    are taken off its degrees of freedom: those markers' residuals show nothing of them). The
-    stated noise, 3 mm over the share of the light, is 3-7x what partly hidden markers are off
-    on the studio's throws (docs/hand.md), so it threw their information away. Unchanged when no
-    partly hidden marker is labelled or the residuals do not show a smaller noise; else
-    ``messages`` says by how much."""
-    sigma = np.asarray(sigma, float)
-    pi = labels.point_index[np.asarray(sequence.flashes, int)]
-    label_sigma = np.where(pi >= 0, sigma[np.maximum(pi, 0)], np.nan)
-    absorbed = int(dofs_on_partly_hidden(sequence, labels.point_index, points.partly_hidden).sum())
-    scaled, scale = noise_from_misfit(label_sigma, (sequence.residuals / label_sigma) ** 2, seen_m,
-                                      absorbed=absorbed)
-    if scale is None:
-        return sequence, sigma
-    out = sigma.copy()
-    out[pi[pi >= 0]] = scaled[pi >= 0]
-    again = fit_hand_sequence(labels, skeleton, markerset, personalise=personalise, times=labels.times,
-                              point_sigma_m=out)
-    n = int(np.sum(np.isfinite(label_sigma) & (label_sigma > seen_m) & np.isfinite(sequence.residuals)))
-    messages.append(f"the partly hidden markers' noise scaled by {scale:.2f} (what the pose fit's residuals of "
-                    f"{n} of them show)")
-    return again, out
 
 
 def release_and_spin(rig, balls: HandBalls | None, sequence: HandSequence | None, strobe_hz: float, pairs: dict,
