@@ -32,7 +32,8 @@ Score: the throw's labelled markers (the same labels for both arms, so the diffe
 model's shape) fitted with ``fit_hand_sequence`` as the pipeline's stage 5 does (each point at
 its own noise), compared with the truth (``compare_with_capture``): joint angles RMS and max on
 the degrees of freedom the fully seen markers fix, RMS on those fixed only by partly hidden ones,
-and (``--joints``) the RMS per joint degree of freedom. Labels and marker RMS do not depend on
+and (``--joints``) the RMS per joint degree of freedom; per hand, the labelled partly hidden
+markers' 3D errors against their stated noise (3 mm over the share of the light). Labels and marker RMS do not depend on
 the model here (fixed labels): end to end is ``bench_hand_calibration.py``.
 
 Times (process CPU, a loaded machine, no quiet time measured): 12-42 s per arm's calibration on
@@ -156,8 +157,39 @@ def score(res, skeleton, markerset, joints: bool) -> dict:
     from stillcap.pipelines.hand.stages import marker_sigma
 
     lab = res.labels
-    seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=marker_sigma(res.points))
-    return score_result(replace(res, sequence=seq), joints)
+    sig = marker_sigma(res.points)
+    seq = fit_hand_sequence(lab, skeleton, markerset, times=lab.times, point_sigma_m=sig)
+    out = score_result(replace(res, sequence=seq), joints)
+    out.update(hidden_noise(res, seq, sig))
+    return out
+
+
+def hidden_noise(res, seq, stated) -> dict:
+    """The labelled, partly hidden markers' 3D errors against their stated noise (``marker_sigma``,
+    per axis): median error and noise, how often the error lies within the noise's 95 % sphere
+    (``sqrt(chi2.ppf(0.95, 3))`` sigmas) and the fit's residuals in sigmas (RMS per axis); labels
+    farther than 8 mm from their marker (wrong labels) are left out."""
+    from scipy.stats import chi2
+
+    from stillcap.studio.compare.hand import compare_with_capture, truth_arrays
+
+    match = np.asarray(compare_with_capture(res)["flash_match"])
+    truth = truth_arrays(res.capture.truth)["markers"]
+    e, s, r = [], [], []
+    for i, k in enumerate(seq.flashes):
+        for m, q in enumerate(res.labels.point_index[k]):
+            if q >= 0 and match[k] >= 0 and res.points.partly_hidden[q]:
+                d = float(np.linalg.norm(res.labels.positions[k, m] - truth[match[k], m]))
+                if d <= 0.008:
+                    e.append(d), s.append(stated[q]), r.append(seq.residuals[i, m])
+    if not e:
+        return {}
+    e, s, r = map(np.asarray, (e, s, r))
+    return {"hidden_n": len(e), "hidden_err_mm": float(np.median(e) * 1e3),
+            "hidden_sigma_mm": float(np.median(s) * 1e3),
+            "hidden_cover_pct": 100.0 * float(np.mean(e <= np.sqrt(chi2.ppf(0.95, 3)) * s)),
+            "hidden_err_sigmas": float(np.sqrt(np.mean((e / s) ** 2) / 3)),
+            "hidden_resid_sigmas": float(np.sqrt(np.nanmean((r / s) ** 2) / 3))}
 
 
 def score_result(res, joints: bool) -> dict:
@@ -244,6 +276,14 @@ def report(rows, joints: bool, arms=ARMS) -> None:
             print(f"{arm}: joints RMS over persons (RMS of RMS) {np.sqrt(np.mean(np.square(v))):.2f} deg, worst "
                   f"{max(v):.2f}, <= 2 deg on {sum(x <= 2 for x in v)} of {len(v)}; partly hidden "
                   f"{np.sqrt(np.mean(np.square(h))):.2f} deg" if h else "")
+    for r in rows:
+        for arm in arms + ("own",):
+            v = r.get(arm, {})
+            if "hidden_n" in v:
+                print(f"{r['person']:>3} {arm:>10} partly hidden labels {v['hidden_n']}: 3D error {v['hidden_err_mm']:.2f} mm "
+                      f"against {v['hidden_sigma_mm']:.2f} mm stated (medians); 95 % sphere covers "
+                      f"{v['hidden_cover_pct']:.0f} %; error {v['hidden_err_sigmas']:.2f}, residual "
+                      f"{v['hidden_resid_sigmas']:.2f} sigmas per axis (RMS)")
     if joints:
         for r in rows:
             for arm in arms + ("own", "built-in"):
