@@ -506,7 +506,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if x1 - x0 < 3 or y1 - y0 < 3:
             continue
         if neutral:
-            crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
+            crop = img[y0:y1, x0:x1].astype(np.float32)
+            crop /= 255.0  # (in place: float32 / 255.0 is the same float32 division)
         else:  # the cast divided out (clipped at full scale: a clipped channel stays clipped)
             crop = img[y0:y1, x0:x1].astype(np.float32)
             np.minimum(np.multiply(crop, inv_wb, out=crop), 1.0, out=crop)  # in place: the same numbers
