@@ -20,7 +20,7 @@ from stillcap.ball.orientation._flash import _orient_flashes
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
 from stillcap.ball.orientation._so3 import (_consensus_rotations, _dphi_over_sin, _expmap, _left_jacobian,
-                                           _mean_rotation, _phi_over_sin, _rot_angles, _tangent_bases)
+                                           _mean_rotation, _phi_over_sin, _rot_angles, _sq_norms, _tangent_bases)
 
 
 _NEXT, _NEXT2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cyclic component order of a cross product
@@ -128,16 +128,19 @@ class _GlobalProblem:
         if last is not None and last[0] == key:
             return last[1]
         u, _, _, fl = self._subset(sel)
-        # exp(delta) and the K flash rotations in one call (elementwise: the same numbers)
-        E = _expmap(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
+        # exp(delta) and the K flash rotations in one call (elementwise: the same numbers); the
+        # rotation vectors and their squared lengths are kept for the Jacobian at the same x
+        V = np.vstack([x[:3], np.outer(self.dt, x[3:])])
+        th2 = _sq_norms(V)
+        E = _expmap(V, th2)
         v = (E[0] @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
         A = E[1:][fl]  # (m, 3, 3)
         p = np.einsum("mab,bm->ma", A, v)
         c = np.minimum(np.maximum(np.einsum("ma,ma->m", u, p), -1.0), 1.0)  # np.clip, less overhead
         out = (p, v.T, A, c, _phi_over_sin(c))
-        for a in out:
+        for a in out + (V, th2):
             a.flags.writeable = False
-        self._last = (key, out)
+        self._last = (key, out, (V, th2))
         return out
 
     def residuals(self, x, R0_ref, j, sel):
@@ -154,8 +157,9 @@ class _GlobalProblem:
         p, _, A, c, g = self._predict(x, R0_ref, j, sel)
         u, t1, t2, fl = self._subset(sel)
         # J_l of delta and per flash (then per observation: the same numbers, K instead of m
-        # evaluations), in one call
-        Jl = _left_jacobian(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
+        # evaluations), in one call, of the rotation vectors _predict made for this x (kept with
+        # its result: the same arrays as making them again)
+        Jl = _left_jacobian(*self._last[2])
         # dp/d(delta) = -A [v]x J_l(delta) = -[p]x A J_l(delta) (A [v]x = [A v]x A);
         # dp/dw = -[p]x J_l(w dt) dt. Residual i of an observation is g (t_i . p), so its row
         # is q_i^T dp with q_i = g t_i + g'(c) (t_i . p) u, and q^T [p]x = (q x p)^T: both rows of
