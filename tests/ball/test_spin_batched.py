@@ -64,3 +64,22 @@ def test_observation_weights_of_several_sets_are_each_sets_own():
     assert not np.array_equal(W3[0], W1[0])  # (swapped bases: other weights)
     none, _ = _observation_weights(t1[None], t2[None], np.zeros_like(prob.obs.information))
     assert none is None
+
+
+def test_kept_pieces_follow_the_weights_assignment_and_subset():
+    # _GlobalProblem keeps pieces over a fit's evaluations (the rotation vectors for the Jacobian,
+    # W[sel]'s entries, the assigned markers): after W, j, sel or x change, each residual and
+    # Jacobian is, bit for bit, a fresh problem's at the same state
+    prob, x, R0, j, rng = _problem(11)
+    obs = prob.obs
+    sel = np.ones(len(prob.u), bool)
+    states = [(x, j, sel, None), (x + 1e-3, j, sel, None), (x, np.roll(j, 1), sel, None),
+              (x, j, rng.random(len(prob.u)) > 0.3, None), (x, j, sel, 0.5), (x, j, sel, 2.0)]
+    for xs, js, ss, scale in states:
+        f = 1.0 if scale is None else np.where(prob.noise_class == 1, scale, 1.0)[:, None, None]
+        prob.W = prob.W_base if scale is None else prob.W_base * f
+        fresh = _GlobalProblem(prob.dt, obs, LAYOUT, 0.0)
+        fresh.W = prob.W
+        r, J = prob.residuals(xs, R0, js, ss), prob.jacobian(xs, R0, js, ss)
+        assert np.array_equal(r, fresh.residuals(xs, R0, js, ss))
+        assert np.array_equal(J, fresh.jacobian(xs, R0, js, ss))

@@ -25,6 +25,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from stillcap._numeric import median_columns
 from stillcap.detect._marker_noise import _noise_by_brightness, _robust_ceiling
 
 __all__ = ["MARGIN_DEG", "MAX_ANGLE_DEG", "MAX_SHARE", "MIN_WHITE", "NOISE_Z", "SHARE_COLOR", "SHARE_MIXED",
@@ -77,9 +78,9 @@ def leather_chroma(samples: list) -> tuple:
         return np.zeros(3), float("nan"), float("nan")
     ck = np.concatenate([c for c, _ in samples])
     w = np.concatenate([w for _, w in samples])
-    med = np.median(ck / np.maximum(w, 1e-6)[:, None], 0)
+    med = median_columns(ck / np.maximum(w, 1e-6)[:, None])  # (np.median's numbers, axis 0)
     res = ck - w[:, None] * med
-    return (med, max(float(np.mean(1.4826 * np.median(np.abs(res - np.median(res, 0)), 0))), 1.0 / 255.0),
+    return (med, max(float(np.mean(1.4826 * median_columns(np.abs(res - median_columns(res))))), 1.0 / 255.0),
             float(np.median(w)))
 
 
@@ -169,15 +170,15 @@ def recolor_dark(rw, lab, j: int, st, dark_luma, chroma, disc, pal_u, k_noise: f
     D = float((dark_luma[y0:y1, x0:x1][grown] * W).sum())
     if D <= 0:
         return rw
+    if not W.mean() >= MIN_WHITE * lit_white:  # in the shadow: no paint signal to read there
+        return rw
     # the leather's cast from the leather around the region where there is enough of it (the
     # white balance is divided out of encoded values, so a cast left by it changes with the
     # brightness: a side-lit ball's dim shadow edge has its own), else the ball's lit leather's
     ring = (cv2.dilate(grown.astype(np.uint8), _BOX5, iterations=2).astype(bool) & ~grown & disc[y0:y1, x0:x1]
             & (dark_luma[y0:y1, x0:x1] < 0.1))
     if ring.sum() >= 8:
-        leather = np.median(ck[y0:y1, x0:x1][ring] / np.maximum(white[y0:y1, x0:x1][ring], 1e-6)[:, None], 0)
-    if not W.mean() >= MIN_WHITE * lit_white:  # in the shadow: no paint signal to read there
-        return rw
+        leather = median_columns(ck[y0:y1, x0:x1][ring] / np.maximum(white[y0:y1, x0:x1][ring], 1e-6)[:, None])
     K = ck[y0:y1, x0:x1][grown].sum(0) - np.asarray(leather, float) * W.sum()
     uu = (pal_u * pal_u).sum(1)
     a = (pal_u @ K) / np.maximum(uu, 1e-12)  # darkness each colour's chroma explains

@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap._numeric import median_columns
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
 from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
@@ -354,7 +355,7 @@ def ball_white_balance(image, centers, radii_px, inner_fraction: float = 0.85, l
     px = np.concatenate(picks) if picks else np.zeros((0, 3), np.float32)
     if len(px) < min_pixels:
         return np.ones(3)
-    med = np.median(px, axis=0).astype(float)
+    med = median_columns(px).astype(float)
     if not np.all(med > 0):
         return np.ones(3)
     # the median of 8-bit values resolves one level: channels within 1.5 levels of the
@@ -505,7 +506,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         if x1 - x0 < 3 or y1 - y0 < 3:
             continue
         if neutral:
-            crop = img[y0:y1, x0:x1].astype(np.float32) / 255.0
+            crop = img[y0:y1, x0:x1].astype(np.float32)
+            crop /= 255.0  # (in place: float32 / 255.0 is the same float32 division)
         else:  # the cast divided out (clipped at full scale: a clipped channel stays clipped)
             crop = img[y0:y1, x0:x1].astype(np.float32)
             np.minimum(np.multiply(crop, inv_wb, out=crop), 1.0, out=crop)  # in place: the same numbers
@@ -533,14 +535,16 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # local ball brightness: closing fills markers up to ~0.35 r across
         k = max(3, int(round(0.35 * r)) | 1)
         ker = _ellipse_kernel(k)
-        vclose = cv2.morphologyEx(np.where(disc, val, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
+        # (np.where of float32 and 0 is float32 already: the casts below copy nothing)
+        vclose = cv2.morphologyEx(np.where(disc, val, 0).astype(np.float32, copy=False), cv2.MORPH_CLOSE, ker)
         top = _percentile(vclose[disc], 99.0)
         # luma darkness relative to the local white: every palette colour is much darker than
         # white paper in luma, and JPEG keeps luma at full resolution (chroma at half), so
         # centroids and shapes are measured on it; colour only says which region is which
         luma = cv2.cvtColor(crop, cv2.COLOR_BGR2GRAY)
-        lclose = cv2.morphologyEx(np.where(disc, luma, 0).astype(np.float32), cv2.MORPH_CLOSE, ker)
-        dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32)
+        lclose = cv2.morphologyEx(np.where(disc, luma, 0).astype(np.float32, copy=False), cv2.MORPH_CLOSE, ker)
+        dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(lclose, 1e-6), 0, 1), 0).astype(np.float32,
+                                                                                                copy=False)
         lit = disc & (vclose >= max(lit_fraction * top, min_value))
         # The local white as a shaded sphere (fitted to the leather the closing finds) where that
         # model holds: a closing fills a marker from its brighter side on a shaded ball, which
@@ -550,7 +554,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         white = lclose
         if model is not None:
             white = (resp.encode(_shading_at(model, X, Y)) / 255.0).astype(np.float32)
-            dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(white, 1e-6), 0, 1), 0).astype(np.float32)
+            dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(white, 1e-6), 0, 1), 0).astype(np.float32,
+                                                                                                    copy=False)
             if blur_px is not None and blur_px > 0:
                 shading[bi] = model
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
@@ -570,8 +575,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             dl_lit.append(dark_luma[lit])
         # the chroma relative to the local white, for telling coloured paint from black (JPEG)
         ckm = (crop - luma[..., None], np.asarray(white, np.float32)) if (chroma and chroma_check) else None
-        if ckm is not None and (lit & (dark_luma < 0.1)).any():
-            ch_noise.append((ckm[0][lit & (dark_luma < 0.1)], ckm[1][lit & (dark_luma < 0.1)]))
+        if ckm is not None:
+            leather_px = lit & (dark_luma < 0.1)
+            if leather_px.any():
+                ch_noise.append((ckm[0][leather_px], ckm[1][leather_px]))
         prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
                      ckm))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
@@ -732,8 +739,10 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         return None
     cen = np.array([float((w * X).sum() / sw), float((w * Y).sum() / sw)])
     # second moments of the weights: aspect (foreshortening)
+    # (w dx and w dy formed once: ``w * dx * dx`` is ``(w * dx) * dx``, the same numbers)
     dx, dy = X - cen[0], Y - cen[1]
-    cxx, cxy, cyy = (w * dx * dx).sum() / sw, (w * dx * dy).sum() / sw, (w * dy * dy).sum() / sw
+    wdx, wdy = w * dx, w * dy
+    cxx, cxy, cyy = (wdx * dx).sum() / sw, (wdx * dy).sum() / sw, (wdy * dy).sum() / sw
     ev = np.linalg.eigvalsh(np.array([[cxx, cxy], [cxy, cyy]]))
     aspect = float(np.sqrt(max(ev[0], 0) / ev[1])) if ev[1] > 0 else 1.0
     flags = MarkerFlag.NONE

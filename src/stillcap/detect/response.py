@@ -288,8 +288,10 @@ def _profile(px: _Pixels, lg, f_scale: float, s0=None, start=None, iters: int = 
     if start is None:
         lit = (np.einsum("bni,bi->bn", px.N, s0) > 0.0)[:, None, :]
         z = np.exp(g * px.lv)  # (B, G, n)
-        dv = v / (g * z)
-        w = dv * dv * valid
+        dv = np.multiply(g, z)
+        np.divide(v, dv, out=dv)  # v / (g z)
+        w = np.multiply(dv, dv, out=dv)  # dv dv valid (dv is not used again)
+        w *= valid
     else:
         m, b = np.repeat(start[0][:, None], G, 1), np.repeat(start[1][:, None], G, 1)
         lit, L, pred, r = residuals(m, b)
@@ -298,22 +300,28 @@ def _profile(px: _Pixels, lg, f_scale: float, s0=None, start=None, iters: int = 
         if start is not None or it > 0:
             # Gauss-Newton on the code-value residual: target L + (v - pred) / (dv/dL), weight
             # (dv/dL)^2 times the soft-L1 weight
-            dv = np.where(L > floor, pred / (g * L), (0.5 / 255) / (g * floor))
+            # (the arrays below are (B, G, n): each step writes into one made before where that
+            # one is not read again, the same operations on the same numbers as
+            # ``np.where(L > floor, pred / (g L), ...)``, ``dv * dv / w``, ``(w z) lit``; speed only)
+            dv = np.multiply(g, L)
+            np.divide(pred, dv, out=dv)
+            np.copyto(dv, (0.5 / 255) / (g * floor), where=~(L > floor))
             z = v - pred
             z /= dv
             z += L
             w = np.multiply(r, r, out=r)  # (r is not used again: the next residuals replace it)
             w += 1.0
             np.sqrt(w, out=w)
-            np.divide(dv * dv, w, out=w)
+            np.divide(np.multiply(dv, dv, out=dv), w, out=w)
             w *= valid
         # the normal equations: a lit pixel's row is (N, 1), an unlit one's (0, 0, 0, 1)
         A = (w * lit) @ px.XX  # (B, G, 16)
         A[..., 15] = w.sum(-1)
         A = A.reshape(B, G, 4, 4)
-        wz = w * z
-        y = (wz * lit) @ px.X  # (B, G, 4)
-        y[..., 3] = wz.sum(-1)
+        wz = np.multiply(w, z, out=z)  # (z is not used again)
+        wz_sum = wz.sum(-1)
+        y = np.multiply(wz, lit, out=wz) @ px.X  # (B, G, 4)
+        y[..., 3] = wz_sum
         A += eye * (1e-9 * A[..., 3:4, 3:4] + 1e-30)  # a ridge: no lit pixel leaves m = 0
         p = np.linalg.solve(A, y[..., None])[..., 0]
         # the ambient kept within [0, 0.3]: where it left, fitted again with it fixed there
@@ -325,7 +333,12 @@ def _profile(px: _Pixels, lg, f_scale: float, s0=None, start=None, iters: int = 
             p[out] = np.concatenate([p3, bf[:, None]], 1)
         m, b = p[..., :3], p[..., 3]
         lit, L, pred, r = residuals(m, b)
-    cost = ((np.sqrt(1.0 + r * r) - 1.0) * valid).sum(-1)
+    c = np.multiply(r, r)  # ((sqrt(1 + r^2) - 1) valid).sum(-1), in one array (1 + x is x + 1)
+    c += 1.0
+    np.sqrt(c, out=c)
+    c -= 1.0
+    c *= valid
+    cost = c.sum(-1)
     return cost, m, b
 
 

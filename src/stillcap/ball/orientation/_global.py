@@ -20,7 +20,7 @@ from stillcap.ball.orientation._flash import _orient_flashes
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
 from stillcap.ball.orientation._so3 import (_consensus_rotations, _dphi_over_sin, _expmap, _left_jacobian,
-                                           _mean_rotation, _phi_over_sin, _rot_angles, _tangent_bases)
+                                           _mean_rotation, _phi_over_sin, _rot_angles, _sq_norms, _tangent_bases)
 
 
 _NEXT, _NEXT2 = np.array([1, 2, 0]), np.array([2, 0, 1])  # cyclic component order of a cross product
@@ -78,13 +78,16 @@ class _GlobalProblem:
         return scales
 
     def _whiten(self, a1, a2, sel):
-        """``W (a1, a2)`` per observation ``sel`` (rows of residuals or of the Jacobian)."""
+        """``W (a1, a2)`` per observation ``sel`` (rows of residuals or of the Jacobian); the entries
+        of ``W[sel]`` are kept for the last ``W`` and ``sel`` (as :meth:`_subset`: the same numbers)."""
         if self.W is None:
             return a1, a2
-        W = self.W[sel]
-        if a1.ndim == 2:
-            return (W[:, 0, 0, None] * a1 + W[:, 0, 1, None] * a2, W[:, 1, 1, None] * a2)
-        return W[:, 0, 0] * a1 + W[:, 0, 1] * a2, W[:, 1, 1] * a2
+        key, last = np.asarray(sel).tobytes(), getattr(self, "_last_weights", None)
+        if last is None or last[0] is not self.W or last[1] != key:
+            W = self.W[sel]
+            self._last_weights = last = (self.W, key, W[:, 0, 0], W[:, 0, 1], W[:, 1, 1])
+        w00, w01, w11 = last[2:] if a1.ndim == 1 else (w[:, None] for w in last[2:])
+        return w00 * a1 + w01 * a2, w11 * a2
 
     def observation_norms(self, x, R0_ref, j, sel):
         """Length of each observation's (weighted) residual pair, shape (m,)."""
@@ -128,16 +131,20 @@ class _GlobalProblem:
         if last is not None and last[0] == key:
             return last[1]
         u, _, _, fl = self._subset(sel)
-        # exp(delta) and the K flash rotations in one call (elementwise: the same numbers)
-        E = _expmap(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
-        v = (E[0] @ R0_ref) @ self.layout.directions[j[sel]].T  # exp(delta) R0_ref m, (3, m)
+        # exp(delta) and the K flash rotations in one call (elementwise: the same numbers); V, th2 kept (jacobian)
+        V = np.vstack([x[:3], np.outer(self.dt, x[3:])])
+        th2 = _sq_norms(V)
+        E = _expmap(V, th2)
+        if getattr(self, "_last_markers", (None,))[0] != key[2:4]:  # the assigned markers, kept per (j, sel)
+            self._last_markers = (key[2:4], self.layout.directions[j[sel]].T)
+        v = (E[0] @ R0_ref) @ self._last_markers[1]  # exp(delta) R0_ref m, (3, m)
         A = E[1:][fl]  # (m, 3, 3)
         p = np.einsum("mab,bm->ma", A, v)
         c = np.minimum(np.maximum(np.einsum("ma,ma->m", u, p), -1.0), 1.0)  # np.clip, less overhead
         out = (p, v.T, A, c, _phi_over_sin(c))
-        for a in out:
+        for a in out + (V, th2):
             a.flags.writeable = False
-        self._last = (key, out)
+        self._last = (key, out, (V, th2))
         return out
 
     def residuals(self, x, R0_ref, j, sel):
@@ -154,8 +161,8 @@ class _GlobalProblem:
         p, _, A, c, g = self._predict(x, R0_ref, j, sel)
         u, t1, t2, fl = self._subset(sel)
         # J_l of delta and per flash (then per observation: the same numbers, K instead of m
-        # evaluations), in one call
-        Jl = _left_jacobian(np.vstack([x[:3], np.outer(self.dt, x[3:])]))
+        # evaluations), in one call, of the rotation vectors _predict made (kept) for this x
+        Jl = _left_jacobian(*self._last[2])
         # dp/d(delta) = -A [v]x J_l(delta) = -[p]x A J_l(delta) (A [v]x = [A v]x A);
         # dp/dw = -[p]x J_l(w dt) dt. Residual i of an observation is g (t_i . p), so its row
         # is q_i^T dp with q_i = g t_i + g'(c) (t_i . p) u, and q^T [p]x = (q x p)^T: both rows of

@@ -10,14 +10,21 @@ from scipy.spatial.transform import Rotation
 from stillcap.geometry.robust import consensus
 
 
-def _expmap(rotvecs) -> np.ndarray:
+def _sq_norms(v: np.ndarray) -> np.ndarray:
+    """Squared lengths of rotation vectors (..., 3) -> (...): :func:`_expmap`'s and
+    :func:`_left_jacobian`'s ``th2`` (a caller calling both with the same vectors passes it)."""
+    return np.einsum("...i,...i->...", v, v)
+
+
+def _expmap(rotvecs, th2=None) -> np.ndarray:
     """Rotation matrices of rotation vectors, shape (..., 3) -> (..., 3, 3) (Rodrigues).
 
     Hand-written because it runs inside the least-squares residuals, where building scipy
-    ``Rotation`` objects costs more than the rest of the residual.
+    ``Rotation`` objects costs more than the rest of the residual. ``th2``: :func:`_sq_norms`
+    of ``rotvecs`` if the caller has it.
     """
     v = np.asarray(rotvecs, float)
-    th2 = np.einsum("...i,...i->...", v, v)
+    th2 = _sq_norms(v) if th2 is None else th2
     th = np.sqrt(th2)
     small = th < 1e-6
     if small.any():
@@ -57,10 +64,11 @@ def _skew(v) -> np.ndarray:
     return S
 
 
-def _left_jacobian(rotvecs) -> np.ndarray:
-    """Left Jacobian of SO(3), ``d exp(phi + e) = exp(J_l(phi) e) exp(phi)``: (..., 3) -> (..., 3, 3)."""
+def _left_jacobian(rotvecs, th2=None) -> np.ndarray:
+    """Left Jacobian of SO(3), ``d exp(phi + e) = exp(J_l(phi) e) exp(phi)``: (..., 3) -> (..., 3, 3).
+    ``th2``: :func:`_sq_norms` of ``rotvecs`` if the caller has it."""
     v = np.asarray(rotvecs, float)
-    th2 = np.einsum("...i,...i->...", v, v)
+    th2 = _sq_norms(v) if th2 is None else th2
     th = np.sqrt(th2)
     small = th < 1e-4
     if small.any():
