@@ -257,10 +257,10 @@ class AliasResolution:
         :func:`resolve_aliases`); the candidates' ``chi2`` leave it out too (their
         ``chi2_strobes`` still show it).
     undecided : list of AliasCandidate
-        Other solutions of the markers' fit that the markers themselves cannot reject at the 95 %
-        level (:func:`marker_misfit_test`) and that are not aliases of the best (another rotation
-        per interval at every strobe rate): the markers do not decide the spin
-        (:func:`resolve_joint_fits`).
+        Other solutions of the markers' fit that the markers themselves cannot reject at the
+        99.9 % level (:data:`UNDECIDED_P`, :func:`marker_misfit_test`) and that are not aliases of
+        the best (another rotation per interval at every strobe rate): the markers do not decide
+        the spin (:func:`resolve_joint_fits`).
     marker_dof : int
         Degrees of freedom of the markers' noise estimate in that test (-1: not tested).
     """
@@ -283,7 +283,7 @@ class AliasResolution:
         b = self.best
         return (f"the markers fit {b.spin_rpm:.0f} rpm and "
                 + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} "
-                               f"deg away, p = {c.p_markers:.2f})" for c in self.undecided[:3])
+                               f"deg away, p = {c.p_markers:.2g})" for c in self.undecided[:3])
                 + " alike")
 
 
@@ -535,6 +535,11 @@ def _same_solution(a, b, limit: float) -> bool:
 #: marker counts as an outlier in :func:`marker_misfit_test`: it costs the same in every solution
 #: that misses it (``fit_spin``'s own outlier rule, 4 robust sigmas).
 MARKER_OUTLIER_SIGMAS = 4.0
+#: Level of the markers' own test below which a solution counts as rejected
+#: (:func:`resolve_joint_fits`): every other rotation per interval must be rejected at 99.9 %
+#: for the markers to decide the spin, the level at which the curvature and the strobes are taken
+#: to contradict a spin (``consistency_p``). At 95 % the decision flipped on minima at p = 0.03-0.04.
+UNDECIDED_P = 1e-3
 
 
 def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
@@ -631,7 +636,7 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
                        cap_deg: float = 8.0, curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
                        rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
                        ambiguity_ratio: float = 0.05, same_p: float = 0.05,
-                       consistency_p: float = 1e-3, strobes_hz=(), undecided_p: float = 0.05) -> AliasResolution:
+                       consistency_p: float = 1e-3, strobes_hz=(), undecided_p: float = UNDECIDED_P) -> AliasResolution:
     """Rank fits of one constant spin to the same marker observations (from different starts:
     other aliases, the flight's transverse spin, no start) by the full evidence: the markers
     themselves and the flight's curvature.
@@ -656,14 +661,22 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     freedom) are named in ``left_out``. They add nothing to ``chi2``: their markers are in it.
 
     The markers' own test (:func:`marker_misfit_test`, F with the redundancy the observations
-    have) sets each candidate's ``p_markers``. When the best is not rejected by it, the other
-    solutions it does not reject either (``p_markers >= undecided_p``) and that are not aliases of
-    the best at the strobe rates ``strobes_hz`` (the rates of the pairs whose markers are fitted:
-    the same rotation per interval, which only the curvature and a second strobe rate tell apart)
-    are listed in ``undecided`` (an alias at one of the rates belongs to the alias family the
-    curvature decides, as before): the markers do not decide between different rotations per
-    interval, so the minima found are only a sample of the spins they allow, and the flight's
-    curvature, which sees two of the spin's three components, cannot decide the third.
+    have) sets each candidate's ``p_markers``. The other solutions it does not reject at the
+    ``1 - undecided_p`` level (``p_markers >= undecided_p``, by default :data:`UNDECIDED_P`, the
+    level at which the evidence is taken to contradict itself everywhere here) and that are not
+    aliases of the best at the strobe rates ``strobes_hz`` (the rates of the pairs whose markers
+    are fitted: the same rotation per interval, which only the curvature and a second strobe rate
+    tell apart) are listed in ``undecided`` (an alias at one of the rates belongs to the alias
+    family the curvature decides, as before): the markers do not decide between different
+    rotations per interval, so the minima found are only a sample of the spins they allow, and
+    the flight's curvature, which sees two of the spin's three components, cannot decide the
+    third. This holds whether or not the markers reject the best itself: when they do (the
+    curvature chose it against the markers' own best, another rotation per interval), the two
+    parts of the evidence contradict each other and neither decides the spin. A spin is
+    decided only when the markers reject every other rotation per interval found, strongly: a
+    p-value between the 95 % and 99.9 % levels is no decision (issue 12, "everything varied" #13:
+    three minima 30-60 deg off at p = 0.027-0.043, which a change of 0.0006 px in the ball
+    centres moved across the 95 % level).
 
     Parameters
     ----------
@@ -739,15 +752,15 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     ref, m_dof, p_mk = marker_misfit_test(sols)
     for k in cands:
         k.p_markers = float(p_mk[k.source])
-    undecided = []
-    if best.p_markers >= undecided_p:
-        undecided = [c for c in merged[1:] if c.p_markers >= undecided_p
-                     and not _is_alias(sols[c.source], sols[best.source], strobes_hz, rate_tol, axis_tol)]
+    undecided = [c for c in merged[1:] if c.p_markers >= undecided_p
+                 and not _is_alias(sols[c.source], sols[best.source], strobes_hz, rate_tol, axis_tol)]
     if undecided:
         u = undecided[0]
         ang = float(np.degrees(np.arccos(np.clip(u.axis @ best.axis, -1, 1))))
         msg += (f"; spin alias undecided: the markers cannot reject {u.spin_rpm:.0f} rpm (axis {ang:.0f} deg away, "
-                f"p = {u.p_markers:.2f} with {m_dof} degrees of freedom of their residuals)")
+                f"p = {u.p_markers:.2g} with {m_dof} degrees of freedom of their residuals"
+                + (f"; they reject the best itself, p = {best.p_markers:.2g}" if best.p_markers < undecided_p else "")
+                + ")")
     ambiguous = ratio >= ambiguity_ratio or not consistent
     if ambiguous:
         msg += ": ambiguous"
