@@ -30,13 +30,14 @@ def _curvature(w, sigma_rpm=8.0):
     return CurvatureMeasurement(basis, basis.T @ w, np.eye(2) * (sigma_rpm / RPM_PER_RAD_S) ** 2, "transverse")
 
 
-def _decide(pair):
+def _decide(pair, w_true=W):
     messages = []
     fit = SimpleNamespace(spin_basis=np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-                          params=np.r_[np.zeros(6), W[1], W[0], W[2]], covariance=np.eye(9) * (8 / RPM_PER_RAD_S) ** 2)
+                          params=np.r_[np.zeros(6), w_true[1], w_true[0], w_true[2]],
+                          covariance=np.eye(9) * (8 / RPM_PER_RAD_S) ** 2)
     w, alias = _resolve_alias([pair], fit, SimpleNamespace(kind="nathan"), messages)
     first, t = _combined_spin([pair], w, None, [])
-    spin, _, joint = _joint_decision([pair], first, t, alias, _curvature(W), None, messages)
+    spin, _, joint = _joint_decision([pair], first, t, alias, _curvature(w_true), None, messages)
     return first, spin, joint, messages
 
 
@@ -130,12 +131,7 @@ def test_a_minimum_rejected_only_between_95_and_99_9_percent_leaves_the_spin_und
     w = np.array([-11.851389465507044, -212.01698321656332, -90.64759315976606])
     r0 = Rotation.from_rotvec([0.760732301227252, -2.5834965238803758, 1.20326083749902]).as_matrix()
     pair = SimulatedPair("front", 80.0, [1, 0, 1, 0, 0, 1, 0, 0, 2], 0.0, 0, VIEWS, 657679502, r0, w)
-    messages = []
-    fit = SimpleNamespace(spin_basis=np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
-                          params=np.r_[np.zeros(6), w[1], w[0], w[2]], covariance=np.eye(9) * (8 / RPM_PER_RAD_S) ** 2)
-    wa, alias = _resolve_alias([pair], fit, SimpleNamespace(kind="nathan"), messages)
-    first, t = _combined_spin([pair], wa, None, [])
-    spin, _, joint = _joint_decision([pair], first, t, alias, _curvature(w), None, messages)
+    first, spin, joint, messages = _decide(pair, w)
     truth = w / np.linalg.norm(w)
     assert np.degrees(np.arccos(np.clip(joint.best.axis @ truth, -1, 1))) > 90  # the best found is wrong
     assert spin is None and joint.undecided
