@@ -152,3 +152,16 @@ def test_a_best_the_markers_reject_is_no_decision():
     assert joint.best.source == 1 and joint.best.p_markers < UNDECIDED_P
     assert [c.source for c in joint.undecided] == [0]
     assert "they reject the best itself" in joint.message
+
+
+def test_the_reference_is_not_a_minimum_that_keeps_few_observations_at_a_tiny_noise():
+    # 15 observations: the right spin explains 12 at 0.1 px, a wrong minimum 6 at 0.025 px (and drops 9;
+    # "light to the side" #7: 0.10 and 0.024 px)
+    right = np.full(15, 3.0)
+    right[:12] = 0.1 * np.sqrt(1.5)  # 24 components - 6: a noise of 0.1 px per component
+    wrong = np.full(15, 2.0)
+    wrong[:6] = 0.025  # 12 components - 6: 0.025 px
+    inl_r, inl_w = np.arange(15) < 12, np.arange(15) < 6
+    ref, dof, p = marker_misfit_test([_solution(W, right, [2] * 15, inl_r), _solution(-W, wrong, [2] * 15, inl_w)])
+    # the yardstick is the right spin's noise, and at it the wrong minimum is rejected
+    assert ref == 0 and dof == 18 and p[0] == 1.0 and p[1] < UNDECIDED_P

@@ -535,10 +535,8 @@ def _same_solution(a, b, limit: float) -> bool:
 #: marker counts as an outlier in :func:`marker_misfit_test`: it costs the same in every solution
 #: that misses it (``fit_spin``'s own outlier rule, 4 robust sigmas).
 MARKER_OUTLIER_SIGMAS = 4.0
-#: Level of the markers' own test below which a solution counts as rejected
-#: (:func:`resolve_joint_fits`): every other rotation per interval must be rejected at 99.9 %
-#: for the markers to decide the spin, the level at which the curvature and the strobes are taken
-#: to contradict a spin (``consistency_p``). At 95 % the decision flipped on minima at p = 0.03-0.04.
+#: Level of the markers' own test below which a solution counts as rejected (:func:`resolve_joint_fits`):
+#: 99.9 %, the level at which the curvature and the strobes contradict a spin (``consistency_p``).
 UNDECIDED_P = 1e-3
 
 
@@ -557,10 +555,11 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
     the truth (the likelihood region of nonlinear least squares with the noise estimated from the
     same residuals, the orientation profiled out; not a chi-square with a known sigma, which a
     noise level taken from a few near-exact residuals would make absurdly confident). Without
-    redundancy (``dof < 1`` for every solution) nothing is rejected. The reference is the solution
-    with the smallest capped misfit at its own noise level (started from the smallest noise per
-    degree of freedom), so a wrong minimum that keeps more observations as inliers, with a larger
-    noise, is not the yardstick.
+    redundancy (``dof < 1`` for every solution) nothing is rejected. The reference is the most
+    likely solution under the fit's own noise model (each component Gaussian with the noise its
+    inliers show, an observation beyond the cap costing the cap; the noise profiled), so neither a
+    wrong minimum that keeps more observations at a larger noise nor one that keeps a few at a
+    tiny noise is the yardstick.
 
     Parameters
     ----------
@@ -600,15 +599,16 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
         c2 = MARKER_OUTLIER_SIGMAS ** 2 * s2
         return np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2, nan=c2), c2))) for e in res])
 
-    # the reference: the smallest capped misfit at its own noise level (started from the smallest
-    # noise per degree of freedom; a few rounds settle it)
-    ref = int(np.argmin(s2s))
-    for _ in range(5):
-        cost = capped(max(s2s[ref], 1e-300))
-        nxt = int(np.argmin(np.where(np.isfinite(s2s), cost, np.inf)))
-        if cost[nxt] >= cost[ref]:
-            break
-        ref = nxt
+    # the reference: the most likely solution under the fit's own noise model (each component Gaussian
+    # with the noise its inliers show, an observation beyond the cap costing the cap; K components):
+    # -2 log L = sum min(e^2 / s^2, cap^2) + K log s^2. A minimum keeping a few observations at a tiny
+    # noise pays the cap for every one it drops ("light to the side" #7)
+    cap2 = MARKER_OUTLIER_SIGMAS ** 2
+    with np.errstate(over="ignore"):
+        nll = np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2 / max(s2, 1e-300), nan=cap2), cap2))
+                              + np.sum(k) * np.log(max(s2, 1e-300))) if np.isfinite(s2) else np.inf
+                        for e, k, s2 in zip(res, ranks, s2s)])
+    ref = int(np.argmin(nll))
     dof, s2 = int(dofs[ref]), max(float(s2s[ref]), 1e-300)
     cost = capped(s2)
     for i in range(len(sols)):
@@ -660,23 +660,14 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     (``chi2_strobes``); those the best solution contradicts at the same quantile (3 degrees of
     freedom) are named in ``left_out``. They add nothing to ``chi2``: their markers are in it.
 
-    The markers' own test (:func:`marker_misfit_test`, F with the redundancy the observations
-    have) sets each candidate's ``p_markers``. The other solutions it does not reject at the
-    ``1 - undecided_p`` level (``p_markers >= undecided_p``, by default :data:`UNDECIDED_P`, the
-    level at which the evidence is taken to contradict itself everywhere here) and that are not
-    aliases of the best at the strobe rates ``strobes_hz`` (the rates of the pairs whose markers
-    are fitted: the same rotation per interval, which only the curvature and a second strobe rate
-    tell apart) are listed in ``undecided`` (an alias at one of the rates belongs to the alias
-    family the curvature decides, as before): the markers do not decide between different
-    rotations per interval, so the minima found are only a sample of the spins they allow, and
-    the flight's curvature, which sees two of the spin's three components, cannot decide the
-    third. This holds whether or not the markers reject the best itself: when they do (the
-    curvature chose it against the markers' own best, another rotation per interval), the two
-    parts of the evidence contradict each other and neither decides the spin. A spin is
-    decided only when the markers reject every other rotation per interval found, strongly: a
-    p-value between the 95 % and 99.9 % levels is no decision (issue 12, "everything varied" #13:
-    three minima 30-60 deg off at p = 0.027-0.043, which a change of 0.0006 px in the ball
-    centres moved across the 95 % level).
+    The markers' own test (:func:`marker_misfit_test`) sets each candidate's ``p_markers``. The
+    other solutions it does not reject (``p_markers >= undecided_p``, :data:`UNDECIDED_P`) that are
+    not aliases of the best at the strobe rates ``strobes_hz`` (the same rotation per interval,
+    which the curvature and a second rate decide) are listed in ``undecided``: the markers do not
+    decide between different rotations per interval, so the minima found are only a sample of the
+    spins they allow, and the curvature, which sees two of the spin's three components, cannot
+    decide the third. Also when the markers reject the best itself (the curvature chose it
+    against their own best): the evidence contradicts itself (docs/spin.md).
 
     Parameters
     ----------
