@@ -257,10 +257,10 @@ class AliasResolution:
         :func:`resolve_aliases`); the candidates' ``chi2`` leave it out too (their
         ``chi2_strobes`` still show it).
     undecided : list of AliasCandidate
-        Other solutions of the markers' fit that the markers themselves cannot reject at the 95 %
-        level (:func:`marker_misfit_test`) and that are not aliases of the best (another rotation
-        per interval at every strobe rate): the markers do not decide the spin
-        (:func:`resolve_joint_fits`).
+        Other solutions of the markers' fit that the markers themselves cannot reject at the
+        99.9 % level (:data:`UNDECIDED_P`, :func:`marker_misfit_test`) and that are not aliases of
+        the best (another rotation per interval at every strobe rate): the markers do not decide
+        the spin (:func:`resolve_joint_fits`).
     marker_dof : int
         Degrees of freedom of the markers' noise estimate in that test (-1: not tested).
     """
@@ -283,7 +283,7 @@ class AliasResolution:
         b = self.best
         return (f"the markers fit {b.spin_rpm:.0f} rpm and "
                 + " and ".join(f"{c.spin_rpm:.0f} rpm (axis {np.degrees(np.arccos(np.clip(c.axis @ b.axis, -1, 1))):.0f} "
-                               f"deg away, p = {c.p_markers:.2f})" for c in self.undecided[:3])
+                               f"deg away, p = {c.p_markers:.2g})" for c in self.undecided[:3])
                 + " alike")
 
 
@@ -535,6 +535,9 @@ def _same_solution(a, b, limit: float) -> bool:
 #: marker counts as an outlier in :func:`marker_misfit_test`: it costs the same in every solution
 #: that misses it (``fit_spin``'s own outlier rule, 4 robust sigmas).
 MARKER_OUTLIER_SIGMAS = 4.0
+#: Level of the markers' own test below which a solution counts as rejected (:func:`resolve_joint_fits`):
+#: 99.9 %, the level at which the curvature and the strobes contradict a spin (``consistency_p``).
+UNDECIDED_P = 1e-3
 
 
 def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
@@ -552,10 +555,11 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
     the truth (the likelihood region of nonlinear least squares with the noise estimated from the
     same residuals, the orientation profiled out; not a chi-square with a known sigma, which a
     noise level taken from a few near-exact residuals would make absurdly confident). Without
-    redundancy (``dof < 1`` for every solution) nothing is rejected. The reference is the solution
-    with the smallest capped misfit at its own noise level (started from the smallest noise per
-    degree of freedom), so a wrong minimum that keeps more observations as inliers, with a larger
-    noise, is not the yardstick.
+    redundancy (``dof < 1`` for every solution) nothing is rejected. The reference is the most
+    likely solution under the fit's own noise model (each component Gaussian with the noise its
+    inliers show, an observation beyond the cap costing the cap; the noise profiled), so neither a
+    wrong minimum that keeps more observations at a larger noise nor one that keeps a few at a
+    tiny noise is the yardstick.
 
     Parameters
     ----------
@@ -595,15 +599,16 @@ def marker_misfit_test(solutions) -> tuple[int, int, np.ndarray]:
         c2 = MARKER_OUTLIER_SIGMAS ** 2 * s2
         return np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2, nan=c2), c2))) for e in res])
 
-    # the reference: the smallest capped misfit at its own noise level (started from the smallest
-    # noise per degree of freedom; a few rounds settle it)
-    ref = int(np.argmin(s2s))
-    for _ in range(5):
-        cost = capped(max(s2s[ref], 1e-300))
-        nxt = int(np.argmin(np.where(np.isfinite(s2s), cost, np.inf)))
-        if cost[nxt] >= cost[ref]:
-            break
-        ref = nxt
+    # the reference: the most likely solution under the fit's own noise model (each component Gaussian
+    # with the noise its inliers show, an observation beyond the cap costing the cap; K components):
+    # -2 log L = sum min(e^2 / s^2, cap^2) + K log s^2. A minimum keeping a few observations at a tiny
+    # noise pays the cap for every one it drops ("light to the side" #7)
+    cap2 = MARKER_OUTLIER_SIGMAS ** 2
+    with np.errstate(over="ignore"):
+        nll = np.array([float(np.sum(np.minimum(np.nan_to_num(e ** 2 / max(s2, 1e-300), nan=cap2), cap2))
+                              + np.sum(k) * np.log(max(s2, 1e-300))) if np.isfinite(s2) else np.inf
+                        for e, k, s2 in zip(res, ranks, s2s)])
+    ref = int(np.argmin(nll))
     dof, s2 = int(dofs[ref]), max(float(s2s[ref]), 1e-300)
     cost = capped(s2)
     for i in range(len(sols)):
@@ -631,7 +636,7 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
                        cap_deg: float = 8.0, curvature_rel_sigma: float = 0.1, curvature_floor: float = 5.0,
                        rate_tolerance_rpm: float = 30.0, axis_tolerance_deg: float = 2.0,
                        ambiguity_ratio: float = 0.05, same_p: float = 0.05,
-                       consistency_p: float = 1e-3, strobes_hz=(), undecided_p: float = 0.05) -> AliasResolution:
+                       consistency_p: float = 1e-3, strobes_hz=(), undecided_p: float = UNDECIDED_P) -> AliasResolution:
     """Rank fits of one constant spin to the same marker observations (from different starts:
     other aliases, the flight's transverse spin, no start) by the full evidence: the markers
     themselves and the flight's curvature.
@@ -655,15 +660,14 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     (``chi2_strobes``); those the best solution contradicts at the same quantile (3 degrees of
     freedom) are named in ``left_out``. They add nothing to ``chi2``: their markers are in it.
 
-    The markers' own test (:func:`marker_misfit_test`, F with the redundancy the observations
-    have) sets each candidate's ``p_markers``. When the best is not rejected by it, the other
-    solutions it does not reject either (``p_markers >= undecided_p``) and that are not aliases of
-    the best at the strobe rates ``strobes_hz`` (the rates of the pairs whose markers are fitted:
-    the same rotation per interval, which only the curvature and a second strobe rate tell apart)
-    are listed in ``undecided`` (an alias at one of the rates belongs to the alias family the
-    curvature decides, as before): the markers do not decide between different rotations per
-    interval, so the minima found are only a sample of the spins they allow, and the flight's
-    curvature, which sees two of the spin's three components, cannot decide the third.
+    The markers' own test (:func:`marker_misfit_test`) sets each candidate's ``p_markers``. The
+    other solutions it does not reject (``p_markers >= undecided_p``, :data:`UNDECIDED_P`) that are
+    not aliases of the best at the strobe rates ``strobes_hz`` (the same rotation per interval,
+    which the curvature and a second rate decide) are listed in ``undecided``: the markers do not
+    decide between different rotations per interval, so the minima found are only a sample of the
+    spins they allow, and the curvature, which sees two of the spin's three components, cannot
+    decide the third. Also when the markers reject the best itself (the curvature chose it
+    against their own best): the evidence contradicts itself (docs/spin.md).
 
     Parameters
     ----------
@@ -739,15 +743,15 @@ def resolve_joint_fits(solutions, curvature: CurvatureMeasurement | None = None,
     ref, m_dof, p_mk = marker_misfit_test(sols)
     for k in cands:
         k.p_markers = float(p_mk[k.source])
-    undecided = []
-    if best.p_markers >= undecided_p:
-        undecided = [c for c in merged[1:] if c.p_markers >= undecided_p
-                     and not _is_alias(sols[c.source], sols[best.source], strobes_hz, rate_tol, axis_tol)]
+    undecided = [c for c in merged[1:] if c.p_markers >= undecided_p
+                 and not _is_alias(sols[c.source], sols[best.source], strobes_hz, rate_tol, axis_tol)]
     if undecided:
         u = undecided[0]
         ang = float(np.degrees(np.arccos(np.clip(u.axis @ best.axis, -1, 1))))
         msg += (f"; spin alias undecided: the markers cannot reject {u.spin_rpm:.0f} rpm (axis {ang:.0f} deg away, "
-                f"p = {u.p_markers:.2f} with {m_dof} degrees of freedom of their residuals)")
+                f"p = {u.p_markers:.2g} with {m_dof} degrees of freedom of their residuals"
+                + (f"; they reject the best itself, p = {best.p_markers:.2g}" if best.p_markers < undecided_p else "")
+                + ")")
     ambiguous = ratio >= ambiguity_ratio or not consistent
     if ambiguous:
         msg += ": ambiguous"

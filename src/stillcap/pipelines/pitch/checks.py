@@ -25,7 +25,7 @@ thousand; a failed check says which and why:
 - ``alias_margin``: the second-best spin alias's chi-square minus the best's (at least 9, a
   likelihood ratio of 1 %), and the best consistent with the evidence (value None when there is no
   rival alias: then only the consistency counts).
-- ``spin_alias``: fails when the markers themselves cannot reject another rotation per interval
+- ``spin_alias``: fails when the markers themselves cannot reject (at 99.9 %) another rotation per interval
   than the best (``AliasResolution.undecided``, :func:`stillcap.ball.alias.marker_misfit_test`):
   the marker spin is then withheld.
 - ``spin_vs_flight``: the marker spin's transverse part against the flight's curvature
@@ -53,6 +53,7 @@ import numpy as np
 from scipy.special import gammaincinv as _gammaincinv, ndtri as _ndtri
 
 from stillcap._numeric import RPM_PER_RAD_S
+from stillcap.ball.alias import UNDECIDED_P
 from stillcap._selfcheck import SelfCheck
 from stillcap.ball.physics import simulate
 from stillcap.ball.uncertainty import center_bias_modes
@@ -388,10 +389,10 @@ def pitch_self_checks(pairs, flight, measured, fit, flight_spin, spin_cmp, model
     undecided = list(getattr(alias, "undecided", None) or []) if alias is not None else []
     if undecided:
         checks.append(SelfCheck(
-            "spin_alias", False, float(undecided[0].p_markers), 0.05,
+            "spin_alias", False, float(undecided[0].p_markers), UNDECIDED_P,
             f"spin alias undecided: {alias.undecided_text()} (F test of their misfits, {alias.marker_dof} degrees "
-            "of freedom, p >= 0.05): the marker spin is withheld; photograph more markers (a second pair, larger "
-            "ball images) or two strobe rates", "", "p"))
+            f"of freedom, p >= {UNDECIDED_P:g}): the marker spin is withheld; photograph more markers (a second "
+            "pair, larger ball images) or two strobe rates", "", "p"))
     if spin_cmp is not None:
         checks.append(SelfCheck(
             "spin_vs_flight", bool(spin_cmp.agree), float(spin_cmp.chi2), _chi2_ppf(1 - spin_cmp.alpha, spin_cmp.dof),
