@@ -13,8 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
+from stillcap.ball.light import fit_light
 from stillcap.ball.orientation import MarkerObservations, direction_information, rays_to_directions
 from stillcap.camera import Camera
+from stillcap.detect._ball_light import view_to_camera
 from stillcap.detect.ball_markers import BallMarkers, MarkerFlag, MarkerType, detect_ball_markers
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
@@ -54,6 +56,55 @@ def _ray_directions(cam: Camera, centers_px, ball_centers, radius_px, radius_m, 
     view = cam.center[None, :] - ball_centers
     view /= np.linalg.norm(view, axis=1, keepdims=True)
     return v, direction_information(v, view, radius_px, radial=radial), hit, view
+
+
+def _ball_lights(cams, markers, centers, P):
+    """Each ball's light direction in the world frame, (K, 3), from the shading of all the
+    pair's balls at once: every ball's shading in each photo
+    (:attr:`BallMarkers.light_view <stillcap.detect.ball_markers.BallMarkers>`, turned from the
+    view frame of its image centre ``centers`` into the world's; one strobe) is a line from its
+    centre ``P`` toward the same light, met by :func:`stillcap.ball.light.fit_light`; with fewer
+    than 3 such lines, the mean of the ball's own (NaN where neither photo gave one)."""
+    K = len(P)
+    pts, dirs, idx = [], [], []
+    for cam, M, ctr in zip(cams, markers, centers):
+        ok = np.all(np.isfinite(M.light_view), axis=1)
+        if ok.any():
+            k, first = np.unique(M.ball_index[ok], return_index=True)  # a ball's markers share its light
+            ray = cam.rays(np.asarray(ctr, float)[k])[1] @ cam.R.T  # the line of sight, camera frame
+            pts.append(P[k])
+            dirs.append(view_to_camera(M.light_view[ok][first], ray) @ cam.R)  # R^T l: camera to world
+            idx.append(k)
+    out = np.full((K, 3), np.nan)
+    if not idx:
+        return out
+    pts, dirs, idx = np.concatenate(pts), np.concatenate(dirs), np.concatenate(idx)
+    fit = fit_light(pts, dirs)
+    if fit is not None:  # every ball toward the fitted light, those without a shading model too
+        fin = np.all(np.isfinite(P), axis=1)
+        d = fit.position_h[None, :3] - fit.position_h[3] * P[fin]
+        out[fin] = d / np.linalg.norm(d, axis=1, keepdims=True)
+        return out
+    acc, n = np.zeros((K, 3)), np.zeros(K)
+    np.add.at(acc, idx, dirs)
+    np.add.at(n, idx, 1)
+    lit = n > 0
+    out[lit] = acc[lit] / np.linalg.norm(acc[lit], axis=1, keepdims=True)
+    return out
+
+
+def _near_terminator(v, light, reach_rad):
+    """Whether a marker's paint may reach the terminator, (M,) bool: its direction ``v`` (M, 3)
+    lies less than ``reach_rad`` (M,) (its angular size and the blur's reach) above the great
+    circle ``n . l = 0`` of its ball's ``light`` (M, 3, :func:`_ball_lights`), or below it.
+
+    The paint beyond the terminator is as dark as the leather there: the detector finds only the
+    lit part, whose centroid lies toward the light by up to the marker's size (1-2.5 px, 5-9 deg,
+    on the studio's side-lit 15 px balls and on a drawn one, ``docs/spin.md``). Such a marker
+    joins the limb-cut markers' noise class, whose scale the spin fit estimates per capture."""
+    s = np.einsum("ma,ma->m", v, light)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(s) & (np.arcsin(np.clip(s, -1.0, 1.0)) < reach_rad)
 
 
 def _combine_directions(va, Ia, vb, Ib):
@@ -114,6 +165,10 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     the balls' limbs): the centroids are corrected for the pull of blur over the ball's shading
     (:func:`stillcap.detect.ball_markers.shading_blur_shift`). None: no correction.
 
+    A marker whose paint may reach the terminator of its ball's shading (the light's direction
+    the shading of all the pair's balls shows, :func:`_ball_lights`) is found on its lit part only, its centroid pulled toward the light: it joins the limb-cut
+    markers' noise class (:func:`_near_terminator`).
+
     Returns
     -------
     obs : MarkerObservations
@@ -153,14 +208,22 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     # each ball's image radius in each camera, px, from the geometry (what the weights need)
     rad_a = cam_a.K[0, 0] * radius_m / np.linalg.norm(P - cam_a.center, axis=1)
     rad_b = cam_b.K[0, 0] * radius_m / np.linalg.norm(P - cam_b.center, axis=1)
-    u, info = np.zeros((0, 3)), np.zeros((0, 3, 3))
+    # each ball's light (its shading in both photos), and how far from the terminator a marker's
+    # paint may reach it: its angular size and two blur sigmas (as an angle on the ball)
+    light = _ball_lights((cam_a, cam_b), (A, B), (centers_a, centers_b), P)
+    size = layout.sizes_of_types
+    reach_a, reach_b = (2.0 * (b or 0.0) / rd for b, rd in zip(blur, (rad_a, rad_b)))
+    u, info, cut_m = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(len(ia), bool)
     if len(ia):
         u, ok = _triangulated_direction(cam_a, cam_b, A.centers[ia], B.centers[ib], P[ball], radius_m)
         if directions == "rays":
             depth = layout.centroid_depth[layout.type_index(list(A.types[ia]))]
             va, Ia, _, wa = _ray_directions(cam_a, A.centers[ia], P[ball], rad_a[ball], radius_m, depth, radial_a[ia])
             vb, Ib, _, wb = _ray_directions(cam_b, B.centers[ib], P[ball], rad_b[ball], radius_m, depth, radial_b[ib])
+            ti_m = layout.type_index(list(A.types[ia]))
             u, info = _combine_directions(va, Ia, vb, Ib)
+            cut_m = (_near_terminator(va, light[ball], size[ti_m] + reach_a[ball])
+                     | _near_terminator(vb, light[ball], size[ti_m] + reach_b[ball]))
             views = wa + wb
             # the blur corrections' own errors moved through the same rays and combination
             ea = _ray_directions(cam_a, A.centers[ia] + A.blur_error_px[ia], P[ball], rad_a[ball], radius_m, depth)[0]
@@ -171,8 +234,8 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
     # sphere; a stable sort by ball keeps that order within each ball.
     rays = []
-    for M, cam, rad, rdl, idx in ((A, cam_a, rad_a, radial_a, np.concatenate([m.unmatched_a, ia[~ok]])),
-                                  (B, cam_b, rad_b, radial_b, np.concatenate([m.unmatched_b, ib[~ok]]))):
+    for M, cam, rad, rdl, reach, idx in ((A, cam_a, rad_a, radial_a, reach_a, np.concatenate([m.unmatched_a, ia[~ok]])),
+                                         (B, cam_b, rad_b, radial_b, reach_b, np.concatenate([m.unmatched_b, ib[~ok]]))):
         idx = idx[np.argsort(M.ball_index[idx], kind="stable")].astype(int)
         k_ray = M.ball_index[idx]
         ti = layout.type_index(list(M.types[idx]))
@@ -185,10 +248,12 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             ve, _, hit_e, _ = _ray_directions(cam, M.centers[idx] + M.blur_error_px[idx], P[k_ray], rad[k_ray],
                                               radius_m, layout.centroid_depth[ti])
             be = np.where(hit_e[:, None], _tangent_part(ve - v, v), 0.0)
+            cut = _near_terminator(v, light[k_ray], size[ti] + reach[k_ray])
         else:
             v, I, hit, view = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, bool), np.zeros((0, 3))
-            be = np.zeros((0, 3))
-        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx], 0, 1), view, be))
+            be, cut = np.zeros((0, 3)), np.zeros(0, bool)
+        # a marker cut by the limb (one informative component) or reaching the terminator: the cut ones' noise class
+        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx] & ~cut, 0, 1), view, be))
     with_info = directions == "rays"
     parts, n3, nray, epi = [], 0, 0, []
     for k in range(K):
@@ -198,7 +263,7 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             if with_info:
                 o.information = info[sel]
                 o.views = views[sel] / np.linalg.norm(views[sel], axis=1, keepdims=True)
-            o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]], 0, 1)
+            o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]] & ~cut_m[sel], 0, 1)
             o.blur_mode = blur_mode[sel] if with_info else None
             parts.append(o)
             n3 += int(sel.sum())
