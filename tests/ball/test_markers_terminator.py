@@ -10,6 +10,7 @@ import pytest
 from stillcap.ball.layout import BallLayout
 from stillcap.ball.markers import pair_marker_observations
 from stillcap.camera import Camera, look_at
+from stillcap.detect._ball_light import view_to_camera
 
 LAYOUT = BallLayout.seed()
 RADIUS = 0.0366
@@ -86,4 +87,6 @@ def test_a_marker_clear_of_the_terminator_stays_whole_and_the_light_is_the_shadi
     # 9 deg size the terminator test measures against (3.4 deg: the plane model's fit to a
     # sphere whose ambient light reaches past the terminator)
     for m, cam in zip(found, cams):
-        assert np.degrees(np.arccos(np.clip(m.light_cam[0] @ (cam.R @ LIGHT), -1, 1))) < 5.0
+        ray = cam.rays(cam.project(CENTER[None]))[1] @ cam.R.T  # the line of sight, camera frame
+        light = view_to_camera(m.light_view[:1], ray)[0]
+        assert np.degrees(np.arccos(np.clip(light @ (cam.R @ LIGHT), -1, 1))) < 5.0

@@ -13,8 +13,10 @@ from __future__ import annotations
 import numpy as np
 
 from stillcap.ball.layout import BASEBALL_RADIUS, BallLayout
+from stillcap.ball.light import fit_light
 from stillcap.ball.orientation import MarkerObservations, direction_information, rays_to_directions
 from stillcap.camera import Camera
+from stillcap.detect._ball_light import view_to_camera
 from stillcap.detect.ball_markers import BallMarkers, MarkerFlag, MarkerType, detect_ball_markers
 from stillcap.geometry.epipolar import match_epipolar
 from stillcap.geometry.triangulate import triangulate
@@ -56,18 +58,36 @@ def _ray_directions(cam: Camera, centers_px, ball_centers, radius_px, radius_m, 
     return v, direction_information(v, view, radius_px, radial=radial), hit, view
 
 
-def _ball_lights(cams, markers, K):
-    """Each ball's light direction in the world frame, (K, 3): the mean of the directions its
-    shading shows in the pair's photos (:attr:`BallMarkers.light_cam`), NaN where neither has
-    a shading model."""
-    acc, n = np.zeros((K, 3)), np.zeros(K)
-    for cam, M in zip(cams, markers):
-        ok = np.all(np.isfinite(M.light_cam), axis=1)
+def _ball_lights(cams, markers, centers, P):
+    """Each ball's light direction in the world frame, (K, 3), from the shading of all the
+    pair's balls at once: every ball's shading in each photo
+    (:attr:`BallMarkers.light_view <stillcap.detect.ball_markers.BallMarkers>`, turned from the
+    view frame of its image centre ``centers`` into the world's; one strobe) is a line from its
+    centre ``P`` toward the same light, met by :func:`stillcap.ball.light.fit_light`; with fewer
+    than 3 such lines, the mean of the ball's own (NaN where neither photo gave one)."""
+    K = len(P)
+    pts, dirs, idx = [], [], []
+    for cam, M, ctr in zip(cams, markers, centers):
+        ok = np.all(np.isfinite(M.light_view), axis=1)
         if ok.any():
             k, first = np.unique(M.ball_index[ok], return_index=True)  # a ball's markers share its light
-            acc[k] += M.light_cam[ok][first] @ cam.R  # R^T l: camera to world
-            n[k] += 1
+            ray = cam.rays(np.asarray(ctr, float)[k])[1] @ cam.R.T  # the line of sight, camera frame
+            pts.append(P[k])
+            dirs.append(view_to_camera(M.light_view[ok][first], ray) @ cam.R)  # R^T l: camera to world
+            idx.append(k)
     out = np.full((K, 3), np.nan)
+    if not idx:
+        return out
+    pts, dirs, idx = np.concatenate(pts), np.concatenate(dirs), np.concatenate(idx)
+    fit = fit_light(pts, dirs)
+    if fit is not None:  # every ball toward the fitted light, those without a shading model too
+        fin = np.all(np.isfinite(P), axis=1)
+        d = fit.position_h[None, :3] - fit.position_h[3] * P[fin]
+        out[fin] = d / np.linalg.norm(d, axis=1, keepdims=True)
+        return out
+    acc, n = np.zeros((K, 3)), np.zeros(K)
+    np.add.at(acc, idx, dirs)
+    np.add.at(n, idx, 1)
     lit = n > 0
     out[lit] = acc[lit] / np.linalg.norm(acc[lit], axis=1, keepdims=True)
     return out
@@ -146,8 +166,7 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     (:func:`stillcap.detect.ball_markers.shading_blur_shift`). None: no correction.
 
     A marker whose paint may reach the terminator of its ball's shading (the light's direction
-    the shading shows, :attr:`BallMarkers.light_cam <stillcap.detect.ball_markers.BallMarkers>`)
-    is found on its lit part only, its centroid pulled toward the light: it joins the limb-cut
+    the shading of all the pair's balls shows, :func:`_ball_lights`) is found on its lit part only, its centroid pulled toward the light: it joins the limb-cut
     markers' noise class (:func:`_near_terminator`).
 
     Returns
@@ -191,7 +210,7 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     rad_b = cam_b.K[0, 0] * radius_m / np.linalg.norm(P - cam_b.center, axis=1)
     # each ball's light (its shading in both photos), and how far from the terminator a marker's
     # paint may reach it: its angular size and two blur sigmas (as an angle on the ball)
-    light = _ball_lights((cam_a, cam_b), (A, B), K)
+    light = _ball_lights((cam_a, cam_b), (A, B), (centers_a, centers_b), P)
     size = layout.sizes_of_types
     reach_a, reach_b = (2.0 * (b or 0.0) / rd for b, rd in zip(blur, (rad_a, rad_b)))
     u, info, cut_m = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(len(ia), bool)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["shading_blur_correction", "shading_blur_error", "shading_blur_shift", "shading_light_direction"]
+__all__ = ["shading_blur_correction", "shading_blur_error", "shading_blur_shift"]
 
 
 def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None = None) -> np.ndarray:
@@ -102,13 +102,3 @@ def _shading_at(model, X, Y):
     nx, ny = (X - cx) / r, (Y - cy) / r
     nz = np.sqrt(np.clip(1.0 - nx * nx - ny * ny, 0.0, 1.0))
     return np.maximum(a * nx + b * ny + c * nz + d, 1e-4)
-
-
-def shading_light_direction(model) -> np.ndarray:
-    """The light's direction the shading model (:func:`_fit_shading`) shows, a unit vector in the
-    camera's frame (x right, y down, z along the optical axis; the model's ``n_z`` points toward
-    the camera, so its ``c`` is the light's ``-z``): the pole of the terminator of a Lambertian
-    sphere lit like the ball, whatever the ambient light. NaN without a gradient."""
-    a, b, c = (float(v) for v in model[:3])
-    n = float(np.sqrt(a * a + b * b + c * c))
-    return np.array([a, b, -c]) / n if n > 0 else np.full(3, np.nan)

@@ -39,8 +39,8 @@ from stillcap._checks import as_array
 from stillcap._numeric import median_columns
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
-from stillcap.detect._blur_shift import (_fit_shading, _shading_at, shading_blur_correction, shading_blur_shift,
-                                         shading_light_direction)
+from stillcap.detect._ball_light import crop_light
+from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
 from stillcap.detect._marker_noise import _brightness_bins, _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
@@ -144,10 +144,14 @@ class BallMarkers:
         Each centroid's blur correction's own 1-sigma error (:func:`~stillcap.detect._blur_shift.shading_blur_correction`: the
         correction times ``min(1, s |grad log S|)``), px, common to every photo of a pose (zeros
         without a correction).
-    light_cam : ndarray, shape (N, 3), optional
+    light_view : ndarray, shape (N, 3), optional
         The light's direction at each marker's ball as its shading shows it
-        (:func:`~stillcap.detect._blur_shift.shading_light_direction`), unit, camera frame; NaN
-        where the ball's shading has no model.
+        (:func:`~stillcap.detect._ball_light.fit_ball_light`), unit, in the ball's view frame (x, y
+        the image's axes, z the line of sight through the ball's centre, away from the camera;
+        :func:`~stillcap.detect._ball_light.view_to_camera` turns it into the camera's); NaN where
+        the ball's shading gave none.
+    light_sigma_deg : ndarray, shape (N,), optional
+        That direction's expected (RMS) angular error from its fit, deg (NaN with it).
     """
 
     centers: np.ndarray
@@ -159,13 +163,16 @@ class BallMarkers:
     ball_index: np.ndarray
     flags: np.ndarray
     blur_error_px: np.ndarray = None
-    light_cam: np.ndarray = None
+    light_view: np.ndarray = None
+    light_sigma_deg: np.ndarray = None
 
     def __post_init__(self):
         if self.blur_error_px is None:
             self.blur_error_px = np.zeros((len(self.centers), 2))
-        if self.light_cam is None:
-            self.light_cam = np.full((len(self.centers), 3), np.nan)
+        if self.light_view is None:
+            self.light_view = np.full((len(self.centers), 3), np.nan)
+        if self.light_sigma_deg is None:
+            self.light_sigma_deg = np.full(len(self.centers), np.nan)
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -180,7 +187,7 @@ class BallMarkers:
         k = np.asarray(keep)
         return BallMarkers(self.centers[k], self.types[k], self.shapes[k], self.areas[k], self.confidences[k],
                            self.aspects[k], self.ball_index[k], self.flags[k], self.blur_error_px[k],
-                           self.light_cam[k])
+                           self.light_view[k], self.light_sigma_deg[k])
 
     def of_ball(self, i: int) -> BallMarkers:
         """The markers of ball ``i``."""
@@ -502,7 +509,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     near &= np.all(np.isfinite(c), axis=1)[None, :]
     np.fill_diagonal(near, False)
     prep, ch_peak, sat_lit, dk_lit, vc_lit, ch_noise, dl_lit = [], [], [], [], [], [], []
-    shading, models = {}, {}  # ball -> its shading model: for the blur correction (with blur_px); every one
+    shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
+    lights = {}  # ball -> (light direction in its view frame, its error in deg), crop_light
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
     resp = Response.srgb() if response is None else Response.from_json(response, "response")
@@ -561,8 +569,10 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # docs/spin.md); the model has no such pull.
         model = _fit_shading(luma, X, Y, cx, cy, r, lit & (dark_luma < 0.1), resp) if shading_model else None
         white = lclose
+        fl = crop_light(luma, X, Y, cx, cy, r, disc & (dist <= 0.85 * r), resp, model)  # the light (view frame)
+        if fl is not None:
+            lights[bi] = fl
         if model is not None:
-            models[bi] = model
             white = (resp.encode(_shading_at(model, X, Y)) / 255.0).astype(np.float32)
             dark_luma = np.where(disc, np.clip(1.0 - luma / np.maximum(white, 1e-6), 0, 1), 0).astype(np.float32,
                                                                                                     copy=False)
@@ -728,8 +738,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         shapes=np.array([rw[2] for rw in rows], object), areas=np.array([rw[3] for rw in rows], float),
         confidences=np.array([rw[4] for rw in rows], float), aspects=np.array([rw[5] for rw in rows], float),
         ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int),
-        blur_error_px=err, light_cam=np.array([shading_light_direction(models[rw[6]]) if rw[6] in models
-                                               else np.full(3, np.nan) for rw in rows], float).reshape(-1, 3))
+        blur_error_px=err, light_view=np.array([lights[rw[6]][0] if rw[6] in lights else np.full(3, np.nan)
+                                                for rw in rows], float).reshape(-1, 3),
+        light_sigma_deg=np.array([lights[rw[6]][1] if rw[6] in lights else np.nan for rw in rows], float))
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):
