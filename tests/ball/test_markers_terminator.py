@@ -1,5 +1,5 @@
-"""Markers the terminator cuts (issue 12): on a side-lit ball the detector finds only a marker's
-lit part, so its centroid lies toward the light; ``pair_marker_observations`` puts such a
+"""Markers the terminator cuts (issue 12): on a side-lit ball the detector finds a marker's lit
+part best, so its centroid is least sure there; ``pair_marker_observations`` puts such a
 marker in the cut markers' noise class (whose scale the spin fit estimates) from the light the
 ball's shading shows, and leaves markers clear of the terminator as they were."""
 
@@ -68,14 +68,11 @@ def _observe(above_rad, blur_px=1.0):
 
 @pytest.mark.parametrize("above", [0.0, 0.3, 0.6])
 def test_a_marker_the_terminator_cuts_joins_the_cut_markers_noise_class(above):
-    """Cut at 0-0.6 of its size above the terminator, the marker's centroids lie toward the light
-    (2-6 deg off; 0.8-2.1 px in the metric of its information) though its region does not touch
-    the ball's edge (main put it with the whole markers)."""
+    """Cut at 0-0.6 of its size above the terminator, the marker joins the cut markers' noise
+    class though its region does not touch the ball's edge (main put it with the whole markers).
+    Its centroid, weighed in reflectance, is corrected to first order only (2-6 deg toward the
+    light before that: tests/detect/test_ball_light.py)."""
     obs, found, u, _, r = _observe(above * SIZE)
-    w = LIGHT - (LIGHT @ u) * u
-    w /= np.linalg.norm(w)
-    e = obs.directions[0] - u
-    assert np.degrees(e @ w) > 2.0  # the bias is there, toward the light
     assert obs.noise_class[0] == 1
 
 
