@@ -580,7 +580,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                                                                                                     copy=False)
             if blur_px is not None and blur_px > 0:
                 shading[bi] = model
-        # markers reaching the terminator: their centroids in reflectance (_ball_light.terminator_weights)
+        # markers reaching the terminator: their centroids against the light's clipped model
+        # (_ball_light.terminator_weights)
         cen_w = near_t = None
         if fl is not None and model is not None:
             cen_w, near_t, drawn = terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fl, resp, blur_px)
