@@ -99,14 +99,24 @@ def _observe(above_rad, blur_px=1.0, phase=60.0):
 
 @pytest.mark.parametrize("above", [0.0, 0.3, 0.6])
 def test_a_marker_the_terminator_cuts_joins_the_cut_markers_noise_class(above):
-    """Cut at 0-0.6 of its size above the terminator, the marker's centroids lie toward the light
-    (2-6 deg off) though its region does not touch the ball's edge (main put it with the whole
-    markers, class 0)."""
-    obs, u, light = _observe(above * SIZE)
+    """Cut at 0-0.6 of its size above the terminator, the marker joins the cut markers' noise
+    class though its region does not touch the ball's edge (main put it with the whole markers,
+    class 0): its centroid is corrected to first order only (below)."""
+    obs, _, _ = _observe(above * SIZE)
+    assert obs.noise_class[0] == 1
+
+
+@pytest.mark.parametrize("blur_px", [1.0, 1.5])
+@pytest.mark.parametrize("above", [-0.3, 0.0, 0.3, 0.6])
+def test_a_terminator_cut_markers_direction_is_not_pulled_toward_the_light(above, blur_px):
+    """Cut at -0.3 to 0.6 of its size above the terminator, the marker's direction is within 2 deg
+    of its centre along the light: its centroid weighs the paint in reflectance over the light's
+    clipped, blurred model. Weighed against the white model's plane, which crosses zero at its
+    own terminator, it lay 2-9 deg toward the light (2.2-8.3 at 1 px of blur, 3.7-9.5 at 1.5)."""
+    obs, u, light = _observe(above * SIZE, blur_px=blur_px)
     w = light - (light @ u) * u
     w /= np.linalg.norm(w)
-    assert np.degrees((obs.directions[0] - u) @ w) > 2.0  # the bias is there, toward the light
-    assert obs.noise_class[0] == 1
+    assert abs(np.degrees((obs.directions[0] - u) @ w)) < 2.0
 
 
 def test_a_marker_clear_of_the_terminator_stays_whole():

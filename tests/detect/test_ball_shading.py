@@ -254,3 +254,19 @@ def test_shading_start_gives_the_same_corrected_centres():
         assert np.all(ref.ok)
         assert np.abs(ref.centers - cold.centers).max() < 0.05
     assert abs(float(np.mean(near.centers[:, 0] - balls[:, 0]))) < 0.05
+
+
+def test_a_drawn_shadings_log_gradient_is_the_analytic_one():
+    """The blur correction's ``grad log S`` from a drawn shading (central differences, bilinear):
+    an exponential ramp ``exp(0.05 x - 0.03 y)`` gives (0.05, -0.03) anywhere inside, no correction
+    at the crop's edge or under the floor."""
+    from stillcap.detect._blur_shift import DrawnShading, _grad_log_shading
+
+    yy, xx = np.mgrid[0:20, 0:30]
+    S = np.exp(0.05 * xx - 0.03 * yy).astype(np.float32)
+    sh = DrawnShading(S, 100, 200, 0.1)
+    g, ok = _grad_log_shading(sh, (100 + 12.3, 200 + 7.8))
+    assert ok
+    assert np.allclose(g, [0.05, -0.03], atol=1e-4)
+    assert not _grad_log_shading(sh, (100.5, 200 + 7.8))[1]
+    assert not _grad_log_shading(DrawnShading(S, 100, 200, 10.0), (100 + 12.3, 200 + 7.8))[1]

@@ -4,9 +4,11 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ["shading_blur_correction", "shading_blur_error", "shading_blur_shift"]
+__all__ = ["DrawnShading", "shading_blur_correction", "shading_blur_error", "shading_blur_shift"]
 
 
 def shading_blur_shift(model, center, blur_px: float, max_shift_px: float | None = None) -> np.ndarray:
@@ -38,15 +40,49 @@ def _shift(model, center, blur_px: float, max_shift_px: float | None = None):
     return (shift * (cap / n) if n > cap else shift), g
 
 
+class DrawnShading(NamedTuple):
+    """A shading drawn on a crop (linear, (h, w); e.g. :func:`stillcap.detect._ball_light.crop_shading`,
+    already blurred like the photo), the crop's top-left pixel ``(x0, y0)``, and the level
+    ``floor`` below which it is not trusted (no correction there)."""
+    image: np.ndarray
+    x0: int
+    y0: int
+    floor: float
+
+
 def _grad_log_shading(model, center):
     """``grad log S`` (2,) of the shading model at ``center`` (px), and whether ``S`` there is
-    over 10 % of the model's brightest."""
+    over 10 % of the model's brightest (a :class:`DrawnShading`: over its floor)."""
+    if isinstance(model, DrawnShading):
+        return _grad_log_drawn(model, center)
     a, b, c, d, cx, cy, r = model
     nx, ny = (center[0] - cx) / r, (center[1] - cy) / r
     nz = np.sqrt(max(1.0 - nx * nx - ny * ny, 1e-4))
     S = a * nx + b * ny + c * nz + d
     peak = np.sqrt(a * a + b * b + c * c) + d
     return np.array([a - c * nx / nz, b - c * ny / nz]) / (r * S), bool(np.isfinite(S) and peak > 0 and S > 0.1 * peak)
+
+
+def _grad_log_drawn(sh: DrawnShading, center):
+    """:func:`_grad_log_shading` of a drawn shading: central differences of ``log S``, bilinear at
+    ``center``."""
+    S = sh.image
+    x, y = float(center[0]) - sh.x0, float(center[1]) - sh.y0
+    i, j = int(np.floor(y)), int(np.floor(x))
+    if not (1 <= i < S.shape[0] - 2 and 1 <= j < S.shape[1] - 2):
+        return np.zeros(2), False
+    fy, fx = y - i, x - j
+    patch = np.log(np.maximum(S[i - 1:i + 3, j - 1:j + 3].astype(float), 1e-12))  # rows i-1..i+2
+    gx = 0.5 * (patch[:, 2:] - patch[:, :-2])  # at columns j, j+1
+    gy = 0.5 * (patch[2:, :] - patch[:-2, :])  # at rows i, i+1
+
+    def bil(a, oy, ox):  # a's value at (fy, fx) from its 2x2 block starting at (oy, ox)
+        q = a[oy:oy + 2, ox:ox + 2]
+        return (q[0, 0] * (1 - fx) + q[0, 1] * fx) * (1 - fy) + (q[1, 0] * (1 - fx) + q[1, 1] * fx) * fy
+
+    s_here = bil(S[i:i + 2, j:j + 2].astype(float), 0, 0)
+    g = np.array([bil(gx, 1, 0), bil(gy, 0, 1)])
+    return g, bool(np.all(np.isfinite(g)) and s_here > sh.floor)
 
 
 def shading_blur_correction(model, center, blur_px: float) -> tuple[np.ndarray, np.ndarray]:

@@ -39,7 +39,7 @@ from stillcap._checks import as_array
 from stillcap._numeric import median_columns
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
-from stillcap.detect._ball_light import crop_light
+from stillcap.detect._ball_light import crop_light, terminator_weights
 from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
 from stillcap.detect._marker_noise import _brightness_bins, _noise_by_brightness, _robust_ceiling
 from stillcap.detect.ball._hough import _percentile
@@ -510,6 +510,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     np.fill_diagonal(near, False)
     prep, ch_peak, sat_lit, dk_lit, vc_lit, ch_noise, dl_lit = [], [], [], [], [], [], []
     shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
+    refl_shading = {}  # ball -> its light's drawn shading, for the markers near its terminator
+    refl_rows = {}  # the centroids weighed in reflectance by id() (_measure; kept alive, so ids stay unique)
     lights = {}  # ball -> (light direction in its view frame, its error in deg), crop_light
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
@@ -578,6 +580,13 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                                                                                                     copy=False)
             if blur_px is not None and blur_px > 0:
                 shading[bi] = model
+        # markers reaching the terminator: their centroids against the light's clipped model
+        # (_ball_light.terminator_weights)
+        cen_w = near_t = None
+        if fl is not None and model is not None:
+            cen_w, near_t, drawn = terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fl, resp, blur_px)
+            if blur_px is not None and blur_px > 0:  # the blur's pull (below) is then the drawn shading's
+                refl_shading[bi] = drawn
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
         inner = cv2.erode(disc.astype(np.uint8), _BOX3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         ratio = val / np.maximum(vclose, 1e-6)
@@ -600,7 +609,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             if leather_px.any():
                 ch_noise.append((ckm[0][leather_px], ckm[1][leather_px]))
         prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
-                     ckm))
+                     ckm, cen_w, near_t))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
     # for markers whose cores reach the paint's full saturation (or darkness) ``ref``. Lens blur
     # and small marker images mix the paint with the leather, so the cores reach less (1.5 px
@@ -664,7 +673,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
     k_leather, k_noise, w_lit = _mc.leather_chroma(ch_noise)
     for pi, (bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
-             ck) in enumerate(prep):
+             ck, cen_w, near_t) in enumerate(prep):
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -709,7 +718,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             has_core = np.bincount(lab[core], minlength=n) > 0
             for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
                 rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl or chroma[0][0], float(areas[j]), bi,
-                              cx, cy, r, disc, inner, limb_fraction, min_aspect)
+                              cx, cy, r, disc, inner, limb_fraction, min_aspect, cen_w, near_t, refl_rows)
                 if rw is not None and (tl is dark or tl is None) and ck is not None and len(pal_u):
                     named = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
                                              k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
@@ -722,9 +731,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
                 rows.append(rw)
     rows = [rw for rw in rows if rw is not None]
     err = [np.zeros(2)] * len(rows)
-    if shading:
+    if shading or refl_shading:
         for i, rw in enumerate(rows):
-            model = shading.get(rw[6])
+            model = (refl_shading if id(rw[0]) in refl_rows else shading).get(rw[6])
             if model is not None:
                 shift, err[i] = shading_blur_correction(model, rw[0], float(blur_px))
                 np.add(rw[0], shift, out=rw[0])
@@ -743,9 +752,11 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         light_sigma_deg=np.array([lights[rw[6]][1] if rw[6] in lights else np.nan for rw in rows], float))
 
 
-def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect):
+def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect,
+             cen_w=None, near_t=None, refl_rows=None):
     """Centroid, shape, confidence and flags of region ``j`` of the labels ``lab`` (bounding
-    box + 2 px only)."""
+    box + 2 px only). A region reaching the mask ``near_t`` (h, w) has its centroid weighed by
+    ``cen_w`` instead of ``dark_luma``, and its centroid put in the dict ``refl_rows`` by its ``id``."""
     bx, by, bw, bh = (int(v) for v in st[:4])
     y0, x0 = max(by - 2, 0), max(bx - 2, 0)
     y1, x1 = min(by + bh + 2, lab.shape[0]), min(bx + bw + 2, lab.shape[1])
@@ -760,6 +771,13 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     if sw <= 0:
         return None
     cen = np.array([float((w * X).sum() / sw), float((w * Y).sum() / sw)])
+    out = cen
+    if cen_w is not None and (grown & near_t[sl]).any():
+        wc = np.where(grown, cen_w[sl], 0.0)
+        swc = float(wc.sum())
+        if swc > 0:
+            out = np.array([float((wc * X).sum() / swc), float((wc * Y).sum() / swc)])
+            refl_rows[id(out)] = out
     # second moments of the weights: aspect (foreshortening)
     # (w dx and w dy formed once: ``w * dx * dx`` is ``(w * dx) * dx``, the same numbers)
     dx, dy = X - cen[0], Y - cen[1]
@@ -800,7 +818,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
             shape_conf = 0.5
             flags |= MarkerFlag.SHAPE_MISMATCH
     conf = col * shape_conf * min(1.0, aspect / 0.6)
-    return cen, t.name, shape, area, conf, aspect, bi, flags
+    return out, t.name, shape, area, conf, aspect, bi, flags
 
 
 def _by_size(tlist: list, major_var_px2: float, r_px: float) -> MarkerType:
