@@ -263,6 +263,9 @@ class AliasResolution:
         the spin (:func:`resolve_joint_fits`).
     marker_dof : int
         Degrees of freedom of the markers' noise estimate in that test (-1: not tested).
+    withheld : SpinResult or None
+        With ``undecided``: the markers' fit the ranking put first, whose spin is withheld; kept
+        for the checks of how the markers fit the ball (``ball_layout``, ``spin_noise``).
     """
 
     candidates: list
@@ -276,6 +279,7 @@ class AliasResolution:
     left_out: list = field(default_factory=list)
     undecided: list = field(default_factory=list)
     marker_dof: int = -1
+    withheld: object = None
 
     def undecided_text(self) -> str:
         """The solutions the markers fit alike, for the pipeline's message and the ``spin_alias``

@@ -113,7 +113,9 @@ def _analyse(cap: Capture, options: PitchOptions, jobs, progress, t_all: float) 
     checks, fit = check_and_inflate(cap, pairs, flight, spin, fit, flight_spin, spin_cmp, model, options, log)
     out = metrics_and_uncertainty(cap, pairs, flight, spin, fit, model, options, log)
     messages.extend(spin_messages)
-    checks += [c for c in (ball_layout_check(spin.spin, layout), spin_noise_check(spin.spin)) if c is not None]
+    # a withheld spin's markers still show whether they fit the ball's layout at all (a wrong ball file)
+    shown = spin.spin if spin.spin is not None else getattr(spin.alias, "withheld", None)
+    checks += [c for c in (ball_layout_check(shown, layout), spin_noise_check(shown)) if c is not None]
 
     timings["total"] = _time.perf_counter() - t_all
     log.step(log.total, "done")

@@ -376,6 +376,7 @@ def _joint_decision(pairs: list, first: SpinResult, first_times, alias, curv, la
         messages.append(
             f"spin undetermined (spin alias undecided): {joint.undecided_text()} ({first.n_observations} "
             f"observations, {joint.marker_dof} degrees of freedom left for their noise): the marker spin is withheld")
+        joint.withheld = sols[joint.best.source]
         return None, None, joint
     if not doubt and not joint.ambiguous and (
             joint.best.source == 0 or same_solution(first, sols[joint.best.source])):
