@@ -57,3 +57,5 @@ def test_too_few_or_unseen_balls():
     assert fit is not None and np.all(np.isfinite(fit.directions))  # the unseen ball gets the fitted light
     with pytest.raises(ValueError, match="directions"):
         fit_light(P, d[:3])
+    with pytest.raises(ValueError, match="min_points must be >= 3"):
+        fit_light(P, d, min_points=2)

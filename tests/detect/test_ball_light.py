@@ -10,7 +10,7 @@ import pytest
 from stillcap.ball.layout import BallLayout
 from stillcap.ball.markers import marker_types, pair_marker_observations
 from stillcap.camera import Camera, look_at
-from stillcap.detect._ball_light import view_to_camera
+from stillcap.detect._ball_light import fit_ball_light, view_to_camera
 from stillcap.detect.ball_markers import detect_ball_markers
 
 LAYOUT = BallLayout.seed()
@@ -123,3 +123,8 @@ def test_a_marker_clear_of_the_terminator_stays_whole():
     obs, u, _ = _observe(5.0 * SIZE)
     assert np.degrees(np.linalg.norm(obs.directions[0] - u)) < 0.5
     assert obs.noise_class[0] == 0
+
+
+def test_fit_ball_light_names_mismatched_inputs():
+    with pytest.raises(ValueError, match="one length, got 40, 40, 39"):
+        fit_ball_light(np.ones(40), np.zeros(40), np.zeros(39))

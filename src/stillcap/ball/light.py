@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stillcap._checks import as_array
+from stillcap.ball.orientation._so3 import _skew
 
 __all__ = ["LightFit", "fit_light"]
 
@@ -50,17 +51,10 @@ class LightFit:
     scatter_deg: float
 
 
-def _cross_matrix(v):
-    """(N, 3, 3) matrices ``[v]_x`` with ``[v]_x w = v x w``."""
-    z = np.zeros(len(v))
-    return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1), np.stack([v[:, 2], z, -v[:, 0]], 1),
-                     np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
-
-
 def _solve(l, p, w):
     """The homogeneous light ``h`` (normalised coordinates) minimising ``sum w |l x (x - h_w p)|^2``
     (a linear, DLT-like form: the light may be at infinity), sign chosen so the lines point at it."""
-    C = _cross_matrix(l)
+    C = _skew(l)
     A = np.concatenate([C, -np.einsum("nij,nj->ni", C, p)[:, :, None]], axis=2) * np.sqrt(w)[:, None, None]
     h = np.linalg.svd(A.reshape(-1, 4), full_matrices=False)[2][-1]
     d = h[None, :3] - h[3] * p

@@ -183,7 +183,9 @@ def view_to_camera(direction_view, ray_cam):
     z = np.array([0.0, 0.0, 1.0])
     ax = np.cross(z, r)
     c = r @ z
-    # Rodrigues for the rotation z -> r: I + [ax]_x + [ax]_x^2 / (1 + c)
+    # Rodrigues for the rotation z -> r: I + [ax]_x + [ax]_x^2 / (1 + c). By hand because it is one
+    # closed form over every ball's ray at once; body.kinematics.rotation_between (scipy's
+    # align_vectors) takes one pair at a time, and detection sits below body and ball in the stack
     Kx = np.zeros(ax.shape[:-1] + (3, 3))
     Kx[..., 0, 1], Kx[..., 0, 2], Kx[..., 1, 2] = -ax[..., 2], ax[..., 1], -ax[..., 0]
     Kx[..., 1, 0], Kx[..., 2, 0], Kx[..., 2, 1] = ax[..., 2], -ax[..., 1], ax[..., 0]
