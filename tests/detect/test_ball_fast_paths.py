@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stillcap.detect.ball._shading import _BLUR_GRID, _lit_frame, _lit_sphere_image, limb_blur_px
+from stillcap.detect.ball._shading import (_BLUR_GRID, _lit_frame, _lit_sphere_image, limb_blur_px,
+                                          supersample_depth_px)
 from stillcap.detect.ball_markers import _robust_ceiling, ball_white_balance
 from stillcap.detect.circle_fit import _soft_l1_newton
 
@@ -83,7 +84,8 @@ def _reference_blur_sse(lin, center, off):
     mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off)
     r2 = q[0] ** 2 + q[1] ** 2
     band = (r2 > 0.6 ** 2) & (r2 < 1.4 ** 2)
-    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=float(_BLUR_GRID[-1]) * 4.0 + 4.0, q=q)
+    band_px = supersample_depth_px(float(np.linalg.svd(A, compute_uv=False)[-1]))
+    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=band_px, q=q)
     y = lin[band].astype(float)
     y = y - y.mean()
     yy = float(y @ y)
@@ -267,3 +269,87 @@ def test_window_centroid_equals_masked_crop_sums(signed):
             assert np.abs(got - want).max() < tol, (got, want)
             checked += 1
     assert checked >= 12
+
+
+@pytest.mark.parametrize("r", [6.0, 10.0, 14.0, 20.0, 30.0, 45.0])
+def test_supersampled_depth_keeps_every_pixel_within_its_error(r):
+    """The limb blur's model is supersampled only ``supersample_depth_px`` deep (where one sample
+    at a pixel's centre misses its mean by more than ``SUPERSAMPLE_ERROR``): lit from the camera
+    (the most curved radiance, no terminator inside the disc), every pixel is within 1.5x that
+    error of the ball supersampled all over (3 x 3 samples, not the exact mean; an ellipse bends
+    more along its short axis), at any sub-pixel placement; a third of that depth misses by more."""
+    from stillcap.detect.ball._shading import SUPERSAMPLE_ERROR, supersample_depth_px
+    rng = np.random.default_rng(int(r))
+    for _ in range(3):
+        n = int(2 * r + 14)
+        c = np.array([n / 2, n / 2]) + rng.uniform(-0.5, 0.5, 2)
+        A = _ellipse(rng, r)
+        yy, xx = np.mgrid[0:n, 0:n]
+        q = np.einsum("ij,jhw->ihw", np.linalg.inv(A), np.stack([xx - c[0], yy - c[1]]).astype(float))
+        full = _lit_sphere_image((n, n), c, A, (0.0, 0.0, 1.0))
+        depth = supersample_depth_px(float(np.linalg.svd(A, compute_uv=False)[-1]))
+        got = _lit_sphere_image((n, n), c, A, (0.0, 0.0, 1.0), band_px=depth, q=q)
+        assert np.abs(got - full).max() <= 1.5 * SUPERSAMPLE_ERROR
+    if depth < r:  # balls whose middle bends less than the error: a shallower band misses
+        less = _lit_sphere_image((n, n), c, A, (0.0, 0.0, 1.0), band_px=depth / 3.0, q=q)
+        assert np.abs(less - full).max() > 1.5 * SUPERSAMPLE_ERROR
+
+
+def test_report_over_the_window_equals_the_whole_crop():
+    """The correction's report over the window's gathered pixels: the misfit shift is the whole
+    crop's ``np.gradient`` fit bit for bit (window inside the crop, and one touching its border),
+    the split-half phase sigma the masked crop's to float32 rounding of its halves' sums."""
+    from stillcap._numeric import median
+    from stillcap.detect.ball._shading import _centroid_window, _misfit_shift, _phase_split_sd
+    rng = np.random.default_rng(21)
+    for k in range(8):
+        r = rng.uniform(8.0, 30.0)
+        n = int(2 * r + 24) if k % 2 else int(2 * r + 2)  # odd k: the 1.3-radius window leaves the crop
+        c, A, light, img = _random_ball(rng, r, n)
+        img = np.clip(0.6 * cv2.GaussianBlur(img, (0, 0), 0.9) + 0.03 + rng.normal(0.0, 0.01, img.shape), 0, 1)
+        img = img.astype(np.float32)
+        model = cv2.GaussianBlur(_lit_sphere_image((n, n), c + 0.2, A, tuple(light)), (0, 0), 0.9)
+        yy, xx = np.mgrid[0:n, 0:n]
+        q = np.einsum("ij,jhw->ihw", np.linalg.inv(A), np.stack([xx - c[0], yy - c[1]]).astype(float))
+        win = _centroid_window(q)
+        r2 = win[2]
+        sel = r2 < 1.3 ** 2
+        gy, gx = np.gradient(model.astype(np.float64))
+        J = np.stack([gx[sel], gy[sel], model[sel].astype(np.float64), np.ones(np.count_nonzero(sel))], axis=1)
+        coef = np.linalg.solve(J.T @ J, J.T @ img[sel].astype(np.float64))
+        assert np.array_equal(_misfit_shift(img, model, r2), -coef[:2] / coef[2])
+        inside, ring = win[0], win[1]
+        nl = float(np.hypot(light[0], light[1]))
+        ax, ay = light[0] / nl, light[1] / nl
+        w = np.where(inside, np.maximum(img - median(img[ring]), 0.0), 0.0)
+        s, side = q[0] * ax + q[1] * ay, q[1] * ax - q[0] * ay > 0
+        m = [float((w[h] * s[h]).sum()) / float(w[h].sum()) for h in (side, ~side)]
+        got = _phase_split_sd(img, q, win, tuple(light), False, 0.5)
+        assert abs(got - min(0.5 * abs(m[0] - m[1]) / 0.5, np.pi / 2)) <= 1e-6
+
+
+def test_crescent_limb_circle_warm_started_is_the_cold_fit():
+    """The crescent's limb circle, each round's fit started from the round before's circle (not
+    the Kasa circle of its points), ends on the same circle to 1e-5 px: noisy drawn crescents'
+    outer contours with the terminator's points among them."""
+    import stillcap.detect.ball._arcs as arcs
+    from stillcap.detect.circle_fit import fit_circle
+    rng = np.random.default_rng(5)
+    real = arcs.fit_circle
+    for _ in range(10):
+        r = rng.uniform(8.0, 30.0)
+        c = rng.uniform(40.0, 60.0, 2)
+        t = np.linspace(-1.2, 1.2, int(3 * r))  # the lit limb, ~140 deg
+        phi = rng.uniform(0, 2 * np.pi)
+        limb = c + r * np.stack([np.cos(t + phi), np.sin(t + phi)], 1)
+        term = c + 0.5 * r * np.stack([np.cos(t + phi), np.sin(t + phi)], 1) * np.abs(np.cos(t))[:, None]
+        pts = np.concatenate([limb, term]) + rng.normal(0.0, 0.3, (2 * len(t), 2))
+        warm = arcs._limb_circle(pts, 0.5, None, 60.0, 1.0, 0.06)
+        try:  # every round from the Kasa circle of its points, as before
+            arcs.fit_circle = lambda p, radius=None, start=None, **k: fit_circle(p, radius=radius, **k)
+            cold = arcs._limb_circle(pts, 0.5, None, 60.0, 1.0, 0.06)
+        finally:
+            arcs.fit_circle = real
+        assert (warm is None) == (cold is None)
+        if warm is not None:
+            assert np.abs(warm[0] - cold[0]).max() < 1e-5 and abs(warm[1] - cold[1]) < 1e-5

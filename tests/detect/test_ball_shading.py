@@ -164,6 +164,40 @@ def test_blurred_phase_search_warm_started_from_a_nearby_frame(phase):
     assert n_warm < n_cold, (n_warm, n_cold)
 
 
+
+@pytest.mark.parametrize("r, blur, phase", [(8.0, 1.5, 90), (8.0, 1.5, 130), (12.0, 1.0, 60), (15.0, 0.5, 110)])
+def test_cold_phase_search_steps_to_the_blur_scaled_table(r, blur, phase):
+    """A cold phase search's first step goes to the sharp table's phase at the photo's centroid
+    scaled by the blur's shrink at the start (``m_obs^2 / (m_obs + f)``), not 5 deg: on drawn
+    balls its answer is the phase a dense scan of the blurred model finds (to 0.05 deg), from fewer
+    renders."""
+    import cv2
+    from stillcap.detect.ball._shading import _blurred_phase_light, _lit_frame, _radiance_centroid, _renderer
+    img, balls, outl = _row_of_balls(r, blur, phase)
+    renders = []
+    for lin, c, o in _ball_crops(img, balls, outl)[:4]:
+        mid, A, q, light = _lit_frame(lin, c, o)
+        render = _renderer(lin.shape, mid, A, 4.0 * blur + 4.0, q)
+        calls = []
+
+        def counted(lt, render=render, calls=calls):
+            calls.append(1)
+            return render(lt)
+        got = _blurred_phase_light(lin, mid, A, q, light, blur, 4.0 * blur + 4.0, render=counted, warm={})
+        renders.append(len(calls))
+        m_obs = float(np.hypot(*_radiance_centroid(lin, q)))
+        az = np.array(light[:2]) / np.hypot(light[0], light[1])
+        scan = np.radians(np.arange(0.0, 175.0, 0.05))
+        a0 = float(np.arccos(np.clip(got[2], -1, 1)))
+        near = scan[np.abs(scan - a0) < np.radians(3.0)]
+        miss = [abs(float(np.hypot(*_radiance_centroid(cv2.GaussianBlur(
+            render((np.sin(a) * az[0], np.sin(a) * az[1], np.cos(a))), (0, 0), blur), q))) - m_obs) for a in near]
+        assert abs(np.degrees(near[int(np.argmin(miss))] - a0)) <= 0.05 + 1e-9
+    # two renders (the 5-deg step: three) where the blur is a tenth of the radius or less; small
+    # balls under heavy blur are shrunk unevenly over the phases: 3-4 (the 5-deg step: 3-5)
+    assert max(renders) <= (2 if r >= 10 * blur else 4), renders
+
+
 def test_shading_bias_started_at_its_answer():
     """``_shading_bias``' ``start`` (``photo_blur_px``' next round: the corrected centre at the last
     blur read): started at the corrected centre it returns the same bias to the secant's

@@ -91,7 +91,11 @@ def test_one_matching_over_all_balls_is_each_balls_own(pairs, max_px):
         np.testing.assert_array_equal(obs.flash, ref.flash)
         np.testing.assert_array_equal(obs.types, ref.types)
         np.testing.assert_array_equal(obs.from_ray, ref.from_ray)
-        np.testing.assert_allclose(obs.directions, ref.directions, rtol=0, atol=1e-12)
+        # the triangulation's Gauss-Newton stops when every point of its batch steps less than
+        # 1e-10 m (geometry.triangulate._refine): a marker triangulated with its ball alone may
+        # stop a step earlier than among all balls, its direction (a point ~0.035 m from the
+        # centre) then off by up to 1e-10 / 0.035 ~ 3e-9 (seen: 5.8e-12 on one marker)
+        np.testing.assert_allclose(obs.directions, ref.directions, rtol=0, atol=3e-9)
         assert st["epipolar_px"] == pytest.approx(epi, rel=1e-9)
     assert np.all(kinds > 0)  # stereo directions and single-camera rays both checked
 

@@ -334,7 +334,15 @@ def photo_blur_px(image, centers, outlines, response=None, max_images: int = 8,
         if x0 < 0 or y0 < 0 or x1 > W or y1 > H:
             continue  # a ball cut by the photo's edge: its limb is not all there
         crops.append((_linear_max(img[y0:y1, x0:x1], lut), c[i] - (x0, y0), off[i]))
-    est = np.asarray([limb_blur_px(lin, cc, o, start_px) for lin, cc, o in crops], float)
+    # each image's walk down its misfit starts at the blur read so far: ``start_px``, else the
+    # first image's own read (one lens blur per photo: the other images' walks are short; the
+    # same reads wherever each misfit has one minimum, :func:`limb_blur_px`)
+    est = []
+    for lin, cc, o in crops:
+        est.append(limb_blur_px(lin, cc, o, start_px))
+        if start_px is None and np.isfinite(est[-1]):
+            start_px = est[-1]
+    est = np.asarray(est, float)
     est = est[np.isfinite(est)]
     return float(np.median(est)) if len(est) else float("nan")
 

@@ -86,10 +86,10 @@ def _outer_points(pts: np.ndarray, center: np.ndarray, n_bins: int, half_px: flo
     return pts[first] + half_px * u
 
 
-def _good_circle(pts, min_span_deg, rms_px, rms_rel, radius=None):
+def _good_circle(pts, min_span_deg, rms_px, rms_rel, radius=None, start=None):
     if len(pts) < 6:
         return None
-    c, r, rms = fit_circle(pts, radius=radius)
+    c, r, rms = fit_circle(pts, radius=radius, start=start)
     if not (np.isfinite(c).all() and r >= 3.0 and rms <= max(rms_px, rms_rel * r)):
         return None
     span = arc_span_deg(pts, c)
@@ -106,14 +106,14 @@ def _limb_circle(pts: np.ndarray, half_px: float, image_size, min_span_deg: floa
     Limb points within 2 px of the photo's border are left out. None when the self-check fails."""
     c, r = kasa_circle(pts)
     got = outer = None
-    for _ in range(iterations):
+    for it in range(iterations):
         if not (np.isfinite(c).all() and r >= 1.5):
             return None
         outer = _outer_points(pts, c, max(24, int(np.ceil(2 * np.pi * r / 2.0))), half_px)
         if image_size is not None:
             W, H = image_size
             outer = outer[(outer[:, 0] > 1.0) & (outer[:, 1] > 1.0) & (outer[:, 0] < W - 2.0) & (outer[:, 1] < H - 2.0)]
-        got = _good_circle(outer, 0.0, np.inf, np.inf)
+        got = _good_circle(outer, 0.0, np.inf, np.inf, start=c if it else None)
         if got is None:
             return None
         c, r = got[0], got[1]

@@ -59,6 +59,53 @@ def _lit_sphere_image(shape, center, A: np.ndarray, light, ss: int = 3, band_px:
     return _render_sphere(_sphere_normals(shape, center, A, band_px, q, ss), light)
 
 
+#: error (of the unit radiance) up to which one sample at a pixel's centre stands for the pixel's
+#: mean radiance in the lit-sphere model (:func:`supersample_depth_px`): a quarter of one 8-bit
+#: code step at the top of the linear scale
+SUPERSAMPLE_ERROR = 1e-3
+
+
+def supersample_depth_px(radius_px: float) -> float:
+    """Depth inside the limb (px) beyond which the lit-sphere model's radiance needs no
+    supersampling: one sample at a pixel's centre differs from the pixel's mean by less than
+    ``SUPERSAMPLE_ERROR`` (of the unit radiance) for any light.
+
+    A pixel's mean of a smooth radiance ``f`` is ``f + (f_xx + f_yy) / 24`` at its centre (a
+    uniform square of 1 px: variance 1/12 a side). ``n_x``, ``n_y`` of the lambertian sphere's
+    normal are linear in the pixel coordinates; ``n_z = sqrt(1 - (R / r)^2)`` (``R`` px from the
+    centre of a limb of ``r`` px) bends fastest at the limb, its Laplacian ``n_z'' + n_z' / R``
+    growing as ``d^-1.5`` at a depth ``d = r - R`` (``n_z ~ sqrt(2 d / r)``). The depth returned is
+    the least (on a 0.05 px grid) where ``|Laplacian| / 24 <= SUPERSAMPLE_ERROR``: the whole ball
+    up to ~9 px (its middle already bends more), 4.4 px on a 12 px ball, 2.2 on a 30 px one. Use
+    the outline's smallest semi-axis for ``radius_px``.
+
+    Not covered: the terminator's kink inside a disc lit from the side or behind, which a pixel
+    straddles with an error up to ~1/(8 r) of the radiance. :func:`limb_blur_px` fits the limb's
+    whole profile, which that moves by at most 1e-4 px (drawn balls of 6-20 px, 0.5-1.5 px of blur,
+    45-130 deg) and 7.5e-4 px (132 limb reads of the ``bench_speed.py`` pitch and a studio pitch);
+    :func:`_shading_bias` keeps its band of the blur's reach (``4 blur + 4`` px), which covers the
+    kink of small balls: with a depth of ~2-3 px there (an earlier, looser form of this one), two
+    searches of the same 8 px crescents under 1.5 px of blur from different starts landed 0.11 px
+    apart (0.03 px with the blur's reach)."""
+    r = float(radius_px)
+    if not np.isfinite(r):
+        return float("inf")  # no size to go by: the whole ball
+    return _supersample_depth(int(round(10.0 * max(r, 1.0))))
+
+
+@functools.lru_cache(maxsize=1024)
+def _supersample_depth(r_tenths: int) -> float:
+    """:func:`supersample_depth_px` of a radius in tenths of a pixel (cached)."""
+    r = r_tenths / 10.0
+    d = np.arange(0.05, r, 0.05)
+    R = r - d
+    u = 1.0 - (R / r) ** 2
+    n1 = -(R / (r * r)) / np.sqrt(u)  # d n_z / dR
+    n2 = -1.0 / (r * r * np.sqrt(u)) - (R / (r * r)) ** 2 / u ** 1.5  # d2 n_z / dR2
+    ok = np.abs(n2 + n1 / R) / 24.0 <= SUPERSAMPLE_ERROR
+    return float(d[np.argmax(ok)]) if ok.any() else float("inf")  # the whole ball
+
+
 def _sphere_normals(shape, center, A: np.ndarray, band_px: float, q=None, ss: int = 3, r2=None, geom=None):
     """The light-independent part of :func:`_lit_sphere_image`'s band path (``band_px`` given):
     the sphere's normals at the pixel centres and at the band pixels' ``ss x ss`` samples, with
@@ -390,13 +437,23 @@ def _misfit_shift(lin: np.ndarray, model: np.ndarray, r2: np.ndarray, reach: flo
     lambertian, a second light, paint, a wrong blur or phase), the misfit moves them differently
     and ``d`` shows it. Written by hand: a 4-parameter linear least squares on the crop, which
     no image-registration routine does over an outline's window. NaN without enough pixels."""
-    sel = r2 < reach * reach
-    if np.count_nonzero(sel) < 12:
+    sel = np.flatnonzero(r2 < reach * reach)
+    if len(sel) < 12:
         return np.full(2, np.nan)
-    gy, gx = np.gradient(model.astype(np.float64))
-    J = np.stack([gx[sel], gy[sel], model[sel].astype(np.float64), np.ones(np.count_nonzero(sel))], axis=1)
+    h, w = model.shape
+    row, col = np.divmod(sel, w)
+    flat = model.reshape(-1)
+    if row[0] >= 1 and row[-1] <= h - 2 and col.min() >= 1 and col.max() <= w - 2:
+        # np.gradient's central differences at the window's pixels only (none on the crop's
+        # border): the same numbers without differencing the whole crop
+        f64 = np.float64
+        gx = (flat[sel + 1].astype(f64) - flat[sel - 1].astype(f64)) / 2.0
+        gy = (flat[sel + w].astype(f64) - flat[sel - w].astype(f64)) / 2.0
+    else:
+        gy, gx = (g.reshape(-1)[sel] for g in np.gradient(model.astype(np.float64)))
+    J = np.stack([gx, gy, flat[sel].astype(np.float64), np.ones(len(sel))], axis=1)
     try:  # the normal equations (4 x 4): well conditioned here, ~5x cheaper than an SVD per ball
-        coef = np.linalg.solve(J.T @ J, J.T @ lin[sel].astype(np.float64))
+        coef = np.linalg.solve(J.T @ J, J.T @ lin.reshape(-1)[sel].astype(np.float64))
     except np.linalg.LinAlgError:
         return np.full(2, np.nan)
     if not coef[2] > 1e-9:
@@ -423,19 +480,25 @@ def _phase_split_sd(lin: np.ndarray, q, win, light, signed: bool = False, slope=
     difference (two independent halves). Through the slope of the centroid with the phase (the
     blurred model's, from the phase search, else the sharp table's) that is the phase's sigma.
     Texture symmetric about the axis is not seen. NaN where a half has no radiance."""
-    inside, ring = (_centroid_window(q) if win is None else win)[:2]
+    if win is None:
+        win = _centroid_window(q)
     n = float(np.hypot(light[0], light[1]))
     if n < 1e-9:
         return float("nan")
     ax, ay = light[0] / n, light[1] / n
+    # over the window's pixels only (its flat indices and coordinates): the pixels outside it
+    # weigh 0 (the same sums but for the order of float rounding; ~2x cheaper on a crop)
+    idx, ring_idx, qx, qy = win[3]
+    flat = lin.reshape(-1)
+    v = flat[idx]
     if signed:
-        level = float(lin[ring].mean()) if ring.any() else 0.0
-        w = np.where(inside, lin - level, 0.0)
+        level = float(flat[ring_idx].mean()) if len(ring_idx) else 0.0
+        w = v - level
     else:
-        level = median(lin[ring]) if ring.any() else 0.0
-        w = np.where(inside, np.maximum(lin - level, 0.0), 0.0)
-    s = q[0] * ax + q[1] * ay
-    side = q[1] * ax - q[0] * ay > 0
+        level = median(flat[ring_idx]) if len(ring_idx) else 0.0
+        w = np.maximum(v - level, 0.0)
+    s = qx * ax + qy * ay
+    side = qy * ax - qx * ay > 0
     m = []
     for h in (side, ~side):
         tot = float(w[h].sum())
@@ -535,8 +598,14 @@ def _blurred_phase_light(lin, mid, A, q, light, psf: float, band: float, signed:
         f = miss(a)
         if not np.isfinite(f):
             return light
-        # the blurred centroid grows with the phase: step 5 deg the way the miss says, then secants
+        # the blurred centroid grows with the phase: the first step to the phase whose sharp
+        # centroid, shrunk as the blur shrank it at this phase (m_obs + f of m_obs), is the
+        # photo's (the table read again at m_obs^2 / (m_obs + f)); then secants
         step = np.radians(5.0) * (1.0 if f < 0 else -1.0)
+        if m_obs + f > 1e-6:
+            a_scaled = _phase_from_centroid(m_obs * m_obs / (m_obs + f))
+            if a_scaled != a and abs(a_scaled - a) <= np.radians(20.0):
+                step = a_scaled - a
     a_prev, f_prev = a, f
     a = float(np.clip(a + step, 0.0, a_max))
     best_a, best_f = a_prev, abs(f_prev)
@@ -721,14 +790,17 @@ def limb_blur_px(lin: np.ndarray, center, off: np.ndarray, start_px: float | Non
     Returns NaN when the image has no lit radiance or the best sigma is at the grid's end.
     """
     lin = np.asarray(lin, np.float32)
-    mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off)
+    geom = _outline_geometry(off)
+    mid, A, q, light = _lit_frame(lin, np.asarray(center, float), off, geom=geom)
     if light is None:
         return float("nan")
     r2 = q[0] ** 2 + q[1] ** 2
     band = (r2 > 0.6 ** 2) & (r2 < 1.4 ** 2)
     if band.sum() < 20:
         return float("nan")
-    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=float(_BLUR_GRID[-1]) * 4.0 + 4.0, q=q)
+    # supersampled where one sample at a pixel's centre is not its mean (:func:`supersample_depth_px`;
+    # was the widest blur's reach, 16 px: the whole of most ball images, 9 samples a pixel)
+    model0 = _lit_sphere_image(lin.shape, mid, A, light, band_px=supersample_depth_px(float(geom.sv[-1])), q=q)
     y = lin[band].astype(float)
     y = y - y.mean()
     yy = float(y @ y)
