@@ -156,7 +156,8 @@ def _refine_group(greys, centers, radii, bgs, half, iterations, local_bg):
             if wk.any():
                 p[wk] = win[wy[sl][wk], wx[sl][wk]]
             o = ~wk
-            p[o] = g[np.clip(ys[sl][o], 0, g.shape[0] - 1), np.clip(xs[sl][o], 0, g.shape[1] - 1)]
+            p[o] = g[np.minimum(np.maximum(ys[sl][o], 0), g.shape[0] - 1),
+                     np.minimum(np.maximum(xs[sl][o], 0), g.shape[1] - 1)]
         valid = None if whole.all() else ((xs >= 0) & (xs < w[:, None, None])) & ((ys >= 0) & (ys < h[:, None, None]))
         # squared distances compared with squared radii (np.hypot over every window pixel cost
         # as much as the rest of the iteration)
