@@ -528,12 +528,14 @@ def _identify_views(cols: list, palette: Palette, pts: list, rad: list, method: 
         if ref_lab is not None:
             if not lightness_weight > 0:
                 raise ValueError(f"lightness_weight must be > 0, got {lightness_weight}")
-            labs = [rgb_to_lab(cols[v][valid[v]]) for v in todo]
-            D = _lab_pairwise(np.concatenate(labs), ref_lab, metric, lightness_weight)
+            # every photo's colours in one conversion, each photo's rows as on their own
+            rows = [cols[v][valid[v]] for v in todo]
+            counts = np.array([len(x) for x in rows])
+            D = _lab_pairwise(rgb_to_lab(np.concatenate(rows), groups=counts), ref_lab, metric, lightness_weight)
             start = 0
-            for v, lab in zip(todo, labs):
-                out[v][valid[v]] = D[start:start + len(lab)]
-                start += len(lab)
+            for v, k in zip(todo, counts):
+                out[v][valid[v]] = D[start:start + k]
+                start += k
         else:
             for v in todo:
                 out[v][valid[v]] = color_distance(cols[v][valid[v]], ref, metric, lightness_weight)
