@@ -363,7 +363,7 @@ class StackedViews:
         self.P = np.stack([c.world2cam[:3] for c in cams])  # (nv, 3, 4)
         self.K = np.stack([c.K for c in cams])
         self.dist = np.stack([np.asarray(c.dist, float) for c in cams])
-        self.r2max = np.array([c.max_distortion_r2 if np.any(c.dist[[0, 1, 4]]) else np.inf for c in cams])
+        self.r2max = np.array([c.max_distortion_r2 if c.radially_distorted else np.inf for c in cams])
         self.x = x
         # normalised coordinates: the pinhole cameras' closed form (Camera.pixels_to_normalized's
         # arithmetic) for all views at once, a lens with distortion on its own
@@ -372,7 +372,7 @@ class StackedViews:
         self.xn = np.stack([(x[..., 0] - K[:, 0, 2, None] - K[:, 0, 1, None] * y) / K[:, 0, 0, None], y],
                            axis=-1)  # (nv, n, 2)
         for v, c in enumerate(cams):
-            if np.any(c.dist):
+            if c.distorted:
                 self.xn[v] = c.pixels_to_normalized(x[v])
         self.seen = np.isfinite(self.xn[..., 0]) & np.isfinite(self.xn[..., 1])
 
