@@ -179,7 +179,7 @@ class MarkerRays:
             if not len(sel):
                 continue
             xn = cam.pixels_to_normalized(x[v, sel])
-            ok = np.all(np.isfinite(xn), axis=1)
+            ok = np.isfinite(xn).all(axis=1)
             sel, xn = sel[ok], xn[ok]
             d_cam = np.column_stack([xn, np.ones(len(sel))])
             mk.append(sel)
@@ -337,7 +337,7 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
     lim = np.stack([lo, hi], axis=-1)
     lim_nan = np.where(np.isfinite(lim), lim, np.nan)
     frames = markerset.bone_frames(skeleton)
-    seen = np.all(np.isfinite(pts), axis=1)
+    seen = np.isfinite(pts).all(axis=1)
     offs = markerset.offsets
     ang = np.zeros((n, 3))
     world = np.zeros((n, 3, 3))
@@ -351,7 +351,7 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
             Wp = r2w[:3, :3] if p < 0 else world[p]
             parent_w[j] = Wp
             origin[j] = r2w[:3, 3] if p < 0 else origin[p] + world[p] @ skeleton.offsets[j]
-            locked = np.all(hi[j] <= lo[j])
+            locked = (hi[j] <= lo[j]).all()
             sel = np.flatnonzero((frames == j) & seen)
             cands = None
             if not locked and len(sel):
@@ -363,7 +363,7 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
                     cands = align_matrix(meas, model)[None]
                 else:
                     a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
-                    if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+                    if np.isfinite(a).all() and np.isfinite(b).all():
                         R0 = align_matrix(a[None], b[None])
                         cands = _rotations_about(a, phis) @ R0
             if cands is None:
@@ -440,7 +440,7 @@ def _newton_start(fun, jac, x: np.ndarray, bounds, f_scale: float | None, steps:
                 move &= ~out
         except np.linalg.LinAlgError:
             break
-        if not np.all(np.isfinite(dx)) or out.any():
+        if not np.isfinite(dx).all() or out.any():
             break
         if -0.5 * float(g @ dx) <= rtol * cost:  # the model's own decrease: at the optimum already
             return x, f, True
@@ -536,7 +536,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     r2w = skeleton.rest_root2world() if root2world is None else np.asarray(root2world, float)
     if root not in ("pinned", "translate", "free"):
         raise ValueError(f"root must be pinned, translate or free, got {root!r}")
-    seen = np.all(np.isfinite(pts), axis=1)
+    seen = np.isfinite(pts).all(axis=1)
     msig = np.broadcast_to(np.asarray(marker_sigma_m, float), (len(markerset),))
     if not np.all(np.isfinite(msig) & (msig > 0)):
         raise ValueError(f"marker_sigma_m must be > 0 metres, got {marker_sigma_m}")

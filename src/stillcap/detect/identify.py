@@ -146,7 +146,7 @@ def _sample_discs(imgs: list, cs: list, rs: list, disc_fraction: float, scales: 
         return [_sample_discs([im], [c], [r], disc_fraction, [s])[0] for im, c, r, s in zip(imgs, cs, rs, scales)]
     out = [np.full((len(c), 3), np.nan) for c in cs]
     with np.errstate(invalid="ignore"):
-        lives = [np.all(np.isfinite(c), axis=1) & np.isfinite(r) for c, r in zip(cs, rs)]
+        lives = [np.isfinite(c).all(axis=1) & np.isfinite(r) for c, r in zip(cs, rs)]
     counts = [int(np.count_nonzero(live)) for live in lives]
     if not sum(counts):
         return out
@@ -512,7 +512,7 @@ def _identify_views(cols: list, palette: Palette, pts: list, rad: list, method: 
     ref = palette.rgb
     K = len(palette)
     cols = list(cols)
-    valid = [np.all(np.isfinite(c), axis=1) for c in cols]
+    valid = [np.isfinite(c).all(axis=1) for c in cols]
 
     # the references' Lab colours once for all cost matrices rather than in every
     # color_distance call (the same numbers: color_distance converts both sides the same way)
@@ -735,14 +735,14 @@ def calibrate_palette(images, points, palette: Palette, radii=None, sampler: str
         if isinstance(pts, Identification):
             if tuple(pts.names) != tuple(palette.names):
                 raise ValueError("identification names differ from the palette's")
-            if rr is None and np.any(np.isfinite(pts.radii)):
+            if rr is None and np.isfinite(pts.radii).any():
                 rr = np.where(np.isfinite(pts.radii), pts.radii, radius)
             pts = pts.points
         p = as_array(pts, (K, 2), "points")
         col = sample_colors(img, p, None if rr is None else as_array(rr, (K,), "radii"), sampler=sampler,
                             radius=radius)
         for k in range(K):
-            if np.all(np.isfinite(col[k])):
+            if np.isfinite(col[k]).all():
                 samples[k].append(col[k])
     rgb = palette.rgb.copy()
     n = np.zeros(K, int)
