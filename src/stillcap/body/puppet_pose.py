@@ -284,13 +284,15 @@ def _euler_matrices(angles_deg: np.ndarray) -> tuple[np.ndarray, ...]:
     a = np.radians(np.asarray(angles_deg, float))
     c, s = np.cos(a), np.sin(a)
     n = len(a)
-    one, zero = np.ones(n), np.zeros(n)
-    cx, cy, cz = c.T
-    sx, sy, sz = s.T
-    Rx = np.stack([one, zero, zero, zero, cx, -sx, zero, sx, cx], axis=1).reshape(n, 3, 3)
-    Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], axis=1).reshape(n, 3, 3)
-    Rz = np.stack([cz, -sz, zero, sz, cz, zero, zero, zero, one], axis=1).reshape(n, 3, 3)
-    return Rx, Ry, Rz
+    # zero matrices with their five non-zero entries set (the same arrays as stacking the nine
+    # entries, in ~1/3 of the time: ~15 calls per pose)
+    R = np.zeros((3, n, 3, 3))
+    for k, (i, j) in enumerate(((1, 2), (0, 2), (0, 1))):  # the plane each axis turns
+        R[k, :, 3 - i - j, 3 - i - j] = 1.0
+        R[k, :, i, i] = R[k, :, j, j] = c[:, k]
+        R[k, :, i, j] = s[:, k] if k == 1 else -s[:, k]
+        R[k, :, j, i] = -s[:, k] if k == 1 else s[:, k]
+    return R[0], R[1], R[2]
 
 
 def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
