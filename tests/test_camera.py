@@ -250,3 +250,15 @@ def test_rig_project_is_each_cameras_projection_exactly():
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(rig.project(X[3]), np.stack([c.project(X[3:4]) for c in cams]))
     assert rig.project(np.zeros((0, 3))).shape == (7, 0, 2)
+
+
+def test_distortion_flags_are_np_any_of_the_coefficients():
+    """Camera.distorted / radially_distorted: np.any of all five coefficients / of k1, k2, k3
+    (NaN counts as non-zero, -0.0 as zero), also after an in-place change."""
+    cam = Camera.from_intrinsics("c", 500.0, 500.0, 320.0, 240.0, (640, 480))
+    for d in ([0, 0, 0, 0, 0], [-0.0, 0, 0, 0, 0], [0.1, 0, 0, 0, 0], [0, 0, 1e-3, 0, 0], [0, 0, 0, -2e-3, 0],
+              [0, 0, 0, 0, 0.5], [np.nan, 0, 0, 0, 0], [0, 0, np.nan, 0, 0], [0, -0.2, 0, 0, 0]):
+        cam.dist[:] = d
+        assert cam.distorted == bool(np.any(cam.dist))
+        assert cam.radially_distorted == bool(np.any(cam.dist[[0, 1, 4]]))
+        assert isinstance(cam.distorted, bool) and isinstance(cam.radially_distorted, bool)

@@ -131,3 +131,23 @@ def test_the_newton_start_ends_at_the_trust_regions_own_fit(monkeypatch):
         np.testing.assert_allclose(fast.pose.positions, slow.pose.positions, atol=2e-6)
         assert np.nansum(fast.residuals_m ** 2) <= np.nansum(slow.residuals_m ** 2) * (1 + 1e-6)
         assert n_fast < sum(nfev)
+
+
+def test_euler_matrices_are_the_elementary_rotations_bit_for_bit():
+    """fit_pose's Rx, Ry, Rz (filled in place): each row's elementary rotations written out
+    from the same cos and sin, entry for entry (signed zeros included)."""
+    from stillcap.body.puppet_pose import _euler_matrices
+
+    rng = np.random.default_rng(4)
+    a = rng.uniform(-400, 400, (25, 3))
+    a[rng.random(a.shape) < 0.2] = 0.0
+    Rx, Ry, Rz = _euler_matrices(a)
+    c, s = np.cos(np.radians(a)), np.sin(np.radians(a))
+    for k in range(len(a)):
+        (cx, cy, cz), (sx, sy, sz) = c[k], s[k]
+        want = (np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]]),
+                np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]]),
+                np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]]))
+        for got, w in zip((Rx[k], Ry[k], Rz[k]), want):
+            np.testing.assert_array_equal(got, w)
+            np.testing.assert_array_equal(np.signbit(got), np.signbit(w))

@@ -1,6 +1,7 @@
 """files/images.py: every photo is checked (header size, completeness) before OpenCV decodes it."""
 
 import io
+import re
 import struct
 import zlib
 
@@ -117,3 +118,44 @@ def test_cli_calibration_and_project_photos_give_one_line(tmp_path, capsys):
         code, _, err = run_cli(["puppet", "add", tmp_path / "proj", cut, "--angle", "30", detect], capsys)
         assert code == 2 and "cut.jpg is truncated (no JPEG end-of-image marker)" in err, err
         assert len(err.strip().splitlines()) == 1
+
+
+def _big_jpeg(w=640, h=480):
+    rng = np.random.default_rng(1)
+    return cv2.imencode(".jpg", rng.integers(0, 255, (h, w, 3), dtype=np.uint8))[1].tobytes()
+
+
+def _with_app1(data, n):
+    """``data`` with an APP1 segment of ``n`` bytes after its SOI (a camera's EXIF, thumbnail)."""
+    return data[:2] + b"\xff\xe1" + struct.pack(">H", n + 2) + bytes(n) + data[2:]
+
+
+@pytest.mark.parametrize("data", [
+    _big_jpeg(),
+    _big_jpeg() + bytes(10_000),  # data after the end-of-image marker, beyond the tail read
+    _with_app1(_big_jpeg(), 65_000),  # marker segments beyond the head read
+    _big_jpeg()[:-2],  # truncated
+    _big_jpeg()[:-3000],
+    _jpeg(),  # smaller than the head read
+    _jpeg_claiming(60000, 60000) + bytes(70_000),
+])
+def test_a_files_check_is_its_bytes_check(tmp_path, data):
+    p = tmp_path / "a.jpg"
+    p.write_bytes(data)
+    try:
+        want = check_image_bytes(data, p)
+    except ValueError as e:
+        with pytest.raises(ValueError, match=re.escape(str(e))):
+            check_image_file(p)
+    else:
+        assert check_image_file(p) == want
+
+
+def test_a_large_jpeg_is_checked_from_its_head_and_tail(tmp_path, monkeypatch):
+    import stillcap.files.images as images
+
+    p = tmp_path / "a.jpg"
+    p.write_bytes(_big_jpeg())
+    assert p.stat().st_size > images._HEAD_BYTES + images._TAIL_BYTES
+    monkeypatch.setattr(images, "_read_bytes", lambda path: pytest.fail("read the whole file"))
+    assert check_image_file(p) == images.ImageHeader("JPEG", 640, 480)

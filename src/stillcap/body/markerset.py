@@ -105,7 +105,7 @@ class Marker:
     def __post_init__(self):
         object.__setattr__(self, "offset", as_array(self.offset, (3,), f"offset of marker {self.name!r}"))
         hsb = as_array(self.hsb, (3,), f"hsb of marker {self.name!r}")
-        if np.any(hsb < 0) or np.any(hsb > 1):
+        if (hsb < 0).any() or (hsb > 1).any():
             raise ValueError(f"hsb of marker {self.name!r} must lie in [0, 1], got {hsb.tolist()}")
         object.__setattr__(self, "hsb", tuple(float(v) for v in hsb))
         if not float(self.diameter) > 0:

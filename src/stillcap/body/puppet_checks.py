@@ -71,7 +71,7 @@ def bead_pair_directions(markerset: MarkerSet, marker_positions) -> dict[str, di
         if r.kind != "markers":
             continue
         a, b = pts[markerset.index(r.start)], pts[markerset.index(r.end)]
-        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        if not (np.isfinite(a).all() and np.isfinite(b).all()):
             continue
         out[r.bone] = {"from": r.start, "to": r.end, "direction": normalised(b - a),
                        "distance_m": float(np.linalg.norm(b - a))}
@@ -173,8 +173,8 @@ def bead_noise(rig, points, observations, used, exclude=None) -> BeadNoise:
     if obs.shape[:2] != use.shape or len(cams) != use.shape[0] or pts.shape != (use.shape[1], 3):
         raise ValueError(f"bead_noise: {len(cams)} cameras, observations {obs.shape}, used {use.shape} and points "
                          f"{pts.shape} do not agree")
-    ok = np.all(np.isfinite(pts), axis=1)
-    use = use & ok[None] & np.all(np.isfinite(obs), axis=2)
+    ok = np.isfinite(pts).all(axis=1)
+    use = use & ok[None] & np.isfinite(obs).all(axis=2)
     skip = np.zeros(len(pts), bool) if exclude is None else np.asarray(exclude, bool)
     X = np.where(ok[:, None], pts, 0.0)
     n_pts = len(pts)
@@ -439,7 +439,7 @@ def stray_bead_checks(markerset: MarkerSet, fit, points) -> list[SelfCheck]:
     model = markerset.positions(fit.pose)
     out = []
     for k, name in enumerate(markerset.names):
-        if not np.all(np.isfinite(pts[k])):
+        if not np.isfinite(pts[k]).all():
             continue
         d = np.linalg.norm(model - pts[k], axis=1)
         d_other = np.where(np.arange(len(d)) == k, np.inf, d)

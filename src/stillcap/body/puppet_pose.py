@@ -179,7 +179,7 @@ class MarkerRays:
             if not len(sel):
                 continue
             xn = cam.pixels_to_normalized(x[v, sel])
-            ok = np.all(np.isfinite(xn), axis=1)
+            ok = np.isfinite(xn).all(axis=1)
             sel, xn = sel[ok], xn[ok]
             d_cam = np.column_stack([xn, np.ones(len(sel))])
             mk.append(sel)
@@ -284,13 +284,15 @@ def _euler_matrices(angles_deg: np.ndarray) -> tuple[np.ndarray, ...]:
     a = np.radians(np.asarray(angles_deg, float))
     c, s = np.cos(a), np.sin(a)
     n = len(a)
-    one, zero = np.ones(n), np.zeros(n)
-    cx, cy, cz = c.T
-    sx, sy, sz = s.T
-    Rx = np.stack([one, zero, zero, zero, cx, -sx, zero, sx, cx], axis=1).reshape(n, 3, 3)
-    Ry = np.stack([cy, zero, sy, zero, one, zero, -sy, zero, cy], axis=1).reshape(n, 3, 3)
-    Rz = np.stack([cz, -sz, zero, sz, cz, zero, zero, zero, one], axis=1).reshape(n, 3, 3)
-    return Rx, Ry, Rz
+    # zero matrices with their five non-zero entries set (the same arrays as stacking the nine
+    # entries, in ~1/3 of the time: ~15 calls per pose)
+    R = np.zeros((3, n, 3, 3))
+    for k, (i, j) in enumerate(((1, 2), (0, 2), (0, 1))):  # the plane each axis turns
+        R[k, :, 3 - i - j, 3 - i - j] = 1.0
+        R[k, :, i, i] = R[k, :, j, j] = c[:, k]
+        R[k, :, i, j] = s[:, k] if k == 1 else -s[:, k]
+        R[k, :, j, i] = -s[:, k] if k == 1 else s[:, k]
+    return R[0], R[1], R[2]
 
 
 def _rotations_about(axis: np.ndarray, angles_rad: np.ndarray) -> np.ndarray:
@@ -337,7 +339,7 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
     lim = np.stack([lo, hi], axis=-1)
     lim_nan = np.where(np.isfinite(lim), lim, np.nan)
     frames = markerset.bone_frames(skeleton)
-    seen = np.all(np.isfinite(pts), axis=1)
+    seen = np.isfinite(pts).all(axis=1)
     offs = markerset.offsets
     ang = np.zeros((n, 3))
     world = np.zeros((n, 3, 3))
@@ -351,7 +353,7 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
             Wp = r2w[:3, :3] if p < 0 else world[p]
             parent_w[j] = Wp
             origin[j] = r2w[:3, 3] if p < 0 else origin[p] + world[p] @ skeleton.offsets[j]
-            locked = np.all(hi[j] <= lo[j])
+            locked = (hi[j] <= lo[j]).all()
             sel = np.flatnonzero((frames == j) & seen)
             cands = None
             if not locked and len(sel):
@@ -363,7 +365,7 @@ def _start_angles(skeleton: Skeleton, markerset: MarkerSet, pts: np.ndarray, r2w
                     cands = align_matrix(meas, model)[None]
                 else:
                     a, b = normalised(meas.mean(axis=0)), normalised(model.mean(axis=0))
-                    if np.all(np.isfinite(a)) and np.all(np.isfinite(b)):
+                    if np.isfinite(a).all() and np.isfinite(b).all():
                         R0 = align_matrix(a[None], b[None])
                         cands = _rotations_about(a, phis) @ R0
             if cands is None:
@@ -440,7 +442,7 @@ def _newton_start(fun, jac, x: np.ndarray, bounds, f_scale: float | None, steps:
                 move &= ~out
         except np.linalg.LinAlgError:
             break
-        if not np.all(np.isfinite(dx)) or out.any():
+        if not np.isfinite(dx).all() or out.any():
             break
         if -0.5 * float(g @ dx) <= rtol * cost:  # the model's own decrease: at the optimum already
             return x, f, True
@@ -536,7 +538,7 @@ def fit_pose(skeleton: Skeleton, markerset: MarkerSet, marker_positions, root2wo
     r2w = skeleton.rest_root2world() if root2world is None else np.asarray(root2world, float)
     if root not in ("pinned", "translate", "free"):
         raise ValueError(f"root must be pinned, translate or free, got {root!r}")
-    seen = np.all(np.isfinite(pts), axis=1)
+    seen = np.isfinite(pts).all(axis=1)
     msig = np.broadcast_to(np.asarray(marker_sigma_m, float), (len(markerset),))
     if not np.all(np.isfinite(msig) & (msig > 0)):
         raise ValueError(f"marker_sigma_m must be > 0 metres, got {marker_sigma_m}")

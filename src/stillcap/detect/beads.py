@@ -351,7 +351,7 @@ def _bead_levels(images, centers, radii_px) -> tuple[np.ndarray, np.ndarray]:
         hh, ww = img.shape[:2]
 
         def pixels(ys_, xs_, hh=hh, ww=ww):  # flat indices of windows' pixels, clipped to the photo
-            return (np.clip(ys_, 0, hh - 1) * ww + np.clip(xs_, 0, ww - 1)).ravel()
+            return (np.minimum(np.maximum(ys_, 0), hh - 1) * ww + np.minimum(np.maximum(xs_, 0), ww - 1)).ravel()
 
         if img.ndim == 2:
             idx = pixels(ys[sel], xs[sel])

@@ -70,12 +70,22 @@ def _png(data: memoryview) -> tuple[int, int, str | None]:
 def _jpeg(data: bytes) -> tuple[int, int, str | None]:
     """``(width, height, problem)`` of a JPEG: marker segments walked to the first scan (the frame
     size on the way), then an end-of-image marker must follow the scan data."""
+    w, h, problem, scan = _jpeg_frame(data)
+    if problem is None and data.rfind(b"\xff\xd9", scan) < 0:  # rfind: same test, found at the end in microseconds
+        problem = "is truncated (no JPEG end-of-image marker)"
+    return w, h, problem
+
+
+def _jpeg_frame(data: bytes) -> tuple[int, int, str | None, int]:
+    """``(width, height, problem, scan)`` of a JPEG's marker segments up to its first scan
+    (:func:`_jpeg` without the end-of-image test): ``scan`` is where the scan data starts (the
+    end-of-image marker must follow it)."""
     n, i, w, h = len(data), 2, 0, 0
     while True:
         if i + 4 > n:
-            return w, h, "is truncated (the JPEG ends before its image data)"
+            return w, h, "is truncated (the JPEG ends before its image data)", n
         if data[i] != 0xFF:
-            return w, h, "is corrupt (bad JPEG marker structure)"
+            return w, h, "is corrupt (bad JPEG marker structure)", n
         marker = data[i + 1]
         if marker == 0xFF:  # fill byte
             i += 1
@@ -84,7 +94,7 @@ def _jpeg(data: bytes) -> tuple[int, int, str | None]:
             i += 2
             continue
         if marker == 0xD9:
-            return w, h, "is corrupt (the JPEG ends before its image data)"
+            return w, h, "is corrupt (the JPEG ends before its image data)", n
         length = int.from_bytes(data[i + 2:i + 4], "big")
         if marker in _SOF and i + 9 <= n:
             h, w = int.from_bytes(data[i + 5:i + 7], "big"), int.from_bytes(data[i + 7:i + 9], "big")
@@ -92,10 +102,8 @@ def _jpeg(data: bytes) -> tuple[int, int, str | None]:
             break
         i += 2 + length
     if w == 0 or h == 0:
-        return w, h, "is corrupt (no JPEG frame header before the image data)"
-    if data.rfind(b"\xff\xd9", i + 2 + length) < 0:  # rfind: same test, found at the end in microseconds
-        return w, h, "is truncated (no JPEG end-of-image marker)"
-    return w, h, None
+        return w, h, "is corrupt (no JPEG frame header before the image data)", n
+    return w, h, None, i + 2 + length
 
 
 def _other(data: bytes) -> tuple[str, int, int, str | None]:
@@ -164,10 +172,37 @@ def _read_bytes(path: Path) -> bytes:
         raise ValueError(f"image file {path} cannot be read: {e.strerror or e}") from None
 
 
+#: :func:`check_image_file` reads a JPEG's first this many bytes (its marker segments up to the
+#: scan: ~0.6 KB in stillcap's own, up to ~64 KB of EXIF with a thumbnail in a camera's) and its
+#: last :data:`_TAIL_BYTES` (the end-of-image marker), not the whole file.
+_HEAD_BYTES = 1 << 16
+_TAIL_BYTES = 1 << 12
+
+
 def check_image_file(path) -> ImageHeader:
     """:func:`check_image_bytes` of a file (without decoding it); ``ValueError`` naming the file,
-    also when it does not exist or cannot be read."""
+    also when it does not exist or cannot be read.
+
+    A JPEG whose marker segments up to the scan lie within its first :data:`_HEAD_BYTES` and
+    whose end-of-image marker lies within its last :data:`_TAIL_BYTES` after the scan's start is
+    read only there (the same header and the same verdict: every other file, and every problem,
+    goes through the whole file's check). Loading a capture checks every photo before the
+    pipeline decodes it, which reads the file again: the whole file read twice cost ~0.05 ms
+    per 78 KB puppet photo and ~1 ms per 2560x1920 pitch photo."""
     path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(_HEAD_BYTES)
+            size = f.seek(0, 2)
+            if len(head) < size and head[:3] == b"\xff\xd8\xff":
+                w, h, problem, scan = _jpeg_frame(head)
+                if problem is None and 0 < w * h <= MAX_PIXELS:
+                    start = max(scan, size - _TAIL_BYTES)
+                    f.seek(start)
+                    if f.read(size - start).rfind(b"\xff\xd9") >= 0:
+                        return ImageHeader("JPEG", w, h)
+    except OSError:
+        pass  # _read_bytes names the problem
     return check_image_bytes(_read_bytes(path), path)
 
 

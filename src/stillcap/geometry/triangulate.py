@@ -62,7 +62,7 @@ class Triangulation:
     @property
     def ok(self) -> np.ndarray:
         """Points that were triangulated, shape (N,) bool."""
-        return np.all(np.isfinite(self.points), axis=1)
+        return np.isfinite(self.points).all(axis=1)
 
     @property
     def success(self) -> bool:
@@ -163,7 +163,7 @@ def _refine(world2cams, K, xn, mask, X, iterations: int = 4) -> np.ndarray:
     independent 3-parameter problems at once; a per-point solver call would be ~1e4x slower.
     """
     X = X.copy()
-    good = np.all(np.isfinite(X), axis=1)
+    good = np.isfinite(X).all(axis=1)
     for _ in range(iterations):
         eq = _Normal3(len(X))
         for P, k, x, m in zip(world2cams, K, xn, mask):
@@ -180,7 +180,7 @@ def _refine(world2cams, K, xn, mask, X, iterations: int = 4) -> np.ndarray:
             eq.add_rows(fx * du_dX + s * dv_dX, -(fx * du + s * dv))  # pixel residuals through K
             eq.add_rows(fy * dv_dX, -fy * dv)
         step = eq.solve(damping=1e-12)
-        ok = good & np.all(np.isfinite(step), axis=1)
+        ok = good & np.isfinite(step).all(axis=1)
         X[ok] += step[ok]
         if not np.any(np.abs(step[ok]) > 1e-10):
             break
@@ -273,7 +273,7 @@ def _triangulate_block(cams, x, method, refine, outlier_px, min_views):
             mask = mask2
             X = solve(mask)
             errors = reprojection_errors(cams, X, x)
-    used = mask & np.all(np.isfinite(X), axis=1)[None]
+    used = mask & np.isfinite(X).all(axis=1)[None]
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.nansum(np.where(used, errors, np.nan) ** 2, axis=0) / used.sum(axis=0))
     return X, rms, np.where(seen, errors, np.nan), used
@@ -363,7 +363,7 @@ class StackedViews:
         self.P = np.stack([c.world2cam[:3] for c in cams])  # (nv, 3, 4)
         self.K = np.stack([c.K for c in cams])
         self.dist = np.stack([np.asarray(c.dist, float) for c in cams])
-        self.r2max = np.array([c.max_distortion_r2 if np.any(c.dist[[0, 1, 4]]) else np.inf for c in cams])
+        self.r2max = np.array([c.max_distortion_r2 if c.radially_distorted else np.inf for c in cams])
         self.x = x
         # normalised coordinates: the pinhole cameras' closed form (Camera.pixels_to_normalized's
         # arithmetic) for all views at once, a lens with distortion on its own
@@ -372,7 +372,7 @@ class StackedViews:
         self.xn = np.stack([(x[..., 0] - K[:, 0, 2, None] - K[:, 0, 1, None] * y) / K[:, 0, 0, None], y],
                            axis=-1)  # (nv, n, 2)
         for v, c in enumerate(cams):
-            if np.any(c.dist):
+            if c.distorted:
                 self.xn[v] = c.pixels_to_normalized(x[v])
         self.seen = np.isfinite(self.xn[..., 0]) & np.isfinite(self.xn[..., 1])
 
@@ -433,7 +433,7 @@ class StackedViews:
         left out (``w`` false) give zero rows, as there. It stops once no step exceeds
         :data:`STACKED_STEP_M` (``_refine``: 1e-10 m), usually one iteration sooner."""
         X = X.copy()
-        good = np.all(np.isfinite(X), axis=1)
+        good = np.isfinite(X).all(axis=1)
         P, K = self.P, self.K
         R, t = P[:, :, :3], P[:, :, 3]
         R01, R2 = R[:, None, :2, :], R[:, None, 2:3, :]  # (nv, 1, 2, 3), (nv, 1, 1, 3)
@@ -451,7 +451,7 @@ class StackedViews:
             J = np.stack([fx * D[:, :, 0] + s * D[:, :, 1], fy * D[:, :, 1]])
             r = np.stack([-(fx1 * d[..., 0] + s1 * d[..., 1]), -fy1 * d[..., 1]])
             step = self._normal(J, r, (0, 1)).solve(damping=1e-12)
-            ok = good & np.all(np.isfinite(step), axis=1)
+            ok = good & np.isfinite(step).all(axis=1)
             X[ok] += step[ok]
             if not np.any(np.abs(step[ok]) > STACKED_STEP_M):
                 break
@@ -591,7 +591,7 @@ def _triangulate_markers(rig: Rig, x: np.ndarray, method: str, refine: bool, out
         else:
             X = triangulate(rig, np.where(mask[..., None], x, np.nan), method=method, refine=refine).points
             errors = np.linalg.norm(np.stack([cam.project(X) for cam in rig]) - x, axis=-1)
-    used = mask & np.all(np.isfinite(X), axis=1)[None]
+    used = mask & np.isfinite(X).all(axis=1)[None]
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.nansum(np.where(used, errors, np.nan) ** 2, axis=0) / used.sum(axis=0))
     return Triangulation(X, rms, np.where(seen, errors, np.nan), used)

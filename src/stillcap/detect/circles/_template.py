@@ -358,8 +358,10 @@ def _template_coarse(grey, radii, n, md, min_contrast, prepared: TemplateInputs 
     # starts in one gather and product), its maximum taken; where that lies on the window's
     # edge, 8-neighbour steps climb on from there
     S = 4
-    r0 = np.clip(2 * starts[:, 0] - 1, 0, max(h - S, 0))
-    c0 = np.clip(2 * starts[:, 1] - 1, 0, max(w - S, 0))
+    # integer clips as np.minimum(np.maximum(...)): the same values, ~1/3 of np.clip's cost (its
+    # Python wrapper checks the bounds' types; ~60 calls per 12-photo capture)
+    r0 = np.minimum(np.maximum(2 * starts[:, 0] - 1, 0), max(h - S, 0))
+    c0 = np.minimum(np.maximum(2 * starts[:, 1] - 1, 0), max(w - S, 0))
     S_r, S_c = min(S, h), min(S, w)
     rr = (r0[:, None, None] + np.arange(S_r)[None, :, None] + np.zeros(S_c, int)).reshape(len(starts), -1)
     cc = (c0[:, None, None] + np.arange(S_c)[None, None, :] + np.zeros((S_r, 1), int)).reshape(len(starts), -1)
@@ -372,8 +374,8 @@ def _template_coarse(grey, radii, n, md, min_contrast, prepared: TemplateInputs 
     for _ in range(2 * md + 4):
         if len(active) == 0:
             break  # a climb longer than the start's own neighbourhood is not a bead
-        rr = np.clip(rows[active, None] + _NEIGHBOURS[:, 0], 0, h - 1)
-        cc = np.clip(cols[active, None] + _NEIGHBOURS[:, 1], 0, w - 1)
+        rr = np.minimum(np.maximum(rows[active, None] + _NEIGHBOURS[:, 0], 0), h - 1)
+        cc = np.minimum(np.maximum(cols[active, None] + _NEIGHBOURS[:, 1], 0), w - 1)
         v = _contrast_at(gp, pad, rr.ravel(), cc.ravel(), kst).max(axis=1).reshape(len(active), 9)
         a = np.arange(len(active))
         best = np.argmax(v, axis=1)  # first (raster order) of equal maxima

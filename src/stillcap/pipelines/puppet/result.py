@@ -77,7 +77,7 @@ class MarkerSolve:
 
     @property
     def ok(self) -> np.ndarray:
-        return np.all(np.isfinite(self.points), axis=1)
+        return np.isfinite(self.points).all(axis=1)
 
     @property
     def whole_views(self) -> np.ndarray:
@@ -189,7 +189,7 @@ class PuppetResult:
         sk = pose.skeleton
 
         def pts(a):
-            return [None if not np.all(np.isfinite(p)) else [float(v) for v in p] for p in a]
+            return [None if not np.isfinite(p).all() else [float(v) for v in p] for p in a]
 
         def joints(p: Pose):
             return [{"name": n, "position": [float(v) for v in x], "local_rotation": R.tolist()}

@@ -238,11 +238,11 @@ def solve_markers(rig: Rig, points_2d, names: Sequence[str], images=None, option
                 off = tri.used & good & (tri.errors_px > OFF_CENTER_SIGMA * noise_px)
         good = good & ~off
     points, used = tri.points.copy(), tri.used.copy()
-    lost = ~np.all(np.isfinite(points), axis=1)
+    lost = ~np.isfinite(points).all(axis=1)
     if first is not None and lost.any() and refine:  # the first triangulation as a final one: refined
         first = triangulate_markers(rig, x, method, refine, 2.0, pair_errors=first_pair_err, views=first_views)
     if first is not None and lost.any():
-        back = lost & np.all(np.isfinite(first.points), axis=1)
+        back = lost & np.isfinite(first.points).all(axis=1)
         points[back] = first.points[back]
         used[:, back] = first.used[:, back]
         partial[:, back] = False
