@@ -142,10 +142,10 @@ def test_a_terminator_cut_markers_direction_under_sensor_noise(above, noise_dn):
 
 @pytest.mark.xfail(strict=True, reason=(
     "not reached yet (issue 12, docs/spin.md 'The spin axis on the hardest captures'): with no "
-    "ambient light the paint beyond the terminator is black like the leather there, so only the "
-    "lit part of the marker is seen and its centroid lies +7.6 / +7.1 / +5.2 deg toward the light "
-    "at 0 / 0.3 / 0.6 of its size above the terminator (1.25 px of blur; +0.9 / +1.2 / +0.6 with 3 % "
-    "ambient); a fitted footprint of the visible part would be needed"))
+    "ambient light the marker's region ends where its paint gets too dim for the detector's "
+    "thresholds (about n.l 0.1), so its centroid lies +7.6 / +7.1 / +5.2 deg toward the light at "
+    "0 / 0.3 / 0.6 of its size above the terminator (1.25 px of blur; +0.9 / +1.2 / +0.6 with 3 % "
+    "ambient); a footprint of the marker's size seen where the detector sees would be needed"))
 @pytest.mark.parametrize("above", [0.0, 0.3, 0.6])
 def test_a_terminator_cut_marker_without_ambient_light(above):
     """The studio's side-lit captures without room light (EV #1, "light to the side"): markers
