@@ -23,8 +23,11 @@ from stillcap.detect._blur_shift import DrawnShading
 __all__ = ["crop_cos_light", "crop_light", "crop_shading", "fit_ball_light", "terminator_weights", "view_to_camera"]
 
 #: the centroids weigh paint in reflectance where the light's model of the leather stands this many
-#: of its residuals' robust sigmas above zero (elsewhere the ratio is noise over noise)
-SHADING_SNR = 5.0
+#: of its residuals' robust sigmas above zero (elsewhere the ratio is noise over noise; there the
+#: detector's darkness, which pulls toward the light, is taken). 2 sigmas: lit at 97.7 % one-sided;
+#: at 5 a noisy photo's floor rose into the paint near the terminator (a drawn ball with 1.5-3 of
+#: 255 of sensor noise: +1.3 to +3.8 deg toward the light, at 2 -0.7 to +0.6; docs/spin.md)
+SHADING_SNR = 2.0
 #: ... for markers within this (in n.l) plus two blur sigmas (over the radius) of the terminator
 #: (:func:`fit_ball_light`'s band left out across it)
 TERMINATOR_BAND = 0.05
