@@ -119,7 +119,7 @@ def _order_ambiguous(d, allowed, rows, cols, order_a, order_b):
     distance decides by the points' centre noise when they lie along the epipolar lines (a
     flight's ball images near its vanishing point). The images of one curve keep their order
     along it in both views, so the group takes the order-preserving assignment (same or
-    reversed order: the one the other matches show, else the group's own choice) with the most
+    reversed order: the one the minimum-distance pairs show overall, else the group's own choice) with the most
     pairs and then the smallest total distance (:func:`_monotone_assignment`), where it keeps as
     many pairs as the minimum-distance one; otherwise the group keeps the latter. Groups of one
     pair are never touched."""
@@ -134,9 +134,9 @@ def _order_ambiguous(d, allowed, rows, cols, order_a, order_b):
     groups = [c for c in np.unique(lab[ia]) if edges[c] > 1]
     if not groups:
         return rows, cols
-    # the direction the single-partner matches show (Kendall's sign over their pairs)
-    one = edges[lab[rows]] == 1
-    sa, sb = order_a[rows[one]], order_b[cols[one]]
+    # the direction the matches show (Kendall's sign over all pairs: a swap inside a group
+    # turns a few of its pairs' signs only)
+    sa, sb = order_a[rows], order_b[cols]
     direction = int(np.sign(np.sum(np.sign(sa[:, None] - sa[None]) * np.sign(sb[:, None] - sb[None]))))
     pairs = dict(zip(rows.tolist(), cols.tolist()))
     for c in groups:
