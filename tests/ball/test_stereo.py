@@ -251,9 +251,11 @@ def test_flight_along_the_epipolar_lines_is_matched_in_its_order():
     from stillcap.geometry.epipolar import epipolar_distances, match_epipolar
 
     cams = [Camera.from_intrinsics(n, 1500.0, 1500.0, 640.0, 480.0, (1280, 960),
-                                   world2cam=look_at((x, 9.0, 1.8), (0.0, 0.0, 0.8))) for n, x in (("l", -1.5), ("r", 1.5))]
+                                   world2cam=look_at((x, 9.0, 1.8), (0.0, 0.0, 0.8)))
+            for n, x in (("l", -1.5), ("r", 1.5))]
     t = np.arange(0.0, 0.62, 0.02)  # 50 Hz strobe
-    X = np.array([-0.5, 16.6, 1.8]) + np.array([0.35, -27.5, 1.0]) * t[:, None] - 0.5 * 9.81 * np.outer(t ** 2, [0, 0, 1])
+    X = (np.array([-0.5, 16.6, 1.8]) + np.array([0.35, -27.5, 1.0]) * t[:, None]
+         - 0.5 * 9.81 * np.outer(t ** 2, [0, 0, 1]))
     x = [c.project(X) for c in cams]
     seen = np.all([np.all((p >= 0) & (p < (1280, 960)), axis=1) for p in x], axis=0) & (X[:, 1] > 0.3)
     xa, xb = x[0][seen], x[1][seen]

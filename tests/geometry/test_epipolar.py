@@ -56,7 +56,8 @@ def _pair_on_one_epipolar_plane():
     from stillcap.camera import Camera, look_at
 
     cams = [Camera.from_intrinsics(n, 1000.0, 1000.0, 640.0, 480.0, (1280, 960),
-                                   world2cam=look_at((x, 0.0, 0.0), (0.0, 10.0, 0.0))) for n, x in (("a", -0.5), ("b", 0.5))]
+                                   world2cam=look_at((x, 0.0, 0.0), (0.0, 10.0, 0.0)))
+            for n, x in (("a", -0.5), ("b", 0.5))]
     X = np.stack([np.full(6, 0.3), np.linspace(4.0, 9.0, 6), np.zeros(6)], axis=1)
     return cams, X
 

@@ -1,9 +1,10 @@
 """Ball images of a stereo pair -> 3D ball centres (the seed's steps 3-5, SPEC J1 "Ball positions").
 
 Per photo the detector (:mod:`stillcap.detect.ball`) finds silhouettes; here the ellipse centres
-are matched by epipolar geometry and triangulated, the known-radius outline of each approximate
-3D centre is projected into both views, the image centres are refined against it
-(:func:`stillcap.detect.ball.refine_ball_centers`) and triangulated again.
+are matched by epipolar geometry (where the gate admits several partners, in the flight's order
+along its track in both views: :func:`_track_coordinate`) and triangulated, the known-radius
+outline of each approximate 3D centre is projected into both views, the image centres are
+refined against it (:func:`stillcap.detect.ball.refine_ball_centers`) and triangulated again.
 
 Balls cut by the photo's border (``EDGE``, issue 12) are matched from their in-frame limb's
 circle and their centre is that limb refitted with the projected outline's shape
