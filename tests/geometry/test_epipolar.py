@@ -48,3 +48,48 @@ def test_empty_and_nan(rig4):
     assert len(m.pairs) == 0 and len(m.unmatched_b) == 3
     m = match_epipolar(rig4[0], rig4[1], [[np.nan, np.nan]], [[100.0, 100.0]])
     assert len(m.pairs) == 0
+
+
+def _pair_on_one_epipolar_plane():
+    """Two cameras 1 m apart along x looking along +y, and 6 points in the plane z = 0 that holds
+    their baseline: every point's images lie on one epipolar line, every pair is admissible."""
+    from stillcap.camera import Camera, look_at
+
+    cams = [Camera.from_intrinsics(n, 1000.0, 1000.0, 640.0, 480.0, (1280, 960),
+                                   world2cam=look_at((x, 0.0, 0.0), (0.0, 10.0, 0.0)))
+            for n, x in (("a", -0.5), ("b", 0.5))]
+    X = np.stack([np.full(6, 0.3), np.linspace(4.0, 9.0, 6), np.zeros(6)], axis=1)
+    return cams, X
+
+
+def test_order_resolves_points_along_one_epipolar_line():
+    (a, b), X = _pair_on_one_epipolar_plane()
+    perm = np.array([3, 0, 5, 1, 4, 2])
+    xa, xb = a.project(X), b.project(X)[perm]
+    plain = match_epipolar(a, b, xa, xb, max_px=3.0)
+    right = {(int(perm[j]), j) for j in range(6)}
+    assert {tuple(p) for p in plain.pairs.tolist()} != right  # all distances 0: the assignment is arbitrary
+    # the points' places along their curve, in either direction per view
+    for oa, ob in ((xa[:, 0], xb[:, 0]), (xa[:, 0], -xb[:, 0]), (np.arange(6.0), -perm.astype(float))):
+        m = match_epipolar(a, b, xa, xb, max_px=3.0, order_a=oa, order_b=ob)
+        assert {tuple(p) for p in m.pairs.tolist()} == right
+        assert len(m.unmatched_a) == 0 and len(m.unmatched_b) == 0
+
+
+def test_order_leaves_single_partner_matches_alone(rig4):
+    rng = np.random.default_rng(3)
+    X = rng.uniform(-0.5, 0.5, (20, 3))
+    a, b = rig4[0], rig4[1]
+    xa = a.project(X) + rng.normal(0, 0.3, (20, 2))
+    xb = b.project(X)[::-1] + rng.normal(0, 0.3, (20, 2))
+    d = epipolar_distances(a, b, xa, xb)
+    one = ((d <= 1.0).sum(1) <= 1) & ((d <= 1.0).sum(0) <= 1)[::-1]
+    plain = match_epipolar(a, b, xa[one], xb[one[::-1]], max_px=1.0)
+    ordered = match_epipolar(a, b, xa[one], xb[one[::-1]], max_px=1.0, order_a=rng.normal(size=one.sum()),
+                             order_b=rng.normal(size=one.sum()))
+    assert one.sum() >= 10 and np.array_equal(plain.pairs, ordered.pairs)
+    np.testing.assert_array_equal(plain.distance_px, ordered.distance_px)
+    with pytest.raises(ValueError, match="together"):
+        match_epipolar(a, b, xa, xb, order_a=np.zeros(20))
+    with pytest.raises(ValueError, match="order_b"):
+        match_epipolar(a, b, xa, xb, order_a=np.zeros(20), order_b=np.zeros(3))

@@ -1,9 +1,10 @@
 """Ball images of a stereo pair -> 3D ball centres (the seed's steps 3-5, SPEC J1 "Ball positions").
 
 Per photo the detector (:mod:`stillcap.detect.ball`) finds silhouettes; here the ellipse centres
-are matched by epipolar geometry and triangulated, the known-radius outline of each approximate
-3D centre is projected into both views, the image centres are refined against it
-(:func:`stillcap.detect.ball.refine_ball_centers`) and triangulated again.
+are matched by epipolar geometry (where the gate admits several partners, in the flight's order
+along its track in both views: :func:`_track_coordinate`) and triangulated, the known-radius
+outline of each approximate 3D centre is projected into both views, the image centres are
+refined against it (:func:`stillcap.detect.ball.refine_ball_centers`) and triangulated again.
 
 Balls cut by the photo's border (``EDGE``, issue 12) are matched from their in-frame limb's
 circle and their centre is that limb refitted with the projected outline's shape
@@ -188,7 +189,10 @@ def ball_centers_stereo(cam_a: Camera, img_a, cam_b: Camera, img_b, ball_radius_
     # EDGE balls are matched (and refined) from their in-frame limb's circle: the cut shape's
     # ellipse centre lies up to a radius inside the frame
     start_a, start_b = _start_centers(det_a), _start_centers(det_b)
-    m = match_epipolar(cam_a, cam_b, start_a, start_b, max_px=max_epipolar_px)
+    # a flight's images keep their order along its track in both views: where the gate admits
+    # several partners (images along the epipolar lines), the matching keeps it
+    m = match_epipolar(cam_a, cam_b, start_a, start_b, max_px=max_epipolar_px,
+                       order_a=_track_coordinate(start_a), order_b=_track_coordinate(start_b))
     K = len(m.pairs)
     if K == 0:
         z3, z2 = np.zeros((0, 3)), np.zeros((0, 2))
@@ -424,6 +428,19 @@ def _start_centers(det: BallDetections) -> np.ndarray:
     but the in-frame limb's circle for ``EDGE`` balls."""
     edge = det.has(BallFlag.EDGE)
     return np.where(edge[:, None], det.centers, det.ellipse_centers) if len(det) else det.ellipse_centers
+
+
+def _track_coordinate(centers: np.ndarray) -> np.ndarray:
+    """Each ball image's place along the flight's track in one photo, shape (N,): its coordinate
+    along the principal axis of the photo's ball images (a flight's images lie along a slightly
+    curved track and progress along it monotonically; NaN centres: NaN)."""
+    c = np.asarray(centers, float).reshape(-1, 2)
+    ok = np.all(np.isfinite(c), axis=1)
+    if ok.sum() < 2:
+        return np.zeros(len(c))
+    mid = c[ok].mean(axis=0)
+    axis = np.linalg.svd(c[ok] - mid, full_matrices=False)[2][0]
+    return (c - mid) @ axis
 
 
 def _edge_outline_fit(ref: RefinedCenters, det: BallDetections, idx: np.ndarray, outlines) -> RefinedCenters:
