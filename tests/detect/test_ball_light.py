@@ -140,12 +140,26 @@ def test_a_terminator_cut_markers_direction_under_sensor_noise(above, noise_dn):
     assert abs(np.mean(errs)) < 1.2
 
 
+@pytest.mark.parametrize("above", [0.6, 1.0])
+def test_a_terminator_cut_marker_reaches_across_the_searched_discs_edge(above):
+    """With no ambient light the searched disc (the hull of the pixels over ``min_value``) ends at
+    n.l 0.04-0.08, short of the terminator; a marker it cuts there is weighed one pixel on across
+    that edge, where the light's model still stands over its floor. With 0.3 px of blur its
+    direction is then within 1 deg of its centre along the light at 0.6 and 1 of its size above
+    the terminator (+0.62 / -0.53 deg; ending at the disc's edge +3.00 / +1.00)."""
+    obs, u, light = _observe(above * SIZE, blur_px=0.3, ambient=0.0)
+    w = light - (light @ u) * u
+    assert abs(np.degrees((obs.directions[0] - u) @ (w / np.linalg.norm(w)))) < 1.0
+
+
 @pytest.mark.xfail(strict=True, reason=(
     "not reached yet (issue 12, docs/spin.md 'The spin axis on the hardest captures'): with no "
     "ambient light the marker's region ends where its paint gets too dim for the detector's "
-    "thresholds (about n.l 0.1), so its centroid lies +7.6 / +7.1 / +5.2 deg toward the light at "
-    "0 / 0.3 / 0.6 of its size above the terminator (1.25 px of blur; +0.9 / +1.2 / +0.6 with 3 % "
-    "ambient); a footprint of the marker's size seen where the detector sees would be needed"))
+    "thresholds (about n.l 0.1), so its centroid lies +7.1 / +5.7 / +3.7 deg toward the light at "
+    "0 / 0.3 / 0.6 of its size above the terminator (1.25 px of blur; +7.6 / +7.1 / +5.2 before the "
+    "region went one pixel across the searched disc's edge; +0.9 / +1.2 / +0.6 with 3 % ambient); a "
+    "footprint of the marker's size seen where the detector sees would be needed (a cap of the "
+    "type's mean squared angle, tried: docs/spin.md)"))
 @pytest.mark.parametrize("above", [0.0, 0.3, 0.6])
 def test_a_terminator_cut_marker_without_ambient_light(above):
     """The studio's side-lit captures without room light (EV #1, "light to the side"): markers

@@ -154,7 +154,7 @@ def crop_shading(X, Y, cx, cy, r, fit, blur_px: float | None = None) -> np.ndarr
     return S
 
 
-def terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fit, response, blur_px=None):
+def terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fit, response, blur_px=None, geo=None):
     """The centroid weights of markers near the terminator: the paint's darkness in reflectance.
 
     The detector's white is the white model's plane (:func:`stillcap.detect._blur_shift._fit_shading`),
@@ -164,15 +164,21 @@ def terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fit, resp
     like the photo, encoded as the luma is: the same measure as ``dark_luma``; the linear ratio
     did worse on the benchmark's side-lit captures, "light to the side" axis 0.49 deg against
     0.43) where that model stands ``SHADING_SNR`` noise sigmas above zero (``dark_luma``
-    elsewhere). Returns the weights (h, w), the pixels within ``TERMINATOR_BAND`` + 2 blur sigmas
-    of the terminator (the markers reaching them take these weights) and the drawn shading
+    elsewhere). ``geo`` (h, w), the ball's disc by its geometry alone: where the searched ``disc``
+    (the hull of the pixels over the detector's ``min_value``) ends short of the terminator (no
+    room light: at n.l 0.04-0.08 on tests/detect/test_ball_light.py's drawn ball), the weights and
+    the band below reach on into ``geo`` as far as the model stands over that floor (a marker the
+    hull cuts is weighed one pixel across it: ``ball_markers._measure``). Returns the weights
+    (h, w), the pixels within ``TERMINATOR_BAND`` + 2 blur sigmas of the terminator (the markers
+    reaching them take these weights) and the drawn shading
     (:class:`~stillcap.detect._blur_shift.DrawnShading`, crop at ``(x0, y0)``) whose
     ``grad log S`` the blur correction then takes."""
     S = crop_shading(X, Y, cx, cy, r, fit, blur_px)
     refl = 1.0 - luma / np.maximum(response.encode(S) / 255.0, 1e-6)  # as dark_luma, on the encoded scale
     floor = SHADING_SNR * fit[4]
-    cen_w = np.where(disc & (S > floor), np.clip(refl, 0, 1), dark_luma).astype(np.float32)
-    near_t = disc & (crop_cos_light(X, Y, cx, cy, r, fit[0]) < 2.0 * (blur_px or 0.0) / r + TERMINATOR_BAND)
+    ball = disc if geo is None else disc | (geo & (S > floor))
+    cen_w = np.where(ball & (S > floor), np.clip(refl, 0, 1), dark_luma).astype(np.float32)
+    near_t = ball & (crop_cos_light(X, Y, cx, cy, r, fit[0]) < 2.0 * (blur_px or 0.0) / r + TERMINATOR_BAND)
     return cen_w, near_t, DrawnShading(S, x0, y0, floor)
 
 

@@ -547,6 +547,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         fg = disc & (val >= min_value)
         if np.count_nonzero(fg) < 3:
             continue
+        geo = disc.copy()  # the ball's disc by its geometry alone (terminator_weights reaches past the hull)
         disc &= cv2.erode(_hull_mask(fg), _BOX3).astype(bool)
         if not disc.any():
             continue
@@ -584,7 +585,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # (_ball_light.terminator_weights)
         cen_w = near_t = None
         if fl is not None and model is not None:
-            cen_w, near_t, drawn = terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fl, resp, blur_px)
+            cen_w, near_t, drawn = terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fl, resp, blur_px,
+                                                          geo)
             if blur_px is not None and blur_px > 0:  # the blur's pull (below) is then the drawn shading's
                 refl_shading[bi] = drawn
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
@@ -767,13 +769,18 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
     # pixels count in proportion, which makes the centroid sub-pixel (cf. detect/blobs.py)
     grown = cv2.dilate(comp.view(np.uint8), _BOX3).view(bool) & disc
     w = np.where(grown, dark_luma, 0.0)
+    cut = comp & ~inner
     sw = float(w.sum())
     if sw <= 0:
         return None
     cen = np.array([float((w * X).sum() / sw), float((w * Y).sum() / sw)])
     out = cen
     if cen_w is not None and (grown & near_t[sl]).any():
-        wc = np.where(grown, cen_w[sl], 0.0)
+        # cut by the searched disc's edge short of the terminator (an unlit side under the hull's
+        # min_value): grown one pixel on across it too, where the light's model still measures
+        # (near_t reaches past the disc there: _ball_light.terminator_weights)
+        reach = grown | (cv2.dilate(cut.view(np.uint8), _BOX3).view(bool) & near_t[sl] & ~disc)
+        wc = np.where(reach, cen_w[sl], 0.0)
         swc = float(wc.sum())
         if swc > 0:
             out = np.array([float((wc * X).sum() / swc), float((wc * Y).sum() / swc)])
@@ -790,7 +797,7 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         flags |= MarkerFlag.NEAR_LIMB
     if aspect < min_aspect:
         flags |= MarkerFlag.FORESHORTENED
-    if (comp & ~inner).any():
+    if cut.any():
         flags |= MarkerFlag.AT_EDGE
     # shape from the weights upsampled x4 and cut at half their peak: a smooth outline even
     # for a 5 px marker (a binary mask's staircase would pass for a square)
