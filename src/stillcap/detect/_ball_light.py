@@ -142,13 +142,12 @@ def crop_cos_light(X, Y, cx, cy, r, direction_view) -> np.ndarray:
     return nx * l[0] + ny * l[1] + nz * l[2]
 
 
-def crop_shading(X, Y, cx, cy, r, fit, blur_px: float | None = None) -> np.ndarray:
+def crop_shading(cos_light, fit, blur_px: float | None = None) -> np.ndarray:
     """:func:`fit_ball_light`'s model ``rho max(n.l, 0) + ambient`` (linear brightness) drawn on a
-    crop's pixels ``X`` (1, w), ``Y`` (h, 1) of the ball image centred at ``(cx, cy)``, radius
-    ``r`` px, (h, w); blurred like the photo (a Gaussian of ``blur_px`` px, when given and
-    positive), since the photo's terminator is; beyond the limb the limb's normals continue."""
+    crop from its ``n.l`` (:func:`crop_cos_light`), (h, w); blurred like the photo (a Gaussian of
+    ``blur_px`` px, when given and positive), since the photo's terminator is."""
     _, _, rho, amb = fit[:4]
-    S = (rho * np.maximum(crop_cos_light(X, Y, cx, cy, r, fit[0]), 0.0) + amb).astype(np.float32)
+    S = (rho * np.maximum(cos_light, 0.0) + amb).astype(np.float32)
     if blur_px is not None and np.isfinite(blur_px) and blur_px > 0:
         S = cv2.GaussianBlur(S, (0, 0), float(blur_px), borderType=cv2.BORDER_REPLICATE)
     return S
@@ -173,12 +172,13 @@ def terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fit, resp
     reaching them take these weights) and the drawn shading
     (:class:`~stillcap.detect._blur_shift.DrawnShading`, crop at ``(x0, y0)``) whose
     ``grad log S`` the blur correction then takes."""
-    S = crop_shading(X, Y, cx, cy, r, fit, blur_px)
+    cos_light = crop_cos_light(X, Y, cx, cy, r, fit[0])  # once: the model and the band below
+    S = crop_shading(cos_light, fit, blur_px)
     refl = 1.0 - luma / np.maximum(response.encode(S) / 255.0, 1e-6)  # as dark_luma, on the encoded scale
     floor = SHADING_SNR * fit[4]
     ball = disc if geo is None else disc | (geo & (S > floor))
     cen_w = np.where(ball & (S > floor), np.clip(refl, 0, 1), dark_luma).astype(np.float32)
-    near_t = ball & (crop_cos_light(X, Y, cx, cy, r, fit[0]) < 2.0 * (blur_px or 0.0) / r + TERMINATOR_BAND)
+    near_t = ball & (cos_light < 2.0 * (blur_px or 0.0) / r + TERMINATOR_BAND)
     return cen_w, near_t, DrawnShading(S, x0, y0, floor)
 
 
