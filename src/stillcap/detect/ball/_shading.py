@@ -98,6 +98,7 @@ def _supersample_depth(r_tenths: int) -> float:
     """:func:`supersample_depth_px` of a radius in tenths of a pixel (cached)."""
     r = r_tenths / 10.0
     d = np.arange(0.05, r, 0.05)
+    d = d[d < r - 1e-6]  # (arange's last step can land on r itself: R = 0 divides 0 by 0 below)
     R = r - d
     u = 1.0 - (R / r) ** 2
     n1 = -(R / (r * r)) / np.sqrt(u)  # d n_z / dR
