@@ -30,7 +30,9 @@ intervals"). Rows of such a run record ``scenes`` and resume only with the same 
 Coverage is a binomial proportion: with ``n`` captures and a true coverage of 95 % its 1-sigma is
 ``sqrt(0.95 x 0.05 / n)`` (3.4 % at n = 40, 8.9 % at n = 6); the table prints it beside each
 figure. Positions are counted per ball image (about 20-25 per capture), so their figure is
-tighter but correlated within a capture.
+tighter but correlated within a capture. With more than one condition, the pitch table ends with
+a "pooled" row: the same figures over every capture run (coverage weighted by captures, positions
+by ball images; wrong aliases summed), whose coverage moves far less than a condition's.
 
 Timing: the full run (2560x1920, 40 captures per condition, 18 conditions) takes about 30 min on
 2 quiet cores; ``--quick`` (1280x960, 6 per condition) about 3 min. Timings measured while the
@@ -74,11 +76,13 @@ def _cov(row, key):
     return f"{100 * v:.0f}{mark}"
 
 
-def pitch_table(rows: list) -> tuple[list, list]:
+def pitch_table(rows: list, pooled: dict | None = None) -> tuple[list, list]:
+    """The pitch table: a row per condition, then ``pooled`` (the same figures over every capture
+    of every condition run, ``_robust_pitch.summarise``) if given, then the goals."""
     head = (["condition", "n"] + [h for _, h, _ in PITCH_COLUMNS] + [h for _, h in COV_COLUMNS]
             + ["wrong alias", "checks fired"])
     body = []
-    for r in rows:
+    for r in rows + ([pooled] if pooled is not None else []):
         cells = [r["condition"], f"{r['n']}" + (f" ({r['n_failed']} failed)" if r.get("n_failed") else "")]
         for k, _, goal in PITCH_COLUMNS:
             v = r.get(k)
@@ -165,7 +169,10 @@ def main(argv=None):
             except ValueError as e:
                 ap.error(str(e))
             print(file=sys.stderr)
-            head, body = pitch_table(rs)
+            # the coverage over every capture run: a condition's n = 12 moves it by +-6 % a capture,
+            # the pooled figure (weighted by captures; positions by ball images) by far less
+            pooled = mod.summarise(f"pooled ({len(rs)} conditions)", captures) if len(rs) > 1 else None
+            head, body = pitch_table(rs, pooled)
             n = rs[0]["n"] if rs else 0
             title = (f"pitch: mean absolute errors and 95 % interval coverage (%), n = {n} captures per condition "
                      f"(coverage 1-sigma at 95 %: +-{100 * math.sqrt(0.95 * 0.05 / max(n, 1)):.1f} %); "
