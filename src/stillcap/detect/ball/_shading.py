@@ -208,13 +208,20 @@ def _centroid_table() -> tuple[np.ndarray, np.ndarray]:
     q = (np.arange(200) + 0.5) / 100.0 - 1.0
     qx, qy = np.meshgrid(q, q)
     r2 = qx * qx + qy * qy
-    inside = r2 < 1.0
+    outside = ~(r2 < 1.0)
     qz = np.sqrt(np.clip(1.0 - r2, 0.0, None))
     alpha = np.radians(np.arange(0.0, 176.0, 1.0))
     m = np.empty_like(alpha)
+    # each phase's radiance ``np.where(inside, max(qx sin a + qz cos a, 0), 0)`` written into two
+    # buffers made once: the same operations on the same numbers (the table's bits), ~2-3x faster
+    # (it is built once per process: the CLI's first run pays it; speed only, issue 16)
+    rad, tmp = np.empty_like(qx), np.empty_like(qx)
     for k, a in enumerate(alpha):
-        rad = np.where(inside, np.maximum(qx * np.sin(a) + qz * np.cos(a), 0.0), 0.0)
-        m[k] = np.sum(rad * qx) / np.sum(rad)
+        np.multiply(qx, np.sin(a), out=rad)
+        rad += np.multiply(qz, np.cos(a), out=tmp)
+        np.maximum(rad, 0.0, out=rad)
+        np.putmask(rad, outside, 0.0)
+        m[k] = np.sum(np.multiply(rad, qx, out=tmp)) / np.sum(rad)
     return alpha, np.maximum.accumulate(m)
 
 
