@@ -148,6 +148,6 @@ def test_observations_carry_each_centroids_noise_read_from_its_photo(pairs):
         fin = np.isfinite(obs.centroid_sigma_px)
         n_obs, n_fin = n_obs + len(obs), n_fin + int(fin.sum())
         sig += list(obs.centroid_sigma_px[fin])
-    assert n_fin >= 0.7 * n_obs and n_fin >= 20
+    assert n_fin >= 0.7 * n_obs and n_fin >= 20, (n_fin, n_obs)
     # (a photo's 8-bit noise on a 5-10 px marker: hundredths to tenths of a pixel)
     assert 0.003 < np.median(sig) < 0.5 and np.all(np.asarray(sig) > 0)

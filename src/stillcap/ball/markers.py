@@ -235,7 +235,8 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             sab = np.stack([A.centroid_sigma_px[ia], B.centroid_sigma_px[ib]])
             inv = np.where(sab > 0, 1.0 / np.where(sab > 0, sab, 1.0) ** 2, np.nan)
             n_fin = np.isfinite(inv).sum(axis=0)
-            sig_m = np.where(n_fin > 0, 1.0 / np.sqrt(np.nansum(inv, axis=0) / np.maximum(n_fin, 1)), np.nan)
+            mean_inv = np.nansum(inv, axis=0) / np.maximum(n_fin, 1)
+            sig_m = np.where(n_fin > 0, 1.0 / np.sqrt(np.where(n_fin > 0, mean_inv, 1.0)), np.nan)
     else:
         ok = np.zeros(0, bool)
     # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
