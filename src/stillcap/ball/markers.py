@@ -214,6 +214,7 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
     size = layout.sizes_of_types
     reach_a, reach_b = (2.0 * (b or 0.0) / rd for b, rd in zip(blur, (rad_a, rad_b)))
     u, info, cut_m = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(len(ia), bool)
+    sig_m = np.full(len(ia), np.nan)
     if len(ia):
         u, ok = _triangulated_direction(cam_a, cam_b, A.centers[ia], B.centers[ib], P[ball], radius_m)
         if directions == "rays":
@@ -229,6 +230,13 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             ea = _ray_directions(cam_a, A.centers[ia] + A.blur_error_px[ia], P[ball], rad_a[ball], radius_m, depth)[0]
             eb = _ray_directions(cam_b, B.centers[ib] + B.blur_error_px[ib], P[ball], rad_b[ball], radius_m, depth)[0]
             blur_mode = _tangent_part(_combine_directions(ea, Ia, eb, Ib)[0] - u, u)
+            # the pair's centroid noise: the two photos' inverse variances averaged (equal
+            # information; one of them unknown: the other's)
+            sab = np.stack([A.centroid_sigma_px[ia], B.centroid_sigma_px[ib]])
+            inv = np.where(sab > 0, 1.0 / np.where(sab > 0, sab, 1.0) ** 2, np.nan)
+            n_fin = np.isfinite(inv).sum(axis=0)
+            mean_inv = np.nansum(inv, axis=0) / np.maximum(n_fin, 1)
+            sig_m = np.where(n_fin > 0, 1.0 / np.sqrt(np.where(n_fin > 0, mean_inv, 1.0)), np.nan)
     else:
         ok = np.zeros(0, bool)
     # Single-camera rays, every ball's at once: the unmatched markers, then the matches off the
@@ -253,7 +261,7 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
             v, I, hit, view = np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, bool), np.zeros((0, 3))
             be, cut = np.zeros((0, 3)), np.zeros(0, bool)
         # a marker cut by the limb (one informative component) or reaching the terminator: the cut ones' noise class
-        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx] & ~cut, 0, 1), view, be))
+        rays.append((ti, k_ray, v, I, hit, np.where(rdl[idx] & ~cut, 0, 1), view, be, M.centroid_sigma_px[idx]))
     with_info = directions == "rays"
     parts, n3, nray, epi = [], 0, 0, []
     for k in range(K):
@@ -265,16 +273,17 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
                 o.views = views[sel] / np.linalg.norm(views[sel], axis=1, keepdims=True)
             o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]] & ~cut_m[sel], 0, 1)
             o.blur_mode = blur_mode[sel] if with_info else None
+            o.centroid_sigma_px = np.where(sig_m[sel] > 0, sig_m[sel], np.nan)
             parts.append(o)
             n3 += int(sel.sum())
             epi += list(m.distance_px[sel])
-        for ti, k_ray, v, I, hit, cls, view, be in rays:
+        for ti, k_ray, v, I, hit, cls, view, be, sg in rays:
             sel = hit & (k_ray == k)
             if sel.any():
                 parts.append(MarkerObservations(np.full(int(sel.sum()), k), ti[sel], v[sel],
                                                 np.ones(int(sel.sum()), bool), I[sel] if with_info else None,
                                                 cls[sel], view[sel] if with_info else None,
-                                                be[sel] if with_info else None))
+                                                be[sel] if with_info else None, sg[sel]))
                 nray += int(sel.sum())
     obs = (MarkerObservations.concatenate(parts) if parts
            else MarkerObservations(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3))))

@@ -41,7 +41,8 @@ from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
 from stillcap.detect._ball_light import crop_light, terminator_weights
 from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
-from stillcap.detect._marker_noise import _brightness_bins, _noise_by_brightness, _robust_ceiling
+from stillcap.detect._marker_noise import (_brightness_bins, _noise_by_brightness, _robust_ceiling, centroid_sigma_px,
+                                           leather_noise)
 from stillcap.detect.ball._hough import _percentile
 from stillcap.response import Response
 
@@ -50,6 +51,11 @@ __all__ = ["MarkerType", "MarkerFlag", "BallMarkers", "BASEBALL_MARKER_TYPES", "
 
 SHAPES = ("disc", "ring", "square", "triangle")
 _BOX3 = np.ones((3, 3), np.uint8)  # 3x3 structuring element (8-neighbourhood)
+#: How far around a marker's bounding box its leather noise is read, px: with the box's 2 px rim
+#: grown away (paint), 4 px leaves a ring of ~2 px, 40-60 pixels around a 5-8 px marker (enough
+#: for a MAD: ``leather_noise``) and near enough that it is the marker's own neighbourhood (JPEG's
+#: 8x8 blocks around it, the same brightness of the shading).
+NOISE_MARGIN = 4
 
 
 @functools.lru_cache(maxsize=64)
@@ -152,6 +158,11 @@ class BallMarkers:
         the ball's shading gave none.
     light_sigma_deg : ndarray, shape (N,), optional
         That direction's expected (RMS) angular error from its fit, deg (NaN with it).
+    centroid_sigma_px : ndarray, shape (N,), optional
+        Each centroid's standard error from its own photo's noise, px per axis
+        (:func:`~stillcap.detect._marker_noise.centroid_sigma_px`: the robust spread of the
+        leather's residual against the ball's white around the marker, through the centroid's
+        weights); NaN where unknown (a marker weighed against the light's terminator model).
     """
 
     centers: np.ndarray
@@ -165,6 +176,7 @@ class BallMarkers:
     blur_error_px: np.ndarray = None
     light_view: np.ndarray = None
     light_sigma_deg: np.ndarray = None
+    centroid_sigma_px: np.ndarray = None
 
     def __post_init__(self):
         if self.blur_error_px is None:
@@ -173,6 +185,8 @@ class BallMarkers:
             self.light_view = np.full((len(self.centers), 3), np.nan)
         if self.light_sigma_deg is None:
             self.light_sigma_deg = np.full(len(self.centers), np.nan)
+        if self.centroid_sigma_px is None:
+            self.centroid_sigma_px = np.full(len(self.centers), np.nan)
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -187,7 +201,7 @@ class BallMarkers:
         k = np.asarray(keep)
         return BallMarkers(self.centers[k], self.types[k], self.shapes[k], self.areas[k], self.confidences[k],
                            self.aspects[k], self.ball_index[k], self.flags[k], self.blur_error_px[k],
-                           self.light_view[k], self.light_sigma_deg[k])
+                           self.light_view[k], self.light_sigma_deg[k], self.centroid_sigma_px[k])
 
     def of_ball(self, i: int) -> BallMarkers:
         """The markers of ball ``i``."""
@@ -512,6 +526,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     shading = {}  # ball -> its shading model, for the blur correction (with blur_px)
     refl_shading = {}  # ball -> its light's drawn shading, for the markers near its terminator
     refl_rows = {}  # the centroids weighed in reflectance by id() (_measure; kept alive, so ids stay unique)
+    sig_rows = {}  # id() of each centroid -> (centroid, its standard error in px) (_measure)
     lights = {}  # ball -> (light direction in its view frame, its error in deg), crop_light
     if blur_px is not None and not (np.isfinite(blur_px) and blur_px >= 0):
         raise ValueError(f"blur_px must be >= 0 px, got {blur_px}")
@@ -592,6 +607,9 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # the disc shrunk by one pixel (a marker reaching beyond it is AT_EDGE), once per ball
         inner = cv2.erode(disc.astype(np.uint8), _BOX3, borderType=cv2.BORDER_CONSTANT, borderValue=0).astype(bool)
         ratio = val / np.maximum(vclose, 1e-6)
+        # the leather's luma relative to the white the centroids are weighed against, not clipped:
+        # its spread around a marker is that marker's own noise (_measure, centroid_sigma_px)
+        resid = 1.0 - luma / np.maximum(white, 1e-6)
         # what the photo's markers reach and the leather's noise (for the thresholds below)
         if chroma:
             dh = _hue_distance(hue, ch_hue)  # (types, h, w)
@@ -611,7 +629,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             if leather_px.any():
                 ch_noise.append((ckm[0][leather_px], ckm[1][leather_px]))
         prep.append((bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
-                     ckm, cen_w, near_t))
+                     ckm, cen_w, near_t, resid))
     # Thresholds relative to the photo (a stated model, not a tuning): the defaults are set
     # for markers whose cores reach the paint's full saturation (or darkness) ``ref``. Lens blur
     # and small marker images mix the paint with the leather, so the cores reach less (1.5 px
@@ -675,7 +693,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
     pal_u = np.array([_mc.chroma_per_darkness(tl[0].color_bgr) for tl, _, _ in chroma], float).reshape(-1, 3)
     k_leather, k_noise, w_lit = _mc.leather_chroma(ch_noise)
     for pi, (bi, cx, cy, r, X, Y, disc, val, sat, hue_ok, ratio, lit, inner, dark_luma, min_area, vclose,
-             ck, cen_w, near_t) in enumerate(prep):
+             ck, cen_w, near_t, resid) in enumerate(prep):
         # Per type: a soft membership (1 = the palette colour, 0.5 ~ half covered pixel: a mix
         # of paint and white has about half the paint's saturation), regions of weak
         # membership that hold at least one clearly coloured pixel (hysteresis: a small or
@@ -720,7 +738,8 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
             has_core = np.bincount(lab[core], minlength=n) > 0
             for j in np.flatnonzero((areas[1:] >= min_area) & has_core[1:]) + 1:  # large enough, with a core
                 rw = _measure(lab, j, soft, dark_luma, X, Y, stats[j], tl or chroma[0][0], float(areas[j]), bi,
-                              cx, cy, r, disc, inner, limb_fraction, min_aspect, cen_w, near_t, refl_rows)
+                              cx, cy, r, disc, inner, limb_fraction, min_aspect, cen_w, near_t, refl_rows,
+                              resid, sig_rows)
                 if rw is not None and (tl is dark or tl is None) and ck is not None and len(pal_u):
                     named = _mc.recolor_dark(rw, lab, j, stats[j], dark_luma, ck, disc, pal_u, k_noise, chroma,
                                              k_leather, MarkerFlag.SHAPE_MISMATCH, w_lit, rows)
@@ -751,15 +770,26 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         ball_index=np.array([rw[6] for rw in rows], int), flags=np.array([int(rw[7]) for rw in rows], int),
         blur_error_px=err, light_view=np.array([lights[rw[6]][0] if rw[6] in lights else np.full(3, np.nan)
                                                 for rw in rows], float).reshape(-1, 3),
-        light_sigma_deg=np.array([lights[rw[6]][1] if rw[6] in lights else np.nan for rw in rows], float))
+        light_sigma_deg=np.array([lights[rw[6]][1] if rw[6] in lights else np.nan for rw in rows], float),
+        centroid_sigma_px=np.array([sig_rows.get(id(rw[0]), (None, np.nan))[1] for rw in rows], float))
 
 
 def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc, inner, limb_fraction, min_aspect,
-             cen_w=None, near_t=None, refl_rows=None):
+             cen_w=None, near_t=None, refl_rows=None, resid=None, sig_rows=None):
     """Centroid, shape, confidence and flags of region ``j`` of the labels ``lab`` (bounding
     box + 2 px only). A region reaching the mask ``near_t`` (h, w) has its centroid weighed by
-    ``cen_w`` instead of ``dark_luma``, and its centroid put in the dict ``refl_rows`` by its ``id``."""
+    ``cen_w`` instead of ``dark_luma``, and its centroid put in the dict ``refl_rows`` by its ``id``.
+    With ``resid`` (h, w: the leather's luma relative to its white, not clipped) the centroid's
+    standard error goes into the dict ``sig_rows`` by the centroid's ``id``."""
     bx, by, bw, bh = (int(v) for v in st[:4])
+    noise = float("nan")
+    if resid is not None and sig_rows is not None:
+        # the leather within NOISE_MARGIN px of the box, off every region of this colour grown by
+        # 2 px (their rims hold paint): its residual's robust spread is this marker's own noise
+        ys = slice(max(by - NOISE_MARGIN, 0), min(by + bh + NOISE_MARGIN, lab.shape[0]))
+        xs = slice(max(bx - NOISE_MARGIN, 0), min(bx + bw + NOISE_MARGIN, lab.shape[1]))
+        paint = cv2.dilate((lab[ys, xs] > 0).view(np.uint8), _BOX3, iterations=2).view(bool)
+        noise = leather_noise(resid[ys, xs][disc[ys, xs] & ~paint])
     y0, x0 = max(by - 2, 0), max(bx - 2, 0)
     y1, x1 = min(by + bh + 2, lab.shape[0]), min(bx + bw + 2, lab.shape[1])
     sl = (slice(y0, y1), slice(x0, x1))
@@ -785,6 +815,8 @@ def _measure(lab, j, soft, dark_luma, X, Y, st, tlist, area, bi, cx, cy, r, disc
         if swc > 0:
             out = np.array([float((wc * X).sum() / swc), float((wc * Y).sum() / swc)])
             refl_rows[id(out)] = out
+    if sig_rows is not None:  # (a centroid weighed against the terminator model: NaN, its weights' noise unmodelled)
+        sig_rows[id(out)] = (out, centroid_sigma_px(w, X, Y, noise) if out is cen else float("nan"))
     # second moments of the weights: aspect (foreshortening)
     # (w dx and w dy formed once: ``w * dx * dx`` is ``(w * dx) * dx``, the same numbers)
     dx, dy = X - cen[0], Y - cen[1]

@@ -18,6 +18,7 @@ from stillcap.ball.orientation._batched import (_observation_weights, _residual_
                                                 _shifted_residuals)
 from stillcap.ball.orientation._flash import _orient_flashes
 from stillcap.ball.orientation._observations import _check_inputs, _default_layout, strobe_period
+from stillcap.ball.orientation._photo_noise import apply_photo_noise
 from stillcap.ball.orientation._result import SpinResult, _failed, _spin_summary
 from stillcap.ball.orientation._so3 import (_consensus_rotations, _dphi_over_sin, _expmap, _left_jacobian,
                                            _mean_rotation, _phi_over_sin, _rot_angles, _sq_norms, _tangent_bases)
@@ -756,13 +757,18 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
         R0, w, j, d, res2 = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
                                           max_outer=max_outer, sel=inl)
         res = res if res2 is None else res2
-    x = np.concatenate([np.zeros(3), w])
-    r = prob.residuals(x, R0, j, inl)
-    J = prob.jacobian(x, R0, j, inl)
     # the redundancy counts only the informative components: a limb-cut marker's second
     # (weighted ~0) component is no degree of freedom (counted, the noise and the spin's
     # sigmas came out low where most markers are cut)
     ranks = _residual_ranks(prob)
+    # each photo's own centroid noise, as far as the residuals show it (_photo_noise), polished again
+    if apply_photo_noise(prob, np.concatenate([np.zeros(3), w]), R0, j, inl, ranks) > 0:
+        R0, w, j, d, res2 = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
+                                          max_outer=max_outer, sel=inl)
+        res = res if res2 is None else res2
+    x = np.concatenate([np.zeros(3), w])
+    r = prob.residuals(x, R0, j, inl)
+    J = prob.jacobian(x, R0, j, inl)
     n_dof = int(np.sum(ranks[inl])) - 6
     dof = max(n_dof, 1)
     s2 = float(r @ r) / dof

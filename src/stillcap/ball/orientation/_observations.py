@@ -146,6 +146,12 @@ class MarkerObservations:
         correction error (:func:`stillcap.detect._blur_shift.shading_blur_correction`): one error
         mode shared by all observations, which the spin's covariance takes with variance 1.
         None: no such error.
+    centroid_sigma_px : ndarray, shape (M,), optional
+        Each observation's centroid standard error read from its own photo's noise, px
+        (:attr:`BallMarkers.centroid_sigma_px <stillcap.detect.ball_markers.BallMarkers>`; for a
+        marker seen by both cameras the combination of the two, ``1 / sqrt(mean(1 / s^2))``); NaN
+        where unknown. The global fit weighs the observations by it as far as its residuals show
+        (:func:`~stillcap.ball.orientation._photo_noise.photo_noise_factors`). None: all unknown.
     """
 
     flash: np.ndarray
@@ -156,6 +162,7 @@ class MarkerObservations:
     noise_class: np.ndarray = None
     views: np.ndarray = None
     blur_mode: np.ndarray = None
+    centroid_sigma_px: np.ndarray = None
 
     def __post_init__(self):
         self.flash = np.asarray(self.flash)
@@ -187,6 +194,11 @@ class MarkerObservations:
             self.views = _unit_rows(v, "views") if m else v.reshape(0, 3)
         if self.blur_mode is not None:
             self.blur_mode = as_array(self.blur_mode, (m, 3), "blur_mode")
+        if self.centroid_sigma_px is not None:
+            s = np.asarray(self.centroid_sigma_px, float)
+            if s.shape != (m,):
+                raise ValueError(f"centroid_sigma_px must have shape ({m},), got {s.shape}")
+            self.centroid_sigma_px = np.where(s > 0, s, np.nan)  # (not positive: unknown)
 
     def __len__(self) -> int:
         return len(self.flash)
@@ -266,7 +278,10 @@ class MarkerObservations:
         parts = list(parts)
         if not parts:
             return cls(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 3)))
-        info = views = blur = None
+        info = views = blur = sig = None
+        if any(p.centroid_sigma_px is not None for p in parts):  # a part without it: unknown there
+            sig = np.concatenate([np.full(len(p), np.nan) if p.centroid_sigma_px is None else p.centroid_sigma_px
+                                  for p in parts])
         if any(p.blur_mode is not None for p in parts):  # a part without it: no error there
             blur = np.concatenate([np.zeros((len(p), 3)) if p.blur_mode is None else p.blur_mode
                                    for p in parts]).reshape(-1, 3)
@@ -277,12 +292,12 @@ class MarkerObservations:
         return cls(np.concatenate([p.flash for p in parts]), np.concatenate([p.types for p in parts]),
                    np.concatenate([p.directions for p in parts]),
                    np.concatenate([p.from_ray for p in parts]), info,
-                   np.concatenate([p.noise_class for p in parts]), views, blur)
+                   np.concatenate([p.noise_class for p in parts]), views, blur, sig)
 
     def with_flash(self, flash):
         """The same observations with other flash indices (e.g. on a joint clock)."""
         return MarkerObservations(np.asarray(flash), self.types, self.directions, self.from_ray, self.information,
-                                  self.noise_class, self.views, self.blur_mode)
+                                  self.noise_class, self.views, self.blur_mode, self.centroid_sigma_px)
 
     def of_flash(self, k: int):
         """``(directions (n, 3), types (n,))`` of flash ``k``."""
