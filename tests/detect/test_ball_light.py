@@ -175,9 +175,9 @@ def test_a_terminator_cut_marker_without_ambient_light_under_more_blur(above):
     """Without ambient light and with 1.5 px of blur, the marker cut at 0 / 0.3 / 0.6 of its size
     above the terminator lies within 5 deg of its centre along the light (+3.9 / +4.1 / +2.6 deg):
     the light's model, which weighs the paint near the terminator, is fitted on the ball's disc by
-    geometry, whose unlit side pins the ambient at 0. Fitted on the searched hull (1ccb874; its
-    ambient -0.012 on the same ball without the marker, camera a) the centroid lay +10.0 / +7.4 /
-    +5.2 deg toward the light. (Not
+    geometry, whose unlit side pins the ambient at 0 (+0.0014). Fitted on the searched hull
+    (1ccb874; ambient -0.013 / -0.017 in the two photos, the drawn shading below zero before the
+    terminator) the centroid lay +10.0 / +7.4 / +5.2 deg toward the light. (Not
     the 2 deg of the 1.25 px case above: the paint beyond the terminator stays unseen.)"""
     obs, u, light = _observe(above * SIZE, blur_px=1.5, ambient=0.0)
     w = light - (light @ u) * u
