@@ -21,7 +21,8 @@ import numpy as np
 from stillcap._numeric import median
 from stillcap.detect._blur_shift import DrawnShading
 
-__all__ = ["crop_cos_light", "crop_light", "crop_shading", "fit_ball_light", "terminator_weights", "view_to_camera"]
+__all__ = ["crop_cos_light", "crop_light", "crop_shading", "fit_ball_light", "light_disc", "terminator_weights",
+           "view_to_camera"]
 
 #: the centroids weigh paint in reflectance where the light's model of the leather stands this many
 #: of its residuals' robust sigmas above zero (elsewhere the ratio is noise over noise; there the
@@ -129,10 +130,30 @@ def fit_ball_light(lin, nx, ny, init=None, min_pixels: int = 30, band: float = 0
     return l, sig, float(np.dot(g, l)), float(coef[3]), scale
 
 
+def light_disc(geo, dist, r):
+    """The pixels :func:`crop_light` fits, by the ball's geometry alone: its disc ``geo`` (h, w;
+    the circle, less what lies nearer another ball) within 0.85 r of the ball image's centre
+    (``dist``, px, (h, w); the cap the fit had before: the limb's mix in the background).
+
+    Not the searched hull of the pixels over the detector's ``min_value``: with no room light
+    that hull ends short of the terminator, no pixel of the unlit side enters the fit and its
+    ambient term is free. On tests/detect/test_ball_light.py's drawn ball with ambient 0 (rho
+    0.63, blur 0.3-1.5 px, light 60-110 deg beside the camera) the hull's fit
+    gave ambient up to 0.012 on the optical axis and 0.032 14 deg off it, this disc's up to 0.0016
+    and 0.0048; the light on the axis 0.46 deg off on average (up to 1.25), this disc's 0.19 (up
+    to 0.78). 14 deg off the axis neither is better (mean 0.65 / 0.79 deg, up to 1.4 / 1.5): there
+    the fit's normals, the pixels' offsets over ``r``, are not the view frame's. (A rim shrunk by
+    the blur read instead of 0.85 r: ``r - (0.5 + 2 blur)`` 0.17 deg on the axis, ``r - max(blur,
+    1)`` 0.39.)
+    """
+    return geo & (dist <= 0.85 * r)
+
+
 def crop_light(luma, X, Y, cx, cy, r, sel, response, plane_model=None):
     """:func:`fit_ball_light` on a ball image's crop: its luma (0-1, encoded, (h, w)), pixel
     coordinates ``X`` (1, w) and ``Y`` (h, 1), the ball image's centre and radius (px), the pixels
-    ``sel`` (h, w) to fit (the ball within 0.85 r: the limb's mix in the background), linearised
+    ``sel`` (h, w) to fit (:func:`light_disc`: the ball's disc by geometry, short of the limb's mix in
+    the background), linearised
     through ``response``; started from the white model's plane
     (:func:`stillcap.detect._blur_shift._fit_shading`'s ``(a, b, c, ...)``: light ``(a, b, -c)``)
     when given."""

@@ -39,7 +39,7 @@ from stillcap._checks import as_array
 from stillcap._numeric import median_columns
 from stillcap.detect import _marker_chroma as _mc
 from stillcap.detect._marker_chroma import _hue_distance
-from stillcap.detect._ball_light import crop_light, terminator_weights
+from stillcap.detect._ball_light import crop_light, light_disc, terminator_weights
 from stillcap.detect._blur_shift import _fit_shading, _shading_at, shading_blur_correction, shading_blur_shift
 from stillcap.detect._marker_noise import (_brightness_bins, _noise_by_brightness, _robust_ceiling, centroid_sigma_px,
                                            leather_noise)
@@ -587,7 +587,7 @@ def detect_ball_markers(image, centers, radii_px, types: Sequence[MarkerType] | 
         # docs/spin.md); the model has no such pull.
         model = _fit_shading(luma, X, Y, cx, cy, r, lit & (dark_luma < 0.1), resp) if shading_model else None
         white = lclose
-        fl = crop_light(luma, X, Y, cx, cy, r, disc & (dist <= 0.85 * r), resp, model)  # the light (view frame)
+        fl = crop_light(luma, X, Y, cx, cy, r, light_disc(geo, dist, r), resp, model)  # the light (view frame)
         if fl is not None:
             lights[bi] = fl
         if model is not None:
