@@ -452,8 +452,11 @@ def _newton_start(fun, jac, x: np.ndarray, bounds, f_scale: float | None, steps:
         t = min(1.0, float(np.min(room, initial=np.inf)))
         if t <= 0.0:
             break
+        bound = np.broadcast_to(np.where(dx < 0, lo, hi), x.shape)
         for _ in range(6):  # halved until the loss decreases
             x_new = np.clip(x + t * dx, lo, hi)
+            hit = room <= t  # the parameters the step takes to their bound: put exactly on it
+            x_new[hit] = bound[hit]  # (x + t dx lands an ulp short of it, which depends on the BLAS's kernel)
             f_new = fun(x_new)
             c_new = _robust_cost(f_new, f_scale)
             if c_new < cost:
