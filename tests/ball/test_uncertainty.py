@@ -235,7 +235,7 @@ def test_shading_residual_is_the_models_spread_and_the_table_holds_it():
     """Corrected: the spread under the blur and phase variations, far below the offset the
     correction removed; not corrected: the offset itself is left. The run-time table is the
     function on its grid (a few entries recomputed)."""
-    from stillcap.ball import uncertainty as U
+    from stillcap.ball import _uncertainty_shading as U
 
     a = np.radians(100.0)
     corr, raw = U.shading_residual_px(a, 20.0, True), U.shading_residual_px(a, 20.0, False)
@@ -567,7 +567,7 @@ def test_remaining_bias_takes_a_share_per_camera():
 def test_offset_slope_is_the_models_slope_and_the_table_holds_it():
     """The run-time table of the shading model's offset is the function on its grid (a few
     entries recomputed), and its slope with the phase angle is the function's own slope."""
-    from stillcap.ball import uncertainty as U
+    from stillcap.ball import _uncertainty_shading as U
 
     for p, i, j in ((0, 0, 0), (1, 2, 18), (2, 3, 20), (4, 4, 24)):
         got = U.shading_model_offset_px(np.radians(U._TABLE_PHASE_DEG[j]), U._TABLE_RADII[i], U._OFFSET_PSF[p])

@@ -201,7 +201,7 @@ def terminator_weights(luma, X, Y, cx, cy, r, x0, y0, disc, dark_luma, fit, resp
     (the hull of the pixels over the detector's ``min_value``) ends short of the terminator (no
     room light: at n.l 0.04-0.08 on tests/detect/test_ball_light.py's drawn ball), the weights and
     the band below reach on into ``geo`` as far as the model stands over that floor (a marker the
-    hull cuts is weighed one pixel across it: ``ball_markers._measure``). Returns the weights
+    hull cuts is weighed one pixel across it: ``_marker_measure._measure``). Returns the weights
     (h, w), the pixels within ``TERMINATOR_BAND`` + 2 blur sigmas of the terminator (the markers
     reaching them take these weights) and the drawn shading
     (:class:`~stillcap.detect._blur_shift.DrawnShading`, crop at ``(x0, y0)``) whose
