@@ -99,3 +99,10 @@ def test_fit_with_uninformative_sigmas_stays_as_it_was(monkeypatch):
         monkeypatch.setattr(_photo_noise, "ENABLED", True)
         d.append(abs(on.spin_rpm - off.spin_rpm) / off.sigma_rpm)
     assert np.median(d) < 0.2, d
+
+
+def test_observations_name_a_centroid_sigma_of_the_wrong_shape():
+    with pytest.raises(ValueError, match=r"centroid_sigma_px must have shape \(2,\), got \(3,\)"):
+        MarkerObservations([0, 1], [0, 0], [[1.0, 0, 0], [0, 1.0, 0]], centroid_sigma_px=[0.1, 0.2, 0.3])
+    obs = MarkerObservations([0, 1], [0, 0], [[1.0, 0, 0], [0, 1.0, 0]], centroid_sigma_px=[0.1, 0.0])
+    assert obs.centroid_sigma_px[0] == 0.1 and np.isnan(obs.centroid_sigma_px[1])  # not positive: unknown

@@ -273,7 +273,7 @@ def pair_marker_observations(cam_a: Camera, img_a, cam_b: Camera, img_b, centers
                 o.views = views[sel] / np.linalg.norm(views[sel], axis=1, keepdims=True)
             o.noise_class = np.where(radial_a[ia[sel]] & radial_b[ib[sel]] & ~cut_m[sel], 0, 1)
             o.blur_mode = blur_mode[sel] if with_info else None
-            o.centroid_sigma_px = np.where(sig_m[sel] > 0, sig_m[sel], np.nan)
+            o.centroid_sigma_px = sig_m[sel]  # (not positive: unknown, MarkerObservations)
             parts.append(o)
             n3 += int(sel.sum())
             epi += list(m.distance_px[sel])

@@ -761,14 +761,18 @@ def _finish_global(prob, obs, times, best, spin_init, period, t0, f, cap, outlie
     # (weighted ~0) component is no degree of freedom (counted, the noise and the spin's
     # sigmas came out low where most markers are cut)
     ranks = _residual_ranks(prob)
-    # each photo's own centroid noise, as far as the residuals show it (_photo_noise), polished again
-    if apply_photo_noise(prob, np.concatenate([np.zeros(3), w]), R0, j, inl, ranks) > 0:
-        R0, w, j, d, res2 = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
-                                          max_outer=max_outer, sel=inl)
-        res = res if res2 is None else res2
     x = np.concatenate([np.zeros(3), w])
     r = prob.residuals(x, R0, j, inl)
     J = prob.jacobian(x, R0, j, inl)
+    # each photo's own centroid noise, as far as these residuals show it (_photo_noise): if it
+    # reweighs, polished again and the residuals taken anew
+    if apply_photo_noise(prob, r, J, inl, ranks) > 0:
+        R0, w, j, d, res2 = _solve_global(prob, R0, w, loss="linear", f_scale=1.0, x_scale=x_scale,
+                                          max_outer=max_outer, sel=inl)
+        res = res if res2 is None else res2
+        x = np.concatenate([np.zeros(3), w])
+        r = prob.residuals(x, R0, j, inl)
+        J = prob.jacobian(x, R0, j, inl)
     n_dof = int(np.sum(ranks[inl])) - 6
     dof = max(n_dof, 1)
     s2 = float(r @ r) / dof

@@ -71,16 +71,15 @@ def photo_noise_factors(sigma, p: float) -> np.ndarray:
     return out
 
 
-def apply_photo_noise(prob, x, R0, j, sel, ranks) -> float:
-    """Estimate ``p`` on the fit of ``prob`` (a ``_GlobalProblem``) at ``x`` (``R0``, assigned
-    markers ``j``, inliers ``sel``) and multiply its weights by :func:`photo_noise_factors`.
-    ``ranks``: each observation's informative residual components (``_residual_ranks``).
-    Returns ``p`` (0: the weights are left as they were)."""
+def apply_photo_noise(prob, r, J, sel, ranks) -> float:
+    """Estimate ``p`` on the fit of ``prob`` (a ``_GlobalProblem``) from its residuals ``r`` and
+    Jacobian ``J`` at the solution (the inliers ``sel``: ``prob.residuals`` / ``prob.jacobian``,
+    which the caller computes for the covariance anyway) and multiply its weights by
+    :func:`photo_noise_factors`. ``ranks``: each observation's informative residual components
+    (``_residual_ranks``). Returns ``p`` (0: the weights are left as they were)."""
     sigma = prob.obs.centroid_sigma_px
     if not ENABLED or prob.W is None or sigma is None or not np.any(np.isfinite(sigma[sel])):
         return 0.0
-    r = prob.residuals(x, R0, j, sel)
-    J = prob.jacobian(x, R0, j, sel)
     m = len(r) // 2
     h = np.einsum("ij,jk,ik->i", J, np.linalg.pinv(J.T @ J), J)  # the hat matrix's diagonal
     p = photo_noise_exponent(r[:m] ** 2 + r[m:] ** 2, ranks[sel] - (h[:m] + h[m:]), sigma[sel])
